@@ -1,0 +1,217 @@
+"""Mechanical systems with one affine unilateral constraint (SPEC §1).
+
+    dq = u dt
+    M du - h(q, u, tau, t) dt = w (lambda dt + Lambda deta)
+    g(q) = w^T q + g0 >= 0
+
+with the built-in force law
+
+    h = -K q - C u + f0 + sum_j F_j cos(Omega_j t + phi_j) + B tau.
+
+The classes here only hold and validate data; every numerical kernel takes the
+plain arrays returned by :meth:`MechanicalSystem.arrays` so that numba sees
+nothing but float64 arrays and scalars.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import NamedTuple, Sequence
+
+import numpy as np
+
+__all__ = ["MechanicalSystem", "ImpactOscillator", "SystemArrays", "as_state"]
+
+
+class SystemArrays(NamedTuple):
+    """The system as the compiled kernels see it (all float64, C-contiguous).
+
+    Order and names are the positional arguments of every kernel in the core.
+    """
+
+    M: np.ndarray        # (n, n) mass matrix
+    Minv: np.ndarray     # (n, n) its inverse
+    K: np.ndarray        # (n, n) stiffness
+    C: np.ndarray        # (n, n) damping
+    f0: np.ndarray       # (n,) constant force
+    F: np.ndarray        # (nf, n) harmonic force amplitudes
+    Omega: np.ndarray    # (nf,) angular frequencies
+    phi: np.ndarray      # (nf,) phases
+    B: np.ndarray        # (n, m) input matrix
+    w: np.ndarray        # (n,) constraint direction, g = w^T q + g0
+    g0: float
+    e: float             # Newton restitution coefficient in [0, 1]
+    Minv_w: np.ndarray   # (n,) M^-1 w
+    W: float             # w^T M^-1 w > 0
+
+
+def _matrix(name: str, value, n: int | None) -> np.ndarray:
+    a = np.array(value, dtype=np.float64, ndmin=2)
+    if a.ndim != 2 or a.shape[0] != a.shape[1]:
+        raise ValueError(f"{name} must be a square matrix, got shape {np.shape(value)}")
+    if n is not None and a.shape[0] != n:
+        raise ValueError(f"{name} must be {n}x{n} to match M, got shape {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{name} must be finite, got {a.tolist()}")
+    return np.ascontiguousarray(a)
+
+
+def _vector(name: str, value, n: int) -> np.ndarray:
+    a = np.array(value, dtype=np.float64, ndmin=1).reshape(-1)
+    if a.shape != (n,):
+        raise ValueError(f"{name} must have {n} entries to match M, got shape {np.shape(value)}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{name} must be finite, got {a.tolist()}")
+    return np.ascontiguousarray(a)
+
+
+def _scalar(name: str, value) -> float:
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a real number, got {value!r}") from None
+    if not math.isfinite(x):
+        raise ValueError(f"{name} must be finite, got {x}")
+    return x
+
+
+@dataclass(frozen=True)
+class MechanicalSystem:
+    """n-DOF system with one affine unilateral constraint ``g(q) = w^T q + g0 >= 0``.
+
+    Parameters
+    ----------
+    M, K, C : (n, n) array_like
+        Mass (symmetric positive definite), stiffness and damping matrices.
+    f0 : (n,) array_like
+        Constant force.
+    w : (n,) array_like, nonzero
+        Constraint direction (generalized force direction of the wall).
+    g0 : float
+        Constraint offset.
+    e : float in [0, 1]
+        Newton restitution coefficient.
+    forcing : sequence of (F, Omega, phi)
+        Harmonic forces ``F cos(Omega t + phi)`` with ``F`` of shape (n,).
+    B : (n, m) array_like, optional
+        Input matrix of the control forces tau (default identity, m = n).
+    """
+
+    M: np.ndarray
+    K: np.ndarray
+    C: np.ndarray
+    f0: np.ndarray
+    w: np.ndarray
+    g0: float = 0.0
+    e: float = 0.0
+    forcing: tuple = ()
+    B: np.ndarray | None = None
+    _arrays: SystemArrays = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self):
+        M = _matrix("M", self.M, None)
+        n = M.shape[0]
+        if not np.allclose(M, M.T, rtol=1e-12, atol=0.0):
+            raise ValueError(f"M must be symmetric, got {M.tolist()}")
+        eig = np.linalg.eigvalsh(M)
+        if eig[0] <= 0.0:
+            raise ValueError(
+                f"M must be positive definite, got smallest eigenvalue {eig[0]:.6g} for M = {M.tolist()}")
+        K = _matrix("K", self.K, n)
+        C = _matrix("C", self.C, n)
+        f0 = _vector("f0", self.f0, n)
+        w = _vector("w", self.w, n)
+        if not np.any(w != 0.0):
+            raise ValueError(f"w must be nonzero (it is the wall's normal), got {w.tolist()}")
+        g0 = _scalar("g0", self.g0)
+        e = _scalar("e", self.e)
+        if not 0.0 <= e <= 1.0:
+            raise ValueError(f"e (restitution) must lie in [0, 1], got {e}")
+        Fs, Om, ph = [], [], []
+        for j, term in enumerate(self.forcing):
+            try:
+                Fj, Omj, phj = term
+            except (TypeError, ValueError):
+                raise ValueError(f"forcing[{j}] must be a triple (F, Omega, phi), got {term!r}") from None
+            Fs.append(_vector(f"forcing[{j}].F", Fj, n))
+            Om.append(_scalar(f"forcing[{j}].Omega", Omj))
+            ph.append(_scalar(f"forcing[{j}].phi", phj))
+        F = np.ascontiguousarray(np.array(Fs, dtype=np.float64).reshape(len(Fs), n))
+        Omega = np.array(Om, dtype=np.float64)
+        phi = np.array(ph, dtype=np.float64)
+        if self.B is None:
+            B = np.eye(n)
+        else:
+            B = np.array(self.B, dtype=np.float64, ndmin=2)
+            if B.shape[0] != n:
+                raise ValueError(f"B must have {n} rows to match M, got shape {B.shape}")
+            if not np.all(np.isfinite(B)):
+                raise ValueError(f"B must be finite, got {B.tolist()}")
+            B = np.ascontiguousarray(B)
+        Minv = np.ascontiguousarray(np.linalg.inv(M))
+        Minv_w = np.ascontiguousarray(Minv @ w)
+        W = float(w @ Minv_w)
+        for name, val in (("M", M), ("K", K), ("C", C), ("f0", f0), ("w", w), ("g0", g0),
+                          ("e", e), ("B", B)):
+            object.__setattr__(self, name, val)
+        object.__setattr__(self, "forcing", tuple(zip(map(tuple, F), Om, ph)))
+        object.__setattr__(self, "_arrays", SystemArrays(
+            M, Minv, K, C, f0, F, Omega, phi, B, w, g0, e, Minv_w, W))
+
+    # ------------------------------------------------------------------ views
+    @property
+    def n(self) -> int:
+        """Number of degrees of freedom."""
+        return self.M.shape[0]
+
+    @property
+    def m(self) -> int:
+        """Number of inputs (columns of B)."""
+        return self.B.shape[1]
+
+    def arrays(self) -> SystemArrays:
+        """The packed float64 arrays every compiled kernel takes."""
+        return self._arrays
+
+    def gap(self, q) -> float:
+        """g(q) = w^T q + g0."""
+        return float(self.w @ np.asarray(q, dtype=np.float64).reshape(self.n) + self.g0)
+
+    def omega_max(self) -> float:
+        """Largest undamped natural frequency sqrt(eig(M^-1 K)) (0 if K has none)."""
+        ev = np.linalg.eigvals(self._arrays.Minv @ self.K)
+        return float(np.sqrt(np.max(np.abs(ev)))) if ev.size else 0.0
+
+    def energy(self, q, u) -> float:
+        """Mechanical energy 1/2 u^T M u + 1/2 q^T K q - f0^T q (no forcing, no input)."""
+        q = np.asarray(q, dtype=np.float64).reshape(self.n)
+        u = np.asarray(u, dtype=np.float64).reshape(self.n)
+        return float(0.5 * u @ self.M @ u + 0.5 * q @ self.K @ q - self.f0 @ q)
+
+
+def ImpactOscillator(m: float = 1.0, k: float = 1.0, c: float = 0.0, f0: float = 0.0,
+                     F: float = 0.0, Omega: float = 0.0, e: float = 0.0,
+                     phi: float = 0.0) -> MechanicalSystem:
+    """1-DOF impact oscillator ``m q'' + c q' + k q = f0 + F cos(Omega t + phi) + tau``, q >= 0."""
+    m = _scalar("m", m)
+    if m <= 0.0:
+        raise ValueError(f"m (mass) must be > 0, got {m}")
+    forcing = ((F, Omega, phi),) if _scalar("F", F) != 0.0 else ()
+    return MechanicalSystem(M=[[m]], K=[[_scalar("k", k)]], C=[[_scalar("c", c)]],
+                            f0=[_scalar("f0", f0)], w=[1.0], g0=0.0, e=e, forcing=forcing)
+
+
+def as_state(system: MechanicalSystem, x, name: str = "x0"):
+    """Normalise a state ``(q, u)`` (floats for 1-DOF, or arrays) to two float64 (n,) arrays."""
+    try:
+        q, u = x
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a pair (q, u), got {x!r}") from None
+    n = system.n
+    q = np.array(q, dtype=np.float64, ndmin=1).reshape(-1)
+    u = np.array(u, dtype=np.float64, ndmin=1).reshape(-1)
+    if q.shape != (n,) or u.shape != (n,):
+        raise ValueError(f"{name} = (q, u) must hold {n} entries each, got shapes {q.shape} and {u.shape}")
+    if not (np.all(np.isfinite(q)) and np.all(np.isfinite(u))):
+        raise ValueError(f"{name} must be finite, got q = {q.tolist()}, u = {u.tolist()}")
+    return q, u

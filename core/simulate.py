@@ -1,0 +1,110 @@
+"""Single-system simulation: the plain functional entry point over the kernels."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .model import MechanicalSystem, as_state
+
+__all__ = ["SimulationResult", "SimulationDiverged", "simulate", "check_step", "scheme_code"]
+
+
+class SimulationDiverged(RuntimeError):
+    """The state became non-finite: the scheme is unstable for this step size."""
+
+
+@dataclass
+class SimulationResult:
+    """Sampled trajectory. ``percussion[i]`` is the impulse (N s) applied over the
+    steps that end at ``t[i]`` (one step for ``record_every=1``)."""
+
+    t: np.ndarray
+    q: np.ndarray
+    u: np.ndarray
+    percussion: np.ndarray
+    scheme: str
+    dt: float
+
+    @property
+    def impacts(self) -> int:
+        """Number of records with a positive percussion."""
+        return int(np.count_nonzero(self.percussion > 0.0))
+
+
+def check_step(dt, name: str = "dt") -> float:
+    try:
+        dt = float(dt)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a positive real number, got {dt!r}") from None
+    if not (math.isfinite(dt) and dt > 0.0):
+        raise ValueError(f"{name} must be a positive finite step, got {dt}")
+    return dt
+
+
+def scheme_code(scheme: str, theta: float) -> tuple[int, float]:
+    from .moreau import SCHEMES
+    if scheme not in SCHEMES:
+        raise ValueError(f"scheme must be one of {sorted(SCHEMES)} (or 'exact' where supported), got {scheme!r}")
+    theta = float(theta)
+    if not 0.5 <= theta <= 1.0:
+        raise ValueError(f"theta must lie in [0.5, 1] (unconditional stability needs theta >= 1/2), got {theta}")
+    return SCHEMES[scheme], theta
+
+
+def divergence_message(system: MechanicalSystem, scheme: str, dt: float, t: float, what: str = "the state") -> str:
+    wdt = system.omega_max() * dt
+    hint = (" The explicit midpoint scheme is stable only for omega_max*dt < 2: use scheme='theta' "
+            "or a smaller dt." if scheme == "midpoint" and wdt >= 2.0 else "")
+    return (f"{what} became non-finite at t = {t:.6g} with scheme={scheme!r}, dt = {dt:.3g} "
+            f"(omega_max*dt = {wdt:.3g}).{hint}")
+
+
+def _n_steps(t_end: float, dt: float, t0: float = 0.0) -> int:
+    t_end = float(t_end)
+    if not (math.isfinite(t_end) and t_end >= t0):
+        raise ValueError(f"t_end must be finite and >= {t0}, got {t_end}")
+    r = (t_end - t0) / dt
+    k = math.floor(r + 1e-9)
+    return int(k)
+
+
+def simulate(system: MechanicalSystem, x0, t_end: float, dt: float, scheme: str = "midpoint",
+             theta: float = 0.5, tau=None, record_every: int = 1, t0: float = 0.0) -> SimulationResult:
+    """Simulate one system from ``x0 = (q0, u0)`` over ``[t0, t_end]`` with fixed step ``dt``.
+
+    ``scheme`` is ``"midpoint"`` (default), ``"theta"`` (Moreau–Jean, ``theta`` in
+    [0.5, 1]) or ``"exact"`` (event-driven, 1-DOF linear force law only).
+    ``tau`` is a constant input (length m). The run ends after
+    ``floor((t_end - t0)/dt)`` steps. Raises :class:`SimulationDiverged` if the
+    state becomes non-finite (never returns NaN data).
+    """
+    dt = check_step(dt)
+    q0, u0 = as_state(system, x0)
+    g = system.gap(q0)
+    if g < 0.0:
+        raise ValueError(f"initial state violates the constraint: g(q0) = {g:.6g} < 0 (need g(q0) >= 0)")
+    record_every = int(record_every)
+    if record_every < 1:
+        raise ValueError(f"record_every must be >= 1, got {record_every}")
+    tau = np.zeros(system.m) if tau is None else np.array(tau, dtype=np.float64, ndmin=1).reshape(-1)
+    if tau.shape != (system.m,) or not np.all(np.isfinite(tau)):
+        raise ValueError(f"tau must be {system.m} finite numbers, got {tau.tolist()}")
+    if scheme == "exact":
+        from .exact import simulate_exact
+        return simulate_exact(system, (q0, u0), t_end, dt, tau=tau, record_every=record_every, t0=t0)
+    code, theta = scheme_code(scheme, theta)
+    n_steps = _n_steps(t_end, dt, t0)
+    rows = n_steps // record_every + 1
+    n = system.n
+    T = np.empty(rows)
+    Q = np.empty((rows, n))
+    U = np.empty((rows, n))
+    P = np.empty(rows)
+    from .moreau import integrate, DIVERGED
+    status, done, written = integrate(system.arrays(), q0.copy(), u0.copy(), float(t0), dt, n_steps,
+                                      tau, code, theta, record_every, T, Q, U, P)
+    if status == DIVERGED:
+        raise SimulationDiverged(divergence_message(system, scheme, dt, t0 + done * dt))
+    return SimulationResult(T, Q, U, P, scheme, dt)

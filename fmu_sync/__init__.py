@@ -1,0 +1,1 @@
+"""fmu-sync: controlled synchronization of impacting mechanical systems."""
