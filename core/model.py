@@ -189,7 +189,7 @@ class MechanicalSystem:
         return float(0.5 * u @ self.M @ u + 0.5 * q @ self.K @ q - self.f0 @ q)
 
 
-def ImpactOscillator(m: float = 1.0, k: float = 1.0, c: float = 0.0, f0: float = 0.0,
+def ImpactOscillator(m: float = 1.0, k: float = 0.0, c: float = 0.0, f0: float = 0.0,
                      F: float = 0.0, Omega: float = 0.0, e: float = 0.0,
                      phi: float = 0.0) -> MechanicalSystem:
     """1-DOF impact oscillator ``m q'' + c q' + k q = f0 + F cos(Omega t + phi) + tau``, q >= 0."""

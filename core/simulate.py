@@ -102,8 +102,9 @@ def simulate(system: MechanicalSystem, x0, t_end: float, dt: float, scheme: str 
     Q = np.empty((rows, n))
     U = np.empty((rows, n))
     P = np.empty(rows)
-    from .moreau import integrate, DIVERGED
-    status, done, written = integrate(system.arrays(), q0.copy(), u0.copy(), float(t0), dt, n_steps,
+    from .moreau import kernels_for, DIVERGED
+    sa = system.arrays()
+    status, done, written = kernels_for(sa)(sa, q0.copy(), u0.copy(), float(t0), dt, n_steps,
                                       tau, code, theta, record_every, T, Q, U, P)
     if status == DIVERGED:
         raise SimulationDiverged(divergence_message(system, scheme, dt, t0 + done * dt))

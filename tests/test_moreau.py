@@ -1,0 +1,196 @@
+"""Moreau time-stepping against closed forms (SPEC §3)."""
+import math
+
+import numpy as np
+import pytest
+
+from fmu_sync.core import ImpactOscillator, MechanicalSystem, SimulationDiverged, simulate
+from fmu_sync.core import moreau
+
+G = 9.81
+
+
+def bouncing_ball(e=0.8):
+    return ImpactOscillator(m=1.0, k=0.0, c=0.0, f0=-G, e=e)
+
+
+def rest_time(r):
+    """Start of the final run of steps that all carry a contact percussion (persistent contact)."""
+    free = np.nonzero(r.percussion == 0.0)[0]
+    return r.t[free[-1] + 1]
+
+
+def t_inf_closed_form(e=0.8, q0=1.0):
+    t1 = math.sqrt(2 * q0 / G)
+    v1 = G * t1
+    return t1 + 2 * e * v1 / (G * (1 - e)), v1
+
+
+def test_free_flight_is_exact():
+    # constant force, wall never reached: the midpoint scheme integrates a quadratic exactly
+    s = ImpactOscillator(m=2.0, f0=-1.0, e=0.5)
+    r = simulate(s, (10.0, 1.0), 3.0, 1e-3)
+    t = r.t
+    q_exact = 10.0 + t - 0.25 * t**2
+    u_exact = 1.0 - 0.5 * t
+    assert np.max(np.abs(r.q[:, 0] - q_exact)) < 1e-12
+    assert np.max(np.abs(r.u[:, 0] - u_exact)) < 1e-12
+    assert r.impacts == 0
+
+
+def test_bouncing_ball_rest_time_and_convergence():
+    t_inf, v1 = t_inf_closed_form()
+    errs = []
+    dts = (4e-4, 1e-4, 2.5e-5)
+    for dt in dts:
+        r = simulate(bouncing_ball(), (1.0, 0.0), t_inf + 1.0, dt)
+        errs.append(abs(rest_time(r) - t_inf))
+        # after rest: at rest up to round-off of the contact step (|u| ~ eps*g*dt), no drift
+        after = r.t > t_inf + 0.5
+        assert np.all(np.abs(r.u[after, 0]) < 1e-12 * v1)
+        assert np.ptp(r.q[after, 0]) < 1e-15
+        assert np.all(np.abs(r.q[after, 0]) < dt * v1)
+    assert errs[1] < 1e-2, errs  # dt = 1e-4
+    # first order: the error is O(dt) (measured constant 5-11; the bound 20 dt leaves room)
+    # and it shrinks monotonically along the ladder
+    assert all(err < 20 * dt for err, dt in zip(errs, dts)), errs
+    assert errs[0] > errs[1] > errs[2], errs
+
+
+def test_no_subnormal_velocities_in_accumulation():
+    r = simulate(bouncing_ball(), (1.0, 0.0), 6.0, 1e-4)
+    a = np.abs(np.concatenate([r.u[:, 0], r.q[:, 0]]))
+    assert not np.any((a > 0) & (a < np.finfo(float).tiny))
+
+
+def test_grazing_orbit_follows_closed_form():
+    s = ImpactOscillator(m=1, k=1, c=0, f0=0.4, F=0.3, Omega=0.5, e=0.8)
+    r = simulate(s, (0.8, 0.0), 4 * math.pi + 1.0, 1e-4)
+    q_exact = 0.4 + 0.4 * np.cos(r.t / 2)
+    assert np.max(np.abs(r.q[:, 0] - q_exact)) < 1e-4
+
+
+@pytest.mark.parametrize("scheme", ["midpoint", "theta"])
+def test_penetration_is_bounded_by_dt_times_impact_speed(scheme):
+    s = ImpactOscillator(m=1, k=1, c=0, f0=0.2, F=0.5, Omega=2.5, e=0.9)
+    dt = 1e-3
+    r = simulate(s, (1.0, 0.0), 50.0, dt, scheme=scheme)
+    assert r.impacts > 5
+    speed = np.max(np.abs(r.u[:, 0]))
+    assert -np.min(r.q[:, 0]) <= dt * speed
+
+
+def test_stiff_wall_theta_bounded_midpoint_reports_divergence():
+    s = ImpactOscillator(m=1, k=1e8, c=0, f0=-1, e=0.5)
+    for theta in (0.5, 1.0):
+        r = simulate(s, (1e-6, 0.0), 1.0, 1e-3, scheme="theta", theta=theta)
+        assert np.all(np.isfinite(r.q)) and np.max(np.abs(r.q)) <= 1.1e-6
+        assert np.max(np.abs(r.u)) < 0.1
+    with pytest.raises(SimulationDiverged, match=r"midpoint.*dt = 0.001.*omega_max\*dt = 10"):
+        simulate(s, (1e-6, 0.0), 1.0, 1e-3, scheme="midpoint")
+
+
+def test_theta_half_equals_midpoint_without_linear_part():
+    # with K = C = 0, S = M: the theta = 1/2 scheme is the midpoint scheme
+    s = ImpactOscillator(m=1.5, f0=-1.0, F=0.7, Omega=2.0, e=0.6)
+    a = simulate(s, (0.5, 0.3), 20.0, 1e-3)
+    b = simulate(s, (0.5, 0.3), 20.0, 1e-3, scheme="theta", theta=0.5)
+    assert a.impacts > 3
+    assert np.max(np.abs(a.q - b.q)) < 1e-12 and np.max(np.abs(a.u - b.u)) < 1e-12
+
+
+@pytest.mark.parametrize("code", [moreau.MIDPOINT, moreau.THETA])
+def test_scalar_fast_path_is_bitwise_identical(code):
+    s = ImpactOscillator(m=1.3, k=1, c=0.1, f0=0.3, F=1, Omega=1.2, e=0.8, phi=0.3)
+    sa = s.arrays()
+    n, every = 40000, 7
+    outs = []
+    for kernel in (moreau.integrate, moreau.integrate1):
+        rows = n // every + 1
+        rec = (np.empty(rows), np.empty((rows, 1)), np.empty((rows, 1)), np.empty(rows))
+        kernel(sa, np.array([1.0]), np.array([0.0]), 0.25, 1e-3, n, np.array([0.05]), code, 0.7,
+               every, *rec)
+        outs.append(rec)
+    assert np.count_nonzero(outs[0][3]) > 3
+    for a, b in zip(*outs):
+        assert np.array_equal(a, b)
+
+
+def test_advance_matches_integrate():
+    # the FMU's stepper (advance) and simulate() run the same arithmetic
+    s = ImpactOscillator(m=1, k=1, c=0, f0=0.2, F=0.5, Omega=2.5, e=0.9)
+    dt, H = 1e-3, 1e-2
+    ref = simulate(s, (1.0, 0.0), 30.0, dt, record_every=10)
+    q, u = np.array([1.0]), np.array([0.0])
+    sa = s.arrays()
+    tau = np.zeros(1)
+    qs = [q[0]]
+    for k in range(3000):
+        status, P, imp = moreau.advance(sa, q, u, k * H, H, dt, tau, moreau.MIDPOINT, 0.5)
+        assert status == moreau.OK
+        qs.append(q[0])
+    assert np.max(np.abs(np.array(qs) - ref.q[:, 0])) < 1e-12
+
+
+def test_advance_shortens_last_substep():
+    s = ImpactOscillator(m=1, f0=-1.0)
+    q, u = np.array([10.0]), np.array([0.0])
+    # H = 2.5 dt: steps dt, dt, 0.5 dt; constant force: exact quadratic
+    moreau.advance(s.arrays(), q, u, 0.0, 0.25, 0.1, np.zeros(1), moreau.MIDPOINT, 0.5)
+    assert abs(q[0] - (10.0 - 0.5 * 0.25**2)) < 1e-14 and abs(u[0] + 0.25) < 1e-14
+
+
+def test_two_dof_oblique_wall_energy_and_admissibility():
+    M = np.array([[2.0, 0.5], [0.5, 1.0]])
+    s = MechanicalSystem(M=M, K=np.diag([1.0, 2.0]), C=np.zeros((2, 2)), f0=[0.0, 0.0],
+                         w=[1.0, -0.5], g0=0.3, e=1.0)
+    r = simulate(s, ([0.5, 0.2], [0.3, -0.4]), 30.0, 1e-4)
+    assert r.impacts > 3
+    E = [s.energy(q, u) for q, u in zip(r.q, r.u)]
+    # elastic impacts, no damping: energy is conserved up to O(dt) per impact
+    assert abs(E[-1] - E[0]) < 1e-2 * E[0]
+    g = r.q @ s.w + s.g0
+    assert g.min() > -1e-4
+
+
+# ---------------------------------------------------------------- bad input
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(x0=(-0.1, 0.0)), r"g\(q0\) = -0.1 < 0"),
+    (dict(dt=0.0), r"dt must be a positive finite step, got 0.0"),
+    (dict(dt=-1e-3), r"dt must be a positive finite step, got -0.001"),
+    (dict(dt=float("nan")), r"dt must be a positive finite step, got nan"),
+    (dict(x0=(float("nan"), 0.0)), r"x0 must be finite"),
+    (dict(x0=(1.0,)), r"x0 must be a pair"),
+    (dict(scheme="rk4"), r"scheme must be one of .*'rk4'"),
+    (dict(scheme="theta", theta=0.2), r"theta must lie in \[0.5, 1\].*0.2"),
+    (dict(record_every=0), r"record_every must be >= 1, got 0"),
+    (dict(tau=[float("inf")]), r"tau must be 1 finite numbers"),
+])
+def test_simulate_rejects_bad_input(kwargs, match):
+    s = ImpactOscillator(m=1, k=1, e=0.5)
+    args = dict(x0=(1.0, 0.0), t_end=1.0, dt=1e-3)
+    args.update(kwargs)
+    with pytest.raises(ValueError, match=match):
+        simulate(s, **args)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(m=0.0), r"m \(mass\) must be > 0, got 0.0"),
+    (dict(e=1.5), r"e \(restitution\) must lie in \[0, 1\], got 1.5"),
+    (dict(k=float("inf")), r"k must be finite, got inf"),
+])
+def test_model_rejects_bad_parameters(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        ImpactOscillator(**kwargs)
+
+
+def test_mechanical_system_rejects_bad_matrices():
+    z = np.zeros((2, 2))
+    with pytest.raises(ValueError, match="M must be symmetric"):
+        MechanicalSystem(M=[[1, 2], [0, 1]], K=z, C=z, f0=[0, 0], w=[1, 0])
+    with pytest.raises(ValueError, match="M must be positive definite, got smallest eigenvalue -1"):
+        MechanicalSystem(M=[[1, 0], [0, -1]], K=z, C=z, f0=[0, 0], w=[1, 0])
+    with pytest.raises(ValueError, match="w must be nonzero"):
+        MechanicalSystem(M=np.eye(2), K=z, C=z, f0=[0, 0], w=[0, 0])
+    with pytest.raises(ValueError, match=r"K must be 2x2 to match M"):
+        MechanicalSystem(M=np.eye(2), K=np.eye(3), C=z, f0=[0, 0], w=[1, 0])
