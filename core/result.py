@@ -1,0 +1,82 @@
+"""The one result object shared by the monolithic pair simulation and the
+co-simulation master (same fields, so reports and plots take either)."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+BRANCH_NAMES = ("E", "J12", "J21", "J2")
+
+__all__ = ["PairResult", "BRANCH_NAMES"]
+
+
+@dataclass
+class PairResult:
+    """Sampled run of two coupled systems.
+
+    Arrays have one row per record: ``t`` (N,), ``q1, u1, q2, u2`` (N, n),
+    ``tau1, tau2`` (N, m) — the coupling forces held over the step that ends at
+    ``t[i]`` (row 0: the forces at the start) — and, when the distance was
+    computed, ``d`` (N,), ``branch`` (N,) int codes into :data:`BRANCH_NAMES`,
+    ``V = d**2 / 2`` and ``euclidean = ||x1 - x2||_P``. ``impacts1/2`` count
+    steps (or communication steps) with a positive percussion.
+    ``d``/``branch``/``V``/``euclidean`` are ``None`` when nothing asked for
+    the distance (no coupling that needs it and ``record_distance=False``).
+    """
+
+    t: np.ndarray
+    q1: np.ndarray
+    u1: np.ndarray
+    q2: np.ndarray
+    u2: np.ndarray
+    tau1: np.ndarray
+    tau2: np.ndarray
+    d: np.ndarray | None
+    branch: np.ndarray | None
+    euclidean: np.ndarray | None
+    impacts1: int = 0
+    impacts2: int = 0
+    coupling: str | None = None
+    info: dict = field(default_factory=dict)
+    error: str | None = None
+
+    @property
+    def V(self) -> np.ndarray | None:
+        """Lyapunov function V = d^2 / 2."""
+        return None if self.d is None else 0.5 * self.d**2
+
+    @property
+    def branch_names(self) -> list[str] | None:
+        return None if self.branch is None else [BRANCH_NAMES[b] for b in self.branch]
+
+    def time_to_sync(self, threshold: float = 1e-6) -> float:
+        """First time after which d stays below ``threshold`` (inf if never)."""
+        if self.d is None:
+            raise ValueError("this run did not record the distance d")
+        above = np.nonzero(~(self.d < threshold))[0]
+        if above.size == 0:
+            return float(self.t[0])
+        if above[-1] == self.d.size - 1:
+            return float("inf")
+        return float(self.t[above[-1] + 1])
+
+    def to_npz(self, path) -> None:
+        data = {k: v for k, v in self.__dict__.items() if isinstance(v, np.ndarray)}
+        if self.d is not None:
+            data["V"] = self.V
+        np.savez_compressed(path, **data)
+
+    def to_csv(self, path) -> None:
+        """Tidy CSV: one row per record, one column per scalar component."""
+        cols, names = [self.t], ["t"]
+        for name in ("q1", "u1", "q2", "u2", "tau1", "tau2"):
+            a = getattr(self, name)
+            for j in range(a.shape[1]):
+                cols.append(a[:, j])
+                names.append(name if a.shape[1] == 1 else f"{name}[{j + 1}]")
+        if self.d is not None:
+            cols += [self.d, self.V, self.euclidean, self.branch.astype(float)]
+            names += ["d", "V", "euclidean", "branch"]
+        np.savetxt(path, np.column_stack(cols), delimiter=",", header=",".join(names),
+                   comments="", fmt="%.17g")
