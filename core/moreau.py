@@ -316,27 +316,75 @@ def _flush1(x):
     return 0.0 if abs(x) < FLUSH else x
 
 
+@njit(cache=True, inline="always")
+def scalar_params(sa):
+    """The 1-DOF system as a tuple of floats (no arrays: nothing to reference-count
+    in a hot loop): (Minv, K, C, f0, B, w, g0, e, Minv_w, W)."""
+    return (sa.Minv[0, 0], sa.K[0, 0], sa.C[0, 0], sa.f0[0], sa.B[0, 0], sa.w[0], sa.g0, sa.e,
+            sa.Minv_w[0], sa.W)
+
+
+@njit(cache=True, inline="always")
+def midpoint_step1(p, F, Omega, phi, q, u, tau, t, dt):
+    """:func:`midpoint_step` on scalars (same operation order). Returns (q, u, P)."""
+    Minv, K, C, f0, B, w, g0, e, Minv_w, W = p
+    half = 0.5 * dt
+    qM = q + half * u
+    h = _force1(f0, K, C, B, F, Omega, phi, qM, u, tau, t + half)
+    s = 0.0
+    s += Minv * h
+    uf = u + dt * s
+    P = 0.0
+    g = g0
+    g += w * qM
+    if g <= 0.0:
+        xi = 0.0
+        xi += w * uf
+        xu = 0.0
+        xu += w * u
+        xi = xi + e * xu
+        if xi < 0.0:
+            P = -xi / W
+            uf += Minv_w * P
+    return _flush1(qM + half * uf), _flush1(uf), P
+
+
+@njit(cache=True, inline="always")
+def theta_step1(p, F, Omega, phi, Si, Si_w, WS, theta, q, u, tau, t, dt):
+    """:func:`theta_step` on scalars (same operation order); ``Si = S^-1``,
+    ``Si_w = S^-1 w``, ``WS = w^T S^-1 w``. Returns (q, u, P)."""
+    Minv, K, C, f0, B, w, g0, e, Minv_w, W = p
+    a = theta * dt
+    h = _force1(f0, K, C, B, F, Omega, phi, q + a * u, u, tau, t + a)
+    s = 0.0
+    s += Si * h
+    uf = u + dt * s
+    P = 0.0
+    g = g0
+    g += w * (q + 0.5 * dt * u)
+    if g <= 0.0:
+        xi = 0.0
+        xi += w * uf
+        xu = 0.0
+        xu += w * u
+        xi = xi + e * xu
+        if xi < 0.0:
+            P = -xi / WS
+            uf += Si_w * P
+    q = q + dt * (theta * uf + (1.0 - theta) * u)
+    return _flush1(q), _flush1(uf), P
+
+
 @njit(cache=True)
 def integrate1(sa, q_, u_, t0, dt, n_steps, tau_, scheme, theta, record_every, T, Qr, Ur, Pr):
     """:func:`integrate` for n = m = 1 on scalars (bitwise identical results)."""
-    Minv = sa.Minv[0, 0]
-    K = sa.K[0, 0]
-    C = sa.C[0, 0]
-    f0 = sa.f0[0]
-    B = sa.B[0, 0]
+    p = scalar_params(sa)
     F = sa.F
     Omega = sa.Omega
     phi = sa.phi
-    w = sa.w[0]
-    g0 = sa.g0
-    e = sa.e
-    Minv_w = sa.Minv_w[0]
-    W = sa.W
     tau = tau_[0]
     q = q_[0]
     u = u_[0]
-    half = 0.5 * dt
-    a = theta * dt
     Sinv = np.empty((1, 1))
     Sinv_w = np.empty(1)
     WS = 0.0
@@ -353,47 +401,11 @@ def integrate1(sa, q_, u_, t0, dt, n_steps, tau_, scheme, theta, record_every, T
     countdown = record_every  # (k + 1) % record_every without an integer division per step
     for k in range(n_steps):
         t = t0 + k * dt
-        P = 0.0
         if scheme == THETA:
-            h = _force1(f0, K, C, B, F, Omega, phi, q + a * u, u, tau, t + a)
-            s = 0.0
-            s += Si * h
-            uf = u + dt * s
-            g = g0
-            g += w * (q + 0.5 * dt * u)
-            if g <= 0.0:
-                xi = 0.0
-                xi += w * uf
-                xu = 0.0
-                xu += w * u
-                xi = xi + e * xu
-                if xi < 0.0:
-                    P = -xi / WS
-                    uf += Si_w * P
-            q += dt * (theta * uf + (1.0 - theta) * u)
-            u = uf
+            q, u, P = theta_step1(p, F, Omega, phi, Si, Si_w, WS, theta, q, u, tau, t, dt)
         else:
-            qM = q + half * u
-            h = _force1(f0, K, C, B, F, Omega, phi, qM, u, tau, t + half)
-            s = 0.0
-            s += Minv * h
-            uf = u + dt * s
-            g = g0
-            g += w * qM
-            if g <= 0.0:
-                xi = 0.0
-                xi += w * uf
-                xu = 0.0
-                xu += w * u
-                xi = xi + e * xu
-                if xi < 0.0:
-                    P = -xi / W
-                    uf += Minv_w * P
-            u = uf
-            q = qM + half * uf
+            q, u, P = midpoint_step1(p, F, Omega, phi, q, u, tau, t, dt)
         Psum += P
-        q = _flush1(q)
-        u = _flush1(u)
         countdown -= 1
         if countdown == 0 or k == n_steps - 1:
             # A non-finite value never turns finite again (inf - inf = NaN, NaN
