@@ -1,0 +1,243 @@
+"""Two coupled systems in one compiled loop (monolithic reference of the master).
+
+Every step: the coupling forces are computed from the states at the start of
+the step (:func:`coupling_step`, the very function the co-simulation master
+calls) and held over it (zero-order hold), then both systems take one Moreau
+step. So a co-simulation whose communication step equals ``dt`` reproduces
+this run to round-off (SPEC §5).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .coupling import (BRANCH_NONE, EUCLIDEAN, SWITCHING, UNCOUPLED, coupling_kernel, gain_matrix)
+from .distance import distance_value, geometry
+from .model import MechanicalSystem, as_state
+from .moreau import (DIVERGED, OK, THETA, _finish, midpoint_step, midpoint_step1, scalar_params,
+                     theta_matrices, theta_step, theta_step1)
+from .result import PairResult
+from .simulate import SimulationDiverged, _n_steps, check_step, divergence_message, scheme_code
+
+__all__ = ["simulate_pair", "coupling_step", "LAWS", "gain_matrix"]
+
+#: Coupling names accepted by :func:`simulate_pair` and the master.
+LAWS = {None: UNCOUPLED, "none": UNCOUPLED, "euclidean": EUCLIDEAN, "switching": SWITCHING}
+
+
+@njit(cache=True, inline="always")
+def euclidean_error(geo, q1, u1, q2, u2):
+    """||x1 - x2||_P = sqrt(dq^T Q dq + du^T M du)."""
+    n = q1.shape[0]
+    acc = 0.0
+    for i in range(n):
+        rq = 0.0
+        ru = 0.0
+        for j in range(n):
+            rq += geo.Q[i, j] * (q1[j] - q2[j])
+            ru += geo.M[i, j] * (u1[j] - u2[j])
+        acc += (q1[i] - q2[i]) * rq + (u1[i] - u2[i]) * ru
+    return math.sqrt(max(acc, 0.0))
+
+
+@njit(cache=True)
+def coupling_step(law, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u, need_d):
+    """Coupling forces into ``tau1, tau2`` and the distance record at this state.
+
+    Returns ``(d, branch, euclidean)``: the quotient distance (NaN and branch
+    ``BRANCH_NONE`` unless the law uses it or ``need_d``), its branch code and
+    ``||x1 - x2||_P``. ``c1q, c1u, c2q, c2u``: (n,) scratch arrays for the chain
+    ends (:func:`fmu_sync.core.coupling.chain_work`). One compiled call,
+    used once per step by :func:`simulate_pair` and once per communication step
+    by the master.
+    """
+    if law == SWITCHING:
+        d, branch = coupling_kernel(law, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u)
+        return d, branch, euclidean_error(geo, q1, u1, q2, u2)
+    E, _ = coupling_kernel(law, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u)
+    if need_d:
+        d, branch = distance_value(geo, q1, u1, q2, u2)
+        return d, branch, E
+    return np.nan, BRANCH_NONE, E
+
+
+@njit(cache=True)
+def integrate_pair(sa, geo, law, Kp, Kd, q1, u1, q2, u2, t0, k0, dt, n_steps, scheme, theta,
+                   record_every, record_d, T, Q1, U1, Q2, U2, TAU1, TAU2, D, BR, EU):
+    """The monolithic loop over steps ``k0 .. k0 + n_steps`` (time ``t0 + k dt``).
+
+    Returns ``(status, steps_done, rows_written, impacts1, impacts2)``."""
+    n = q1.shape[0]
+    qM = np.empty(n)
+    h = np.empty(n)
+    uf = np.empty(n)
+    tau1 = np.zeros(n)
+    tau2 = np.zeros(n)
+    zero1 = np.zeros(n)  # forces of the uncoupled law (zero), for distance-only records
+    zero2 = np.zeros(n)
+    c1q = np.empty(n)
+    c1u = np.empty(n)
+    c2q = np.empty(n)
+    c2u = np.empty(n)
+    Sinv = np.empty((n, n))
+    Sinv_w = np.empty(n)
+    WS = 0.0
+    if scheme == THETA:
+        WS = theta_matrices(sa, dt, theta, Sinv, Sinv_w)
+    scalar = n == 1 and sa.B.shape[1] == 1
+    p = scalar_params(sa) if scalar else (0.0,) * 10
+    F = sa.F
+    Omega = sa.Omega
+    phi = sa.phi
+    Si = Sinv[0, 0]
+    Si_w = Sinv_w[0]
+    imp1 = 0
+    imp2 = 0
+    row = 0
+    countdown = 1  # row 0 is the initial state
+    for k in range(n_steps + 1):
+        is_row = False
+        countdown -= 1
+        if countdown == 0:
+            countdown = record_every
+            is_row = True
+        # forces from the states at the start of the step (zero-order hold)
+        need_d = is_row and record_d
+        if law != UNCOUPLED:
+            d, br, E = coupling_step(law, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u, need_d)
+        elif need_d:
+            d, br, E = coupling_step(UNCOUPLED, geo, Kp, Kd, q1, u1, q2, u2, zero1, zero2, c1q, c1u, c2q, c2u, True)
+        if is_row:
+            T[row] = t0 + (k0 + k) * dt
+            for i in range(n):
+                Q1[row, i] = q1[i]
+                U1[row, i] = u1[i]
+                Q2[row, i] = q2[i]
+                U2[row, i] = u2[i]
+            if record_d:
+                D[row] = d
+                BR[row] = br
+                EU[row] = E
+            if not (_finish(q1, u1) and _finish(q2, u2)) or (record_d and not math.isfinite(d)):
+                return DIVERGED, k, row, imp1, imp2
+            row += 1
+        if k == n_steps:
+            break
+        # the forces held over this step belong to the row that ends it
+        if countdown == 1:
+            for i in range(n):
+                TAU1[row, i] = tau1[i]
+                TAU2[row, i] = tau2[i]
+        t = t0 + (k0 + k) * dt
+        if scalar:  # the 1-DOF fast path (bitwise identical to the general step)
+            if scheme == THETA:
+                q1[0], u1[0], P1 = theta_step1(p, F, Omega, phi, Si, Si_w, WS, theta, q1[0], u1[0],
+                                               tau1[0], t, dt)
+                q2[0], u2[0], P2 = theta_step1(p, F, Omega, phi, Si, Si_w, WS, theta, q2[0], u2[0],
+                                               tau2[0], t, dt)
+            else:
+                q1[0], u1[0], P1 = midpoint_step1(p, F, Omega, phi, q1[0], u1[0], tau1[0], t, dt)
+                q2[0], u2[0], P2 = midpoint_step1(p, F, Omega, phi, q2[0], u2[0], tau2[0], t, dt)
+        else:
+            if scheme == THETA:
+                P1 = theta_step(sa, q1, u1, tau1, t, dt, theta, Sinv, Sinv_w, WS, qM, h, uf)
+                P2 = theta_step(sa, q2, u2, tau2, t, dt, theta, Sinv, Sinv_w, WS, qM, h, uf)
+            else:
+                P1 = midpoint_step(sa, q1, u1, tau1, t, dt, qM, h, uf)
+                P2 = midpoint_step(sa, q2, u2, tau2, t, dt, qM, h, uf)
+            _finish(q1, u1)
+            _finish(q2, u2)
+        if P1 > 0.0:
+            imp1 += 1
+        if P2 > 0.0:
+            imp2 += 1
+    return OK, n_steps, row, imp1, imp2
+
+
+def simulate_pair(system: MechanicalSystem, x1, x2, t_end: float, dt: float, coupling=None,
+                  Kp=0.0, Kd=0.0, Q=None, scheme: str = "midpoint", theta: float = 0.5,
+                  record_every: int = 1, record_distance: bool = True, progress=None,
+                  t0: float = 0.0) -> PairResult:
+    """Simulate two copies of ``system`` from ``x1``, ``x2``, coupled by ``coupling``.
+
+    ``coupling``: None (uncoupled), ``"euclidean"`` (PD baseline) or
+    ``"switching"`` (the quotient coupling of SPEC §5), gains ``Kp``, ``Kd``
+    (scalars or n×n), position weight ``Q`` of the norm (default identity).
+    The forces act through ``B = I`` (τ has n entries). With
+    ``record_distance=False`` and no coupling, no distance is computed.
+    ``progress``: callable ``progress(fraction)``; the run is then made in
+    ~100 compiled chunks (same numbers as one chunk).
+    Returns a :class:`PairResult`; raises :class:`SimulationDiverged` (with the
+    records up to the failure in ``.partial``) if a state becomes non-finite.
+    """
+    if coupling not in LAWS:
+        raise ValueError(f"coupling must be one of {list(LAWS)}, got {coupling!r}")
+    law = LAWS[coupling]
+    dt = check_step(dt)
+    code, theta = scheme_code(scheme, theta)
+    q1, u1 = as_state(system, x1, "x1")
+    q2, u2 = as_state(system, x2, "x2")
+    for name, q in (("x1", q1), ("x2", q2)):
+        g = system.gap(q)
+        if g < 0.0:
+            raise ValueError(f"{name} violates the constraint: g(q) = {g:.6g} < 0 (need g >= 0)")
+    n = system.n
+    if system.m != n or not np.array_equal(system.B, np.eye(n)):
+        raise ValueError(f"coupled systems take the forces through B = I (tau has n = {n} entries); "
+                         f"got B of shape {system.B.shape}")
+    record_every = int(record_every)
+    if record_every < 1:
+        raise ValueError(f"record_every must be >= 1, got {record_every}")
+    record_d = bool(record_distance) or law == SWITCHING
+    geo = geometry(system, Q)
+    Kp_m, Kd_m = gain_matrix(Kp, n, "Kp"), gain_matrix(Kd, n, "Kd")
+    n_steps = _n_steps(t_end, dt, t0)
+    rows = n_steps // record_every + 1
+    T = np.full(rows, np.nan)
+    Q1, U1, Q2, U2, TAU1, TAU2 = (np.full((rows, n), np.nan) for _ in range(6))
+    TAU1[0] = 0.0
+    TAU2[0] = 0.0
+    D, EU = np.full(rows, np.nan), np.full(rows, np.nan)
+    BR = np.full(rows, BRANCH_NONE, dtype=np.int64)
+    sa = system.arrays()
+    # chunks of whole record intervals, so that chunking changes no number
+    if progress is None:
+        chunks = [n_steps]
+    else:
+        per = max(1, (n_steps // record_every) // 100) * record_every
+        chunks = [per] * (n_steps // per) + ([n_steps % per] if n_steps % per else [])
+    row0, k0, imp1, imp2 = 0, 0, 0, 0
+    status = OK
+    for c, steps in enumerate(chunks):
+        last = c == len(chunks) - 1
+        sl = slice(row0, rows)
+        # a chunk records its start row; the next chunk starts on the row it ended on
+        status, done, written, i1, i2 = integrate_pair(
+            sa, geo, law, Kp_m, Kd_m, q1, u1, q2, u2, t0, k0, dt, steps, code, theta,
+            record_every, record_d, T[sl], Q1[sl], U1[sl], Q2[sl], U2[sl], TAU1[sl], TAU2[sl],
+            D[sl], BR[sl], EU[sl])
+        imp1 += i1
+        imp2 += i2
+        if status != OK:
+            row0 += written
+            k0 += done
+            break
+        k0 += steps
+        row0 += written - (0 if last else 1)
+        if progress is not None:
+            progress(k0 / max(n_steps, 1))
+    sl = slice(0, row0 if status != OK else rows)
+    res = PairResult(T[sl], Q1[sl], U1[sl], Q2[sl], U2[sl], TAU1[sl], TAU2[sl],
+                     D[sl] if record_d else None, BR[sl] if record_d else None,
+                     EU[sl] if record_d else None, impacts1=imp1, impacts2=imp2,
+                     coupling=coupling if coupling != "none" else None,
+                     info=dict(mode="core", dt=dt, scheme=scheme, steps=n_steps))
+    if status != OK:
+        err = SimulationDiverged(divergence_message(system, scheme, dt, t0 + k0 * dt,
+                                                    what="a coupled state"))
+        res.error = str(err)
+        err.partial = res
+        raise err
+    return res
