@@ -1,0 +1,155 @@
+"""The ``fmu-sync`` command line.
+
+    fmu-sync demo [-o DIR] [--quick]           export the FMU, co-simulate the paper example 3 ways
+    fmu-sync run SCENE [-o DIR] [--set k=v]..  run a built-in scene (name) or a scene file (path)
+    fmu-sync scenes                            list the built-in scenes
+    fmu-sync export ...                        export an FMU (see `fmu-sync export --help`)
+    fmu-sync validate FILE.fmu                 check an FMU with fmpy (exit 1 on problems)
+    fmu-sync bench [--quick] [-o DIR]          benchmarks (see `fmu-sync bench --help`)
+
+Errors in the input (a bad scene, a diverged run, a missing file) end with one line
+``fmu-sync: error: ...`` on stderr and exit status 2.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+__all__ = ["main"]
+
+PROG = "fmu-sync"
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog=PROG, description="Controlled synchronization of impacting mechanical "
+                                "systems: Moreau core, quotient distance, FMI 2.0 co-simulation.")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND", required=True)
+
+    d = sub.add_parser("demo", help="export the FMU and co-simulate the paper example (uncoupled, "
+                       "Euclidean, switching); compare with the monolithic core")
+    d.add_argument("-o", "--out", type=Path, default=Path("fmu-sync-demo"), help="output folder "
+                   "(default ./fmu-sync-demo)")
+    d.add_argument("--quick", action="store_true", help="shorter run (40 s simulated instead of 100 s)")
+    d.add_argument("--t-end", type=float, default=None, metavar="SECONDS",
+                   help="simulated time (default 100 s, 40 s with --quick)")
+    d.add_argument("--quiet", action="store_true", help="no progress display")
+
+    r = sub.add_parser("run", help="run a scene (built-in name or .toml path)")
+    r.add_argument("scene", help="built-in scene name (see `fmu-sync scenes`) or path to a .toml file")
+    r.add_argument("-o", "--out", type=Path, default=None, help="output folder (default ./fmu-sync-out/<scene>)")
+    r.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a scene key, e.g. --set coupling.Kp=2 --set run.t_end=50 (TOML values)")
+    r.add_argument("--variant", action="append", default=[], metavar="NAME",
+                   help="run only this variant of the scene (repeatable)")
+    r.add_argument("--no-plots", action="store_true", help="write data and summary only")
+    r.add_argument("--quiet", action="store_true", help="no progress display")
+
+    sub.add_parser("scenes", help="list the built-in scenes")
+    sub.add_parser("export", help="export an FMU (options: see `fmu-sync export --help`)", add_help=False)
+    v = sub.add_parser("validate", help="validate an FMU with fmpy; exit 1 if it has problems")
+    v.add_argument("fmu", type=Path, help="path of the .fmu file")
+    sub.add_parser("bench", help="benchmarks (options: see `fmu-sync bench --help`)", add_help=False)
+    return p
+
+
+def _progress(label: str, quiet: bool):
+    from .progress import Progress
+    return Progress(label, force=False if quiet else None)
+
+
+def _print_summary(sr, title: str) -> None:
+    from . import report
+    print(f"\n{title}")
+    header, table = report.rows(sr.runs, demo=title.startswith("demo"))
+    report.print_table(header, table)
+    for r in sr.runs:
+        if r.metrics.get("error"):
+            print(f"  note: {r.name} stopped early: {r.metrics['error']}")
+    print(f"\nwritten to {sr.out_dir}/ (summary: {sr.summary.name}, {len(sr.files)} data/plot files)")
+
+
+def _cmd_scenes() -> int:
+    from .scene import list_scenes
+    from .scenes import SCENE_DIR
+    rows = list_scenes()
+    width = max(len(n) for n, _ in rows)
+    for name, desc in rows:
+        print(f"{name.ljust(width)}  {desc}")
+    print(f"\nrun one with `{PROG} run NAME`; copy a file from {SCENE_DIR} to make your own.")
+    return 0
+
+
+def _cmd_run(args) -> int:
+    from .scene import load_scene, parse_override, run_scene
+    overrides = dict(parse_override(s) for s in args.overrides)
+    scene = load_scene(args.scene, overrides, args.variant or None)
+    with _progress(scene.name, args.quiet) as bar:
+        sr = run_scene(scene, args.out, progress=bar, plots=not args.no_plots)
+    _print_summary(sr, f"scene {scene.name}")
+    return 0
+
+
+def _cmd_demo(args) -> int:
+    from .scene import run_demo
+    with _progress("demo", args.quiet) as bar:
+        sr = run_demo(args.out, quick=args.quick, progress=bar, t_end=args.t_end)
+    _print_summary(sr, "demo: paper example, co-simulation vs core")
+    return 0
+
+
+def _cmd_validate(path: Path) -> int:
+    if not path.is_file():
+        raise FileNotFoundError(f"no such FMU: {path}")
+    from fmpy.validation import validate_fmu
+    try:
+        problems = validate_fmu(str(path))
+    except Exception as exc:  # not a zip, unreadable XML, ...: a problem of the file, not a crash
+        problems = [f"cannot read the FMU: {type(exc).__name__}: {exc}"]
+    if problems:
+        print(f"{path}: {len(problems)} problem(s):")
+        for p in problems:
+            print(f"  - {p}")
+        return 1
+    print(f"{path}: valid (no problems found by fmpy)")
+    return 0
+
+
+def _one_line(exc: BaseException) -> str:
+    msg = str(exc).strip() or type(exc).__name__
+    return " ".join(line.strip() for line in msg.splitlines() if line.strip())
+
+
+def main(argv=None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    from .core import SimulationDiverged
+    from .scene import SceneError
+    try:
+        # export and bench keep their own option parsers: hand them the rest of the line
+        if argv and argv[0] == "export":
+            from .export import main_export
+            return int(main_export(argv[1:]) or 0)
+        if argv and argv[0] == "bench":
+            from .benchmarks import main as bench_main
+            return int(bench_main(argv[1:]) or 0)
+        args = _parser().parse_args(argv)
+        if args.command == "scenes":
+            return _cmd_scenes()
+        if args.command == "run":
+            return _cmd_run(args)
+        if args.command == "demo":
+            return _cmd_demo(args)
+        if args.command == "validate":
+            return _cmd_validate(args.fmu)
+        raise AssertionError(args.command)
+    except (SceneError, SimulationDiverged, FileNotFoundError, ValueError, ImportError) as exc:
+        prefix = "missing component: " if isinstance(exc, ImportError) else ""
+        print(f"{PROG}: error: {prefix}{_one_line(exc)}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

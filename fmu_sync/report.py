@@ -1,0 +1,273 @@
+"""Summary metrics, data files and tables (markdown ``summary.md`` and terminal).
+
+Takes a :class:`~fmu_sync.core.result.PairResult` (monolithic or co-simulated)
+or, for single-system scenes, a :class:`~fmu_sync.core.SimulationResult`.
+"""
+from __future__ import annotations
+
+import math
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["SYNC_THRESHOLD", "is_pair", "wall", "impact_rows", "impact_records", "contact_starts", "metrics", "write_data", "rows", "write_summary",
+           "print_table", "max_abs_difference", "format_value"]
+
+#: d below this counts as synchronized (time to sync = first time after which d stays below it).
+SYNC_THRESHOLD = 1e-6
+
+
+def is_pair(result) -> bool:
+    """PairResult (two systems) rather than a single-system SimulationResult."""
+    return hasattr(result, "q2")
+
+
+def wall(system, n: int):
+    """``(w, g0)`` of the constraint; without a system the 1-DOF wall q >= 0."""
+    if system is None:
+        return np.ones(n), 0.0
+    return np.asarray(system.w, dtype=float), float(system.g0)
+
+
+def impact_rows(t, q, u, system=None) -> np.ndarray:
+    """Indices ``i`` of records whose last interval contains an impact, from the samples alone.
+
+    A record counts when the normal velocity ``w.u`` went from approaching the wall
+    (< 0) to leaving or resting (>= 0), the approach was smooth (the previous change
+    of ``w.u`` is below half the approach speed) and the gap is within reach of the wall
+    (``g <= 2 dt_record (|w.u-| + |w.u+|)``). ``system`` gives ``w, g0`` (default:
+    1-DOF wall at q = 0). Used for plots and metrics of runs that do not carry the
+    per-step percussions (pair runs); turning points in free flight far from the
+    wall never count.
+    """
+    t = np.asarray(t, dtype=float)
+    q = np.asarray(q, dtype=float).reshape(len(t), -1)
+    u = np.asarray(u, dtype=float).reshape(len(t), -1)
+    if len(t) < 2:
+        return np.zeros(0, dtype=int)
+    w, g0 = wall(system, q.shape[1])
+    vn = u @ w
+    g = q @ w + g0
+    scale = max(float(np.max(np.abs(vn))), 1e-300)
+    before, after = vn[:-1], vn[1:]
+    reach = 2.0 * np.diff(t) * (np.abs(before) + np.abs(after)) + 1e-12 * (1.0 + np.abs(g0))
+    # smooth flight before: the approach speed exceeds the last change of w.u. This
+    # excludes the velocity chatter of persistent contact (w.u flips sign every step).
+    earlier = np.concatenate((vn[:1], vn[:-2]))
+    flight = np.abs(before - earlier) < 0.5 * np.abs(before)
+    tol = 1e-9 * scale   # velocities below this are round-off (resting in contact)
+    hit = (before < -tol) & (after >= -tol) & (g[1:] <= reach) & flight
+    return np.nonzero(hit)[0] + 1
+
+
+def impact_records(result, i: int, system=None) -> np.ndarray:
+    """Records of system ``i`` (1 or 2) of a pair run that contain an impact.
+
+    Uses per-record percussions when the result carries them (``percussion1`` /
+    ``percussion2`` as attributes or in ``info``): the records that start a contact
+    episode. Otherwise they are inferred from the samples by :func:`impact_rows`.
+    """
+    p = getattr(result, f"percussion{i}", None)
+    if p is None:
+        p = (getattr(result, "info", None) or {}).get(f"percussion{i}")
+    if p is not None and len(p) == len(result.t):
+        return contact_starts(p)
+    return impact_rows(result.t, getattr(result, f"q{i}"), getattr(result, f"u{i}"), system)
+
+
+def contact_starts(percussion) -> np.ndarray:
+    """Records that start a contact episode (P > 0 after a record with P = 0)."""
+    p = np.asarray(percussion) > 0.0
+    prev = np.concatenate(([False], p[:-1]))
+    return np.nonzero(p & ~prev)[0]
+
+
+def metrics(result, system=None, threshold: float = SYNC_THRESHOLD) -> dict:
+    """Summary numbers of one run (keys documented in :data:`PAIR_COLUMNS` / :data:`SINGLE_COLUMNS`)."""
+    t = np.asarray(result.t)
+    out = {"t_end": float(t[-1]) if t.size else 0.0, "records": int(t.size)}
+    if not is_pair(result):
+        starts = contact_starts(result.percussion)
+        p = np.asarray(result.percussion) > 0.0
+        free = np.nonzero(~p)[0]
+        resting = bool(p.size and p[-1])
+        out.update(kind="single", impacts=int(result.impacts), episodes=int(starts.size),
+                   q_final=result.q[-1].tolist(), u_final=result.u[-1].tolist(),
+                   contact_from=(float(t[free[-1] + 1]) if free.size else float(t[0])) if resting else None,
+                   scheme=result.scheme, dt=float(result.dt))
+        return out
+    tau = np.concatenate([np.abs(np.asarray(result.tau1)).ravel(), np.abs(np.asarray(result.tau2)).ravel()])
+    out.update(kind="pair", coupling=result.coupling or "none", impacts1=int(result.impacts1),
+               impacts2=int(result.impacts2), peak_tau=float(tau.max()) if tau.size else 0.0,
+               error=result.error)
+    if result.d is None:
+        out.update(t_sync=None, final_d=None, euclid_max=None, peaking=None, dV_impact=None, dE_impact=None)
+        return out
+    d, E, V = np.asarray(result.d), np.asarray(result.euclidean), np.asarray(result.V)
+    hits = np.union1d(impact_records(result, 1, system), impact_records(result, 2, system))
+    out.update(t_sync=result.time_to_sync(threshold), final_d=float(d[-1]), euclid_max=float(E.max()),
+               peaking=float(np.max(E - d)),
+               dV_impact=float(np.max(np.abs(V[hits] - V[hits - 1]))) if hits.size else 0.0,
+               dE_impact=float(np.max(np.abs(E[hits] - E[hits - 1]))) if hits.size else 0.0,
+               impact_records=int(hits.size))
+    return out
+
+
+def max_abs_difference(a, b, attr: str = "d") -> float | None:
+    """max |a.attr - b.attr| on a's time grid (b linearly interpolated where the grids differ),
+    over the common time span; None if either run lacks ``attr``."""
+    x, y = getattr(a, attr, None), getattr(b, attr, None)
+    if x is None or y is None:
+        return None
+    ta, tb = np.asarray(a.t), np.asarray(b.t)
+    x, y = np.asarray(x).reshape(len(ta), -1)[:, 0], np.asarray(y).reshape(len(tb), -1)[:, 0]
+    keep = (ta >= tb[0] - 1e-12) & (ta <= tb[-1] + 1e-12)
+    if ta.shape == tb.shape and np.allclose(ta, tb, rtol=0, atol=1e-9 * max(1.0, abs(ta[-1]))):
+        yb = y
+    else:
+        yb = np.interp(ta, tb, y)
+    return float(np.max(np.abs(x[keep] - yb[keep]))) if keep.any() else None
+
+
+# ---------------------------------------------------------------- data files
+def write_data(result, stem) -> list[Path]:
+    """Write ``<stem>.csv`` (tidy, one row per record) and ``<stem>.npz``; return both paths."""
+    stem = Path(stem)
+    csv, npz = stem.with_name(stem.name + ".csv"), stem.with_name(stem.name + ".npz")
+    if is_pair(result):
+        result.to_csv(csv)
+        result.to_npz(npz)
+    else:
+        n = result.q.shape[1]
+        names = ["t"] + ([f"q[{j + 1}]" for j in range(n)] + [f"u[{j + 1}]" for j in range(n)]
+                         if n > 1 else ["q", "u"]) + ["percussion"]
+        np.savetxt(csv, np.column_stack([result.t, result.q, result.u, result.percussion]), delimiter=",",
+                   header=",".join(names), comments="", fmt="%.17g")
+        np.savez_compressed(npz, t=result.t, q=result.q, u=result.u, percussion=result.percussion)
+    return [csv, npz]
+
+
+# ---------------------------------------------------------------- tables
+def format_value(x) -> str:
+    if x is None:
+        return "—"
+    if isinstance(x, str):
+        return x
+    if isinstance(x, (list, tuple)):
+        return "[" + ", ".join(format_value(v) for v in x) + "]"
+    if isinstance(x, (int, np.integer)) and not isinstance(x, bool):
+        return str(int(x))
+    x = float(x)
+    if math.isinf(x):
+        return "never" if x > 0 else "-inf"
+    if math.isnan(x):
+        return "nan"
+    return f"{x:.4g}"
+
+
+#: (column header, function of the metrics dict)
+PAIR_COLUMNS = [
+    ("variant", lambda m: m["name"]),
+    ("coupling", lambda m: m.get("coupling", "—")),
+    (f"t_sync [s] (d<{SYNC_THRESHOLD:g})", lambda m: m.get("t_sync")),
+    ("max|tau| [N]", lambda m: m.get("peak_tau")),
+    ("impacts 1/2", lambda m: f"{m['impacts1']}/{m['impacts2']}" if "impacts1" in m else "—"),
+    ("max(|x1-x2|-d)", lambda m: m.get("peaking")),
+    ("final d", lambda m: m.get("final_d")),
+    ("max dV at impacts", lambda m: m.get("dV_impact")),
+]
+DEMO_COLUMNS = [("variant", lambda m: m.get("variant", m["name"])), ("mode", lambda m: m.get("mode"))] + PAIR_COLUMNS[1:] + [
+    ("max|d - d_core|", lambda m: m.get("d_vs_core"))]
+SINGLE_COLUMNS = [
+    ("run", lambda m: m["name"]),
+    ("t_end [s]", lambda m: m["t_end"]),
+    ("impact steps", lambda m: m.get("impacts")),
+    ("contact episodes", lambda m: m.get("episodes")),
+    ("rests on wall from [s]", lambda m: m.get("contact_from")),
+    ("final q", lambda m: m.get("q_final")),
+    ("final u", lambda m: m.get("u_final")),
+]
+
+
+def rows(runs, demo: bool = False) -> tuple[list[str], list[list[str]]]:
+    """Header and formatted rows for a list of runs (objects with ``.name`` and ``.metrics``)."""
+    single = all(r.metrics.get("kind") == "single" for r in runs)
+    cols = SINGLE_COLUMNS if single else (DEMO_COLUMNS if demo else PAIR_COLUMNS)
+    table = []
+    for r in runs:
+        m = {**r.metrics, "name": r.name}
+        table.append([format_value(f(m)) if (single or m.get("kind") == "pair" or i == 0) else "—"
+                      for i, (_, f) in enumerate(cols)])
+    return [h for h, _ in cols], table
+
+
+def print_table(header, table, file=None) -> None:
+    """Aligned plain-text table (first column left-aligned, the others right-aligned)."""
+    file = sys.stdout if file is None else file
+    widths = [max(len(str(c)) for c in col) for col in zip(header, *table)]
+
+    def line(cells):
+        return "  ".join(str(c).ljust(w) if i == 0 else str(c).rjust(w)
+                         for i, (c, w) in enumerate(zip(cells, widths)))
+
+    print(line(header), file=file)
+    print("  ".join("-" * w for w in widths), file=file)
+    for r in table:
+        print(line(r), file=file)
+
+
+def _md_cell(x) -> str:
+    return str(x).replace("|", "\\|").replace("\n", " ")
+
+
+def _numeric(cells) -> bool:
+    """A column of numbers (or never / — / counts like 3/4): right-aligned."""
+    def num(c):
+        c = str(c)
+        if c in ("never", "—", "-inf", "nan"):
+            return True
+        try:
+            for part in c.split("/"):
+                float(part)
+            return True
+        except ValueError:
+            return False
+    return all(num(c) for c in cells)
+
+
+def _md_table(header, table) -> list[str]:
+    columns = list(zip(*table)) if table else [()] * len(header)
+    out = ["| " + " | ".join(_md_cell(h) for h in header) + " |",
+           "|" + "|".join("---:" if col and _numeric(col) else "---" for col in columns) + "|"]
+    out += ["| " + " | ".join(_md_cell(c) for c in r) + " |" for r in table]
+    return out
+
+
+def write_summary(path, title: str, description: str, rows, settings=(), files=(), base=None,
+                  notes=()) -> Path:
+    """Write ``summary.md``: results table, notes, settings and the list of files written."""
+    path = Path(path)
+    header, table = rows
+    lines = [f"# {title}", ""]
+    if description:
+        lines += [description.strip(), ""]
+    lines += ["## Results", ""] + _md_table(header, table) + [""]
+    lines += [f"- t_sync: first time after which the quotient distance d stays below {SYNC_THRESHOLD:g} "
+              "(never: not within the run).",
+              "- max(|x1-x2|-d): the Euclidean error's peaking above d (largest at impact mismatches).",
+              "- max dV at impacts: largest change of V = d^2/2 over a record containing an impact "
+              "(O(dt) for the quotient distance; the Euclidean error jumps by about (1+e)|w.u-|)."]
+    lines += [f"- {n}" for n in notes] + [""]
+    if settings:
+        lines += ["## Settings", ""] + _md_table(["key", "value"], [[k, f"`{v}`"] for k, v in settings]) + [""]
+    if files:
+        lines += ["## Files", ""]
+        for f in files:
+            f = Path(f)
+            shown = os.path.relpath(f, base) if base is not None else str(f)
+            lines.append(f"- [`{shown}`]({shown})")
+        lines.append("")
+    path.write_text("\n".join(lines), encoding="utf-8")
+    return path

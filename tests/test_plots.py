@@ -1,0 +1,160 @@
+"""Plots (headless PNG) and the summary report, on results built here: two uncoupled
+``simulate`` runs packed into a PairResult with a stand-in distance (the plots and
+metrics only read the fields, so this does not depend on simulate_pair)."""
+import io
+import math
+
+import numpy as np
+import pytest
+
+from fmu_sync import plots, report
+from fmu_sync.core import ImpactOscillator, MechanicalSystem, simulate
+from fmu_sync.core.result import PairResult
+
+PNG = b"\x89PNG\r\n\x1a\n"
+
+
+def fake_pair(system, x1, x2, t_end=12.0, dt=1e-3, every=10, coupling="switching"):
+    r1 = simulate(system, x1, t_end, dt, record_every=every)
+    r2 = simulate(system, x2, t_end, dt, record_every=every)
+    dq, du = r1.q - r2.q, r1.u - r2.u
+    E = np.sqrt(np.sum(dq**2, axis=1) + np.einsum("ij,jk,ik->i", du, system.M, du))
+    d = np.minimum(E, np.exp(-2.0 * r1.t))      # smooth, decaying stand-in for the quotient distance
+    d[-5:] = 0.0                                 # exact zeros must not break the log axes
+    tau1 = -1.0 * dq - 0.5 * du
+    return PairResult(r1.t, r1.q, r1.u, r2.q, r2.u, tau1, -tau1, d, np.zeros(len(d), dtype=np.int64), E,
+                      impacts1=r1.impacts, impacts2=r2.impacts, coupling=coupling)
+
+
+@pytest.fixture(scope="module")
+def osc():
+    return ImpactOscillator(m=1, k=1, c=0, f0=0.2, F=0.5, Omega=2.5, e=0.9)
+
+
+@pytest.fixture(scope="module")
+def pair(osc):
+    return fake_pair(osc, (1.0, 0.0), (0.2, 0.5))
+
+
+@pytest.fixture(scope="module")
+def two_dof():
+    s = MechanicalSystem(M=[[2, 0.5], [0.5, 1]], K=[[3, -1], [-1, 2]], C=0.02 * np.eye(2), f0=[0.1, 0.2],
+                         w=[1, 0.5], g0=0.0, e=0.7, forcing=(([0.6, 0.0], 1.3, 0.0),))
+    return s, fake_pair(s, ([0.6, 0.2], [0, 0]), ([0.2, -0.1], [0.3, -0.2]))
+
+
+def check_png(path, min_bytes=8000):
+    data = path.read_bytes()
+    assert data[:8] == PNG and len(data) > min_bytes, (path, len(data))
+
+
+@pytest.mark.parametrize("kind", sorted(plots.PLOTTERS))
+def test_each_plot_is_written(tmp_path, pair, osc, kind):
+    p = plots.PLOTTERS[kind](pair, tmp_path / f"{kind}.png", system=osc, title="paper-example: test")
+    assert p == tmp_path / f"{kind}.png"
+    check_png(p)
+
+
+@pytest.mark.parametrize("kind", sorted(plots.PLOTTERS))
+def test_two_dof_plots(tmp_path, two_dof, kind):
+    s, r = two_dof
+    check_png(plots.PLOTTERS[kind](r, tmp_path / f"{kind}.png", system=s))
+
+
+def test_single_system_plots_and_compare(tmp_path, osc, pair):
+    r = simulate(ImpactOscillator(f0=-9.81, e=0.8), (1.0, 0.0), 3.0, 1e-3)
+    check_png(plots.plot_positions(r, tmp_path / "p.png"))
+    check_png(plots.plot_phase(r, tmp_path / "ph.png"))
+    other = fake_pair(osc, (1.0, 0.0), (0.5, 0.0), t_end=6.0, coupling=None)
+    check_png(plots.compare_plot({"switching": pair, "uncoupled": other}, tmp_path / "c.png"))
+    check_png(plots.compare_plot({"a (cosim)": pair, "a (core)": other}, tmp_path / "e.png",
+                                 quantity="euclidean", dashed=["a (core)"]))
+    with pytest.raises(ValueError, match="quantity"):
+        plots.compare_plot({"a": pair}, tmp_path / "x.png", quantity="energy")
+
+
+def test_plots_are_headless_and_leave_pyplot_alone(tmp_path):
+    """No display needed, no global pyplot state touched (Figure + Agg canvas)."""
+    import subprocess
+    import sys
+    code = ("import sys, numpy as np; from fmu_sync import plots; from fmu_sync.core.result import PairResult; "
+            "t = np.linspace(0, 1, 50); z = np.zeros((50, 1)); q = np.abs(np.sin(9 * t))[:, None]; "
+            "r = PairResult(t, q, z, z, z, z, z, np.exp(-t), np.zeros(50, int), np.exp(-t)); "
+            f"plots.plot_distance(r, {str(tmp_path / 'h.png')!r}); "
+            "print('matplotlib.pyplot' in sys.modules)")
+    env = {k: v for k, v in __import__("os").environ.items() if k not in ("DISPLAY", "MPLBACKEND")}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "False"
+    check_png(tmp_path / "h.png", min_bytes=2000)
+
+
+# ------------------------------------------------------------------ report
+def test_impact_rows_match_the_percussions(osc):
+    ball = ImpactOscillator(f0=-9.81, e=0.8)
+    r = simulate(ball, (1.0, 0.0), 3.0, 1e-3, record_every=5)
+    rows = report.impact_rows(r.t, r.q, r.u)
+    starts = np.nonzero((r.percussion > 0) & ~np.concatenate(([False], r.percussion[:-1] > 0)))[0]
+    assert rows.size >= 5
+    assert set(rows) <= set(np.nonzero(r.percussion > 0)[0]), "every detected impact is a real one"
+    assert abs(rows.size - starts.size) <= 2
+    # no impact is claimed in free flight above the wall (turning points of an oscillator)
+    free = simulate(ImpactOscillator(k=1.0, f0=2.0), (2.5, 0.0), 20.0, 1e-3, record_every=10)
+    assert report.impact_rows(free.t, free.q, free.u).size == 0
+
+
+def test_pair_metrics(pair, osc):
+    m = report.metrics(pair, osc)
+    assert m["kind"] == "pair" and m["coupling"] == "switching"
+    assert m["t_sync"] == pytest.approx(pair.time_to_sync(1e-6))
+    assert m["final_d"] == 0.0
+    assert m["peak_tau"] == pytest.approx(max(np.abs(pair.tau1).max(), np.abs(pair.tau2).max()))
+    assert m["peaking"] == pytest.approx(np.max(pair.euclidean - pair.d))
+    assert m["impact_records"] > 0 and m["dE_impact"] > m["dV_impact"] >= 0.0
+    assert (m["impacts1"], m["impacts2"]) == (pair.impacts1, pair.impacts2)
+    nod = PairResult(pair.t, pair.q1, pair.u1, pair.q2, pair.u2, pair.tau1, pair.tau2, None, None, None)
+    m = report.metrics(nod, osc)
+    assert m["t_sync"] is None and m["final_d"] is None
+
+
+def test_tables_and_summary(tmp_path, pair, osc):
+    class Run:
+        def __init__(self, name, result):
+            self.name, self.metrics = name, report.metrics(result, osc)
+    runs = [Run("switching", pair), Run("never", fake_pair(osc, (1.0, 0.0), (0.5, 0.0), t_end=3.0))]
+    runs[1].metrics["t_sync"] = math.inf
+    header, table = report.rows(runs)
+    assert header[0] == "variant" and len(table) == 2 and table[1][2] == "never"
+    buf = io.StringIO()
+    report.print_table(header, table, file=buf)
+    lines = buf.getvalue().splitlines()
+    assert len(lines) == 4 and len({len(line.rstrip()) for line in lines[:2]}) == 1
+    p = report.write_summary(tmp_path / "summary.md", "Scene `x`", "desc", (header, table),
+                             settings=[("run.t_end", "12.0")], files=[tmp_path / "a.csv"], base=tmp_path)
+    text = p.read_text()
+    assert text.startswith("# Scene `x`") and "| switching |" in text and "[`a.csv`](a.csv)" in text
+
+
+def test_write_data_roundtrip(tmp_path, pair):
+    csv, npz = report.write_data(pair, tmp_path / "run")
+    head = csv.read_text().splitlines()[0].split(",")
+    assert head[:3] == ["t", "q1", "u1"] and "d" in head and "V" in head
+    data = np.loadtxt(csv, delimiter=",", skiprows=1)
+    assert data.shape == (len(pair.t), len(head))
+    assert np.allclose(np.load(npz)["d"], pair.d)
+    r = simulate(ImpactOscillator(f0=-9.81, e=0.8), (1.0, 0.0), 1.0, 1e-3)
+    csv, npz = report.write_data(r, tmp_path / "single")
+    assert csv.read_text().splitlines()[0] == "t,q,u,percussion"
+    assert np.array_equal(np.load(npz)["percussion"], r.percussion)
+
+
+def test_max_abs_difference(pair):
+    assert report.max_abs_difference(pair, pair) == 0.0
+    shifted = PairResult(pair.t, pair.q1, pair.u1, pair.q2, pair.u2, pair.tau1, pair.tau2, pair.d + 1e-3,
+                         pair.branch, pair.euclidean)
+    assert report.max_abs_difference(pair, shifted) == pytest.approx(1e-3)
+    fine = PairResult(pair.t[::2], *(a[::2] for a in (pair.q1, pair.u1, pair.q2, pair.u2, pair.tau1,
+                                                       pair.tau2)), pair.d[::2], None, None)
+    assert report.max_abs_difference(fine, pair) == 0.0
+    nod = PairResult(pair.t, pair.q1, pair.u1, pair.q2, pair.u2, pair.tau1, pair.tau2, None, None, None)
+    assert report.max_abs_difference(nod, pair) is None
