@@ -1,0 +1,188 @@
+"""FMU export and modelDescription.xml (SPEC §7). Nothing here loads the FMU's
+binary: the FMUs are run in child processes by tests/test_fmu_run.py."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import textwrap
+import zipfile
+
+import pytest
+from fmpy import read_model_description
+from fmpy.validation import validate_fmu
+
+from fmu_sync.export import MODELS, export_fmu, main_export
+
+IDENT = {"impact-oscillator": "ImpactOscillator", "mechanical-system-2": "MechanicalSystem2"}
+
+
+@pytest.fixture(scope="module")
+def fmus(tmp_path_factory):
+    d = tmp_path_factory.mktemp("fmus")
+    return {m: export_fmu(m, d / f"{IDENT[m]}.fmu") for m in MODELS}
+
+
+def _md(path):
+    return read_model_description(str(path), validate=True)
+
+
+def _vars(path):
+    return {v.name: v for v in _md(path).modelVariables}
+
+
+@pytest.mark.parametrize("model", sorted(MODELS))
+def test_schema_and_fmpy_validation(fmus, model):
+    path = fmus[model]
+    md = _md(path)  # raises on a schema or semantic problem
+    assert md.fmiVersion == "2.0"
+    assert md.coSimulation.modelIdentifier == IDENT[model]
+    assert validate_fmu(str(path)) == []
+    with zipfile.ZipFile(path) as zf:
+        names = set(zf.namelist())
+    assert f"binaries/linux64/{IDENT[model]}.so" in names
+    assert "resources/slavemodule.txt" in names
+
+
+@pytest.mark.parametrize("model", sorted(MODELS))
+def test_capabilities_are_declared(fmus, model):
+    cs = _md(fmus[model]).coSimulation
+    assert cs.canHandleVariableCommunicationStepSize
+    assert cs.canGetAndSetFMUstate
+    assert cs.canSerializeFMUstate
+    assert not cs.canInterpolateInputs            # held inputs, nothing else advertised
+    assert not cs.providesDirectionalDerivative
+    assert not cs.canBeInstantiatedOnlyOncePerProcess
+
+
+@pytest.mark.parametrize("model", sorted(MODELS))
+def test_every_variable_is_described_with_units(fmus, model):
+    md = _md(fmus[model])
+    units = {u.name: u for u in md.unitDefinitions}
+    for v in md.modelVariables:
+        assert v.description, v.name
+        if v.type == "Real":
+            assert v.unit in units, v.name
+    base = {name: {k: getattr(u.baseUnit, k) for k in ("kg", "m", "s", "rad")} for name, u in units.items()}
+    assert base["N"] == {"kg": 1, "m": 1, "s": -2, "rad": 0}
+    assert base["N.s"] == {"kg": 1, "m": 1, "s": -1, "rad": 0}
+    assert base["m/s"] == {"kg": 0, "m": 1, "s": -1, "rad": 0}
+    assert base["J"] == {"kg": 1, "m": 2, "s": -2, "rad": 0}
+
+
+def test_impact_oscillator_interface(fmus):
+    v = _vars(fmus["impact-oscillator"])
+    assert (v["tau"].causality, v["tau"].variability, v["tau"].unit) == ("input", "continuous", "N")
+    for name, unit in (("q", "m"), ("u", "m/s"), ("gap", "m"), ("percussion", "N.s"), ("energy", "J")):
+        assert v[name].causality == "output" and v[name].initial == "calculated" and v[name].unit == unit
+    assert v["impacts"].type == "Integer" and v["impacts"].causality == "output"
+    for name in ("m", "k", "c", "f0", "F", "Omega", "phi", "e", "q_start", "u_start",
+                 "solver.dt", "solver.scheme", "solver.theta"):
+        assert (v[name].causality, v[name].variability, v[name].initial) == ("parameter", "fixed", "exact")
+        assert v[name].start is not None
+    assert 0.0 < float(v["m"].min) < 1e-300
+    assert 0.0 < float(v["solver.dt"].min) < 1e-300
+    assert (float(v["e"].min), float(v["e"].max)) == (0.0, 1.0)
+    assert (float(v["solver.theta"].min), float(v["solver.theta"].max)) == (0.5, 1.0)
+    assert float(v["q_start"].min) == 0.0          # the wall: g(q) = q >= 0
+    assert v["solver.scheme"].type == "Enumeration"
+    items = {i.name: int(i.value) for i in v["solver.scheme"].declaredType.items}
+    assert items == {"midpoint": 1, "theta": 2}
+
+
+def test_model_structure_dependencies(fmus):
+    md = _md(fmus["impact-oscillator"])
+    names = [v.name for v in md.modelVariables]
+    assert [u.variable.name for u in md.outputs] == ["q", "u", "gap", "impacts", "percussion", "energy"]
+    assert all(u.dependencies == [] for u in md.outputs)  # no direct feedthrough of tau
+    init = {u.variable.name: sorted(d.name for d in u.dependencies) for u in md.initialUnknowns}
+    assert init["q"] == ["q_start"] and init["u"] == ["u_start"]
+    assert init["energy"] == sorted(["m", "k", "f0", "q_start", "u_start"])
+    assert init["impacts"] == [] and init["percussion"] == []
+    assert names.index("tau") < names.index("q")
+
+
+def test_two_dof_interface(fmus):
+    v = _vars(fmus["mechanical-system-2"])
+    for name in ("M[1,1]", "M[1,2]", "M[2,1]", "M[2,2]", "K[1,2]", "C[2,2]", "w[1]", "w[2]", "g0", "e",
+                 "q_start[1]", "u_start[2]", "f0[2]", "F[1]", "Omega", "phi"):
+        assert v[name].causality == "parameter", name
+    for name in ("tau[1]", "tau[2]"):
+        assert v[name].causality == "input"
+    for name in ("q[1]", "q[2]", "u[1]", "u[2]", "gap", "impacts", "percussion", "energy"):
+        assert v[name].causality == "output"
+    assert float(v["M[1,1]"].min) > 0.0 and v["M[1,2]"].min is None
+    md = _md(fmus["mechanical-system-2"])
+    init = {u.variable.name: {d.name for d in u.dependencies} for u in md.initialUnknowns}
+    assert init["gap"] == {"w[1]", "w[2]", "g0", "q_start[1]", "q_start[2]"}
+
+
+def test_start_values_reach_the_model_description(tmp_path):
+    path = export_fmu("impact-oscillator", tmp_path / "io.fmu",
+                      {"e": 0.5, "solver.scheme": "theta", "solver.dt": 1e-4, "q_start": 0.25, "tau": 0.1})
+    v = _vars(path)
+    assert float(v["e"].start) == 0.5
+    assert int(v["solver.scheme"].start) == 2
+    assert float(v["solver.dt"].start) == 1e-4
+    assert float(v["q_start"].start) == 0.25
+    assert float(v["tau"].start) == 0.1
+    with zipfile.ZipFile(path) as zf:
+        data = json.loads(zf.read("resources/fmu_sync_start.json"))
+    # The slave reads the same values at instantiation: one source for both.
+    for name, var in v.items():
+        if var.start is not None:
+            assert data["start"][name] == pytest.approx(float(var.start), rel=0, abs=0), name
+
+
+def test_export_is_reproducible(tmp_path):
+    a = export_fmu("mechanical-system-2", tmp_path / "a.fmu", {"M[1,2]": 0.3, "M[2,1]": 0.3})
+    b = export_fmu("mechanical-system-2", tmp_path / "b.fmu", {"M[2,1]": 0.3, "M[1,2]": 0.3})
+    assert a.read_bytes() == b.read_bytes()
+    c = export_fmu("mechanical-system-2", tmp_path / "c.fmu")
+    assert _md(a).guid != _md(c).guid
+
+
+@pytest.mark.parametrize("model, values, message", [
+    ("impact-oscillator", {"nonsense": 1.0}, "no variable 'nonsense'"),
+    ("impact-oscillator", {"q": 1.0}, "q is an output"),
+    ("impact-oscillator", {"e": 1.5}, "e"),
+    ("impact-oscillator", {"m": 0.0}, "must be > 0"),
+    ("impact-oscillator", {"solver.dt": -1e-3}, "must be > 0"),
+    ("impact-oscillator", {"solver.theta": 0.2}, ">= 0.5"),
+    ("impact-oscillator", {"solver.scheme": "euler"}, "midpoint, theta"),
+    ("impact-oscillator", {"q_start": -0.1}, "q_start"),
+    ("impact-oscillator", {"k": "abc"}, "real number"),
+    ("mechanical-system-2", {"M[1,2]": 0.7}, "symmetric"),
+    ("mechanical-system-2", {"q_start[1]": -1.0}, "g(q_start)"),
+    ("mechanical-system-2", {"w[1]": 0.0, "w[2]": 0.0}, "nonzero"),
+])
+def test_export_rejects_bad_start_values(tmp_path, model, values, message):
+    with pytest.raises(ValueError, match=None) as exc:
+        export_fmu(model, tmp_path / "bad.fmu", values)
+    assert message in str(exc.value)
+    assert not (tmp_path / "bad.fmu").exists()
+
+
+def test_main_export(tmp_path, capsys):
+    out = tmp_path / "sub" / "io.fmu"
+    assert main_export(["impact-oscillator", "-o", str(out), "--set", "e=0.3",
+                        "--set", "solver.scheme=theta"]) == 0
+    v = _vars(out)
+    assert float(v["e"].start) == 0.3 and int(v["solver.scheme"].start) == 2
+    assert main_export(["mechanical-system-2", "-o", str(tmp_path / "m.fmu"), "--set", "M[1,2]=9"]) == 2
+    assert "symmetric" in capsys.readouterr().err
+    assert main_export(["impact-oscillator", "--set", "e"]) == 2
+    with pytest.raises(SystemExit):
+        main_export(["no-such-model"])
+
+
+def test_slave_import_compiles_nothing():
+    """The slave module imports the compiled kernel but compiles nothing."""
+    code = textwrap.dedent("""
+        import fmu_sync.fmus.impact_oscillator, fmu_sync.fmus.mechanical_system2
+        from fmu_sync.core import moreau
+        print(len(moreau.advance.signatures), len(moreau.advance.overloads))
+    """)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["0", "0"]

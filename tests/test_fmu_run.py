@@ -1,0 +1,596 @@
+"""Running the FMUs (SPEC §7): fmpy vs the core, libcosimpy vs fmpy, FMU states,
+bad input, and a clean exit of fresh processes.
+
+Every FMU is loaded in a child process, never in the pytest process: the
+scenarios below are plain functions of this file, run as
+``python tests/test_fmu_run.py SCENARIO ARGS.json RESULT.json``; the tests
+assert on the JSON they write. The child's exit status is checked too, so an
+FMU that crashes its host (pythonfmu's exit crash, issue #228, fixed in
+fmu_sync.fmus._export_lib) fails a test instead of killing pytest.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+DT = 1e-3            # internal step of the FMUs (the default solver.dt)
+T_END = 10.0
+EXIT_PROCESSES = 20  # bench/bench_fmu.py --exit-check 200 runs the full claim
+
+
+# =============================================================== child side
+def _host(path, name="fmu"):
+    from fmu_sync.fmi_bridge import FMUHost
+    return FMUHost(path, instance_name=name, logging=True)
+
+
+def _outputs(h, names):
+    return h.get(names)
+
+
+def scenario_reference(a):
+    """fmpy runs (simulate_fmu and a hand loop) of both FMUs; the parent compares with the core."""
+    from fmpy import simulate_fmu
+    out = {}
+    for key, H in (("io_H1", DT), ("io_H10", 10 * DT)):
+        r = simulate_fmu(a["io"], stop_time=T_END, output_interval=H,
+                         output=["q", "u", "impacts", "percussion", "gap", "energy"])
+        out[key] = {n: r[n].tolist() for n in r.dtype.names}
+    r = simulate_fmu(a["io_theta"], stop_time=T_END, output_interval=DT, output=["q", "u"])
+    out["io_theta"] = {n: r[n].tolist() for n in r.dtype.names}
+    r = simulate_fmu(a["ms2"], stop_time=T_END, output_interval=DT,
+                     output=["q[1]", "q[2]", "u[1]", "u[2]", "gap", "impacts"])
+    out["ms2"] = {n: r[n].tolist() for n in r.dtype.names}
+    # The same loop libcosim runs: constant input, t = n H.
+    h = _host(a["io"])
+    h.initialize(0.0, {"tau": 0.05})
+    qs = []
+    for n in range(a["cosim_steps"]):
+        assert h.do_step(n * DT, DT) == 0
+        qs.append(h.get(["q", "u"]))
+    h.close()
+    out["io_loop"] = qs
+    return out
+
+
+def scenario_libcosim(a):
+    """The 1-DOF FMU in libcosimpy (an independent importer)."""
+    from libcosimpy.CosimEnums import CosimExecutionState
+    from libcosimpy.CosimExecution import CosimExecution
+    from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
+    from libcosimpy.CosimObserver import CosimObserver
+    from libcosimpy.CosimSlave import CosimLocalSlave
+    log_output_level(CosimLogLevel.ERROR)
+    ex = CosimExecution.from_step_size(step_size=round(DT * 1e9))
+    obs = CosimObserver.create_last_value()
+    ex.add_observer(obs)
+    idx = ex.add_local_slave(CosimLocalSlave(fmu_path=a["io"], instance_name="io"))
+    vr = {v.name.decode(): v.reference for v in ex.slave_variables(idx)}
+    ex.real_initial_value(idx, vr["tau"], 0.05)
+    qs = []
+    for _ in range(a["cosim_steps"]):
+        assert ex.step(1)
+        qs.append(obs.last_real_values(idx, [vr["q"], vr["u"]]))
+    st = ex.status()
+    return {"q_u": qs, "state": str(st.state), "error_code": str(st.error_code),
+            "ok": st.state != CosimExecutionState.ERROR}
+
+
+def _run(h, t, n, H, names, tau=None):
+    rows = []
+    for k in range(n):
+        if tau is not None:
+            h.set({name: tau(t, k) for name in tau.names})
+        st = h.do_step(t, H)
+        assert st == 0, (st, h.messages[-3:])
+        t += H
+        rows.append(h.get(names))
+    return t, rows
+
+
+class _Tau:
+    def __init__(self, names):
+        self.names = names
+
+    def __call__(self, t, k):
+        return 0.3 * math.sin(7.0 * t) + 0.01 * k
+
+
+def scenario_state(a):
+    """get/set and serialised FMU states reproduce a run bit for bit (both FMUs)."""
+    res = {}
+    for key, names, tau_names, starts in (
+            ("io", ["q", "u", "gap", "energy", "impacts", "percussion"], ["tau"], {"solver.scheme": 2,
+                                                                                  "solver.theta": 0.6}),
+            ("ms2", ["q[1]", "q[2]", "u[1]", "u[2]", "gap", "energy", "impacts", "percussion"],
+             ["tau[1]", "tau[2]"], {})):
+        tau = _Tau(tau_names)
+        # variable communication steps, not multiples of dt
+        steps = [0.0137, 0.002, 0.0301, 0.0005, 0.011] * 40
+        h = _host(a[key], "first")
+        h.initialize(0.0, starts)
+        t = 0.0
+        for H in steps[:100]:
+            t, _ = _run(h, t, 1, H, names, tau)
+        st, s1 = h.get_state()
+        assert st == 0
+        blob = h.serialize_state(s1)
+        at_save = h.get(names)
+        ref = []
+        t_save = t
+        for H in steps[100:]:
+            t, rows = _run(h, t, 1, H, names, tau)
+            ref += rows
+        t_end = t
+        # 1) same instance, in-memory state
+        assert h.set_state(s1) == 0
+        back = h.get(names)
+        t = t_save
+        again = []
+        for H in steps[100:]:
+            t, rows = _run(h, t, 1, H, names, tau)
+            again += rows
+        # 2) a second instance from the serialised bytes
+        g = _host(a[key], "second")
+        g.initialize(0.0, starts)
+        st_d, s2 = g.deserialize_state(blob)
+        st_s = g.set_state(s2)
+        from_bytes_at = g.get(names)
+        t = t_save
+        again2 = []
+        for H in steps[100:]:
+            t, rows = _run(g, t, 1, H, names, tau)
+            again2 += rows
+        res[key] = {
+            "same_at_restore": back == at_save, "same_at_restore_bytes": from_bytes_at == at_save,
+            "identical_in_memory": again == ref, "identical_from_bytes": again2 == ref,
+            "statuses": [st_d, st_s], "t_end": t_end, "t_expected": sum(steps),
+            "impacts": ref[-1][names.index("impacts")],
+            "blob": blob.decode("utf-8"),
+            "errors": h.errors(2) + g.errors(2),
+        }
+        h.free_state(s1)
+        g.free_state(s2)
+        h.close()
+        g.close()
+    return res
+
+
+def scenario_instances(a):
+    """Several instances of one FMU in one process, sharing one unpacked folder
+    (what a master does): independent, and each the same as a lone run."""
+    from fmpy import extract
+
+    from fmu_sync.fmi_bridge import FMUHost
+    d = extract(a["io"])
+    refs = []
+    hosts = []
+    for i in range(4):
+        h = FMUHost(d, instance_name=f"io{i}")
+        hosts.append(h)
+        # pythonfmu re-executes the entry-point script per instance and drops a
+        # reference to its globals each time (fixed in fmus/_export_lib.py)
+        refs.append(sys.getrefcount(sys.modules["fmu_sync_impact_oscillator"].__dict__))
+        h.initialize(0.0, {"q_start": 0.5 + 0.1 * i, "e": 0.5 + 0.1 * i})
+    rows = []
+    for k in range(500):
+        for i, h in enumerate(hosts):
+            h.set({"tau": 0.1 * i})
+            assert h.do_step(k * DT, DT) == 0
+        rows.append([h.get(["q", "u"]) for h in hosts])
+    for h in hosts:
+        h.close()
+    # each instance alone, in a fresh unzip of the same FMU
+    alone = []
+    for i in range(4):
+        h = FMUHost(a["io"], instance_name=f"alone{i}")
+        h.initialize(0.0, {"q_start": 0.5 + 0.1 * i, "e": 0.5 + 0.1 * i, "tau": 0.1 * i})
+        for k in range(500):
+            h.do_step(k * DT, DT)
+        alone.append(h.get(["q", "u"]))
+        h.close()
+    import shutil
+    shutil.rmtree(d, ignore_errors=True)
+    return {"refcounts": refs, "last": rows[-1], "alone": alone}
+
+
+def scenario_errors(a):
+    """Every bad input gets its documented status and a log message; nothing breaks."""
+    R = {}
+
+    def fresh(key="io", starts=None, name="err"):
+        h = _host(a[key], name)
+        return h, h.initialize(0.0, starts or {})
+
+    # --- NaN / inf input: setReal is OK (pythonfmu can return nothing else) but logs
+    # fmi2Error; every doStep is refused (fmi2Discard) until a finite value is set.
+    h, _ = fresh()
+    assert h.do_step(0.0, 0.01) == 0
+    before = h.get(["q", "u", "tau"])
+    cases = []
+    for bad in (math.nan, math.inf, -math.inf):
+        cases.append([h.set({"tau": bad}), h.do_step(0.01, 0.01), h.do_step(0.01, 0.01), h.get(["q", "u", "tau"])])
+    fixed = [h.set({"tau": 0.2}), h.do_step(0.01, 0.01)]
+    R["input"] = {"before": before, "cases": cases, "fixed": fixed, "errors": h.errors(), "discards": h.errors(2)}
+    h.close()
+
+    # --- parameters outside their bounds (refused at set, exitInitialization flags nothing new)
+    out = {}
+    for name, value in (("e", 1.5), ("e", math.nan), ("m", -1.0), ("m", 0.0), ("solver.dt", 0.0),
+                        ("solver.theta", 0.3), ("k", -2.0), ("q_start", -0.1), ("solver.scheme", 7)):
+        h, st = fresh(starts={name: value})
+        out[f"{name}={value}"] = {"init": st, "step": h.do_step(0.0, 0.01), "q": h.get(["q"])[0],
+                                  "errors": h.errors()}
+        # reset clears the instance; then it runs
+        st_r = h.call("reset")[0]
+        h.initialize(0.0)
+        out[f"{name}={value}"]["after_reset"] = [st_r, h.do_step(0.0, 0.01)]
+        h.close()
+    R["params"] = out
+
+    # --- g(q_start) < 0 and an invalid mass matrix (2-DOF: only the whole model can tell)
+    out = {}
+    for label, starts in (("gap", {"q_start[1]": -1.0}), ("asymmetric", {"M[1,2]": 0.7}),
+                          ("not_pd", {"M[1,2]": 3.0, "M[2,1]": 3.0}), ("w_zero", {"w[1]": 0.0, "w[2]": 0.0})):
+        h, st = fresh("ms2", starts)
+        out[label] = {"init": st, "step": h.do_step(0.0, 0.01), "gap": h.get(["gap"])[0], "errors": h.errors()}
+        h.close()
+    R["model"] = out
+
+    # --- bad steps: each refused with fmi2Discard; afterwards the run continues exactly
+    # like a run that never saw them.
+    h, _ = fresh()
+    clean, _ = fresh(name="clean")
+    for k in range(5):
+        h.do_step(k * 0.01, 0.01)
+        clean.do_step(k * 0.01, 0.01)
+    t = 0.05
+    statuses = {
+        "negative": h.do_step(t, -0.01), "zero": h.do_step(t, 0.0), "nan": h.do_step(t, math.nan),
+        "inf": h.do_step(t, math.inf), "wrong_time": h.do_step(t + 1.0, 0.01),
+        "nan_time": h.do_step(math.nan, 0.01), "past": h.do_step(0.0, 0.01),
+    }
+    h.do_step(t, -0.01)
+    last_ok = h.last_successful_time()  # pythonfmu reports the refused call's start
+    cont = [h.do_step(t, 0.01), h.do_step(t + 0.01, 0.02)]
+    clean.do_step(t, 0.01)
+    clean.do_step(t + 0.01, 0.02)
+    R["steps"] = {"statuses": statuses, "continue": cont, "last_successful_time": last_ok,
+                  "same_as_clean": h.get(["q", "u", "impacts"]) == clean.get(["q", "u", "impacts"]),
+                  "messages": h.errors(2)}
+    h.close()
+    clean.close()
+
+    # --- calls in the wrong state
+    from fmu_sync.fmi_bridge import FMUHost
+    h = FMUHost(a["io"], instance_name="order", logging=True)
+    w = {"step_before_init": h.do_step(0.0, 0.01)}
+    h.call("setupExperiment", None, 0.0)
+    h.call("enterInitializationMode")
+    w["step_in_init"] = h.do_step(0.0, 0.01)
+    w["set_output"] = h.set({"q": 3.0})
+    h.call("exitInitializationMode")
+    h._stepping = True
+    w["step_after_set_output"] = h.do_step(0.0, 0.01)
+    w["step_ok"] = h.do_step(0.0, 0.01)
+    w["set_param_late"] = h.set({"e": 0.1})
+    w["step_after_late_param"] = h.do_step(0.01, 0.01)
+    w["e_unchanged"] = h.get(["e"])[0]
+    w["unknown_vr"] = [h.call("getReal", [999])[0], h.call("getReal", [999])[1]]
+    w["wrong_type"] = [h.call("setReal", [h.vr("impacts")], [1.0])[0],
+                       h.call("getReal", [h.vr("impacts")])[1]]
+    w["step_after_bad_refs"] = h.do_step(0.01, 0.01)
+    w["step_ok2"] = h.do_step(0.01, 0.01)
+    w["enter_init_again"] = h.call("enterInitializationMode")[0]
+    w["step_after_enter_again"] = h.do_step(0.02, 0.01)
+    w["terminate"] = h.call("terminate")[0]
+    w["step_after_terminate"] = h.do_step(0.02, 0.01)
+    w["set_after_terminate"] = h.set({"tau": 1.0})
+    w["dead"] = h.dead
+    w["errors"] = h.errors(2)
+    h._stepping = False
+    h.close()
+    R["order"] = w
+
+    # --- diverging scheme: rolled back, fmi2Discard, state stays the last valid one
+    h, _ = fresh(starts={"k": 1e8, "solver.dt": 1e-2, "q_start": 0.5})
+    q0 = h.get(["q", "u"])
+    R["diverge"] = {"step": h.do_step(0.0, 1.0), "q_u": h.get(["q", "u"]), "q0": q0,
+                    "last_successful_time": h.last_successful_time(), "errors": h.errors(2)}
+    h.close()
+
+    # --- bad FMU states
+    h, _ = fresh()
+    g, _ = fresh("ms2", name="other")
+    h.do_step(0.0, 0.01)
+    st, s_other = g.get_state()
+    other_blob = g.serialize_state(s_other)
+    q_before = h.get(["q", "u"])
+    d_st, s_bad = h.deserialize_state(b"\x00not json")
+    r = {"deserialize_garbage": d_st, "set_garbage": h.set_state(s_bad),
+         "step_after_garbage": h.do_step(0.01, 0.01)}
+    d_st2, s_wrong = h.deserialize_state(other_blob)
+    r.update({"deserialize_other": d_st2, "set_other": h.set_state(s_wrong),
+              "step_after_other": h.do_step(0.01, 0.01), "step_ok": h.do_step(0.01, 0.01)})
+    r["moved"] = q_before != h.get(["q", "u"])  # only the good step moved it
+    r["errors"] = h.errors()
+    R["state"] = r
+    for x in (h, g):
+        x.close()
+    return R
+
+
+def scenario_exit(a):
+    """Load, run and free an FMU with plain fmpy, then exit normally."""
+    import shutil
+
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    from fmu_sync.fmus import _export_lib
+    md = read_model_description(a["io"])
+    d = extract(a["io"])
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=d, modelIdentifier=md.coSimulation.modelIdentifier,
+                    instanceName="exit")
+    fmu.instantiate()
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    for k in range(50):
+        fmu.doStep(k * 0.01, 0.01)
+    q = fmu.getReal([1])[0]
+    fmu.terminate()
+    fmu.freeInstance()
+    shutil.rmtree(d, ignore_errors=True)
+    return {"q": q, "registered": len(_export_lib._LIBRARIES)}
+
+
+def _child_main(argv):
+    name, args_path, out_path = argv
+    args = json.loads(Path(args_path).read_text())
+    result = globals()[f"scenario_{name}"](args)
+    Path(out_path).write_text(json.dumps(result))
+
+
+# =============================================================== parent side
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from fmu_sync.core import ImpactOscillator, MechanicalSystem, simulate  # noqa: E402
+from fmu_sync.export import export_fmu  # noqa: E402
+
+
+def _child(name: str, args_path: Path, tmp: Path, timeout: float = 300.0):
+    fd, out_path = tempfile.mkstemp(prefix=f"{name}.", suffix=".out.json", dir=tmp)
+    os.close(fd)
+    out_path = Path(out_path)
+    out_path.unlink()
+    p = subprocess.run([sys.executable, __file__, name, str(args_path), str(out_path)],
+                       capture_output=True, text=True, timeout=timeout)
+    result = json.loads(out_path.read_text()) if out_path.exists() else None
+    return p.returncode, result, p.stderr[-3000:]
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """Export the FMUs and run all scenario children, two at a time (2 cores)."""
+    tmp = tmp_path_factory.mktemp("fmu_run")
+    a = {
+        "io": str(export_fmu("impact-oscillator", tmp / "io.fmu")),
+        "io_theta": str(export_fmu("impact-oscillator", tmp / "io_theta.fmu",
+                                   {"solver.scheme": "theta", "solver.theta": 0.75, "e": 0.6})),
+        "ms2": str(export_fmu("mechanical-system-2", tmp / "ms2.fmu")),
+        "cosim_steps": 3000,
+    }
+    args_path = tmp / "args.json"
+    args_path.write_text(json.dumps(a))
+    # Compile (or load) the kernel once here, so that on a cold numba cache the
+    # children load it instead of each compiling it.
+    from fmu_sync.core.moreau import advance
+    advance(_io_system().arrays(), np.array([1.0]), np.array([0.0]), 0.0, DT, DT, np.zeros(1), 0, 0.5)
+    names = ["reference", "libcosim", "state", "errors", "instances"] + ["exit"] * EXIT_PROCESSES
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        done = list(pool.map(lambda n: (n, _child(n, args_path, tmp)), names))
+    out = {"exit": []}
+    for name, (rc, result, err) in done:
+        if name == "exit":
+            out["exit"].append((rc, result, err))
+        else:
+            out[name] = (rc, result, err)
+    return out
+
+
+def _ok(runs, name):
+    rc, result, err = runs[name]
+    assert rc == 0, f"child {name} exited with {rc}:\n{err}"
+    return result
+
+
+def _io_system(**kw):
+    p = dict(m=1.0, k=1.0, c=0.0, f0=0.2, F=0.5, Omega=2.5, phi=0.0, e=0.9)
+    p.update(kw)
+    return ImpactOscillator(**p)
+
+
+def test_fmpy_matches_core_1dof(runs):
+    r = _ok(runs, "reference")
+    ref = simulate(_io_system(), (1.0, 0.0), T_END, DT, scheme="midpoint")
+    res = r["io_H1"]
+    assert len(res["time"]) == len(ref.t)
+    np.testing.assert_allclose(res["time"], ref.t, rtol=0, atol=1e-12)
+    assert np.max(np.abs(np.array(res["q"]) - ref.q[:, 0])) <= 1e-12
+    assert np.max(np.abs(np.array(res["u"]) - ref.u[:, 0])) <= 1e-12
+    assert res["impacts"][-1] == ref.impacts > 0
+    np.testing.assert_allclose(res["percussion"], ref.percussion, rtol=0, atol=1e-12)
+    s = _io_system()
+    assert np.max(np.abs(np.array(res["energy"]) - [s.energy(q, u) for q, u in zip(ref.q, ref.u)])) <= 1e-11
+    np.testing.assert_array_equal(res["gap"], res["q"])  # w = 1, g0 = 0
+
+
+def test_fmpy_matches_core_1dof_H_10dt(runs):
+    r = _ok(runs, "reference")
+    ref = simulate(_io_system(), (1.0, 0.0), T_END, DT, scheme="midpoint", record_every=10)
+    res = r["io_H10"]
+    assert len(res["time"]) == len(ref.t)
+    assert np.max(np.abs(np.array(res["q"]) - ref.q[:, 0])) <= 1e-12
+    assert np.max(np.abs(np.array(res["u"]) - ref.u[:, 0])) <= 1e-12
+
+
+def test_fmpy_matches_core_theta_scheme(runs):
+    r = _ok(runs, "reference")
+    ref = simulate(_io_system(e=0.6), (1.0, 0.0), T_END, DT, scheme="theta", theta=0.75)
+    res = r["io_theta"]
+    assert np.max(np.abs(np.array(res["q"]) - ref.q[:, 0])) <= 1e-12
+    assert np.max(np.abs(np.array(res["u"]) - ref.u[:, 0])) <= 1e-12
+
+
+def test_fmpy_matches_core_2dof(runs):
+    r = _ok(runs, "reference")
+    system = MechanicalSystem(M=[[2.0, 0.5], [0.5, 1.0]], K=[[3.0, -1.0], [-1.0, 2.0]],
+                              C=[[0.02, 0.0], [0.0, 0.02]], f0=[0.1, 0.2], w=[1.0, 0.5], g0=0.0,
+                              e=0.7, forcing=(([0.6, 0.0], 1.3, 0.0),))
+    ref = simulate(system, ([0.6, 0.2], [0.0, 0.0]), T_END, DT)
+    res = r["ms2"]
+    for i in range(2):
+        assert np.max(np.abs(np.array(res[f"q[{i + 1}]"]) - ref.q[:, i])) <= 1e-12
+        assert np.max(np.abs(np.array(res[f"u[{i + 1}]"]) - ref.u[:, i])) <= 1e-12
+    assert res["impacts"][-1] == ref.impacts > 0
+    np.testing.assert_allclose(res["gap"], ref.q @ system.w + system.g0, rtol=0, atol=1e-12)
+
+
+def test_libcosimpy_matches_fmpy(runs):
+    cosim = _ok(runs, "libcosim")
+    assert cosim["ok"], cosim
+    fm = np.array(_ok(runs, "reference")["io_loop"])
+    lc = np.array(cosim["q_u"])
+    assert lc.shape == fm.shape == (3000, 2)
+    assert np.max(np.abs(lc - fm)) <= 1e-12
+    assert np.ptp(fm[:, 0]) > 0.1  # it moved
+
+
+@pytest.mark.parametrize("key", ["io", "ms2"])
+def test_fmu_state_round_trips_reproduce_the_run(runs, key):
+    r = _ok(runs, "state")[key]
+    assert r["statuses"] == [0, 0]
+    assert r["same_at_restore"] and r["same_at_restore_bytes"]
+    assert r["identical_in_memory"], "restoring the in-memory state did not reproduce the run bit for bit"
+    assert r["identical_from_bytes"], "restoring the serialised state did not reproduce the run bit for bit"
+    assert r["t_end"] == pytest.approx(r["t_expected"], abs=1e-12)   # variable steps accepted
+    assert r["errors"] == []
+    state = json.loads(r["blob"])   # plain JSON, everything that determines the future
+    assert state["format"] == "fmu-sync-state/1"
+    for k in ("time", "q", "u", "tau", "impacts", "percussion", "parameters", "phase"):
+        assert k in state
+    assert state["parameters"]["solver.dt"] == DT
+
+
+def test_several_instances_in_one_process(runs):
+    r = _ok(runs, "instances")
+    assert len(set(r["refcounts"])) == 1, r["refcounts"]   # no reference lost per instantiation
+    assert r["last"] == r["alone"]                         # independent, bit for bit
+    assert len({tuple(x) for x in r["last"]}) == 4
+
+
+def test_nan_and_inf_input_are_refused(runs):
+    r = _ok(runs, "errors")["input"]
+    for set_st, step1, step2, q_u_tau in r["cases"]:
+        assert set_st == 0            # fmi2SetReal cannot fail under pythonfmu; it logs fmi2Error
+        assert (step1, step2) == (2, 2)  # fmi2Discard while the input is invalid
+        assert q_u_tau == r["before"]    # data already produced stays valid
+    assert r["fixed"] == [0, 0]
+    assert any("input tau = nan rejected" in m for m in r["errors"])
+    assert any("input tau = inf rejected" in m for m in r["errors"])
+    assert any("refused" in m and "tau" in m for m in r["discards"])
+
+
+@pytest.mark.parametrize("case, words", [
+    ("e=1.5", ["e", "<= 1"]), ("e=nan", ["e", "finite"]), ("m=-1.0", ["m", "> 0"]), ("m=0.0", ["m", "> 0"]),
+    ("solver.dt=0.0", ["solver.dt", "> 0"]), ("solver.theta=0.3", ["solver.theta", ">= 0.5"]),
+    ("k=-2.0", ["k", ">= 0"]), ("q_start=-0.1", ["q_start", ">= 0"]),
+    ("solver.scheme=7", ["solver.scheme", "midpoint"]),
+])
+def test_parameter_out_of_bounds(runs, case, words):
+    r = _ok(runs, "errors")["params"][case]
+    assert r["init"] == 0 and r["step"] == 2
+    assert math.isfinite(r["q"])
+    assert r["errors"] and all(w in r["errors"][0] for w in words), r["errors"]
+    assert r["after_reset"] == [0, 0]
+
+
+@pytest.mark.parametrize("case, words", [
+    ("gap", ["g(q_start)", "< 0"]), ("asymmetric", ["symmetric"]), ("not_pd", ["positive definite"]),
+    ("w_zero", ["nonzero"]),
+])
+def test_invalid_model_is_refused(runs, case, words):
+    r = _ok(runs, "errors")["model"][case]
+    assert r["init"] == 0 and r["step"] == 2
+    assert all(w in r["errors"][0] for w in words), r["errors"]
+
+
+def test_bad_communication_steps(runs):
+    r = _ok(runs, "errors")["steps"]
+    assert set(r["statuses"].values()) == {2}, r["statuses"]
+    assert r["continue"] == [0, 0]
+    assert r["last_successful_time"] == pytest.approx(0.05)
+    assert r["same_as_clean"], "refused steps changed the state"
+    msgs = " ".join(r["messages"])
+    assert "step size -0.01 rejected" in msgs and "not the slave's time" in msgs
+
+
+def test_calls_in_the_wrong_state(runs):
+    w = _ok(runs, "errors")["order"]
+    assert w["step_before_init"] == 2 and w["step_in_init"] == 2
+    assert w["set_output"] == 0 and w["step_after_set_output"] == 2 and w["step_ok"] == 0
+    assert w["set_param_late"] == 0 and w["step_after_late_param"] == 2 and w["e_unchanged"] == 0.9
+    assert w["unknown_vr"][0] == 0 and math.isnan(w["unknown_vr"][1][0])
+    assert w["wrong_type"][0] == 0 and math.isnan(w["wrong_type"][1][0])
+    assert w["step_after_bad_refs"] == 2 and w["step_ok2"] == 0
+    assert w["enter_init_again"] == 0 and w["step_after_enter_again"] == 2
+    assert w["terminate"] == 0 and w["step_after_terminate"] == 2 and w["set_after_terminate"] == 0
+    assert not w["dead"]
+    text = " ".join(w["errors"])
+    for words in ("call fmi2ExitInitializationMode first", "q is an output", "cannot set parameter e",
+                  "unknown value reference 999", "is impacts, of type Integer", "cannot set input tau after fmi2Terminate",
+                  "doStep called in terminated"):
+        assert words in text, words
+
+
+def test_divergence_is_rolled_back(runs):
+    r = _ok(runs, "errors")["diverge"]
+    assert r["step"] == 2
+    assert r["q_u"] == r["q0"] and all(math.isfinite(x) for x in r["q_u"])
+    assert r["last_successful_time"] == 0.0
+    assert any("non-finite" in m and "omega_max*dt" in m and "rolled back" in m for m in r["errors"])
+
+
+def test_bad_fmu_state_is_refused(runs):
+    r = _ok(runs, "errors")["state"]
+    assert r["deserialize_garbage"] == 0 and r["set_garbage"] == 0 and r["step_after_garbage"] == 2
+    assert r["deserialize_other"] == 0 and r["set_other"] == 0 and r["step_after_other"] == 2
+    assert r["step_ok"] == 0 and r["moved"]
+    text = " ".join(r["errors"])
+    assert "cannot deserialise the FMU state" in text and "state of model 'mechanical-system-2'" in text
+
+
+def test_fresh_processes_exit_cleanly(runs):
+    """pythonfmu 0.7.0's exit crash (46 of 50 processes before the fix) must not happen.
+
+    The cheap version of the 200-process claim: EXIT_PROCESSES fresh processes
+    (bench/bench_fmu.py --exit-check 200 runs 200), each checking that the
+    teardown handler found the FMU's export library.
+    """
+    results = runs["exit"]
+    assert len(results) == EXIT_PROCESSES
+    failed = [(rc, err.strip().splitlines()[-1:] if err else "") for rc, _, err in results if rc != 0]
+    assert not failed, f"{len(failed)} of {len(results)} processes exited non-zero: {failed[:3]}"
+    assert all(res["registered"] == 1 for _, res, _ in results)
+
+
+if __name__ == "__main__":
+    _child_main(sys.argv[1:])
