@@ -15,8 +15,7 @@ functional entry point.
 from __future__ import annotations
 
 import math
-from ctypes import byref
-from dataclasses import dataclass, field
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -39,127 +38,60 @@ class SlaveError(RuntimeError):
         self.slave, self.t, self.call, self.status, self.log = slave, t, call, status, list(log)
 
 
-@dataclass
-class _Log:
-    messages: list = field(default_factory=list)
-    echo: bool = False
-
-
 class Slave:
-    """One FMU instance: value references by name, every call status-checked."""
+    """One FMU instance as the master uses it: the status-returning
+    :class:`fmu_sync.fmi_bridge.FMUHost`, with every status worse than
+    fmi2Warning turned into a :class:`SlaveError` naming the slave, the time and
+    the FMU's logged reason."""
 
-    def __init__(self, md, unzipdir: str, name: str, echo_log: bool = False):
-        from fmpy.fmi1 import FMICallException  # noqa: F401  (imported lazily with fmpy)
-        from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
-                               fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
-        from fmpy.fmi1 import calloc, free
-
+    def __init__(self, unzipdir: str, md, name: str):
+        from .fmi_bridge import FMUHost
         self.name = name
-        self.md = md
-        self.vr = {v.name: v.valueReference for v in md.modelVariables}
-        self.types = {v.name: v.type for v in md.modelVariables}
-        self.log = _Log(echo=echo_log)
         self.t = 0.0
-        self.alive = False
+        self.host = FMUHost(unzipdir, instance_name=name, model_description=md)
+        self.vr = self.host.variables
 
-        def logger(component, instance_name, status, category, message):
-            text = message.decode("utf-8", "replace") if isinstance(message, bytes) else str(message)
-            self.log.messages.append(text)
-            if self.log.echo:
-                print(f"[{name}] {text}")
-
-        cb = fmi2CallbackFunctions()
-        cb.logger = fmi2CallbackLoggerTYPE(logger)
-        cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-        cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-        try:
-            from fmpy.logging import addLoggerProxy
-            addLoggerProxy(byref(cb))
-        except Exception:  # pragma: no cover - fmpy without its logging helper
-            pass
-        self._callbacks = cb  # keep the ctypes callbacks alive as long as the instance
-        self._logger = logger
-        self.fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir,
-                             modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
-        self._call("fmi2Instantiate", self.fmu.instantiate, callbacks=cb, loggingOn=True)
-        self.alive = True
-
-    # ------------------------------------------------------------- plumbing
-    def _call(self, call: str, fn, *args, **kwargs):
-        from fmpy.fmi1 import FMICallException
-        try:
-            return fn(*args, **kwargs)
-        except FMICallException as ex:
-            if ex.status >= 4:  # fmi2Fatal: no further calls to this instance
-                self.alive = False
-            raise SlaveError(self.name, self.t, call, ex.status, self.log.messages) from None
-        except Exception as ex:
-            raise SlaveError(self.name, self.t, call, 3, self.log.messages + [str(ex)]) from None
-
-    def refs(self, names) -> list[int]:
-        missing = [n for n in names if n not in self.vr]
-        if missing:
-            raise KeyError(f"FMU {self.md.modelName!r} has no variable(s) {missing}")
-        return [self.vr[n] for n in names]
+    def _check(self, call: str, status: int):
+        if status > 1:
+            raise SlaveError(self.name, self.t, call, status,
+                             self.host.errors(min_status=1) or [m for _, _, m in self.host.messages])
 
     def get(self, names) -> np.ndarray:
-        return np.array(self._call("fmi2GetReal", self.fmu.getReal, self.refs(names)), dtype=np.float64)
-
-    def set(self, names, values) -> None:
-        self._call("fmi2SetReal", self.fmu.setReal, self.refs(names), [float(v) for v in values])
-
-    def set_start(self, values: dict) -> None:
-        for name, value in values.items():
-            kind = self.types.get(name)
-            if kind is None:
-                raise KeyError(f"FMU {self.md.modelName!r} has no variable {name!r}")
-            vr = [self.vr[name]]
-            if kind == "Real":
-                self._call("fmi2SetReal", self.fmu.setReal, vr, [float(value)])
-            elif kind in ("Integer", "Enumeration"):
-                self._call("fmi2SetInteger", self.fmu.setInteger, vr, [int(value)])
-            elif kind == "Boolean":
-                self._call("fmi2SetBoolean", self.fmu.setBoolean, vr, [bool(value)])
-            else:
-                self._call("fmi2SetString", self.fmu.setString, vr, [str(value)])
+        values = self.host.get(names)
+        self._check("fmi2GetReal", self.host.last_status)
+        return np.array(values, dtype=np.float64)
 
     def get_integer(self, name: str) -> int:
-        return int(self._call("fmi2GetInteger", self.fmu.getInteger, self.refs([name]))[0])
+        value = self.host.get([name])[0]
+        self._check("fmi2GetInteger", self.host.last_status)
+        return int(value)
 
-    def initialize(self, t0: float, t_end: float) -> None:
+    def set(self, values: dict) -> None:
+        self._check("fmi2SetReal", self.host.set(values))
+
+    def initialize(self, t0: float, start_values: dict) -> None:
         self.t = t0
-        self._call("fmi2SetupExperiment", self.fmu.setupExperiment, startTime=t0, stopTime=t_end)
-        self._call("fmi2EnterInitializationMode", self.fmu.enterInitializationMode)
-        self._call("fmi2ExitInitializationMode", self.fmu.exitInitializationMode)
+        self._check("initialization", self.host.initialize(t0, start_values))
 
     def do_step(self, t: float, h: float) -> None:
         self.t = t
-        self._call("fmi2DoStep", self.fmu.doStep, currentCommunicationPoint=t, communicationStepSize=h)
+        self._check("fmi2DoStep", self.host.do_step(t, h))
         self.t = t + h
 
     def save(self):
-        return self._call("fmi2GetFMUstate", self.fmu.getFMUState)
+        status, state = self.host.get_state()
+        self._check("fmi2GetFMUstate", status)
+        return state
 
     def restore(self, state, t: float) -> None:
-        self._call("fmi2SetFMUstate", self.fmu.setFMUState, state)
+        self._check("fmi2SetFMUstate", self.host.set_state(state))
         self.t = t
 
     def free_state(self, state) -> None:
-        self._call("fmi2FreeFMUstate", self.fmu.freeFMUState, state)
+        self._check("fmi2FreeFMUstate", self.host.free_state(state))
 
     def close(self) -> None:
-        """Terminate and free (skipping calls the standard forbids after fmi2Fatal)."""
-        if not self.alive:
-            return
-        self.alive = False
-        try:
-            self.fmu.terminate()
-        except Exception:
-            pass
-        try:
-            self.fmu.freeInstance()
-        except Exception:
-            pass
+        self.host.close()
 
 
 def _names(slave: Slave, base: str, n: int) -> list[str]:
@@ -213,7 +145,7 @@ def _check_positive(name, value):
 def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None, Kp=0.0, Kd=0.0,
                Q=None, method: str = "jacobi", record_every: int = 1, event_aware: bool = False,
                H_min: float | None = None, start_values: dict | None = None, progress=None,
-               record_distance: bool = True, echo_log: bool = False) -> PairResult:
+               record_distance: bool = True) -> PairResult:
     """Co-simulate two instances of ``fmu`` coupled by ``coupling`` (SPEC §5, §8).
 
     Parameters
@@ -265,23 +197,27 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
     if not Path(fmu).is_file():
         raise FileNotFoundError(f"FMU not found: {fmu}")
     md = read_model_description(fmu)
-    unzipdir = extract(fmu)
+    unzipdir = extract(fmu)  # one unpacked copy shared by both instances, removed at the end
     slaves: list[Slave] = []
     law = LAWS[coupling]
     try:
         for i in range(2):
-            slaves.append(Slave(md, unzipdir, f"system{i + 1}", echo_log=echo_log))
+            slaves.append(Slave(unzipdir, md, f"system{i + 1}"))
         s1, s2 = slaves
         n = _dofs(s1)
         qn, un, taun = _names(s1, "q", n), _names(s1, "u", n), _names(s1, "tau", n)
+        extra = dict(start_values or {})
         for s in slaves:
-            if start_values:
-                s.set_start(start_values)
+            s.set(extra)
         system = system_from_fmu(s1)
         for s, x, label in ((s1, x1, "x1"), (s2, x2, "x2")):
             q0, u0 = as_state(system, x, label)
-            s.set(_names(s, "q_start", n) + _names(s, "u_start", n), list(q0) + list(u0))
-            s.initialize(0.0, t_end)
+            if system.gap(q0) < 0.0:
+                raise ValueError(f"{label} violates the constraint: g(q) = {system.gap(q0):.6g} < 0 "
+                                 f"(need g >= 0)")
+            start = dict(zip(_names(s, "q_start", n) + _names(s, "u_start", n), list(q0) + list(u0)))
+            s.initialize(0.0, start)
+        system = system_from_fmu(s1)
         need_d = record_distance or law != LAWS[None]
         geo = geometry(system, Q)
         Kp_m, Kd_m = gain_matrix(Kp, n, "Kp"), gain_matrix(Kd, n, "Kd")
@@ -311,9 +247,9 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
         def exchange(t, h, q1, u1, q2, u2):
             """One communication step of length h from t; returns the new states."""
             forces(q1, u1, q2, u2)
-            s1.set(taun, tau1)
+            s1.set(dict(zip(taun, tau1)))
             if method == "jacobi":
-                s2.set(taun, tau2)
+                s2.set(dict(zip(taun, tau2)))
                 s1.do_step(t, h)
                 s2.do_step(t, h)
                 return read(s1) + read(s2)
@@ -322,7 +258,7 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
             t1_hold = tau1.copy()
             forces(q1n, u1n, q2, u2)
             tau1[:] = t1_hold
-            s2.set(taun, tau2)
+            s2.set(dict(zip(taun, tau2)))
             s2.do_step(t, h)
             return (q1n, u1n) + read(s2)
 
@@ -375,6 +311,7 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
     finally:
         for s in slaves:
             s.close()
+        shutil.rmtree(unzipdir, ignore_errors=True)
 
     sl = slice(0, row)
     res = PairResult(T[sl], Q1[sl], U1[sl], Q2[sl], U2[sl], TAU1[sl], TAU2[sl],
