@@ -1,0 +1,279 @@
+"""Coupling laws between two systems (SPEC §5).
+
+Both laws produce non-impulsive generalized forces ``tau1, tau2`` with n entries
+each: the input matrix is assumed to be ``B = I`` (tau acts directly as a
+generalized force; this is the default ``B`` of :class:`MechanicalSystem`).
+
+* **Switching quotient coupling** (:func:`switching_coupling`): with the
+  quotient distance ``d`` and its chain ends ``c1, c2`` (:mod:`.distance`),
+  ``E_i = d (x_i - c_i) / ||x_i - c_i||_P`` (0 if the denominator is 0) and
+  ``tau_i = -Kp E_i^q - Kd E_i^u``.  On branch E (``c1 = x2``, ``c2 = x1``,
+  ``d = ||x1 - x2||_P``) this *is* the classical PD law, and it is computed as
+  such there, so that ``tau1 = -tau2`` holds exactly.
+* **Euclidean PD coupling** (:func:`euclidean_coupling`):
+  ``tau1 = -Kp (q1 - q2) - Kd (u1 - u2) = -tau2``.
+
+Since ``||E_i||_P = d``: ``|tau_i| <= (|Kp| / sqrt(lmin Q) + |Kd| / sqrt(lmin M)) d``
+(spectral norms), so the forces are bounded by the distance -- no impulses.
+
+Kernels (all ``@njit(cache=True)``, nopython, allocation-free):
+
+* array kernels for any n -- :func:`switching_coupling`,
+  :func:`euclidean_coupling`, :func:`coupling_kernel` (dispatch on an integer
+  law code).  The caller owns the force arrays and the chain-end work arrays
+  (:func:`chain_work`); gains are (n, n) arrays (:func:`gain_matrix`).  They
+  are numba-inlined into the calling loop and dispatch n = 1 to:
+* scalar 1-DOF kernels -- :func:`switching_coupling1`,
+  :func:`euclidean_coupling1`, :func:`coupling_kernel1` -- floats in and out,
+  taking ``geo.scalar`` and scalar gains; bit-identical to the array kernels.
+
+The co-simulation master and ``simulate_pair`` call these same kernels.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .distance import BRANCH_E, _resolve, _state, distance1, distance_kernel
+
+__all__ = ["SWITCHING", "EUCLIDEAN", "UNCOUPLED", "LAWS", "BRANCH_NONE",
+           "switching_coupling", "euclidean_coupling", "coupling_kernel",
+           "switching_coupling1", "euclidean_coupling1", "coupling_kernel1",
+           "gain_matrix", "chain_work", "law_code", "coupling_forces"]
+
+SWITCHING = 0
+EUCLIDEAN = 1
+UNCOUPLED = 2
+LAWS = {"switching": SWITCHING, "euclidean": EUCLIDEAN, "none": UNCOUPLED}
+#: Branch code returned for the laws that compute no quotient distance.
+BRANCH_NONE = -1
+
+
+# ------------------------------------------------------------ scalar (1-DOF)
+@njit(cache=True, inline="always", error_model="numpy")
+def _pull1(sg, kp, kd, d, dq, du):
+    """-kp E^q - kd E^u with E = d (dq, du) / ||(dq, du)||_P (0 if that is 0)."""
+    acc = dq * (sg.Q11 * dq) + du * (sg.M11 * du)
+    nrm = math.sqrt(max(acc, 0.0))
+    scale = d / nrm if nrm > 0.0 else 0.0
+    return 0.0 - scale * (kp * dq + kd * du)
+
+
+@njit(cache=True, error_model="numpy")
+def switching_coupling1(sg, kp, kd, q1, u1, q2, u2):
+    """Switching quotient coupling, 1-DOF, floats: ``sg = geo.scalar``.
+
+    Returns ``(tau1, tau2, d, branch)``."""
+    d, branch, c1q, c1u, c2q, c2u = distance1(sg, q1, u1, q2, u2)
+    if branch == BRANCH_E:
+        s = kp * (q1 - q2) + kd * (u1 - u2)
+        return -s, s, d, branch
+    return (_pull1(sg, kp, kd, d, q1 - c1q, u1 - c1u),
+            _pull1(sg, kp, kd, d, q2 - c2q, u2 - c2u), d, branch)
+
+
+@njit(cache=True, error_model="numpy")
+def euclidean_coupling1(sg, kp, kd, q1, u1, q2, u2):
+    """Euclidean PD coupling, 1-DOF, floats.  Returns ``(tau1, tau2, E)`` with
+    ``E = ||x1 - x2||_P``."""
+    dq = q1 - q2
+    du = u1 - u2
+    s = kp * dq + kd * du
+    return -s, s, math.sqrt(max(dq * (sg.Q11 * dq) + du * (sg.M11 * du), 0.0))
+
+
+@njit(cache=True, error_model="numpy")
+def coupling_kernel1(law, sg, kp, kd, q1, u1, q2, u2):
+    """1-DOF dispatch on ``law``: ``(tau1, tau2, value, branch)`` -- for
+    SWITCHING the quotient distance and its branch code, otherwise the
+    Euclidean error and ``BRANCH_NONE`` (UNCOUPLED: zero forces)."""
+    if law == SWITCHING:
+        return switching_coupling1(sg, kp, kd, q1, u1, q2, u2)
+    t1, t2, E = euclidean_coupling1(sg, kp, kd, q1, u1, q2, u2)
+    if law != EUCLIDEAN:
+        t1 = 0.0
+        t2 = 0.0
+    return t1, t2, E, BRANCH_NONE
+
+
+# ------------------------------------------------------------- arrays (any n)
+@njit(cache=True, inline="always", error_model="numpy")
+def _euclidean_forces(Kp, Kd, q1, u1, q2, u2, tau1, tau2):
+    n = q1.shape[0]
+    for k in range(n):
+        s = 0.0
+        for j in range(n):
+            s += Kp[k, j] * (q1[j] - q2[j]) + Kd[k, j] * (u1[j] - u2[j])
+        tau1[k] = -s
+        tau2[k] = s
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _p_norm_diff(Q, M, q, u, cq, cu):
+    """||(q - cq, u - cu)||_P."""
+    n = q.shape[0]
+    acc = 0.0
+    for i in range(n):
+        rq = 0.0
+        ru = 0.0
+        for j in range(n):
+            rq += Q[i, j] * (q[j] - cq[j])
+            ru += M[i, j] * (u[j] - cu[j])
+        acc += (q[i] - cq[i]) * rq + (u[i] - cu[i]) * ru
+    return math.sqrt(max(acc, 0.0))
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _pull(Kp, Kd, scale, q, u, cq, cu, tau):
+    """tau = -scale (Kp (q - cq) + Kd (u - cu))."""
+    n = q.shape[0]
+    for k in range(n):
+        s = 0.0
+        for j in range(n):
+            s += Kp[k, j] * (q[j] - cq[j]) + Kd[k, j] * (u[j] - cu[j])
+        tau[k] = 0.0 - scale * s
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def switching_coupling(geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u):
+    """Switching quotient coupling into ``tau1``, ``tau2``; returns ``(d, branch)``.
+
+    ``Kp, Kd``: (n, n) gains.  ``c1q, c1u, c2q, c2u``: (n,) work arrays (not
+    aliasing the states); on return they hold the chain ends c1, c2 of
+    :func:`.distance.distance_kernel`.  Allocates nothing.
+    """
+    if q1.shape[0] == 1:
+        sg = geo.scalar
+        kp = Kp[0, 0]
+        kd = Kd[0, 0]
+        x1q = q1[0]
+        x1u = u1[0]
+        x2q = q2[0]
+        x2u = u2[0]
+        d, branch, a1q, a1u, a2q, a2u = distance1(sg, x1q, x1u, x2q, x2u)
+        c1q[0] = a1q
+        c1u[0] = a1u
+        c2q[0] = a2q
+        c2u[0] = a2u
+        if branch == BRANCH_E:
+            s = kp * (x1q - x2q) + kd * (x1u - x2u)
+            tau1[0] = -s
+            tau2[0] = s
+        else:
+            tau1[0] = _pull1(sg, kp, kd, d, x1q - a1q, x1u - a1u)
+            tau2[0] = _pull1(sg, kp, kd, d, x2q - a2q, x2u - a2u)
+        return d, branch
+    d, branch = distance_kernel(geo, q1, u1, q2, u2, c1q, c1u, c2q, c2u)
+    if branch == BRANCH_E:
+        _euclidean_forces(Kp, Kd, q1, u1, q2, u2, tau1, tau2)
+    else:
+        n1 = _p_norm_diff(geo.Q, geo.M, q1, u1, c1q, c1u)
+        n2 = _p_norm_diff(geo.Q, geo.M, q2, u2, c2q, c2u)
+        _pull(Kp, Kd, d / n1 if n1 > 0.0 else 0.0, q1, u1, c1q, c1u, tau1)
+        _pull(Kp, Kd, d / n2 if n2 > 0.0 else 0.0, q2, u2, c2q, c2u, tau2)
+    return d, branch
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def euclidean_coupling(geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2):
+    """Euclidean PD law into ``tau1`` and ``tau2 = -tau1``.  Returns the
+    Euclidean error ``||x1 - x2||_P`` (Q, M from ``geo``).  Allocates nothing."""
+    if q1.shape[0] == 1:
+        t1, t2, E = euclidean_coupling1(geo.scalar, Kp[0, 0], Kd[0, 0], q1[0], u1[0], q2[0], u2[0])
+        tau1[0] = t1
+        tau2[0] = t2
+        return E
+    _euclidean_forces(Kp, Kd, q1, u1, q2, u2, tau1, tau2)
+    return _p_norm_diff(geo.Q, geo.M, q1, u1, q2, u2)
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def coupling_kernel(law, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u):
+    """Dispatch on ``law`` (``SWITCHING``, ``EUCLIDEAN``, ``UNCOUPLED``).
+
+    Returns ``(value, branch)``: for SWITCHING the quotient distance d and its
+    branch code (chain ends in ``c1q..c2u``); for EUCLIDEAN and UNCOUPLED (zero
+    forces) the Euclidean error ``||x1 - x2||_P`` and ``BRANCH_NONE`` (no
+    distance computed; use :func:`.distance.distance_value` to record d).
+    """
+    if law == SWITCHING:
+        return switching_coupling(geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u)
+    E = euclidean_coupling(geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2)
+    if law != EUCLIDEAN:
+        for i in range(tau1.shape[0]):
+            tau1[i] = 0.0
+            tau2[i] = 0.0
+    return E, BRANCH_NONE
+
+
+# ------------------------------------------------------------------ Python API
+def gain_matrix(K, n: int, name: str = "Kp") -> np.ndarray:
+    """(n, n) float64 gain from a scalar ``s >= 0`` (-> ``s I``) or an n x n matrix
+    whose symmetric part is positive semidefinite."""
+    try:
+        a = np.array(K, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a nonnegative scalar or an {n}x{n} matrix, got {K!r}") from None
+    if a.ndim == 0:
+        s = float(a)
+        if not (math.isfinite(s) and s >= 0.0):
+            raise ValueError(f"{name} must be a finite gain >= 0, got {s}")
+        return np.eye(n) * s
+    if a.shape != (n, n):
+        raise ValueError(f"{name} must be a scalar or {n}x{n}, got shape {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{name} must be finite, got {a.tolist()}")
+    lmin = float(np.linalg.eigvalsh(0.5 * (a + a.T))[0])
+    if lmin < -1e-12 * max(1.0, float(np.max(np.abs(a)))):
+        raise ValueError(f"{name} must be positive semidefinite (gains >= 0), got smallest eigenvalue "
+                         f"{lmin:.6g} of its symmetric part for {name} = {a.tolist()}")
+    return np.ascontiguousarray(a)
+
+
+def chain_work(n: int):
+    """Four (n,) float64 work arrays ``(c1q, c1u, c2q, c2u)`` for the kernels."""
+    c = np.zeros((4, n))
+    return c[0], c[1], c[2], c[3]
+
+
+def law_code(law) -> int:
+    """Integer code of a law name ("switching", "euclidean", "none")."""
+    if isinstance(law, str) and law in LAWS:
+        return LAWS[law]
+    raise ValueError(f"law must be one of {sorted(LAWS)}, got {law!r}")
+
+
+@njit(cache=True, error_model="numpy")
+def _coupling_call(law, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u):
+    return coupling_kernel(law, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u)
+
+
+def coupling_forces(system, x1, x2, law, Kp, Kd, Q=None):
+    """Coupling forces ``(tau1, tau2)`` of SPEC §5: two (n,) arrays, B = I.
+
+    Parameters
+    ----------
+    system : MechanicalSystem, SystemArrays or DistanceGeometry
+    x1, x2 : states (q, u), floats for 1-DOF or arrays
+    law : "switching", "euclidean" or "none"
+    Kp, Kd : gains, scalars >= 0 or n x n matrices (positive semidefinite)
+    Q : position weight of the distance (positive scalar or n x n SPD), default I
+    """
+    code = law_code(law)
+    geo = _resolve(system, Q)
+    n = geo.w.shape[0]
+    B = getattr(system, "B", None)
+    if B is not None and np.shape(B) != (n, n):
+        raise ValueError(f"the coupling forces have n = {n} entries (B = I assumed); the system's B "
+                         f"has shape {np.shape(B)}")
+    q1, u1 = _state(geo, x1, "x1")
+    q2, u2 = _state(geo, x2, "x2")
+    Kp = gain_matrix(Kp, n, "Kp")
+    Kd = gain_matrix(Kd, n, "Kd")
+    tau1 = np.zeros(n)
+    tau2 = np.zeros(n)
+    c1q, c1u, c2q, c2u = chain_work(n)
+    _coupling_call(code, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u)
+    return tau1, tau2
