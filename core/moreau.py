@@ -73,6 +73,25 @@ def _wdot(sa, v):
 
 
 @njit(cache=True, inline="always")
+def _contact(sa, g, uf, u, W_, iw):
+    """The scalar contact problem of one step, in place on ``uf``; returns P >= 0.
+
+    If the gap g (at the contact-detection point) is closed and Newton's law
+    ``w^T u_E + e w^T u_A >= 0`` is violated by the free velocity, apply the
+    percussion ``P = -xi / W_`` along ``iw`` (``W_ = w^T M^-1 w``, ``iw = M^-1 w``
+    for the midpoint scheme; S in place of M for the theta scheme).
+    """
+    P = 0.0
+    if g <= 0.0:
+        xi = _wdot(sa, uf) + sa.e * _wdot(sa, u)
+        if xi < 0.0:
+            P = -xi / W_
+            for i in range(uf.shape[0]):
+                uf[i] += iw[i] * P
+    return P
+
+
+@njit(cache=True, inline="always")
 def midpoint_step(sa, q, u, tau, t, dt, qM, h, uf):
     """One Moreau midpoint step (SPEC §3), in place. Returns the percussion P."""
     n = q.shape[0]
@@ -85,13 +104,7 @@ def midpoint_step(sa, q, u, tau, t, dt, qM, h, uf):
         for j in range(n):
             s += sa.Minv[i, j] * h[j]
         uf[i] = u[i] + dt * s
-    P = 0.0
-    if _gap(sa, qM) <= 0.0:
-        xi = _wdot(sa, uf) + sa.e * _wdot(sa, u)
-        if xi < 0.0:
-            P = -xi / sa.W
-            for i in range(n):
-                uf[i] += sa.Minv_w[i] * P
+    P = _contact(sa, _gap(sa, qM), uf, u, sa.W, sa.Minv_w)
     for i in range(n):
         u[i] = uf[i]
         q[i] = qM[i] + half * uf[i]
@@ -167,17 +180,24 @@ def theta_step(sa, q, u, tau, t, dt, theta, Sinv, Sinv_w, WS, qM, h, uf):
         uf[i] = u[i] + dt * s
     for i in range(n):
         qM[i] = q[i] + 0.5 * dt * u[i]
-    P = 0.0
-    if _gap(sa, qM) <= 0.0:
-        xi = _wdot(sa, uf) + sa.e * _wdot(sa, u)
-        if xi < 0.0:
-            P = -xi / WS
-            for i in range(n):
-                uf[i] += Sinv_w[i] * P
+    P = _contact(sa, _gap(sa, qM), uf, u, WS, Sinv_w)
     for i in range(n):
         q[i] += dt * (theta * uf[i] + (1.0 - theta) * u[i])
         u[i] = uf[i]
     return P
+
+
+@njit(cache=True)
+def step_workspace(sa, dt, scheme, theta):
+    """Scratch arrays of a step ``(qM, h, uf)`` and, for the theta scheme, the
+    iteration data ``(S^-1, S^-1 w, W_S)`` for step ``dt`` (unused otherwise)."""
+    n = sa.M.shape[0]
+    Sinv = np.empty((n, n))
+    Sinv_w = np.empty(n)
+    WS = 0.0
+    if scheme == THETA:
+        WS = theta_matrices(sa, dt, theta, Sinv, Sinv_w)
+    return np.empty(n), np.empty(n), np.empty(n), Sinv, Sinv_w, WS
 
 
 @njit(cache=True, inline="always")
@@ -205,14 +225,7 @@ def integrate(sa, q, u, t0, dt, n_steps, tau, scheme, theta, record_every, T, Qr
     are valid).
     """
     n = q.shape[0]
-    qM = np.empty(n)
-    h = np.empty(n)
-    uf = np.empty(n)
-    Sinv = np.empty((n, n))
-    Sinv_w = np.empty(n)
-    WS = 0.0
-    if scheme == THETA:
-        WS = theta_matrices(sa, dt, theta, Sinv, Sinv_w)
+    qM, h, uf, Sinv, Sinv_w, WS = step_workspace(sa, dt, scheme, theta)
     T[0] = t0
     Qr[0, :] = q
     Ur[0, :] = u
@@ -261,16 +274,8 @@ def advance(sa, q, u, t0, H, dt, tau, scheme, theta):
     ``t0 + H``. The input ``tau`` is held over the step. Returns
     ``(status, percussion_sum, steps_with_impact)``.
     """
-    n = q.shape[0]
-    qM = np.empty(n)
-    h = np.empty(n)
-    uf = np.empty(n)
-    Sinv = np.empty((n, n))
-    Sinv_w = np.empty(n)
-    WS = 0.0
+    qM, h, uf, Sinv, Sinv_w, WS = step_workspace(sa, dt, scheme, theta)
     k_steps = substeps(H, dt)
-    if scheme == THETA:
-        WS = theta_matrices(sa, dt, theta, Sinv, Sinv_w)
     Psum = 0.0
     impacts = 0
     for k in range(k_steps):
@@ -325,6 +330,22 @@ def scalar_params(sa):
 
 
 @njit(cache=True, inline="always")
+def _contact1(w, e, g, uf, u, W_, iw):
+    """:func:`_contact` on scalars (same operation order). Returns (uf, P)."""
+    P = 0.0
+    if g <= 0.0:
+        xi = 0.0
+        xi += w * uf
+        xu = 0.0
+        xu += w * u
+        xi = xi + e * xu
+        if xi < 0.0:
+            P = -xi / W_
+            uf += iw * P
+    return uf, P
+
+
+@njit(cache=True, inline="always")
 def midpoint_step1(p, F, Omega, phi, q, u, tau, t, dt):
     """:func:`midpoint_step` on scalars (same operation order). Returns (q, u, P)."""
     Minv, K, C, f0, B, w, g0, e, Minv_w, W = p
@@ -334,18 +355,9 @@ def midpoint_step1(p, F, Omega, phi, q, u, tau, t, dt):
     s = 0.0
     s += Minv * h
     uf = u + dt * s
-    P = 0.0
     g = g0
     g += w * qM
-    if g <= 0.0:
-        xi = 0.0
-        xi += w * uf
-        xu = 0.0
-        xu += w * u
-        xi = xi + e * xu
-        if xi < 0.0:
-            P = -xi / W
-            uf += Minv_w * P
+    uf, P = _contact1(w, e, g, uf, u, W, Minv_w)
     return _flush1(qM + half * uf), _flush1(uf), P
 
 
@@ -359,18 +371,9 @@ def theta_step1(p, F, Omega, phi, Si, Si_w, WS, theta, q, u, tau, t, dt):
     s = 0.0
     s += Si * h
     uf = u + dt * s
-    P = 0.0
     g = g0
     g += w * (q + 0.5 * dt * u)
-    if g <= 0.0:
-        xi = 0.0
-        xi += w * uf
-        xu = 0.0
-        xu += w * u
-        xi = xi + e * xu
-        if xi < 0.0:
-            P = -xi / WS
-            uf += Si_w * P
+    uf, P = _contact1(w, e, g, uf, u, WS, Si_w)
     q = q + dt * (theta * uf + (1.0 - theta) * u)
     return _flush1(q), _flush1(uf), P
 
@@ -385,11 +388,7 @@ def integrate1(sa, q_, u_, t0, dt, n_steps, tau_, scheme, theta, record_every, T
     tau = tau_[0]
     q = q_[0]
     u = u_[0]
-    Sinv = np.empty((1, 1))
-    Sinv_w = np.empty(1)
-    WS = 0.0
-    if scheme == THETA:
-        WS = theta_matrices(sa, dt, theta, Sinv, Sinv_w)
+    _, _, _, Sinv, Sinv_w, WS = step_workspace(sa, dt, scheme, theta)
     Si = Sinv[0, 0]
     Si_w = Sinv_w[0]
     T[0] = t0

@@ -17,7 +17,7 @@ from .coupling import (BRANCH_NONE, EUCLIDEAN, SWITCHING, UNCOUPLED, coupling_ke
 from .distance import distance_value, geometry
 from .model import MechanicalSystem, as_state
 from .moreau import (DIVERGED, OK, THETA, _finish, midpoint_step, midpoint_step1, scalar_params,
-                     theta_matrices, theta_step, theta_step1)
+                     step_workspace, theta_step, theta_step1)
 from .result import PairResult
 from .simulate import SimulationDiverged, _n_steps, check_step, divergence_message, scheme_code
 
@@ -70,9 +70,7 @@ def integrate_pair(sa, geo, law, Kp, Kd, q1, u1, q2, u2, t0, k0, dt, n_steps, sc
 
     Returns ``(status, steps_done, rows_written, impacts1, impacts2)``."""
     n = q1.shape[0]
-    qM = np.empty(n)
-    h = np.empty(n)
-    uf = np.empty(n)
+    qM, h, uf, Sinv, Sinv_w, WS = step_workspace(sa, dt, scheme, theta)
     tau1 = np.zeros(n)
     tau2 = np.zeros(n)
     zero1 = np.zeros(n)  # forces of the uncoupled law (zero), for distance-only records
@@ -81,11 +79,6 @@ def integrate_pair(sa, geo, law, Kp, Kd, q1, u1, q2, u2, t0, k0, dt, n_steps, sc
     c1u = np.empty(n)
     c2q = np.empty(n)
     c2u = np.empty(n)
-    Sinv = np.empty((n, n))
-    Sinv_w = np.empty(n)
-    WS = 0.0
-    if scheme == THETA:
-        WS = theta_matrices(sa, dt, theta, Sinv, Sinv_w)
     scalar = n == 1 and sa.B.shape[1] == 1
     p = scalar_params(sa) if scalar else (0.0,) * 10
     F = sa.F
