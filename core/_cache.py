@@ -1,0 +1,71 @@
+"""numba cache keys for the core: one stamp for the whole package.
+
+numba (0.68) stamps a cached kernel with the hash of the *file that defines
+it*. Our kernels inline or call kernels of other core modules (``pair`` calls
+``coupling``, which calls ``distance``; the FMU stepper calls ``moreau``), so an
+edit of ``distance.py`` would leave the cached ``pair``/``coupling`` kernels
+silently running the old code. This module registers cache locators, used for
+files of this package only, whose source stamp is the hash of *all* core
+modules: any change of the core invalidates every core kernel's cache, and
+nothing else changes (same cache folders, same rules for NUMBA_CACHE_DIR and
+for read-only installs).
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+
+from numba.core import caching
+
+__all__ = ["install", "core_stamp", "CORE_DIR"]
+
+CORE_DIR = os.path.dirname(os.path.abspath(__file__))
+_stamp: bytes | None = None
+
+
+def core_stamp() -> bytes:
+    """sha256 over the names and contents of every ``*.py`` file of the core."""
+    global _stamp
+    if _stamp is None:
+        h = hashlib.sha256()
+        for name in sorted(os.listdir(CORE_DIR)):
+            if name.endswith(".py"):
+                h.update(name.encode())
+                with open(os.path.join(CORE_DIR, name), "rb") as f:
+                    h.update(f.read())
+        _stamp = h.digest()
+    return _stamp
+
+
+class _CoreStamp:
+    def get_source_stamp(self):
+        return core_stamp()
+
+    @classmethod
+    def from_function(cls, py_func, py_file):
+        if os.path.dirname(os.path.abspath(py_file)) != CORE_DIR:
+            return None
+        return super().from_function(py_func, py_file)
+
+
+class CoreUserProvidedLocator(_CoreStamp, caching.UserProvidedCacheLocator):
+    """NUMBA_CACHE_DIR set: the user's folder, package-wide stamp."""
+
+
+class CoreInTreeLocator(_CoreStamp, caching.InTreeCacheLocator):
+    """``core/__pycache__``, package-wide stamp."""
+
+
+class CoreUserWideLocator(_CoreStamp, caching.UserWideCacheLocator):
+    """Read-only install: the user-wide cache folder, package-wide stamp."""
+
+
+def install() -> None:
+    """Put the core locators first, in numba's own order of preference."""
+    classes = caching.CacheImpl._locator_classes
+    for cls in (CoreUserWideLocator, CoreInTreeLocator, CoreUserProvidedLocator):
+        if cls not in classes:
+            classes.insert(0, cls)
+
+
+install()
