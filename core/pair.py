@@ -13,8 +13,9 @@ import math
 import numpy as np
 from numba import njit
 
-from .coupling import (BRANCH_NONE, EUCLIDEAN, SWITCHING, UNCOUPLED, coupling_kernel, gain_matrix)
-from .distance import distance_value, geometry
+from .coupling import (BRANCH_NONE, EUCLIDEAN, SWITCHING, UNCOUPLED, _p_norm_diff, coupling_kernel,
+                       coupling_kernel1, euclidean_coupling1, gain_matrix)
+from .distance import distance1, distance_value, geometry
 from .model import MechanicalSystem, as_state
 from .moreau import (DIVERGED, OK, THETA, _finish, midpoint_step, midpoint_step1, scalar_params,
                      step_workspace, theta_step, theta_step1)
@@ -25,21 +26,6 @@ __all__ = ["simulate_pair", "coupling_step", "LAWS", "gain_matrix"]
 
 #: Coupling names accepted by :func:`simulate_pair` and the master.
 LAWS = {None: UNCOUPLED, "none": UNCOUPLED, "euclidean": EUCLIDEAN, "switching": SWITCHING}
-
-
-@njit(cache=True, inline="always")
-def euclidean_error(geo, q1, u1, q2, u2):
-    """||x1 - x2||_P = sqrt(dq^T Q dq + du^T M du)."""
-    n = q1.shape[0]
-    acc = 0.0
-    for i in range(n):
-        rq = 0.0
-        ru = 0.0
-        for j in range(n):
-            rq += geo.Q[i, j] * (q1[j] - q2[j])
-            ru += geo.M[i, j] * (u1[j] - u2[j])
-        acc += (q1[i] - q2[i]) * rq + (u1[i] - u2[i]) * ru
-    return math.sqrt(max(acc, 0.0))
 
 
 @njit(cache=True)
@@ -55,12 +41,26 @@ def coupling_step(law, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c
     """
     if law == SWITCHING:
         d, branch = coupling_kernel(law, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u)
-        return d, branch, euclidean_error(geo, q1, u1, q2, u2)
+        return d, branch, _p_norm_diff(geo.Q, geo.M, q1, u1, q2, u2)
     E, _ = coupling_kernel(law, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u)
     if need_d:
         d, branch = distance_value(geo, q1, u1, q2, u2)
         return d, branch, E
     return np.nan, BRANCH_NONE, E
+
+
+@njit(cache=True, inline="always")
+def coupling_step1(law, sg, kp, kd, q1, u1, q2, u2, need_d):
+    """:func:`coupling_step` for 1-DOF on floats (``sg = geo.scalar``, scalar
+    gains): ``(tau1, tau2, d, branch, euclidean)``, the same arithmetic as the
+    array kernels (which hand n = 1 to the same float kernels)."""
+    tau1, tau2, value, branch = coupling_kernel1(law, sg, kp, kd, q1, u1, q2, u2)
+    if law == SWITCHING:
+        return tau1, tau2, value, branch, euclidean_coupling1(sg, kp, kd, q1, u1, q2, u2)[2]
+    if need_d:
+        r = distance1(sg, q1, u1, q2, u2)
+        return tau1, tau2, r[0], r[1], value
+    return tau1, tau2, np.nan, BRANCH_NONE, value
 
 
 @njit(cache=True)
@@ -81,6 +81,9 @@ def integrate_pair(sa, geo, law, Kp, Kd, q1, u1, q2, u2, t0, k0, dt, n_steps, sc
     c2u = np.empty(n)
     scalar = n == 1 and sa.B.shape[1] == 1
     p = scalar_params(sa) if scalar else (0.0,) * 10
+    sg = geo.scalar
+    kp = Kp[0, 0]
+    kd = Kd[0, 0]
     F = sa.F
     Omega = sa.Omega
     phi = sa.phi
@@ -98,7 +101,11 @@ def integrate_pair(sa, geo, law, Kp, Kd, q1, u1, q2, u2, t0, k0, dt, n_steps, sc
             is_row = True
         # forces from the states at the start of the step (zero-order hold)
         need_d = is_row and record_d
-        if law != UNCOUPLED:
+        if scalar:
+            if law != UNCOUPLED or need_d:
+                tau1[0], tau2[0], d, br, E = coupling_step1(law, sg, kp, kd, q1[0], u1[0], q2[0], u2[0],
+                                                            need_d)
+        elif law != UNCOUPLED:
             d, br, E = coupling_step(law, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u, need_d)
         elif need_d:
             d, br, E = coupling_step(UNCOUPLED, geo, Kp, Kd, q1, u1, q2, u2, zero1, zero2, c1q, c1u, c2q, c2u, True)
