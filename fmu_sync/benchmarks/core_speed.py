@@ -1,0 +1,111 @@
+"""Core speed: the compiled kernels against a plain C -O3 loop, in one run.
+
+Machines here are shared and noisy, so every figure is a median over repeats,
+and the headline numbers are *ratios* against a baseline measured in the same
+run, interleaved with the measured code (C, numba, C, numba, ...).
+"""
+from __future__ import annotations
+
+import shutil
+import statistics
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+
+#: the forced oscillator of the speed target (issue 2)
+OSC = dict(m=1.0, k=1.0, c=0.1, f0=0.3, F=1.0, Omega=1.2, e=0.8)
+X0 = (1.0, 0.0)
+
+
+def _build_c(workdir: Path) -> Path | None:
+    cc = shutil.which("gcc") or shutil.which("cc")
+    if cc is None:
+        return None
+    exe = workdir / "moreau_loop"
+    subprocess.run([cc, "-O3", "-o", str(exe), str(HERE / "moreau_loop.c"), "-lm"], check=True)
+    return exe
+
+
+def _run_c(exe: Path, dt: float, n: int):
+    p = OSC
+    args = [str(exe)] + [repr(float(x)) for x in (p["m"], p["k"], p["c"], p["f0"], p["F"], p["Omega"],
+                                                   0.0, p["e"], X0[0], X0[1], dt)] + [str(n)]
+    out = subprocess.run(args, check=True, capture_output=True, text=True).stdout.split()
+    return float(out[0]), float(out[1]), float(out[2])
+
+
+def simulate_vs_c(repeats: int = 5, n_steps: int = 20_000_000, dt: float = 1e-5):
+    """Steps per second of ``simulate`` (1-DOF fast path) vs the C loop; same final state."""
+    from fmu_sync.core import ImpactOscillator, simulate
+
+    system = ImpactOscillator(**OSC)
+    t_end = n_steps * dt
+    simulate(system, X0, 10 * dt, dt)  # compile / load cache
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        exe = _build_c(Path(tmp))
+        for _ in range(repeats):
+            c_sec, cq, cu = _run_c(exe, dt, n_steps) if exe else (float("nan"),) * 3
+            t = time.perf_counter()
+            r = simulate(system, X0, t_end, dt, record_every=100_000)
+            nb_sec = time.perf_counter() - t
+            rows.append((c_sec, nb_sec, cq, r.q[-1, 0], cu, r.u[-1, 0]))
+    c = statistics.median(r[0] for r in rows)
+    nb = statistics.median(r[1] for r in rows)
+    ratio = statistics.median(r[0] / r[1] for r in rows)
+    same = all(r[2] == r[3] and r[4] == r[5] for r in rows)
+    return dict(steps=n_steps, c_Msteps=n_steps / c / 1e6, numba_Msteps=n_steps / nb / 1e6,
+                ratio=ratio, ratio_min=min(r[0] / r[1] for r in rows),
+                ratio_max=max(r[0] / r[1] for r in rows), same_final_state=same, repeats=repeats)
+
+
+def pair_speed(repeats: int = 5, t_end: float = 100.0, dt: float = 1e-5):
+    """Steps per second of simulate_pair with the switching coupling (paper example)."""
+    from fmu_sync.core import ImpactOscillator
+    from fmu_sync.core.pair import simulate_pair
+
+    s = ImpactOscillator(m=1, k=1, c=0, f0=0.2, F=0.5, Omega=2.5, e=0.9)
+    kw = dict(coupling="switching", Kp=1.0, Kd=0.5, record_every=1000)
+    simulate_pair(s, (1.0, 0.0), (0.2, 0.5), 100 * dt, dt, **kw)
+    n = int(round(t_end / dt))
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        simulate_pair(s, (1.0, 0.0), (0.2, 0.5), t_end, dt, **kw)
+        times.append(time.perf_counter() - t)
+    med = statistics.median(times)
+    return dict(steps=n, Msteps_median=n / med / 1e6, Msteps_min=n / max(times) / 1e6,
+                Msteps_max=n / min(times) / 1e6)
+
+
+def run(quick: bool = False) -> str:
+    """Run all core speed measurements; return a markdown report."""
+    reps = 3 if quick else 5
+    sim = simulate_vs_c(repeats=reps, n_steps=5_000_000 if quick else 20_000_000)
+    from .distance_cost import measure
+    dist = measure(n_calls=50_000 if quick else 200_000, repeats=reps)
+    pair = pair_speed(repeats=reps, t_end=20.0 if quick else 100.0)
+    lines = ["## Core speed (medians of %d interleaved repeats)" % reps, "",
+             "| measurement | value | target |", "|---|---|---|",
+             f"| `simulate` 1-DOF forced oscillator, {sim['steps']:.0e} steps | "
+             f"{sim['numba_Msteps']:.1f} Msteps/s | |",
+             f"| plain C `-O3` loop of the same scheme | {sim['c_Msteps']:.1f} Msteps/s | |",
+             f"| ratio numba / C (median, min–max) | {sim['ratio']:.2f} ({sim['ratio_min']:.2f}–"
+             f"{sim['ratio_max']:.2f}) | ≥ 0.8 |",
+             f"| same final state as C, bit for bit | {sim['same_final_state']} | |"]
+    for label, ns in dist[1:]:
+        target = "< 300 ns" if label.startswith("1-DOF") and "coupling" not in label else ""
+        lines.append(f"| distance/coupling kernel, {label} | {ns:.0f} ns | {target} |")
+    lines.append(f"| `simulate_pair`, switching coupling, record_every=1000 | "
+                 f"{pair['Msteps_median']:.2f} Msteps/s ({pair['Msteps_min']:.2f}–{pair['Msteps_max']:.2f}) "
+                 f"| ≥ 2 Msteps/s |")
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":  # pragma: no cover
+    print(run())
