@@ -7,7 +7,8 @@ Model (:mod:`.model`), Moreau schemes (:mod:`.moreau`), exact solver
 """
 from . import _cache  # noqa: F401  (first: every core kernel's cache is keyed on the whole core)
 from .model import ImpactOscillator, MechanicalSystem, SystemArrays
+from .impact import impact_map
 from .simulate import SimulationDiverged, SimulationResult, simulate
 
-__all__ = ["ImpactOscillator", "MechanicalSystem", "SystemArrays", "simulate", "SimulationResult",
-           "SimulationDiverged"]
+__all__ = ["ImpactOscillator", "MechanicalSystem", "SystemArrays", "impact_map", "simulate",
+           "SimulationResult", "SimulationDiverged"]
