@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 import shutil
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +24,7 @@ import numpy as np
 from .core.model import MechanicalSystem, as_state
 from .core.result import PairResult
 
-__all__ = ["cosimulate", "SlaveError", "Slave", "system_from_fmu"]
+__all__ = ["cosimulate", "cosimulate_network", "NetworkResult", "SlaveError", "Slave", "system_from_fmu"]
 
 STATUS = ("OK", "Warning", "Discard", "Error", "Fatal", "Pending")
 
@@ -142,31 +143,58 @@ def _check_positive(name, value):
     return value
 
 
-def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None, Kp=0.0, Kd=0.0,
-               Q=None, method: str = "jacobi", record_every: int = 1, event_aware: bool = False,
-               H_min: float | None = None, start_values: dict | None = None, progress=None,
-               record_distance: bool = True) -> PairResult:
-    """Co-simulate two instances of ``fmu`` coupled by ``coupling`` (SPEC §5, §8).
+@dataclass
+class NetworkResult:
+    """Sampled co-simulation of N coupled instances on a weighted graph.
 
-    Parameters
-    ----------
-    fmu : path to the .fmu (an fmu-sync mechanical model, see ``fmu-sync export``).
-    x1, x2 : start states (q, u) of the two instances (set as ``q_start``/``u_start``).
-    t_end, H : stop time and communication step; the run makes ``round(t_end/H)`` steps.
-    coupling : None, ``"switching"`` (quotient coupling) or ``"euclidean"`` (PD baseline).
-    Kp, Kd : gains (scalars or n×n).  Q : position weight of the norm (default identity).
-    method : ``"jacobi"`` (both slaves get inputs computed from the same states) or
-        ``"gauss-seidel"`` (slave 2's input uses slave 1's updated state).
-    record_every : keep every k-th communication point.
-    event_aware : when a slave's impact counter moves during a step, restore both
-        slaves and retake the step in pieces of ``H_min`` (default ``H/16``) so the
-        coupling sees the impact.
-    start_values : extra parameter start values for both instances (e.g. ``{"e": 0.8}``).
-    progress : callable ``progress(fraction)`` or None.
+    ``q, u, tau``: (rows, N, n); ``edges``: the coupled pairs (i, j), i < j;
+    ``d, euclidean`` (rows, n_edges) and ``branch`` (rows, n_edges) per edge;
+    ``V = 1/2 sum_edges a_ij d_ij^2`` (rows,) with a_ij the mean of the two
+    directed weights; ``impacts`` (N,). ``error`` names a failed slave, if any.
+    """
 
-    Returns a :class:`PairResult`. If a slave fails, the run stops there: the
-    result holds everything recorded up to the failure and ``result.error`` names
-    the slave, the time and the reason.
+    t: np.ndarray
+    q: np.ndarray
+    u: np.ndarray
+    tau: np.ndarray
+    edges: list
+    d: np.ndarray | None
+    branch: np.ndarray | None
+    euclidean: np.ndarray | None
+    V: np.ndarray | None
+    impacts: list
+    info: dict = field(default_factory=dict)
+    error: str | None = None
+
+
+def _weights(A, N: int | None) -> np.ndarray:
+    try:
+        a = np.array(A, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"A must be an N x N matrix of weights, got {A!r}") from None
+    if a.ndim != 2 or a.shape[0] != a.shape[1] or (N is not None and a.shape[0] != N):
+        raise ValueError(f"A must be a square N x N weight matrix with N = number of states "
+                         f"({N}), got shape {a.shape}")
+    if not np.all(np.isfinite(a)) or np.any(a < 0.0):
+        raise ValueError(f"A must hold finite weights >= 0, got {a.tolist()}")
+    if np.any(np.diag(a) != 0.0):
+        raise ValueError(f"A must have a zero diagonal (no self-coupling), got {np.diag(a).tolist()}")
+    return a
+
+
+def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | None = "switching",
+                       Kp=0.0, Kd=0.0, Q=None, method: str = "jacobi", record_every: int = 1,
+                       event_aware: bool = False, H_min: float | None = None,
+                       start_values: dict | None = None, progress=None,
+                       record_distance: bool = True) -> NetworkResult:
+    """Co-simulate N instances of ``fmu`` coupled on a weighted graph (SPEC §5, §8).
+
+    ``states``: N start states (q, u); ``A``: N×N weights a_ij >= 0 (zero
+    diagonal); system i receives ``tau_i = sum_j a_ij tau_i^(j)``, with
+    ``tau_i^(j)`` the force of the pairwise law (``coupling``, gains ``Kp``,
+    ``Kd``, norm weight ``Q``) on i in the pair (i, j). Other arguments as
+    :func:`cosimulate`; Gauss–Seidel updates the instances in index order, each
+    one's input computed from the newest states of the others.
     """
     from fmpy import extract, read_model_description
 
@@ -192,117 +220,131 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
     n_steps = int(math.floor(t_end / H + 1e-9))
     if n_steps < 1:
         raise ValueError(f"t_end = {t_end} is shorter than one communication step H = {H}")
+    states = list(states)
+    N = len(states)
+    if N < 2:
+        raise ValueError(f"a network needs at least 2 states, got {N}")
+    A = _weights(A, N)
+    edges = [(i, j) for i in range(N) for j in range(i + 1, N) if A[i, j] > 0.0 or A[j, i] > 0.0]
 
     fmu = str(fmu)
     if not Path(fmu).is_file():
         raise FileNotFoundError(f"FMU not found: {fmu}")
     md = read_model_description(fmu)
-    unzipdir = extract(fmu)  # one unpacked copy shared by both instances, removed at the end
+    unzipdir = extract(fmu)  # one unpacked copy shared by all instances, removed at the end
     slaves: list[Slave] = []
     law = LAWS[coupling]
     try:
-        for i in range(2):
+        for i in range(N):
             slaves.append(Slave(unzipdir, md, f"system{i + 1}"))
-        s1, s2 = slaves
-        n = _dofs(s1)
-        qn, un, taun = _names(s1, "q", n), _names(s1, "u", n), _names(s1, "tau", n)
-        extra = dict(start_values or {})
+        n = _dofs(slaves[0])
+        qn, un, taun = (_names(slaves[0], b, n) for b in ("q", "u", "tau"))
         for s in slaves:
-            s.set(extra)
-        system = system_from_fmu(s1)
-        for s, x, label in ((s1, x1, "x1"), (s2, x2, "x2")):
+            s.set(dict(start_values or {}))
+        system = system_from_fmu(slaves[0])
+        for i, (s, x) in enumerate(zip(slaves, states)):
+            label = f"x{i + 1}"
             q0, u0 = as_state(system, x, label)
             if system.gap(q0) < 0.0:
                 raise ValueError(f"{label} violates the constraint: g(q) = {system.gap(q0):.6g} < 0 "
                                  f"(need g >= 0)")
             start = dict(zip(_names(s, "q_start", n) + _names(s, "u_start", n), list(q0) + list(u0)))
             s.initialize(0.0, start)
-        system = system_from_fmu(s1)
         need_d = record_distance or law != LAWS[None]
         geo = geometry(system, Q)
         Kp_m, Kd_m = gain_matrix(Kp, n, "Kp"), gain_matrix(Kd, n, "Kd")
-
+        E = len(edges)
         rows = n_steps // record_every + 1
         T = np.full(rows, np.nan)
-        Q1, U1, Q2, U2 = (np.full((rows, n), np.nan) for _ in range(4))
-        TAU1, TAU2 = np.full((rows, n), np.nan), np.full((rows, n), np.nan)
-        D, BR, EU = np.full(rows, np.nan), np.zeros(rows, dtype=np.int64), np.full(rows, np.nan)
-        tau1, tau2 = np.zeros(n), np.zeros(n)
+        Qr, Ur, TAU = (np.full((rows, N, n), np.nan) for _ in range(3))
+        D, EU = np.full((rows, E), np.nan), np.full((rows, E), np.nan)
+        BR = np.full((rows, E), -1, dtype=np.int64)
+        tau = np.zeros((N, n))
+        t1, t2 = np.zeros(n), np.zeros(n)
         work = chain_work(n)
 
         def read(s):
             v = s.get(qn + un)
-            return v[:n].copy(), v[n:].copy()
+            return [v[:n].copy(), v[n:].copy()]
 
-        def forces(q1, u1, q2, u2):
-            return coupling_step(law, geo, Kp_m, Kd_m, q1, u1, q2, u2, tau1, tau2, *work, need_d)
+        def pair(i, j, x, want_d):
+            """The pairwise law on edge (i, j) at states x: fills t1 (on i), t2 (on j)."""
+            return coupling_step(law, geo, Kp_m, Kd_m, x[i][0], x[i][1], x[j][0], x[j][1], t1, t2,
+                                 *work, want_d)
 
-        def record(row, t, q1, u1, q2, u2, dbe):
-            T[row] = t
-            Q1[row], U1[row], Q2[row], U2[row] = q1, u1, q2, u2
-            TAU1[row], TAU2[row] = tau1, tau2
-            if need_d:
-                D[row], BR[row], EU[row] = dbe
+        def input_of(i, x):
+            """tau_i = sum_j a_ij tau_i^(j) at states x."""
+            tau[i] = 0.0
+            for a, b in edges:
+                if i == a and A[a, b] > 0.0:
+                    pair(a, b, x, False)
+                    tau[i] += A[a, b] * t1
+                elif i == b and A[b, a] > 0.0:
+                    pair(a, b, x, False)
+                    tau[i] += A[b, a] * t2
 
-        def exchange(t, h, q1, u1, q2, u2):
+        def exchange(t, h, x):
             """One communication step of length h from t; returns the new states."""
-            forces(q1, u1, q2, u2)
-            s1.set(dict(zip(taun, tau1)))
+            x = [list(xi) for xi in x]
             if method == "jacobi":
-                s2.set(dict(zip(taun, tau2)))
-                s1.do_step(t, h)
-                s2.do_step(t, h)
-                return read(s1) + read(s2)
-            s1.do_step(t, h)
-            q1n, u1n = read(s1)
-            t1_hold = tau1.copy()
-            forces(q1n, u1n, q2, u2)
-            tau1[:] = t1_hold
-            s2.set(dict(zip(taun, tau2)))
-            s2.do_step(t, h)
-            return (q1n, u1n) + read(s2)
+                for i in range(N):
+                    input_of(i, x)
+                for i, s in enumerate(slaves):
+                    s.set(dict(zip(taun, tau[i])))
+                    s.do_step(t, h)
+                return [read(s) for s in slaves]
+            for i, s in enumerate(slaves):  # Gauss-Seidel: newest states of the others
+                input_of(i, x)
+                s.set(dict(zip(taun, tau[i])))
+                s.do_step(t, h)
+                x[i] = read(s)
+            return x
 
-        q1, u1 = read(s1)
-        q2, u2 = read(s2)
-        dbe = forces(q1, u1, q2, u2) if need_d else None
-        record(0, 0.0, q1, u1, q2, u2, dbe)
+        def record(row, t, x, held):
+            T[row] = t
+            for i in range(N):
+                Qr[row, i], Ur[row, i] = x[i]
+            TAU[row] = held
+            if need_d:
+                for k, (i, j) in enumerate(edges):
+                    D[row, k], BR[row, k], EU[row, k] = pair(i, j, x, True)
+
+        x = [read(s) for s in slaves]
+        if law != LAWS[None]:
+            for i in range(N):
+                input_of(i, x)
+        record(0, 0.0, x, tau)
         row, error, retakes = 1, None, 0
-        imp = [s1.get_integer("impacts"), s2.get_integer("impacts")]
+        imp = [s.get_integer("impacts") for s in slaves]
         report_every = max(1, n_steps // 200)
         for k in range(n_steps):
             t = k * H
             try:
                 if event_aware:
-                    states = [s.save() for s in slaves]
-                new = exchange(t, H, q1, u1, q2, u2)
-                now = [s1.get_integer("impacts"), s2.get_integer("impacts")]
+                    saved = [s.save() for s in slaves]
+                new = exchange(t, H, x)
+                now = [s.get_integer("impacts") for s in slaves]
                 if event_aware:
                     if now != imp:
                         retakes += 1
-                        for s, st in zip(slaves, states):
+                        for s, st in zip(slaves, saved):
                             s.restore(st, t)
                         pieces = max(1, int(math.ceil(H / H_min - 1e-9)))
-                        new = (q1, u1, q2, u2)
-                        for j in range(pieces):
-                            tj = t + j * (H / pieces)
-                            hj = (t + H) - tj if j == pieces - 1 else H / pieces
-                            new = exchange(tj, hj, *new)
-                        now = [s1.get_integer("impacts"), s2.get_integer("impacts")]
-                    for s, st in zip(slaves, states):
+                        new = x
+                        for p in range(pieces):
+                            tp = t + p * (H / pieces)
+                            hp = (t + H) - tp if p == pieces - 1 else H / pieces
+                            new = exchange(tp, hp, new)
+                        now = [s.get_integer("impacts") for s in slaves]
+                    for s, st in zip(slaves, saved):
                         s.free_state(st)
                 imp = now
-                q1, u1, q2, u2 = new
+                x = new
             except SlaveError as ex:
                 error = str(ex)
                 break
             if (k + 1) % record_every == 0:
-                tnext = (k + 1) * H
-                dbe = None
-                if need_d:
-                    held = tau1.copy(), tau2.copy()
-                    dbe = forces(q1, u1, q2, u2)
-                    tau1[:], tau2[:] = held
-                record(row, tnext, q1, u1, q2, u2, dbe)
+                record(row, (k + 1) * H, x, tau.copy())
                 row += 1
             if progress is not None and (k + 1) % report_every == 0:
                 progress((k + 1) / n_steps)
@@ -314,11 +356,51 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
         shutil.rmtree(unzipdir, ignore_errors=True)
 
     sl = slice(0, row)
-    res = PairResult(T[sl], Q1[sl], U1[sl], Q2[sl], U2[sl], TAU1[sl], TAU2[sl],
-                     D[sl] if need_d else None, BR[sl] if need_d else None, EU[sl] if need_d else None,
-                     impacts1=imp[0], impacts2=imp[1], coupling=coupling,
-                     info=dict(mode="cosim", H=H, method=method, event_aware=event_aware,
-                               H_min=H_min if event_aware else None, retaken_steps=retakes,
-                               fmu=fmu, steps=n_steps),
-                     error=error)
-    return res
+    V = None
+    if need_d:
+        a_sym = np.array([0.5 * (A[i, j] + A[j, i]) for i, j in edges])
+        V = 0.5 * (D[sl] ** 2) @ a_sym
+    return NetworkResult(T[sl], Qr[sl], Ur[sl], TAU[sl], edges,
+                         D[sl] if need_d else None, BR[sl] if need_d else None,
+                         EU[sl] if need_d else None, V, impacts=imp,
+                         info=dict(mode="cosim", H=H, method=method, event_aware=event_aware,
+                                   H_min=H_min if event_aware else None, retaken_steps=retakes,
+                                   fmu=fmu, steps=n_steps, coupling=coupling),
+                         error=error)
+
+
+def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None, Kp=0.0, Kd=0.0,
+               Q=None, method: str = "jacobi", record_every: int = 1, event_aware: bool = False,
+               H_min: float | None = None, start_values: dict | None = None, progress=None,
+               record_distance: bool = True) -> PairResult:
+    """Co-simulate two instances of ``fmu`` coupled by ``coupling`` (SPEC §5, §8).
+
+    Parameters
+    ----------
+    fmu : path to the .fmu (an fmu-sync mechanical model, see ``fmu-sync export``).
+    x1, x2 : start states (q, u) of the two instances (set as ``q_start``/``u_start``).
+    t_end, H : stop time and communication step; the run makes ``floor(t_end/H)`` steps.
+    coupling : None, ``"switching"`` (quotient coupling) or ``"euclidean"`` (PD baseline).
+    Kp, Kd : gains (scalars or n×n).  Q : position weight of the norm (default identity).
+    method : ``"jacobi"`` (both slaves get inputs computed from the same states) or
+        ``"gauss-seidel"`` (slave 2's input uses slave 1's updated state).
+    record_every : keep every k-th communication point.
+    event_aware : when a slave's impact counter moves during a step, restore both
+        slaves and retake the step in pieces of ``H_min`` (default ``H/16``) so the
+        coupling sees the impact.
+    start_values : extra parameter start values for both instances (e.g. ``{"e": 0.8}``).
+    progress : callable ``progress(fraction)`` or None.
+
+    Returns a :class:`PairResult`. If a slave fails, the run stops there: the
+    result holds everything recorded up to the failure and ``result.error`` names
+    the slave, the time and the reason. (The pair is the two-node graph of
+    :func:`cosimulate_network`.)
+    """
+    r = cosimulate_network(fmu, [x1, x2], [[0.0, 1.0], [1.0, 0.0]], t_end, H, coupling, Kp, Kd, Q,
+                           method, record_every, event_aware, H_min, start_values, progress,
+                           record_distance)
+    d = r.d is not None
+    return PairResult(r.t, r.q[:, 0], r.u[:, 0], r.q[:, 1], r.u[:, 1], r.tau[:, 0], r.tau[:, 1],
+                      r.d[:, 0] if d else None, r.branch[:, 0] if d else None,
+                      r.euclidean[:, 0] if d else None, impacts1=r.impacts[0], impacts2=r.impacts[1],
+                      coupling=coupling, info=r.info, error=r.error)

@@ -102,3 +102,37 @@ def test_bad_master_input(fmu, kwargs, match):
     args.update(kwargs)
     with pytest.raises(ValueError, match=match):
         cosimulate(fmu, **args)
+
+
+# ------------------------------------------------------------ N instances on a graph
+def test_network_disconnected_node_runs_alone_and_pair_matches(fmu, system):
+    from fmu_sync.core import simulate
+    from fmu_sync.master import cosimulate_network
+    x3 = (0.6, -0.2)
+    A = [[0, 1, 0], [1, 0, 0], [0, 0, 0]]  # node 3 is not coupled
+    net = cosimulate_network(fmu, [X1, X2, x3], A, 20.0, 1e-2, coupling="switching", **GAINS)
+    assert net.error is None and net.edges == [(0, 1)]
+    alone = simulate(system, x3, 20.0, 1e-3, record_every=10)
+    assert np.max(np.abs(net.q[:, 2, 0] - alone.q[:, 0])) < 1e-12
+    pair = cosimulate(fmu, X1, X2, 20.0, 1e-2, coupling="switching", **GAINS)
+    assert np.array_equal(net.q[:, 0], pair.q1) and np.array_equal(net.d[:, 0], pair.d)
+
+
+def test_network_ring_synchronizes(fmu):
+    from fmu_sync.master import cosimulate_network
+    A = [[0, 1, 1], [1, 0, 1], [1, 1, 0]]
+    net = cosimulate_network(fmu, [X1, X2, (0.6, -0.2)], A, 100.0, 1e-2, coupling="switching", **GAINS)
+    assert len(net.edges) == 3
+    assert np.max(net.d[-1]) < 1e-6
+    assert net.V[-1] == pytest.approx(0.5 * np.sum(net.d[-1] ** 2))
+
+
+@pytest.mark.parametrize("A, match", [
+    ([[0, 1], [1, 0]], r"N = number of states \(3\)"),
+    ([[0, -1, 0], [1, 0, 0], [0, 0, 0]], "finite weights >= 0"),
+    ([[1, 1, 0], [1, 0, 0], [0, 0, 0]], "zero diagonal"),
+])
+def test_network_rejects_bad_weights(fmu, A, match):
+    from fmu_sync.master import cosimulate_network
+    with pytest.raises(ValueError, match=match):
+        cosimulate_network(fmu, [X1, X2, X1], A, 1.0, 1e-2)
