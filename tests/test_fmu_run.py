@@ -21,7 +21,7 @@ from pathlib import Path
 
 DT = 1e-3            # internal step of the FMUs (the default solver.dt)
 T_END = 10.0
-EXIT_PROCESSES = 20  # bench/bench_fmu.py --exit-check 200 runs the full claim
+EXIT_PROCESSES = 20  # python -m fmu_sync.benchmarks.fmu_cost --exit-check 200 runs the full claim
 
 
 # =============================================================== child side
@@ -582,7 +582,7 @@ def test_fresh_processes_exit_cleanly(runs):
     """pythonfmu 0.7.0's exit crash (46 of 50 processes before the fix) must not happen.
 
     The cheap version of the 200-process claim: EXIT_PROCESSES fresh processes
-    (bench/bench_fmu.py --exit-check 200 runs 200), each checking that the
+    (python -m fmu_sync.benchmarks.fmu_cost --exit-check 200 runs 200), each checking that the
     teardown handler found the FMU's export library.
     """
     results = runs["exit"]
