@@ -20,7 +20,8 @@ from .model import MechanicalSystem, as_state
 from .moreau import (DIVERGED, OK, THETA, _finish, midpoint_step, midpoint_step1, scalar_params,
                      step_workspace, theta_step, theta_step1)
 from .result import PairResult
-from .simulate import SimulationDiverged, _n_steps, check_step, divergence_message, scheme_code
+from .simulate import (SimulationDiverged, _n_steps, check_stable, check_step, divergence_message,
+                       scheme_code)
 
 __all__ = ["simulate_pair", "coupling_step", "LAWS", "gain_matrix"]
 
@@ -177,6 +178,7 @@ def simulate_pair(system: MechanicalSystem, x1, x2, t_end: float, dt: float, cou
     law = LAWS[coupling]
     dt = check_step(dt)
     code, theta = scheme_code(scheme, theta)
+    check_stable(system, scheme, dt)
     q1, u1 = as_state(system, x1, "x1")
     q2, u2 = as_state(system, x2, "x2")
     for name, q in (("x1", q1), ("x2", q2)):
@@ -236,7 +238,8 @@ def simulate_pair(system: MechanicalSystem, x1, x2, t_end: float, dt: float, cou
                      info=dict(mode="core", dt=dt, scheme=scheme, steps=n_steps))
     if status != OK:
         err = SimulationDiverged(divergence_message(system, scheme, dt, t0 + k0 * dt,
-                                                    what="a coupled state"))
+                                                    what="a coupled state",
+                                                    Kp=Kp_m if law != UNCOUPLED else None))
         res.error = str(err)
         err.partial = res
         raise err

@@ -201,6 +201,7 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
     from .core.coupling import chain_work, gain_matrix
     from .core.distance import geometry
     from .core.pair import LAWS, coupling_step
+    from .core.simulate import coupling_omega
 
     H = _check_positive("H", H)
     t_end = float(t_end)
@@ -283,18 +284,28 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
                     pair(a, b, x, False)
                     tau[i] += A[b, a] * t2
 
+        def check_forces(i, t, h):
+            if not np.all(np.isfinite(tau[i])):
+                wc = coupling_omega(system, Kp_m) * h
+                raise SlaveError(f"system{i + 1}", t, "coupling", 3, [
+                    f"its coupling force became non-finite ({tau[i].tolist()}): the explicit "
+                    f"exchange is unstable for these gains and this step (coupling omega_c*H = "
+                    f"{wc:.3g}; stable only below min(4 zeta, 1/zeta) <= 2): lower Kp or H, or add Kd"])
+
         def exchange(t, h, x):
             """One communication step of length h from t; returns the new states."""
             x = [list(xi) for xi in x]
             if method == "jacobi":
                 for i in range(N):
                     input_of(i, x)
+                    check_forces(i, t, h)
                 for i, s in enumerate(slaves):
                     s.set(dict(zip(taun, tau[i])))
                     s.do_step(t, h)
                 return [read(s) for s in slaves]
             for i, s in enumerate(slaves):  # Gauss-Seidel: newest states of the others
                 input_of(i, x)
+                check_forces(i, t, h)
                 s.set(dict(zip(taun, tau[i])))
                 s.do_step(t, h)
                 x[i] = read(s)

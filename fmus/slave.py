@@ -43,7 +43,8 @@ from pythonfmu.enums import Fmi2Causality, Fmi2Initial, Fmi2Status, Fmi2Variabil
 
 from fmu_sync.core.moreau import OK as _OK
 from fmu_sync.core.moreau import advance
-from fmu_sync.core.simulate import check_step, divergence_message, scheme_code
+from fmu_sync.core.simulate import (SimulationDiverged, check_stable, check_step, divergence_message,
+                                    scheme_code)
 
 from . import _export_lib
 from ._xml import SCHEME_ITEMS, Var, model_description
@@ -456,6 +457,10 @@ class MechanicalSlave(Fmi2Slave):
             if scheme_name is None:
                 raise ValueError(f"solver.scheme must be one of {sorted(_SCHEME_BY_VALUE)}, got {p['solver.scheme']!r}")
             code, theta = scheme_code(scheme_name, p["solver.theta"])
+            try:
+                check_stable(system, scheme_name, dt)
+            except SimulationDiverged as exc:  # known before the run: a configuration error
+                raise ValueError(str(exc)) from None
             q0, u0 = self.start_state(p)
             g = system.gap(q0)
             if not g >= 0.0:

@@ -87,6 +87,7 @@ def test_failing_slave_stops_the_run_with_a_complete_record(fmu):
     res = cosimulate(fmu, X1, X2, 50.0, 1e-2, coupling="euclidean", Kp=1e9, Kd=0.0)
     assert res.error is not None
     assert "system" in res.error and "t = " in res.error
+    assert "coupling omega_c*H = 447" in res.error
     assert res.t.size > 1 and res.t[-1] < 50.0
     assert np.all(np.isfinite(res.t)) and np.all(np.isfinite(res.q1))
 
