@@ -1,0 +1,85 @@
+"""`fmu-sync bench`: the whole pipeline (work-precision with the FMU co-simulation, stability,
+CSVs, diagrams, bench.md) at --smoke size, in a child process (the FMU is never loaded in
+the pytest process, see tests/test_fmu_run.py). --smoke shrinks ladders, horizons and repeats
+and skips the core speed section; its numbers mean nothing, only the files are checked."""
+import csv
+import math
+import os
+import subprocess
+import sys
+
+import pytest
+
+from fmu_sync.benchmarks import work_precision as wp
+
+ENV = {**os.environ, "CI": "true"}
+
+
+@pytest.fixture(scope="module")
+def bench(tmp_path_factory):
+    out = tmp_path_factory.mktemp("bench")
+    code = "import sys\nfrom fmu_sync.cli import main\nsys.exit(main(sys.argv[1:]))\n"
+    p = subprocess.run([sys.executable, "-c", code, "bench", "--quick", "--smoke", "-o", str(out)],
+                       capture_output=True, text=True, env=ENV, timeout=240, cwd=out)
+    assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-4000:]
+    return out, p
+
+
+def _read(path):
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def test_files_are_written(bench):
+    out, _ = bench
+    for name in ("bench.md", "work_precision.csv", "stability.csv"):
+        assert (out / name).is_file() and (out / name).stat().st_size > 0, name
+    pngs = sorted(p.name for p in out.glob("work_precision_*.png"))
+    assert "work_precision_bouncing-ball_rest_time.png" in pngs
+    assert "work_precision_paper-example_d.png" in pngs
+    for p in out.glob("*.png"):
+        assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_work_precision_csv(bench):
+    out, _ = bench
+    rows = _read(out / "work_precision.csv")
+    assert list(rows[0]) == list(wp.Point.CSV_FIELDS)
+    methods = {r["method"] for r in rows}
+    assert {"midpoint", "theta0.5", "theta1", "exact", "solve_ivp", "cosim", "cosim-ea",
+            "cosim-fine", "cosim-fine-ea"} <= methods
+    assert {r["scene"] for r in rows} == {s.name for s in wp.SCENES}
+    for r in rows:
+        step, err, sec, rep = float(r["step"]), float(r["error"]), float(r["seconds"]), int(r["repeats"])
+        assert step > 0 and sec > 0 and rep >= 1, r
+        assert math.isfinite(err) or r["note"], r        # a missing error always says why
+    # the exact solver is the reference (error 0), except against the closed-form rest time
+    ex = [r for r in rows if r["method"] == "exact"]
+    assert all(float(r["error"]) == 0.0 for r in ex if r["metric"] == "max_q")
+    assert all(float(r["error"]) < 1e-12 for r in ex if r["metric"] == "rest_time")
+    # an uncoupled co-simulation with slave dt = H is the core midpoint at dt = H
+    for r in rows:
+        if r["method"] == "cosim" and r["metric"] == "max_q":
+            mid = [m for m in rows if m["method"] == "midpoint" and m["scene"] == r["scene"]
+                   and m["metric"] == "max_q" and float(m["step"]) == float(r["step"])]
+            if mid:
+                assert float(r["error"]) == pytest.approx(float(mid[0]["error"]), rel=1e-9, abs=1e-15)
+
+
+def test_stability_csv(bench):
+    out, _ = bench
+    rows = _read(out / "stability.csv")
+    assert rows and {r["result"] for r in rows} <= {"pass", "FAIL"}
+    groups = {r["group"] for r in rows}
+    assert {"stiff-wall", "restitution", "zeno", "grazing", "coupling", "scale", "large-dt"} <= groups
+    coup = [r for r in rows if r["method"].startswith("co-simulation") and "jacobi" in r["method"]]
+    assert coup and all(r["result"] == "pass" for r in coup)
+
+
+def test_bench_md_and_stdout(bench):
+    out, p = bench
+    md = (out / "bench.md").read_text()
+    for head in ("# fmu-sync benchmarks", "## Core speed", "## Work–precision", "## Stability",
+                 "Measured order, midpoint, bouncing-ball", "Measured order, midpoint, paper-example"):
+        assert head in md, head
+    assert "## Work–precision" in p.stdout and "## Stability" in p.stdout
