@@ -25,7 +25,7 @@ from pathlib import Path
 __all__ = ["main", "EXTRA_SECTIONS"]
 
 #: optional sibling benchmark modules, included when they provide ``run(quick) -> markdown``
-EXTRA_SECTIONS = ("fmu_cost", "distance_cost")
+EXTRA_SECTIONS = ("fmu_cost",)  # distance_cost is part of core_speed
 
 
 def _versions() -> str:

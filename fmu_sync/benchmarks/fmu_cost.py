@@ -195,6 +195,23 @@ def exit_check(fmu_path: Path, n: int, without_fix: bool, jobs: int = 2) -> dict
             "examples": sorted({f"rc={rc}: {msg}" for rc, msg in failures})[:3]}
 
 
+def run(quick: bool = False) -> str:
+    """Per-step cost and first-step latency as a markdown section (for ``fmu-sync bench``)."""
+    from fmu_sync.export import export_fmu
+    steps, repeat, fresh = (5000, 3, 3) if quick else (20000, 3, 5)
+    with tempfile.TemporaryDirectory(prefix="bench-fmu-") as tmp:
+        fmu_path = export_fmu("impact-oscillator", Path(tmp) / "ImpactOscillator.fmu")
+        per = per_step_costs(fmu_path, steps, repeat)
+        lat = first_step_latency(fmu_path, fresh)
+    lines = [f"## FMU cost (CPU time per communication step, best of {repeat} x {steps} steps)", "",
+             "| loop | µs per step |", "|---|---:|"]
+    lines += [f"| {k} | {v * 1e6:.2f} |" for k, v in per.items()]
+    lines += ["", f"First doStep in a fresh process (warm numba cache, median of {fresh}):", "",
+              "| phase | ms |", "|---|---:|"]
+    lines += [f"| {k} | {v * 1e3:.1f} |" for k, v in lat.items()]
+    return "\n".join(lines) + "\n"
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--steps", type=int, default=20000)

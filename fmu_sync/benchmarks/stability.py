@@ -721,7 +721,7 @@ def _summary(rows) -> list[str]:
                        f"{len(vals)} bisections), i.e. H* = h*/sqrt(2 Kp/m) with h* = min(4ζ, 1/ζ) = "
                        f"{zoh_limit(ZETA):.3f} for ζ = {ZETA:.3f}; the rule of thumb H·ω_c ≈ 2 is the best case "
                        f"(ζ = 1/2) and overestimates the limit by ×{2 / zoh_limit(ZETA):.2f} at the paper's damping ratio.")
-    if any("omega_max*dt = 0)" in r.measured for r in g.get("coupling", [])):
+    if any("omega_max*dt = 0)" in r.measured and "omega_c" not in r.measured for r in g.get("coupling", [])):
         out.append("- The `SimulationDiverged` message of a diverging coupled run reports omega_max*dt = 0 "
                    "(the uncoupled systems' stiffness only): it ignores the coupling frequency "
                    "ω_c = sqrt(2 Kp/m), so it does not point at the cause (ω_c·dt > h*).")
