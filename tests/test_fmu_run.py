@@ -298,10 +298,19 @@ def scenario_errors(a):
     h.close()
     R["order"] = w
 
-    # --- diverging scheme: rolled back, fmi2Discard, state stays the last valid one
+    # --- a scheme known to diverge (midpoint, omega_max*dt = 100): refused up front
     h, _ = fresh(starts={"k": 1e8, "solver.dt": 1e-2, "q_start": 0.5})
     q0 = h.get(["q", "u"])
-    R["diverge"] = {"step": h.do_step(0.0, 1.0), "q_u": h.get(["q", "u"]), "q0": q0,
+    R["unstable"] = {"step": h.do_step(0.0, 1.0), "q_u": h.get(["q", "u"]), "q0": q0,
+                     "errors": h.errors(2)}
+    h.close()
+
+    # --- a step that overflows (huge finite input over 2000 sub-steps): rolled back,
+    #     fmi2Discard, the state stays the last valid one
+    h, _ = fresh(starts={"solver.dt": 1e-3, "q_start": 0.5})
+    q0 = h.get(["q", "u"])
+    h.set({"tau": 1.7e308})
+    R["diverge"] = {"step": h.do_step(0.0, 2.0), "q_u": h.get(["q", "u"]), "q0": q0,
                     "last_successful_time": h.last_successful_time(), "errors": h.errors(2)}
     h.close()
 
@@ -559,6 +568,12 @@ def test_calls_in_the_wrong_state(runs):
                   "unknown value reference 999", "is impacts, of type Integer", "cannot set input tau after fmi2Terminate",
                   "doStep called in terminated"):
         assert words in text, words
+
+
+def test_scheme_known_to_diverge_is_refused(runs):
+    r = _ok(runs, "errors")["unstable"]
+    assert r["step"] == 2 and r["q_u"] == r["q0"]
+    assert any("midpoint" in m and "omega_max*dt = 100" in m for m in r["errors"])
 
 
 def test_divergence_is_rolled_back(runs):
