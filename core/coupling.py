@@ -101,13 +101,10 @@ def coupling_kernel1(law, sg, kp, kd, q1, u1, q2, u2):
 # ------------------------------------------------------------- arrays (any n)
 @njit(cache=True, inline="always", error_model="numpy")
 def _euclidean_forces(Kp, Kd, q1, u1, q2, u2, tau1, tau2):
-    n = q1.shape[0]
-    for k in range(n):
-        s = 0.0
-        for j in range(n):
-            s += Kp[k, j] * (q1[j] - q2[j]) + Kd[k, j] * (u1[j] - u2[j])
-        tau1[k] = -s
-        tau2[k] = s
+    """tau1 = -Kp (q1 - q2) - Kd (u1 - u2) = -tau2: the pull of system 1 toward system 2."""
+    _pull(Kp, Kd, 1.0, q1, u1, q2, u2, tau1)
+    for k in range(q1.shape[0]):
+        tau2[k] = -tau1[k]
 
 
 @njit(cache=True, inline="always", error_model="numpy")

@@ -13,7 +13,8 @@ import math
 import numpy as np
 from numba import njit
 
-from .coupling import (BRANCH_NONE, EUCLIDEAN, SWITCHING, UNCOUPLED, _p_norm_diff, coupling_kernel,
+from .coupling import LAWS as COUPLING_LAWS
+from .coupling import (BRANCH_NONE, SWITCHING, UNCOUPLED, _p_norm_diff, coupling_kernel,
                        coupling_kernel1, euclidean_coupling1, gain_matrix)
 from .distance import distance1, distance_value, geometry
 from .model import MechanicalSystem, as_state
@@ -26,7 +27,7 @@ from .simulate import (SimulationDiverged, _n_steps, check_stable, check_step, d
 __all__ = ["simulate_pair", "coupling_step", "LAWS", "gain_matrix"]
 
 #: Coupling names accepted by :func:`simulate_pair` and the master.
-LAWS = {None: UNCOUPLED, "none": UNCOUPLED, "euclidean": EUCLIDEAN, "switching": SWITCHING}
+LAWS = {None: UNCOUPLED, **COUPLING_LAWS}
 
 
 @njit(cache=True)

@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-BRANCH_NAMES = ("E", "J12", "J21", "J2")
+from .distance import BRANCH_NAMES
 
 __all__ = ["PairResult", "BRANCH_NAMES"]
 

@@ -274,7 +274,7 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
                                  *work, want_d)
 
         def input_of(i, x):
-            """tau_i = sum_j a_ij tau_i^(j) at states x."""
+            """tau_i = sum_j a_ij tau_i^(j) at states x (Gauss-Seidel: one node at a time)."""
             tau[i] = 0.0
             for a, b in edges:
                 if i == a and A[a, b] > 0.0:
@@ -283,6 +283,16 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
                 elif i == b and A[b, a] > 0.0:
                     pair(a, b, x, False)
                     tau[i] += A[b, a] * t2
+
+        def inputs(x):
+            """tau_i for every i at states x (Jacobi): each edge's law evaluated once."""
+            tau[:] = 0.0
+            for a, b in edges:
+                pair(a, b, x, False)
+                if A[a, b] > 0.0:
+                    tau[a] += A[a, b] * t1
+                if A[b, a] > 0.0:
+                    tau[b] += A[b, a] * t2
 
         def check_forces(i, t, h):
             if not np.all(np.isfinite(tau[i])):
@@ -296,8 +306,8 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
             """One communication step of length h from t; returns the new states."""
             x = [list(xi) for xi in x]
             if method == "jacobi":
+                inputs(x)
                 for i in range(N):
-                    input_of(i, x)
                     check_forces(i, t, h)
                 for i, s in enumerate(slaves):
                     s.set(dict(zip(taun, tau[i])))
@@ -322,8 +332,7 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
 
         x = [read(s) for s in slaves]
         if law != LAWS[None]:
-            for i in range(N):
-                input_of(i, x)
+            inputs(x)
         record(0, 0.0, x, tau)
         row, error, retakes = 1, None, 0
         imp = [s.get_integer("impacts") for s in slaves]
