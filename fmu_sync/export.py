@@ -28,7 +28,7 @@ from pathlib import Path
 from xml.etree import ElementTree as ET
 
 from .fmus import contract
-from .fmus._xml import package_version
+from . import __version__
 
 __all__ = ["MODELS", "export_fmu", "main_export", "model_class"]
 
@@ -105,7 +105,7 @@ def export_fmu(model: str = "impact-oscillator", path=None, start_values: dict |
             model=model, module=cls.__module__, cls=cls.__name__, ident=cls.MODEL_IDENTIFIER).encode()),
         ("resources/slavemodule.txt", cls.MODULE_NAME.encode()),
         (f"resources/{_start_file()}", (json.dumps(
-            {"model": model, "fmu_sync_version": package_version(), "start": _all_starts(slave)},
+            {"model": model, "fmu_sync_version": __version__, "start": _all_starts(slave)},
             indent=2, sort_keys=True) + "\n").encode()),
     ]
     pf_dir = Path(pythonfmu.__file__).parent

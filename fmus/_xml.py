@@ -13,7 +13,7 @@ from xml.etree.ElementTree import Element, SubElement
 from .contract import POSITIVE_MIN, SCHEME_ITEMS, SCHEME_TYPE, Var
 
 __all__ = ["Var", "UNITS", "SCHEME_TYPE", "SCHEME_ITEMS", "model_description", "fmt_real",
-           "POSITIVE_MIN", "package_version", "generation_tool", "model_guid"]
+           "POSITIVE_MIN", "generation_tool", "model_guid"]
 
 #: SI units used by the slaves: name -> exponents of the SI base units
 #: (plus rad), as written in <UnitDefinitions>.
@@ -33,23 +33,17 @@ UNITS: dict[str, dict[str, int]] = {
 }
 
 
-def package_version() -> str:
-    """fmu-sync's version, from the installed package metadata (single source: pyproject.toml)."""
-    try:
-        from importlib.metadata import version
-        return version("fmu-sync")
-    except Exception:
-        return "0+unknown"
-
-
 def generation_tool() -> str:
     import pythonfmu
-    return f"fmu-sync {package_version()} (PythonFMU {pythonfmu.__version__})"
+
+    from fmu_sync import __version__
+    return f"fmu-sync {__version__} (PythonFMU {pythonfmu.__version__})"
 
 
 def model_guid(model: str, start_values: dict) -> str:
     """Deterministic GUID: changes with the model, the package version and the start values."""
-    key = json.dumps({"model": model, "version": package_version(), "start": start_values}, sort_keys=True)
+    from fmu_sync import __version__
+    key = json.dumps({"model": model, "version": __version__, "start": start_values}, sort_keys=True)
     return "{" + str(uuid.uuid5(uuid.NAMESPACE_URL, "https://fmu-sync/" + key)) + "}"
 
 

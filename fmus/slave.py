@@ -44,8 +44,8 @@ from pythonfmu.enums import Fmi2Causality, Fmi2Initial, Fmi2Status, Fmi2Variabil
 
 from fmu_sync.core.moreau import OK as _OK
 from fmu_sync.core.moreau import advance
-from fmu_sync.core.simulate import (SimulationDiverged, check_stable, check_step, divergence_message,
-                                    scheme_code)
+from fmu_sync.core.checks import check_stable, check_step, divergence_message, scheme_code
+from fmu_sync.core.errors import SimulationDiverged
 
 from . import _export_lib
 from ._xml import SCHEME_ITEMS, Var, generation_tool, model_description, model_guid
