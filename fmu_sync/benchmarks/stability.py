@@ -308,7 +308,7 @@ def scale_invariance(scales=SCALES, dt: float = 1e-3, fmu=None, tol: float = 1e-
     def ball(sc):
         return dict(m=1.0, k=0.0, c=0.0, f0=-G * sc, e=0.8), (sc, 0.0), 5.0
 
-    def paper(sc):
+    def forced_pair(sc):
         return dict(m=1.0, k=1.0, c=0.0, f0=0.2 * sc, F=0.5 * sc, Omega=2.5, e=0.9), (sc, 0.0), 20.0
 
     cases = {}
@@ -324,7 +324,7 @@ def scale_invariance(scales=SCALES, dt: float = 1e-3, fmu=None, tol: float = 1e-
         out[("bouncing ball", "midpoint", "|t_rest - t_inf| (s)")] = abs(rest_time_of(r.t, r.u[:, 0], 1e-6 * math.sqrt(2 * G) * sc)
                                                        - t_inf)
         out[("bouncing ball", "exact", "|t_rest - t_inf|/t_inf")] = abs(float(ev.zeno_times[0]) - t_inf) / t_inf
-        p, x0, T = paper(sc)
+        p, x0, T = forced_pair(sc)
         s = osc(**p)
         ev = exact_events(s, x0, T)
         for label, scheme, theta in (("midpoint", "midpoint", 0.5), ("theta1", "theta", 1.0)):
