@@ -62,7 +62,8 @@ def _positive(y):
 
 
 def _title(ax, title, what):
-    ax.set_title(f"{title}\n{what}" if title else what)
+    """One title line: ``<scene, run>: <what the plot shows>``."""
+    ax.set_title(f"{title}: {what}" if title else what)
 
 
 def _wall_band(ax, horizontal=True, label="wall"):
@@ -82,7 +83,7 @@ def _wall_band(ax, horizontal=True, label="wall"):
 
 
 def plot_positions(result, path, system=None, title=None) -> Path:
-    """q(t) of each system with the wall and the impacts marked (n > 1: q components and the gap g)."""
+    """q(t) of each system with the wall and the starts of contact episodes marked (n > 1: q components and the gap g)."""
     t = np.asarray(result.t)
     parts = _systems(result, system)
     n = parts[0][1].shape[1]
@@ -103,8 +104,8 @@ def plot_positions(result, path, system=None, title=None) -> Path:
         ax.plot(t, g, color=COLORS[k], label=label)
         if hits.size:
             ax.plot(t[hits], np.zeros(hits.size), ls="none", marker="v" if k == 0 else "^", ms=5,
-                    color=COLORS[k], mec="k", mew=0.5, label=f"impacts {label.split()[-1]} ({hits.size})"
-                    if len(parts) > 1 else f"impacts ({hits.size})")
+                    color=COLORS[k], mec="k", mew=0.5, label=f"contact episodes {label.split()[-1]} ({hits.size})"
+                    if len(parts) > 1 else f"contact episodes ({hits.size})")
     _wall_band(ax)
     ax.set_ylabel("gap g(q) = w·q + g0 [m]" if n > 1 else "position q [m]")
     ax.set_xlabel("time t [s]")

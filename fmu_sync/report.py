@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["SYNC_THRESHOLD", "is_pair", "wall", "impact_rows", "impact_records", "contact_starts", "metrics", "write_data", "rows", "write_summary",
+__all__ = ["SYNC_THRESHOLD", "is_pair", "wall", "impact_rows", "impact_records", "contact_starts", "metrics", "StreamRecord", "record_columns", "write_data", "rows", "write_summary",
            "print_table", "max_abs_difference", "format_value"]
 
 #: d below this counts as synchronized (time to sync = first time after which d stays below it).
@@ -99,20 +99,146 @@ def metrics(result, system=None, threshold: float = SYNC_THRESHOLD) -> dict:
                    scheme=result.scheme, dt=float(result.dt))
         return out
     tau = np.concatenate([np.abs(np.asarray(result.tau1)).ravel(), np.abs(np.asarray(result.tau2)).ravel()])
+    e1, e2 = impact_records(result, 1, system), impact_records(result, 2, system)
     out.update(kind="pair", coupling=result.coupling or "none", impacts1=int(result.impacts1),
-               impacts2=int(result.impacts2), peak_tau=float(tau.max()) if tau.size else 0.0,
-               error=result.error)
+               impacts2=int(result.impacts2), episodes1=int(e1.size), episodes2=int(e2.size),
+               peak_tau=float(np.nanmax(tau)) if tau.size else 0.0, error=result.error)
     if result.d is None:
         out.update(t_sync=None, final_d=None, euclid_max=None, peaking=None, dV_impact=None, dE_impact=None)
         return out
     d, E, V = np.asarray(result.d), np.asarray(result.euclidean), np.asarray(result.V)
-    hits = np.union1d(impact_records(result, 1, system), impact_records(result, 2, system))
+    hits = np.union1d(e1, e2)
+    hits = hits[hits > 0]
     out.update(t_sync=result.time_to_sync(threshold), final_d=float(d[-1]), euclid_max=float(E.max()),
                peaking=float(np.max(E - d)),
-               dV_impact=float(np.max(np.abs(V[hits] - V[hits - 1]))) if hits.size else 0.0,
-               dE_impact=float(np.max(np.abs(E[hits] - E[hits - 1]))) if hits.size else 0.0,
+               dV_impact=float(np.max(np.abs(V[hits] - V[hits - 1]))) if hits.size else None,
+               dE_impact=float(np.max(np.abs(E[hits] - E[hits - 1]))) if hits.size else None,
                impact_records=int(hits.size))
     return out
+
+
+class StreamRecord:
+    """Sink of a pair run streamed in chunks (``simulate_pair(..., sink=...)``).
+
+    Each chunk is written (``writer``: a :class:`~fmu_sync.output.RecordWriter`),
+    folded into the metrics of :func:`metrics` (exact: maxima, t_sync, final d,
+    contact episodes and the jumps of V and of the Euclidean error over them,
+    found with the two rows before each chunk), and thinned to every
+    ``every``-th row for the plots (:meth:`thinned`). Memory: one chunk plus the
+    thinned copy, whatever the length of the run.
+    """
+
+    def __init__(self, writer, system=None, total_rows: int = 0, plot_rows: int = 20000,
+                 threshold: float = SYNC_THRESHOLD, progress=None):
+        self.writer, self.system, self.threshold, self.progress = writer, system, threshold, progress
+        self.total = max(int(total_rows), 1)
+        self.every = max(1, -(-self.total // max(int(plot_rows), 1)))
+        self.rows = 0
+        self.keep = []
+        self.tail = None             # the last 2 rows of the previous chunk
+        self.last = None             # the last row
+        self.m = dict(peak_tau=0.0, euclid_max=-np.inf, peaking=-np.inf, dV=None, dE=None, hits=0,
+                      e1=0, e2=0, last_above=None, first_t=None, any_d=False)
+
+    _FIELDS = ("t", "q1", "u1", "q2", "u2", "tau1", "tau2", "d", "branch", "euclidean")
+
+    def __call__(self, chunk) -> None:
+        from .output import pair_columns
+        n = np.asarray(chunk.q1).shape[1]
+        cols = pair_columns(n, chunk.d is not None)
+        self.writer.append({k: getattr(chunk, k) for k, _ in cols})
+        m = self.m
+        t = np.asarray(chunk.t)
+        if m["first_t"] is None:
+            m["first_t"] = float(t[0])
+        tau = np.concatenate([np.abs(chunk.tau1).ravel(), np.abs(chunk.tau2).ravel()])
+        if tau.size:
+            m["peak_tau"] = max(m["peak_tau"], float(np.nanmax(tau)))
+        # contact episodes and the jumps over them, with the two rows before the chunk
+        ext = chunk if self.tail is None else _concat([self.tail, chunk])
+        off = 0 if self.tail is None else len(self.tail.t)
+        e = []
+        for i in (1, 2):
+            h = impact_records(ext, i, self.system)
+            h = h[h >= max(off, 1)]
+            m[f"e{i}"] += int(h.size)
+            e.append(h)
+        if chunk.d is not None:
+            m["any_d"] = True
+            d, E = np.asarray(chunk.d), np.asarray(chunk.euclidean)
+            m["euclid_max"] = max(m["euclid_max"], float(np.max(E)))
+            m["peaking"] = max(m["peaking"], float(np.max(E - d)))
+            above = np.nonzero(~(d < self.threshold))[0]
+            if above.size:
+                m["last_above"] = self.rows + int(above[-1])
+                m["after_above"] = float(t[above[-1] + 1]) if above[-1] + 1 < len(t) else None
+            elif m["last_above"] is not None and m.get("after_above") is None:
+                m["after_above"] = float(t[0])
+            hits = np.union1d(*e)
+            if hits.size:
+                V, Ee = np.asarray(ext.V), np.asarray(ext.euclidean)
+                dV = float(np.max(np.abs(V[hits] - V[hits - 1])))
+                dE = float(np.max(np.abs(Ee[hits] - Ee[hits - 1])))
+                m["dV"] = dV if m["dV"] is None else max(m["dV"], dV)
+                m["dE"] = dE if m["dE"] is None else max(m["dE"], dE)
+                m["hits"] += int(hits.size)
+        # thinning for the plots: global rows 0, every, 2 every, ...
+        idx = np.arange(self.rows, self.rows + len(t))
+        sel = np.nonzero(idx % self.every == 0)[0]
+        if sel.size:
+            self.keep.append(_take(chunk, sel))
+        self.tail = _take(chunk, np.arange(max(0, len(t) - 2), len(t)))
+        self.last = _take(chunk, np.arange(len(t) - 1, len(t)))
+        self.last.impacts1, self.last.impacts2 = chunk.impacts1, chunk.impacts2
+        self.rows += len(t)
+        if self.progress is not None:
+            self.progress(min(1.0, self.rows / self.total))
+
+    def thinned(self):
+        """The kept rows (every ``every``-th and the last) as one PairResult, for the plots."""
+        parts = list(self.keep)
+        if self.last is not None and (not parts or parts[-1].t[-1] != self.last.t[-1]):
+            parts.append(self.last)
+        r = _concat(parts)
+        r.info = dict(r.info, thinned_every=self.every, rows=self.rows)
+        return r
+
+    def metrics(self, result=None) -> dict:
+        """The :func:`metrics` dict of the whole streamed record."""
+        m, last = self.m, self.last
+        res = last if result is None else result
+        out = {"t_end": float(last.t[-1]), "records": self.rows, "kind": "pair",
+               "coupling": res.coupling or "none", "impacts1": int(res.impacts1),
+               "impacts2": int(res.impacts2), "episodes1": m["e1"], "episodes2": m["e2"],
+               "peak_tau": m["peak_tau"], "error": res.error, "thinned_every": self.every}
+        if not m["any_d"]:
+            out.update(t_sync=None, final_d=None, euclid_max=None, peaking=None, dV_impact=None,
+                       dE_impact=None)
+            return out
+        if m["last_above"] is None:
+            t_sync = m["first_t"]
+        else:
+            t_sync = m.get("after_above")
+            t_sync = float("inf") if t_sync is None else t_sync
+        out.update(t_sync=t_sync, final_d=float(last.d[-1]), euclid_max=m["euclid_max"],
+                   peaking=m["peaking"], dV_impact=m["dV"], dE_impact=m["dE"], impact_records=m["hits"])
+        return out
+
+
+def _take(r, idx):
+    from .core.result import PairResult
+    g = lambda a: None if a is None else np.asarray(a)[idx]  # noqa: E731
+    return PairResult(*(g(getattr(r, k)) for k in StreamRecord._FIELDS), impacts1=r.impacts1,
+                      impacts2=r.impacts2, coupling=r.coupling, info=dict(r.info), error=r.error)
+
+
+def _concat(parts):
+    from .core.result import PairResult
+    first = parts[0]
+    g = lambda k: None if getattr(first, k) is None else np.concatenate([getattr(p, k) for p in parts])  # noqa: E731
+    last = parts[-1]
+    return PairResult(*(g(k) for k in StreamRecord._FIELDS), impacts1=last.impacts1, impacts2=last.impacts2,
+                      coupling=first.coupling, info=dict(first.info), error=last.error)
 
 
 def max_abs_difference(a, b, attr: str = "d") -> float | None:
@@ -132,21 +258,39 @@ def max_abs_difference(a, b, attr: str = "d") -> float | None:
 
 
 # ---------------------------------------------------------------- data files
-def write_data(result, stem) -> list[Path]:
-    """Write ``<stem>.csv`` (tidy, one row per record) and ``<stem>.npz``; return both paths."""
-    stem = Path(stem)
-    csv, npz = stem.with_name(stem.name + ".csv"), stem.with_name(stem.name + ".npz")
+def record_columns(result) -> tuple[list, dict]:
+    """``(columns, data)`` of a result for :class:`~fmu_sync.output.RecordWriter`."""
+    from .output import pair_columns, single_columns
     if is_pair(result):
-        result.to_csv(csv)
-        result.to_npz(npz)
+        n = np.asarray(result.q1).reshape(len(result.t), -1).shape[1]
+        cols = pair_columns(n, result.d is not None)
+        data = {k: getattr(result, k) for k, _ in cols}
     else:
-        n = result.q.shape[1]
-        names = ["t"] + ([f"q[{j + 1}]" for j in range(n)] + [f"u[{j + 1}]" for j in range(n)]
-                         if n > 1 else ["q", "u"]) + ["percussion"]
-        np.savetxt(csv, np.column_stack([result.t, result.q, result.u, result.percussion]), delimiter=",",
-                   header=",".join(names), comments="", fmt="%.17g")
-        np.savez_compressed(npz, t=result.t, q=result.q, u=result.u, percussion=result.percussion)
-    return [csv, npz]
+        n = np.asarray(result.q).reshape(len(result.t), -1).shape[1]
+        cols = single_columns(n)
+        data = {k: getattr(result, k) for k, _ in cols}
+    return cols, data
+
+
+def write_data(result, stem, formats=("csv", "npz"), progress=None, partial: bool = False) -> list[Path]:
+    """Write ``<stem>.csv`` (tidy, one row per record) and/or ``<stem>.npz`` in chunks of
+    rows (``progress(fraction)`` after each); a failed run's record is named
+    ``<stem>.partial.csv`` / ``.partial.npz``. Returns the paths written."""
+    from .output import WRITE_ROWS, RecordWriter
+    if not formats:
+        return []
+    cols, data = record_columns(result)
+    w = RecordWriter(stem, cols, formats)
+    try:
+        n = len(result.t)
+        for a in range(0, max(n, 1), WRITE_ROWS):
+            w.append({k: np.asarray(v)[a:a + WRITE_ROWS] for k, v in data.items()})
+            if progress is not None:
+                progress(min(1.0, (a + WRITE_ROWS) / max(n, 1)))
+        return w.close(partial=partial)
+    except BaseException:
+        w.abort()
+        raise
 
 
 # ---------------------------------------------------------------- tables
@@ -173,10 +317,11 @@ PAIR_COLUMNS = [
     ("coupling", lambda m: m.get("coupling", "—")),
     (f"t_sync [s] (d<{SYNC_THRESHOLD:g})", lambda m: m.get("t_sync")),
     ("max|tau| [N]", lambda m: m.get("peak_tau")),
-    ("impacts 1/2", lambda m: f"{m['impacts1']}/{m['impacts2']}" if "impacts1" in m else "—"),
+    ("impact steps 1/2", lambda m: f"{m['impacts1']}/{m['impacts2']}" if "impacts1" in m else "—"),
+    ("contact episodes 1/2", lambda m: f"{m['episodes1']}/{m['episodes2']}" if "episodes1" in m else "—"),
     ("max(|x1-x2|-d)", lambda m: m.get("peaking")),
     ("final d", lambda m: m.get("final_d")),
-    ("max dV at impacts", lambda m: m.get("dV_impact")),
+    ("max dV over an episode start", lambda m: m.get("dV_impact")),
 ]
 DEMO_COLUMNS = [("variant", lambda m: m.get("variant", m["name"])), ("mode", lambda m: m.get("mode"))] + PAIR_COLUMNS[1:] + [
     ("max|d - d_core|", lambda m: m.get("d_vs_core"))]
@@ -257,8 +402,13 @@ def write_summary(path, title: str, description: str, rows, settings=(), files=(
     lines += [f"- t_sync: first time after which the quotient distance d stays below {SYNC_THRESHOLD:g} "
               "(never: not within the run).",
               "- max(|x1-x2|-d): the Euclidean error's peaking above d (largest at impact mismatches).",
-              "- max dV at impacts: largest change of V = d^2/2 over a record containing an impact "
-              "(O(dt) for the quotient distance; the Euclidean error jumps by about (1+e)|w.u-|)."]
+              "- impact steps: steps (dt in the core, H in co-simulation) with a positive percussion; "
+              "a plastic impact or persistent contact gives many per contact.",
+              "- contact episodes: arrivals at the wall seen in the record (each begins one episode of "
+              "contact; the markers of the position plots).",
+              "- max dV over an episode start: largest change of V = d^2/2 over a record in which a contact "
+              "episode begins (O(dt) for the quotient distance, while the Euclidean error jumps by about "
+              "(1+e)|w.u-|); — when the record shows no contact episode."]
     lines += [f"- {n}" for n in notes] + [""]
     if settings:
         lines += ["## Settings", ""] + _md_table(["key", "value"], [[k, f"`{v}`"] for k, v in settings]) + [""]

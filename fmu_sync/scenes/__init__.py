@@ -50,9 +50,12 @@ types and bad values raise :class:`SceneError` naming file, key and value)::
     method = "jacobi"           # "jacobi" | "gauss-seidel" (cosim)
     event_aware = false         # cosim: retake steps that contain an impact
     record_every = 10           # keep every k-th step (core: steps dt; cosim: steps H)
+    allow_unstable = false      # run even if the held coupling exchange is unstable at this step
+                                # (refused before the first step by default; CLI: --allow-unstable)
 
     [record]
     distance = true             # compute d, branch, V, Euclidean error (pairs; default true)
+    formats = ["csv", "npz"]    # data files to write: any of "csv", "npz" (CLI: --format npz,csv)
 
     [plot]
     plots = ["positions", "distance", "lyapunov", "forces", "phase"]

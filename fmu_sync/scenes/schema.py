@@ -176,6 +176,15 @@ def _plots(v):
     return list(v)
 
 
+def _formats(v):
+    allowed = 'a list of data formats from "csv", "npz" (may be empty)'
+    if not isinstance(v, list) or not all(isinstance(f, str) for f in v):
+        raise BadValue("is not a list of strings", allowed)
+    if any(f not in ("csv", "npz") for f in v) or len(set(v)) != len(v):
+        raise BadValue("has unknown or repeated entries", allowed)
+    return list(v)
+
+
 def _forcing(v):
     allowed = "a list of tables {F = [..n numbers..], Omega = <rad/s>, phi = <rad, default 0>}"
     if not isinstance(v, list) or not all(isinstance(t, dict) for t in v):
@@ -228,8 +237,8 @@ KEYS = {
     "run": {"t_end": _key(_number(gt=0)), "mode": _key(choice(*MODES), "core"),
             "H": _key(_number(gt=0), 1e-2), "H_min": _key(_number(gt=0), None),
             "method": _key(choice(*METHODS), "jacobi"), "event_aware": _key(_boolean, False),
-            "record_every": _key(_integer(1), 1)},
-    "record": {"distance": _key(_boolean, None)},
+            "record_every": _key(_integer(1), 1), "allow_unstable": _key(_boolean, False)},
+    "record": {"distance": _key(_boolean, None), "formats": _key(_formats, ["csv", "npz"])},
     "plot": {"plots": _key(_plots, None), "compare": _key(_boolean, None)},
 }
 
