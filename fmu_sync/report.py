@@ -315,7 +315,8 @@ def format_value(x) -> str:
 PAIR_COLUMNS = [
     ("variant", lambda m: m["name"]),
     ("coupling", lambda m: m.get("coupling", "—")),
-    (f"t_sync [s] (d<{SYNC_THRESHOLD:g})", lambda m: m.get("t_sync")),
+    (f"t_sync [s] (d<{SYNC_THRESHOLD:g})", lambda m: "not within t_end" if m.get("t_sync") == math.inf
+     else m.get("t_sync")),
     ("max|tau| [N]", lambda m: m.get("peak_tau")),
     ("impact steps 1/2", lambda m: f"{m['impacts1']}/{m['impacts2']}" if "impacts1" in m else "—"),
     ("contact episodes 1/2", lambda m: f"{m['episodes1']}/{m['episodes2']}" if "episodes1" in m else "—"),
@@ -371,7 +372,7 @@ def _numeric(cells) -> bool:
     """A column of numbers (or never / — / counts like 3/4): right-aligned."""
     def num(c):
         c = str(c)
-        if c in ("never", "—", "-inf", "nan"):
+        if c in ("never", "not within t_end", "—", "-inf", "nan"):
             return True
         try:
             for part in c.split("/"):
@@ -400,7 +401,7 @@ def write_summary(path, title: str, description: str, rows, settings=(), files=(
         lines += [description.strip(), ""]
     lines += ["## Results", ""] + _md_table(header, table) + [""]
     lines += [f"- t_sync: first time after which the quotient distance d stays below {SYNC_THRESHOLD:g} "
-              "(never: not within the run).",
+              "(not within t_end: d was still at or above it at the end of the run; a longer run may get there).",
               "- max(|x1-x2|-d): the Euclidean error's peaking above d (largest at impact mismatches).",
               "- impact steps: steps (dt in the core, H in co-simulation) with a positive percussion; "
               "a plastic impact or persistent contact gives many per contact.",

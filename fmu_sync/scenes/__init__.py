@@ -58,7 +58,8 @@ types and bad values raise :class:`SceneError` naming file, key and value)::
     formats = ["csv", "npz"]    # data files to write: any of "csv", "npz" (CLI: --format npz,csv)
 
     [plot]
-    plots = ["positions", "distance", "lyapunov", "forces", "phase"]
+    plots = ["positions", "distance", "impact-zoom", "lyapunov", "forces", "phase"]
+                                # impact-zoom: one impact window, Euclidean error vs d (linear axes)
     compare = true              # d(t) of all variants on one axis (default: when >= 2 variants)
 
     [[runs]]                    # optional variants; each one is a run of its own.

@@ -350,7 +350,10 @@ def error_notes(runs) -> list[str]:
             for r in runs if r.metrics.get("error")]
 
 
-def settings_table(scene: Scene, variants) -> list[tuple[str, str]]:
+def settings_table(scene: Scene, variants, names=None) -> list[tuple[str, str]]:
+    """Settings of the variants that ran (one value, or each run's own: ``names`` label
+    the runs, default the variant names)."""
+    names = [v.name for v in variants] if names is None else list(names)
     rows = [("scene file", str(scene.path))]
     if scene.overrides:
         rows.append(("overrides", ", ".join(f"{k}={v!r}" for k, v in scene.overrides.items())))
@@ -360,7 +363,7 @@ def settings_table(scene: Scene, variants) -> list[tuple[str, str]]:
         if len(values) == 1:
             rows.append((k, values.pop()))
         else:
-            rows.append((k, "; ".join(f"{v.name}: {v.cfg[k]!r}" for v in variants)))
+            rows.append((k, "; ".join(f"{n}: {v.cfg[k]!r}" for n, v in zip(names, variants))))
     return rows
 
 
