@@ -29,7 +29,7 @@ import numpy as np
 
 __all__ = ["FORMATS", "DEFAULT_MAX_MEMORY", "DEFAULT_MAX_DISK", "OutputTooLarge", "OutputPathError",
            "Estimate", "parse_size", "format_size", "parse_formats", "estimate", "check_budget",
-           "check_out_dir", "RecordWriter", "pair_columns", "single_columns", "WRITE_ROWS"]
+           "check_out_dir", "RecordWriter", "pair_columns", "network_columns", "single_columns", "WRITE_ROWS"]
 
 FORMATS = ("csv", "npz")
 #: memory a run may use for its record unless the user raises it (``--max-memory``)
@@ -104,6 +104,15 @@ def pair_columns(n: int, distance: bool) -> list[tuple[str, int]]:
     return cols
 
 
+def network_columns(N: int, n: int, E: int, distance: bool) -> list[tuple[str, int]]:
+    """A network record: states and forces of the N nodes (node-major), d, euclidean and
+    branch of the E edges, V and the largest pairwise distance d_max."""
+    cols = [("t", 1), ("q", N * n), ("u", N * n), ("tau", N * n)]
+    if distance:
+        cols += [("d", E), ("euclidean", E), ("branch", E), ("V", 1), ("d_max", 1)]
+    return cols
+
+
 def single_columns(n: int) -> list[tuple[str, int]]:
     return [("t", 1), ("q", n), ("u", n), ("percussion", 1)]
 
@@ -166,7 +175,11 @@ def estimate(variant, formats=FORMATS) -> Estimate:
     steps, _, _ = _steps(cfg)
     every = int(cfg["run.record_every"])
     n = variant.system.n
-    if variant.pair:
+    if variant.is_network:
+        A = variant.network.A
+        E = int(np.count_nonzero(np.triu(A + A.T, 1)))
+        cols = network_columns(variant.network.N, n, E, variant.has_distance)
+    elif variant.pair:
         cols = pair_columns(n, variant.has_distance)
     else:
         cols = single_columns(n)

@@ -17,7 +17,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from .report import SYNC_THRESHOLD, contact_starts, impact_records, is_pair, wall
+from .report import SYNC_THRESHOLD, contact_starts, impact_records, is_network, is_pair, wall
 
 __all__ = ["plot_positions", "plot_distance", "plot_lyapunov", "plot_forces", "plot_phase",
            "plot_impact_zoom", "impact_window",
@@ -84,8 +84,45 @@ def _wall_band(ax, horizontal=True, label="wall"):
         ax.set_xlim(min(lo, -0.04 * span), hi)
 
 
+def _network_positions(result, path, system=None, title=None) -> Path:
+    t = np.asarray(result.t)
+    q = np.asarray(result.q)
+    N, n = q.shape[1], q.shape[2]
+    w, g0 = wall(system, n)
+    fig, (ax,) = _figure(width=9.0)
+    cmap = matplotlib.colormaps["viridis"]
+    for i in range(N):
+        ax.plot(t, q[:, i] @ w + g0, color=cmap(i / max(N - 1, 1)), lw=0.9, label=f"node {i + 1}")
+    _wall_band(ax)
+    ax.set_ylabel("gap g(q) = w·q + g0 [m]" if n > 1 else "position q [m]")
+    ax.set_xlabel("time t [s]")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8.5)
+    _title(ax, title, f"positions of the {N} nodes")
+    return _save(fig, path)
+
+
+def _network_distance(result, path, system=None, title=None) -> Path:
+    t = np.asarray(result.t)
+    fig, (ax,) = _figure()
+    D = np.asarray(result.d)
+    for k, (i, j) in enumerate(result.edges):
+        ax.semilogy(t, _positive(D[:, k]), color="#7f7f7f", lw=0.6, alpha=0.6,
+                    label=f"pairwise d of the {len(result.edges)} edges" if k == 0 else None)
+    ax.semilogy(t, _positive(result.d_max), color="k", lw=1.8, label="max d over the edges")
+    ax.axhline(SYNC_THRESHOLD, color="k", ls=":", lw=1.0, label=f"sync threshold {SYNC_THRESHOLD:g}")
+    _sync_marks(ax, result, t)
+    _zero_note(ax, t, result.d_max, "k", "max d")
+    ax.set_xlabel("time t [s]")
+    ax.set_ylabel("quotient distance d (P-norm)")
+    ax.legend(loc="best", fontsize=8.5)
+    _title(ax, title, "pairwise quotient distances and their maximum")
+    return _save(fig, path)
+
+
 def plot_positions(result, path, system=None, title=None) -> Path:
     """q(t) of each system with the wall and the starts of contact episodes marked (n > 1: q components and the gap g)."""
+    if is_network(result):
+        return _network_positions(result, path, system, title)
     t = np.asarray(result.t)
     parts = _systems(result, system)
     n = parts[0][1].shape[1]
@@ -140,7 +177,12 @@ def _sync_marks(ax, result, t):
             m = result.sync(SYNC_THRESHOLD)
         except (ValueError, AttributeError):
             m = None
-    t_sync = m.t_sync if m is not None else result.time_to_sync(SYNC_THRESHOLD)
+    if m is not None:
+        t_sync = m.t_sync
+    elif hasattr(result, "time_to_sync"):
+        t_sync = result.time_to_sync(SYNC_THRESHOLD)
+    else:
+        return
     if np.isfinite(t_sync) and t_sync > t[0]:
         ax.axvline(t_sync, color="k", ls="--", lw=0.9, label=f"t_sync = {t_sync:.4g} s (d < {SYNC_THRESHOLD:g} after)")
     elif not np.isfinite(t_sync):
@@ -153,7 +195,9 @@ def _sync_marks(ax, result, t):
 
 def plot_distance(result, path, system=None, title=None) -> Path:
     """Euclidean error ||x1 - x2||_P (peaking at impacts) and the quotient distance d, log axis,
-    with t_sync and the fitted decay rate marked."""
+    with t_sync and the fitted decay rate marked (a network: the pairwise d and their maximum)."""
+    if is_network(result):
+        return _network_distance(result, path, system, title)
     fig, (ax,) = _figure()
     t = np.asarray(result.t)
     ax.semilogy(t, _positive(result.euclidean), color="#ff7f0e", lw=1.0, label="Euclidean error ‖x1 − x2‖_P")
@@ -318,7 +362,9 @@ def compare_plot(results: Mapping[str, object], path, quantity: str = "d", title
     what, ylabel = _LABELS[quantity]
     fig, (ax,) = _figure()
     for k, (label, r) in enumerate(results.items()):
-        y = getattr(r, quantity)
+        y = r.d_max if quantity == "d" and is_network(r) else getattr(r, quantity)
+        if quantity == "euclidean" and is_network(r) and y is not None:
+            y = np.max(y, axis=1)
         if y is None:
             continue
         color = (colors or {}).get(label, f"C{k % 10}")

@@ -24,6 +24,57 @@ def is_pair(result) -> bool:
     return hasattr(result, "q2")
 
 
+def is_network(result) -> bool:
+    """NetworkResult (N systems on a graph)."""
+    return hasattr(result, "edges")
+
+
+def _sync(result, threshold):
+    """The robust synchronization metrics (``result.sync``: fitted decay rate with its
+    uncertainty, t_sync, ultimate bound), or None where the core does not provide them."""
+    if getattr(result, "d", None) is None or not hasattr(result, "sync"):
+        return None
+    try:
+        return result.sync(threshold)
+    except ValueError:
+        return None
+
+
+def _sync_fields(m) -> dict:
+    if m is None:
+        return {}
+    return dict(rate=m.rate, rate_err=m.rate_err, t_fit=m.t_fit, bound=m.bound, fit_from=m.t_from,
+                fit_to=m.t_to)
+
+
+def network_metrics(result, threshold: float = SYNC_THRESHOLD) -> dict:
+    """Summary numbers of a network run (d: the largest pairwise distance d_max)."""
+    t = np.asarray(result.t)
+    tau = np.abs(np.asarray(result.tau))
+    out = {"t_end": float(t[-1]) if t.size else 0.0, "records": int(t.size), "kind": "network",
+           "N": int(np.asarray(result.q).shape[1]), "edges": len(result.edges),
+           "coupling": _coupling_name(result.info.get("coupling")),
+           "impact_steps": int(np.sum(result.impacts)), "peak_tau": float(np.nanmax(tau)) if tau.size else 0.0,
+           "error": result.error}
+    if result.d is None:
+        out.update(t_sync=None, final_d=None)
+        return out
+    dmax = result.d_max
+    above = np.nonzero(~(dmax < threshold))[0]
+    t_sync = float(t[0]) if above.size == 0 else (math.inf if above[-1] == len(t) - 1 else float(t[above[-1] + 1]))
+    out.update(t_sync=t_sync, final_d=float(dmax[-1]), **_sync_fields(_sync(result, threshold)))
+    return out
+
+
+def _coupling_name(c) -> str:
+    if c is None:
+        return "none"
+    if isinstance(c, str):
+        return c
+    names = sorted({x or "none" for x in c})
+    return "/".join(names) + " (per edge)"
+
+
 def wall(system, n: int):
     """``(w, g0)`` of the constraint; without a system the 1-DOF wall q >= 0."""
     if system is None:
@@ -86,6 +137,8 @@ def contact_starts(percussion) -> np.ndarray:
 
 def metrics(result, system=None, threshold: float = SYNC_THRESHOLD) -> dict:
     """Summary numbers of one run (keys documented in :data:`PAIR_COLUMNS` / :data:`SINGLE_COLUMNS`)."""
+    if is_network(result):
+        return network_metrics(result, threshold)
     t = np.asarray(result.t)
     out = {"t_end": float(t[-1]) if t.size else 0.0, "records": int(t.size)}
     if not is_pair(result):
@@ -109,6 +162,7 @@ def metrics(result, system=None, threshold: float = SYNC_THRESHOLD) -> dict:
     d, E, V = np.asarray(result.d), np.asarray(result.euclidean), np.asarray(result.V)
     hits = np.union1d(e1, e2)
     hits = hits[hits > 0]
+    out.update(_sync_fields(_sync(result, threshold)))
     out.update(t_sync=result.time_to_sync(threshold), final_d=float(d[-1]), euclid_max=float(E.max()),
                peaking=float(np.max(E - d)),
                dV_impact=float(np.max(np.abs(V[hits] - V[hits - 1]))) if hits.size else None,
@@ -260,8 +314,17 @@ def max_abs_difference(a, b, attr: str = "d") -> float | None:
 # ---------------------------------------------------------------- data files
 def record_columns(result) -> tuple[list, dict]:
     """``(columns, data)`` of a result for :class:`~fmu_sync.output.RecordWriter`."""
-    from .output import pair_columns, single_columns
-    if is_pair(result):
+    from .output import network_columns, pair_columns, single_columns
+    if is_network(result):
+        rows, N, n = np.asarray(result.q).shape
+        E = len(result.edges)
+        cols = network_columns(N, n, E, result.d is not None)
+        data = {"t": result.t, "q": np.asarray(result.q).reshape(rows, N * n),
+                "u": np.asarray(result.u).reshape(rows, N * n), "tau": np.asarray(result.tau).reshape(rows, N * n)}
+        if result.d is not None:
+            data.update(d=result.d, euclidean=result.euclidean, branch=result.branch, V=result.V,
+                        d_max=result.d_max)
+    elif is_pair(result):
         n = np.asarray(result.q1).reshape(len(result.t), -1).shape[1]
         cols = pair_columns(n, result.d is not None)
         data = {k: getattr(result, k) for k, _ in cols}
@@ -311,12 +374,22 @@ def format_value(x) -> str:
     return f"{x:.4g}"
 
 
+def _rate(m):
+    """``rate ± err`` of the fitted decay of d's envelope (— without a decay window)."""
+    r, e = m.get("rate"), m.get("rate_err")
+    if r is None or not math.isfinite(r):
+        return None
+    return f"{r:.4g} ± {e:.2g}"
+
+
 #: (column header, function of the metrics dict)
 PAIR_COLUMNS = [
     ("variant", lambda m: m["name"]),
     ("coupling", lambda m: m.get("coupling", "—")),
     (f"t_sync [s] (d<{SYNC_THRESHOLD:g})", lambda m: "not within t_end" if m.get("t_sync") == math.inf
      else m.get("t_sync")),
+    ("decay rate [1/s]", lambda m: _rate(m)),
+    ("ultimate bound", lambda m: m.get("bound")),
     ("max|tau| [N]", lambda m: m.get("peak_tau")),
     ("impact steps 1/2", lambda m: f"{m['impacts1']}/{m['impacts2']}" if "impacts1" in m else "—"),
     ("contact episodes 1/2", lambda m: f"{m['episodes1']}/{m['episodes2']}" if "episodes1" in m else "—"),
@@ -326,6 +399,18 @@ PAIR_COLUMNS = [
 ]
 DEMO_COLUMNS = [("variant", lambda m: m.get("variant", m["name"])), ("mode", lambda m: m.get("mode"))] + PAIR_COLUMNS[1:] + [
     ("max|d - d_core|", lambda m: m.get("d_vs_core"))]
+NETWORK_COLUMNS = [
+    ("variant", lambda m: m["name"]),
+    ("N", lambda m: m.get("N")),
+    ("coupling", lambda m: m.get("coupling", "—")),
+    (f"t_sync [s] (max d<{SYNC_THRESHOLD:g})", lambda m: "not within t_end" if m.get("t_sync") == math.inf
+     else m.get("t_sync")),
+    ("decay rate [1/s]", lambda m: _rate(m)),
+    ("ultimate bound", lambda m: m.get("bound")),
+    ("final max d", lambda m: m.get("final_d")),
+    ("max|tau| [N]", lambda m: m.get("peak_tau")),
+    ("impact steps (all nodes)", lambda m: m.get("impact_steps")),
+]
 SINGLE_COLUMNS = [
     ("run", lambda m: m["name"]),
     ("t_end [s]", lambda m: m["t_end"]),
@@ -340,11 +425,12 @@ SINGLE_COLUMNS = [
 def rows(runs, demo: bool = False) -> tuple[list[str], list[list[str]]]:
     """Header and formatted rows for a list of runs (objects with ``.name`` and ``.metrics``)."""
     single = all(r.metrics.get("kind") == "single" for r in runs)
-    cols = SINGLE_COLUMNS if single else (DEMO_COLUMNS if demo else PAIR_COLUMNS)
+    network = all(r.metrics.get("kind") == "network" for r in runs)
+    cols = SINGLE_COLUMNS if single else NETWORK_COLUMNS if network else (DEMO_COLUMNS if demo else PAIR_COLUMNS)
     table = []
     for r in runs:
         m = {**r.metrics, "name": r.name}
-        table.append([format_value(f(m)) if (single or m.get("kind") == "pair" or i == 0) else "—"
+        table.append([format_value(f(m)) if (single or network or m.get("kind") == "pair" or i == 0) else "—"
                       for i, (_, f) in enumerate(cols)])
     return [h for h, _ in cols], table
 
@@ -374,6 +460,8 @@ def _numeric(cells) -> bool:
         c = str(c)
         if c in ("never", "not within t_end", "—", "-inf", "nan"):
             return True
+        if " ± " in c:
+            c = c.split(" ± ")[0]
         try:
             for part in c.split("/"):
                 float(part)
@@ -400,6 +488,10 @@ def write_summary(path, title: str, description: str, rows, settings=(), files=(
     if description:
         lines += [description.strip(), ""]
     lines += ["## Results", ""] + _md_table(header, table) + [""]
+    lines += ["- decay rate: exponential decay rate of the envelope of d (of max d for a network), fitted "
+              "on its decay window, ± its standard uncertainty (well-conditioned: compare runs with this, "
+              "not with t_sync differences). ultimate bound: max d over the last 20 % of the run "
+              "(practical synchronization of non-identical systems)."]
     lines += [f"- t_sync: first time after which the quotient distance d stays below {SYNC_THRESHOLD:g} "
               "(not within t_end: d was still at or above it at the end of the run; a longer run may get there).",
               "- max(|x1-x2|-d): the Euclidean error's peaking above d (largest at impact mismatches).",

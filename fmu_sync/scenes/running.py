@@ -47,7 +47,7 @@ def _coupling_arg(law: str):
     return None if law == "none" else law
 
 
-def fmu_start_values(fmu_path, variant: Variant) -> dict:
+def fmu_start_values(fmu_path, variant: Variant, system=None) -> dict:
     """Start values for the FMU's parameters from the scene, as the FMU contract names them.
 
     The FMU must be the contract's model of the variant's system family
@@ -64,7 +64,7 @@ def fmu_start_values(fmu_path, variant: Variant) -> dict:
         if model is not want:
             raise contract.ContractError(f"it is the {model.key} model, the scene needs "
                                          f"{want.key if want else 'a model the registry does not have'}")
-        return {**model.values(variant.system),
+        return {**model.values(variant.system if system is None else system),
                 **model.solver_values(cfg["solver.dt"], cfg["solver.scheme"], cfg["solver.theta"])}
     except contract.ContractError as exc:
         raise SceneError(f"{name}: cannot take the scene's values: {exc}") from None
@@ -99,15 +99,23 @@ def preflight(variant: Variant, scene_name: str = "") -> None:
         check_stable(variant.system, cfg["solver.scheme"], cfg["solver.dt"])
     except SimulationDiverged as exc:
         raise RunRefused(f"{label}: refused before the first step: {exc}") from None
-    if variant.pair and variant.law != "none" and not cfg["run.allow_unstable"]:
+    coupled = variant.law != "none" or (variant.is_network and variant.network.laws is not None
+                                         and any(x != "none" for x in variant.network.laws))
+    if variant.pair and coupled and not cfg["run.allow_unstable"]:
         try:
             from ..core.exchange import check_exchange
         except ImportError:   # the exchange check arrives with the core of issue 10
             return
         cosim = variant.mode == "cosim"
+        A = None
+        if variant.is_network:
+            from ..core.network import coupled_weights, edge_laws, edges_of
+            spec = variant.network
+            edges = edges_of(spec.A)
+            A = coupled_weights(spec.A, edges, edge_laws(_laws_arg(variant), edges))
         try:
             check_exchange(variant.system.M, variant.Kp, variant.Kd, cfg["run.H"] if cosim else cfg["solver.dt"],
-                           step_name="H" if cosim else "dt")
+                           A=A, step_name="H" if cosim else "dt")
         except ValueError as exc:
             raise RunRefused(f"{label}: {exc} (scene key run.allow_unstable = true, or --allow-unstable, "
                              f"runs it anyway)") from None
@@ -126,6 +134,8 @@ def run_variant(variant: Variant, fmu_path=None, progress: Callable | None = Non
     label = _label(variant, scene_name)
     extra = {"allow_unstable": True} if cfg["run.allow_unstable"] else {}
     try:
+        if variant.is_network:
+            return _run_network(variant, fmu_path, progress, label, extra)
         if not variant.pair:
             result = simulate(variant.system, variant.x1, cfg["run.t_end"], cfg["solver.dt"],
                               scheme=cfg["solver.scheme"], theta=cfg["solver.theta"],
@@ -160,6 +170,40 @@ def run_variant(variant: Variant, fmu_path=None, progress: Callable | None = Non
         err = type(exc)(f"{label}: {exc}")
         err.partial = exc.partial
         raise err from None
+
+
+def _laws_arg(variant: Variant):
+    """The coupling of a network variant: one law name (None: uncoupled) or one per edge."""
+    spec = variant.network
+    if spec is not None and spec.laws is not None:
+        return [None if x == "none" else x for x in spec.laws]
+    return _coupling_arg(variant.law)
+
+
+def _run_network(variant: Variant, fmu_path, progress, label, extra):
+    """A network variant: ``simulate_network`` (core) or ``cosimulate_network`` (master)."""
+    cfg = variant.cfg
+    spec = variant.network
+    if variant.mode == "core":
+        from ..core.network import simulate_network
+        return simulate_network(list(spec.systems), list(spec.states), spec.A, cfg["run.t_end"], cfg["solver.dt"],
+                                coupling=_laws_arg(variant), Kp=variant.Kp, Kd=variant.Kd, Q=variant.Q,
+                                scheme=cfg["solver.scheme"], theta=cfg["solver.theta"],
+                                record_every=cfg["run.record_every"],
+                                record_distance=bool(cfg["record.distance"]), progress=progress, **extra)
+    from ..master import cosimulate_network
+    if fmu_path is None:
+        raise ValueError(f"{label}: mode = cosim needs an exported FMU (fmu_path)")
+    starts = [fmu_start_values(fmu_path, variant, s) for s in spec.systems]
+    result = cosimulate_network(fmu_path, list(spec.states), spec.A, cfg["run.t_end"], cfg["run.H"],
+                                coupling=_laws_arg(variant), Kp=variant.Kp, Kd=variant.Kd, Q=variant.Q,
+                                method=cfg["run.method"], record_every=cfg["run.record_every"],
+                                event_aware=cfg["run.event_aware"], H_min=cfg["run.H_min"],
+                                start_values=starts, record_distance=bool(cfg["record.distance"]),
+                                progress=progress, **extra)
+    if getattr(result, "error", None):
+        raise RunFailed(result.error, partial=result)
+    return result
 
 
 def write_run(run: RunRecord, out_dir: Path, plots, title: str, formats=("csv", "npz"),
@@ -246,7 +290,8 @@ def run_scene(scene, out_dir=None, overrides: dict | None = None, progress: Call
     for v in chosen:
         preflight(v, scene.name)
         fmts = tuple(v.cfg["record.formats"]) if formats is None else tuple(formats)
-        est, stream = check_budget(v, fmts, max_memory, max_disk, can_stream=v.pair and v.mode == "core",
+        est, stream = check_budget(v, fmts, max_memory, max_disk,
+                                   can_stream=v.pair and v.mode == "core" and not v.is_network,
                                    label=_label(v, scene.name))
         plan.append((v, fmts, est, stream))
 
