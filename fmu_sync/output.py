@@ -156,7 +156,7 @@ class Estimate:
         return float(self.rows * self.values_per_row * per)
 
     def describe(self) -> str:
-        return (f"{self.steps:.4g} steps, every {self.record_every}. kept: {self.rows:.4g} rows x "
+        return (f"{self.steps:.4g} steps recorded every {self.record_every}: {self.rows:.4g} rows x "
                 f"{self.values_per_row} values = {format_size(self.record_bytes)} in memory "
                 f"(a run holding it all: about {format_size(self.memory)}), "
                 f"{format_size(self.disk)} on disk as {'+'.join(self.formats) or 'no data files'}")
@@ -281,7 +281,10 @@ class RecordWriter:
             return
         if self._csv is not None:
             block = np.column_stack([a.reshape(rows, -1).astype(np.float64, copy=False) for _, a in arrays])
-            np.savetxt(self._csv, block, delimiter=",", fmt="%.17g")
+            row = ",".join(["%.17g"] * block.shape[1]) + "\n"
+            for a in range(0, rows, 1024):   # one format call per 1024 rows (faster than savetxt)
+                part = block[a:a + 1024]
+                self._csv.write((row * len(part)) % tuple(part.ravel().tolist()))
         for name, a in arrays:
             if name in self._raw:
                 self._dtypes.setdefault(name, a.dtype)

@@ -374,6 +374,18 @@ def format_value(x) -> str:
     return f"{x:.4g}"
 
 
+def _episodes(m):
+    """``e1/e2``; "—" for a system whose solver counted impact steps while its record shows no
+    arrival at the wall (unresolved chatter, or a record too coarse to see them)."""
+    if "episodes1" not in m:
+        return "—"
+    cells = []
+    for i in (1, 2):
+        e, k = m[f"episodes{i}"], m.get(f"impacts{i}", 0)
+        cells.append("—" if e == 0 and k > 0 else str(e))
+    return "/".join(cells)
+
+
 def _rate(m):
     """``rate ± err`` of the fitted decay of d's envelope (— without a decay window)."""
     r, e = m.get("rate"), m.get("rate_err")
@@ -392,7 +404,7 @@ PAIR_COLUMNS = [
     ("ultimate bound", lambda m: m.get("bound")),
     ("max|tau| [N]", lambda m: m.get("peak_tau")),
     ("impact steps 1/2", lambda m: f"{m['impacts1']}/{m['impacts2']}" if "impacts1" in m else "—"),
-    ("contact episodes 1/2", lambda m: f"{m['episodes1']}/{m['episodes2']}" if "episodes1" in m else "—"),
+    ("contact episodes 1/2", lambda m: _episodes(m)),
     ("max(|x1-x2|-d)", lambda m: m.get("peaking")),
     ("final d", lambda m: m.get("final_d")),
     ("max dV over an episode start", lambda m: m.get("dV_impact")),
@@ -464,7 +476,8 @@ def _numeric(cells) -> bool:
             c = c.split(" ± ")[0]
         try:
             for part in c.split("/"):
-                float(part)
+                if part != "—":
+                    float(part)
             return True
         except ValueError:
             return False
@@ -501,7 +514,9 @@ def write_summary(path, title: str, description: str, rows, settings=(), files=(
               "contact; the markers of the position plots).",
               "- max dV over an episode start: largest change of V = d^2/2 over a record in which a contact "
               "episode begins (O(dt) for the quotient distance, while the Euclidean error jumps by about "
-              "(1+e)|w.u-|); — when the record shows no contact episode."]
+              "(1+e)|w.u-|); — when the record shows no contact episode (a contact episodes cell — : the "
+              "solver counted impact steps but the record does not resolve the arrivals, e.g. unresolved "
+              "stiff chatter or a coarse record_every)."]
     lines += [f"- {n}" for n in notes] + [""]
     if settings:
         lines += ["## Settings", ""] + _md_table(["key", "value"], [[k, f"`{v}`"] for k, v in settings]) + [""]

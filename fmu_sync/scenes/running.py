@@ -229,7 +229,7 @@ def _stream_run(v: Variant, out_dir: Path, fmu_path, progress, scene_name, forma
     from .. import report
     from ..output import RecordWriter, pair_columns
     per_row = 8.0 * est.values_per_row
-    chunk_rows = max(16, int(max_memory / (per_row * 8)))      # the chunk, its copies, the CSV block
+    chunk_rows = max(16, min(1 << 18, int(max_memory / (per_row * 8))))  # the chunk, its copies, the CSV block
     plot_rows = max(1000, min(20000, int(max_memory / (per_row * 8))))
     writer = RecordWriter(out_dir / v.name, pair_columns(v.system.n, v.has_distance), formats)
     sink = report.StreamRecord(writer, v.system, est.rows, plot_rows)
