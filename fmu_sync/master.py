@@ -16,13 +16,12 @@ from __future__ import annotations
 
 import math
 import shutil
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from .core.model import MechanicalSystem, as_state
-from .core.result import PairResult
+from .core.result import NetworkResult, PairResult
 
 __all__ = ["cosimulate", "cosimulate_network", "NetworkResult", "SlaveError", "Slave", "system_from_fmu"]
 
@@ -143,30 +142,6 @@ def _check_positive(name, value):
     return value
 
 
-@dataclass
-class NetworkResult:
-    """Sampled co-simulation of N coupled instances on a weighted graph.
-
-    ``q, u, tau``: (rows, N, n); ``edges``: the coupled pairs (i, j), i < j;
-    ``d, euclidean`` (rows, n_edges) and ``branch`` (rows, n_edges) per edge;
-    ``V = 1/2 sum_edges a_ij d_ij^2`` (rows,) with a_ij the mean of the two
-    directed weights; ``impacts`` (N,). ``error`` names a failed slave, if any.
-    """
-
-    t: np.ndarray
-    q: np.ndarray
-    u: np.ndarray
-    tau: np.ndarray
-    edges: list
-    d: np.ndarray | None
-    branch: np.ndarray | None
-    euclidean: np.ndarray | None
-    V: np.ndarray | None
-    impacts: list
-    info: dict = field(default_factory=dict)
-    error: str | None = None
-
-
 def _weights(A, N: int | None) -> np.ndarray:
     try:
         a = np.array(A, dtype=np.float64)
@@ -185,8 +160,8 @@ def _weights(A, N: int | None) -> np.ndarray:
 def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | None = "switching",
                        Kp=0.0, Kd=0.0, Q=None, method: str = "jacobi", record_every: int = 1,
                        event_aware: bool = False, H_min: float | None = None,
-                       start_values: dict | None = None, progress=None,
-                       record_distance: bool = True) -> NetworkResult:
+                       start_values=None, progress=None,
+                       record_distance: bool = True, allow_unstable: bool = False) -> NetworkResult:
     """Co-simulate N instances of ``fmu`` coupled on a weighted graph (SPEC §5, §8).
 
     ``states``: N start states (q, u); ``A``: N×N weights a_ij >= 0 (zero
@@ -195,13 +170,21 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
     ``Kd``, norm weight ``Q``) on i in the pair (i, j). Other arguments as
     :func:`cosimulate`; Gauss–Seidel updates the instances in index order, each
     one's input computed from the newest states of the others.
+    ``start_values``: one dict of parameter start values for every instance, or
+    a sequence of N dicts (or None), one per instance (non-identical systems:
+    K, C, f0, forcing may differ; M, w, g0 and e must not).
+    The stability of the held exchange over ``H`` is checked before the first
+    step by :func:`fmu_sync.core.exchange.check_exchange` (refused with
+    ``UnstableExchange``, a ValueError, unless ``allow_unstable``). A run whose
+    states or distances become non-finite stops there: ``result.error`` says
+    so and the record ends at the last finite row.
     """
     from fmpy import extract, read_model_description
 
     from .core.coupling import chain_work, gain_matrix
     from .core.distance import geometry
-    from .core.pair import LAWS, coupling_step
-    from .core.simulate import coupling_omega
+    from .core.exchange import check_exchange, exchange_limit
+    from .core.pair import LAWS, check_common_geometry, coupling_step
 
     H = _check_positive("H", H)
     t_end = float(t_end)
@@ -226,6 +209,13 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
     if N < 2:
         raise ValueError(f"a network needs at least 2 states, got {N}")
     A = _weights(A, N)
+    if start_values is None or isinstance(start_values, dict):
+        per_instance = [dict(start_values or {})] * N
+    else:
+        per_instance = [dict(v or {}) for v in start_values]
+        if len(per_instance) != N:
+            raise ValueError(f"start_values must be one dict or a sequence of N = {N} dicts (one per "
+                             f"instance), got {len(per_instance)}")
     edges = [(i, j) for i in range(N) for j in range(i + 1, N) if A[i, j] > 0.0 or A[j, i] > 0.0]
 
     fmu = str(fmu)
@@ -240,9 +230,15 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
             slaves.append(Slave(unzipdir, md, f"system{i + 1}"))
         n = _dofs(slaves[0])
         qn, un, taun = (_names(slaves[0], b, n) for b in ("q", "u", "tau"))
-        for s in slaves:
-            s.set(dict(start_values or {}))
-        system = system_from_fmu(slaves[0])
+        for s, sv in zip(slaves, per_instance):
+            s.set(sv)
+        systems = [system_from_fmu(s) for s in slaves]
+        check_common_geometry(systems, [f"instance {i + 1}" for i in range(N)])
+        system = systems[0]
+        Kp_m, Kd_m = gain_matrix(Kp, n, "Kp"), gain_matrix(Kd, n, "Kd")
+        limit = None
+        if law != LAWS[None]:
+            limit = check_exchange(system.M, Kp_m, Kd_m, H, A=A, allow_unstable=allow_unstable)
         for i, (s, x) in enumerate(zip(slaves, states)):
             label = f"x{i + 1}"
             q0, u0 = as_state(system, x, label)
@@ -253,7 +249,6 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
             s.initialize(0.0, start)
         need_d = record_distance or law != LAWS[None]
         geo = geometry(system, Q)
-        Kp_m, Kd_m = gain_matrix(Kp, n, "Kp"), gain_matrix(Kd, n, "Kd")
         E = len(edges)
         rows = n_steps // record_every + 1
         T = np.full(rows, np.nan)
@@ -296,11 +291,11 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
 
         def check_forces(i, t, h):
             if not np.all(np.isfinite(tau[i])):
-                wc = coupling_omega(system, Kp_m) * h
+                lim = exchange_limit(system.M, Kp_m, Kd_m, h, A)
                 raise SlaveError(f"system{i + 1}", t, "coupling", 3, [
                     f"its coupling force became non-finite ({tau[i].tolist()}): the explicit "
-                    f"exchange is unstable for these gains and this step (coupling omega_c*H = "
-                    f"{wc:.3g}; stable only below min(4 zeta, 1/zeta) <= 2): lower Kp or H, or add Kd"])
+                    f"exchange is unstable for these gains and this step ({lim.message()}): lower "
+                    f"Kp or H, or add Kd"])
 
         def exchange(t, h, x):
             """One communication step of length h from t; returns the new states."""
@@ -329,6 +324,11 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
             if need_d:
                 for k, (i, j) in enumerate(edges):
                     D[row, k], BR[row, k], EU[row, k] = pair(i, j, x, True)
+
+        def diverged(t, what):
+            hint = f" ({limit.message()})" if limit is not None else ""
+            return (f"the co-simulation diverged: {what} became non-finite at t = {t:.6g}; the run "
+                    f"stopped there and the record ends at the last finite row{hint}")
 
         x = [read(s) for s in slaves]
         if law != LAWS[None]:
@@ -363,8 +363,14 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
             except SlaveError as ex:
                 error = str(ex)
                 break
+            if not all(np.all(np.isfinite(xi[0])) and np.all(np.isfinite(xi[1])) for xi in x):
+                error = diverged((k + 1) * H, "a state")
+                break
             if (k + 1) % record_every == 0:
                 record(row, (k + 1) * H, x, tau.copy())
+                if need_d and not np.all(np.isfinite(D[row])):
+                    error = diverged((k + 1) * H, "a distance")
+                    break
                 row += 1
             if progress is not None and (k + 1) % report_every == 0:
                 progress((k + 1) / n_steps)
@@ -385,14 +391,17 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
                          EU[sl] if need_d else None, V, impacts=imp,
                          info=dict(mode="cosim", H=H, method=method, event_aware=event_aware,
                                    H_min=H_min if event_aware else None, retaken_steps=retakes,
-                                   fmu=fmu, steps=n_steps, coupling=coupling),
+                                   fmu=fmu, steps=n_steps, coupling=coupling,
+                                   **({} if limit is None else dict(
+                                       omega_c_H=limit.h, exchange_bound=limit.bound,
+                                       zeta=limit.zeta, H_max=limit.H_max))),
                          error=error)
 
 
 def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None, Kp=0.0, Kd=0.0,
                Q=None, method: str = "jacobi", record_every: int = 1, event_aware: bool = False,
-               H_min: float | None = None, start_values: dict | None = None, progress=None,
-               record_distance: bool = True) -> PairResult:
+               H_min: float | None = None, start_values=None, progress=None,
+               record_distance: bool = True, allow_unstable: bool = False) -> PairResult:
     """Co-simulate two instances of ``fmu`` coupled by ``coupling`` (SPEC §5, §8).
 
     Parameters
@@ -408,7 +417,11 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
     event_aware : when a slave's impact counter moves during a step, restore both
         slaves and retake the step in pieces of ``H_min`` (default ``H/16``) so the
         coupling sees the impact.
-    start_values : extra parameter start values for both instances (e.g. ``{"e": 0.8}``).
+    start_values : extra parameter start values, one dict for both instances (e.g.
+        ``{"e": 0.8}``) or a pair of dicts, one per instance (non-identical systems,
+        e.g. ``[{}, {"k": 1.05}]``; M, w, g0 and e must agree).
+    allow_unstable : run even if the held exchange is unstable at ``H`` (by default
+        refused before the first step with ``UnstableExchange``, a ValueError).
     progress : callable ``progress(fraction)`` or None.
 
     Returns a :class:`PairResult`. If a slave fails, the run stops there: the
@@ -418,7 +431,7 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
     """
     r = cosimulate_network(fmu, [x1, x2], [[0.0, 1.0], [1.0, 0.0]], t_end, H, coupling, Kp, Kd, Q,
                            method, record_every, event_aware, H_min, start_values, progress,
-                           record_distance)
+                           record_distance, allow_unstable)
     d = r.d is not None
     return PairResult(r.t, r.q[:, 0], r.u[:, 0], r.q[:, 1], r.u[:, 1], r.tau[:, 0], r.tau[:, 1],
                       r.d[:, 0] if d else None, r.branch[:, 0] if d else None,

@@ -81,13 +81,24 @@ def test_event_aware_stepping_repairs_the_euclidean_law(fmu, system):
     assert abs(aware.time_to_sync(1e-6) - t_core) < abs(plain.time_to_sync(1e-6) - t_core)
 
 
+def test_unstable_exchange_is_refused_before_the_first_step(fmu):
+    from fmu_sync.core.exchange import UnstableExchange
+    # the case: Kp = 1e5, Kd = 150, H = 1e-2: omega_c*H = 4.47 > 1.342
+    with pytest.raises(UnstableExchange, match=r"omega_c\*H = 4.472 against the zero-order-hold "
+                                               r"bound min\(4 zeta, 1/zeta\) = 1.342 \(zeta = 0.3354\)"
+                                               r".*largest stable H = 0.003\b"):
+        cosimulate(fmu, X1, X2, 5.0, 1e-2, coupling="switching", Kp=1e5, Kd=150)
+
+
 def test_failing_slave_stops_the_run_with_a_complete_record(fmu):
-    # an absurd gain makes the explicit exchange blow up until a slave receives a
-    # non-finite input and answers fmi2Error
-    res = cosimulate(fmu, X1, X2, 50.0, 1e-2, coupling="euclidean", Kp=1e9, Kd=0.0)
-    assert res.error is not None
-    assert "system" in res.error and "t = " in res.error
-    assert "coupling omega_c*H = 447" in res.error
+    # an absurd gain (forced past the up-front refusal) makes the explicit exchange blow
+    # up until a coupling force is non-finite: the run stops, marked failed
+    res = cosimulate(fmu, X1, X2, 50.0, 1e-2, coupling="euclidean", Kp=1e9, Kd=0.0,
+                     allow_unstable=True)
+    assert res.failed
+    assert "non-finite at t = " in res.error
+    assert "omega_c*H = 447" in res.error
+    assert np.all(np.isfinite(res.d))          # no NaN data passed on
     assert res.t.size > 1 and res.t[-1] < 50.0
     assert np.all(np.isfinite(res.t)) and np.all(np.isfinite(res.q1))
 
@@ -137,3 +148,28 @@ def test_network_rejects_bad_weights(fmu, A, match):
     from fmu_sync.master import cosimulate_network
     with pytest.raises(ValueError, match=match):
         cosimulate_network(fmu, [X1, X2, X1], A, 1.0, 1e-2)
+
+
+# ------------------------------------------------------------ non-identical instances
+def test_mismatched_pair_cosim_reproduces_the_core(fmu, system):
+    # 5 % stiffness mismatch through per-instance start values: d stays bounded, not 0
+    other = ImpactOscillator(**{**PAPER, "k": 1.05})
+    core = simulate_pair((system, other), X1, X2, 60.0, 1e-3, coupling="switching", **GAINS)
+    cos = cosimulate(fmu, X1, X2, 60.0, 1e-3, coupling="switching", start_values=[{}, {"k": 1.05}],
+                     **GAINS)
+    assert not cos.failed
+    assert np.max(np.abs(cos.d - core.d)) < 1e-9
+    assert np.max(np.abs(cos.q2 - core.q2)) < 1e-9
+    m = cos.sync(1e-6)
+    assert m.t_sync == np.inf and 1e-4 < m.bound < 0.05 * np.max(cos.d)
+    assert m.bound == pytest.approx(core.bound, rel=1e-6)
+
+
+@pytest.mark.parametrize("values, match", [
+    ([{}, {"m": 1.1}], r"M differs: instance 1 has M = \[\[1.0\]\], instance 2 has M = \[\[1.1\]\]"),
+    ([{"e": 0.5}, {}], r"e differs: instance 1 has e = 0.5, instance 2 has e = 0.9"),
+    ([{}], r"a sequence of N = 2 dicts"),
+])
+def test_mismatched_instances_are_refused(fmu, values, match):
+    with pytest.raises(ValueError, match=match):
+        cosimulate(fmu, X1, X2, 1.0, 1e-2, coupling="switching", start_values=values, **GAINS)

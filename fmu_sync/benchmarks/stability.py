@@ -336,8 +336,10 @@ def zoh_rho(h: float, zeta: float) -> float:
 
 
 def zoh_limit(zeta: float) -> float:
-    """Exact stability limit h* = ω_c H* of the ZOH exchange (Jury test): min(4ζ, 1/ζ); 0 for ζ = 0."""
-    return min(4.0 * zeta, 1.0 / zeta) if zeta > 0 else 0.0
+    """Exact stability limit h* = ω_c H* of the ZOH exchange (Jury test): min(4ζ, 1/ζ); 0 for ζ = 0.
+    The core's :func:`fmu_sync.core.exchange.zoh_bound`, which refuses unstable runs up front."""
+    from fmu_sync.core.exchange import zoh_bound
+    return zoh_bound(zeta)
 
 
 def gauss_seidel_matrix(h: float, zeta: float, Kp: float = 0.5) -> np.ndarray:
@@ -389,7 +391,7 @@ def _probe_core(Kp, Kd, wc, h, n_steps):
     dt = h / wc
     try:
         r = simulate_pair(s, (1 + _DELTA, 0.0), (1 - _DELTA, 0.0), n_steps * dt, dt, coupling="euclidean",
-                          Kp=Kp, Kd=Kd, record_distance=False)
+                          Kp=Kp, Kd=Kd, record_distance=False, allow_unstable=True)
     except SimulationDiverged:
         return True
     return _growth(r.q1, r.u1, r.q2, r.u2, wc) > 1.0
@@ -400,7 +402,8 @@ def _cosim(fmu, Kp, Kd, H, n_steps, method="jacobi"):
     sv = {"m": 1.0, "k": 0.0, "c": 0.0, "f0": 0.0, "F": 0.0, "Omega": 0.0, "phi": 0.0, "e": 0.5,
           "solver.dt": H}
     return cosimulate(fmu, (1 + _DELTA, 0.0), (1 - _DELTA, 0.0), n_steps * H, H, coupling="euclidean",
-                      Kp=Kp, Kd=Kd, method=method, start_values=sv, record_distance=False)
+                      Kp=Kp, Kd=Kd, method=method, start_values=sv, record_distance=False,
+                      allow_unstable=True)
 
 
 def _probe_cosim(fmu, Kp, Kd, wc, h, n_steps, method):
@@ -452,7 +455,8 @@ def coupling_gains(kps=(1e-2, 1.0, 1e2, 1e4, 1e6), zeta: float = ZETA, fmu=None,
             t0 = time.perf_counter()
             try:
                 simulate_pair(s, (1 + _DELTA, 0.0), (1 - _DELTA, 0.0), n * h / wc, h / wc, coupling="euclidean",
-                              Kp=Kp, Kd=Kd, record_every=max(1, n // 10), record_distance=False)
+                              Kp=Kp, Kd=Kd, record_every=max(1, n // 10), record_distance=False,
+                              allow_unstable=True)
                 outcome, msg, ok = "returned data, no error", "", False
             except SimulationDiverged as ex:
                 outcome, msg, ok = "SimulationDiverged", str(ex).split(" The ")[0], True
@@ -510,7 +514,7 @@ def coupling_gains(kps=(1e-2, 1.0, 1e2, 1e4, 1e6), zeta: float = ZETA, fmu=None,
     s = _osc(**_FREE)
     t0 = time.perf_counter()
     r = simulate_pair(s, (1 + _DELTA, 0.0), (1 - _DELTA, 0.0), steps * h / wc, h / wc, coupling="euclidean",
-                      Kp=Kp, Kd=0.0, record_distance=False)
+                      Kp=Kp, Kd=0.0, record_distance=False, allow_unstable=True)
     x = r.q1[:, 0] - r.q2[:, 0]
     v = r.u1[:, 0] - r.u2[:, 0]
     A2 = x * x + (v / wc) ** 2
