@@ -142,21 +142,6 @@ def _check_positive(name, value):
     return value
 
 
-def _weights(A, N: int | None) -> np.ndarray:
-    try:
-        a = np.array(A, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"A must be an N x N matrix of weights, got {A!r}") from None
-    if a.ndim != 2 or a.shape[0] != a.shape[1] or (N is not None and a.shape[0] != N):
-        raise ValueError(f"A must be a square N x N weight matrix with N = number of states "
-                         f"({N}), got shape {a.shape}")
-    if not np.all(np.isfinite(a)) or np.any(a < 0.0):
-        raise ValueError(f"A must hold finite weights >= 0, got {a.tolist()}")
-    if np.any(np.diag(a) != 0.0):
-        raise ValueError(f"A must have a zero diagonal (no self-coupling), got {np.diag(a).tolist()}")
-    return a
-
-
 def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | None = "switching",
                        Kp=0.0, Kd=0.0, Q=None, method: str = "jacobi", record_every: int = 1,
                        event_aware: bool = False, H_min: float | None = None,
@@ -184,14 +169,13 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
     from .core.coupling import chain_work, gain_matrix
     from .core.distance import geometry
     from .core.exchange import check_exchange, exchange_limit
+    from .core.network import coupled_weights, edge_laws, edges_of, weights
     from .core.pair import LAWS, check_common_geometry, coupling_step
 
     H = _check_positive("H", H)
     t_end = float(t_end)
     if not (math.isfinite(t_end) and t_end > 0.0):
         raise ValueError(f"t_end must be a positive finite time, got {t_end}")
-    if coupling not in LAWS:
-        raise ValueError(f"coupling must be one of {list(LAWS)}, got {coupling!r}")
     if method not in ("jacobi", "gauss-seidel"):
         raise ValueError(f"method must be 'jacobi' or 'gauss-seidel', got {method!r}")
     record_every = int(record_every)
@@ -208,7 +192,10 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
     N = len(states)
     if N < 2:
         raise ValueError(f"a network needs at least 2 states, got {N}")
-    A = _weights(A, N)
+    A = weights(A, N)
+    edges = edges_of(A)
+    laws = edge_laws(coupling, edges)
+    coupled = bool(np.any(laws != LAWS[None]))
     if start_values is None or isinstance(start_values, dict):
         per_instance = [dict(start_values or {})] * N
     else:
@@ -216,7 +203,6 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
         if len(per_instance) != N:
             raise ValueError(f"start_values must be one dict or a sequence of N = {N} dicts (one per "
                              f"instance), got {len(per_instance)}")
-    edges = [(i, j) for i in range(N) for j in range(i + 1, N) if A[i, j] > 0.0 or A[j, i] > 0.0]
 
     fmu = str(fmu)
     if not Path(fmu).is_file():
@@ -224,7 +210,6 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
     md = read_model_description(fmu)
     unzipdir = extract(fmu)  # one unpacked copy shared by all instances, removed at the end
     slaves: list[Slave] = []
-    law = LAWS[coupling]
     try:
         for i in range(N):
             slaves.append(Slave(unzipdir, md, f"system{i + 1}"))
@@ -237,8 +222,9 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
         system = systems[0]
         Kp_m, Kd_m = gain_matrix(Kp, n, "Kp"), gain_matrix(Kd, n, "Kd")
         limit = None
-        if law != LAWS[None]:
-            limit = check_exchange(system.M, Kp_m, Kd_m, H, A=A, allow_unstable=allow_unstable)
+        if coupled:
+            limit = check_exchange(system.M, Kp_m, Kd_m, H, A=coupled_weights(A, edges, laws),
+                                   allow_unstable=allow_unstable)
         for i, (s, x) in enumerate(zip(slaves, states)):
             label = f"x{i + 1}"
             q0, u0 = as_state(system, x, label)
@@ -247,7 +233,7 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
                                  f"(need g >= 0)")
             start = dict(zip(_names(s, "q_start", n) + _names(s, "u_start", n), list(q0) + list(u0)))
             s.initialize(0.0, start)
-        need_d = record_distance or law != LAWS[None]
+        need_d = bool(record_distance) or coupled
         geo = geometry(system, Q)
         E = len(edges)
         rows = n_steps // record_every + 1
@@ -263,27 +249,28 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
             v = s.get(qn + un)
             return [v[:n].copy(), v[n:].copy()]
 
-        def pair(i, j, x, want_d):
-            """The pairwise law on edge (i, j) at states x: fills t1 (on i), t2 (on j)."""
-            return coupling_step(law, geo, Kp_m, Kd_m, x[i][0], x[i][1], x[j][0], x[j][1], t1, t2,
+        def pair(k, x, want_d):
+            """The pairwise law of edge k = (i, j) at states x: fills t1 (on i), t2 (on j)."""
+            i, j = edges[k]
+            return coupling_step(laws[k], geo, Kp_m, Kd_m, x[i][0], x[i][1], x[j][0], x[j][1], t1, t2,
                                  *work, want_d)
 
         def input_of(i, x):
             """tau_i = sum_j a_ij tau_i^(j) at states x (Gauss-Seidel: one node at a time)."""
             tau[i] = 0.0
-            for a, b in edges:
+            for k, (a, b) in enumerate(edges):
                 if i == a and A[a, b] > 0.0:
-                    pair(a, b, x, False)
+                    pair(k, x, False)
                     tau[i] += A[a, b] * t1
                 elif i == b and A[b, a] > 0.0:
-                    pair(a, b, x, False)
+                    pair(k, x, False)
                     tau[i] += A[b, a] * t2
 
         def inputs(x):
             """tau_i for every i at states x (Jacobi): each edge's law evaluated once."""
             tau[:] = 0.0
-            for a, b in edges:
-                pair(a, b, x, False)
+            for k, (a, b) in enumerate(edges):
+                pair(k, x, False)
                 if A[a, b] > 0.0:
                     tau[a] += A[a, b] * t1
                 if A[b, a] > 0.0:
@@ -291,7 +278,7 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
 
         def check_forces(i, t, h):
             if not np.all(np.isfinite(tau[i])):
-                lim = exchange_limit(system.M, Kp_m, Kd_m, h, A)
+                lim = exchange_limit(system.M, Kp_m, Kd_m, h, coupled_weights(A, edges, laws))
                 raise SlaveError(f"system{i + 1}", t, "coupling", 3, [
                     f"its coupling force became non-finite ({tau[i].tolist()}): the explicit "
                     f"exchange is unstable for these gains and this step ({lim.message()}): lower "
@@ -323,7 +310,7 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
             TAU[row] = held
             if need_d:
                 for k, (i, j) in enumerate(edges):
-                    D[row, k], BR[row, k], EU[row, k] = pair(i, j, x, True)
+                    D[row, k], BR[row, k], EU[row, k] = pair(k, x, True)
 
         def diverged(t, what):
             hint = f" ({limit.message()})" if limit is not None else ""
@@ -331,7 +318,7 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
                     f"stopped there and the record ends at the last finite row{hint}")
 
         x = [read(s) for s in slaves]
-        if law != LAWS[None]:
+        if coupled:
             inputs(x)
         record(0, 0.0, x, tau)
         row, error, retakes = 1, None, 0
@@ -385,7 +372,8 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
     V = None
     if need_d:
         a_sym = np.array([0.5 * (A[i, j] + A[j, i]) for i, j in edges])
-        V = 0.5 * (D[sl] ** 2) @ a_sym
+        with np.errstate(over="ignore"):  # a failed run may end on huge (finite) d
+            V = 0.5 * (D[sl] ** 2) @ a_sym
     return NetworkResult(T[sl], Qr[sl], Ur[sl], TAU[sl], edges,
                          D[sl] if need_d else None, BR[sl] if need_d else None,
                          EU[sl] if need_d else None, V, impacts=imp,
