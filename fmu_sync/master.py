@@ -152,7 +152,11 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
     ``states``: N start states (q, u); ``A``: N×N weights a_ij >= 0 (zero
     diagonal); system i receives ``tau_i = sum_j a_ij tau_i^(j)``, with
     ``tau_i^(j)`` the force of the pairwise law (``coupling``, gains ``Kp``,
-    ``Kd``, norm weight ``Q``) on i in the pair (i, j). Other arguments as
+    ``Kd``, norm weight ``Q``) on i in the pair (i, j); ``coupling`` is one law
+    name for every edge or a sequence of names, one per edge in the order of
+    ``result.edges`` (:func:`fmu_sync.core.network.edges_of`). The monolithic
+    reference is :func:`fmu_sync.core.network.simulate_network` (reproduced to
+    round-off at H = dt with Jacobi). Other arguments as
     :func:`cosimulate`; Gauss–Seidel updates the instances in index order, each
     one's input computed from the newest states of the others.
     ``start_values``: one dict of parameter start values for every instance, or
