@@ -24,11 +24,11 @@ from .coupling import BRANCH_NONE, UNCOUPLED, gain_matrix
 from .distance import geometry
 from .exchange import check_exchange
 from .model import MechanicalSystem, SystemArrays, as_state
-from .moreau import DIVERGED, OK, THETA, _finish, midpoint_step, theta_matrices, theta_step
+from .checks import check_run, check_stable, check_start, divergence_message, scheme_code
+from .errors import SimulationDiverged
+from .moreau import DIVERGED, OK, THETA, finish_step, midpoint_step, theta_matrices, theta_step
 from .pair import LAWS, as_systems, check_common_geometry, coupling_step
 from .result import NetworkResult
-from .simulate import (SimulationDiverged, _n_steps, check_stable, check_step, divergence_message,
-                       scheme_code)
 
 __all__ = ["simulate_network", "ring", "path", "star", "all_to_all", "GRAPHS", "graph", "weights",
            "edges_of", "edge_laws", "coupled_weights"]
@@ -222,7 +222,7 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
                 for c in range(n):
                     Qr[row, i, c] = q[i, c]
                     Ur[row, i, c] = u[i, c]
-                if not _finish(q[i], u[i]):
+                if not finish_step(q[i], u[i]):
                     ok = False
             if record_d:
                 for e_ in range(E):
@@ -247,7 +247,7 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
                 P = theta_step(sa, q[i], u[i], tau[i], t, dt, theta, Sinv[i], Sinv_w[i], WS[i], qM, h, uf)
             else:
                 P = midpoint_step(sa, q[i], u[i], tau[i], t, dt, qM, h, uf)
-            _finish(q[i], u[i])
+            finish_step(q[i], u[i])
             if P > 0.0:
                 imp[i] += 1
     return OK, n_steps, row, imp
@@ -299,7 +299,7 @@ def simulate_network(system, states, A, t_end: float, dt: float, coupling="switc
     laws = edge_laws(coupling, edges)
     s0 = systems[0]
     n = s0.n
-    dt = check_step(dt)
+    dt, n_steps, record_every = check_run(t_end, dt, record_every, t0)
     code, theta = scheme_code(scheme, theta)
     if not allow_unstable:
         seen = []
@@ -315,12 +315,7 @@ def simulate_network(system, states, A, t_end: float, dt: float, coupling="switc
     u = np.zeros((N, n))
     for i, x in enumerate(states):
         q[i], u[i] = as_state(s0, x, f"x{i + 1}")
-        g = s0.gap(q[i])
-        if g < 0.0:
-            raise ValueError(f"x{i + 1} violates the constraint: g(q) = {g:.6g} < 0 (need g >= 0)")
-    record_every = int(record_every)
-    if record_every < 1:
-        raise ValueError(f"record_every must be >= 1, got {record_every}")
+        check_start(s0, q[i], f"x{i + 1}")
     Kp_m, Kd_m = gain_matrix(Kp, n, "Kp"), gain_matrix(Kd, n, "Kd")
     coupled = bool(np.any(laws != LAWS[None]))
     limit = None
@@ -329,7 +324,6 @@ def simulate_network(system, states, A, t_end: float, dt: float, coupling="switc
                                allow_unstable=allow_unstable, step_name="dt")
     record_d = bool(record_distance) or bool(np.any(laws == LAWS["switching"]))
     geo = geometry(s0, Q)
-    n_steps = _n_steps(t_end, dt, t0)
     rows = n_steps // record_every + 1
     E = len(edges)
     T = np.full(rows, np.nan)

@@ -1,5 +1,12 @@
-"""The one result object shared by the monolithic pair simulation and the
-co-simulation master (same fields, so reports and plots take either)."""
+"""The results of a run (docs/design.md §5.2).
+
+:class:`SimulationResult` (one system), :class:`PairResult` (two coupled
+systems: the monolithic pair and the co-simulation master, same fields, so
+reports and plots take either) and :class:`NetworkResult` (N systems on a
+graph: the monolithic network and the co-simulated one). A result attached to a
+:class:`~fmu_sync.core.errors.RunFailed` as ``partial`` has ``error`` set:
+``success`` is then False and ``message`` names what happened.
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -9,11 +16,46 @@ import numpy as np
 from .distance import BRANCH_NAMES
 from .metrics import SyncMetrics, sync_metrics
 
-__all__ = ["PairResult", "NetworkResult", "BRANCH_NAMES"]
+__all__ = ["RunStatus", "SimulationResult", "PairResult", "NetworkResult", "BRANCH_NAMES"]
+
+
+class RunStatus:
+    """``success`` / ``message`` of a result from its ``error`` field (None: it ran to the end)."""
+
+    error: str | None
+
+    @property
+    def success(self) -> bool:
+        return self.error is None
+
+    @property
+    def message(self) -> str:
+        return "the run reached its end" if self.error is None else self.error
 
 
 @dataclass
-class PairResult:
+class SimulationResult(RunStatus):
+    """Sampled trajectory. ``percussion[i]`` is the impulse (N s) applied over the
+    steps that end at ``t[i]`` (one step for ``record_every=1``). The exact
+    solver also attaches its events (:class:`fmu_sync.core.exact.ExactEvents`)."""
+
+    t: np.ndarray
+    q: np.ndarray
+    u: np.ndarray
+    percussion: np.ndarray
+    scheme: str
+    dt: float
+    events: object = None
+    error: str | None = None
+
+    @property
+    def impacts(self) -> int:
+        """Number of records with a positive percussion."""
+        return int(np.count_nonzero(self.percussion > 0.0))
+
+
+@dataclass
+class PairResult(RunStatus):
     """Sampled run of two coupled systems.
 
     Arrays have one row per record: ``t`` (N,), ``q1, u1, q2, u2`` (N, n),
@@ -50,11 +92,6 @@ class PairResult:
     @property
     def branch_names(self) -> list[str] | None:
         return None if self.branch is None else [BRANCH_NAMES[b] for b in self.branch]
-
-    @property
-    def failed(self) -> bool:
-        """True when the run stopped early (diverged or a slave failed): see ``error``."""
-        return self.error is not None
 
     def sync(self, threshold: float = 1e-6, **window) -> SyncMetrics:
         """Synchronization metrics of d (:mod:`fmu_sync.core.metrics`): decay rate of its
@@ -118,7 +155,7 @@ class PairResult:
 
 
 @dataclass
-class NetworkResult:
+class NetworkResult(RunStatus):
     """Sampled run of N coupled systems on a weighted graph: the co-simulated network
     (:func:`fmu_sync.master.cosimulate_network`) and its monolithic reference
     (:func:`fmu_sync.core.network.simulate_network`).
@@ -129,7 +166,8 @@ class NetworkResult:
     ``d, euclidean`` (rows, n_edges) and ``branch`` (rows, n_edges) per edge;
     ``V = 1/2 sum_edges a_ij d_ij^2`` (rows,) with a_ij the mean of the two
     directed weights; ``impacts`` (N,) counts steps (communication steps) with
-    a positive percussion. ``error`` names the failure (a slave, a divergence).
+    a positive percussion. ``error`` names the failure (a slave, a divergence;
+    only on the ``partial`` result of a :class:`~fmu_sync.core.errors.RunFailed`).
     """
 
     t: np.ndarray
@@ -144,11 +182,6 @@ class NetworkResult:
     impacts: list
     info: dict = field(default_factory=dict)
     error: str | None = None
-
-    @property
-    def failed(self) -> bool:
-        """True when the run stopped early (diverged or a slave failed): see ``error``."""
-        return self.error is not None
 
     @property
     def d_max(self) -> np.ndarray | None:

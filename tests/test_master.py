@@ -1,4 +1,4 @@
-"""Co-simulation master against the monolithic core (SPEC §8)."""
+"""Co-simulation master against the monolithic core (docs/design.md §4.4)."""
 import numpy as np
 import pytest
 
@@ -6,9 +6,10 @@ from fmu_sync.core import ImpactOscillator
 from fmu_sync.core.pair import simulate_pair
 from fmu_sync.master import cosimulate
 
-PAPER = dict(m=1.0, k=1.0, c=0.0, f0=0.2, F=0.5, Omega=2.5, e=0.9)
-X1, X2 = (1.0, 0.0), (0.2, 0.5)
-GAINS = dict(Kp=1.0, Kd=0.5)
+from builtin_scenes import FORCED_GAINS as GAINS
+from builtin_scenes import FORCED_PAIR as PAPER
+from builtin_scenes import FORCED_X1 as X1
+from builtin_scenes import FORCED_X2 as X2
 
 
 @pytest.fixture(scope="module")
@@ -92,19 +93,21 @@ def test_unstable_exchange_is_refused_before_the_first_step(fmu):
 
 def test_failing_slave_stops_the_run_with_a_complete_record(fmu):
     # an absurd gain (forced past the up-front refusal) makes the explicit exchange blow
-    # up until a coupling force is non-finite: the run stops, marked failed
-    res = cosimulate(fmu, X1, X2, 50.0, 1e-2, coupling="euclidean", Kp=1e9, Kd=0.0,
-                     allow_unstable=True)
-    assert res.failed
+    # up: the run stops, raising with the finite record so far (no NaN data passed on)
+    from fmu_sync.core import RunFailed
+    with pytest.raises(RunFailed) as err:
+        cosimulate(fmu, X1, X2, 50.0, 1e-2, coupling="euclidean", Kp=1e9, Kd=0.0, allow_unstable=True)
+    res = err.value.partial
+    assert res.error is not None and res.error == str(err.value) and not res.success
     assert "non-finite at t = " in res.error
     assert "omega_c*H = 447" in res.error
-    assert np.all(np.isfinite(res.d))          # no NaN data passed on
+    assert np.all(np.isfinite(res.d))
     assert res.t.size > 1 and res.t[-1] < 50.0
     assert np.all(np.isfinite(res.t)) and np.all(np.isfinite(res.q1))
 
 
 @pytest.mark.parametrize("kwargs, match", [
-    (dict(H=0.0), "H must be a positive finite number, got 0.0"),
+    (dict(H=0.0), "H must be a positive finite step, got 0.0"),
     (dict(coupling="magnetic"), "coupling must be one of"),
     (dict(method="newton"), "method must be 'jacobi' or 'gauss-seidel'"),
     (dict(x1=(-1.0, 0.0)), "x1"),
@@ -157,7 +160,7 @@ def test_mismatched_pair_cosim_reproduces_the_core(fmu, system):
     core = simulate_pair((system, other), X1, X2, 60.0, 1e-3, coupling="switching", **GAINS)
     cos = cosimulate(fmu, X1, X2, 60.0, 1e-3, coupling="switching", start_values=[{}, {"k": 1.05}],
                      **GAINS)
-    assert not cos.failed
+    assert cos.success
     assert np.max(np.abs(cos.d - core.d)) < 1e-9
     assert np.max(np.abs(cos.q2 - core.q2)) < 1e-9
     m = cos.sync(1e-6)
@@ -185,7 +188,7 @@ def test_ring_of_8_cosim_reproduces_the_core_network_and_synchronizes(fmu, syste
     kw = dict(coupling="switching", Kp=4.0, Kd=2.0)
     core = simulate_network(system, RING_X, ring(8), 40.0, 1e-2, **kw)
     cos = cosimulate_network(fmu, RING_X, ring(8), 40.0, 1e-2, start_values={"solver.dt": 1e-2}, **kw)
-    assert not cos.failed and cos.edges == core.edges
+    assert cos.success and cos.edges == core.edges
     assert np.array_equal(cos.t, core.t)
     assert np.max(np.abs(cos.q - core.q)) < 1e-9 and np.max(np.abs(cos.d - core.d)) < 1e-9
     assert np.array_equal(cos.branch, core.branch) and cos.impacts == core.impacts
@@ -204,6 +207,6 @@ def test_mismatched_network_with_mixed_laws_cosim_reproduces_the_core(fmu):
     core = simulate_network(nodes, RING_X[:4], A, 20.0, 1e-2, coupling=laws, Kp=2.0, Kd=1.0)
     cos = cosimulate_network(fmu, RING_X[:4], A, 20.0, 1e-2, coupling=laws, Kp=2.0, Kd=1.0,
                              start_values=[{"solver.dt": 1e-2, "k": k} for k in ks])
-    assert not cos.failed
+    assert cos.success
     assert np.max(np.abs(cos.q - core.q)) < 1e-9 and np.max(np.abs(cos.d - core.d)) < 1e-9
     assert np.isfinite(cos.sync().bound) and cos.sync().t_sync == np.inf

@@ -1,12 +1,13 @@
-"""Two coupled systems in one compiled loop (SPEC §5)."""
+"""Two coupled systems in one compiled loop (docs/design.md §2.5)."""
 import numpy as np
 import pytest
 
 from fmu_sync.core import ImpactOscillator, MechanicalSystem, SimulationDiverged, moreau
 from fmu_sync.core.pair import simulate_pair
 
-PAPER = dict(m=1, k=1, c=0, f0=0.2, F=0.5, Omega=2.5, e=0.9)
-X1, X2 = (1.0, 0.0), (0.2, 0.5)
+from builtin_scenes import FORCED_PAIR as PAPER
+from builtin_scenes import FORCED_X1 as X1
+from builtin_scenes import FORCED_X2 as X2
 
 
 @pytest.fixture(scope="module")
@@ -112,7 +113,7 @@ def test_divergence_is_reported_with_partial_record():
         simulate_pair(ball, (1.0 + 1e-6, 0.0), (1.0, 0.0), 10.0, 1e-2, coupling="euclidean", Kp=1e6,
                       allow_unstable=True)
     part = err.value.partial
-    assert part.failed and "non-finite" in part.error
+    assert not part.success and "non-finite" in part.error
     assert part.t.size > 1 and np.all(np.isfinite(part.q1)) and np.all(np.isfinite(part.d))
 
 
@@ -149,7 +150,7 @@ def test_mismatched_pair_is_practically_synchronized(paper):
     # 5 % stiffness mismatch: exact synchronization is impossible, d settles to a small bound
     other = ImpactOscillator(**{**PAPER, "k": 1.05})
     r = simulate_pair((paper, other), X1, X2, 100.0, 1e-3, coupling="switching", Kp=1.0, Kd=0.5)
-    assert not r.failed and r.info["identical"] is False
+    assert r.success and r.info["identical"] is False
     m = r.sync(1e-6)
     assert m.t_sync == np.inf                 # never below 1e-6
     assert 1e-4 < m.bound < 0.05 * np.max(r.d)
