@@ -122,3 +122,20 @@ def test_progress_chunks_change_no_number(paper):
     assert seen[-1] == 1.0 and len(seen) > 10
     for k in ("t", "q", "u", "tau", "d", "branch", "euclidean"):
         assert np.array_equal(getattr(a, k), getattr(b, k))
+
+
+@pytest.mark.parametrize("scheme", ["midpoint", "theta"])
+def test_two_nodes_are_the_pair_for_both_schemes_and_two_dofs(scheme):
+    from fmu_sync.core import MechanicalSystem
+    M = np.array([[2.0, 0.5], [0.5, 1.0]])
+    s = MechanicalSystem(M=M, K=np.diag([1.0, 2.0]), C=0.05 * np.eye(2), f0=[0.0, -0.2],
+                         w=[1.0, -0.5], g0=0.3, e=0.7, forcing=(([0.3, 0.1], 1.7, 0.0),))
+    s2 = MechanicalSystem(M=M, K=np.diag([1.1, 2.0]), C=0.05 * np.eye(2), f0=[0.0, -0.2],
+                          w=[1.0, -0.5], g0=0.3, e=0.7)       # stiffer, unforced: K and forcing per node
+    x = [([0.5, 0.2], [0.3, -0.4]), ([0.1, 0.0], [-0.2, 0.3])]
+    kw = dict(coupling="switching", Kp=2.0, Kd=1.0, scheme=scheme, record_every=10)
+    net = simulate_network([s, s2], x, ring(2), 20.0, 1e-3, **kw)
+    pair = simulate_pair((s, s2), *x, 20.0, 1e-3, **kw)
+    assert pair.impacts1 > 0 and net.impacts == [pair.impacts1, pair.impacts2]
+    np.testing.assert_allclose(net.q[:, 1], pair.q2, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(net.d[:, 0], pair.d, rtol=0, atol=1e-12)
