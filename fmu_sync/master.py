@@ -197,6 +197,8 @@ class NetworkMaster:
         systems = [system_from_fmu(s, model) for s in self.slaves]
         check_common_geometry(systems, [f"instance {i + 1}" for i in range(N)])
         self.system = system = systems[0]
+        if not self.allow_unstable:
+            self._check_internal_steps()
         for i, (s, x) in enumerate(zip(self.slaves, self.states)):
             label = f"x{i + 1}"
             q0, u0 = as_state(system, x, label)
@@ -217,6 +219,23 @@ class NetworkMaster:
         self.tau = np.zeros((N, n))
         self.t1, self.t2 = np.zeros(n), np.zeros(n)
         self.work = chain_work(n)
+
+    def _check_internal_steps(self) -> None:
+        """Before the first step: each instance's own scheme limit (the explicit midpoint
+        needs omega_max*dt < 2 for its internal step dt), from its parameter values, with
+        the core's check; the slave would refuse its first doStep otherwise."""
+        from .core.checks import check_stable
+        names = [v.name for v in self.model.declare() if v.causality == "parameter" and v.type == "Real"]
+        for i, s in enumerate(self.slaves):
+            values = dict(zip(names, s.get(names)))
+            scheme = contract.scheme_name(s.get_integer(contract.SOLVER_SCHEME))
+            if scheme is None:
+                continue
+            try:
+                check_stable(self.model.system(values), scheme, values[contract.SOLVER_DT])
+            except SimulationDiverged as exc:
+                raise SimulationDiverged(f"refused before the first step: instance {i + 1}: {exc} "
+                                         f"(allow_unstable=True runs anyway)") from None
 
     def read(self, s: FmuInstance) -> list:
         v = s.get(self.model.q + self.model.u)
@@ -419,7 +438,9 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
     K, C, f0, forcing may differ; M, w, g0 and e must not).
     The stability of the held exchange over ``H`` is checked before the first
     step by :func:`fmu_sync.core.exchange.check_exchange` (refused with
-    ``UnstableExchange``, a ValueError, unless ``allow_unstable``).
+    ``UnstableExchange``, a ValueError, unless ``allow_unstable``), and so is
+    each instance's internal midpoint step (omega_max*dt < 2, refused with
+    ``SimulationDiverged`` whose ``partial`` is None).
     """
     return NetworkMaster(fmu, states, A, t_end, H, coupling, Kp, Kd, Q, method, record_every, event_aware,
                          H_min, start_values, record_distance, allow_unstable).run(progress)
@@ -472,6 +493,7 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
                                method, record_every, event_aware, H_min, start_values, progress,
                                record_distance, allow_unstable)
     except RunFailed as exc:
-        exc.partial = _pair_result(exc.partial, coupling)
+        if exc.partial is not None:  # None: refused before the first step
+            exc.partial = _pair_result(exc.partial, coupling)
         raise
     return _pair_result(r, coupling)
