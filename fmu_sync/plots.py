@@ -105,17 +105,20 @@ def _network_distance(result, path, system=None, title=None) -> Path:
     t = np.asarray(result.t)
     fig, (ax,) = _figure()
     D = np.asarray(result.d)
-    for k, (i, j) in enumerate(result.edges):
-        ax.semilogy(t, _positive(D[:, k]), color="#7f7f7f", lw=0.6, alpha=0.6,
-                    label=f"pairwise d of the {len(result.edges)} edges" if k == 0 else None)
-    ax.semilogy(t, _positive(result.d_max), color="k", lw=1.8, label="max d over the edges")
+    one = len(result.edges) == 1
+    if not one:
+        for k, (i, j) in enumerate(result.edges):
+            ax.semilogy(t, _positive(D[:, k]), color="#7f7f7f", lw=0.6, alpha=0.6,
+                        label=f"pairwise d of the {len(result.edges)} edges" if k == 0 else None)
+    ax.semilogy(t, _positive(result.d_max), color="k", lw=1.8,
+                label="quotient distance d" if one else "max d over the edges")
     ax.axhline(SYNC_THRESHOLD, color="k", ls=":", lw=1.0, label=f"sync threshold {SYNC_THRESHOLD:g}")
     _sync_marks(ax, result, t)
     _zero_note(ax, t, result.d_max, "k", "max d")
     ax.set_xlabel("time t [s]")
     ax.set_ylabel("quotient distance d (P-norm)")
     ax.legend(loc="best", fontsize=8.5)
-    _title(ax, title, "pairwise quotient distances and their maximum")
+    _title(ax, title, "quotient distance d" if one else "pairwise quotient distances and their maximum")
     return _save(fig, path)
 
 
@@ -187,10 +190,16 @@ def _sync_marks(ax, result, t):
         ax.axvline(t_sync, color="k", ls="--", lw=0.9, label=f"t_sync = {t_sync:.4g} s (d < {SYNC_THRESHOLD:g} after)")
     elif not np.isfinite(t_sync):
         ax.plot([], [], ls="none", label=f"t_sync: d not below {SYNC_THRESHOLD:g} within t_end")
-    if m is not None and np.isfinite(m.rate) and m.rate > 0 and np.isfinite(m.t_fit):
+    if m is None:
+        return
+    if np.isfinite(m.rate) and m.rate > 2.0 * m.rate_err and np.isfinite(m.t_fit):
         tt = np.linspace(m.t_from, m.t_to, 50)
         ax.semilogy(tt, SYNC_THRESHOLD * np.exp(-m.rate * (tt - m.t_fit)), color="k", ls="-.", lw=1.2,
                     label=f"fitted decay rate {m.rate:.3g} ± {m.rate_err:.1g} 1/s")
+    elif np.isfinite(m.bound) and m.bound >= SYNC_THRESHOLD:   # no decay: practical synchronization
+        t_tail = t[-1] - 0.2 * (t[-1] - t[0])
+        ax.hlines(m.bound, t_tail, t[-1], color="#d62728", lw=2.0,
+                  label=f"ultimate bound {m.bound:.3g} (max d over the last 20 %)")
 
 
 def plot_distance(result, path, system=None, title=None) -> Path:

@@ -389,8 +389,8 @@ def _episodes(m):
 def _rate(m):
     """``rate ± err`` of the fitted decay of d's envelope (— without a decay window)."""
     r, e = m.get("rate"), m.get("rate_err")
-    if r is None or not math.isfinite(r):
-        return None
+    if r is None or not math.isfinite(r) or not r > 2.0 * e:
+        return None   # no exponential decay resolved (e.g. a bounded d of non-identical systems)
     return f"{r:.4g} ± {e:.2g}"
 
 
@@ -442,6 +442,8 @@ def rows(runs, demo: bool = False) -> tuple[list[str], list[list[str]]]:
     table = []
     for r in runs:
         m = {**r.metrics, "name": r.name}
+        if m.get("error"):   # a failed run: no synchronization numbers from its garbage
+            m.update(t_sync="FAILED", rate=None, bound=None, final_d=None)
         table.append([format_value(f(m)) if (single or network or m.get("kind") == "pair" or i == 0) else "—"
                       for i, (_, f) in enumerate(cols)])
     return [h for h, _ in cols], table
@@ -470,7 +472,7 @@ def _numeric(cells) -> bool:
     """A column of numbers (or never / — / counts like 3/4): right-aligned."""
     def num(c):
         c = str(c)
-        if c in ("never", "not within t_end", "—", "-inf", "nan"):
+        if c in ("never", "not within t_end", "FAILED", "—", "-inf", "nan"):
             return True
         if " ± " in c:
             c = c.split(" ± ")[0]
@@ -503,7 +505,8 @@ def write_summary(path, title: str, description: str, rows, settings=(), files=(
     lines += ["## Results", ""] + _md_table(header, table) + [""]
     lines += ["- decay rate: exponential decay rate of the envelope of d (of max d for a network), fitted "
               "on its decay window, ± its standard uncertainty (well-conditioned: compare runs with this, "
-              "not with t_sync differences). ultimate bound: max d over the last 20 % of the run "
+              "not with t_sync differences; — where no decay is resolved: rate not above twice its uncertainty). "
+              "ultimate bound: max d over the last 20 % of the run "
               "(practical synchronization of non-identical systems)."]
     lines += [f"- t_sync: first time after which the quotient distance d stays below {SYNC_THRESHOLD:g} "
               "(not within t_end: d was still at or above it at the end of the run; a longer run may get there).",

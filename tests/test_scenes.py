@@ -31,7 +31,8 @@ def test_builtin_scene_loads_and_validates(name):
     for v in s.variants:
         assert v.cfg["run.t_end"] > 0 and v.cfg["solver.dt"] > 0
         assert 0.0 <= v.system.e <= 1.0
-        assert v.system.gap(np.atleast_1d(v.x1[0])) >= 0
+        starts = v.network.states if v.is_network else [x for x in (v.x1, v.x2) if x is not None]
+        assert all(v.system.gap(np.atleast_1d(x[0])) >= 0 for x in starts)
 
 
 def test_forced_pair_has_our_parameters():

@@ -117,8 +117,8 @@ def preflight(variant: Variant, scene_name: str = "") -> None:
             check_exchange(variant.system.M, variant.Kp, variant.Kd, cfg["run.H"] if cosim else cfg["solver.dt"],
                            A=A, step_name="H" if cosim else "dt")
         except ValueError as exc:
-            raise RunRefused(f"{label}: {exc} (scene key run.allow_unstable = true, or --allow-unstable, "
-                             f"runs it anyway)") from None
+            raise RunRefused(f"{label}: {exc} From the command line: --allow-unstable (or --set "
+                             f"run.allow_unstable=true).") from None
 
 
 def run_variant(variant: Variant, fmu_path=None, progress: Callable | None = None, scene_name: str = "",
