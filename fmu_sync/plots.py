@@ -117,7 +117,7 @@ def _network_distance(result, path, system=None, title=None) -> Path:
     _zero_note(ax, t, result.d_max, "k", "max d")
     ax.set_xlabel("time t [s]")
     ax.set_ylabel("quotient distance d (P-norm)")
-    ax.legend(loc="best", fontsize=8.5)
+    ax.legend(loc="upper right", fontsize=8.5)
     _title(ax, title, "quotient distance d" if one else "pairwise quotient distances and their maximum")
     return _save(fig, path)
 
@@ -143,7 +143,7 @@ def plot_positions(result, path, system=None, title=None) -> Path:
     ax = axes[-1]
     for k, (label, q, u, hits) in enumerate(parts):
         g = q @ w + g0
-        ax.plot(t, g, color=COLORS[k], label=label)
+        ax.plot(t, g, color=COLORS[k], ls="-" if k == 0 else "--", label=label)
         if hits.size:
             ax.plot(t[hits], np.zeros(hits.size), ls="none", marker="v" if k == 0 else "^", ms=5,
                     color=COLORS[k], mec="k", mew=0.5, label=f"contact episodes {label.split()[-1]} ({hits.size})"
@@ -158,15 +158,21 @@ def plot_positions(result, path, system=None, title=None) -> Path:
 
 
 def _zero_note(ax, t, y, color, name="d"):
-    """Where ``y`` is exactly 0 a log axis draws nothing: say so on the plot (no silent stop)."""
+    """Where ``y`` is exactly 0 a log axis draws nothing: say so on the plot (no silent stop).
+    The time axis keeps the whole run (a log curve that ends early does not shorten it)."""
+    if len(t):
+        lo, hi = ax.get_xlim()
+        t0, t1 = float(np.asarray(t)[0]), float(np.asarray(t)[-1])
+        if t1 > t0:
+            ax.set_xlim(min(lo, t0), max(hi, t1))
     y = np.asarray(y, dtype=float)
     zero = np.nonzero(y == 0.0)[0]
     if zero.size == 0:
         return
     t = np.asarray(t)
     stays = bool(np.all(y[zero[0]:] == 0.0))
-    text = (f"{name} = 0 exactly from t = {t[zero[0]]:.4g} s on (not drawable on a log axis)" if stays else
-            f"{name} = 0 exactly at {zero.size} records from t = {t[zero[0]]:.4g} s (gaps in the curve)")
+    text = (f"{name} = 0 exactly from t = {t[zero[0]]:.4g} s (off the log axis)" if stays else
+            f"{name} = 0 exactly at {zero.size} records from t = {t[zero[0]]:.4g} s (gaps)")
     trans = matplotlib.transforms.blended_transform_factory(ax.transData, ax.transAxes)
     ax.plot([t[zero[0]]], [0.02], transform=trans, ls="none", marker="v", ms=8, color=color, mec="k",
             clip_on=False, label=text)
@@ -216,7 +222,7 @@ def plot_distance(result, path, system=None, title=None) -> Path:
     _zero_note(ax, t, result.d, "#2ca02c")
     ax.set_xlabel("time t [s]")
     ax.set_ylabel("distance (P-norm)")
-    ax.legend(loc="best")
+    ax.legend(loc="upper right", fontsize=8.5)
     _title(ax, title, "Euclidean error vs quotient distance")
     return _save(fig, path)
 
@@ -297,7 +303,7 @@ def plot_lyapunov(result, path, system=None, title=None) -> Path:
     _zero_note(ax, result.t, result.V, "#9467bd", "V")
     ax.set_xlabel("time t [s]")
     ax.set_ylabel("Lyapunov function V")
-    ax.legend(loc="best")
+    ax.legend(loc="upper right")
     _title(ax, title, "Lyapunov function V(t)")
     return _save(fig, path)
 
@@ -369,7 +375,7 @@ def compare_plot(results: Mapping[str, object], path, quantity: str = "d", title
     if quantity not in _LABELS:
         raise ValueError(f"quantity must be one of {sorted(_LABELS)}, got {quantity!r}")
     what, ylabel = _LABELS[quantity]
-    fig, (ax,) = _figure()
+    fig, (ax,) = _figure(width=10.0)
     for k, (label, r) in enumerate(results.items()):
         y = r.d_max if quantity == "d" and is_network(r) else getattr(r, quantity)
         if quantity == "euclidean" and is_network(r) and y is not None:
@@ -384,7 +390,7 @@ def compare_plot(results: Mapping[str, object], path, quantity: str = "d", title
         ax.axhline(SYNC_THRESHOLD, color="k", ls=":", lw=1.0, label=f"sync threshold {SYNC_THRESHOLD:g}")
     ax.set_xlabel("time t [s]")
     ax.set_ylabel(ylabel)
-    ax.legend(loc="best")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8.5)
     ax.set_title(title if title else f"{what} of each run")
     return _save(fig, path)
 

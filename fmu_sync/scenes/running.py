@@ -380,6 +380,10 @@ def _relevant(key: str, variants) -> bool:
             continue
         if key.startswith("coupling.") and not v.pair:
             continue
+        if key.startswith("network.") and not v.is_network:
+            continue
+        if key.startswith("initial.") and v.is_network:
+            continue
         if key in _COSIM_KEYS and v.mode != "cosim":
             continue
         if key == "solver.theta" and v.cfg["solver.scheme"] != "theta":
