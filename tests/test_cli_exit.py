@@ -42,3 +42,18 @@ def test_core_unstable_refused_then_forced_with_set(tmp_path):
     assert out.returncode == 3 and "RuntimeWarning" not in out.stderr
     assert (tmp_path / "b" / "switching.partial.npz").exists()
     assert not list((tmp_path / "b").glob("*.png"))
+
+
+def test_cold_numba_cache_is_detected(tmp_path):
+    """`compiling kernels, first run only` is printed when the pair kernel has no valid cache."""
+    import os
+    import subprocess
+    import sys
+    code = "from fmu_sync.progress import caches_cold; print(caches_cold())"
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "empty-cache")}
+    cold = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert cold.stdout.strip() == "True", cold.stderr
+    from fmu_sync.core import ImpactOscillator, simulate_pair
+    simulate_pair(ImpactOscillator(k=1.0, e=0.9), (1.0, 0.0), (0.5, 0.0), 0.01, 1e-3)   # fills the cache
+    warm = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert warm.stdout.strip() == "False", warm.stderr
