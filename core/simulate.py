@@ -105,13 +105,16 @@ def _n_steps(t_end: float, dt: float, t0: float = 0.0) -> int:
 
 
 def simulate(system: MechanicalSystem, x0, t_end: float, dt: float, scheme: str = "midpoint",
-             theta: float = 0.5, tau=None, record_every: int = 1, t0: float = 0.0) -> SimulationResult:
+             theta: float = 0.5, tau=None, record_every: int = 1, t0: float = 0.0,
+             phasor: bool = True) -> SimulationResult:
     """Simulate one system from ``x0 = (q0, u0)`` over ``[t0, t_end]`` with fixed step ``dt``.
 
     ``scheme`` is ``"midpoint"`` (default), ``"theta"`` (Moreau–Jean, ``theta`` in
     [0.5, 1]) or ``"exact"`` (event-driven, 1-DOF linear force law only).
     ``tau`` is a constant input (length m). The run ends after
-    ``floor((t_end - t0)/dt)`` steps. Raises :class:`SimulationDiverged` if the
+    ``floor((t_end - t0)/dt)`` steps. ``phasor`` (default): harmonic forcing by
+    the phasor recurrence, within 1e-13 of a cos per step (``phasor=False``; see
+    :mod:`.moreau`). Raises :class:`SimulationDiverged` if the
     state becomes non-finite (never returns NaN data).
     """
     dt = check_step(dt)
@@ -140,7 +143,7 @@ def simulate(system: MechanicalSystem, x0, t_end: float, dt: float, scheme: str 
     from .moreau import kernels_for, DIVERGED
     sa = system.arrays()
     status, done, written = kernels_for(sa)(sa, q0.copy(), u0.copy(), float(t0), dt, n_steps,
-                                      tau, code, theta, record_every, T, Q, U, P)
+                                      tau, code, theta, record_every, T, Q, U, P, bool(phasor))
     if status == DIVERGED:
         raise SimulationDiverged(divergence_message(system, scheme, dt, t0 + done * dt))
     return SimulationResult(T, Q, U, P, scheme, dt)

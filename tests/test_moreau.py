@@ -105,9 +105,13 @@ def test_theta_half_equals_midpoint_without_linear_part():
     assert np.max(np.abs(a.q - b.q)) < 1e-12 and np.max(np.abs(a.u - b.u)) < 1e-12
 
 
+@pytest.mark.parametrize("phasor", [False, True])
 @pytest.mark.parametrize("code", [moreau.MIDPOINT, moreau.THETA])
-def test_scalar_fast_path_is_bitwise_identical(code):
-    s = ImpactOscillator(m=1.3, k=1, c=0.1, f0=0.3, F=1, Omega=1.2, e=0.8, phi=0.3)
+@pytest.mark.parametrize("terms", [1, 2])
+def test_scalar_fast_path_is_bitwise_identical(code, phasor, terms):
+    forcing = ((1.0, 1.2, 0.3), (0.4, 3.1, -0.7))[:terms]
+    s = MechanicalSystem(M=[[1.3]], K=[[1.0]], C=[[0.1]], f0=[0.3], w=[1.0], e=0.8,
+                         forcing=[([F], Om, ph) for F, Om, ph in forcing])
     sa = s.arrays()
     n, every = 40000, 7
     outs = []
@@ -115,7 +119,7 @@ def test_scalar_fast_path_is_bitwise_identical(code):
         rows = n // every + 1
         rec = (np.empty(rows), np.empty((rows, 1)), np.empty((rows, 1)), np.empty(rows))
         kernel(sa, np.array([1.0]), np.array([0.0]), 0.25, 1e-3, n, np.array([0.05]), code, 0.7,
-               every, *rec)
+               every, *rec, phasor)
         outs.append(rec)
     assert np.count_nonzero(outs[0][3]) > 3
     for a, b in zip(*outs):
@@ -136,6 +140,66 @@ def test_advance_matches_integrate():
         assert status == moreau.OK
         qs.append(q[0])
     assert np.max(np.abs(np.array(qs) - ref.q[:, 0])) < 1e-12
+
+
+def test_phasor_drift_below_1e13_of_the_cos_path():
+    # the harmonic values the loops use: phasor (re-synchronised every PHASOR_SYNC steps)
+    # against a cos per step, over 5e5 steps (t up to 50, Omega t up to 155, where the
+    # cos path's own argument rounding eps |Omega t| stays ~3e-14)
+    Omega = np.array([1.2, 3.1])
+    phi = np.array([0.3, -0.7])
+    dt = 1e-4
+    n = 500_000
+    a = moreau.harmonic_table(Omega, phi, 0.0, dt, 0.5 * dt, n, True)
+    b = moreau.harmonic_table(Omega, phi, 0.0, dt, 0.5 * dt, n, False)
+    # equal at every re-synchronisation, and within 1e-13 in between
+    assert np.array_equal(a[::moreau.PHASOR_SYNC], b[::moreau.PHASOR_SYNC])
+    assert 0.0 < np.max(np.abs(a - b)) < 1e-13      # (> 0: not the cos path in disguise)
+    # independent reference: the harmonic of the exact time k dt + dt/2 in extended precision
+    k = np.arange(n, dtype=np.longdouble)
+    t = k * np.longdouble(dt) + np.longdouble(0.5 * dt)
+    exact = np.cos(t[:, None] * Omega.astype(np.longdouble) + phi.astype(np.longdouble))
+    if np.finfo(np.longdouble).eps < 1e-18:        # x86 80-bit long double
+        assert np.max(np.abs(a - exact.astype(float))) < 1e-13
+
+
+@pytest.mark.parametrize("scheme", ["midpoint", "theta"])
+def test_phasor_path_reproduces_cos_path_over_long_runs(scheme):
+    # 2e6 steps with impacts: final and recorded states within 1e-12
+    s = ImpactOscillator(m=1.0, k=1.0, c=0.1, f0=0.3, F=1.0, Omega=1.2, e=0.8)
+    kw = dict(scheme=scheme, record_every=1000)
+    a = simulate(s, (1.0, 0.0), 200.0, 1e-4, phasor=True, **kw)
+    b = simulate(s, (1.0, 0.0), 200.0, 1e-4, phasor=False, **kw)
+    assert a.impacts > 20 and a.impacts == b.impacts
+    assert np.max(np.abs(a.q - b.q)) < 1e-12 and np.max(np.abs(a.u - b.u)) < 1e-12
+    # default is the phasor path
+    c = simulate(s, (1.0, 0.0), 200.0, 1e-4, **kw)
+    assert np.array_equal(c.q, a.q)
+
+
+def test_midpoint_and_theta_half_coincide_without_linear_part_phasor():
+    # same formula: with K = C = 0, S = M and theta = 1/2 is the midpoint scheme, bit for bit
+    s = ImpactOscillator(m=1.5, f0=-1.0, F=0.7, Omega=2.0, e=0.6)
+    a = simulate(s, (0.5, 0.3), 20.0, 1e-3)
+    b = simulate(s, (0.5, 0.3), 20.0, 1e-3, scheme="theta", theta=0.5)
+    assert a.impacts > 3 and np.array_equal(a.q, b.q) and np.array_equal(a.u, b.u)
+
+
+def test_advance_first_order_hold_zero_slope_is_bitwise_zero_order_hold():
+    s = MechanicalSystem(M=[[2.0, 0.5], [0.5, 1.0]], K=[[3.0, -1.0], [-1.0, 2.0]], C=0.02 * np.eye(2),
+                         f0=[0.1, 0.2], w=[1.0, 0.5], e=0.7, forcing=[([0.6, 0.0], 1.3, 0.0)])
+    sa = s.arrays()
+    for code in (moreau.MIDPOINT, moreau.THETA):
+        for ph in (False, True):
+            x = [np.array([0.6, 0.2]), np.array([0.0, 0.0])]
+            y = [np.array([0.6, 0.2]), np.array([0.0, 0.0])]
+            tau = np.array([0.3, -0.1])
+            for k in range(300):
+                ra = moreau.advance(sa, x[0], x[1], k * 0.025, 0.025, 1e-3, tau, code, 0.6, None, ph)
+                rb = moreau.advance(sa, y[0], y[1], k * 0.025, 0.025, 1e-3, tau, code, 0.6,
+                                    np.zeros(2), ph)
+                assert ra == rb
+            assert np.array_equal(x[0], y[0]) and np.array_equal(x[1], y[1])
 
 
 def test_advance_shortens_last_substep():
