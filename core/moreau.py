@@ -603,38 +603,30 @@ def step_coeffs1(p, X, iw, WX, a, dt):
 
 
 @njit(cache=True, inline="always")
-def _contact1(w, e, g, uf, u, W_, iw):
-    """:func:`_contact` on scalars (same operation order). Returns (uf, P)."""
-    P = 0.0
+def step1_h(c, q, u, hc, dt):
+    """:func:`step_h` on scalars (same operation order), flushing would-be
+    subnormals after a contact step; ``c`` from :func:`step_coeffs1`.
+    Returns (q, u, P). (The contact correction sits inside the contact branch, so
+    that the free-flight path carries no select on its dependency chain.)"""
+    K, CK, G1, G2, w, g0, e, iw, aiw, WX, hd = c
+    y = hc - (K * q + CK * u)
+    g = g0
+    g += w * (q + hd * u)
+    uf = u + G1 * y
+    qn = q + (dt * u + G2 * y)
     if g <= 0.0:
+        P = 0.0
         xi = 0.0
         xi += w * uf
         xu = 0.0
         xu += w * u
         xi = xi + e * xu
         if xi < 0.0:
-            P = -xi / W_
+            P = -xi / WX
             uf += iw * P
-    return uf, P
-
-
-@njit(cache=True, inline="always")
-def step1_h(c, q, u, hc, dt):
-    """:func:`step_h` on scalars (same operation order), flushing would-be
-    subnormals after a contact step; ``c`` from :func:`step_coeffs1`.
-    Returns (q, u, P)."""
-    K, CK, G1, G2, w, g0, e, iw, aiw, WX, hd = c
-    y = hc - (K * q + CK * u)
-    g = g0
-    g += w * (q + hd * u)
-    uf = u + G1 * y
-    uf, P = _contact1(w, e, g, uf, u, WX, iw)
-    qn = q + (dt * u + G2 * y)
-    if P > 0.0:
-        qn = qn + aiw * P
-    if g <= 0.0:
+            qn = qn + aiw * P
         return _flush1(qn), _flush1(uf), P
-    return qn, uf, P
+    return qn, uf, 0.0
 
 
 @njit(cache=True, inline="always")
