@@ -110,7 +110,8 @@ def simulate(system: MechanicalSystem, x0, t_end: float, dt: float, scheme: str 
     """Simulate one system from ``x0 = (q0, u0)`` over ``[t0, t_end]`` with fixed step ``dt``.
 
     ``scheme`` is ``"midpoint"`` (default), ``"theta"`` (Moreau–Jean, ``theta`` in
-    [0.5, 1]) or ``"exact"`` (event-driven, 1-DOF linear force law only).
+    [0.5, 1]) or ``"exact"`` (event-driven, linear force law: :mod:`.exact` for
+    n = 1, :mod:`.exact_nd` for n > 1).
     ``tau`` is a constant input (length m). The run ends after
     ``floor((t_end - t0)/dt)`` steps. ``phasor`` (default): harmonic forcing by
     the phasor recurrence, within 1e-13 of a cos per step (``phasor=False``; see
@@ -129,6 +130,9 @@ def simulate(system: MechanicalSystem, x0, t_end: float, dt: float, scheme: str 
     if tau.shape != (system.m,) or not np.all(np.isfinite(tau)):
         raise ValueError(f"tau must be {system.m} finite numbers, got {tau.tolist()}")
     if scheme == "exact":
+        if system.n > 1:
+            from .exact_nd import simulate_exact_nd
+            return simulate_exact_nd(system, (q0, u0), t_end, dt, tau=tau, record_every=record_every, t0=t0)
         from .exact import simulate_exact
         return simulate_exact(system, (q0, u0), t_end, dt, tau=tau, record_every=record_every, t0=t0)
     code, theta = scheme_code(scheme, theta)
