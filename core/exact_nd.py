@@ -182,6 +182,28 @@ class _Seg:
             return (V @ (np.exp(lam * s) * self.c)).real
         return expm(self.A * s) @ self.z0
 
+    def zint(self, s):
+        """Integral of z over [0, s]."""
+        if self.modal is not None:
+            lam, V, _ = self.modal
+            x = lam * s
+            small = np.abs(x) < 1e-5
+            xs = np.where(small, 1.0, x)
+            phi = np.where(small, s * (1.0 + x / 2.0 + x * x / 6.0), (np.exp(xs) - 1.0) / np.where(small, 1.0, lam))
+            return (V @ (phi * self.c)).real
+        N = self.z0.size
+        Ab = np.zeros((2 * N, 2 * N))
+        Ab[:N, :N] = self.A
+        Ab[N:, :N] = np.eye(N)
+        return (expm(Ab * s) @ np.concatenate([self.z0, np.zeros(N)]))[N:]
+
+    def step_matrix(self, h):
+        """expm(A h)."""
+        if self.modal is not None:
+            lam, V, Vi = self.modal
+            return ((V * np.exp(lam * h)) @ Vi).real
+        return expm(self.A * h)
+
     def ev(self, s):
         z = self.z(s)
         d = self.D[:4] @ z
@@ -346,14 +368,28 @@ class ExactEventsND:
         return int(self.impact_times.size)
 
     def state(self, t):
-        """(q, u) at time t (right-continuous)."""
-        t = float(t)
-        k = max(i for i, s in enumerate(self._segs) if s[0] <= t) if self._segs else 0
-        ts, kind, z0 = self._segs[k]
-        seg = _Seg(self._aug, kind, z0)
-        z = seg.z(t - ts)
+        """(q, u) at time(s) t in [t0, t_end] (right-continuous): arrays of shape
+        (n,) for a scalar t, (len(t), n) for an array."""
+        ts = np.atleast_1d(np.asarray(t, dtype=float))
+        if ts.size and (not np.all(np.isfinite(ts)) or ts.min() < self.t0 or ts.max() > self.t_end):
+            raise ValueError(f"times must lie in [{self.t0}, {self.t_end}]")
         n = self._aug.n
-        return z[:n].copy(), z[n:2 * n].copy()
+        starts = np.array([s[0] for s in self._segs])
+        Q = np.empty((ts.size, n))
+        U = np.empty((ts.size, n))
+        k_of = np.maximum(np.searchsorted(starts, ts, side="right") - 1, 0)
+        cache = {}
+        for i, (ti, k) in enumerate(zip(ts, k_of)):
+            if k not in cache:
+                tk, kind, z0 = self._segs[k]
+                cache[k] = (tk, _Seg(self._aug, kind, z0))
+            tk, seg = cache[k]
+            z = seg.z(ti - tk)
+            Q[i] = z[:n]
+            U[i] = z[n:2 * n]
+        if np.ndim(t) == 0:
+            return Q[0], U[0]
+        return Q, U
 
 
 def _run(aug: _Aug, q0, u0, t0, t_end, max_events, zeno_ttol, zeno_vtol):
@@ -496,7 +532,12 @@ def exact_events_nd(system: MechanicalSystem, x0, t_end: float, tau=None, t0: fl
 
 
 def _sample(aug: _Aug, segs, events, T):
-    """States at the sorted times T and the wall impulse over (T[i-1], T[i]]."""
+    """States at the sorted, uniformly spaced times T and the wall impulse over (T[i-1], T[i]].
+
+    Within a segment the modal closed form is evaluated at all samples at once (or, for a
+    defective A, the samples are advanced by the one-sample flow expm(A dt) and
+    re-evaluated exactly every RESYNC samples); the contact impulse is the integral of
+    lambda = l^T z, evaluated from the closed-form integral of z at the samples."""
     n = aug.n
     R = T.size
     Q = np.empty((R, n))
@@ -504,40 +545,48 @@ def _sample(aug: _Aug, segs, events, T):
     P = np.zeros(R)
     starts = np.array([s[0] for s in segs])
     dt = T[1] - T[0] if R > 1 else 0.0
-    N = aug.N
     for k, (ts, kind, z0) in enumerate(segs):
         te = starts[k + 1] if k + 1 < len(segs) else np.inf
-        lo = np.searchsorted(T, ts, side="left")
-        hi = np.searchsorted(T, te, side="left")
-        A = aug.A if kind == FREE else aug.Ac
-        if kind == CONTACT:
-            # augmented flow (z, integral of z) for the contact impulse
-            Ab = np.zeros((2 * N, 2 * N))
-            Ab[:N, :N] = A
-            Ab[N:, :N] = np.eye(N)
-            zb0 = np.concatenate([z0, np.zeros(N)])
-        if hi <= lo and kind != CONTACT:
+        lo = int(np.searchsorted(T, ts, side="left"))
+        hi = int(np.searchsorted(T, te, side="left"))
+        seg = _Seg(aug, kind, z0)
+        if seg.modal is not None and hi > lo:
+            # closed form at every sample at once: z(s) = Re(V diag(exp(lambda s)) V^-1 z0)
+            lam, V, _ = seg.modal
+            sv = T[lo:hi] - ts
+            Z = (V @ (np.exp(np.outer(lam, sv)) * seg.c[:, None])).real
+            Q[lo:hi] = Z[:n].T
+            U[lo:hi] = Z[n:2 * n].T
+            if kind == CONTACT:
+                I = np.array([float(aug.cl @ seg.zint(x)) for x in sv])
+                dI = np.diff(np.concatenate([[0.0], I]))
+                P[lo:hi] += np.maximum(dI, 0.0)
+                Iprev = float(I[-1])
+            else:
+                Iprev = 0.0
+            if kind == CONTACT and te < np.inf:
+                r = int(np.searchsorted(T, te, side="left"))
+                if 1 <= r < R:
+                    P[r] += max(float(aug.cl @ seg.zint(te - ts)) - Iprev, 0.0)
             continue
-        Mb = Ab if kind == CONTACT else A
-        zb_start = zb0 if kind == CONTACT else z0
-        E = expm(Mb * dt) if hi - lo > 1 else None
-        zb = None
+        E = seg.step_matrix(dt) if hi - lo > 1 else None
+        z = None
         Iprev = 0.0
         for i in range(lo, hi):
-            if zb is None or (i - lo) % RESYNC == 0:
-                zb = expm(Mb * (T[i] - ts)) @ zb_start
+            if z is None or (i - lo) % RESYNC == 0:
+                z = seg.z(T[i] - ts)
             else:
-                zb = E @ zb
-            Q[i] = zb[:n]
-            U[i] = zb[n:2 * n]
+                z = E @ z
+            Q[i] = z[:n]
+            U[i] = z[n:2 * n]
             if kind == CONTACT:
-                I = float(aug.cl @ zb[N:])
+                I = float(aug.cl @ seg.zint(T[i] - ts))
                 P[i] += max(I - Iprev, 0.0)
                 Iprev = I
         if kind == CONTACT and te < np.inf:
             r = int(np.searchsorted(T, te, side="left"))
             if 1 <= r < R:
-                I = float(aug.cl @ (expm(Ab * (te - ts)) @ zb0)[N:])
+                I = float(aug.cl @ seg.zint(te - ts))
                 P[r] += max(I - Iprev, 0.0)
     for (te_, Pe) in events:
         r = int(np.searchsorted(T, te_, side="left"))

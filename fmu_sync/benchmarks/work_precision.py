@@ -8,9 +8,11 @@ method         what runs                                                        
 midpoint       core ``simulate`` / ``simulate_pair``, Moreau midpoint           dt
 theta0.5       core, Moreau–Jean θ = 0.5                                        dt
 theta1         core, Moreau–Jean θ = 1                                          dt
-exact          core/exact.py, event-driven closed form, sampled every 1 ms      (1e-3)
+exact          core/exact.py (1-DOF) or core/exact_nd.py (n-DOF), event-driven  (1e-3)
+               closed form, sampled every 1 ms
 solve_ivp      ``scipy.integrate.solve_ivp`` RK45 with a terminal g = 0 event,  rtol
-               restart with u -> -e u, Zeno guard (see :func:`ivp_impacts`)
+               restart with the impact map, Zeno guard (see :func:`ivp_impacts`,
+               :func:`ivp_impacts_nd`)
 cosim          FMU + master (fmpy), Jacobi, slave's internal dt = H             H
 cosim-ea       same, ``event_aware=True`` (impact steps retaken in H/16)        H
 cosim-fine     coupled pair only: slave dt = 1e-4 (coupling error alone)        H
@@ -19,8 +21,9 @@ cosim-fine-ea  same, event-aware                                                
 
 Errors (``metric`` column), all absolute, SI units:
 
-* ``max_q``: max over the method's output times of |q - q_exact(t)| (exact: core/exact.py
-  evaluated at the same times);
+* ``max_q``: max over the method's output times (and coordinates) of |q - q_exact(t)|
+  (exact: core/exact.py, or core/exact_nd.py for the two-dof scene, evaluated at the same
+  times);
 * ``rest_time`` (bouncing ball): |t_rest - t_inf|, ``t_inf = t1 + 2 e v1 / (g (1 - e))`` in
   closed form; t_rest is the first output time after which |u| <= 1e-6 v1 for good (the
   exact solver and solve_ivp report theirs directly);
@@ -55,9 +58,10 @@ METHOD_DOC = {
     "midpoint": "Moreau midpoint (core), step = dt",
     "theta0.5": "Moreau–Jean θ = 0.5 (core), step = dt",
     "theta1": "Moreau–Jean θ = 1 (core), step = dt",
-    "exact": "exact event-driven solver (core/exact.py), output every 1 ms; it is the reference, "
-             "so its own error is 0 except against a closed form",
-    "solve_ivp": "scipy solve_ivp RK45 + terminal impact event, restart with u -> -e u, Zeno guard; "
+    "exact": "exact event-driven solver (core/exact.py, n-DOF: core/exact_nd.py), output every 1 ms; "
+             "it is the reference, so its own error is 0 except against a closed form (tests check it "
+             "against DOP853 to 1e-12 (1-DOF) and 1e-10 (two-dof))",
+    "solve_ivp": "scipy solve_ivp RK45 + terminal impact event, restart with the impact map, Zeno guard; "
                  "step = rtol (atol = 1e-3 rtol)",
     "cosim": "co-simulation: FMU + master (fmpy, Jacobi), slave dt = H; step = H",
     "cosim-ea": "co-simulation, event-aware (impact steps retaken in H/16 pieces), slave dt = H",
@@ -77,6 +81,8 @@ class Scene:
     t_end_quick: float
     metrics: tuple = ("max_q",)
     pair: dict | None = None      # coupled pair for the "d" metric: x2, Kp, Kd
+    system_kw: dict | None = None  # MechanicalSystem keyword arguments (n-DOF scene; params unused)
+    fmu: bool = True              # the 1-DOF FMU applies (co-simulation runs)
 
     def horizon(self, quick: bool) -> float:
         return self.t_end_quick if quick else self.t_end
@@ -91,6 +97,10 @@ SCENES = (
           20.0, 10.0),
     Scene("grazing", dict(m=1.0, k=1.0, c=0.0, f0=0.4, F=0.3, Omega=0.5, e=0.8), (0.8, 0.0),
           60.0, 20.0),
+    # fmu_sync/scenes/two-dof.toml, system x1
+    Scene("two-dof", {}, ((0.6, 0.2), (0.0, 0.0)), 60.0, 20.0, fmu=False,
+          system_kw=dict(M=[[2.0, 0.5], [0.5, 1.0]], K=[[3.0, -1.0], [-1.0, 2.0]], C=[[0.02, 0.0], [0.0, 0.02]],
+                         f0=[0.1, 0.2], w=[1.0, 0.5], g0=0.0, e=0.7, forcing=[([0.6, 0.0], 1.3, 0.0)])),
 )
 
 
@@ -192,6 +202,79 @@ def ivp_impacts(params: dict, x0, t_end: float, grid, rtol: float, method: str =
     return Q, U, impacts, rest
 
 
+def ivp_impacts_nd(system, x0, t_end: float, grid, rtol: float, method: str = "RK45",
+                   v_rest: float = 1e-6, t_min: float = 1e-9, max_impacts: int = 100_000):
+    """:func:`ivp_impacts` for an n-DOF MechanicalSystem: terminal event g(q) = 0, impact map
+    ``u -> u - (1+e) M^-1 w (w^T u)/W``, Zeno guard (post-impact normal speed below ``v_rest``
+    or impacts closer than ``t_min``: the normal velocity is removed and the projected
+    (sliding) dynamics run until the contact force turns negative). Returns (Q, U, impacts)
+    sampled on ``grid``."""
+    from scipy.integrate import solve_ivp
+
+    sa = system.arrays()
+    n = system.n
+    Minv, w, W, iw, e = sa.Minv, sa.w, sa.W, sa.Minv_w, sa.e
+    atol = rtol * 1e-3
+    grid = np.asarray(grid, dtype=float)
+
+    def h(t, q, u):
+        f = sa.f0 - sa.K @ q - sa.C @ u
+        for F, Om, ph in zip(sa.F, sa.Omega, sa.phi):
+            f = f + F * math.cos(Om * t + ph)
+        return f
+
+    def free(t, y):
+        return np.concatenate([y[n:], Minv @ h(t, y[:n], y[n:])])
+
+    def slide(t, y):
+        a = Minv @ h(t, y[:n], y[n:])
+        return np.concatenate([y[n:], a - iw * (w @ a) / W])
+
+    def hit(t, y):
+        return w @ y[:n] + sa.g0
+    hit.terminal, hit.direction = True, -1
+
+    def release(t, y):
+        return -(w @ (Minv @ h(t, y[:n], y[n:])))
+    release.terminal, release.direction = True, -1
+
+    Q = np.full((grid.size, n), np.nan)
+    U = np.full((grid.size, n), np.nan)
+    t = 0.0
+    y = np.concatenate([np.asarray(x0[0], float), np.asarray(x0[1], float)])
+    impacts, t_last, mode = 0, -math.inf, "free"
+    while t < t_end:
+        a = int(np.searchsorted(grid, t, side="left"))
+        b = int(np.searchsorted(grid, t_end, side="right"))
+        sol = solve_ivp(free if mode == "free" else slide, (t, t_end), y, method=method, rtol=rtol,
+                        atol=atol, events=hit if mode == "free" else release, t_eval=grid[a:b])
+        if not sol.success:
+            raise RuntimeError(f"solve_ivp failed at t = {t:.6g}: {sol.message}")
+        k = np.asarray(sol.t).size
+        if k:
+            Q[a:a + k] = sol.y[:n].T
+            U[a:a + k] = sol.y[n:].T
+        if sol.status != 1:
+            break
+        te, ye = float(sol.t_events[0][0]), sol.y_events[0][0].copy()
+        if mode == "slide":
+            t, y, mode = te, ye, "free"
+            continue
+        vm = float(w @ ye[n:])
+        if vm >= 0.0:             # round-off crossing right after a restart
+            t, y = te + t_min, ye
+            continue
+        impacts += 1
+        if impacts > max_impacts:
+            raise RuntimeError(f"solve_ivp baseline: more than {max_impacts} impacts (Zeno guard failed)")
+        ye[n:] = ye[n:] - (1.0 + e) * iw * vm / W
+        if -e * vm < v_rest or te - t_last < t_min:
+            ye[n:] = ye[n:] - iw * (w @ ye[n:]) / W
+            mode = "slide"
+        t, y, t_last = te, ye, te
+    return Q, U, impacts
+
+
 # ------------------------------------------------------------------ results
 @dataclass
 class Point:
@@ -239,7 +322,9 @@ class WorkPrecision:
 
 # ------------------------------------------------------------------ runners
 def _system(scene: Scene):
-    from fmu_sync.core import ImpactOscillator
+    from fmu_sync.core import ImpactOscillator, MechanicalSystem
+    if scene.system_kw is not None:
+        return MechanicalSystem(**scene.system_kw)
     return ImpactOscillator(**scene.params)
 
 
@@ -262,13 +347,20 @@ def _core_single(scene, T, scheme, theta, dt, fine):
 
     def fn():
         r = simulate(system, scene.x0, T, dt, scheme=scheme, theta=theta, record_every=rec)
-        return r.t, r.q[:, 0], r.u[:, 0], None
+        return (r.t, r.q, r.u, None) if system.n > 1 else (r.t, r.q[:, 0], r.u[:, 0], None)
     return fn
 
 
 def _exact_single(scene, T):
-    from fmu_sync.core.exact import simulate_exact
     system = _system(scene)
+    if system.n > 1:
+        from fmu_sync.core.exact_nd import simulate_exact_nd
+
+        def fn_nd():
+            r = simulate_exact_nd(system, scene.x0, T, 1e-3)
+            return r.t, r.q, r.u, None
+        return fn_nd
+    from fmu_sync.core.exact import simulate_exact
 
     def fn():
         r, ev = simulate_exact(system, scene.x0, T, 1e-3, return_events=True)
@@ -280,6 +372,13 @@ def _exact_single(scene, T):
 def _ivp_single(scene, T, rtol):
     n = int(round(T / 1e-3))
     grid = np.arange(n + 1) * 1e-3
+    if scene.system_kw is not None:
+        system = _system(scene)
+
+        def fn_nd():
+            Q, U, _ = ivp_impacts_nd(system, scene.x0, T, grid, rtol)
+            return grid, Q, U, None
+        return fn_nd
 
     def fn():
         Q, U, _, rest = ivp_impacts(scene.params, scene.x0, T, grid, rtol)
@@ -362,7 +461,7 @@ def _configs(mode: str, fmu, scenes=SCENES):
         cfgs.append(_Config("exact", sc, 1e-3, _exact_single(sc, T), sc.metrics))
         for rtol in lad["rtol"]:
             cfgs.append(_Config("solve_ivp", sc, rtol, _ivp_single(sc, T, rtol), sc.metrics))
-        if fmu is not None:
+        if fmu is not None and sc.fmu:
             for H in lad["H"]:
                 for ea in (False, True):
                     cfgs.append(_Config("cosim-ea" if ea else "cosim", sc, H,
@@ -402,7 +501,12 @@ def _references(cfgs, mode):
     for sc in {c.scene.name: c.scene for c in cfgs}.values():
         T = horizon(sc, mode)
         ref = _Reference()
-        ref.events = exact_events(_system(sc), sc.x0, T)
+        system = _system(sc)
+        if system.n > 1:
+            from fmu_sync.core.exact_nd import exact_events_nd
+            ref.events = exact_events_nd(system, sc.x0, T)[0]
+        else:
+            ref.events = exact_events(system, sc.x0, T)
         if "rest_time" in sc.metrics:
             ref.t_inf = closed_form_rest_time(sc.params, sc.x0[0])
             ref.v_tol = V_REST_REL * math.sqrt(2.0 * G * sc.x0[0])
@@ -435,7 +539,7 @@ def _evaluate(cfg: _Config, out, ref: _Reference) -> dict:
             if not np.all(np.isfinite(q[inside])):
                 errs["max_q"] = math.nan
             else:
-                errs["max_q"] = float(np.max(np.abs(q[inside] - qe)))
+                errs["max_q"] = float(np.max(np.abs(q[inside] - qe.reshape(q[inside].shape))))
     if "rest_time" in cfg.metrics:
         tr = rest if rest is not None else rest_time_of(t, u, ref.v_tol)
         errs["rest_time"] = abs(tr - ref.t_inf) if math.isfinite(tr) else math.nan
@@ -449,7 +553,7 @@ def _reference_label(cfg: _Config, metric: str, ref: _Reference) -> str:
         return ref.d_label
     if metric == "rest_time":
         return "closed form t_inf"
-    return "exact (core/exact.py)"
+    return "exact (core/exact_nd.py)" if cfg.scene.system_kw is not None else "exact (core/exact.py)"
 
 
 # ------------------------------------------------------------------ measurement loop
@@ -457,7 +561,7 @@ def _warm_up(cfgs, progress=None):
     """One short run of each kind so that no timing includes compilation / cache loading."""
     seen = set()
     for c in cfgs:
-        key = (c.method, c.kind)
+        key = (c.method, c.kind, c.scene.system_kw is not None)   # n-DOF kernels compile apart
         if key in seen:
             continue
         seen.add(key)
@@ -633,6 +737,42 @@ def midpoint_vs_exact(points, scene, metric):
     return None
 
 
+#: error levels of the "best method vs solve_ivp" comparison
+LEVELS = tuple(10.0 ** -k for k in range(2, 11))
+#: the project's own methods (single system)
+OWN_METHODS = ("midpoint", "theta0.5", "theta1", "exact")
+#: verified accuracy of the exact solvers against DOP853 (tests/test_exact.py: 1e-12 on the
+#: 1-DOF closed forms; tests/test_exact_nd.py: 1e-10 asserted on the two-dof scene)
+EXACT_VERIFIED = {1: 1e-12, 2: 1e-10}
+
+
+def best_vs_ivp(points, scene, metric, n_dof=1):
+    """At each error level 1e-2..1e-10: the cheapest run of the project's own methods with
+    error <= level (the exact solver counts with its verified accuracy where its error is the
+    reference's 0) against the cheapest solve_ivp run with error <= level.
+
+    Returns rows (level, own method, own seconds, solve_ivp seconds or nan, ok) with ok =
+    own <= solve_ivp (True where solve_ivp never reaches the level)."""
+    rows = []
+    pts = [p for p in points if p.scene == scene and p.metric == metric and math.isfinite(p.seconds)]
+    for lev in LEVELS:
+        own = []
+        for p in pts:
+            if p.method not in OWN_METHODS or not math.isfinite(p.error):
+                continue
+            err = p.error
+            if p.method == "exact" and err == 0.0:
+                err = EXACT_VERIFIED.get(n_dof, EXACT_VERIFIED[2])
+            if err <= lev:
+                own.append((p.seconds, p.method, p.step))
+        ivp = [p.seconds for p in pts if p.method == "solve_ivp" and math.isfinite(p.error) and p.error <= lev]
+        best = min(own) if own else (math.nan, "none", math.nan)
+        tivp = min(ivp) if ivp else math.nan
+        ok = (not math.isnan(best[0])) and (math.isnan(tivp) or best[0] <= tivp)
+        rows.append((lev, best[1], best[2], best[0], tivp, ok))
+    return rows
+
+
 def cosim_h_dependence(points, scene, metric):
     """Slope of log error vs log H for each co-simulation variant and the event-aware gain."""
     out = {}
@@ -699,7 +839,8 @@ def _interpretations(points, findings, mode) -> list[str]:
     for scene, metric, kw in (("bouncing-ball", "rest_time", {}), ("bouncing-ball", "max_q", {}),
                               ("paper-example", "max_q", {}),
                               ("paper-example", "d", dict(min_step=10 * lad["dt_ref_pair"])),
-                              ("zeno-table", "max_q", {}), ("grazing", "max_q", {})):
+                              ("zeno-table", "max_q", {}), ("grazing", "max_q", {}),
+                              ("two-dof", "max_q", {})):
         slope, pts = measured_order(points, scene, metric, "midpoint", **kw)
         if pts:
             findings.setdefault("order", {})[f"{scene}/{metric}"] = slope
@@ -708,7 +849,7 @@ def _interpretations(points, findings, mode) -> list[str]:
                        f"{pts[-1].step:g}, {len(pts)} points).")
     # exact vs midpoint, solve_ivp vs midpoint
     for scene, metric in (("bouncing-ball", "max_q"), ("paper-example", "max_q"), ("zeno-table", "max_q"),
-                          ("grazing", "max_q")):
+                          ("grazing", "max_q"), ("two-dof", "max_q")):
         mx = midpoint_vs_exact(points, scene, metric)
         if mx is not None:
             findings.setdefault("exact_crossover", {})[scene] = mx
@@ -721,6 +862,25 @@ def _interpretations(points, findings, mode) -> list[str]:
         line = _crossover_line(points, scene, metric, "midpoint", "solve_ivp", findings)
         if line:
             out.append(line)
+    # the project's best method against solve_ivp at every error level
+    for sc in SCENES:
+        n_dof = 2 if sc.system_kw is not None else 1
+        for metric in sc.metrics:
+            rows = best_vs_ivp(points, sc.name, metric, n_dof)
+            if not any(math.isfinite(r[3]) for r in rows):
+                continue
+            findings.setdefault("best_vs_ivp", {})[f"{sc.name}/{metric}"] = rows
+            bad = [r for r in rows if not r[5]]
+            cells = ", ".join(f"{_fmt(r[0], 1)}: {r[1]} {_fmt(r[3], 2)} s vs "
+                              f"{_fmt(r[4], 2) + ' s' if math.isfinite(r[4]) else 'not reached'}"
+                              for r in rows)
+            verdict = ("at least as cheap as solve_ivp at every level" if not bad else
+                       "NOT cheaper at " + ", ".join(_fmt(r[0], 1) for r in bad))
+            out.append(f"- **Best own method vs solve_ivp, {sc.name} / {metric}**: {verdict} "
+                       f"(level: cheapest own run with error ≤ level vs cheapest solve_ivp run; {cells}).")
+        if sc.pair is not None:
+            out.append(f"- **Best own method vs solve_ivp, {sc.name} / d**: solve_ivp is not run on the "
+                       "coupled pair (no baseline): no comparison.")
     # co-simulation vs H
     for scene, metric in (("paper-example", "d"), ("bouncing-ball", "rest_time"), ("bouncing-ball", "max_q"),
                           ("paper-example", "max_q")):
@@ -770,7 +930,8 @@ def report(points, mode, seconds) -> tuple[str, dict]:
              f"{seconds:.0f} s)", ""]
     lines.append("Methods: " + "; ".join(f"`{k}` = {v}" for k, v in METHOD_DOC.items()) + ".")
     lines.append("")
-    lines.append("Errors: `max_q` = max |q − q_exact| over the run's output times (exact = core/exact.py); "
+    lines.append("Errors: `max_q` = max |q − q_exact| over the run's output times (exact = core/exact.py, "
+                 "core/exact_nd.py for two-dof); "
                  "`rest_time` = |t_rest − t_inf| with t_inf in closed form; `d` = max |d − d_ref| of the "
                  "coupled pair (switching coupling, Kp = 1, Kd = 0.5) on a 10 ms grid, d_ref from "
                  f"`simulate_pair` at dt = {lad['dt_ref_pair']:g} (the exact solver does not apply to a "
