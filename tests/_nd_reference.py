@@ -47,7 +47,7 @@ def reference(system, x0, t_eval, tau=None, taudot=None, t_c=0.0, v_cut=1e-6, rt
     release.terminal, release.direction = True, -1
 
     t = float(t_eval[0])
-    y = np.concatenate([np.asarray(x0[0], float), np.asarray(x0[1], float)])
+    y = np.concatenate([np.atleast_1d(np.asarray(x0[0], float)), np.atleast_1d(np.asarray(x0[1], float))])
     out = np.empty((t_eval.size, 2 * n))
     filled = 0
     mode = "free"

@@ -129,3 +129,26 @@ def test_bad_input():
         simulate_exact_nd(s, X0, 1.0, 1e-2, tau=[1.0])
     with pytest.raises(ValueError, match="t_end must be"):
         exact_events_nd(s, X0, -1.0)
+
+
+@pytest.mark.parametrize("params, x0", [
+    (dict(m=1.0, k=1.0, c=0.1, f0=0.3, F=1.0, Omega=1.2, e=0.8), (1.0, 0.0)),
+    (dict(m=1.0, k=1.0, c=0.0, f0=-0.2, F=0.8, Omega=1.0, e=0.5), (0.5, 0.0)),   # accumulations
+])
+def test_one_dof_agrees_with_the_one_dof_solver(params, x0):
+    # two independent implementations (gap closed forms vs augmented matrix flow)
+    from fmu_sync.core import ImpactOscillator
+    from fmu_sync.core.exact import simulate_exact
+    s = ImpactOscillator(**params)
+    a = simulate_exact(s, x0, 20.0, 0.01)
+    b = simulate_exact_nd(s, x0, 20.0, 0.01)
+    assert np.max(np.abs(a.q - b.q)) < TOL and np.max(np.abs(a.u - b.u)) < TOL
+
+
+def test_one_dof_linear_input_matches_reference():
+    # the linear input tau(t) = tau + taudot (t - t_c) of a first-order hold, exact (Python) for n = 1 too
+    from fmu_sync.core import ImpactOscillator
+    s = ImpactOscillator(m=1.0, k=1.0, c=0.1, f0=0.1, F=0.5, Omega=2.5, e=0.8)
+    r, ev, log, err = _compare(s, (1.0, 0.0), 12.0, dt=0.05, tau=[-0.2], taudot=[0.06], t_c=0.0)
+    assert ev.n_impacts >= 3
+    assert err < TOL, err
