@@ -56,8 +56,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import expm
-
 from .model import MechanicalSystem, as_state
 
 __all__ = ["simulate_exact_nd", "exact_events_nd", "ExactEventsND"]
@@ -67,6 +65,12 @@ TOLF = 64.0 * EPS
 NONE, ROOT, GRAZE = 0, 1, 2
 FREE, CONTACT, TAIL = 0, 1, 2
 RESYNC = 64
+
+
+def expm(A):
+    """scipy's matrix exponential (imported on first use: the core imports without scipy)."""
+    from scipy.linalg import expm as _expm
+    return _expm(A)
 
 
 class _Aug:
@@ -362,6 +366,7 @@ class ExactEventsND:
     t_end: float
     _aug: _Aug
     _segs: list
+    _events: list
 
     @property
     def n_impacts(self) -> int:
@@ -525,10 +530,12 @@ def exact_events_nd(system: MechanicalSystem, x0, t_end: float, tau=None, t0: fl
     segs, events, impacts, zs, zt, grazes, contacts = _run(aug, q0, u0, t0, t_end, int(max_events),
                                                            float(zeno_ttol), float(zeno_vtol))
     imp = np.array(impacts, dtype=float).reshape(-1, 3)
-    return ExactEventsND(impact_times=imp[:, 0].copy(), impact_normal_velocities=imp[:, 1].copy(),
+    ev = ExactEventsND(impact_times=imp[:, 0].copy(), impact_normal_velocities=imp[:, 1].copy(),
                          impact_percussions=imp[:, 2].copy(), zeno_start_times=np.array(zs),
                          zeno_times=np.array(zt), contact_intervals=np.array(contacts).reshape(-1, 2),
-                         graze_times=np.array(grazes), t0=t0, t_end=t_end, _aug=aug, _segs=segs), events
+                         graze_times=np.array(grazes), t0=t0, t_end=t_end, _aug=aug, _segs=segs,
+                         _events=events)
+    return ev
 
 
 def _sample(aug: _Aug, segs, events, T):
@@ -596,23 +603,18 @@ def _sample(aug: _Aug, segs, events, T):
 
 
 def simulate_exact_nd(system: MechanicalSystem, x0, t_end: float, dt: float, tau=None,
-                      record_every: int = 1, t0: float = 0.0, return_events: bool = False,
-                      taudot=None, t_c: float = 0.0, max_events: int = 1_000_000,
-                      zeno_ttol: float = 1e-12, zeno_vtol: float = 1e-10):
+                      record_every: int = 1, t0: float = 0.0, taudot=None, t_c: float = 0.0,
+                      max_events: int = 1_000_000, zeno_ttol: float = 1e-12, zeno_vtol: float = 1e-10):
     """Exact n-DOF solution sampled on ``t0 + i dt`` (every ``record_every``-th
-    sample), as a :class:`~fmu_sync.core.simulate.SimulationResult` with
-    ``scheme="exact"`` (and the :class:`ExactEventsND` if ``return_events``)."""
-    from .simulate import SimulationResult, _n_steps, check_step
-    dt = check_step(dt)
-    record_every = int(record_every)
-    if record_every < 1:
-        raise ValueError(f"record_every must be >= 1, got {record_every}")
-    n_steps = _n_steps(t_end, dt, float(t0))
+    sample), as a :class:`~fmu_sync.core.result.SimulationResult` with
+    ``scheme="exact"`` and the :class:`ExactEventsND` in ``result.events``."""
+    from .checks import check_run
+    from .result import SimulationResult
+    dt, n_steps, record_every = check_run(t_end, dt, record_every, float(t0))
     rows = n_steps // record_every + 1
     T = float(t0) + (np.arange(rows, dtype=np.float64) * record_every) * dt
     horizon = max(float(t_end), float(T[-1]))
-    ev, events = exact_events_nd(system, x0, horizon, tau=tau, t0=t0, taudot=taudot, t_c=t_c,
+    ev = exact_events_nd(system, x0, horizon, tau=tau, t0=t0, taudot=taudot, t_c=t_c,
                                  max_events=max_events, zeno_ttol=zeno_ttol, zeno_vtol=zeno_vtol)
-    Q, U, P = _sample(ev._aug, ev._segs, events, T)
-    res = SimulationResult(T, Q, U, P, "exact", dt)
-    return (res, ev) if return_events else res
+    Q, U, P = _sample(ev._aug, ev._segs, ev._events, T)
+    return SimulationResult(T, Q, U, P, "exact", dt, events=ev)

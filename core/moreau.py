@@ -1,4 +1,4 @@
-"""Moreau time-stepping (SPEC §3): compiled kernels.
+"""Moreau time-stepping (docs/design.md §2.3): compiled kernels.
 
 Two schemes share one step interface ``step(sa, q, u, tau, t, dt, work) -> P``
 that advances ``(q, u)`` in place over ``[t, t + dt]`` and returns the contact
@@ -275,7 +275,7 @@ def step_h(sa, X, iw, WX, a, q, u, hc, dt, y, uf):
 
 @njit(cache=True, inline="always")
 def midpoint_step(sa, q, u, tau, t, dt, qM, h, uf):
-    """One Moreau midpoint step (SPEC §3) at time t with input tau, in place
+    """One Moreau midpoint step (docs/design.md §2.3) at time t with input tau, in place
     (``qM, h, uf``: scratch). Returns the percussion P."""
     a = 0.5 * dt
     _hc_cos(sa, tau, t + a, h)
@@ -358,7 +358,7 @@ def step_workspace(sa, dt, scheme, theta):
 
 
 @njit(cache=True, inline="always")
-def _finish(q, u):
+def finish_step(q, u):
     """Flush would-be subnormals to zero; return False if the state is not finite."""
     ok = True
     for i in range(q.shape[0]):

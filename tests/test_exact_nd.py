@@ -22,7 +22,8 @@ def two_dof(f0=(0.1, 0.2), F=(0.6, 0.0), e=0.7, g0=0.0):
 
 
 def _compare(system, x0, t_end, dt=0.01, max_step=np.inf, **kw):
-    r, ev = simulate_exact_nd(system, x0, t_end, dt, return_events=True, **kw)
+    r = simulate_exact_nd(system, x0, t_end, dt, **kw)
+    ev = r.events
     ref, log = reference(system, x0, r.t, max_step=max_step, **kw)
     err = np.max(np.abs(np.hstack([r.q, r.u]) - ref))
     return r, ev, log, err
@@ -78,7 +79,7 @@ def test_two_dof_near_grazing_matches_reference(depth):
     i = int(np.argmin(g))
     assert 0 < i < g.size - 1
     from scipy.optimize import minimize_scalar
-    ev0, _ = exact_events_nd(s0, X0, 6.0)
+    ev0 = exact_events_nd(s0, X0, 6.0)
     res = minimize_scalar(lambda t: ev0.state(t)[0] @ s0.w, bracket=(free.t[i - 1], free.t[i], free.t[i + 1]),
                           tol=1e-12)
     wq_min = float(res.fun)
@@ -95,11 +96,12 @@ def test_exact_grazing_touches_without_impact():
     # the motion equals the free motion without the wall (independent: DOP853, no events)
     from scipy.integrate import solve_ivp
     s0 = two_dof(g0=10.0)     # wall far away: the free motion
-    ev0, _ = exact_events_nd(s0, X0, 6.0)
+    ev0 = exact_events_nd(s0, X0, 6.0)
     from scipy.optimize import minimize_scalar
     res = minimize_scalar(lambda t: ev0.state(t)[0] @ s0.w, bracket=(3.5, 4.1, 4.7), tol=1e-14)
     s = two_dof(g0=-float(res.fun))
-    r, ev = simulate_exact_nd(s, X0, 6.0, 0.01, return_events=True)
+    r = simulate_exact_nd(s, X0, 6.0, 0.01)
+    ev = r.events
     assert ev.n_impacts == 0 and ev.graze_times.size == 1
     assert abs(ev.graze_times[0] - res.x) < 1e-6
     sa = s.arrays()
