@@ -232,7 +232,8 @@ def _stream_run(v: Variant, out_dir: Path, fmu_path, progress, scene_name, forma
     chunk_rows = max(16, min(1 << 18, int(max_memory / (per_row * 8))))  # the chunk, its copies, the CSV block
     plot_rows = max(1000, min(20000, int(max_memory / (per_row * 8))))
     writer = RecordWriter(out_dir / v.name, pair_columns(v.system.n, v.has_distance), formats)
-    sink = report.StreamRecord(writer, v.system, est.rows, plot_rows)
+    from ..stream import StreamRecord
+    sink = StreamRecord(writer, v.system, est.rows, plot_rows)
     try:
         last = run_variant(v, fmu_path, progress, scene_name, sink=sink, chunk_rows=chunk_rows)
     except RunFailed as exc:
