@@ -17,7 +17,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from .report import SYNC_THRESHOLD, contact_starts, impact_records, is_network, is_pair, wall
+from .report import SYNC_THRESHOLD, contact_starts, decay_resolved, impact_records, is_network, is_pair, wall
 
 __all__ = ["plot_positions", "plot_distance", "plot_lyapunov", "plot_forces", "plot_phase",
            "plot_impact_zoom", "impact_window",
@@ -198,11 +198,12 @@ def _sync_marks(ax, result, t):
         ax.plot([], [], ls="none", label=f"t_sync: d not below {SYNC_THRESHOLD:g} within t_end")
     if m is None:
         return
-    if np.isfinite(m.rate) and m.rate > 2.0 * m.rate_err and np.isfinite(m.t_fit):
+    if decay_resolved(m.rate, m.rate_err, m.t_sync) and np.isfinite(m.t_fit):
         tt = np.linspace(m.t_from, m.t_to, 50)
         ax.semilogy(tt, SYNC_THRESHOLD * np.exp(-m.rate * (tt - m.t_fit)), color="k", ls="-.", lw=1.2,
                     label=f"fitted decay rate {m.rate:.3g} ± {m.rate_err:.1g} 1/s")
-    elif np.isfinite(m.bound) and m.bound >= SYNC_THRESHOLD:   # no decay: practical synchronization
+    if not np.isfinite(m.t_sync) and np.isfinite(m.bound) and m.bound >= SYNC_THRESHOLD:
+        # not synchronized within t_end: the level d stays at (practical synchronization)
         t_tail = t[-1] - 0.2 * (t[-1] - t[0])
         ax.hlines(m.bound, t_tail, t[-1], color="#d62728", lw=2.0,
                   label=f"ultimate bound {m.bound:.3g} (max d over the last 20 %)")

@@ -265,9 +265,18 @@ def _episodes(m):
 def _rate(m):
     """``rate ± err`` of the fitted decay of d's envelope (— without a decay window)."""
     r, e = m.get("rate"), m.get("rate_err")
-    if r is None or not math.isfinite(r) or not r > 2.0 * e:
+    if not decay_resolved(r, e, m.get("t_sync")):
         return None   # no exponential decay resolved (e.g. a bounded d of non-identical systems)
     return f"{r:.4g} ± {e:.2g}"
+
+
+def decay_resolved(rate, rate_err, t_sync) -> bool:
+    """A fitted decay worth showing: a positive rate that is either above twice its
+    uncertainty or belongs to a run that synchronized (t_sync finite)."""
+    if rate is None or not math.isfinite(rate) or not rate > 0.0:
+        return False
+    synced = isinstance(t_sync, (int, float)) and math.isfinite(t_sync)
+    return rate > 2.0 * rate_err or synced
 
 
 #: (column header, function of the metrics dict)
@@ -381,7 +390,8 @@ def write_summary(path, title: str, description: str, rows, settings=(), files=(
     lines += ["## Results", ""] + _md_table(header, table) + [""]
     lines += ["- decay rate: exponential decay rate of the envelope of d (of max d for a network), fitted "
               "on its decay window, ± its standard uncertainty (well-conditioned: compare runs with this, "
-              "not with t_sync differences; — where no decay is resolved: rate not above twice its uncertainty). "
+              "not with t_sync differences; — where no decay is resolved: a run that does not synchronize and "
+              "whose rate is not above twice its uncertainty). "
               "ultimate bound: max d over the last 20 % of the run "
               "(practical synchronization of non-identical systems)."]
     lines += [f"- t_sync: first time after which the quotient distance d stays below {SYNC_THRESHOLD:g} "
