@@ -1,7 +1,7 @@
 """Variable declarations and the FMI 2.0 modelDescription.xml of our slaves.
 
-pythonfmu 0.7.0 writes no units, bounds, type definitions or InitialUnknowns,
-so the slaves declare their interface here (one :class:`Var` per scalar) and
+The FMU binary knows nothing of the interface: the slaves declare it here
+(one :class:`Var` per scalar) and
 build the whole model description themselves.
 """
 from __future__ import annotations
@@ -123,7 +123,7 @@ def model_description(*, model_name: str, model_identifier: str, guid: str, desc
     })
     SubElement(root, "CoSimulation", {
         "modelIdentifier": model_identifier,
-        "needsExecutionTool": "true",
+        "needsExecutionTool": "false",
         "canHandleVariableCommunicationStepSize": "true",
         "canInterpolateInputs": "false",
         "maxOutputDerivativeOrder": "0",

@@ -7,10 +7,10 @@ Defaults: the paper example (``scenes/paper-example.toml``, system 1).
 """
 from __future__ import annotations
 
-from fmu_sync.core.model import ImpactOscillator
+from ..core.model import ImpactOscillator
 
 from ._xml import POSITIVE_MIN, SCHEME_TYPE, Var
-from .slave import MechanicalSlave
+from .slave import INPUT_BOUND, MechanicalSlave
 
 __all__ = ["ImpactOscillatorSlave"]
 
@@ -67,11 +67,10 @@ def output_variables(n: int, depends: dict) -> list[Var]:
 
 
 class ImpactOscillatorSlave(MechanicalSlave):
-    """pythonfmu slave of the 1-DOF impact oscillator (core: ``ImpactOscillator``)."""
+    """Slave of the 1-DOF impact oscillator (core: ``ImpactOscillator``)."""
 
     MODEL = "impact-oscillator"
     MODEL_IDENTIFIER = "ImpactOscillator"
-    MODULE_NAME = "fmu_sync_impact_oscillator"
     N = 1
     DESCRIPTION = ("1-DOF impact oscillator m q'' + c q' + k q = f0 + F cos(Omega t + phi) + tau, "
                    "q >= 0, Newton restitution e; Moreau time-stepping (fmu-sync core)")
@@ -79,7 +78,7 @@ class ImpactOscillatorSlave(MechanicalSlave):
     @classmethod
     def declare(cls) -> list[Var]:
         inputs = [Var("tau", "Real", "input", "continuous", "Control force (held over each communication step)",
-                      unit="N", start=0.0)]
+                      unit="N", start=0.0, min=-INPUT_BOUND, max=INPUT_BOUND)]
         outputs = output_variables(1, {
             "q": ["q_start"], "u": ["u_start"], "gap": ["q_start"],
             "energy": ["m", "k", "f0", "q_start", "u_start"],
@@ -98,9 +97,11 @@ class ImpactOscillatorSlave(MechanicalSlave):
         ]
         return inputs + outputs + params + solver_variables()
 
-    def build_system(self, p: dict):
+    @classmethod
+    def build_system(cls, p: dict):
         return ImpactOscillator(m=p["m"], k=p["k"], c=p["c"], f0=p["f0"], F=p["F"],
                                 Omega=p["Omega"], e=p["e"], phi=p["phi"])
 
-    def start_state(self, p: dict):
+    @classmethod
+    def start_state(cls, p: dict):
         return [p["q_start"]], [p["u_start"]]

@@ -8,11 +8,11 @@ parameters. Defaults: ``scenes/two-dof.toml``, system 1.
 """
 from __future__ import annotations
 
-from fmu_sync.core.model import MechanicalSystem
+from ..core.model import MechanicalSystem
 
 from ._xml import POSITIVE_MIN, Var
 from .impact_oscillator import _param, output_variables, solver_variables
-from .slave import MechanicalSlave
+from .slave import INPUT_BOUND, MechanicalSlave
 
 __all__ = ["MechanicalSystem2Slave"]
 
@@ -37,11 +37,10 @@ def _vector_params(sym, unit, what, values, min=None):
 
 
 class MechanicalSystem2Slave(MechanicalSlave):
-    """pythonfmu slave of the 2-DOF system with an oblique wall (core: ``MechanicalSystem``)."""
+    """Slave of the 2-DOF system with an oblique wall (core: ``MechanicalSystem``)."""
 
     MODEL = "mechanical-system-2"
     MODEL_IDENTIFIER = "MechanicalSystem2"
-    MODULE_NAME = "fmu_sync_mechanical_system2"
     N = N
     DESCRIPTION = ("2-DOF mechanical system M q'' + C q' + K q = f0 + F cos(Omega t + phi) + tau "
                    "with the unilateral constraint w^T q + g0 >= 0 and Newton restitution e; "
@@ -56,7 +55,7 @@ class MechanicalSystem2Slave(MechanicalSlave):
         us = ["u_start[1]", "u_start[2]"]
         inputs = [Var(f"tau[{i + 1}]", "Real", "input", "continuous",
                       f"Control force on coordinate {i + 1} (B = I; held over each communication step)",
-                      unit="N", start=0.0) for i in range(N)]
+                      unit="N", start=0.0, min=-INPUT_BOUND, max=INPUT_BOUND) for i in range(N)]
         outputs = output_variables(N, {
             "q[1]": ["q_start[1]"], "q[2]": ["q_start[2]"],
             "u[1]": ["u_start[1]"], "u[2]": ["u_start[2]"],
@@ -79,7 +78,8 @@ class MechanicalSystem2Slave(MechanicalSlave):
         )
         return inputs + outputs + params + solver_variables()
 
-    def build_system(self, p: dict):
+    @classmethod
+    def build_system(cls, p: dict):
         def mat(sym):
             return [[p[f"{sym}[{i + 1},{j + 1}]"] for j in range(N)] for i in range(N)]
 
@@ -91,5 +91,6 @@ class MechanicalSystem2Slave(MechanicalSlave):
         return MechanicalSystem(M=mat("M"), K=mat("K"), C=mat("C"), f0=vec("f0"), w=vec("w"),
                                 g0=p["g0"], e=p["e"], forcing=forcing)
 
-    def start_state(self, p: dict):
+    @classmethod
+    def start_state(cls, p: dict):
         return ([p["q_start[1]"], p["q_start[2]"]], [p["u_start[1]"], p["u_start[2]"]])
