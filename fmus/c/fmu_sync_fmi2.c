@@ -597,6 +597,18 @@ static int uri_to_path(const char *uri, char *out, size_t n, char *err, size_t e
     return 1;
 }
 
+/* shortest text that reads back as the same double (like Python's repr) */
+static const char *G(double v) {
+    static __thread char pool[8][40];
+    static __thread int k;
+    char *b = pool[k++ & 7];
+    for (int prec = 1; prec <= 17; ++prec) {
+        snprintf(b, 40, "%.*g", prec, v);
+        if (strtod(b, NULL) == v || v != v) break;
+    }
+    return b;
+}
+
 /* ------------------------------------------------------------ helpers */
 static void fmt_bound(const Instance *c, unsigned vr, char *out, size_t n) {
     double lo = c->vmin[vr], hi = c->vmax[vr];
@@ -607,11 +619,11 @@ static void fmt_bound(const Instance *c, unsigned vr, char *out, size_t n) {
     else if (isinf(lo) && isinf(hi))
         snprintf(out, n, "finite");
     else if (isinf(hi))
-        snprintf(out, n, "finite and >= %.17g", lo);
+        snprintf(out, n, "finite and >= %s", G(lo));
     else if (isinf(lo))
-        snprintf(out, n, "finite and <= %.17g", hi);
+        snprintf(out, n, "finite and <= %s", G(hi));
     else
-        snprintf(out, n, "finite, >= %.17g and <= %.17g", lo, hi);
+        snprintf(out, n, "finite, >= %s and <= %s", G(lo), G(hi));
 }
 
 static const char *caus_name(int c) {
@@ -804,8 +816,8 @@ EXPORT fmi2Status fmi2SetupExperiment(fmi2Component comp, fmi2Boolean toleranceD
     if (!isfinite(startTime))
         return refuse(c, fmi2Error, "fmi2SetupExperiment: startTime = %g rejected: must be finite", startTime);
     if (stopTimeDefined && !(stopTime >= startTime))
-        return refuse(c, fmi2Error, "fmi2SetupExperiment: stopTime = %.17g must be >= startTime = %.17g",
-                      stopTime, startTime);
+        return refuse(c, fmi2Error, "fmi2SetupExperiment: stopTime = %s must be >= startTime = %s",
+                      G(stopTime), G(startTime));
     c->work[H_TIME] = startTime;
     c->last_successful_time = startTime;
     return fmi2OK;
@@ -878,8 +890,8 @@ EXPORT fmi2Status fmi2GetInteger(fmi2Component comp, const fmi2ValueReference vr
         if (!check_vr(c, F_GetInteger, vr[i], 1)) return fmi2Error;
         double v = c->x[vr[i]];
         if (!(v >= -2147483648.0 && v <= 2147483647.0))
-            return refuse(c, fmi2Error, "fmi2GetInteger: %s = %.17g does not fit an fmi2Integer",
-                          c->name_of[vr[i]], v);
+            return refuse(c, fmi2Error, "fmi2GetInteger: %s = %s does not fit an fmi2Integer",
+                          c->name_of[vr[i]], G(v));
         value[i] = (fmi2Integer)v;
     }
     return fmi2OK;
@@ -897,8 +909,8 @@ static fmi2Status set_value(Instance *c, int call, fmi2ValueReference vr, double
     if (!isfinite(v) || v < c->vmin[vr] || v > c->vmax[vr]) {
         char bound[600];
         fmt_bound(c, vr, bound, sizeof bound);
-        return refuse(c, fmi2Error, "%s: %s %s = %.17g rejected: must be %s; value unchanged (%.17g)",
-                      CALLS[call].name, caus_name(caus), nm, v, bound, c->x[vr]);
+        return refuse(c, fmi2Error, "%s: %s %s = %s rejected: must be %s; value unchanged (%s)",
+                      CALLS[call].name, caus_name(caus), nm, G(v), bound, G(c->x[vr]));
     }
     c->x[vr] = v;
     if (caus == C_PARAMETER) c->init_dirty = 1;
@@ -1151,26 +1163,26 @@ EXPORT fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real t, fmi2Real H, fmi2Boo
     double *w = c->work;
     double now = w[H_TIME];
     if (!(H > 0.0 && isfinite(H)))
-        return refuse(c, fmi2Discard, "doStep(t = %.17g, H = %.17g) refused, state unchanged at t = %.17g: "
-                      "communication step size %.17g rejected: must be finite and > 0", t, H, now, H);
+        return refuse(c, fmi2Discard, "doStep(t = %s, H = %s) refused, state unchanged at t = %s: "
+                      "communication step size %s rejected: must be finite and > 0", G(t), G(H), G(now), G(H));
     double tol = 1e-9 * (fabs(now) < 1.0 ? 1.0 : fabs(now));
     if (!(fabs(t - now) <= tol))
-        return refuse(c, fmi2Discard, "doStep(t = %.17g, H = %.17g) refused, state unchanged at t = %.17g: "
-                      "currentCommunicationPoint = %.17g is not the slave's time %.17g (restore a saved FMU "
-                      "state to go back in time)", t, H, now, t, now);
+        return refuse(c, fmi2Discard, "doStep(t = %s, H = %s) refused, state unchanged at t = %s: "
+                      "currentCommunicationPoint = %s is not the slave's time %s (restore a saved FMU "
+                      "state to go back in time)", G(t), G(H), G(now), G(t), G(now));
     double dt = w[H_DT];
     double count = ceil(H / dt - 1e-9);       /* computed in double: cannot overflow */
     if (!(count <= FMU_SYNC_MAX_SUBSTEPS))
-        return refuse(c, fmi2Discard, "doStep(t = %.17g, H = %.17g) refused, state unchanged: it needs "
-                      "ceil(H/dt) = %.6g internal steps of solver.dt = %.17g, more than the limit %.0f "
-                      "(FMU_SYNC_MAX_SUBSTEPS); use a smaller H or a larger solver.dt", t, H, count, dt,
+        return refuse(c, fmi2Discard, "doStep(t = %s, H = %s) refused, state unchanged: it needs "
+                      "ceil(H/dt) = %.6g internal steps of solver.dt = %s, more than the limit %.0f "
+                      "(FMU_SYNC_MAX_SUBSTEPS); use a smaller H or a larger solver.dt", G(t), G(H), count, G(dt),
                       (double)FMU_SYNC_MAX_SUBSTEPS);
     int32_t rc = c->stepper(c->x, w, now, H);
     if (rc != 0)
-        return refuse(c, fmi2Discard, "doStep(t = %.17g, H = %.17g): the state became non-finite with "
-                      "solver.dt = %.17g (a diverging scheme or an overflowing force, e.g. an input or "
+        return refuse(c, fmi2Discard, "doStep(t = %s, H = %s): the state became non-finite with "
+                      "solver.dt = %s (a diverging scheme or an overflowing force, e.g. an input or "
                       "forcing amplitude near the float range). The step was rolled back: state "
-                      "unchanged at t = %.17g.", t, H, dt, now);
+                      "unchanged at t = %s.", G(t), G(H), G(dt), G(now));
     w[H_TIME] = now + H;
     c->last_successful_time = w[H_TIME];
     return fmi2OK;
