@@ -34,26 +34,25 @@ import subprocess
 import sys
 import sysconfig
 import tempfile
-import uuid
 import zipfile
 from pathlib import Path
 from xml.etree import ElementTree as ET
 
-__all__ = ["MODELS", "export_fmu", "main_export", "model_class", "generation_tool", "model_guid",
-           "carried_files", "build_binary", "MAX_SUBSTEPS"]
+from .fmus import contract
+from .fmus._xml import generation_tool, model_guid, package_version
 
-#: export key -> "module:class" of the slave (module relative to the carried package)
-MODELS = {
-    "impact-oscillator": "fmus.impact_oscillator:ImpactOscillatorSlave",
-    "mechanical-system-2": "fmus.mechanical_system2:MechanicalSystem2Slave",
-}
+__all__ = ["MODELS", "export_fmu", "main_export", "model_class", "carried_files", "build_binary",
+           "MAX_SUBSTEPS"]
+
+#: The export keys: the FMU contract's model registry.
+MODELS = contract.MODELS
 #: most internal steps one fmi2DoStep may take (larger steps are refused with fmi2Discard)
 MAX_SUBSTEPS = 10_000_000
 
 _ZIP_DATE = (2020, 1, 1, 0, 0, 0)
 _C_SOURCE = "c/fmu_sync_fmi2.c"
 #: slave modules carried in the FMU (besides the whole core)
-_CARRIED_FMUS = ("__init__.py", "_xml.py", "slave.py", "stepper.py", "runtime.py",
+_CARRIED_FMUS = ("__init__.py", "contract.py", "_xml.py", "slave.py", "stepper.py", "runtime.py",
                  "impact_oscillator.py", "mechanical_system2.py")
 
 
@@ -69,23 +68,16 @@ def _core_dir() -> Path:
 
 def model_class(model: str):
     """The slave class of an export key ("impact-oscillator", "mechanical-system-2")."""
-    if model not in MODELS:
-        raise ValueError(f"unknown model {model!r}; choose one of {', '.join(MODELS)}")
     import importlib
-    module, cls = MODELS[model].split(":")
-    return getattr(importlib.import_module("fmu_sync." + module), cls)
+    module, cls = contract.model(model).slave.split(":")
+    return getattr(importlib.import_module(module), cls)
 
 
-def _version() -> str:
-    try:
-        from importlib.metadata import version
-        return version("fmu-sync")
-    except Exception:
-        return "0+unknown"
-
-
-def generation_tool() -> str:
-    return f"fmu-sync {_version()} (own FMI 2.0 binary, Python slave)"
+def _carried_slave(model: str) -> str:
+    """"module:class" of the slave relative to the carried package."""
+    slave = contract.model(model).slave
+    assert slave.startswith("fmu_sync."), slave
+    return slave[len("fmu_sync."):]
 
 
 def carried_files() -> list[tuple[str, bytes]]:
@@ -108,13 +100,6 @@ def _code_hash(files: list[tuple[str, bytes]]) -> str:
             p.parent.mkdir(parents=True, exist_ok=True)
             p.write_bytes(data)
         return code_hash(tmp)
-
-
-def model_guid(model: str, start_values: dict, code_hash: str = "") -> str:
-    """Deterministic GUID: changes with the model, the package version, the start values and the code."""
-    key = json.dumps({"model": model, "version": _version(), "start": start_values, "code": code_hash},
-                     sort_keys=True)
-    return "{" + str(uuid.uuid5(uuid.NAMESPACE_URL, "https://fmu-sync/" + key)) + "}"
 
 
 def build_binary(out: Path, guid: str, boot_module: str, max_substeps: int = MAX_SUBSTEPS) -> Path:
@@ -207,7 +192,7 @@ def export_fmu(model: str = "impact-oscillator", path=None, start_values: dict |
     boot_module = f"fmu_sync_boot_{digest[:16]}"
     guid = model_guid(model, starts, digest + hashlib.sha256(c_source).hexdigest())
     build = {"model": model, "model_identifier": cls.MODEL_IDENTIFIER, "package": package, "code_hash": digest,
-             "slave": MODELS[model], "fmu_sync_version": _version(), "guid": guid,
+             "slave": _carried_slave(model), "fmu_sync_version": package_version(), "guid": guid,
              "built_with": _runtime_versions(), "max_substeps": MAX_SUBSTEPS}
     from fmu_sync.fmus import boot as _boot
     from fmu_sync.fmus.slave import START_FILE
@@ -216,7 +201,7 @@ def export_fmu(model: str = "impact-oscillator", path=None, start_values: dict |
         f"{boot_module}.py": Path(_boot.__file__).read_bytes(),
         "fmu_sync_build.json": (json.dumps(build, indent=2, sort_keys=True) + "\n").encode(),
         "fmu_sync_python.txt": python_record().encode(),
-        START_FILE: (json.dumps({"model": model, "fmu_sync_version": _version(), "start": all_starts},
+        START_FILE: (json.dumps({"model": model, "fmu_sync_version": package_version(), "start": all_starts},
                                 indent=2, sort_keys=True) + "\n").encode(),
     })
     with tempfile.TemporaryDirectory(prefix="fmu-sync-build-") as tmp:

@@ -23,6 +23,7 @@ import numpy as np
 
 from .core.model import MechanicalSystem, as_state
 from .core.result import PairResult
+from .fmus import contract
 
 __all__ = ["cosimulate", "cosimulate_network", "NetworkResult", "SlaveError", "Slave", "system_from_fmu"]
 
@@ -71,8 +72,16 @@ class Slave:
         self._check("fmi2SetReal", self.host.set(values))
 
     def initialize(self, t0: float, start_values: dict) -> None:
+        self.enter_initialization(t0)
+        self.exit_initialization(start_values)
+
+    def enter_initialization(self, t0: float) -> None:
+        """setupExperiment + enterInitializationMode: parameters are readable from here on."""
         self.t = t0
-        self._check("initialization", self.host.initialize(t0, start_values))
+        self._check("initialization", self.host.enter_initialization(t0))
+
+    def exit_initialization(self, start_values: dict) -> None:
+        self._check("initialization", self.host.exit_initialization(start_values))
 
     def do_step(self, t: float, h: float) -> None:
         self.t = t
@@ -95,45 +104,18 @@ class Slave:
         self.host.close()
 
 
-def _names(slave: Slave, base: str, n: int) -> list[str]:
-    if n == 1 and base in slave.vr:
-        return [base]
-    return [f"{base}[{i + 1}]" for i in range(n)]
+def fmu_model(md):
+    """The contract's model of an FMU (from its model description); a foreign FMU
+    raises :class:`fmu_sync.fmus.contract.ContractError` naming the missing variables."""
+    return contract.identify([v.name for v in md.modelVariables], md.modelName)
 
 
-def _dofs(slave: Slave) -> int:
-    if "q" in slave.vr:
-        return 1
-    n = 0
-    while f"q[{n + 1}]" in slave.vr:
-        n += 1
-    if n == 0:
-        raise KeyError(f"FMU {slave.md.modelName!r} has no output 'q' or 'q[1]': not an fmu-sync mechanical model")
-    return n
-
-
-def system_from_fmu(slave: Slave) -> MechanicalSystem:
-    """The geometry the distance needs (M, w, g0, e), read from the FMU's parameters.
-
-    The 1-DOF impact oscillator exposes ``m`` (and, if present, ``w``/``g0``;
-    its wall is q >= 0 otherwise); n-DOF models expose ``M[i,j]``, ``w[i]``, ``g0``.
-    Only M, w, g0 and e enter the distance and the coupling, so K, C, f0 are zero here.
-    """
-    n = _dofs(slave)
-    if n == 1 and "m" in slave.vr:
-        M = slave.get(["m"]).reshape(1, 1)
-    else:
-        M = slave.get([f"M[{i + 1},{j + 1}]" for i in range(n) for j in range(n)]).reshape(n, n)
-    if n == 1 and "w" in slave.vr:
-        w = slave.get(["w"])
-    elif f"w[1]" in slave.vr:
-        w = slave.get(_names(slave, "w", n))
-    else:
-        w = np.ones(1)
-    g0 = float(slave.get(["g0"])[0]) if "g0" in slave.vr else 0.0
-    e = float(slave.get(["e"])[0])
-    z = np.zeros((n, n))
-    return MechanicalSystem(M=M, K=z, C=z, f0=np.zeros(n), w=w, g0=g0, e=e)
+def system_from_fmu(slave: Slave, model=None) -> MechanicalSystem:
+    """The geometry the distance needs (M, w, g0, e), read from the FMU's parameters
+    named by the FMU contract (K = C = f0 = 0: only M, w, g0 and e enter the
+    distance and the coupling)."""
+    model = model or fmu_model(slave.host.md)
+    return model.geometry_system(dict(zip(model.geometry, slave.get(list(model.geometry)))))
 
 
 def _check_positive(name, value):
@@ -232,25 +214,26 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
     if not Path(fmu).is_file():
         raise FileNotFoundError(f"FMU not found: {fmu}")
     md = read_model_description(fmu)
+    model = fmu_model(md)  # a foreign FMU fails here, naming what it lacks
     unzipdir = extract(fmu)  # one unpacked copy shared by all instances, removed at the end
     slaves: list[Slave] = []
     law = LAWS[coupling]
     try:
         for i in range(N):
             slaves.append(Slave(unzipdir, md, f"system{i + 1}"))
-        n = _dofs(slaves[0])
-        qn, un, taun = (_names(slaves[0], b, n) for b in ("q", "u", "tau"))
+        n = model.n
+        qn, un, taun = model.q, model.u, model.tau
         for s in slaves:
+            s.enter_initialization(0.0)   # FMI 2.0: variables are readable from initialization mode on
             s.set(dict(start_values or {}))
-        system = system_from_fmu(slaves[0])
+        system = system_from_fmu(slaves[0], model)
         for i, (s, x) in enumerate(zip(slaves, states)):
             label = f"x{i + 1}"
             q0, u0 = as_state(system, x, label)
             if system.gap(q0) < 0.0:
                 raise ValueError(f"{label} violates the constraint: g(q) = {system.gap(q0):.6g} < 0 "
                                  f"(need g >= 0)")
-            start = dict(zip(_names(s, "q_start", n) + _names(s, "u_start", n), list(q0) + list(u0)))
-            s.initialize(0.0, start)
+            s.exit_initialization(model.state_values(q0, u0))
         need_d = record_distance or law != LAWS[None]
         geo = geometry(system, Q)
         Kp_m, Kd_m = gain_matrix(Kp, n, "Kp"), gain_matrix(Kd, n, "Kd")
@@ -295,10 +278,11 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
                     tau[b] += A[b, a] * t2
 
         def check_forces(i, t, h):
-            if not np.all(np.isfinite(tau[i])):
+            if not np.all(np.abs(tau[i]) <= contract.INPUT_BOUND):   # also catches NaN
                 wc = coupling_omega(system, Kp_m) * h
                 raise SlaveError(f"system{i + 1}", t, "coupling", 3, [
-                    f"its coupling force became non-finite ({tau[i].tolist()}): the explicit "
+                    f"its coupling force became non-finite or exceeds the FMU's input bound "
+                    f"{contract.INPUT_BOUND:g} ({tau[i].tolist()}): the explicit "
                     f"exchange is unstable for these gains and this step (coupling omega_c*H = "
                     f"{wc:.3g}; stable only below min(4 zeta, 1/zeta) <= 2): lower Kp or H, or add Kd"])
 
@@ -335,7 +319,7 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
             inputs(x)
         record(0, 0.0, x, tau)
         row, error, retakes = 1, None, 0
-        imp = [s.get_integer("impacts") for s in slaves]
+        imp = [s.get_integer(contract.IMPACTS) for s in slaves]
         report_every = max(1, n_steps // 200)
         for k in range(n_steps):
             t = k * H
@@ -343,7 +327,7 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
                 if event_aware:
                     saved = [s.save() for s in slaves]
                 new = exchange(t, H, x)
-                now = [s.get_integer("impacts") for s in slaves]
+                now = [s.get_integer(contract.IMPACTS) for s in slaves]
                 if event_aware:
                     if now != imp:
                         retakes += 1
@@ -355,7 +339,7 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
                             tp = t + p * (H / pieces)
                             hp = (t + H) - tp if p == pieces - 1 else H / pieces
                             new = exchange(tp, hp, new)
-                        now = [s.get_integer("impacts") for s in slaves]
+                        now = [s.get_integer(contract.IMPACTS) for s in slaves]
                     for s, st in zip(slaves, saved):
                         s.free_state(st)
                 imp = now

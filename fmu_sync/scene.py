@@ -78,6 +78,7 @@ from typing import Any, Callable
 import numpy as np
 
 from .core import ImpactOscillator, MechanicalSystem, SimulationDiverged, simulate
+from .fmus import contract
 from .progress import scaled
 from .scenes import SCENE_DIR, builtin_names
 
@@ -96,7 +97,6 @@ TABLES = ("system", "initial", "coupling", "solver", "run", "record", "plot")
 VARIANT_TABLES = ("system", "initial", "coupling", "solver", "run", "record")
 DEFAULT_OUT = Path("fmu-sync-out")
 #: FMU model family per scene model (n = 1 / n = 2), see fmu_sync.export.export_fmu.
-FMU_MODELS = {("impact-oscillator", 1): "impact-oscillator", ("mechanical-system", 2): "mechanical-system-2"}
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 
 
@@ -625,7 +625,7 @@ def _build_variant(name: str, description: str, cfg: dict, where: dict, ctx: str
         if scheme == "exact":
             fail("solver.scheme", scheme, "the exact solver runs single 1-DOF systems only",
                  '"midpoint" or "theta" for pairs')
-        if mode == "cosim" and (cfg["system.model"], n) not in FMU_MODELS:
+        if mode == "cosim" and contract.model_for(cfg["system.model"], n) is None:
             fail("run.mode", mode, f"there is no FMU for a {cfg['system.model']} with n = {n}",
                  '"core", or a model with an FMU: impact-oscillator, mechanical-system with n = 2')
     if scheme == "exact" and (n != 1):
@@ -666,87 +666,35 @@ def _coupling_arg(law: str):
 
 
 def fmu_start_values(fmu_path, variant: Variant) -> dict:
-    """Start values for the FMU's parameters from the scene, matched by name.
+    """Start values for the FMU's parameters from the scene, as the FMU contract names them.
 
-    A scene parameter ``p`` maps onto the FMU variable named ``p`` or ``<prefix>.p``
-    (``e`` or ``contact.e``, ``dt`` or ``solver.dt``; matrix entries ``M[i,j]``,
-    vector entries ``f0[i]``). Missing or ambiguous names raise :class:`SceneError`,
-    except for a term the FMU lacks and the scene sets to 0.
+    The FMU must be the contract's model of the variant's system family
+    (:func:`fmu_sync.fmus.contract.identify`); anything else raises :class:`SceneError`.
     """
     from fmpy import read_model_description  # cosim branch only
 
-    md = read_model_description(str(fmu_path))
-    variables = {v.name: v for v in md.modelVariables}
-
-    def find(p, required=True):
-        hits = [n for n in variables if n == p or n.endswith("." + p)]
-        params = [n for n in hits if variables[n].causality == "parameter"]
-        hits = params or hits
-        if len(hits) == 1:
-            return hits[0]
-        if not required and not hits:
-            return None
-        raise SceneError(f"{Path(fmu_path).name}: cannot map scene parameter {p!r} onto the FMU "
-                         f"({'ambiguous: ' + ', '.join(hits) if hits else 'no variable named ' + repr(p) + ' or *.' + p})")
-
-    cfg, sv = variant.cfg, {}
-
-    def put(p, value):
-        # a term the FMU does not have at all is fine when the scene does not use it (value 0)
-        name = find(p, required=value != 0.0)
-        if name is not None:
-            sv[name] = float(value)
-
-    s = variant.system
-    if cfg["system.model"] == "impact-oscillator":
-        for p in ("m", "k", "c", "f0", "F", "Omega", "phi", "e"):
-            put(p, cfg[f"system.{p}"])
-    else:
-        n = s.n
-        for name, a in (("M", s.M), ("K", s.K), ("C", s.C)):
-            for i in range(n):
-                for j in range(n):
-                    put(f"{name}[{i + 1},{j + 1}]", a[i, j])
-        for name, a in (("f0", s.f0), ("w", s.w)):
-            for i in range(n):
-                put(f"{name}[{i + 1}]", a[i])
-        put("g0", s.g0)
-        put("e", s.e)
-        forcing = cfg["system.forcing"]
-        if len(forcing) > 1:
-            raise SceneError(f"{Path(fmu_path).name}: the FMU takes one forcing term, the scene has {len(forcing)}")
-        F, Om, ph = forcing[0] if forcing else ([0.0] * n, 0.0, 0.0)
-        for i in range(n):
-            put(f"F[{i + 1}]", F[i])
-        put("Omega", Om)
-        put("phi", ph)
-    sv[find("dt")] = cfg["solver.dt"]
-    scheme = cfg["solver.scheme"]
-    name = find("scheme", required=scheme != "midpoint")
-    if name is not None:
-        var = variables[name]
-        items = getattr(var.declaredType, "items", None) or []
-        if var.type == "String":
-            sv[name] = scheme
-        elif items:   # an Enumeration: map by item name
-            codes = {item.name: int(item.value) for item in items}
-            if scheme not in codes:
-                raise SceneError(f"{Path(fmu_path).name}: the FMU's {name} has no scheme {scheme!r} "
-                                 f"(it offers {', '.join(codes)})")
-            sv[name] = codes[scheme]
-        else:
-            from .core.moreau import SCHEMES as CODES
-            sv[name] = CODES[scheme]
-    if scheme == "theta":
-        sv[find("theta")] = cfg["solver.theta"]
-    return sv
+    cfg = variant.cfg
+    name = Path(fmu_path).name
+    try:
+        md = read_model_description(str(fmu_path))
+        model = contract.identify([v.name for v in md.modelVariables], md.modelName)
+        want = contract.model_for(cfg["system.model"], variant.system.n)
+        if model is not want:
+            raise contract.ContractError(f"it is the {model.key} model, the scene needs "
+                                         f"{want.key if want else 'a model the registry does not have'}")
+        return {**model.values(variant.system),
+                **model.solver_values(cfg["solver.dt"], cfg["solver.scheme"], cfg["solver.theta"])}
+    except contract.ContractError as exc:
+        raise SceneError(f"{name}: cannot take the scene's values: {exc}") from None
+    except ValueError as exc:  # an unknown scheme
+        raise SceneError(f"{name}: {exc}") from None
 
 
 def export_for(variant: Variant, out_dir) -> Path:
     """Export the FMU of the variant's model family into ``out_dir`` (cosim only)."""
     from .export import export_fmu  # cosim branch only
 
-    model = FMU_MODELS[(variant.cfg["system.model"], variant.system.n)]
+    model = contract.model_for(variant.cfg["system.model"], variant.system.n).key
     return Path(export_fmu(model, Path(out_dir) / f"{model.replace('-', '_')}.fmu", None))
 
 

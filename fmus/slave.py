@@ -8,7 +8,8 @@ what it runs in Python, carried inside the FMU (``resources/fmu_sync_code``):
   the validation of a parameter set (a valid core ``MechanicalSystem``, a known
   scheme, g(q_start) >= 0, a scheme not known to diverge) and of an FMU state;
 * a model class (:mod:`.impact_oscillator`, :mod:`.mechanical_system2`) only
-  declares its variables and how its parameters make a core system.
+  names its entry of the FMU contract (:mod:`.contract`), which declares its
+  variables and how its parameters make a core system.
 
 The C-facing instance (arrays, layout, replies) is :mod:`.runtime`; the hot
 path (one core ``advance`` per doStep, no Python) is :mod:`.stepper`.
@@ -22,7 +23,7 @@ import math
 import numpy as np
 
 from ..core.simulate import SimulationDiverged, check_stable, check_step, scheme_code
-from ._xml import SCHEME_ITEMS, Var
+from .contract import INPUT_BOUND, SCHEME_ITEMS, Var
 
 __all__ = ["MechanicalSlave", "STATE_FORMAT", "START_FILE", "Configuration", "PHASES",
            "INPUT_BOUND"]
@@ -33,10 +34,6 @@ START_FILE = "fmu_sync_start.json"
 STATE_FORMAT = "fmu-sync-state/2"
 #: FMU phases as saved in a state (names) and their C state codes (fmu_sync_fmi2.c)
 PHASES = {"instantiated": 1, "initialization": 2, "step": 4, "terminated": 8}
-#: Inputs must lie in [-INPUT_BOUND, INPUT_BOUND] (the min/max of every input in
-#: modelDescription.xml; checked by the binary at fmi2SetReal). Larger forces
-#: are far outside any mechanical model and overflow the energy (1e300 did).
-INPUT_BOUND = 1e12
 _SCHEME_BY_VALUE = {value: name for name, value, _ in SCHEME_ITEMS}
 
 
@@ -78,21 +75,24 @@ class MechanicalSlave:
         "logAll": "Everything, including informational messages (with logging on)",
     }
 
-    # ------------------------------------------------------------ model hooks
+    #: the model's entry in the FMU contract (fmu_sync.fmus.contract.MODELS)
+    CONTRACT = None
+
+    # ------------------------------------------------------------ model (from the contract)
     @classmethod
     def declare(cls) -> list[Var]:
         """The interface, in value-reference order (a fresh list on each call)."""
-        raise NotImplementedError
+        return cls.CONTRACT.declare()
 
     @classmethod
     def build_system(cls, p: dict):
         """The core system for parameter values ``p`` (raises ValueError)."""
-        raise NotImplementedError
+        return cls.CONTRACT.system(p)
 
     @classmethod
     def start_state(cls, p: dict) -> tuple[list, list]:
         """(q_start, u_start) as lists of n floats."""
-        raise NotImplementedError
+        return cls.CONTRACT.start_state(p)
 
     # ------------------------------------------------------------ interface
     @classmethod
