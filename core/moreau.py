@@ -275,6 +275,16 @@ def advance(sa, q, u, t0, H, dt, tau, scheme, theta):
     ``(status, percussion_sum, steps_with_impact)``.
     """
     qM, h, uf, Sinv, Sinv_w, WS = step_workspace(sa, dt, scheme, theta)
+    return advance_in(sa, q, u, t0, H, dt, tau, scheme, theta, qM, h, uf, Sinv, Sinv_w)
+
+
+@njit(cache=True, inline="always")
+def advance_in(sa, q, u, t0, H, dt, tau, scheme, theta, qM, h, uf, Sinv, Sinv_w):
+    """:func:`advance` in caller-provided scratch arrays ``qM, h, uf`` (n,),
+    ``Sinv`` (n, n), ``Sinv_w`` (n,): nothing is allocated (the FMU's stepper)."""
+    WS = 0.0
+    if scheme == THETA:
+        WS = theta_matrices(sa, dt, theta, Sinv, Sinv_w)
     k_steps = substeps(H, dt)
     Psum = 0.0
     impacts = 0
