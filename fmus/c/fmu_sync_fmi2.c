@@ -652,7 +652,8 @@ EXPORT const char *fmi2GetVersion(void) { return "2.0"; }
 
 static void free_instance(Instance *c) {
     if (!c) return;
-    if (c->obj) {
+    /* a host freeing after its own interpreter shut down: leave the Python object alone */
+    if (c->obj && py.IsInitialized && py.IsInitialized()) {
         int gil = py.GILEnsure();
         PyObject *r = py.CallMethod(c->obj, "free", NULL);
         if (r) py.DecRef(r);
@@ -1027,9 +1028,11 @@ EXPORT fmi2Status fmi2FreeFMUstate(fmi2Component comp, fmi2FMUstate *state) {
     if (!state || !*state) return fmi2OK;
     SavedState *st = as_state(c, F_FreeFMUstate, *state);
     if (!st) return fmi2Error;
-    int gil = py.GILEnsure();
-    py.DecRef(st->obj);
-    py.GILRelease(gil);
+    if (py.IsInitialized()) {
+        int gil = py.GILEnsure();
+        py.DecRef(st->obj);
+        py.GILRelease(gil);
+    }
     st->magic = 0;
     free(st);
     *state = NULL;
