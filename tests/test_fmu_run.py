@@ -416,6 +416,21 @@ def _instantiate_cases(fmu_path):
         out[label] = {"null": not c, "messages": list(msgs)}
         if c:
             fmu.fmi2FreeInstance(c)
+    # a NULL component: fmi2Error, no crash; freeing NULL does nothing
+    from fmpy.fmi1 import FMICallException
+
+    def raw(fn, *args):
+        try:
+            fn(*args)
+            return 0
+        except FMICallException as exc:
+            return int(exc.status)
+
+    vr = (ctypes.c_uint * 1)(0)
+    val = (ctypes.c_double * 1)(0.0)
+    out["null_component"] = [raw(fmu.fmi2DoStep, None, 0.0, 0.01, 1), raw(fmu.fmi2Terminate, None),
+                             raw(fmu.fmi2SetReal, None, vr, 1, val), raw(fmu.fmi2GetReal, None, vr, 1, val)]
+    fmu.fmi2FreeInstance(None)
     shutil.rmtree(d, ignore_errors=True)
     return out
 
@@ -715,6 +730,10 @@ def test_instantiate_refusals(runs, case, words):
     assert r[case]["messages"] and r[case]["messages"][0][0] == ERROR
     assert all(w in r[case]["messages"][0][1] for w in words), r[case]["messages"]
     assert not r["ok"]["null"]
+
+
+def test_null_component_is_refused(runs):
+    assert _ok(runs, "errors")["instantiate"]["null_component"] == [ERROR] * 4
 
 
 def test_fresh_processes_exit_cleanly(runs):
