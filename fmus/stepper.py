@@ -27,7 +27,7 @@ from numba import carray, cfunc, njit, types
 from ..core.model import SystemArrays
 from ..core.moreau import MIDPOINT, OK, THETA, advance_in
 
-__all__ = ["step", "pack", "work_size", "SCHEMES", "H_LEN", "H_VERSION", "H_TIME", "H_PHASE", "H_DT",
+__all__ = ["step", "pack", "work_size", "H_LEN", "H_VERSION", "H_TIME", "H_PHASE", "H_DT",
            "H_CONFIGURED", "WORK_VERSION"]
 
 # --- header slots (the first six are read by the C binary: keep in sync with fmu_sync_fmi2.c)
@@ -36,13 +36,6 @@ H_N, H_M, H_NF, H_SCHEME, H_THETA, H_NX = 6, 7, 8, 9, 10, 11
 H_IQ, H_IU, H_ITAU, H_IGAP, H_IENERGY, H_IIMPACTS, H_IPERC = 12, 13, 14, 15, 16, 17, 18
 H_DATA = 24
 WORK_VERSION = 1.0
-
-#: FMU enumeration value of ``solver.scheme`` -> the stepper's scheme code. One
-#: entry per scheme; a new scheme (e.g. an exact event-driven stepper for the
-#: 1-DOF slave) adds an item here, in ``fmus/_xml.py:SCHEME_ITEMS`` and a branch
-#: in :func:`_advance`.
-SCHEMES = {1: MIDPOINT, 2: THETA}
-
 
 def work_size(n: int, m: int, nf: int) -> int:
     """Length of the work array for n DOF, m inputs, nf harmonic forces."""
@@ -128,7 +121,12 @@ def _outputs(sa, q, u):
 @njit(cache=True, inline="always")
 def _advance(sa, q, u, t, H, dt, tau, scheme, theta, s):
     """One communication step with the scheme's stepper; (status, percussion, impacts).
-    ``s`` is the scratch part of the work array (nothing is allocated per step)."""
+
+    ``scheme`` is the core's scheme code (``solver.scheme`` item -> code in
+    ``MechanicalSlave.configure`` via ``core.simulate.scheme_code``). The place for
+    more schemes: a new item in ``contract.SCHEME_ITEMS`` (e.g. an exact
+    event-driven stepper for the 1-DOF slave), its code in the core, and a branch
+    here. ``s`` is the scratch part of the work array (nothing is allocated per step)."""
     n = q.shape[0]
     if scheme == MIDPOINT or scheme == THETA:
         return advance_in(sa, q, u, t, H, dt, tau, scheme, theta, s[0:n], s[n:2 * n], s[2 * n:3 * n],
