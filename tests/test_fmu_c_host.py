@@ -64,13 +64,13 @@ def _read_csv(path):
     return np.array([[float(x) for x in r] for r in rows[1:]])
 
 
-def _fmpy_reference(fmu, tmp, stop, H, tau):
+def _fmpy_reference(fmu, tmp, stop, H, tau, names=("q", "u", "gap", "energy"), tau_name="tau"):
     code = (
         "import json, sys\n"
         "from fmpy import simulate_fmu\n"
         "import numpy as np\n"
-        f"r = simulate_fmu({str(fmu)!r}, stop_time={stop!r}, output_interval={H!r}, start_values={{'tau': {tau!r}}},"
-        " output=['q', 'u', 'gap', 'energy'])\n"
+        f"r = simulate_fmu({str(fmu)!r}, stop_time={stop!r}, output_interval={H!r}, "
+        f"start_values={{{tau_name!r}: {tau!r}}}, output={list(names)!r})\n"
         "print(json.dumps({n: r[n].tolist() for n in r.dtype.names}))\n")
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr[-2000:]
@@ -101,6 +101,26 @@ def test_c_host_fresh_processes_match_fmpy(setup):
     for j, name in enumerate(("q", "u", "gap", "energy"), start=1):
         assert np.max(np.abs(first[:, j] - np.array(ref[name]))) <= 1e-12, name
     assert np.ptp(first[:, 1]) > 0.1 and first[:, 3].min() >= -1e-3   # it moved and hit the wall
+
+
+def test_c_host_two_dof_matches_fmpy(setup):
+    """The 2-DOF FMU (oblique wall) in the C host, against fmpy."""
+    fmu = export_fmu("mechanical-system-2", setup["tmp"] / "ms2.fmu")
+    d = setup["tmp"] / "ms2"
+    with zipfile.ZipFile(fmu) as zf:
+        zf.extractall(d)
+    from fmpy import read_model_description
+    vr = {v.name: v.valueReference for v in read_model_description(str(fmu)).modelVariables}
+    names = ["q[1]", "q[2]", "u[1]", "u[2]", "gap", "energy"]
+    out = setup["tmp"] / "ms2.csv"
+    p = _run_host(setup, "--stop", 5.0, "--step", 0.01, "--set", f"{vr['tau[1]']}=0.1", "--out", out,
+                  *[a for n in names for a in ("--var", vr[n])], dir=d)
+    assert p.returncode == 0, p.stdout + p.stderr
+    got = _read_csv(out)
+    ref = _fmpy_reference(fmu, setup["tmp"], 5.0, 0.01, 0.1, names, "tau[1]")
+    for j, name in enumerate(names, start=1):
+        assert np.max(np.abs(got[:, j] - np.array(ref[name]))) <= 1e-12, name
+    assert got[:, 5].min() < 0.05   # it reached the wall
 
 
 @pytest.mark.parametrize("form", ["encoded", "raw_utf8", "file_colon_slash", "localhost"])

@@ -216,6 +216,7 @@ static const char *category_of(fmi2Status s) {
 static void emit(fmi2CallbackLogger logger, fmi2ComponentEnvironment env, const char *name,
                  fmi2Status status, const char *text) {
     /* the logger's message is a printf format: escape '%' (no allocation per message) */
+    if (!logger) return;              /* a host without a logger gets the statuses only */
     char buf[4096];
     size_t j = 0;
     for (const char *p = text; *p && j < sizeof buf - 2; ++p) {
@@ -714,7 +715,7 @@ EXPORT fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, 
                                      fmi2String fmuResourceLocation, const fmi2CallbackFunctions *functions,
                                      fmi2Boolean visible, fmi2Boolean loggingOn) {
     (void)visible;
-    if (!functions || !functions->logger) return NULL;    /* no way to report anything */
+    if (!functions) return NULL;    /* FMI 2.0 requires the callbacks: no way to report anything */
     fmi2CallbackLogger logger = functions->logger;
     fmi2ComponentEnvironment env = functions->componentEnvironment;
     const char *name = instanceName ? instanceName : "?";
