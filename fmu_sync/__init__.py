@@ -2,13 +2,17 @@
 
 The component-level API (the core's own API is :mod:`fmu_sync.core`):
 
-* :func:`cosimulate`, :func:`cosimulate_network` — the co-simulation master;
+* :func:`cosimulate`, :func:`cosimulate_network` — the co-simulation master
+  (:class:`SlaveError` when a slave fails; :class:`NetworkResult`);
 * :func:`export_fmu` — build an FMI 2.0 co-simulation FMU of a registered model;
-* :func:`load_scene`, :func:`run_scene`, :func:`list_scenes`, :func:`run_demo` — scenes;
-* ``__version__``.
+* :func:`load_scene`, :func:`run_scene`, :func:`list_scenes`, :func:`run_demo` — scenes
+  (:class:`SceneError` for a bad scene);
+* ``__version__`` (from the installed package metadata; single source: pyproject.toml).
 
-Importing this package imports no FMI library (fmpy loads on the first co-simulation).
+The names load on first use (PEP 562), so ``import fmu_sync`` imports neither
+fmpy nor the FMU export, and a core-only run never loads the master.
 """
+from importlib import import_module
 from importlib.metadata import PackageNotFoundError
 from importlib.metadata import version as _metadata_version
 
@@ -17,9 +21,24 @@ try:
 except PackageNotFoundError:  # pragma: no cover - a source tree that was never installed
     __version__ = "0+unknown"
 
-from .export import export_fmu  # noqa: E402
-from .master import NetworkResult, SlaveError, cosimulate, cosimulate_network  # noqa: E402
-from .scene import Scene, SceneError, list_scenes, load_scene, run_demo, run_scene  # noqa: E402
+#: public name -> module that defines it
+_API = {
+    "cosimulate": "master", "cosimulate_network": "master", "NetworkResult": "master", "SlaveError": "master",
+    "export_fmu": "export",
+    "load_scene": "scenes.loading", "list_scenes": "scenes.loading", "Scene": "scenes.schema",
+    "SceneError": "scenes.schema", "run_scene": "scenes.running", "run_demo": "scenes.demo",
+}
 
-__all__ = ["__version__", "cosimulate", "cosimulate_network", "NetworkResult", "SlaveError", "export_fmu",
-           "load_scene", "run_scene", "list_scenes", "run_demo", "Scene", "SceneError"]
+__all__ = ["__version__", *_API]
+
+
+def __getattr__(name):
+    if name in _API:
+        value = getattr(import_module(f"{__name__}.{_API[name]}"), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_API))

@@ -39,7 +39,8 @@ from pathlib import Path
 from xml.etree import ElementTree as ET
 
 from .fmus import contract
-from .fmus._xml import generation_tool, model_guid, package_version
+from . import __version__
+from .fmus.slave import model_guid
 
 __all__ = ["MODELS", "export_fmu", "main_export", "model_class", "carried_files", "build_binary",
            "MAX_SUBSTEPS"]
@@ -134,11 +135,7 @@ def _runtime_versions() -> dict:
 
 
 def _model_description_xml(cls, starts: dict, guid: str) -> bytes:
-    from fmu_sync.fmus._xml import model_description
-    root = model_description(
-        model_name=cls.MODEL_IDENTIFIER, model_identifier=cls.MODEL_IDENTIFIER, guid=guid,
-        description=cls.DESCRIPTION, generation_tool=generation_tool(), variables=cls.variables(starts),
-        default_experiment=cls.DEFAULT_EXPERIMENT, log_categories=cls.LOG_CATEGORIES)
+    root = cls.description(starts, guid)
     ET.indent(root, space="  ")
     buf = io.BytesIO()
     ET.ElementTree(root).write(buf, encoding="UTF-8", xml_declaration=True)
@@ -192,7 +189,7 @@ def export_fmu(model: str = "impact-oscillator", path=None, start_values: dict |
     boot_module = f"fmu_sync_boot_{digest[:16]}"
     guid = model_guid(model, starts, digest + hashlib.sha256(c_source).hexdigest())
     build = {"model": model, "model_identifier": cls.MODEL_IDENTIFIER, "package": package, "code_hash": digest,
-             "slave": _carried_slave(model), "fmu_sync_version": package_version(), "guid": guid,
+             "slave": _carried_slave(model), "fmu_sync_version": __version__, "guid": guid,
              "built_with": _runtime_versions(), "max_substeps": MAX_SUBSTEPS}
     from fmu_sync.fmus import boot as _boot
     from fmu_sync.fmus.slave import START_FILE
@@ -201,7 +198,7 @@ def export_fmu(model: str = "impact-oscillator", path=None, start_values: dict |
         f"{boot_module}.py": Path(_boot.__file__).read_bytes(),
         "fmu_sync_build.json": (json.dumps(build, indent=2, sort_keys=True) + "\n").encode(),
         "fmu_sync_python.txt": python_record().encode(),
-        START_FILE: (json.dumps({"model": model, "fmu_sync_version": package_version(), "start": all_starts},
+        START_FILE: (json.dumps({"model": model, "fmu_sync_version": __version__, "start": all_starts},
                                 indent=2, sort_keys=True) + "\n").encode(),
     })
     with tempfile.TemporaryDirectory(prefix="fmu-sync-build-") as tmp:

@@ -1,36 +1,56 @@
-"""Co-simulation master (SPEC §8): two (or N) FMU instances coupled through the
-coupling law of the core, driven by fmpy's ``FMU2Slave``.
+"""Co-simulation master (docs/design.md §4.4): two (or N) FMU instances coupled
+through the coupling law of the core, driven by fmpy's ``FMU2Slave``.
 
-The master holds no model data of its own: the mass matrix, the wall (w, g0)
-and the restitution e it needs for the quotient distance are read from the
-FMU's parameters, and the coupling forces and the distance are computed by the
-core's compiled :func:`fmu_sync.core.pair.coupling_step` — the same function
-the monolithic :func:`fmu_sync.core.pair.simulate_pair` calls every step.
-With ``H`` equal to the slaves' internal step the two runs agree to round-off.
+The master holds no model data of its own: the FMU contract
+(:mod:`fmu_sync.fmus.contract`) names the variables, and the mass matrix, the
+wall (w, g0) and the restitution e it needs for the quotient distance are read
+from the FMU's parameters. The coupling forces and the distance are computed by
+the core's compiled :func:`fmu_sync.core.pair.coupling_step` — the same function
+the monolithic :func:`fmu_sync.core.simulate_pair` calls every step. With ``H``
+equal to the slaves' internal step the two runs agree to round-off.
 
-Structure (after fmpy's ``simulate_fmu``): :class:`Slave` is a thin,
-status-checked wrapper of one instance; :func:`cosimulate` is the plain
-functional entry point.
+Structure (after fmpy's ``simulate_fmu``): :class:`FmuInstance` is a thin,
+status-checked wrapper of one instance; :class:`NetworkMaster` holds one run,
+with one method per exchange strategy (``step_jacobi``, ``step_gauss_seidel``;
+a new strategy is one more ``step_<name>`` method), the event-aware retake and
+the recording as methods; :func:`cosimulate_network` and :func:`cosimulate`
+are the plain functional entry points.
+
+Failure convention (docs/design.md §5.1): bad arguments or a foreign FMU raise
+a ValueError before any instance is created; an exchange known to be unstable
+(:func:`fmu_sync.core.exchange.check_exchange`) or instances with different
+impact geometries (M, w, g0, e) raise a ValueError before the first step; a
+slave that fails mid-run raises :class:`SlaveError` and a run whose states or
+distances become non-finite raises :class:`fmu_sync.core.SimulationDiverged`
+(both :class:`fmu_sync.core.RunFailed`) whose ``partial`` holds everything
+recorded up to the failure (finite rows only).
 """
 from __future__ import annotations
 
 import math
 import shutil
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from .core.checks import check_run, check_start, check_step
+from .core.coupling import chain_work, gain_matrix
+from .core.distance import geometry
+from .core.errors import RunFailed, SimulationDiverged
+from .core.exchange import check_exchange, exchange_limit
 from .core.model import MechanicalSystem, as_state
-from .core.result import PairResult
+from .core.network import coupled_weights, edge_laws, edges_of, weights
+from .core.pair import LAWS, check_common_geometry, coupling_step
+from .core.result import NetworkResult, PairResult
 from .fmus import contract
 
-__all__ = ["cosimulate", "cosimulate_network", "NetworkResult", "SlaveError", "Slave", "system_from_fmu"]
+__all__ = ["cosimulate", "cosimulate_network", "NetworkMaster", "NetworkResult", "SlaveError", "FmuInstance",
+           "fmu_model", "system_from_fmu"]
 
 STATUS = ("OK", "Warning", "Discard", "Error", "Fatal", "Pending")
 
 
-class SlaveError(RuntimeError):
+class SlaveError(RunFailed):
     """A slave answered an FMI call with a status worse than fmi2Warning."""
 
     def __init__(self, slave: str, t: float, call: str, status: int, log: list[str]):
@@ -40,11 +60,11 @@ class SlaveError(RuntimeError):
         self.slave, self.t, self.call, self.status, self.log = slave, t, call, status, list(log)
 
 
-class Slave:
+class FmuInstance:
     """One FMU instance as the master uses it: the status-returning
     :class:`fmu_sync.fmi_bridge.FMUHost`, with every status worse than
-    fmi2Warning turned into a :class:`SlaveError` naming the slave, the time and
-    the FMU's logged reason."""
+    fmi2Warning turned into a :class:`SlaveError` naming the instance, the time
+    and the FMU's logged reason."""
 
     def __init__(self, unzipdir: str, md, name: str):
         from .fmi_bridge import FMUHost
@@ -76,7 +96,7 @@ class Slave:
         self.exit_initialization(start_values)
 
     def enter_initialization(self, t0: float) -> None:
-        """setupExperiment + enterInitializationMode: parameters are readable from here on."""
+        """setupExperiment + enterInitializationMode: variables are readable from here on (FMI 2.0)."""
         self.t = t0
         self._check("initialization", self.host.enter_initialization(t0))
 
@@ -110,274 +130,345 @@ def fmu_model(md):
     return contract.identify([v.name for v in md.modelVariables], md.modelName)
 
 
-def system_from_fmu(slave: Slave, model=None) -> MechanicalSystem:
+def system_from_fmu(instance: FmuInstance, model=None) -> MechanicalSystem:
     """The geometry the distance needs (M, w, g0, e), read from the FMU's parameters
     named by the FMU contract (K = C = f0 = 0: only M, w, g0 and e enter the
     distance and the coupling)."""
-    model = model or fmu_model(slave.host.md)
-    return model.geometry_system(dict(zip(model.geometry, slave.get(list(model.geometry)))))
+    model = model or fmu_model(instance.host.md)
+    return model.geometry_system(dict(zip(model.geometry, instance.get(list(model.geometry)))))
 
 
-def _check_positive(name, value):
-    value = float(value)
-    if not (math.isfinite(value) and value > 0.0):
-        raise ValueError(f"{name} must be a positive finite number, got {value}")
-    return value
+class NetworkMaster:
+    """One co-simulation run of N instances of one FMU coupled on a weighted graph.
 
-
-@dataclass
-class NetworkResult:
-    """Sampled co-simulation of N coupled instances on a weighted graph.
-
-    ``q, u, tau``: (rows, N, n); ``edges``: the coupled pairs (i, j), i < j;
-    ``d, euclidean`` (rows, n_edges) and ``branch`` (rows, n_edges) per edge;
-    ``V = 1/2 sum_edges a_ij d_ij^2`` (rows,) with a_ij the mean of the two
-    directed weights; ``impacts`` (N,). ``error`` names a failed slave, if any.
+    The constructor checks every argument (ValueError) and identifies the FMU
+    through the contract; :meth:`run` creates the instances, runs and frees them.
+    Exchange strategies are the methods ``step_<method>`` (``method`` with ``-``
+    read as ``_``): each takes one communication step ``[t, t + h]`` from the
+    states ``x`` and returns the new states.
     """
 
-    t: np.ndarray
-    q: np.ndarray
-    u: np.ndarray
-    tau: np.ndarray
-    edges: list
-    d: np.ndarray | None
-    branch: np.ndarray | None
-    euclidean: np.ndarray | None
-    V: np.ndarray | None
-    impacts: list
-    info: dict = field(default_factory=dict)
-    error: str | None = None
+    METHODS = ("jacobi", "gauss-seidel")
 
+    def __init__(self, fmu, states, A, t_end: float, H: float, coupling: str | None = "switching",
+                 Kp=0.0, Kd=0.0, Q=None, method: str = "jacobi", record_every: int = 1,
+                 event_aware: bool = False, H_min: float | None = None, start_values=None,
+                 record_distance: bool = True, allow_unstable: bool = False):
+        H, n_steps, record_every = check_run(t_end, H, record_every, dt_name="H")
+        if method not in self.METHODS:
+            raise ValueError(f"method must be {' or '.join(repr(m) for m in self.METHODS)}, got {method!r}")
+        if event_aware:
+            H_min = H / 16 if H_min is None else check_step(H_min, "H_min")
+            if H_min > H:
+                raise ValueError(f"H_min must not exceed H = {H}, got {H_min}")
+        if n_steps < 1:
+            raise ValueError(f"t_end = {t_end} is shorter than one communication step H = {H}")
+        self.states = list(states)
+        self.N = N = len(self.states)
+        if N < 2:
+            raise ValueError(f"a network needs at least 2 states, got {N}")
+        self.A = weights(A, N)
+        self.edges = edges_of(self.A)
+        self.laws = edge_laws(coupling, self.edges)  # one law per edge
+        self.coupled = bool(np.any(self.laws != LAWS[None]))
+        if start_values is None or isinstance(start_values, dict):
+            self.start_values = [dict(start_values or {})] * N
+        else:
+            self.start_values = [dict(v or {}) for v in start_values]
+            if len(self.start_values) != N:
+                raise ValueError(f"start_values must be one dict or a sequence of N = {N} dicts (one "
+                                 f"per instance), got {len(self.start_values)}")
+        self.fmu = str(fmu)
+        if not Path(self.fmu).is_file():
+            raise FileNotFoundError(f"FMU not found: {self.fmu}")
+        from fmpy import read_model_description
+        self.md = read_model_description(self.fmu)
+        self.model = fmu_model(self.md)  # a foreign FMU fails here, naming what it lacks
+        self.H, self.n_steps, self.record_every = H, n_steps, record_every
+        self.coupling = coupling
+        self.allow_unstable = bool(allow_unstable)
+        self.limit = None
+        self.Kp, self.Kd, self.Q = Kp, Kd, Q
+        self.method, self.exchange = method, getattr(self, "step_" + method.replace("-", "_"))
+        self.event_aware, self.H_min = event_aware, H_min
+        self.need_d = bool(record_distance) or self.coupled
+        self.slaves: list[FmuInstance] = []
+        self.retakes = 0
 
-def _weights(A, N: int | None) -> np.ndarray:
-    try:
-        a = np.array(A, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"A must be an N x N matrix of weights, got {A!r}") from None
-    if a.ndim != 2 or a.shape[0] != a.shape[1] or (N is not None and a.shape[0] != N):
-        raise ValueError(f"A must be a square N x N weight matrix with N = number of states "
-                         f"({N}), got shape {a.shape}")
-    if not np.all(np.isfinite(a)) or np.any(a < 0.0):
-        raise ValueError(f"A must hold finite weights >= 0, got {a.tolist()}")
-    if np.any(np.diag(a) != 0.0):
-        raise ValueError(f"A must have a zero diagonal (no self-coupling), got {np.diag(a).tolist()}")
-    return a
+    # ------------------------------------------------------------ set-up
+    def _start(self, unzipdir: str) -> None:
+        model, N = self.model, self.N
+        for i in range(N):
+            self.slaves.append(FmuInstance(unzipdir, self.md, f"system{i + 1}"))
+        for s, sv in zip(self.slaves, self.start_values):
+            s.enter_initialization(0.0)   # FMI 2.0: variables are readable from initialization mode on
+            s.set(sv)
+        systems = [system_from_fmu(s, model) for s in self.slaves]
+        check_common_geometry(systems, [f"instance {i + 1}" for i in range(N)])
+        self.system = system = systems[0]
+        if not self.allow_unstable:
+            self._check_internal_steps()
+        for i, (s, x) in enumerate(zip(self.slaves, self.states)):
+            label = f"x{i + 1}"
+            q0, u0 = as_state(system, x, label)
+            check_start(system, q0, label)
+            s.exit_initialization(model.state_values(q0, u0))
+        n = model.n
+        self.geo = geometry(system, self.Q)
+        self.Kp_m, self.Kd_m = gain_matrix(self.Kp, n, "Kp"), gain_matrix(self.Kd, n, "Kd")
+        self.A_coupled = coupled_weights(self.A, self.edges, self.laws)
+        if self.coupled:  # before the first step: the held exchange must be stable at H
+            self.limit = check_exchange(system.M, self.Kp_m, self.Kd_m, self.H, A=self.A_coupled,
+                                        allow_unstable=self.allow_unstable)
+        E, rows = len(self.edges), self.n_steps // self.record_every + 1
+        self.T = np.full(rows, np.nan)
+        self.Qr, self.Ur, self.TAU = (np.full((rows, N, n), np.nan) for _ in range(3))
+        self.D, self.EU = np.full((rows, E), np.nan), np.full((rows, E), np.nan)
+        self.BR = np.full((rows, E), -1, dtype=np.int64)
+        self.tau = np.zeros((N, n))
+        self.t1, self.t2 = np.zeros(n), np.zeros(n)
+        self.work = chain_work(n)
+
+    def _check_internal_steps(self) -> None:
+        """Before the first step: each instance's own scheme limit (the explicit midpoint
+        needs omega_max*dt < 2 for its internal step dt), from its parameter values, with
+        the core's check; the slave would refuse its first doStep otherwise."""
+        from .core.checks import check_stable
+        names = [v.name for v in self.model.declare() if v.causality == "parameter" and v.type == "Real"]
+        for i, s in enumerate(self.slaves):
+            values = dict(zip(names, s.get(names)))
+            scheme = contract.scheme_name(s.get_integer(contract.SOLVER_SCHEME))
+            if scheme is None:
+                continue
+            try:
+                check_stable(self.model.system(values), scheme, values[contract.SOLVER_DT])
+            except SimulationDiverged as exc:
+                raise SimulationDiverged(f"refused before the first step: instance {i + 1}: {exc} "
+                                         f"(allow_unstable=True runs anyway)") from None
+
+    def read(self, s: FmuInstance) -> list:
+        v = s.get(self.model.q + self.model.u)
+        n = self.model.n
+        return [v[:n].copy(), v[n:].copy()]
+
+    # ------------------------------------------------------------ coupling
+    def pair(self, k: int, x, want_d: bool):
+        """The pairwise law of edge k = (i, j) at states x: fills t1 (on i), t2 (on j)."""
+        i, j = self.edges[k]
+        return coupling_step(self.laws[k], self.geo, self.Kp_m, self.Kd_m, x[i][0], x[i][1], x[j][0],
+                             x[j][1], self.t1, self.t2, *self.work, want_d)
+
+    def input_of(self, i: int, x) -> None:
+        """tau_i = sum_j a_ij tau_i^(j) at states x (one node at a time)."""
+        A, tau = self.A, self.tau
+        tau[i] = 0.0
+        for k, (a, b) in enumerate(self.edges):
+            if i == a and A[a, b] > 0.0:
+                self.pair(k, x, False)
+                tau[i] += A[a, b] * self.t1
+            elif i == b and A[b, a] > 0.0:
+                self.pair(k, x, False)
+                tau[i] += A[b, a] * self.t2
+
+    def inputs(self, x) -> None:
+        """tau_i for every i at states x: each edge's law evaluated once."""
+        A, tau = self.A, self.tau
+        tau[:] = 0.0
+        for k, (a, b) in enumerate(self.edges):
+            self.pair(k, x, False)
+            if A[a, b] > 0.0:
+                tau[a] += A[a, b] * self.t1
+            if A[b, a] > 0.0:
+                tau[b] += A[b, a] * self.t2
+
+    def check_forces(self, i: int, t: float, h: float) -> None:
+        if not np.all(np.abs(self.tau[i]) <= contract.INPUT_BOUND):   # also catches NaN
+            lim = exchange_limit(self.system.M, self.Kp_m, self.Kd_m, h, self.A_coupled)
+            raise SlaveError(f"system{i + 1}", t, "coupling", 3, [
+                f"its coupling force became non-finite or exceeds the FMU's input bound "
+                f"{contract.INPUT_BOUND:g} ({self.tau[i].tolist()}): the explicit "
+                f"exchange is unstable for these gains and this step ({lim.message()}): lower "
+                f"Kp or H, or add Kd"])
+
+    def _give(self, i: int, s: FmuInstance, t: float, h: float) -> None:
+        s.set(dict(zip(self.model.tau, self.tau[i])))
+        s.do_step(t, h)
+
+    # ------------------------------------------------------------ exchange strategies
+    def step_jacobi(self, t: float, h: float, x) -> list:
+        """Every instance gets its input from the same states x, then all step."""
+        self.inputs(x)
+        for i in range(self.N):
+            self.check_forces(i, t, h)
+        for i, s in enumerate(self.slaves):
+            self._give(i, s, t, h)
+        return [self.read(s) for s in self.slaves]
+
+    def step_gauss_seidel(self, t: float, h: float, x) -> list:
+        """Instances step in index order, each input from the newest states of the others."""
+        x = [list(xi) for xi in x]
+        for i, s in enumerate(self.slaves):
+            self.input_of(i, x)
+            self.check_forces(i, t, h)
+            self._give(i, s, t, h)
+            x[i] = self.read(s)
+        return x
+
+    def communication_step(self, t: float, x, impacts: list) -> tuple[list, list]:
+        """One step of length H from t; event-aware: retaken in pieces of H_min if an
+        impact counter moved. Returns (new states, impact counters)."""
+        if not self.event_aware:
+            new = self.exchange(t, self.H, x)
+            return new, [s.get_integer(contract.IMPACTS) for s in self.slaves]
+        saved = [s.save() for s in self.slaves]
+        new = self.exchange(t, self.H, x)
+        now = [s.get_integer(contract.IMPACTS) for s in self.slaves]
+        if now != impacts:
+            new, now = self.retake(t, x, saved)
+        for s, st in zip(self.slaves, saved):
+            s.free_state(st)
+        return new, now
+
+    def retake(self, t: float, x, saved) -> tuple[list, list]:
+        """Restore every instance to t and retake [t, t + H] in pieces of about H_min."""
+        H = self.H
+        self.retakes += 1
+        for s, st in zip(self.slaves, saved):
+            s.restore(st, t)
+        pieces = max(1, int(math.ceil(H / self.H_min - 1e-9)))
+        new = x
+        for p in range(pieces):
+            tp = t + p * (H / pieces)
+            hp = (t + H) - tp if p == pieces - 1 else H / pieces
+            new = self.exchange(tp, hp, new)
+        return new, [s.get_integer(contract.IMPACTS) for s in self.slaves]
+
+    # ------------------------------------------------------------ recording
+    def record(self, row: int, t: float, x, held) -> None:
+        self.T[row] = t
+        for i in range(self.N):
+            self.Qr[row, i], self.Ur[row, i] = x[i]
+        self.TAU[row] = held
+        if self.need_d:
+            for k in range(len(self.edges)):
+                self.D[row, k], self.BR[row, k], self.EU[row, k] = self.pair(k, x, True)
+
+    def result(self, rows: int, impacts: list, error: str | None) -> NetworkResult:
+        sl, need_d, A = slice(0, rows), self.need_d, self.A
+        V = None
+        if need_d:
+            a_sym = np.array([0.5 * (A[i, j] + A[j, i]) for i, j in self.edges])
+            with np.errstate(over="ignore"):  # a failed run may end on huge (finite) d
+                V = 0.5 * (self.D[sl] ** 2) @ a_sym
+        return NetworkResult(
+            self.T[sl], self.Qr[sl], self.Ur[sl], self.TAU[sl], self.edges,
+            self.D[sl] if need_d else None, self.BR[sl] if need_d else None,
+            self.EU[sl] if need_d else None, V, impacts=impacts,
+            info=dict(mode="cosim", H=self.H, method=self.method, event_aware=self.event_aware,
+                      H_min=self.H_min if self.event_aware else None, retaken_steps=self.retakes,
+                      fmu=self.fmu, steps=self.n_steps, coupling=self.coupling,
+                      **({} if self.limit is None else dict(
+                          omega_c_H=self.limit.h, exchange_bound=self.limit.bound,
+                          zeta=self.limit.zeta, H_max=self.limit.H_max))),
+            error=error)
+
+    def diverged(self, t: float, what: str) -> SimulationDiverged:
+        hint = f" ({self.limit.message()})" if self.limit is not None else ""
+        return SimulationDiverged(
+            f"the co-simulation diverged: {what} became non-finite at t = {t:.6g}; the run stopped "
+            f"there and the record ends at the last finite row{hint}")
+
+    # ------------------------------------------------------------ the run
+    def run(self, progress=None) -> NetworkResult:
+        """Run to t_end; raises :class:`SlaveError` if a slave fails and
+        :class:`SimulationDiverged` if a state or distance becomes non-finite
+        (``partial``: the finite record so far)."""
+        from fmpy import extract
+        unzipdir = extract(self.fmu)  # one unpacked copy shared by all instances, removed at the end
+        failure = None
+        try:
+            self._start(unzipdir)
+            x = [self.read(s) for s in self.slaves]
+            if self.coupled:
+                self.inputs(x)
+            self.record(0, 0.0, x, self.tau)
+            row = 1
+            imp = [s.get_integer(contract.IMPACTS) for s in self.slaves]
+            n_steps, H = self.n_steps, self.H
+            report_every = max(1, n_steps // 200)
+            for k in range(n_steps):
+                try:
+                    x, imp = self.communication_step(k * H, x, imp)
+                except SlaveError as ex:
+                    failure = ex
+                    break
+                if not all(np.all(np.isfinite(xi[0])) and np.all(np.isfinite(xi[1])) for xi in x):
+                    failure = self.diverged((k + 1) * H, "a state")
+                    break
+                if (k + 1) % self.record_every == 0:
+                    self.record(row, (k + 1) * H, x, self.tau.copy())
+                    if self.need_d and not np.all(np.isfinite(self.D[row])):
+                        failure = self.diverged((k + 1) * H, "a distance")
+                        break
+                    row += 1
+                if progress is not None and (k + 1) % report_every == 0:
+                    progress((k + 1) / n_steps)
+            if progress is not None:
+                progress(1.0)
+        finally:
+            for s in self.slaves:
+                s.close()
+            shutil.rmtree(unzipdir, ignore_errors=True)
+        res = self.result(row, imp, None if failure is None else str(failure))
+        if failure is not None:
+            failure.partial = res
+            raise failure
+        return res
 
 
 def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | None = "switching",
                        Kp=0.0, Kd=0.0, Q=None, method: str = "jacobi", record_every: int = 1,
                        event_aware: bool = False, H_min: float | None = None,
-                       start_values: dict | None = None, progress=None,
-                       record_distance: bool = True) -> NetworkResult:
-    """Co-simulate N instances of ``fmu`` coupled on a weighted graph (SPEC §5, §8).
+                       start_values=None, progress=None,
+                       record_distance: bool = True, allow_unstable: bool = False) -> NetworkResult:
+    """Co-simulate N instances of ``fmu`` coupled on a weighted graph (docs/design.md §2.5, §4.4).
 
     ``states``: N start states (q, u); ``A``: N×N weights a_ij >= 0 (zero
     diagonal); system i receives ``tau_i = sum_j a_ij tau_i^(j)``, with
     ``tau_i^(j)`` the force of the pairwise law (``coupling``, gains ``Kp``,
-    ``Kd``, norm weight ``Q``) on i in the pair (i, j). Other arguments as
-    :func:`cosimulate`; Gauss–Seidel updates the instances in index order, each
-    one's input computed from the newest states of the others.
+    ``Kd``, norm weight ``Q``) on i in the pair (i, j); ``coupling`` is one law
+    name for every edge or a sequence of names, one per edge in the order of
+    ``result.edges`` (:func:`fmu_sync.core.network.edges_of`). The monolithic
+    reference is :func:`fmu_sync.core.network.simulate_network` (reproduced to
+    round-off at H = dt with Jacobi). Other arguments as :func:`cosimulate`;
+    Gauss–Seidel updates the instances in index order, each one's input
+    computed from the newest states of the others.
+    ``start_values``: one dict of parameter start values for every instance, or
+    a sequence of N dicts (or None), one per instance (non-identical systems:
+    K, C, f0, forcing may differ; M, w, g0 and e must not).
+    The stability of the held exchange over ``H`` is checked before the first
+    step by :func:`fmu_sync.core.exchange.check_exchange` (refused with
+    ``UnstableExchange``, a ValueError, unless ``allow_unstable``), and so is
+    each instance's internal midpoint step (omega_max*dt < 2, refused with
+    ``SimulationDiverged`` whose ``partial`` is None).
     """
-    from fmpy import extract, read_model_description
+    return NetworkMaster(fmu, states, A, t_end, H, coupling, Kp, Kd, Q, method, record_every, event_aware,
+                         H_min, start_values, record_distance, allow_unstable).run(progress)
 
-    from .core.coupling import chain_work, gain_matrix
-    from .core.distance import geometry
-    from .core.pair import LAWS, coupling_step
-    from .core.simulate import coupling_omega
 
-    H = _check_positive("H", H)
-    t_end = float(t_end)
-    if not (math.isfinite(t_end) and t_end > 0.0):
-        raise ValueError(f"t_end must be a positive finite time, got {t_end}")
-    if coupling not in LAWS:
-        raise ValueError(f"coupling must be one of {list(LAWS)}, got {coupling!r}")
-    if method not in ("jacobi", "gauss-seidel"):
-        raise ValueError(f"method must be 'jacobi' or 'gauss-seidel', got {method!r}")
-    record_every = int(record_every)
-    if record_every < 1:
-        raise ValueError(f"record_every must be >= 1, got {record_every}")
-    if event_aware:
-        H_min = H / 16 if H_min is None else _check_positive("H_min", H_min)
-        if H_min > H:
-            raise ValueError(f"H_min must not exceed H = {H}, got {H_min}")
-    n_steps = int(math.floor(t_end / H + 1e-9))
-    if n_steps < 1:
-        raise ValueError(f"t_end = {t_end} is shorter than one communication step H = {H}")
-    states = list(states)
-    N = len(states)
-    if N < 2:
-        raise ValueError(f"a network needs at least 2 states, got {N}")
-    A = _weights(A, N)
-    edges = [(i, j) for i in range(N) for j in range(i + 1, N) if A[i, j] > 0.0 or A[j, i] > 0.0]
-
-    fmu = str(fmu)
-    if not Path(fmu).is_file():
-        raise FileNotFoundError(f"FMU not found: {fmu}")
-    md = read_model_description(fmu)
-    model = fmu_model(md)  # a foreign FMU fails here, naming what it lacks
-    unzipdir = extract(fmu)  # one unpacked copy shared by all instances, removed at the end
-    slaves: list[Slave] = []
-    law = LAWS[coupling]
-    try:
-        for i in range(N):
-            slaves.append(Slave(unzipdir, md, f"system{i + 1}"))
-        n = model.n
-        qn, un, taun = model.q, model.u, model.tau
-        for s in slaves:
-            s.enter_initialization(0.0)   # FMI 2.0: variables are readable from initialization mode on
-            s.set(dict(start_values or {}))
-        system = system_from_fmu(slaves[0], model)
-        for i, (s, x) in enumerate(zip(slaves, states)):
-            label = f"x{i + 1}"
-            q0, u0 = as_state(system, x, label)
-            if system.gap(q0) < 0.0:
-                raise ValueError(f"{label} violates the constraint: g(q) = {system.gap(q0):.6g} < 0 "
-                                 f"(need g >= 0)")
-            s.exit_initialization(model.state_values(q0, u0))
-        need_d = record_distance or law != LAWS[None]
-        geo = geometry(system, Q)
-        Kp_m, Kd_m = gain_matrix(Kp, n, "Kp"), gain_matrix(Kd, n, "Kd")
-        E = len(edges)
-        rows = n_steps // record_every + 1
-        T = np.full(rows, np.nan)
-        Qr, Ur, TAU = (np.full((rows, N, n), np.nan) for _ in range(3))
-        D, EU = np.full((rows, E), np.nan), np.full((rows, E), np.nan)
-        BR = np.full((rows, E), -1, dtype=np.int64)
-        tau = np.zeros((N, n))
-        t1, t2 = np.zeros(n), np.zeros(n)
-        work = chain_work(n)
-
-        def read(s):
-            v = s.get(qn + un)
-            return [v[:n].copy(), v[n:].copy()]
-
-        def pair(i, j, x, want_d):
-            """The pairwise law on edge (i, j) at states x: fills t1 (on i), t2 (on j)."""
-            return coupling_step(law, geo, Kp_m, Kd_m, x[i][0], x[i][1], x[j][0], x[j][1], t1, t2,
-                                 *work, want_d)
-
-        def input_of(i, x):
-            """tau_i = sum_j a_ij tau_i^(j) at states x (Gauss-Seidel: one node at a time)."""
-            tau[i] = 0.0
-            for a, b in edges:
-                if i == a and A[a, b] > 0.0:
-                    pair(a, b, x, False)
-                    tau[i] += A[a, b] * t1
-                elif i == b and A[b, a] > 0.0:
-                    pair(a, b, x, False)
-                    tau[i] += A[b, a] * t2
-
-        def inputs(x):
-            """tau_i for every i at states x (Jacobi): each edge's law evaluated once."""
-            tau[:] = 0.0
-            for a, b in edges:
-                pair(a, b, x, False)
-                if A[a, b] > 0.0:
-                    tau[a] += A[a, b] * t1
-                if A[b, a] > 0.0:
-                    tau[b] += A[b, a] * t2
-
-        def check_forces(i, t, h):
-            if not np.all(np.abs(tau[i]) <= contract.INPUT_BOUND):   # also catches NaN
-                wc = coupling_omega(system, Kp_m) * h
-                raise SlaveError(f"system{i + 1}", t, "coupling", 3, [
-                    f"its coupling force became non-finite or exceeds the FMU's input bound "
-                    f"{contract.INPUT_BOUND:g} ({tau[i].tolist()}): the explicit "
-                    f"exchange is unstable for these gains and this step (coupling omega_c*H = "
-                    f"{wc:.3g}; stable only below min(4 zeta, 1/zeta) <= 2): lower Kp or H, or add Kd"])
-
-        def exchange(t, h, x):
-            """One communication step of length h from t; returns the new states."""
-            x = [list(xi) for xi in x]
-            if method == "jacobi":
-                inputs(x)
-                for i in range(N):
-                    check_forces(i, t, h)
-                for i, s in enumerate(slaves):
-                    s.set(dict(zip(taun, tau[i])))
-                    s.do_step(t, h)
-                return [read(s) for s in slaves]
-            for i, s in enumerate(slaves):  # Gauss-Seidel: newest states of the others
-                input_of(i, x)
-                check_forces(i, t, h)
-                s.set(dict(zip(taun, tau[i])))
-                s.do_step(t, h)
-                x[i] = read(s)
-            return x
-
-        def record(row, t, x, held):
-            T[row] = t
-            for i in range(N):
-                Qr[row, i], Ur[row, i] = x[i]
-            TAU[row] = held
-            if need_d:
-                for k, (i, j) in enumerate(edges):
-                    D[row, k], BR[row, k], EU[row, k] = pair(i, j, x, True)
-
-        x = [read(s) for s in slaves]
-        if law != LAWS[None]:
-            inputs(x)
-        record(0, 0.0, x, tau)
-        row, error, retakes = 1, None, 0
-        imp = [s.get_integer(contract.IMPACTS) for s in slaves]
-        report_every = max(1, n_steps // 200)
-        for k in range(n_steps):
-            t = k * H
-            try:
-                if event_aware:
-                    saved = [s.save() for s in slaves]
-                new = exchange(t, H, x)
-                now = [s.get_integer(contract.IMPACTS) for s in slaves]
-                if event_aware:
-                    if now != imp:
-                        retakes += 1
-                        for s, st in zip(slaves, saved):
-                            s.restore(st, t)
-                        pieces = max(1, int(math.ceil(H / H_min - 1e-9)))
-                        new = x
-                        for p in range(pieces):
-                            tp = t + p * (H / pieces)
-                            hp = (t + H) - tp if p == pieces - 1 else H / pieces
-                            new = exchange(tp, hp, new)
-                        now = [s.get_integer(contract.IMPACTS) for s in slaves]
-                    for s, st in zip(slaves, saved):
-                        s.free_state(st)
-                imp = now
-                x = new
-            except SlaveError as ex:
-                error = str(ex)
-                break
-            if (k + 1) % record_every == 0:
-                record(row, (k + 1) * H, x, tau.copy())
-                row += 1
-            if progress is not None and (k + 1) % report_every == 0:
-                progress((k + 1) / n_steps)
-        if progress is not None:
-            progress(1.0)
-    finally:
-        for s in slaves:
-            s.close()
-        shutil.rmtree(unzipdir, ignore_errors=True)
-
-    sl = slice(0, row)
-    V = None
-    if need_d:
-        a_sym = np.array([0.5 * (A[i, j] + A[j, i]) for i, j in edges])
-        V = 0.5 * (D[sl] ** 2) @ a_sym
-    return NetworkResult(T[sl], Qr[sl], Ur[sl], TAU[sl], edges,
-                         D[sl] if need_d else None, BR[sl] if need_d else None,
-                         EU[sl] if need_d else None, V, impacts=imp,
-                         info=dict(mode="cosim", H=H, method=method, event_aware=event_aware,
-                                   H_min=H_min if event_aware else None, retaken_steps=retakes,
-                                   fmu=fmu, steps=n_steps, coupling=coupling),
-                         error=error)
+def _pair_result(r: NetworkResult, coupling) -> PairResult:
+    d = r.d is not None
+    return PairResult(r.t, r.q[:, 0], r.u[:, 0], r.q[:, 1], r.u[:, 1], r.tau[:, 0], r.tau[:, 1],
+                      r.d[:, 0] if d else None, r.branch[:, 0] if d else None,
+                      r.euclidean[:, 0] if d else None, impacts1=r.impacts[0], impacts2=r.impacts[1],
+                      coupling=coupling, info=r.info, error=r.error)
 
 
 def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None, Kp=0.0, Kd=0.0,
                Q=None, method: str = "jacobi", record_every: int = 1, event_aware: bool = False,
-               H_min: float | None = None, start_values: dict | None = None, progress=None,
-               record_distance: bool = True) -> PairResult:
-    """Co-simulate two instances of ``fmu`` coupled by ``coupling`` (SPEC §5, §8).
+               H_min: float | None = None, start_values=None, progress=None,
+               record_distance: bool = True, allow_unstable: bool = False) -> PairResult:
+    """Co-simulate two instances of ``fmu`` coupled by ``coupling`` (docs/design.md §2.5, §4.4).
 
     Parameters
     ----------
@@ -392,19 +483,27 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
     event_aware : when a slave's impact counter moves during a step, restore both
         slaves and retake the step in pieces of ``H_min`` (default ``H/16``) so the
         coupling sees the impact.
-    start_values : extra parameter start values for both instances (e.g. ``{"e": 0.8}``).
+    start_values : extra parameter start values, one dict for both instances (e.g.
+        ``{"e": 0.8}``) or a pair of dicts, one per instance (non-identical systems,
+        e.g. ``[{}, {"k": 1.05}]``; M, w, g0 and e must agree).
+    allow_unstable : run even if the held exchange is unstable at ``H`` (by default
+        refused before the first step with ``UnstableExchange``, a ValueError).
     progress : callable ``progress(fraction)`` or None.
 
-    Returns a :class:`PairResult`. If a slave fails, the run stops there: the
-    result holds everything recorded up to the failure and ``result.error`` names
-    the slave, the time and the reason. (The pair is the two-node graph of
+    Returns a :class:`PairResult`. Bad arguments, or an FMU that does not follow
+    the FMU contract, raise a ValueError naming what is wrong. If a slave fails,
+    the run stops there and raises :class:`SlaveError` (:class:`SimulationDiverged`
+    if the states or distances become non-finite); its ``partial`` is the
+    :class:`PairResult` recorded up to the failure, whose ``error`` names the
+    slave, the time and the reason. (The pair is the two-node graph of
     :func:`cosimulate_network`.)
     """
-    r = cosimulate_network(fmu, [x1, x2], [[0.0, 1.0], [1.0, 0.0]], t_end, H, coupling, Kp, Kd, Q,
-                           method, record_every, event_aware, H_min, start_values, progress,
-                           record_distance)
-    d = r.d is not None
-    return PairResult(r.t, r.q[:, 0], r.u[:, 0], r.q[:, 1], r.u[:, 1], r.tau[:, 0], r.tau[:, 1],
-                      r.d[:, 0] if d else None, r.branch[:, 0] if d else None,
-                      r.euclidean[:, 0] if d else None, impacts1=r.impacts[0], impacts2=r.impacts[1],
-                      coupling=coupling, info=r.info, error=r.error)
+    try:
+        r = cosimulate_network(fmu, [x1, x2], [[0.0, 1.0], [1.0, 0.0]], t_end, H, coupling, Kp, Kd, Q,
+                               method, record_every, event_aware, H_min, start_values, progress,
+                               record_distance, allow_unstable)
+    except RunFailed as exc:
+        if exc.partial is not None:  # None: refused before the first step
+            exc.partial = _pair_result(exc.partial, coupling)
+        raise
+    return _pair_result(r, coupling)

@@ -13,7 +13,7 @@ from xml.etree.ElementTree import Element, SubElement
 from .contract import POSITIVE_MIN, SCHEME_ITEMS, SCHEME_TYPE, Var
 
 __all__ = ["Var", "UNITS", "SCHEME_TYPE", "SCHEME_ITEMS", "model_description", "fmt_real",
-           "POSITIVE_MIN", "package_version", "generation_tool", "model_guid"]
+           "POSITIVE_MIN", "generation_tool", "model_guid"]
 
 #: SI units used by the slaves: name -> exponents of the SI base units
 #: (plus rad), as written in <UnitDefinitions>.
@@ -33,23 +33,16 @@ UNITS: dict[str, dict[str, int]] = {
 }
 
 
-def package_version() -> str:
-    """fmu-sync's version, from the installed package metadata (single source: pyproject.toml)."""
-    try:
-        from importlib.metadata import version
-        return version("fmu-sync")
-    except Exception:
-        return "0+unknown"
-
-
 def generation_tool() -> str:
-    return f"fmu-sync {package_version()} (own FMI 2.0 binary, Python slave)"
+    from fmu_sync import __version__
+    return f"fmu-sync {__version__} (own FMI 2.0 binary, Python slave)"
 
 
 def model_guid(model: str, start_values: dict, code: str = "") -> str:
     """Deterministic GUID: changes with the model, the package version, the start
     values and the FMU's code (hash of the carried Python code and the C source)."""
-    key = json.dumps({"model": model, "version": package_version(), "start": start_values, "code": code},
+    from fmu_sync import __version__
+    key = json.dumps({"model": model, "version": __version__, "start": start_values, "code": code},
                      sort_keys=True)
     return "{" + str(uuid.uuid5(uuid.NAMESPACE_URL, "https://fmu-sync/" + key)) + "}"
 

@@ -22,11 +22,13 @@ import math
 
 import numpy as np
 
-from ..core.simulate import SimulationDiverged, check_stable, check_step, scheme_code
+from ..core.checks import check_stable, check_step, scheme_code
+from ..core.errors import SimulationDiverged
+from ._xml import generation_tool, model_description, model_guid
 from .contract import INPUT_BOUND, SCHEME_ITEMS, Var
 
 __all__ = ["MechanicalSlave", "STATE_FORMAT", "START_FILE", "Configuration", "PHASES",
-           "INPUT_BOUND"]
+           "INPUT_BOUND", "generation_tool", "model_guid"]
 
 #: Name of the start-value file in the FMU's resources/ (written by fmu_sync.export).
 START_FILE = "fmu_sync_start.json"
@@ -105,6 +107,15 @@ class MechanicalSlave:
         for name, value in (start_values or {}).items():
             by_name[name].start = value
         return vars_
+
+    @classmethod
+    def description(cls, start_values: dict, guid: str):
+        """The complete <fmiModelDescription> element of an FMU with these start values."""
+        return model_description(
+            model_name=cls.MODEL_IDENTIFIER, model_identifier=cls.MODEL_IDENTIFIER, guid=guid,
+            description=cls.DESCRIPTION, generation_tool=generation_tool(),
+            variables=cls.variables(start_values), default_experiment=cls.DEFAULT_EXPERIMENT,
+            log_categories=cls.LOG_CATEGORIES)
 
     @classmethod
     def variable_names(cls) -> list[str]:

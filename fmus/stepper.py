@@ -7,7 +7,7 @@ instance's work array: a header (the H_* slots, shared with
 ``fmus/c/fmu_sync_fmi2.c``) followed by the system's arrays as the core's
 kernels take them (:class:`fmu_sync.core.model.SystemArrays`, packed by
 :func:`pack`). The cfunc rebuilds the ``SystemArrays`` as views of ``work``,
-makes exactly one call to the core's :func:`fmu_sync.core.moreau.advance_in`
+makes exactly one call to the core's :func:`fmu_sync.core.moreau.advance`
 (all internal steps, input held) and writes q, u, gap, energy, impacts and
 percussion into ``x``. It returns 0, or 1 after rolling the step back when the
 state (or an output) became non-finite. ``H == 0`` only recomputes gap and
@@ -25,7 +25,7 @@ import numpy as np
 from numba import carray, cfunc, njit, types
 
 from ..core.model import SystemArrays
-from ..core.moreau import MIDPOINT, OK, THETA, advance_in
+from ..core.moreau import MIDPOINT, OK, THETA, advance
 
 __all__ = ["step", "pack", "work_size", "H_LEN", "H_VERSION", "H_TIME", "H_PHASE", "H_DT",
            "H_CONFIGURED", "WORK_VERSION"]
@@ -119,19 +119,17 @@ def _outputs(sa, q, u):
 
 
 @njit(cache=True, inline="always")
-def _advance(sa, q, u, t, H, dt, tau, scheme, theta, s):
+def _advance(sa, q, u, t, H, dt, tau, scheme, theta):
     """One communication step with the scheme's stepper; (status, percussion, impacts).
 
     ``scheme`` is the core's scheme code (``solver.scheme`` item -> code in
-    ``MechanicalSlave.configure`` via ``core.simulate.scheme_code``). The place for
-    more schemes: a new item in ``contract.SCHEME_ITEMS`` (e.g. an exact
-    event-driven stepper for the 1-DOF slave), its code in the core, and a branch
-    here. ``s`` is the scratch part of the work array (nothing is allocated per step)."""
-    n = q.shape[0]
+    ``MechanicalSlave.configure`` via ``core.checks.scheme_code``). The place for
+    more schemes: a new item in ``contract.SCHEME_ITEMS`` (e.g. the exact
+    communication step of the 1-DOF slave, ``core.exact.exact_step``), and a
+    branch here."""
     if scheme == MIDPOINT or scheme == THETA:
-        return advance_in(sa, q, u, t, H, dt, tau, scheme, theta, s[0:n], s[n:2 * n], s[2 * n:3 * n],
-                          s[4 * n:4 * n + n * n].reshape((n, n)), s[3 * n:4 * n])
-    # further schemes (e.g. an exact 1-DOF stepper) dispatch here
+        return advance(sa, q, u, t, H, dt, tau, scheme, theta)
+    # further schemes dispatch here
     return -1, 0.0, 0
 
 
@@ -160,8 +158,7 @@ def step(x_ptr, w_ptr, t, H):
     for i in range(n):
         save[i] = q[i]
         save[n + i] = u[i]
-    status, P, hits = _advance(sa, q, u, t, H, w[H_DT], tau, int(w[H_SCHEME]), w[H_THETA],
-                               w[k + 2 * n:k + 6 * n + n * n])
+    status, P, hits = _advance(sa, q, u, t, H, w[H_DT], tau, int(w[H_SCHEME]), w[H_THETA])
     g, E = _outputs(sa, q, u)
     if status != OK or not (math.isfinite(g) and math.isfinite(E)):
         for i in range(n):

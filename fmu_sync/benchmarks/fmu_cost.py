@@ -206,7 +206,7 @@ def exit_check(fmu_path: Path, n: int, jobs: int = 2) -> dict:
 
 
 def _measure(steps: int, repeat: int, fresh: int, exit_n: int = 0) -> dict:
-    from fmu_sync.export import export_fmu
+    from fmu_sync import export_fmu
     with tempfile.TemporaryDirectory(prefix="bench-fmu-") as tmp:
         fmu_path = export_fmu("impact-oscillator", Path(tmp) / "ImpactOscillator.fmu")
         minimal = build_minimal_fmu(fmu_path, Path(tmp) / "Minimal.fmu")
