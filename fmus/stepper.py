@@ -7,7 +7,7 @@ instance's work array: a header (the H_* slots, shared with
 ``fmus/c/fmu_sync_fmi2.c``) followed by the system's arrays as the core's
 kernels take them (:class:`fmu_sync.core.model.SystemArrays`, packed by
 :func:`pack`). The cfunc rebuilds the ``SystemArrays`` as views of ``work``,
-makes exactly one call to the core's :func:`fmu_sync.core.moreau.advance`
+makes exactly one call to the core's :func:`fmu_sync.core.moreau.advance_in` (``advance`` without allocation)
 (all internal steps, input held) and writes q, u, gap, energy, impacts and
 percussion into ``x``. It returns 0, or 1 after rolling the step back when the
 state (or an output) became non-finite. ``H == 0`` only recomputes gap and
@@ -25,7 +25,7 @@ import numpy as np
 from numba import carray, cfunc, njit, types
 
 from ..core.model import SystemArrays
-from ..core.moreau import MIDPOINT, OK, THETA, advance
+from ..core.moreau import MIDPOINT, OK, THETA, advance_in
 
 __all__ = ["step", "pack", "work_size", "H_LEN", "H_VERSION", "H_TIME", "H_PHASE", "H_DT",
            "H_CONFIGURED", "WORK_VERSION"]
@@ -39,7 +39,7 @@ WORK_VERSION = 1.0
 
 def work_size(n: int, m: int, nf: int) -> int:
     """Length of the work array for n DOF, m inputs, nf harmonic forces."""
-    return H_DATA + 4 * n * n + n + nf * n + 2 * nf + n * m + n + 2 + n + 1 + 2 * n + 4 * n + n * n
+    return H_DATA + 4 * n * n + n + nf * n + 2 * nf + n * m + n + 2 + n + 1 + 2 * n + (6 * n + n * n + 4 * nf + m)
 
 
 def pack(work: np.ndarray, sa: SystemArrays, dt: float, scheme: int, theta: float) -> None:
@@ -119,7 +119,7 @@ def _outputs(sa, q, u):
 
 
 @njit(cache=True, inline="always")
-def _advance(sa, q, u, t, H, dt, tau, scheme, theta):
+def _advance(sa, q, u, t, H, dt, tau, scheme, theta, s):
     """One communication step with the scheme's stepper; (status, percussion, impacts).
 
     ``scheme`` is the core's scheme code (``solver.scheme`` item -> code in
@@ -127,8 +127,17 @@ def _advance(sa, q, u, t, H, dt, tau, scheme, theta):
     more schemes: a new item in ``contract.SCHEME_ITEMS`` (e.g. the exact
     communication step of the 1-DOF slave, ``core.exact.exact_step``), and a
     branch here."""
+    n = q.shape[0]
+    nf = sa.Omega.shape[0]
+    m = tau.shape[0]
     if scheme == MIDPOINT or scheme == THETA:
-        return advance(sa, q, u, t, H, dt, tau, scheme, theta)
+        # scratch: y, hf, uf, Sinv_w, hc, hb (n each), Sinv (n*n), cv, sv, cr, sr (nf each), tk (m)
+        k = 6 * n + n * n
+        return advance_in(sa, q, u, t, H, dt, tau, tau, False, scheme, theta, False,
+                          s[0:n], s[n:2 * n], s[2 * n:3 * n], s[6 * n:k].reshape((n, n)), s[3 * n:4 * n],
+                          s[k:k + nf], s[k + nf:k + 2 * nf], s[k + 2 * nf:k + 3 * nf],
+                          s[k + 3 * nf:k + 4 * nf], s[4 * n:5 * n], s[5 * n:6 * n],
+                          s[k + 4 * nf:k + 4 * nf + m])
     # further schemes dispatch here
     return -1, 0.0, 0
 
@@ -158,7 +167,8 @@ def step(x_ptr, w_ptr, t, H):
     for i in range(n):
         save[i] = q[i]
         save[n + i] = u[i]
-    status, P, hits = _advance(sa, q, u, t, H, w[H_DT], tau, int(w[H_SCHEME]), w[H_THETA])
+    status, P, hits = _advance(sa, q, u, t, H, w[H_DT], tau, int(w[H_SCHEME]), w[H_THETA],
+                               w[k + 2 * n:])
     g, E = _outputs(sa, q, u)
     if status != OK or not (math.isfinite(g) and math.isfinite(E)):
         for i in range(n):
