@@ -10,7 +10,7 @@ The component-level API (the core's own API is :mod:`fmu_sync.core`):
 * ``__version__`` (from the installed package metadata; single source: pyproject.toml).
 
 The names load on first use (PEP 562), so ``import fmu_sync`` imports neither
-fmpy nor pythonfmu, and a core-only run never loads the master.
+fmpy nor the FMU export, and a core-only run never loads the master.
 """
 from importlib import import_module
 from importlib.metadata import PackageNotFoundError
