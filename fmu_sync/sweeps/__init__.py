@@ -238,6 +238,7 @@ def sweep(scene, grid: dict | None = None, *, sample: dict | None = None, n: int
     from .engine import divergence_reason, prepare
 
     spec = None
+    sweep_name = ""
     if not isinstance(scene, Scene):
         spec = load_sweep_scene(scene)
     plot_axes = {}
@@ -250,6 +251,7 @@ def sweep(scene, grid: dict | None = None, *, sample: dict | None = None, n: int
         variant = variant or spec["variant"]
         overrides = {**spec["overrides"], **(overrides or {})}
         plot_axes = spec["plot"]
+        sweep_name = spec["name"]
         scene = spec["scene"]
     if isinstance(scene, Scene):
         if overrides:
@@ -283,7 +285,7 @@ def sweep(scene, grid: dict | None = None, *, sample: dict | None = None, n: int
     R = len(runs)
     chunk = chunk_size or max(8 * threads if client is None else 8, math.ceil(R / 50))
     fp = _fingerprint(scene, variant, keys, runs, method, seed, threshold, chunk)
-    attrs = dict(scene=scene.name, scene_file=str(scene.path), scene_toml=Path(scene.path).read_text(),
+    attrs = dict(sweep_scene=sweep_name, scene=scene.name, scene_file=str(scene.path), scene_toml=Path(scene.path).read_text(),
                  variant=str(variant or ""), overrides=json.dumps(scene.overrides, default=repr),
                  swept=json.dumps(keys), method=method, seed=int(seed) if method != "grid" else -1,
                  spec=json.dumps(grid if method == "grid" else sample, default=repr),
