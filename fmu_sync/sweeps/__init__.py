@@ -278,8 +278,12 @@ def sweep(scene, grid: dict | None = None, *, sample: dict | None = None, n: int
     if variant is None and "variant" not in keys:
         variant = scene.variants[0].name
 
-    if client is None and scheduler is not None:
-        from distributed import Client
+    own_client = client is None and scheduler is not None
+    if own_client:
+        try:
+            from distributed import Client
+        except ImportError:
+            raise ImportError("--scheduler needs dask.distributed: pip install 'fmu-sync[sweep]'") from None
         client = Client(scheduler)
     threads = threads or _default_threads()
     R = len(runs)
@@ -356,6 +360,8 @@ def sweep(scene, grid: dict | None = None, *, sample: dict | None = None, n: int
     finally:
         if own_bar:
             bar.close()
+        if own_client:
+            client.close()
     attrs.update(engine=engine, computed_runs=int(computed), reused_runs=int(reused),
                  compiled_runs=int(prep.compiled.size), process_runs=int(prep.python.size))
     ds = store.to_dataset(table, reasons, keys, axes, runs, attrs)
