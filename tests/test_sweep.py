@@ -240,3 +240,29 @@ def test_cli_sweep_writes_netcdf_and_map(tmp_path, capsys):
     assert main(["sweep", "paper-example", "--grid", "coupling.Kp=-1", "--variant", "switching",
                  "-o", str(tmp_path / "bad"), "--quiet"]) == 2
     assert "coupling.Kp = -1" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_cosimulated_sweep_runs_in_worker_processes_and_equals_single_cosimulations(tmp_path):
+    from fmu_sync.scene import export_for, load_scene, run_variant
+    over = {"run.t_end": 4.0, "run.mode": "cosim", "run.record_every": 1}
+    ds = sweep(SCENE, variant="switching", grid={"coupling.Kp": [0.5, 2.0], "run.H": [1e-2]},
+               overrides=over, workers=2, quiet=True)
+    assert ds.attrs["process_runs"] == 2 and ds.attrs["compiled_runs"] == 0
+    sc = load_scene(SCENE, over, ["switching"])
+    fmu = export_for(sc.variants[0], tmp_path)
+    for i, kp in enumerate([0.5, 2.0]):
+        v = load_scene(SCENE, {**over, "coupling.Kp": kp, "run.H": 1e-2}, ["switching"]).variants[0]
+        r = run_variant(v, fmu)
+        run = ds.isel({"coupling.Kp": i, "run.H": 0})
+        assert int(run["status"]) == 0
+        assert float(run["d_final"]) == r.d[-1] and float(run["d_max"]) == np.max(r.d)
+        assert float(run["q1"]) == r.q1[-1, 0] and float(run["u2"]) == r.u2[-1, 0]
+        assert float(run["t_sync"]) == r.time_to_sync(1e-6)
+        assert int(run["impacts1"]) == r.impacts1
+        assert float(run["tau_max"]) == max(np.max(np.abs(r.tau1)), np.max(np.abs(r.tau2)))
+    # Kp = 50, Kd = 0, H = 0.5 s: omega_c H = 5 -> the exchange diverges: a row with its reason
+    bad = sweep(SCENE, variant="switching", grid={"coupling.Kp": [50.0]},
+                overrides={**over, "run.H": 0.5, "run.t_end": 400.0, "coupling.Kd": 0.0}, workers=1, quiet=True)
+    assert int(bad["status"][0]) == 1 and bad["reason"].values[0] != ""
+    assert 0 < float(bad["t_stop"][0]) < 400.0
