@@ -1,0 +1,122 @@
+"""Synchronization metrics (core/metrics.py): decay rate with uncertainty, t_sync, ultimate bound."""
+import math
+
+import numpy as np
+import pytest
+
+from fmu_sync.core import ImpactOscillator
+from fmu_sync.core.metrics import decimator, sync_metrics
+from fmu_sync.core.pair import simulate_pair
+
+
+# ---------------------------------------------------------------- synthetic records
+def _damped(t, sigma=0.5, omega=1.7, phase=0.3):
+    """d of a damped linear relative mode: |(x, x')| with x = exp(-s t) cos(w t + p)."""
+    x = np.exp(-sigma * t) * np.cos(omega * t + phase)
+    v = np.exp(-sigma * t) * (-sigma * np.cos(omega * t + phase) - omega * np.sin(omega * t + phase))
+    return np.hypot(x, v)
+
+
+def test_rate_of_an_oscillating_envelope_is_exact_on_its_peaks():
+    t = np.linspace(0.0, 60.0, 600_001)
+    m = sync_metrics(t, _damped(t), threshold=1e-6)
+    assert m.rate == pytest.approx(0.5, rel=1e-5)  # peaks sampled every 1e-4 s
+    assert m.rate_err < 1e-5
+    # the fitted envelope is the peak line: t_fit is where it crosses 1e-6, t_sync the last crossing
+    assert m.t_from > 0.0 and m.t_to < 60.0 and m.n_fit >= 8
+    assert m.t_sync <= m.t_fit + 2 * math.pi / 1.7
+
+
+def test_rate_of_a_monotone_decay_and_of_noise():
+    t = np.linspace(0.0, 20.0, 20_001)
+    m = sync_metrics(t, 3.0 * np.exp(-1.25 * t))
+    assert m.rate == pytest.approx(1.25, rel=1e-9)
+    assert m.t_sync == pytest.approx(math.log(3e6) / 1.25, abs=1e-3)
+    assert m.t_fit == pytest.approx(math.log(3e6) / 1.25, rel=1e-9)
+    # multiplicative noise: the reported uncertainty covers the true rate
+    rng = np.random.default_rng(1)
+    d = np.exp(-0.8 * t + 0.3 * rng.standard_normal(t.size))
+    m = sync_metrics(t[::100], d[::100])
+    assert abs(m.rate - 0.8) < 3 * m.rate_err and m.rate_err < 0.05
+
+
+def test_t_sync_bound_and_degenerate_records():
+    t = np.linspace(0.0, 10.0, 11)
+    d = np.array([1, 2, 1e-7, 3e-6, 1e-7, 1e-8, 1e-8, 2e-8, 1e-8, 1e-8, 1e-8])
+    m = sync_metrics(t, d, threshold=1e-6, tail=0.3)
+    assert m.t_sync == 4.0                    # first sample after the last d >= 1e-6 (t = 3)
+    assert m.bound == 2e-8                    # max d over t >= 7
+    never = sync_metrics(t, np.ones(11))
+    assert never.t_sync == math.inf and math.isnan(never.rate) and never.bound == 1.0
+    zero = sync_metrics(t, np.zeros(11))
+    assert zero.t_sync == 0.0 and math.isnan(zero.rate) and zero.bound == 0.0
+    blown = sync_metrics(t, np.r_[np.exp(-t[:6]), [np.nan] * 5])
+    assert blown.t_sync == math.inf and blown.bound == math.inf
+    with pytest.raises(ValueError, match="threshold must be a positive finite distance, got -1"):
+        sync_metrics(t, d, threshold=-1)
+    with pytest.raises(ValueError, match="equal length"):
+        sync_metrics(t, d[:3])
+
+
+def test_decimated_buffer_keeps_the_metrics_in_fixed_memory():
+    t = np.linspace(0.0, 60.0, 600_001)
+    d = _damped(t)
+    full = sync_metrics(t, d, threshold=1e-6)
+    dec = decimator(size=512, threshold=1e-6, t_tail_start=48.0)
+    for ti, di in zip(t, d):
+        dec.push(ti, di)
+    assert dec.bt.size == 512                 # the buffer never grows
+    m = dec.metrics()
+    assert m.t_sync == full.t_sync            # tracked exactly, not from the buffer
+    assert m.bound == full.bound              # exact max over the last 20 % (t >= 48)
+    assert m.rate == pytest.approx(full.rate, rel=2e-3)
+    with pytest.raises(ValueError, match="size must be an even number >= 16, got 15"):
+        decimator(size=15)
+
+
+# ---------------------------------------------------------------- simulated pairs
+def test_rate_of_a_linear_pair_matches_the_closed_form():
+    # f0 = 10 keeps both oscillators far from the wall (q ~ 10 +- 1.5): no impacts, the
+    # switching law stays on branch E, where it is the PD law. The relative mode x = q1 - q2:
+    #   m x'' + (c + 2 Kd) x' + (k + 2 Kp) x = 0  ->  d ~ exp(-(c + 2 Kd)/(2 m) t)
+    m_, k, c, Kp, Kd = 2.0, 3.0, 0.1, 1.5, 0.6
+    s = ImpactOscillator(m=m_, k=k, c=c, f0=10.0 * k)
+    r = simulate_pair(s, (10.0, 0.0), (11.0, 0.5), 40.0, 1e-3, coupling="switching", Kp=Kp, Kd=Kd)
+    assert r.impacts1 == r.impacts2 == 0 and np.all(r.branch == 0)
+    sigma = (c + 2 * Kd) / (2 * m_)
+    m = sync_metrics(r.t, r.d, threshold=1e-6)
+    # the zero-order hold shifts the rate by O(dt): 1e-3 relative at dt = 1e-3
+    assert m.rate == pytest.approx(sigma, rel=1e-3)
+    assert abs(m.rate - sigma) < 3 * m.rate_err + 1e-3 * sigma
+
+
+@pytest.fixture(scope="module")
+def forced_pairs():
+    s = ImpactOscillator(m=1, k=1, c=0, f0=0.2, F=0.5, Omega=2.5, e=0.9)
+    out = {}
+    for dt in (1e-4, 5e-5, 2.5e-5):
+        r = simulate_pair(s, (1.0, 0.0), (0.2, 0.5), 50.0, dt, coupling="switching", Kp=1.0, Kd=0.5)
+        out[dt] = (r.t, r.d)
+    return out
+
+
+def test_forced_pair_rate_is_robust_across_dt(forced_pairs):
+    # the issue's criterion: agreement within the reported uncertainty and within 5 %
+    # (measured: 0.4895 +- 0.023, 0.4778 +- 0.042, 0.4689 +- 0.041; t_sync(1e-6) meanwhile
+    # moves 29.2, 28.9, 30.7 s). Default window: from 0.1 max d down to 1e-10 max d.
+    ms = {dt: sync_metrics(t, d, threshold=1e-6) for dt, (t, d) in forced_pairs.items()}
+    rates = np.array([m.rate for m in ms.values()])
+    errs = np.array([m.rate_err for m in ms.values()])
+    assert np.all(rates > 0.3) and np.all(errs < 0.15 * rates)
+    assert (rates.max() - rates.min()) < 0.05 * rates.mean()
+    for a in ms.values():
+        for b in ms.values():
+            assert abs(a.rate - b.rate) <= math.hypot(a.rate_err, b.rate_err)
+
+
+def test_forced_pair_rate_above_the_impact_resolution_agrees_to_a_percent(forced_pairs):
+    # Once d is below ~dt*|u| at impacts, both systems meet the wall in the same step and
+    # the step, not the dynamics, decides how d passes an impact: a window ending above that
+    # level (floor_abs = 1e-3) gives a rate independent of dt (measured: to 0.3 %).
+    rates = [sync_metrics(t, d, floor_abs=1e-3).rate for t, d in forced_pairs.values()]
+    assert max(rates) - min(rates) < 0.01 * np.mean(rates)
