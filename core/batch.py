@@ -15,9 +15,10 @@ equal a single :func:`~fmu_sync.core.pair.simulate_pair` run bit for bit
 Per run the loop samples ``d`` at the start of every ``every``-th step and at
 the end (the record grid of ``simulate_pair(record_every=every)``) and keeps:
 final state, d at the start, at the end and its maximum, max |tau| over all
-steps, impacts and contact episodes of each system, the time after which d
-stays below the threshold (``t_sync``) and the fitted exponential decay rate
-of d (:mod:`.metrics`).
+steps, impacts and contact episodes of each system, and from the fixed-size
+decimated recorder of :mod:`.metrics`: the time after which d stays below the
+threshold (``t_sync``), the decay rate of the envelope of d with its
+uncertainty, the envelope-fit time ``t_fit`` and the ultimate bound.
 
 Systems differ between runs only through a small table of *system groups*
 (one row of floats per distinct system, see :func:`group_row`), so a sweep
@@ -32,6 +33,7 @@ from numba import njit, prange
 
 from .coupling import SWITCHING, UNCOUPLED
 from .distance import ScalarGeometry
+from .metrics import HI, LO, TAIL, decimated_kernel, decimator_init, decimator_push
 from .moreau import THETA, midpoint_step1, theta_step1
 from .pair import coupling_step1
 
@@ -47,8 +49,11 @@ STATUS_NAMES = ("ok", "diverged", "refused")
 #: One row of ``out`` per run.
 COLUMNS = ("status", "steps", "t_stop", "q1", "u1", "q2", "u2", "d0", "d_final", "d_max", "tau_max",
            "impacts1", "impacts2", "episodes1", "episodes2", "t_sync", "decay_rate", "decay_rate_err",
-           "samples")
+           "t_fit", "bound", "samples")
 COL = {name: i for i, name in enumerate(COLUMNS)}
+COL_D0, COL_DFINAL, COL_DMAX, COL_TAUMAX = COL["d0"], COL["d_final"], COL["d_max"], COL["tau_max"]
+COL_TSYNC, COL_RATE, COL_RATE_ERR = COL["t_sync"], COL["decay_rate"], COL["decay_rate_err"]
+COL_TFIT, COL_BOUND, COL_SAMPLES = COL["t_fit"], COL["bound"], COL["samples"]
 
 #: Floats of a system group row (the scalar system of :func:`.moreau.scalar_params` plus M).
 GROUP_FIELDS = ("M", "Minv", "K", "C", "f0", "B", "w", "g0", "e", "Minv_w", "W")
@@ -81,113 +86,51 @@ def _geo(row):
 
 
 # ---------------------------------------------------------------------------
-# PROVISIONAL decay-rate fit (to be replaced by core/metrics.py of issue 10):
-# a fixed-size buffer of (t, ln d) samples, thinned by two (and its stride
-# doubled) whenever it is full, and a least-squares line through the samples
-# with d above threshold * 1e-3 (below that the run has synchronized).
+# Metrics of the sampled distance, O(1) memory: d at the first sample and its
+# maximum here; t_sync, the decay rate of the envelope (with its uncertainty),
+# the envelope-fit time t_fit and the ultimate bound from the fixed-size
+# decimated recorder of :mod:`.metrics` (the definitions live there).
 # ---------------------------------------------------------------------------
-FIT_N = 128
-FIT_SIZE = 3 + 2 * FIT_N
+#: Samples kept by the decimated recorder of each run.
+RECORDER_SIZE = 1024
 
 
 @njit(cache=True, inline="always")
-def _fit_add(buf, t, d, threshold):
-    if not (d > threshold * 1e-3) or not math.isfinite(d):
-        return
-    buf[2] += 1.0
-    if buf[2] < buf[1]:
-        return
-    buf[2] = 0.0
-    n = int(buf[0])
-    if n == FIT_N:
-        for i in range(FIT_N // 2):
-            buf[3 + i] = buf[3 + 2 * i]
-            buf[3 + FIT_N + i] = buf[3 + FIT_N + 2 * i]
-        n = FIT_N // 2
-        buf[1] = 2.0 * max(buf[1], 1.0)
-    buf[3 + n] = t
-    buf[3 + FIT_N + n] = math.log(d)
-    buf[0] = n + 1
-
-
-@njit(cache=True)
-def _fit_result(buf):
-    """``(rate, standard error)`` of ln d = a - rate t; NaN with fewer than 3 samples."""
-    n = int(buf[0])
-    if n < 3:
-        return np.nan, np.nan
-    st = 0.0
-    sy = 0.0
-    for i in range(n):
-        st += buf[3 + i]
-        sy += buf[3 + FIT_N + i]
-    tm = st / n
-    ym = sy / n
-    stt = 0.0
-    sty = 0.0
-    for i in range(n):
-        dt_ = buf[3 + i] - tm
-        stt += dt_ * dt_
-        sty += dt_ * (buf[3 + FIT_N + i] - ym)
-    if stt <= 0.0:
-        return np.nan, np.nan
-    slope = sty / stt
-    ss = 0.0
-    for i in range(n):
-        r = buf[3 + FIT_N + i] - ym - slope * (buf[3 + i] - tm)
-        ss += r * r
-    return -slope, math.sqrt(ss / (n - 2) / stt)
-
-
-
-# ---------------------------------------------------------------------------
-# Metrics of the sampled distance, O(1) memory: d at the first sample, its
-# maximum, t_sync (the first sample time after which d stays below the
-# threshold, as PairResult.time_to_sync) and the decay fit.
-# acc = [n_samples, d0, d_max, above_is_last, t_first_below, fit buffer...]
-# ---------------------------------------------------------------------------
-ACC_SIZE = 5 + FIT_SIZE
-
-
-@njit(cache=True, inline="always")
-def _acc_sample(acc, t, d, threshold):
-    n = acc[0]
-    if n == 0.0:
+def _sample(acc, bt, bd, st, t, d):
+    """One sample of d: running d0 / max here, the rest to the recorder."""
+    if acc[0] == 0.0:
         acc[1] = d
         acc[2] = d
     elif d > acc[2]:
         acc[2] = d
-    acc[0] = n + 1.0
-    if not (d < threshold):
-        acc[3] = 1.0
-    elif acc[3] == 1.0 or n == 0.0:
-        acc[4] = t
-        acc[3] = 0.0
-    _fit_add(acc[5:], t, d, threshold)
+    acc[0] += 1.0
+    decimator_push(bt, bd, st, t, d)
 
 
 @njit(cache=True)
-def _acc_finish(acc, failed, res):
-    """d0, d_max, t_sync, decay rate (and its error) and the sample count into ``res``."""
-    res[7] = acc[1] if acc[0] > 0 else np.nan
-    res[9] = acc[2] if acc[0] > 0 else np.nan
-    res[15] = np.inf if (failed or acc[3] == 1.0 or acc[0] == 0) else acc[4]
-    rate, err = _fit_result(acc[5:])
-    res[16] = rate
-    res[17] = err
-    res[18] = acc[0]
+def _finish_metrics(acc, bt, bd, st, failed, res):
+    """d0, d_max, t_sync, decay rate and its error, t_fit, bound, sample count into ``res``."""
+    res[COL_D0] = acc[1] if acc[0] > 0 else np.nan
+    res[COL_DMAX] = acc[2] if acc[0] > 0 else np.nan
+    rate, err, ta, tb, nf, t_sync, t_fit, bound = decimated_kernel(bt, bd, st, HI, LO, 0.0, TAIL)
+    res[COL_TSYNC] = np.inf if failed or acc[0] == 0 else t_sync
+    res[COL_RATE] = rate
+    res[COL_RATE_ERR] = err
+    res[COL_TFIT] = t_fit
+    res[COL_BOUND] = bound
+    res[COL_SAMPLES] = acc[0]
 
 
 @njit(cache=True)
-def metrics_from_records(t, d, tau1, tau2, n_ok, threshold, res):
-    """The same metrics from recorded samples (co-simulated or n-DOF runs):
-    ``t, d`` (N,), forces ``tau1, tau2`` (N, m); only the first ``n_ok`` records
-    are used. Fills the d/tau columns of ``res``; state and count columns are
-    the caller's."""
-    acc = np.zeros(ACC_SIZE)
+def metrics_from_records(t, d, tau1, tau2, n_ok, threshold, t_end, res):
+    """The same metrics from recorded samples (co-simulated or n-DOF runs), through the
+    same recorder: ``t, d`` (N,), forces ``tau1, tau2`` (N, m); only the first
+    ``n_ok`` records are used. Fills the d/tau columns of ``res``."""
+    acc = np.zeros(3)
+    bt, bd, st = decimator_init(RECORDER_SIZE, threshold, (1.0 - TAIL) * t_end)
     tau_max = 0.0
     for i in range(n_ok):
-        _acc_sample(acc, t[i], d[i], threshold)
+        _sample(acc, bt, bd, st, t[i], d[i])
         for j in range(tau1.shape[1]):
             a = abs(tau1[i, j])
             if a > tau_max:
@@ -195,10 +138,9 @@ def metrics_from_records(t, d, tau1, tau2, n_ok, threshold, res):
             a = abs(tau2[i, j])
             if a > tau_max:
                 tau_max = a
-    res[8] = d[n_ok - 1] if n_ok > 0 else np.nan
-    res[10] = tau_max
-    _acc_finish(acc, n_ok < t.shape[0] or not math.isfinite(res[8]), res)
-
+    res[COL_DFINAL] = d[n_ok - 1] if n_ok > 0 else np.nan
+    res[COL_TAUMAX] = tau_max
+    _finish_metrics(acc, bt, bd, st, n_ok < t.shape[0] or not math.isfinite(res[COL_DFINAL]), res)
 
 
 @njit(cache=True)
@@ -227,7 +169,8 @@ def _pair1(law, scheme, theta, p, M, F, Omega, phi, sg, kp, kd, q1, u1, q2, u2, 
     in1 = False
     in2 = False
     tau_max = 0.0
-    acc = np.zeros(ACC_SIZE)
+    acc = np.zeros(3)
+    bt, bd, st = decimator_init(RECORDER_SIZE, threshold, (1.0 - TAIL) * (n_steps * dt))
     status = OK
     steps = n_steps
     countdown = 1
@@ -251,7 +194,7 @@ def _pair1(law, scheme, theta, p, M, F, Omega, phi, sg, kp, kd, q1, u1, q2, u2, 
                 status = DIVERGED
                 steps = k
                 break
-            _acc_sample(acc, t, d, threshold)
+            _sample(acc, bt, bd, st, t, d)
         if k == n_steps:
             break
         a1 = abs(tau1)
@@ -287,13 +230,13 @@ def _pair1(law, scheme, theta, p, M, F, Omega, phi, sg, kp, kd, q1, u1, q2, u2, 
     res[4] = u1
     res[5] = q2
     res[6] = u2
-    res[8] = d
-    res[10] = tau_max
+    res[COL_DFINAL] = d
+    res[COL_TAUMAX] = tau_max
     res[11] = imp1
     res[12] = imp2
     res[13] = ep1
     res[14] = ep2
-    _acc_finish(acc, status != OK, res)
+    _finish_metrics(acc, bt, bd, st, status != OK, res)
 
 
 @njit(cache=True, parallel=True)

@@ -331,7 +331,7 @@ def _one_python_run(path, overrides, vname, threshold):
         n_ok = int(np.argmin(finite))
     tau1 = np.ascontiguousarray(np.asarray(res.tau1, dtype=float).reshape(t.size, -1))
     tau2 = np.ascontiguousarray(np.asarray(res.tau2, dtype=float).reshape(t.size, -1))
-    batch.metrics_from_records(t, d, tau1, tau2, n_ok, threshold, row)
+    batch.metrics_from_records(t, d, tau1, tau2, n_ok, threshold, float(v.cfg["run.t_end"]), row)
     failed = bool(reason) or n_ok < t.size
     row[COL["status"]] = DIVERGED if failed else OK
     last = max(n_ok - 1, 0)

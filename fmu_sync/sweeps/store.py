@@ -31,8 +31,10 @@ RESULT_FILE = "sweep.nc"
 VARIABLES = {
     "status": ("status", "int8", "", "0 ok, 1 diverged (stopped early), 2 refused before the first step"),
     "t_sync": ("t_sync", "f8", "s", "first sample time after which d stays below the threshold (inf: never)"),
-    "decay_rate": ("decay_rate", "f8", "1/s", "fitted exponential decay rate of d (ln d vs t)"),
-    "decay_rate_err": ("decay_rate_err", "f8", "1/s", "standard error of decay_rate"),
+    "decay_rate": ("decay_rate", "f8", "1/s", "decay rate of the envelope of d (fmu_sync.core.metrics)"),
+    "decay_rate_err": ("decay_rate_err", "f8", "1/s", "standard uncertainty of decay_rate"),
+    "t_fit": ("t_fit", "f8", "s", "time where the fitted envelope of d crosses the threshold"),
+    "bound": ("bound", "f8", "", "ultimate bound: max d over the last 20 % of the run"),
     "d0": ("d0", "f8", "", "quotient distance d at t = 0"),
     "d_final": ("d_final", "f8", "", "d at the end of the run (or where it stopped)"),
     "d_max": ("d_max", "f8", "", "maximum of d over the samples"),
