@@ -177,6 +177,9 @@ def heat_map(ds, x: str, y: str, path, title: str | None = None) -> Path:
         fig.colorbar(m, ax=ax, label=clabel)
         if ax is axes[1]:
             _overlay(ax, XE, YE, nosync & ~div & ~ref, "0.82", "", "not synchronized by t_end")
+        else:
+            _overlay(ax, XE, YE, (sub["status"].values == 0) & ~np.isfinite(rate), "0.82", "",
+                     "no decay (envelope of d stays above 0.1 max d)")
         _overlay(ax, XE, YE, div, "#b2182b", "", "diverged (stopped early)")
         _overlay(ax, XE, YE, ref, "black", "", "refused (invalid start)")
         drawn = _zoh_line(ax, ds, x, y, xlog, ylog)
