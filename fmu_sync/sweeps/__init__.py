@@ -42,10 +42,14 @@ import numpy as np
 from ..core.batch import COL, DIVERGED, OK, REFUSED
 from .spec import SweepSpecError, grid_runs, parse_values, sample_runs
 
-__all__ = ["sweep", "SweepSpecError", "SweepProgress", "load_sweep_scene", "list_sweep_scenes",
+__all__ = ["sweep", "SweepSpecError", "SweepTaskError", "SweepProgress", "load_sweep_scene", "list_sweep_scenes",
            "SWEEP_SCENE_DIR"]
 
 SWEEP_SCENE_DIR = Path(__file__).resolve().parent / "scenes"
+
+
+class SweepTaskError(RuntimeError):
+    """A task could not run at all (not a failed run: those are rows). Finished chunks are kept."""
 
 
 # ------------------------------------------------------------------ progress
@@ -420,7 +424,14 @@ def _run_dask(client, todo, threshold, fp, finished) -> int:
             cid, cnt = futures[f]
             if cid in seen:     # never count a chunk twice
                 continue
-            idx, rows, rs = f.result()
+            try:
+                idx, rows, rs = f.result()
+            except Exception as exc:
+                raise SweepTaskError(
+                    f"sweep task {cid} failed on the Dask cluster: {type(exc).__name__}: {exc}. Scheduler and "
+                    "workers must run the same Python environment with fmu-sync installed (pip install "
+                    "'fmu-sync[sweep]'; start them with that environment's `dask scheduler` / `dask worker`). "
+                    "Finished chunks are kept: rerun with the same output folder to resume.") from exc
             seen.add(cid)
             finished(cid, idx, rows, rs)
             computed += cnt

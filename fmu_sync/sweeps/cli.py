@@ -66,7 +66,7 @@ def run(args) -> int:
     import numpy as np
 
     from ..scene import parse_override
-    from . import list_sweep_scenes, load_sweep_scene, sweep
+    from . import SweepTaskError, list_sweep_scenes, load_sweep_scene, sweep
     if args.list or not args.scene:
         rows = list_sweep_scenes()
         w = max(len(n) for n, _ in rows)
@@ -80,10 +80,15 @@ def run(args) -> int:
     grid = _pairs(args.grid, "--grid") or None
     sample = _pairs(args.sample, "--sample") or None
     t0 = time.perf_counter()
-    ds = sweep(args.scene, grid=grid, sample=sample, n=args.n, method=args.method, seed=args.seed,
-               variant=args.variant, overrides=dict(parse_override(s) for s in args.overrides) or None,
-               out=out, scheduler=args.scheduler, workers=args.workers, threads=args.threads,
-               chunk_size=args.chunk, plots=not args.no_plots, overwrite=args.overwrite, quiet=args.quiet)
+    try:
+        ds = sweep(args.scene, grid=grid, sample=sample, n=args.n, method=args.method, seed=args.seed,
+                   variant=args.variant, overrides=dict(parse_override(s) for s in args.overrides) or None,
+                   out=out, scheduler=args.scheduler, workers=args.workers, threads=args.threads,
+                   chunk_size=args.chunk, plots=not args.no_plots, overwrite=args.overwrite, quiet=args.quiet)
+    except SweepTaskError as exc:
+        import sys
+        print(f"fmu-sync: error: {exc}", file=sys.stderr)
+        return 2
     sec = time.perf_counter() - t0
     st = ds["status"].values.ravel()
     n = st.size
