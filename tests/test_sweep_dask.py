@@ -71,3 +71,12 @@ def test_a_worker_killed_mid_sweep_loses_no_run_and_counts_none_twice(client, em
     assert ds.attrs["computed_runs"] == 48
     _equal(ds, embedded)
     assert not (tmp_path / ".partial").exists() and (tmp_path / "sweep.nc").exists()
+
+
+def test_sweep_bench_section_at_smoke_size(client):
+    from fmu_sync.benchmarks import sweep_speed
+    r = sweep_speed.measure(R=8, steps=2000, repeats=1, mem_runs=4, mem_steps=1000, client=client)
+    for k in ("single", "embedded", "dask", "ratio_embedded", "ratio_dask"):
+        assert r[k] > 0, k
+    # no trajectories: 100 times longer runs need no more memory
+    assert r["mem_long"] < 1.05 * r["mem_short"] + 8.0

@@ -47,19 +47,23 @@ def _single_rate(kps, steps):
     kw = dict(coupling=VARIANT, Kd=v.Kd, record_every=v.cfg["run.record_every"])
     simulate_pair(s, v.x1, v.x2, 10 * DT, DT, Kp=1.0, **kw)
     t = time.perf_counter()
+    c = time.process_time()
     for kp in kps:
         simulate_pair(s, v.x1, v.x2, steps * DT, DT, Kp=float(kp), **kw)
-    return len(kps) * steps / (time.perf_counter() - t)
+    cpu = time.process_time() - c
+    return len(kps) * steps / (time.perf_counter() - t), len(kps) * steps / cpu
 
 
 def _sweep_rate(R, steps, **kw):
     import fmu_sync
     t = time.perf_counter()
+    c = time.process_time()
     ds = fmu_sync.sweep(SCENE, variant=VARIANT, grid={"coupling.Kp": _kps(R)},
                         overrides={"run.t_end": steps * DT, "solver.dt": DT}, quiet=True, **kw)
     sec = time.perf_counter() - t
+    cpu = time.process_time() - c
     assert int(ds.attrs["computed_runs"]) == R
-    return R * steps / sec, ds
+    return R * steps / sec, ds, R * steps / cpu, cpu / sec
 
 
 _MEM_CHILD = r"""
@@ -79,21 +83,37 @@ def _peak_rss_mb(R, steps):
     return int(p.stdout.split()[-1]) / 1024.0
 
 
-def measure(R=1000, steps=100_000, repeats=3, dask=True, mem_runs=50, mem_steps=10_000):
+def measure(R=1000, steps=100_000, repeats=3, dask=True, mem_runs=50, mem_steps=10_000, client=None):
+    """The numbers of the section (``client``: an existing Dask client instead of a new
+    LocalCluster with one worker process per core)."""
     import numba
     cores = int(numba.config.NUMBA_NUM_THREADS)
     kps = _kps(R)
     base_kps = kps[:: max(1, R // 4)][:4]
     _sweep_rate(2 * cores, 1000)   # compile / load the cache
-    single, emb = [], []
+    single, emb, single_cpu, emb_cpu, busy = [], [], [], [], []
     for _ in range(repeats):
-        single.append(_single_rate(base_kps, steps))
-        emb.append(_sweep_rate(R, steps)[0])
-    single.append(_single_rate(base_kps, steps))
+        w, c = _single_rate(base_kps, steps)
+        single.append(w)
+        single_cpu.append(c)
+        w, _, c, b = _sweep_rate(R, steps)
+        emb.append(w)
+        emb_cpu.append(c)
+        busy.append(b)
+    w, c = _single_rate(base_kps, steps)
+    single.append(w)
+    single_cpu.append(c)
     res = dict(cores=cores, runs=R, steps=steps, single=statistics.median(single),
-               single_all=single, embedded=statistics.median(emb), embedded_all=emb)
+               single_all=single, embedded=statistics.median(emb), embedded_all=emb,
+               cpu_efficiency=statistics.median(emb_cpu) / statistics.median(single_cpu),
+               cores_obtained=statistics.median(busy))
     res["ratio_embedded"] = res["embedded"] / (cores * res["single"])
-    if dask:
+    if dask and client is not None:
+        _sweep_rate(4 * cores, 1000, client=client)
+        dk = [_sweep_rate(R, steps, client=client)[0]]
+        emb2 = [_sweep_rate(R, steps)[0]]
+        res.update(dask=dk[0], dask_all=dk, embedded_dask_pair=emb2[0], ratio_dask=dk[0] / emb2[0])
+    elif dask:
         try:
             import logging
 
@@ -144,7 +164,11 @@ def run(quick: bool = False, smoke: bool = False) -> str:
              f"{r['single'] / M:.2f} Msteps/s ({', '.join(f'{x / M:.2f}' for x in r['single_all'])}) | |",
              f"| embedded sweep, {r['cores']} threads (median of {len(r['embedded_all'])}) | "
              f"{r['embedded'] / M:.2f} Msteps/s ({', '.join(f'{x / M:.2f}' for x in r['embedded_all'])}) | |",
-             f"| embedded / (cores x single) | {r['ratio_embedded']:.2f} | >= 0.9 |"]
+             f"| embedded / (cores x single) | {r['ratio_embedded']:.2f} | >= 0.9 |",
+             f"| CPU cores the embedded sweep obtained (CPU time / wall time) | {r['cores_obtained']:.2f} "
+             f"of {r['cores']} | |",
+             f"| embedded per CPU-second / single per CPU-second (per-core efficiency) | "
+             f"{r['cpu_efficiency']:.2f} | |"]
     if "dask" in r:
         lines += [f"| Dask LocalCluster, {r['cores']} worker processes x 1 thread | {r['dask'] / M:.2f} Msteps/s "
                   f"({', '.join(f'{x / M:.2f}' for x in r['dask_all'])}) | |",
