@@ -273,3 +273,16 @@ def test_cosimulated_sweep_runs_in_worker_processes_and_equals_single_cosimulati
                 overrides={**over, "run.H": 0.5, "run.t_end": 400.0, "coupling.Kd": 0.0}, workers=1, quiet=True)
     assert int(bad["status"][0]) == 1 and bad["reason"].values[0] != ""
     assert 0 < float(bad["t_stop"][0]) < 400.0
+
+
+def test_two_dof_core_pairs_run_in_worker_processes_and_equal_single_runs():
+    from fmu_sync.scene import load_scene, run_variant
+    ds = sweep("two-dof", grid={"coupling.Kp": [0.5, 2.0]}, overrides={"run.t_end": 3.0}, workers=2, quiet=True)
+    assert ds.attrs["process_runs"] == 2 and ds.attrs["compiled_runs"] == 0
+    for i, kp in enumerate([0.5, 2.0]):
+        r = run_variant(load_scene("two-dof", {"run.t_end": 3.0, "coupling.Kp": kp}).variants[0])
+        run = ds.isel({"coupling.Kp": i})
+        assert int(run["status"]) == 0
+        assert float(run["d_final"]) == r.d[-1] and float(run["d_max"]) == np.max(r.d)
+        assert float(run["q1"]) == r.q1[-1, 0] and float(run["t_sync"]) == r.time_to_sync(1e-6)
+        assert int(run["impacts1"]) == r.impacts1 and int(run["impacts2"]) == r.impacts2
