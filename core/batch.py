@@ -143,22 +143,33 @@ def metrics_from_records(t, d, tau1, tau2, n_ok, threshold, t_end, res):
     _finish_metrics(acc, bt, bd, st, n_ok < t.shape[0] or not math.isfinite(res[COL_DFINAL]), res)
 
 
-@njit(cache=True)
-def _pair1(law, scheme, theta, p, M, F, Omega, phi, sg, kp, kd, q1, u1, q2, u2, dt, n_steps, every,
-           threshold, res):
-    """One run of the ``integrate_pair`` 1-DOF loop (t0 = 0), metrics into ``res``."""
-    Si = 0.0
-    Si_w = 0.0
+@njit(cache=True, inline="always")
+def _theta1(p, M, theta, dt):
+    """``theta_matrices`` for n = 1 (same operations): (S^-1, S^-1 w, w^T S^-1 w)."""
+    a = theta * dt
+    S = M + a * p[2] + a * a * p[1]
+    Si = 1.0 / S
+    s = 0.0
+    s += Si * p[5]
     WS = 0.0
-    if scheme == THETA:  # theta_matrices for n = 1, same operations
-        a = theta * dt
-        S = M + a * p[2] + a * a * p[1]
-        Si = 1.0 / S
-        s = 0.0
-        s += Si * p[5]
-        Si_w = s
-        WS = 0.0
-        WS += p[5] * s
+    WS += p[5] * s
+    return Si, s, WS
+
+
+@njit(cache=True)
+def _pair1(law, scheme, theta, p1, M1, F1, Omega1, phi1, p2, M2, F2, Omega2, phi2, sg, kp, kd,
+           q1, u1, q2, u2, dt, n_steps, every, threshold, res):
+    """One run of the ``integrate_pair`` 1-DOF loop (t0 = 0), metrics into ``res``.
+    System 1 and 2 (``p*, M*, F*, Omega*, phi*``) may differ in K, C, f0 and forcing."""
+    Si1 = 0.0
+    Si_w1 = 0.0
+    WS1 = 0.0
+    Si2 = 0.0
+    Si_w2 = 0.0
+    WS2 = 0.0
+    if scheme == THETA:
+        Si1, Si_w1, WS1 = _theta1(p1, M1, theta, dt)
+        Si2, Si_w2, WS2 = _theta1(p2, M2, theta, dt)
     tau1 = 0.0
     tau2 = 0.0
     d = np.nan
@@ -204,11 +215,11 @@ def _pair1(law, scheme, theta, p, M, F, Omega, phi, sg, kp, kd, q1, u1, q2, u2, 
         if a2 > tau_max:
             tau_max = a2
         if scheme == THETA:
-            q1, u1, P1 = theta_step1(p, F, Omega, phi, Si, Si_w, WS, theta, q1, u1, tau1, t, dt)
-            q2, u2, P2 = theta_step1(p, F, Omega, phi, Si, Si_w, WS, theta, q2, u2, tau2, t, dt)
+            q1, u1, P1 = theta_step1(p1, F1, Omega1, phi1, Si1, Si_w1, WS1, theta, q1, u1, tau1, t, dt)
+            q2, u2, P2 = theta_step1(p2, F2, Omega2, phi2, Si2, Si_w2, WS2, theta, q2, u2, tau2, t, dt)
         else:
-            q1, u1, P1 = midpoint_step1(p, F, Omega, phi, q1, u1, tau1, t, dt)
-            q2, u2, P2 = midpoint_step1(p, F, Omega, phi, q2, u2, tau2, t, dt)
+            q1, u1, P1 = midpoint_step1(p1, F1, Omega1, phi1, q1, u1, tau1, t, dt)
+            q2, u2, P2 = midpoint_step1(p2, F2, Omega2, phi2, q2, u2, tau2, t, dt)
         if P1 > 0.0:
             imp1 += 1
             if not in1:
@@ -240,26 +251,33 @@ def _pair1(law, scheme, theta, p, M, F, Omega, phi, sg, kp, kd, q1, u1, q2, u2, 
 
 
 @njit(cache=True, parallel=True)
-def run_pairs1(law, scheme, theta, sys_rows, geo_rows, F, Omega, phi, nf, group, kp, kd, q1, u1, q2, u2,
-               dt, n_steps, every, threshold, out):
-    """Run ``R = group.shape[0]`` pairs in parallel; metrics of run r into ``out[r]``.
+def run_pairs1(law, scheme, theta, sys_rows, geo_rows, F, Omega, phi, nf, group1, group2, kp, kd,
+               q1, u1, q2, u2, dt, n_steps, every, threshold, out):
+    """Run ``R = group1.shape[0]`` pairs in parallel; metrics of run r into ``out[r]``.
 
     Per run (arrays of length R): ``law`` (coupling code), ``scheme`` (MIDPOINT
-    or THETA), ``theta``, ``group`` (row of the system tables), gains ``kp,
-    kd``, start states ``q1, u1, q2, u2``, step ``dt``, ``n_steps``, sample
-    interval ``every``. System tables (G rows): ``sys_rows`` (G, 11)
+    or THETA), ``theta``, ``group1``, ``group2`` (rows of the system tables for
+    system 1 and 2: the same row for identical systems; different rows must
+    share M, w, g0, e, the distance geometry being that of system 1), gains
+    ``kp, kd``, start states ``q1, u1, q2, u2``, step ``dt``, ``n_steps``,
+    sample interval ``every``. System tables (G rows): ``sys_rows`` (G, 11)
     (:data:`GROUP_FIELDS`), ``geo_rows`` (G, 12) (:data:`GEO_FIELDS`),
     forcing ``F, Omega, phi`` (G, NF) with ``nf`` (G,) terms used.
     Runs whose ``out[r, 0]`` is already REFUSED are skipped.
     """
-    R = group.shape[0]
+    R = group1.shape[0]
     for r in prange(R):
         if out[r, 0] == REFUSED:
             continue
-        g = group[r]
-        s = sys_rows[g]
-        p = (s[1], s[2], s[3], s[4], s[5], s[6], s[7], s[8], s[9], s[10])
-        m = nf[g]
-        Fg = F[g, :m].reshape((m, 1))
-        _pair1(law[r], scheme[r], theta[r], p, s[0], Fg, Omega[g, :m], phi[g, :m], _geo(geo_rows[g]),
-               kp[r], kd[r], q1[r], u1[r], q2[r], u2[r], dt[r], n_steps[r], every[r], threshold, out[r])
+        g1 = group1[r]
+        g2 = group2[r]
+        s1 = sys_rows[g1]
+        s2 = sys_rows[g2]
+        p1 = (s1[1], s1[2], s1[3], s1[4], s1[5], s1[6], s1[7], s1[8], s1[9], s1[10])
+        p2 = (s2[1], s2[2], s2[3], s2[4], s2[5], s2[6], s2[7], s2[8], s2[9], s2[10])
+        m1 = nf[g1]
+        m2 = nf[g2]
+        _pair1(law[r], scheme[r], theta[r], p1, s1[0], F[g1, :m1].reshape((m1, 1)), Omega[g1, :m1],
+               phi[g1, :m1], p2, s2[0], F[g2, :m2].reshape((m2, 1)), Omega[g2, :m2], phi[g2, :m2],
+               _geo(geo_rows[g1]), kp[r], kd[r], q1[r], u1[r], q2[r], u2[r], dt[r], n_steps[r], every[r],
+               threshold, out[r])

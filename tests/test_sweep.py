@@ -286,3 +286,24 @@ def test_two_dof_core_pairs_run_in_worker_processes_and_equal_single_runs():
         assert float(run["d_final"]) == r.d[-1] and float(run["d_max"]) == np.max(r.d)
         assert float(run["q1"]) == r.q1[-1, 0] and float(run["t_sync"]) == r.time_to_sync(1e-6)
         assert int(run["impacts1"]) == r.impacts1 and int(run["impacts2"]) == r.impacts2
+
+
+def test_mismatched_second_system_uncoupled_equals_two_single_runs():
+    # system2.* lays keys over system 2 only; uncoupled, each system is a single run of its own
+    ds = sweep(SCENE, variant="uncoupled", grid={"system2.k": [0.5, 1.0, 2.0], "system2.f0": [0.2, 0.35]},
+               overrides={"run.t_end": 10.0}, quiet=True)
+    r1 = simulate(ImpactOscillator(**PAPER), X1, 10.0, 1e-3)
+    for i, k in enumerate([0.5, 1.0, 2.0]):
+        for j, f0 in enumerate([0.2, 0.35]):
+            run = ds.isel({"system2.k": i, "system2.f0": j})
+            r2 = simulate(ImpactOscillator(**{**PAPER, "k": k, "f0": f0}), X2, 10.0, 1e-3)
+            assert float(run["q1"]) == r1.q[-1, 0] and float(run["u1"]) == r1.u[-1, 0]
+            assert float(run["q2"]) == r2.q[-1, 0] and float(run["u2"]) == r2.u[-1, 0]
+            assert int(run["impacts2"]) == r2.impacts
+    # coupled, a mismatch leaves a residual: practical synchronization, a positive ultimate bound
+    c = sweep(SCENE, variant="switching", grid={"system2.f0": [0.2, 0.3]}, overrides={"run.t_end": 60.0},
+              quiet=True)
+    assert bool(c["synchronized"][0]) and not bool(c["synchronized"][1])
+    assert 0 < float(c["bound"][1]) < 0.1 * float(c["d0"][1])
+    with pytest.raises(SweepSpecError, match="common impact geometry.*not in e"):
+        sweep(SCENE, variant="switching", grid={"system2.e": [0.5]}, quiet=True)

@@ -29,6 +29,8 @@ __all__ = ["Prepared", "prepare", "compiled_payload", "run_compiled_chunk", "run
            "PER_RUN_KEYS"]
 
 #: Parameters that vary per run inside one compiled call (no new system needed).
+SYSTEM2 = "system2."
+INT_ARRAYS = ("law", "scheme", "group1", "group2", "n_steps", "every")
 PER_RUN_KEYS = ("coupling.Kp", "coupling.Kd", "solver.dt", "solver.theta", "run.t_end", "initial.x1",
                 "initial.x2") + tuple(STATE_ALIASES)
 _VALIDATED = ("coupling.Kp", "coupling.Kd", "solver.dt", "solver.theta", "run.t_end")
@@ -140,10 +142,10 @@ def prepare(scene, runs: list[dict], variant_name: str | None) -> Prepared:
     variants = []
     group = np.zeros(R, dtype=np.int64)
     for i, r in enumerate(runs):
-        gk = tuple(sorted((k, repr(v)) for k, v in r.items() if k not in PER_RUN_KEYS))
+        gk = _group_key(r, system2=False)
         if gk not in group_of:
             vname = r.get("variant", variant_name)
-            over = {k: v for k, v in r.items() if k not in PER_RUN_KEYS and k != "variant"}
+            over = _group_overrides(r)
             try:
                 sc = load_scene(scene.path, {**scene.overrides, **over}, [vname] if vname else None)
             except SceneError as exc:
@@ -166,29 +168,48 @@ def prepare(scene, runs: list[dict], variant_name: str | None) -> Prepared:
                 and v.cfg["solver.scheme"] in ("midpoint", "theta"))
 
     comp = np.array([compiled_ok(variants[g]) for g in group], dtype=bool) if R else np.zeros(0, bool)
-    # ---- system tables of the groups that run compiled
-    G = len(variants)
-    nf_max = max([len(v.system.arrays().Omega) for v in variants] + [1])
+    # ---- system 2 where it differs (system2.* parameters): extra table rows
+    rows = [v.system for v in variants]
+    group2 = group.copy()
+    second = {}
+    for i, r in enumerate(runs):
+        s2 = {k: v for k, v in r.items() if k.startswith(SYSTEM2)}
+        if not s2:
+            continue
+        v = variants[group[i]]
+        if not comp[i]:
+            raise SweepSpecError(f"{', '.join(s2)}: a second system that differs from the first runs in the "
+                                 "compiled core engine only (1-DOF pairs, run.mode = core); this run is "
+                                 f"{v.mode} with n = {v.system.n}")
+        key = (group[i], tuple(sorted((k, repr(x)) for k, x in s2.items())))
+        if key not in second:
+            second[key] = len(rows)
+            rows.append(_system2(scene, v, r, s2))
+        group2[i] = second[key]
+    # ---- system tables (rows of systems that run compiled)
+    G = len(rows)
+    nf_max = max([len(s.arrays().Omega) for s in rows] + [1])
     sys_rows = np.zeros((G, len(batch.GROUP_FIELDS)))
     geo_rows = np.zeros((G, len(batch.GEO_FIELDS)))
     F = np.zeros((G, nf_max))
     Om = np.zeros((G, nf_max))
     ph = np.zeros((G, nf_max))
     nf = np.zeros(G, dtype=np.int64)
-    systems = {}
-    for g, v in enumerate(variants):
-        systems[g] = v
+    systems = {g: v for g, v in enumerate(variants)}
+    owner = {g: g for g in range(len(variants))}
+    owner.update({g2: g1 for (g1, _), g2 in second.items()})
+    for g, s in enumerate(rows):
+        v = variants[owner[g]]
         if not compiled_ok(v):
             continue
-        sr, gr, f_, o_, p_ = batch.group_row(v.system, geometry(v.system, v.Q))
+        sr, gr, f_, o_, p_ = batch.group_row(s, geometry(s, v.Q))
         sys_rows[g], geo_rows[g] = sr, gr
         nf[g] = len(o_)
         F[g, :nf[g]], Om[g, :nf[g]], ph[g, :nf[g]] = f_, o_, p_
 
-    arrays = {name: np.zeros(R, dtype=np.int64 if name in ("law", "scheme", "group", "n_steps", "every")
-                             else np.float64)
-              for name in ("law", "scheme", "theta", "group", "kp", "kd", "q1", "u1", "q2", "u2", "dt",
-                           "n_steps", "every")}
+    arrays = {name: np.zeros(R, dtype=np.int64 if name in INT_ARRAYS else np.float64)
+              for name in ("law", "scheme", "theta", "group1", "group2", "kp", "kd", "q1", "u1", "q2", "u2",
+                           "dt", "n_steps", "every")}
     python_items = {}
     for i, r in enumerate(runs):
         v = variants[group[i]]
@@ -209,11 +230,11 @@ def prepare(scene, runs: list[dict], variant_name: str | None) -> Prepared:
         q2, u2 = _state_with(r, v.x2, "x2")
         a = arrays
         a["law"][i], a["scheme"][i], a["theta"][i] = _law(v.law), _scheme(cfg["solver.scheme"]), theta
-        a["group"][i], a["kp"][i], a["kd"][i] = group[i], kp, kd
+        a["group1"][i], a["group2"][i], a["kp"][i], a["kd"][i] = group[i], group2[i], kp, kd
         a["q1"][i], a["u1"][i], a["q2"][i], a["u2"][i], a["dt"][i] = q1, u1, q2, u2, dt
         a["n_steps"][i] = _n_steps(t_end, dt)
         a["every"][i] = cfg["run.record_every"]
-        why = _refusal(v, q1, q2, dt)
+        why = _refusal(v, rows[group2[i]], q1, q2, dt)
         if why:
             out[i, COL["status"]] = REFUSED
             out[i, COL["steps"]] = 0
@@ -224,19 +245,46 @@ def prepare(scene, runs: list[dict], variant_name: str | None) -> Prepared:
                     out, reasons, systems, group)
 
 
-def _refusal(v, q1, q2, dt) -> str:
+def _refusal(v, system2, q1, q2, dt) -> str:
     """Why a run cannot start (the checks of simulate_pair), or ''."""
-    s = v.system
-    for name, q in (("x1", q1), ("x2", q2)):
+    for name, q, s in (("x1", q1, v.system), ("x2", q2, system2)):
         g = s.gap([q])
         if g < 0.0:
             return f"{name} violates the constraint: g(q) = {g:.6g} < 0 (need g >= 0)"
     if v.cfg["solver.scheme"] == "midpoint":
-        wdt = s.omega_max() * dt
-        if wdt >= 2.0:
-            return (f"the explicit midpoint scheme diverges for omega_max*dt >= 2: dt = {dt:.3g}, "
-                    f"omega_max*dt = {wdt:.3g}")
+        for s in (v.system, system2):
+            wdt = s.omega_max() * dt
+            if wdt >= 2.0:
+                return (f"the explicit midpoint scheme diverges for omega_max*dt >= 2: dt = {dt:.3g}, "
+                        f"omega_max*dt = {wdt:.3g}")
     return ""
+
+
+def _group_key(r: dict, system2: bool):
+    return tuple(sorted((k, repr(v)) for k, v in r.items()
+                        if k not in PER_RUN_KEYS and (system2 or not k.startswith(SYSTEM2))))
+
+
+def _group_overrides(r: dict) -> dict:
+    return {k: v for k, v in r.items() if k not in PER_RUN_KEYS and k != "variant" and not k.startswith(SYSTEM2)}
+
+
+def _system2(scene, v, r, s2: dict):
+    """System 2 of a run: system 1 with the ``system2.*`` keys laid over it (through the scene's
+    own checks); it must share the impact geometry (M, w, g0, e) with system 1."""
+    from ..scene import SceneError, load_scene
+    over = {**scene.overrides, **_group_overrides(r), **{"system." + k[len(SYSTEM2):]: x for k, x in s2.items()}}
+    try:
+        sys2 = load_scene(scene.path, over, [v.name]).variants[0].system
+    except SceneError as exc:
+        raise SweepSpecError(f"sweep parameters {s2}: {exc}") from None
+    s1 = v.system
+    for name in ("M", "w", "g0", "e"):
+        if not np.array_equal(getattr(s1, name), getattr(sys2, name)):
+            raise SweepSpecError(f"sweep parameters {s2}: the quotient distance needs a common impact geometry: "
+                                 f"system 2 may differ in stiffness, damping, offset force and forcing, not in "
+                                 f"{name} (mass, wall or restitution)")
+    return sys2
 
 
 def divergence_reason(prep: Prepared, i: int, t_stop: float) -> str:
@@ -256,11 +304,13 @@ def divergence_reason(prep: Prepared, i: int, t_stop: float) -> str:
 def compiled_payload(prep: Prepared, idx: np.ndarray, threshold: float) -> dict:
     """Everything one compiled chunk needs (runs ``idx``), with only the groups it uses."""
     a = prep.arrays
-    used, local = np.unique(a["group"][idx], return_inverse=True)
+    n = len(idx)
+    used, local = np.unique(np.concatenate((a["group1"][idx], a["group2"][idx])), return_inverse=True)
     t = prep.tables
     return dict(idx=np.asarray(idx, dtype=np.int64), threshold=float(threshold),
                 out=prep.out[idx].copy(),
-                runs={k: a[k][idx].copy() for k in a if k != "group"}, group=local.astype(np.int64),
+                runs={k: a[k][idx].copy() for k in a if not k.startswith("group")},
+                group1=local[:n].astype(np.int64), group2=local[n:].astype(np.int64),
                 tables={k: t[k][used].copy() for k in t})
 
 
@@ -285,7 +335,8 @@ def run_compiled_chunk(payload: dict, threads: int | None = None):
     r, t = payload["runs"], payload["tables"]
     out = payload["out"].copy()
     batch.run_pairs1(r["law"], r["scheme"], r["theta"], t["sys_rows"], t["geo_rows"], t["F"], t["Omega"],
-                     t["phi"], t["nf"], payload["group"], r["kp"], r["kd"], r["q1"], r["u1"], r["q2"], r["u2"],
+                     t["phi"], t["nf"], payload["group1"], payload["group2"], r["kp"], r["kd"], r["q1"], r["u1"],
+                     r["q2"], r["u2"],
                      r["dt"], r["n_steps"], r["every"], payload["threshold"], out)
     return payload["idx"], out
 
