@@ -307,3 +307,20 @@ def test_mismatched_second_system_uncoupled_equals_two_single_runs():
     assert 0 < float(c["bound"][1]) < 0.1 * float(c["d0"][1])
     with pytest.raises(SweepSpecError, match="common impact geometry.*not in e"):
         sweep(SCENE, variant="switching", grid={"system2.e": [0.5]}, quiet=True)
+
+
+def test_progress_shows_runs_failures_and_time_left():
+    import io
+    import time
+
+    from fmu_sync.sweeps import SweepProgress
+    buf = io.StringIO()
+    bar = SweepProgress("sweep x", stream=buf, force=True)
+    bar(0, 100, 0)
+    time.sleep(0.02)
+    bar(50, 100, 3)
+    bar(100, 100, 4)
+    text = buf.getvalue()
+    assert "0/100 runs, 0 failed" in text
+    assert "50/100 runs, 3 failed" in text and "ETA" in text.splitlines()[1]
+    assert "100/100 runs, 4 failed" in text

@@ -39,7 +39,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.batch import COL, DIVERGED, OK, REFUSED
 from .spec import SweepSpecError, grid_runs, parse_values, sample_runs
 
 __all__ = ["sweep", "SweepSpecError", "SweepTaskError", "SweepProgress", "load_sweep_scene", "list_sweep_scenes",
@@ -236,6 +235,7 @@ def sweep(scene, grid: dict | None = None, *, sample: dict | None = None, n: int
     progress : callable ``progress(done, total, failed)`` (default: a :class:`SweepProgress` bar
         unless ``quiet``).
     """
+    from ..core.batch import COL, DIVERGED, OK
     from ..report import SYNC_THRESHOLD
     from ..scene import Scene, load_scene
     from . import store

@@ -55,8 +55,8 @@ class Prepared:
     python_items: dict
     out: np.ndarray
     reasons: list
-    systems: dict = field(default_factory=dict)     # group index -> (system, scheme, Kp of the group)
-    groups: np.ndarray | None = None
+    systems: dict = field(default_factory=dict)     # group index -> the scene Variant of system 1
+    groups: np.ndarray | None = None                # group index of each run
 
 
 def _law(name) -> int:

@@ -124,16 +124,15 @@ def _masks(da_status, sync):
     return st == 1, st == 2, (st == 0) & ~np.asarray(sync)
 
 
-def _overlay(ax, XE, YE, mask, color, hatch, label):
+def _overlay(ax, XE, YE, mask, color, label):
+    """Cells where ``mask`` holds painted ``color``, with a legend entry."""
     if not mask.any():
         return
     from matplotlib.patches import Patch
     Z = np.where(mask, 1.0, np.nan)
-    ax.pcolormesh(XE, YE, Z.T, cmap=_single(color), shading="flat", alpha=0.85 if not hatch else 0.35)
-    if hatch:
-        ax.pcolor(XE, YE, np.ma.masked_invalid(Z.T), hatch=hatch, alpha=0.0, shading="flat")
+    ax.pcolormesh(XE, YE, Z.T, cmap=_single(color), shading="flat", alpha=0.85)
     ax.legend_handles_extra = getattr(ax, "legend_handles_extra", []) + [
-        Patch(facecolor=color, alpha=0.85 if not hatch else 0.35, hatch=hatch, label=label)]
+        Patch(facecolor=color, alpha=0.85, label=label)]
 
 
 def _single(color):
@@ -176,12 +175,12 @@ def heat_map(ds, x: str, y: str, path, title: str | None = None) -> Path:
         m = ax.pcolormesh(XE, YE, Z.T, cmap=cmap, norm=norm, shading="flat", **kw)
         fig.colorbar(m, ax=ax, label=clabel)
         if ax is axes[1]:
-            _overlay(ax, XE, YE, nosync & ~div & ~ref, "0.82", "", "not synchronized by t_end")
+            _overlay(ax, XE, YE, nosync & ~div & ~ref, "0.82", "not synchronized by t_end")
         else:
-            _overlay(ax, XE, YE, (sub["status"].values == 0) & ~np.isfinite(rate), "0.82", "",
+            _overlay(ax, XE, YE, (sub["status"].values == 0) & ~np.isfinite(rate), "0.82",
                      "no decay (envelope of d stays above 0.1 max d)")
-        _overlay(ax, XE, YE, div, "#b2182b", "", "diverged (stopped early)")
-        _overlay(ax, XE, YE, ref, "black", "", "refused (invalid start)")
+        _overlay(ax, XE, YE, div, "#b2182b", "diverged (stopped early)")
+        _overlay(ax, XE, YE, ref, "black", "refused (invalid start)")
         drawn = _zoh_line(ax, ds, x, y, xlog, ylog)
         if xlog:
             ax.set_xscale("log")
@@ -222,9 +221,9 @@ def basin(ds, x: str, y: str, path, title: str | None = None) -> Path:
     norm = LogNorm(vmin=finite.min(), vmax=finite.max()) if finite.size else None
     m = ax.pcolormesh(XE, YE, np.where(ts > 0, ts, np.nan).T, cmap="viridis_r", norm=norm, shading="flat")
     fig.colorbar(m, ax=ax, label="t_sync: time to d < %.0e (s)" % ds.attrs.get("threshold", 1e-6))
-    _overlay(ax, XE, YE, nosync & ~div & ~ref, "0.82", "", "not synchronized by t_end")
-    _overlay(ax, XE, YE, div, "#b2182b", "", "diverged")
-    _overlay(ax, XE, YE, ref, "black", "", "refused (start violates the wall)")
+    _overlay(ax, XE, YE, nosync & ~div & ~ref, "0.82", "not synchronized by t_end")
+    _overlay(ax, XE, YE, div, "#b2182b", "diverged")
+    _overlay(ax, XE, YE, ref, "black", "refused (start violates the wall)")
     v = _base_variant(ds)
     if v is not None and v.system.n == 1:
         other = "x1" if x.endswith("2") else "x2"

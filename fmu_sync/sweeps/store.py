@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.batch import COL, COLUMNS, REFUSED, STATUS_NAMES
+from ..core.batch import COL, STATUS_NAMES
 
 __all__ = ["ChunkStore", "to_dataset", "write_dataset", "read_dataset", "RESULT_FILE", "VARIABLES"]
 
@@ -151,14 +151,3 @@ def read_dataset(path):
     import xarray as xr
     with xr.open_dataset(path, engine="h5netcdf") as ds:
         return ds.load()
-
-
-def failures(ds) -> int:
-    return int((ds["status"].values != 0).sum())
-
-
-def refused(ds) -> int:
-    return int((ds["status"].values == REFUSED).sum())
-
-
-COLUMN_NAMES = COLUMNS
