@@ -1,14 +1,29 @@
 """fmu_sync.core — the standalone numba engine (no FMI code here).
 
-Model (:mod:`.model`), Moreau schemes (:mod:`.moreau`), exact solver
-(:mod:`.exact`), quotient distance (:mod:`.distance`), coupling laws
-(:mod:`.coupling`), the monolithic pair (:mod:`.pair`) and the shared result
-(:mod:`.result`). Kernels compile lazily, on first use.
+The public API of the core (everything a user of the standalone engine needs):
+
+* models: :class:`MechanicalSystem`, :func:`ImpactOscillator`;
+* the impact map :func:`impact_map`;
+* runs: :func:`simulate` (one system), :func:`simulate_pair` (two coupled systems);
+* the quotient distance :func:`quotient_distance` and the coupling laws
+  :func:`coupling_forces`;
+* results :class:`SimulationResult`, :class:`PairResult`, and the errors
+  :class:`SimulationDiverged`.
+
+The raw compiled kernels (for benchmarks and custom loops) are in :mod:`.kernels`.
+Where each concept lives: docs/design.md §3. Kernels compile lazily, on first use.
 """
 from . import _cache  # noqa: F401  (first: every core kernel's cache is keyed on the whole core)
 from .model import ImpactOscillator, MechanicalSystem, SystemArrays
 from .impact import impact_map
-from .simulate import SimulationDiverged, SimulationResult, simulate
+from .errors import RunFailed, SimulationDiverged
+from .result import PairResult, SimulationResult
+from .single import simulate
+from .distance import quotient_distance
+from .coupling import coupling_forces
+from .pair import simulate_pair
+from .exact import ExactEvents, exact_events, simulate_exact
 
-__all__ = ["ImpactOscillator", "MechanicalSystem", "SystemArrays", "impact_map", "simulate",
-           "SimulationResult", "SimulationDiverged"]
+__all__ = ["ImpactOscillator", "MechanicalSystem", "SystemArrays", "impact_map", "simulate", "simulate_pair",
+           "quotient_distance", "coupling_forces", "simulate_exact", "exact_events", "ExactEvents", "SimulationResult", "PairResult", "RunFailed",
+           "SimulationDiverged"]

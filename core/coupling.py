@@ -1,4 +1,4 @@
-"""Coupling laws between two systems (SPEC §5).
+"""Coupling laws between two systems (docs/design.md §2.5).
 
 Both laws produce non-impulsive generalized forces ``tau1, tau2`` with n entries
 each: the input matrix is assumed to be ``B = I`` (tau acts directly as a
@@ -36,7 +36,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .distance import BRANCH_E, _resolve, _state, distance1, distance_kernel
+from .distance import BRANCH_E, resolve_geometry, geometry_state, distance1, distance_kernel
 
 __all__ = ["SWITCHING", "EUCLIDEAN", "UNCOUPLED", "LAWS", "BRANCH_NONE",
            "switching_coupling", "euclidean_coupling", "coupling_kernel",
@@ -108,7 +108,7 @@ def _euclidean_forces(Kp, Kd, q1, u1, q2, u2, tau1, tau2):
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def _p_norm_diff(Q, M, q, u, cq, cu):
+def p_norm_diff(Q, M, q, u, cq, cu):
     """||(q - cq, u - cu)||_P."""
     n = q.shape[0]
     acc = 0.0
@@ -166,8 +166,8 @@ def switching_coupling(geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c
     if branch == BRANCH_E:
         _euclidean_forces(Kp, Kd, q1, u1, q2, u2, tau1, tau2)
     else:
-        n1 = _p_norm_diff(geo.Q, geo.M, q1, u1, c1q, c1u)
-        n2 = _p_norm_diff(geo.Q, geo.M, q2, u2, c2q, c2u)
+        n1 = p_norm_diff(geo.Q, geo.M, q1, u1, c1q, c1u)
+        n2 = p_norm_diff(geo.Q, geo.M, q2, u2, c2q, c2u)
         _pull(Kp, Kd, d / n1 if n1 > 0.0 else 0.0, q1, u1, c1q, c1u, tau1)
         _pull(Kp, Kd, d / n2 if n2 > 0.0 else 0.0, q2, u2, c2q, c2u, tau2)
     return d, branch
@@ -183,7 +183,7 @@ def euclidean_coupling(geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2):
         tau2[0] = t2
         return E
     _euclidean_forces(Kp, Kd, q1, u1, q2, u2, tau1, tau2)
-    return _p_norm_diff(geo.Q, geo.M, q1, u1, q2, u2)
+    return p_norm_diff(geo.Q, geo.M, q1, u1, q2, u2)
 
 
 @njit(cache=True, inline="always", error_model="numpy")
@@ -248,7 +248,7 @@ def _coupling_call(law, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, 
 
 
 def coupling_forces(system, x1, x2, law, Kp, Kd, Q=None):
-    """Coupling forces ``(tau1, tau2)`` of SPEC §5: two (n,) arrays, B = I.
+    """Coupling forces ``(tau1, tau2)`` of docs/design.md §2.5: two (n,) arrays, B = I.
 
     Parameters
     ----------
@@ -259,14 +259,14 @@ def coupling_forces(system, x1, x2, law, Kp, Kd, Q=None):
     Q : position weight of the distance (positive scalar or n x n SPD), default I
     """
     code = law_code(law)
-    geo = _resolve(system, Q)
+    geo = resolve_geometry(system, Q)
     n = geo.w.shape[0]
     B = getattr(system, "B", None)
     if B is not None and np.shape(B) != (n, n):
         raise ValueError(f"the coupling forces have n = {n} entries (B = I assumed); the system's B "
                          f"has shape {np.shape(B)}")
-    q1, u1 = _state(geo, x1, "x1")
-    q2, u2 = _state(geo, x2, "x2")
+    q1, u1 = geometry_state(geo, x1, "x1")
+    q2, u2 = geometry_state(geo, x2, "x2")
     Kp = gain_matrix(Kp, n, "Kp")
     Kd = gain_matrix(Kd, n, "Kd")
     tau1 = np.zeros(n)

@@ -1,4 +1,4 @@
-"""Quotient distance between two states of the same system (SPEC §4).
+"""Quotient distance between two states of the same system (docs/design.md §2.4).
 
 Norm on states: ``||x||_P^2 = q^T Q q + u^T M u``.  Every pre-impact boundary
 state ``y in dA- = {g(q) = 0, w^T u <= 0}`` is identified with its post-impact
@@ -47,7 +47,7 @@ Planar branches (:func:`distance_2d`):
   ``{X = 0, Y >= 0}``) skip branches that cannot beat the best value so far.
   Ties go to E, then J12, J21, J2.
 
-Chain ends (used by the coupling law, SPEC §5): E: ``c1 = x2, c2 = x1``;
+Chain ends (used by the coupling law, docs/design.md §2.5): E: ``c1 = x2, c2 = x1``;
 J12: ``c1 = y, c2 = Zbar(y)``; J21: ``c1 = Zbar(y), c2 = y``; J2: ``c1 = y1,
 c2 = y2``.  The shortest chain is then ``x1 -> c1 ~ ... ~ c2 -> x2``.
 
@@ -80,7 +80,7 @@ __all__ = [
     "BRANCH_E", "BRANCH_J12", "BRANCH_J21", "BRANCH_J2", "BRANCH_NAMES",
     "DistanceGeometry", "ScalarGeometry", "DistanceResult", "geometry", "make_geometry",
     "distance_2d", "branch_values_2d", "distance_kernel", "distance1", "distance_value", "distance_kernel_unpruned",
-    "quotient_distance", "impact_map",
+    "quotient_distance",
 ]
 
 BRANCH_E = 0
@@ -231,7 +231,7 @@ def geometry(system, Q=None) -> DistanceGeometry:
     return make_geometry(sa.M, sa.w, sa.g0, sa.e, Q)
 
 
-def _resolve(system, Q):
+def resolve_geometry(system, Q):
     """DistanceGeometry from a system (with Q) or a ready DistanceGeometry."""
     if isinstance(system, DistanceGeometry):
         if Q is not None:
@@ -240,7 +240,7 @@ def _resolve(system, Q):
     return geometry(system, Q)
 
 
-def _state(geo: DistanceGeometry, x, name: str):
+def geometry_state(geo: DistanceGeometry, x, name: str):
     return as_state(SimpleNamespace(n=geo.w.shape[0]), x, name)
 
 
@@ -441,7 +441,7 @@ def _J2(aX, aY, bX, bY, e, k):
 
 
 @njit(cache=True, error_model="numpy")
-def _core_2d(aX, aY, bX, bY, dX, dY, e, k, prune):
+def core_2d(aX, aY, bX, bY, dX, dY, e, k, prune):
     """Planar distance with branch, jump parameters and tangential fractions.
 
     ``(dX, dY) = a - b`` is passed separately so that callers can form it from
@@ -509,9 +509,9 @@ def _snell(e):
 def distance_2d(aX, aY, bX, bY, e):
     """Planar quotient distance (wall X = 0, dA- = {(0, s): s <= 0}, Zbar(0,s) = (0,-e s)).
 
-    Returns ``(d, branch, s1, s2, lam1, lam2)`` (see :func:`_core_2d`).
+    Returns ``(d, branch, s1, s2, lam1, lam2)`` (see :func:`core_2d`).
     """
-    return _core_2d(aX, aY, bX, bY, aX - bX, aY - bY, e, _snell(e), True)
+    return core_2d(aX, aY, bX, bY, aX - bX, aY - bY, e, _snell(e), True)
 
 
 @njit(cache=True, error_model="numpy")
@@ -596,7 +596,7 @@ def _distance_nd(geo, q1, u1, q2, u2, prune):
     for i in range(n):
         wdq += w[i] * (q1[i] - q2[i])
         wdu += w[i] * (u1[i] - u2[i])
-    d, branch, s1, s2, lam1, lam2 = _core_2d(g1 / sg.sqrtWQ, wu1 / sg.sqrtW, g2 / sg.sqrtWQ, wu2 / sg.sqrtW,
+    d, branch, s1, s2, lam1, lam2 = core_2d(g1 / sg.sqrtWQ, wu1 / sg.sqrtW, g2 / sg.sqrtWQ, wu2 / sg.sqrtW,
                                              wdq / sg.sqrtWQ, wdu / sg.sqrtW, sg.e, sg.k, prune)
     if n > 1:
         # D^2 = |dq_par|_Q^2 + |du_t|_M^2 from the projections (no cancellation):
@@ -643,7 +643,7 @@ def distance1(sg, q1, u1, q2, u2):
     wdq += sg.w1 * (q1 - q2)
     wdu = 0.0
     wdu += sg.w1 * (u1 - u2)
-    d, branch, s1, s2, lam1, lam2 = _core_2d(g1 / sg.sqrtWQ, wu1 / sg.sqrtW, g2 / sg.sqrtWQ, wu2 / sg.sqrtW,
+    d, branch, s1, s2, lam1, lam2 = core_2d(g1 / sg.sqrtWQ, wu1 / sg.sqrtW, g2 / sg.sqrtWQ, wu2 / sg.sqrtW,
                                              wdq / sg.sqrtWQ, wdu / sg.sqrtW, sg.e, sg.k, True)
     mu1, gam1, del1, mu2, gam2, del2 = _chain_params(sg, branch, s1, s2, lam1, lam2, g1, g2, wu1, wu2)
     return (d, branch,
@@ -699,21 +699,9 @@ def distance_kernel_unpruned(geo, q1, u1, q2, u2, c1q, c1u, c2q, c2u):
     return d, branch
 
 
-@njit(cache=True, error_model="numpy")
-def impact_map(geo, q, u, zq, zu):
-    """Zbar(q, u) = (q, Z u) into (zq, zu) (valid for any u; identity if w^T u >= 0)."""
-    wu = 0.0
-    for i in range(q.shape[0]):
-        wu += geo.w[i] * u[i]
-    c = (1.0 + geo.e) * min(0.0, wu) / geo.W
-    for i in range(q.shape[0]):
-        zq[i] = q[i]
-        zu[i] = u[i] - c * geo.Minv_w[i]
-
-
 # ------------------------------------------------------------------ Python API
 def quotient_distance(system, x1, x2, Q=None, full=False):
-    """Quotient distance d(x1, x2) of SPEC §4.
+    """Quotient distance d(x1, x2) of docs/design.md §2.4.
 
     Parameters
     ----------
@@ -726,9 +714,9 @@ def quotient_distance(system, x1, x2, Q=None, full=False):
         If True return a :class:`DistanceResult` ``(d, branch, c1, c2)`` with the
         branch name ("E", "J12", "J21", "J2") and the chain ends as (q, u) pairs.
     """
-    geo = _resolve(system, Q)
-    q1, u1 = _state(geo, x1, "x1")
-    q2, u2 = _state(geo, x2, "x2")
+    geo = resolve_geometry(system, Q)
+    q1, u1 = geometry_state(geo, x1, "x1")
+    q2, u2 = geometry_state(geo, x2, "x2")
     n = q1.shape[0]
     c = np.empty((4, n))
     d, branch = distance_kernel(geo, q1, u1, q2, u2, c[0], c[1], c[2], c[3])

@@ -1,6 +1,6 @@
-"""Exact event-driven reference solver for the 1-DOF linear impact oscillator (SPEC §3).
+"""Exact event-driven reference solver for the 1-DOF linear impact oscillator (docs/design.md §2.3).
 
-Model (SPEC §1 with n = 1)::
+Model (docs/design.md §2.1 with n = 1)::
 
     m q'' + c q' + k q = f0 + B tau + sum_j F_j cos(Omega_j t + phi_j),
     g = w q + g0 >= 0,   Newton impact  u+ = -e u-  when g = 0 and w u- < 0.
@@ -12,7 +12,7 @@ Everything is done in the gap coordinate ``g = w q + g0`` (``v = w u``)::
     s0 = (w/m)(f0 + B tau) + b g0,   s_j = (w/m) F_j,
 
 so that the wall is ``g = 0`` for every scalar ``w != 0`` and ``g0``. The impact
-map Z of SPEC §2 reduces to ``v+ = -e v-`` with percussion ``P = (1+e)|v-|/W``,
+map Z of docs/design.md §2.2 reduces to ``v+ = -e v-`` with percussion ``P = (1+e)|v-|/W``,
 ``W = w^2/m``; in persistent contact the multiplier is ``lambda = -f(t)/W >= 0``.
 
 Closed form between events
@@ -124,7 +124,8 @@ import numpy as np
 from numba import njit
 
 from .model import MechanicalSystem, as_state
-from .simulate import SimulationResult, _n_steps, check_step
+from .checks import check_run
+from .result import SimulationResult
 
 __all__ = ["simulate_exact", "exact_events", "ExactEvents"]
 
@@ -1040,25 +1041,21 @@ def exact_events(system: MechanicalSystem, x0, t_end: float, tau=None, t0: float
 
 
 def simulate_exact(system: MechanicalSystem, x0, t_end: float, dt: float, tau=None,
-                   record_every: int = 1, t0: float = 0.0, return_events: bool = False,
+                   record_every: int = 1, t0: float = 0.0,
                    max_events: int = 10_000_000, zeno_ttol: float = 1e-12,
                    zeno_vtol: float = 1e-10, cutoff_vtol: float = 1e-6):
     """Exact solution sampled on ``t0 + i dt``, ``i = 0..floor((t_end - t0)/dt)``,
     keeping every ``record_every``-th sample (row 0 = initial state).
 
-    Returns a :class:`SimulationResult` with ``scheme="exact"`` (and the
-    :class:`ExactEvents` as second item if ``return_events``). ``percussion[i]`` is
+    Returns a :class:`SimulationResult` with ``scheme="exact"`` and the
+    :class:`ExactEvents` in ``result.events``. ``percussion[i]`` is
     the wall impulse over ``(t[i-1], t[i]]`` (impacts, completed Zeno series and
     persistent-contact force).
     """
-    dt = check_step(dt)
     t0 = float(t0)
     if not math.isfinite(t0):
         raise ValueError(f"t0 must be finite, got {t0}")
-    record_every = int(record_every)
-    if record_every < 1:
-        raise ValueError(f"record_every must be >= 1, got {record_every}")
-    n_steps = _n_steps(t_end, dt, t0)
+    dt, n_steps, record_every = check_run(t_end, dt, record_every, t0)
     rows = n_steps // record_every + 1
     T = t0 + (np.arange(rows, dtype=np.float64) * record_every) * dt
     horizon = max(float(t_end), float(T[-1]))
@@ -1069,5 +1066,4 @@ def simulate_exact(system: MechanicalSystem, x0, t_end: float, dt: float, tau=No
     P = np.zeros(rows)
     _sample(T, ev._segs, ev._segs.shape[0], ev._evs, ev._evs.shape[0], md.prm, md.rc, md.roots,
             md.hs, md.hO, md.hph, md.hcc, md.hcs, md.w, md.g0, q, u, P, True)
-    res = SimulationResult(T, q.reshape(rows, 1), u.reshape(rows, 1), P, "exact", dt)
-    return (res, ev) if return_events else res
+    return SimulationResult(T, q.reshape(rows, 1), u.reshape(rows, 1), P, "exact", dt, events=ev)

@@ -1,21 +1,36 @@
-"""The impact map (SPEC §2, paper eq. 5), as a function of a system.
+"""The impact map (docs/design.md §2.2, paper eq. 5), as a function of a system.
 
     Zbar(q, u-) = (q, Z(u-)),   Z(u-) = u- - (1+e) M^-1 w min(0, w^T u-) / W,   W = w^T M^-1 w
 
 Z = (1+e) prox - e id of the M-metric projection onto {w^T u >= 0}: Newton's law
 w^T u+ = -e w^T u- for an approaching state, the identity for a leaving one.
-The compiled kernel is :func:`fmu_sync.core.distance.impact_map` (the distance
-uses it); this is its checked Python entry point.
+The compiled kernel is :func:`impact_map_kernel` (on a
+:class:`~fmu_sync.core.distance.DistanceGeometry`); :func:`impact_map` is its
+checked Python entry point.
 """
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
-from .distance import impact_map as _impact_map_kernel
 from .distance import make_geometry
 from .model import MechanicalSystem, as_state
 
-__all__ = ["impact_map"]
+__all__ = ["impact_map", "impact_map_kernel"]
+
+
+@njit(cache=True, error_model="numpy")
+def impact_map_kernel(geo, q, u, zq, zu):
+    """Zbar(q, u) = (q, Z u) into (zq, zu) (valid for any u; identity if w^T u >= 0)."""
+    wu = 0.0
+    for i in range(q.shape[0]):
+        wu += geo.w[i] * u[i]
+    c = (1.0 + geo.e) * min(0.0, wu) / geo.W
+    for i in range(q.shape[0]):
+        zq[i] = q[i]
+        zu[i] = u[i] - c * geo.Minv_w[i]
+
+
 
 
 def impact_map(system: MechanicalSystem, q, u, atol: float = 1e-12):
@@ -34,5 +49,5 @@ def impact_map(system: MechanicalSystem, q, u, atol: float = 1e-12):
     sa = system.arrays()
     geo = make_geometry(sa.M, sa.w, sa.g0, sa.e)
     zq, zu = np.empty_like(q), np.empty_like(u)
-    _impact_map_kernel(geo, q, u, zq, zu)
+    impact_map_kernel(geo, q, u, zq, zu)
     return float(zu[0]) if system.n == 1 else zu

@@ -1,4 +1,4 @@
-"""Mechanical systems with one affine unilateral constraint (SPEC §1).
+"""Mechanical systems with one affine unilateral constraint (docs/design.md §2.1).
 
     dq = u dt
     M du - h(q, u, tau, t) dt = w (lambda dt + Lambda deta)

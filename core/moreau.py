@@ -1,4 +1,4 @@
-"""Moreau time-stepping (SPEC §3): compiled kernels.
+"""Moreau time-stepping (docs/design.md §2.3): compiled kernels.
 
 Two schemes share one step interface ``step(sa, q, u, tau, t, dt, work) -> P``
 that advances ``(q, u)`` in place over ``[t, t + dt]`` and returns the contact
@@ -93,7 +93,7 @@ def _contact(sa, g, uf, u, W_, iw):
 
 @njit(cache=True, inline="always")
 def midpoint_step(sa, q, u, tau, t, dt, qM, h, uf):
-    """One Moreau midpoint step (SPEC §3), in place. Returns the percussion P."""
+    """One Moreau midpoint step (docs/design.md §2.3), in place. Returns the percussion P."""
     n = q.shape[0]
     half = 0.5 * dt
     for i in range(n):
@@ -201,7 +201,7 @@ def step_workspace(sa, dt, scheme, theta):
 
 
 @njit(cache=True, inline="always")
-def _finish(q, u):
+def finish_step(q, u):
     """Flush would-be subnormals to zero; return False if the state is not finite."""
     ok = True
     for i in range(q.shape[0]):
@@ -240,7 +240,7 @@ def integrate(sa, q, u, t0, dt, n_steps, tau, scheme, theta, record_every, T, Qr
         else:
             P = midpoint_step(sa, q, u, tau, t, dt, qM, h, uf)
         Psum += P
-        if not _finish(q, u):
+        if not finish_step(q, u):
             return DIVERGED, k + 1, row
         countdown -= 1
         if countdown == 0:
@@ -293,7 +293,7 @@ def advance(sa, q, u, t0, H, dt, tau, scheme, theta):
         if P > 0.0:
             impacts += 1
             Psum += P
-        if not _finish(q, u):
+        if not finish_step(q, u):
             return DIVERGED, Psum, impacts
     return OK, Psum, impacts
 

@@ -4,7 +4,7 @@ Every step: the coupling forces are computed from the states at the start of
 the step (:func:`coupling_step`, the very function the co-simulation master
 calls) and held over it (zero-order hold), then both systems take one Moreau
 step. So a co-simulation whose communication step equals ``dt`` reproduces
-this run to round-off (SPEC §5).
+this run to round-off (docs/design.md §2.5).
 """
 from __future__ import annotations
 
@@ -14,15 +14,15 @@ import numpy as np
 from numba import njit
 
 from .coupling import LAWS as COUPLING_LAWS
-from .coupling import (BRANCH_NONE, SWITCHING, UNCOUPLED, _p_norm_diff, coupling_kernel,
+from .coupling import (BRANCH_NONE, SWITCHING, UNCOUPLED, p_norm_diff, coupling_kernel,
                        coupling_kernel1, euclidean_coupling1, gain_matrix)
 from .distance import distance1, distance_value, geometry
 from .model import MechanicalSystem, as_state
-from .moreau import (DIVERGED, OK, THETA, _finish, midpoint_step, midpoint_step1, scalar_params,
+from .moreau import (DIVERGED, OK, THETA, finish_step, midpoint_step, midpoint_step1, scalar_params,
                      step_workspace, theta_step, theta_step1)
 from .result import PairResult
-from .simulate import (SimulationDiverged, _n_steps, check_stable, check_step, divergence_message,
-                       scheme_code)
+from .checks import check_run, check_stable, check_start, divergence_message, scheme_code
+from .errors import SimulationDiverged
 
 __all__ = ["simulate_pair", "coupling_step", "LAWS", "gain_matrix"]
 
@@ -43,7 +43,7 @@ def coupling_step(law, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c
     """
     if law == SWITCHING:
         d, branch = coupling_kernel(law, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u)
-        return d, branch, _p_norm_diff(geo.Q, geo.M, q1, u1, q2, u2)
+        return d, branch, p_norm_diff(geo.Q, geo.M, q1, u1, q2, u2)
     E, _ = coupling_kernel(law, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u)
     if need_d:
         d, branch = distance_value(geo, q1, u1, q2, u2)
@@ -122,7 +122,7 @@ def integrate_pair(sa, geo, law, Kp, Kd, q1, u1, q2, u2, t0, k0, dt, n_steps, sc
                 D[row] = d
                 BR[row] = br
                 EU[row] = E
-            if not (_finish(q1, u1) and _finish(q2, u2)) or (record_d and not math.isfinite(d)):
+            if not (finish_step(q1, u1) and finish_step(q2, u2)) or (record_d and not math.isfinite(d)):
                 return DIVERGED, k, row, imp1, imp2
             row += 1
         if k == n_steps:
@@ -149,8 +149,8 @@ def integrate_pair(sa, geo, law, Kp, Kd, q1, u1, q2, u2, t0, k0, dt, n_steps, sc
             else:
                 P1 = midpoint_step(sa, q1, u1, tau1, t, dt, qM, h, uf)
                 P2 = midpoint_step(sa, q2, u2, tau2, t, dt, qM, h, uf)
-            _finish(q1, u1)
-            _finish(q2, u2)
+            finish_step(q1, u1)
+            finish_step(q2, u2)
         if P1 > 0.0:
             imp1 += 1
         if P2 > 0.0:
@@ -165,7 +165,7 @@ def simulate_pair(system: MechanicalSystem, x1, x2, t_end: float, dt: float, cou
     """Simulate two copies of ``system`` from ``x1``, ``x2``, coupled by ``coupling``.
 
     ``coupling``: None (uncoupled), ``"euclidean"`` (PD baseline) or
-    ``"switching"`` (the quotient coupling of SPEC §5), gains ``Kp``, ``Kd``
+    ``"switching"`` (the quotient coupling of docs/design.md §2.5), gains ``Kp``, ``Kd``
     (scalars or n×n), position weight ``Q`` of the norm (default identity).
     The forces act through ``B = I`` (τ has n entries). With
     ``record_distance=False`` and no coupling, no distance is computed.
@@ -177,26 +177,20 @@ def simulate_pair(system: MechanicalSystem, x1, x2, t_end: float, dt: float, cou
     if coupling not in LAWS:
         raise ValueError(f"coupling must be one of {list(LAWS)}, got {coupling!r}")
     law = LAWS[coupling]
-    dt = check_step(dt)
+    dt, n_steps, record_every = check_run(t_end, dt, record_every, t0)
     code, theta = scheme_code(scheme, theta)
     check_stable(system, scheme, dt)
     q1, u1 = as_state(system, x1, "x1")
     q2, u2 = as_state(system, x2, "x2")
-    for name, q in (("x1", q1), ("x2", q2)):
-        g = system.gap(q)
-        if g < 0.0:
-            raise ValueError(f"{name} violates the constraint: g(q) = {g:.6g} < 0 (need g >= 0)")
+    check_start(system, q1, "x1")
+    check_start(system, q2, "x2")
     n = system.n
     if system.m != n or not np.array_equal(system.B, np.eye(n)):
         raise ValueError(f"coupled systems take the forces through B = I (tau has n = {n} entries); "
                          f"got B of shape {system.B.shape}")
-    record_every = int(record_every)
-    if record_every < 1:
-        raise ValueError(f"record_every must be >= 1, got {record_every}")
     record_d = bool(record_distance) or law == SWITCHING
     geo = geometry(system, Q)
     Kp_m, Kd_m = gain_matrix(Kp, n, "Kp"), gain_matrix(Kd, n, "Kd")
-    n_steps = _n_steps(t_end, dt, t0)
     rows = n_steps // record_every + 1
     T = np.full(rows, np.nan)
     Q1, U1, Q2, U2, TAU1, TAU2 = (np.full((rows, n), np.nan) for _ in range(6))

@@ -1,5 +1,11 @@
-"""The one result object shared by the monolithic pair simulation and the
-co-simulation master (same fields, so reports and plots take either)."""
+"""The results of a run (docs/design.md §5.2).
+
+:class:`SimulationResult` (one system) and :class:`PairResult` (two coupled
+systems: the monolithic pair and the co-simulation master, same fields, so
+reports and plots take either). A result attached to a
+:class:`~fmu_sync.core.errors.RunFailed` as ``partial`` has ``error`` set:
+``success`` is then False and ``message`` names what happened.
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -8,11 +14,46 @@ import numpy as np
 
 from .distance import BRANCH_NAMES
 
-__all__ = ["PairResult", "BRANCH_NAMES"]
+__all__ = ["RunStatus", "SimulationResult", "PairResult", "BRANCH_NAMES"]
+
+
+class RunStatus:
+    """``success`` / ``message`` of a result from its ``error`` field (None: it ran to the end)."""
+
+    error: str | None
+
+    @property
+    def success(self) -> bool:
+        return self.error is None
+
+    @property
+    def message(self) -> str:
+        return "the run reached its end" if self.error is None else self.error
 
 
 @dataclass
-class PairResult:
+class SimulationResult(RunStatus):
+    """Sampled trajectory. ``percussion[i]`` is the impulse (N s) applied over the
+    steps that end at ``t[i]`` (one step for ``record_every=1``). The exact
+    solver also attaches its events (:class:`fmu_sync.core.exact.ExactEvents`)."""
+
+    t: np.ndarray
+    q: np.ndarray
+    u: np.ndarray
+    percussion: np.ndarray
+    scheme: str
+    dt: float
+    events: object = None
+    error: str | None = None
+
+    @property
+    def impacts(self) -> int:
+        """Number of records with a positive percussion."""
+        return int(np.count_nonzero(self.percussion > 0.0))
+
+
+@dataclass
+class PairResult(RunStatus):
     """Sampled run of two coupled systems.
 
     Arrays have one row per record: ``t`` (N,), ``q1, u1, q2, u2`` (N, n),

@@ -1,9 +1,47 @@
-"""fmu-sync: controlled synchronization of impacting mechanical systems."""
+"""fmu-sync: controlled synchronization of mechanical systems with a unilateral constraint.
+
+The component-level API (the core's own API is :mod:`fmu_sync.core`):
+
+* :func:`cosimulate`, :func:`cosimulate_network` — the co-simulation master
+  (:class:`SlaveError` when a slave fails; :class:`NetworkResult`);
+* :func:`export_fmu` — build an FMI 2.0 co-simulation FMU of a registered model;
+* :func:`load_scene`, :func:`run_scene`, :func:`list_scenes`, :func:`run_demo` — scenes
+  (:class:`SceneError` for a bad scene);
+* :func:`sweep` — families of pair runs (gain maps, basins, samples) as an xarray Dataset,
+  on all cores or a Dask cluster (:mod:`fmu_sync.sweeps`);
+* ``__version__`` (from the installed package metadata; single source: pyproject.toml).
+
+The names load on first use (PEP 562), so ``import fmu_sync`` imports neither
+fmpy nor pythonfmu, and a core-only run never loads the master.
+"""
+from importlib import import_module
+from importlib.metadata import PackageNotFoundError
+from importlib.metadata import version as _metadata_version
+
+try:
+    __version__ = _metadata_version("fmu-sync")
+except PackageNotFoundError:  # pragma: no cover - a source tree that was never installed
+    __version__ = "0+unknown"
+
+#: public name -> module that defines it
+_API = {
+    "cosimulate": "master", "cosimulate_network": "master", "NetworkResult": "master", "SlaveError": "master",
+    "export_fmu": "export",
+    "load_scene": "scenes.loading", "list_scenes": "scenes.loading", "Scene": "scenes.schema",
+    "SceneError": "scenes.schema", "run_scene": "scenes.running", "run_demo": "scenes.demo",
+    "sweep": "sweeps",
+}
+
+__all__ = ["__version__", *_API]
 
 
 def __getattr__(name):
-    # fmu_sync.sweep(...) without importing xarray on `import fmu_sync`
-    if name == "sweep":
-        from .sweeps import sweep
-        return sweep
+    if name in _API:
+        value = getattr(import_module(f"{__name__}.{_API[name]}"), name)
+        globals()[name] = value
+        return value
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_API))

@@ -1,6 +1,6 @@
 """The ``fmu-sync`` command line.
 
-    fmu-sync demo [-o DIR] [--quick]           export the FMU, co-simulate the paper example 3 ways
+    fmu-sync demo [-o DIR] [--quick]           export the FMU, co-simulate the forced pair 3 ways
     fmu-sync run SCENE [-o DIR] [--set k=v]..  run a built-in scene (name) or a scene file (path)
     fmu-sync scenes                            list the built-in scenes
     fmu-sync export ...                        export an FMU (see `fmu-sync export --help`)
@@ -17,6 +17,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from . import __version__
+
 __all__ = ["main"]
 
 PROG = "fmu-sync"
@@ -25,9 +27,10 @@ PROG = "fmu-sync"
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=PROG, description="Controlled synchronization of impacting mechanical "
                                 "systems: Moreau core, quotient distance, FMI 2.0 co-simulation.")
+    p.add_argument("--version", action="version", version=f"{PROG} {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
-    d = sub.add_parser("demo", help="export the FMU and co-simulate the paper example (uncoupled, "
+    d = sub.add_parser("demo", help="export the FMU and co-simulate the forced pair (uncoupled, "
                        "Euclidean, switching); compare with the monolithic core")
     d.add_argument("-o", "--out", type=Path, default=Path("fmu-sync-demo"), help="output folder "
                    "(default ./fmu-sync-demo)")
@@ -73,7 +76,7 @@ def _print_summary(sr, title: str) -> None:
 
 
 def _cmd_scenes() -> int:
-    from .scene import list_scenes
+    from .scenes.loading import list_scenes
     from .scenes import SCENE_DIR
     rows = list_scenes()
     width = max(len(n) for n, _ in rows)
@@ -84,7 +87,8 @@ def _cmd_scenes() -> int:
 
 
 def _cmd_run(args) -> int:
-    from .scene import load_scene, parse_override, run_scene
+    from .scenes.loading import load_scene, parse_override
+    from .scenes.running import run_scene
     overrides = dict(parse_override(s) for s in args.overrides)
     scene = load_scene(args.scene, overrides, args.variant or None)
     with _progress(scene.name, args.quiet) as bar:
@@ -94,10 +98,10 @@ def _cmd_run(args) -> int:
 
 
 def _cmd_demo(args) -> int:
-    from .scene import run_demo
+    from .scenes.demo import run_demo
     with _progress("demo", args.quiet) as bar:
         sr = run_demo(args.out, quick=args.quick, progress=bar, t_end=args.t_end)
-    _print_summary(sr, "demo: paper example, co-simulation vs core")
+    _print_summary(sr, "demo: forced pair, co-simulation vs core")
     return 0
 
 
@@ -126,7 +130,7 @@ def _one_line(exc: BaseException) -> str:
 def main(argv=None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     from .core import SimulationDiverged
-    from .scene import SceneError
+    from .scenes.schema import SceneError
     try:
         # export and bench keep their own option parsers: hand them the rest of the line
         if argv and argv[0] == "export":

@@ -1,4 +1,4 @@
-"""Export the fmu-sync slaves as FMI 2.0 co-simulation FMUs (SPEC §7).
+"""Export the fmu-sync slaves as FMI 2.0 co-simulation FMUs (docs/design.md §4.3).
 
     export_fmu("impact-oscillator", "io.fmu", {"e": 0.8, "solver.scheme": "theta"})
     fmu-sync export impact-oscillator -o io.fmu --set e=0.8 --set solver.scheme=theta
@@ -23,18 +23,17 @@ import json
 import os
 import sys
 import tempfile
-import uuid
 import zipfile
 from pathlib import Path
 from xml.etree import ElementTree as ET
 
-__all__ = ["MODELS", "export_fmu", "main_export", "model_class", "generation_tool", "model_guid"]
+from .fmus import contract
+from . import __version__
 
-#: export key -> "module:class" of the slave in fmu_sync.fmus
-MODELS = {
-    "impact-oscillator": "fmu_sync.fmus.impact_oscillator:ImpactOscillatorSlave",
-    "mechanical-system-2": "fmu_sync.fmus.mechanical_system2:MechanicalSystem2Slave",
-}
+__all__ = ["MODELS", "export_fmu", "main_export", "model_class"]
+
+#: The export keys: the FMU contract's model registry.
+MODELS = contract.MODELS
 
 _ZIP_DATE = (2020, 1, 1, 0, 0, 0)
 
@@ -58,30 +57,9 @@ class {ident}(_Slave):
 
 def model_class(model: str):
     """The slave class of an export key ("impact-oscillator", "mechanical-system-2")."""
-    if model not in MODELS:
-        raise ValueError(f"unknown model {model!r}; choose one of {', '.join(MODELS)}")
     import importlib
-    module, cls = MODELS[model].split(":")
+    module, cls = contract.model(model).slave.split(":")
     return getattr(importlib.import_module(module), cls)
-
-
-def _version() -> str:
-    try:
-        from importlib.metadata import version
-        return version("fmu-sync")
-    except Exception:
-        return "0+unknown"
-
-
-def generation_tool() -> str:
-    import pythonfmu
-    return f"fmu-sync {_version()} (PythonFMU {pythonfmu.__version__})"
-
-
-def model_guid(model: str, start_values: dict) -> str:
-    """Deterministic GUID: changes with the model, the package version and the start values."""
-    key = json.dumps({"model": model, "version": _version(), "start": start_values}, sort_keys=True)
-    return "{" + str(uuid.uuid5(uuid.NAMESPACE_URL, "https://fmu-sync/" + key)) + "}"
 
 
 def _export_library() -> Path:
@@ -127,7 +105,7 @@ def export_fmu(model: str = "impact-oscillator", path=None, start_values: dict |
             model=model, module=cls.__module__, cls=cls.__name__, ident=cls.MODEL_IDENTIFIER).encode()),
         ("resources/slavemodule.txt", cls.MODULE_NAME.encode()),
         (f"resources/{_start_file()}", (json.dumps(
-            {"model": model, "fmu_sync_version": _version(), "start": _all_starts(slave)},
+            {"model": model, "fmu_sync_version": __version__, "start": _all_starts(slave)},
             indent=2, sort_keys=True) + "\n").encode()),
     ]
     pf_dir = Path(pythonfmu.__file__).parent

@@ -1,4 +1,4 @@
-"""Plots of a run (SPEC §9), written as PNG files; headless (Agg canvas, no pyplot state).
+"""Plots of a run (docs/design.md §4.6), written as PNG files; headless (Agg canvas, no pyplot state).
 
 Every ``plot_*`` function takes a :class:`~fmu_sync.core.result.PairResult`
 (``positions`` and ``phase`` also a single-system

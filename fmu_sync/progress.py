@@ -2,7 +2,7 @@
 
 Usable wherever a ``progress(fraction_done)`` callback is accepted::
 
-    with Progress("paper-example") as bar:
+    with Progress("forced-pair") as bar:
         simulate_pair(..., progress=bar)
 
 * stderr is a terminal: one bar redrawn in place (at most ~10 times a second);

@@ -1,5 +1,8 @@
-"""FMI 2.0 co-simulation slaves (SPEC §7), written with pythonfmu.
+"""FMI 2.0 co-simulation slaves (docs/design.md §4.3), written with pythonfmu.
 
+* :mod:`.contract` — the FMU contract: variable names, the model registry, and
+  the conversion between a core system and the FMU's values (everything that
+  crosses the FMI boundary is named there and nowhere else),
 * :mod:`.impact_oscillator` — ``ImpactOscillator`` (1-DOF),
 * :mod:`.mechanical_system2` — ``MechanicalSystem2`` (2-DOF, full M, K, C, oblique wall),
 * :mod:`.slave` — what both share (interface, errors, FMU state, one core call per doStep),

@@ -1,21 +1,19 @@
 """Variable declarations and the FMI 2.0 modelDescription.xml of our slaves.
 
 pythonfmu 0.7.0 writes no units, bounds, type definitions or InitialUnknowns,
-so the slaves declare their interface here (one :class:`Var` per scalar) and
-build the whole model description themselves.
+so the slaves build the whole model description themselves from the interface
+declared in :mod:`.contract` (one :class:`Var` per scalar).
 """
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field
+import json
+import uuid
 from xml.etree.ElementTree import Element, SubElement
 
-__all__ = ["Var", "UNITS", "SCHEME_TYPE", "SCHEME_ITEMS", "model_description", "fmt_real",
-           "POSITIVE_MIN"]
+from .contract import POSITIVE_MIN, SCHEME_ITEMS, SCHEME_TYPE, Var
 
-#: Smallest positive normal double: the inclusive FMI ``min`` of quantities that
-#: must be strictly positive (m > 0, dt > 0).
-POSITIVE_MIN = 2.2250738585072014e-308
+__all__ = ["Var", "UNITS", "SCHEME_TYPE", "SCHEME_ITEMS", "model_description", "fmt_real",
+           "POSITIVE_MIN", "generation_tool", "model_guid"]
 
 #: SI units used by the slaves: name -> exponents of the SI base units
 #: (plus rad), as written in <UnitDefinitions>.
@@ -34,56 +32,19 @@ UNITS: dict[str, dict[str, int]] = {
     "rad/s": {"rad": 1, "s": -1},
 }
 
-SCHEME_TYPE = "fmu_sync.Scheme"
-#: FMI enumeration items of solver.scheme: (name, value, description); the
-#: name is the core's scheme name (fmu_sync.core.moreau.SCHEMES).
-SCHEME_ITEMS = (
-    ("midpoint", 1, "Moreau midpoint scheme, explicit in the smooth forces (stable for omega_max*dt < 2)"),
-    ("theta", 2, "Moreau-Jean theta scheme, linear part (K, C) implicit"),
-)
+
+def generation_tool() -> str:
+    import pythonfmu
+
+    from fmu_sync import __version__
+    return f"fmu-sync {__version__} (PythonFMU {pythonfmu.__version__})"
 
 
-@dataclass
-class Var:
-    """One scalar variable of the FMU interface."""
-
-    name: str
-    type: str                    # "Real" | "Integer" | "Enumeration"
-    causality: str               # "parameter" | "input" | "output"
-    variability: str             # "fixed" | "continuous" | "discrete"
-    description: str
-    initial: str | None = None   # "exact" | "calculated" | None (inputs)
-    unit: str | None = None
-    min: float | None = None
-    max: float | None = None
-    start: object = None         # parameters and inputs
-    declared_type: str | None = None
-    #: outputs: names of the parameters/inputs their initial value depends on
-    initial_depends: tuple = field(default_factory=tuple)
-    value_reference: int = -1
-
-    def check(self, value) -> str | None:
-        """None if ``value`` is admissible for this variable, else the reason."""
-        if self.type == "Enumeration":
-            allowed = [v for _, v, _ in SCHEME_ITEMS]
-            if value not in allowed:
-                names = ", ".join(f"{v} ({n})" for n, v, _ in SCHEME_ITEMS)
-                return f"{self.name} must be one of {names}, got {value!r}"
-            return None
-        if self.type == "Integer":
-            if not isinstance(value, int):
-                return f"{self.name} must be an integer, got {value!r}"
-        else:
-            if not isinstance(value, (int, float)) or isinstance(value, bool):
-                return f"{self.name} must be a real number, got {value!r}"
-            if not math.isfinite(value):
-                return f"{self.name} must be finite, got {value!r}"
-        if self.min is not None and value < self.min:
-            bound = "> 0" if self.min == POSITIVE_MIN else f">= {self.min:g}"
-            return f"{self.name} ({self.description.split(';')[0]}) must be {bound}, got {value!r}"
-        if self.max is not None and value > self.max:
-            return f"{self.name} ({self.description.split(';')[0]}) must be <= {self.max:g}, got {value!r}"
-        return None
+def model_guid(model: str, start_values: dict) -> str:
+    """Deterministic GUID: changes with the model, the package version and the start values."""
+    from fmu_sync import __version__
+    key = json.dumps({"model": model, "version": __version__, "start": start_values}, sort_keys=True)
+    return "{" + str(uuid.uuid5(uuid.NAMESPACE_URL, "https://fmu-sync/" + key)) + "}"
 
 
 def fmt_real(x: float) -> str:

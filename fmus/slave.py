@@ -1,8 +1,9 @@
-"""FMI 2.0 co-simulation slave over the core (SPEC §7), written with pythonfmu.
+"""FMI 2.0 co-simulation slave over the core (docs/design.md §4.3), written with pythonfmu.
 
 :class:`MechanicalSlave` holds everything the two FMUs share; a model class
-(:mod:`.impact_oscillator`, :mod:`.mechanical_system2`) only declares its
-variables and how its parameters make a :class:`fmu_sync.core.MechanicalSystem`.
+(:mod:`.impact_oscillator`, :mod:`.mechanical_system2`) only names its entry
+of the FMU contract (:mod:`.contract`), which declares its variables and how its
+parameters make a :class:`fmu_sync.core.MechanicalSystem`.
 
 Numerics: none here. ``do_step`` makes exactly one call to the compiled
 :func:`fmu_sync.core.moreau.advance` (all internal steps of the communication
@@ -43,11 +44,11 @@ from pythonfmu.enums import Fmi2Causality, Fmi2Initial, Fmi2Status, Fmi2Variabil
 
 from fmu_sync.core.moreau import OK as _OK
 from fmu_sync.core.moreau import advance
-from fmu_sync.core.simulate import (SimulationDiverged, check_stable, check_step, divergence_message,
-                                    scheme_code)
+from fmu_sync.core.checks import check_stable, check_step, divergence_message, scheme_code
+from fmu_sync.core.errors import SimulationDiverged
 
 from . import _export_lib
-from ._xml import SCHEME_ITEMS, Var, model_description
+from ._xml import SCHEME_ITEMS, Var, generation_tool, model_description, model_guid
 
 __all__ = ["MechanicalSlave", "STATE_FORMAT", "START_FILE", "INSTANTIATED", "INITIALIZATION",
            "STEP", "TERMINATED"]
@@ -85,19 +86,22 @@ class MechanicalSlave(Fmi2Slave):
     DESCRIPTION = ""
     DEFAULT_EXPERIMENT = {"startTime": 0.0, "stopTime": 10.0, "stepSize": 1e-2}
 
-    # ------------------------------------------------------------ model hooks
+    #: the model's entry in the FMU contract (fmu_sync.fmus.contract.MODELS)
+    CONTRACT = None
+
+    # ------------------------------------------------------------ model (from the contract)
     @classmethod
     def declare(cls) -> list[Var]:
         """The interface, in value-reference order (a fresh list on each call)."""
-        raise NotImplementedError
+        return cls.CONTRACT.declare()
 
     def build_system(self, p: dict):
         """The core system for parameter values ``p`` (raises ValueError)."""
-        raise NotImplementedError
+        return self.CONTRACT.system(p)
 
     def start_state(self, p: dict) -> tuple[list, list]:
         """(q_start, u_start) as lists of n floats."""
-        raise NotImplementedError
+        return self.CONTRACT.start_state(p)
 
     # ------------------------------------------------------------ set-up
     def __init__(self, **kwargs):
@@ -636,7 +640,6 @@ class MechanicalSlave(Fmi2Slave):
 
     # ------------------------------------------------------------ description
     def to_xml(self, model_options=None):
-        from fmu_sync.export import generation_tool, model_guid
         return model_description(
             model_name=self.MODEL_IDENTIFIER, model_identifier=self.MODEL_IDENTIFIER,
             guid=model_guid(self.MODEL, self.start_values), description=self.DESCRIPTION,

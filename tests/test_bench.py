@@ -36,7 +36,7 @@ def test_files_are_written(bench):
         assert (out / name).is_file() and (out / name).stat().st_size > 0, name
     pngs = sorted(p.name for p in out.glob("work_precision_*.png"))
     assert "work_precision_bouncing-ball_rest_time.png" in pngs
-    assert "work_precision_paper-example_d.png" in pngs
+    assert "work_precision_forced-pair_d.png" in pngs
     for p in out.glob("*.png"):
         assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
@@ -80,6 +80,6 @@ def test_bench_md_and_stdout(bench):
     out, p = bench
     md = (out / "bench.md").read_text()
     for head in ("# fmu-sync benchmarks", "## Core speed", "## Work–precision", "## Stability",
-                 "Measured order, midpoint, bouncing-ball", "Measured order, midpoint, paper-example"):
+                 "Measured order, midpoint, bouncing-ball", "Measured order, midpoint, forced-pair"):
         assert head in md, head
     assert "## Work–precision" in p.stdout and "## Stability" in p.stdout

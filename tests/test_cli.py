@@ -55,7 +55,7 @@ def test_error_path_is_one_line_exit_2(tmp_path):
     (["run", "missing.toml"], "scene file not found: missing.toml"),
     (["run", "bouncing-ball", "--set", "run.t_end"], "expected key=value"),
     (["run", "bouncing-ball", "--set", "solver.scheme=rk4"], 'solver.scheme = "rk4"'),
-    (["run", "paper-example", "--variant", "nope"], "no variant 'nope'"),
+    (["run", "forced-pair", "--variant", "nope"], "no variant 'nope'"),
     (["validate", "missing.fmu"], "no such FMU: missing.fmu"),
 ])
 def test_errors_in_process(argv, needle, capsys, tmp_path, monkeypatch):
@@ -78,7 +78,7 @@ def test_divergence_exits_2_naming_scene_and_step(tmp_path, capsys):
 def test_scenes_lists_descriptions(capsys):
     assert main(["scenes"]) == 0
     out = capsys.readouterr().out
-    for name in ("paper-example", "zeno-table", "grazing", "bouncing-ball", "stiff-wall", "plastic", "elastic",
+    for name in ("forced-pair", "zeno-table", "grazing", "bouncing-ball", "stiff-wall", "plastic", "elastic",
                  "two-dof"):
         assert name in out
     assert "Zeno" in out
@@ -190,3 +190,12 @@ def test_demo_quick_end_to_end(tmp_path):
         assert (folder / f"{variant}-cosim.csv").exists() and (folder / f"{variant}-core.npz").exists()
     assert (folder / "compare-distance.png").exists() and (folder / "cosim-vs-core.png").exists()
     assert "max|d - d_core|" in out.stdout
+
+
+def test_version_is_the_package_metadata_version():
+    from importlib.metadata import version
+
+    import fmu_sync
+    assert fmu_sync.__version__ == version("fmu-sync")
+    out = subprocess.run([sys.executable, "-m", "fmu_sync.cli", "--version"], capture_output=True, text=True)
+    assert out.returncode == 0 and out.stdout.strip() == f"fmu-sync {version('fmu-sync')}"

@@ -1,4 +1,4 @@
-"""Coupling laws (SPEC §5): switching quotient coupling and Euclidean PD."""
+"""Coupling laws (docs/design.md §2.5): switching quotient coupling and Euclidean PD."""
 from __future__ import annotations
 
 import functools
@@ -221,7 +221,7 @@ def test_impact_invariance_of_own_force_1dof():
 
 
 def test_euclidean_peaks_switching_does_not():
-    """SPEC §5: at an impact mismatch (x1 just before, x2 just after the same
+    """docs/design.md §2.5: at an impact mismatch (x1 just before, x2 just after the same
     impact) the Euclidean PD force is ~(1+e)|u| Kd, the switching force ~0."""
     osc = ImpactOscillator(m=1.0, e=0.8)
     x1, x2 = (1e-4, -1.0), (1e-4, 0.8)

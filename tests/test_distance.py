@@ -1,4 +1,4 @@
-"""Quotient distance (SPEC §4): properties and agreement with brute force.
+"""Quotient distance (docs/design.md §2.4): properties and agreement with brute force.
 
 The reference here is independent of the kernel's planar reduction: it works in
 ORIGINAL coordinates, parametrising dA- = {g(q) = 0, w^T u <= 0} directly and
@@ -18,13 +18,14 @@ from scipy.optimize import minimize
 from fmu_sync.core.distance import (
     BRANCH_E, BRANCH_J12, BRANCH_J21, BRANCH_J2, BRANCH_NAMES, DistanceGeometry,
     branch_values_2d, distance_2d, distance_kernel, distance_kernel_unpruned, distance_value,
-    geometry, impact_map, make_geometry, quotient_distance)
+    geometry, make_geometry, quotient_distance)
+from fmu_sync.core.impact import impact_map_kernel as impact_map
 from fmu_sync.core.model import ImpactOscillator, MechanicalSystem
 
 E_VALUES = (0.0, 0.05, 0.8, 1.0)
 M2 = [[2.0, 0.5], [0.5, 1.0]]
 
-# name -> (M, w, g0, Q).  1a: the SPEC's Q = m = 1 oscillator; 1b: a scaled and
+# name -> (M, w, g0, Q).  1a: the Q = m = 1 oscillator; 1b: a scaled and
 # shifted wall (g = 2q - 0.5) with m, Q != 1; 2a: oblique wall with exact
 # dyadic boundary points; 2b: the oblique, non-normalised w = (1, -0.3).
 SYSTEMS = {
@@ -469,7 +470,7 @@ def test_elastic_1dof_is_mirror_formula(q1, u1, q2, u2):
 
 
 def test_spec_triangle_example_needs_J2():
-    """SPEC §4: 1-DOF, Q = m = 1, e = 0.8."""
+    """docs/design.md §2.4: 1-DOF, Q = m = 1, e = 0.8."""
     sysm = ImpactOscillator(m=1.0, e=0.8)
     a, b, c = (0.0, -0.334), (0.0, 1.168), (0.0134, -2.781)
     dab = quotient_distance(sysm, a, b)
@@ -488,7 +489,7 @@ def test_spec_triangle_example_needs_J2():
 
 
 def test_plastic_collapses_pre_impact_states():
-    """SPEC §4: e = 0, d((0,-5), (0,-3)) = 0 (same post-impact image (0, 0))."""
+    """docs/design.md §2.4: e = 0, d((0,-5), (0,-3)) = 0 (same post-impact image (0, 0))."""
     sysm = ImpactOscillator(m=1.0, e=0.0)
     r = quotient_distance(sysm, (0.0, -5.0), (0.0, -3.0), full=True)
     assert r.d == 0.0 and r.branch == "J2"

@@ -9,6 +9,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.integrate import solve_ivp
 
+from builtin_scenes import FORCED_PAIR
 from fmu_sync.core import ImpactOscillator, MechanicalSystem, simulate
 from fmu_sync.core.exact import ExactEvents, exact_events, simulate_exact
 
@@ -35,7 +36,7 @@ def _ivp(m, k, c, f0, terms, y0, t):
 def test_bouncing_ball_impacts_and_accumulation_point():
     e = 0.8
     sys_ = ImpactOscillator(m=1.0, k=0.0, c=0.0, f0=-G, e=e)
-    res, ev = simulate_exact(sys_, (1.0, 0.0), 6.0, 1e-3, return_events=True)
+    res = simulate_exact(sys_, (1.0, 0.0), 6.0, 1e-3); ev = res.events
     v1 = math.sqrt(2.0 * G)
     t1 = math.sqrt(2.0 / G)
     n = ev.n_impacts
@@ -64,7 +65,7 @@ def test_undamped_oscillator_impacts_closed_form():
     """q'' = -q from (1, 0): q = cos t until pi/2, then e^j |cos t| arches."""
     e = 0.7
     sys_ = ImpactOscillator(m=1.0, k=1.0, c=0.0, e=e)
-    res, ev = simulate_exact(sys_, (1.0, 0.0), 10.0, 1e-3, return_events=True)
+    res = simulate_exact(sys_, (1.0, 0.0), 10.0, 1e-3); ev = res.events
     j = np.arange(ev.n_impacts)
     np.testing.assert_allclose(ev.impact_times, np.pi / 2 + j * np.pi, rtol=1e-14)
     np.testing.assert_allclose(ev.impact_velocities, -(e ** j), rtol=1e-13)
@@ -79,7 +80,7 @@ def test_undamped_oscillator_impacts_closed_form():
 # ----------------------------------------------------------------- grazing
 def test_grazing_orbit_touches_without_impact():
     sys_ = ImpactOscillator(m=1.0, k=1.0, c=0.0, Omega=0.5, F=0.3, f0=0.4, e=0.8)
-    res, ev = simulate_exact(sys_, (0.8, 0.0), 40.0, 1e-3, return_events=True)
+    res = simulate_exact(sys_, (0.8, 0.0), 40.0, 1e-3); ev = res.events
     np.testing.assert_allclose(res.q[:, 0], 0.4 + 0.4 * np.cos(res.t / 2), rtol=0, atol=1e-12)
     np.testing.assert_allclose(res.u[:, 0], -0.2 * np.sin(res.t / 2), rtol=0, atol=1e-12)
     assert ev.n_impacts == 0 and ev.zeno_times.size == 0 and ev.contact_intervals.size == 0
@@ -113,7 +114,7 @@ def test_closed_form_matches_dop853(name):
     m, k, c, f0, terms, q0, u0 = CASES[name]
     sys_ = MechanicalSystem(M=[[m]], K=[[k]], C=[[c]], f0=[f0], w=[1.0], g0=W_FAR, e=0.5,
                             forcing=tuple(terms))
-    res, ev = simulate_exact(sys_, (q0, u0), 12.0, 0.01, return_events=True)
+    res = simulate_exact(sys_, (q0, u0), 12.0, 0.01); ev = res.events
     assert ev.n_impacts == 0 and ev.graze_times.size == 0
     y = _ivp(m, k, c, f0, terms, [q0, u0], res.t)
     scale = max(1.0, np.abs(y).max())
@@ -135,7 +136,7 @@ def test_oblique_gap_coordinate_and_input():
     w, g0 = -2.0, 3.0
     sys_ = MechanicalSystem(M=[[m]], K=[[k]], C=[[c]], f0=[f0], w=[w], g0=g0, e=e,
                             forcing=((F, Om, 0.0),))
-    res, ev = simulate_exact(sys_, (1.0, 1.0), 15.0, 0.01, tau=[tau], return_events=True)
+    res = simulate_exact(sys_, (1.0, 1.0), 15.0, 0.01, tau=[tau]); ev = res.events
     assert ev.n_impacts >= 2
     ref = _event_driven_ivp(m, k, c, f0 + tau, [(F, Om, 0.0)], e, (1.0, 1.0), 15.0,
                             wall=lambda q: g0 + w * q)
@@ -178,8 +179,8 @@ def _event_driven_ivp(m, k, c, f0, terms, e, x0, t_end, wall=lambda q: q, max_im
     return np.array(times), np.array(vels)
 
 
-def test_paper_example_matches_event_driven_dop853():
-    sys_ = ImpactOscillator(m=1, k=1, c=0, f0=0.2, F=0.5, Omega=2.5, e=0.9)
+def test_forced_pair_matches_event_driven_dop853():
+    sys_ = ImpactOscillator(**FORCED_PAIR)
     ev = exact_events(sys_, (1.0, 0.0), 20.0)
     t_ref, v_ref = _event_driven_ivp(1, 1, 0, 0.2, [(0.5, 2.5, 0.0)], 0.9, (1.0, 0.0), 20.0)
     assert ev.n_impacts == len(t_ref) == 6
@@ -189,14 +190,14 @@ def test_paper_example_matches_event_driven_dop853():
 
 # ----------------------------------------------------------------- Moreau midpoint: first order
 def test_agrees_with_moreau_midpoint_first_order():
-    """Moreau midpoint (SPEC §3) is second order between impacts and first order at impacts:
+    """Moreau midpoint (docs/design.md §2.3) is second order between impacts and first order at impacts:
     the contact is switched on in the step whose midpoint penetrates, so each impact instant
     is off by less than one step and the velocity jump (1+e)|u^-| is applied up to dt early
     or late; the position error this creates is at most (1+e)|u^-| dt per impact, and for
     this undamped oscillator the flow between impacts does not amplify it (isometry in
     (q, u)). Hence |q_moreau - q_exact| <= dt (1+e) sum_k |u_k^-| (+ O(dt^2))."""
     e = 0.9
-    sys_ = ImpactOscillator(m=1, k=1, c=0, f0=0.2, F=0.5, Omega=2.5, e=e)
+    sys_ = ImpactOscillator(**dict(FORCED_PAIR, e=e))
     x0, T = (1.0, 0.0), 20.0
     ev = exact_events(sys_, x0, T)
     C = (1 + e) * np.abs(ev.impact_velocities).sum()
@@ -233,7 +234,7 @@ def _table_force(t):
 def test_zeno_table_accumulations_completed_and_contact_released():
     sys_ = ImpactOscillator(m=1, k=0, c=0, f0=-1, F=2, Omega=3, e=0.5)
     T = 200.0
-    res, ev = simulate_exact(sys_, (0.0, 0.0), T, 1e-3, return_events=True)
+    res = simulate_exact(sys_, (0.0, 0.0), T, 1e-3); ev = res.events
     periods = T / (2 * np.pi / 3)
     assert ev.zeno_times.size >= 5
     assert ev.n_impacts < 100 * periods           # finitely many events per period
@@ -284,23 +285,23 @@ def test_rest_on_wall_until_force_changes_sign():
 
 def test_impact_at_initial_time_and_plastic_limit():
     sys_ = ImpactOscillator(m=2, k=1, c=0.1, f0=-0.5, e=0.0)
-    res, ev = simulate_exact(sys_, (0.0, -1.0), 5.0, 1e-2, return_events=True)
+    res = simulate_exact(sys_, (0.0, -1.0), 5.0, 1e-2); ev = res.events
     assert ev.impact_times[0] == 0.0 and ev.impact_velocities[0] == -1.0
     np.testing.assert_allclose(ev.impact_percussions[0], 2.0)        # m |u^-| (1+e)
     assert np.all(res.q == 0.0) and np.all(res.u[1:] == 0.0)         # plastic, pushed into wall
     assert res.percussion[1] >= 2.0                                  # impact counted in row 1
 
 
-def test_elastic_paper_example_runs_long():
-    sys_ = ImpactOscillator(m=1, k=1, c=0, f0=0.2, F=0.5, Omega=2.5, e=1.0)
-    res, ev = simulate_exact(sys_, (1.0, 0.0), 2000.0, 0.05, return_events=True)
+def test_elastic_forced_pair_runs_long():
+    sys_ = ImpactOscillator(**dict(FORCED_PAIR, e=1.0))
+    res = simulate_exact(sys_, (1.0, 0.0), 2000.0, 0.05); ev = res.events
     assert ev.n_impacts > 100 and ev.zeno_times.size == 0
     assert res.q.min() >= -1e-12
 
 
 def test_stiff_wall_scene():
     sys_ = ImpactOscillator(m=1, k=1e8, c=0, f0=-1, e=0.8)
-    res, ev = simulate_exact(sys_, (1e-8, 0.0), 0.01, 1e-6, return_events=True)
+    res = simulate_exact(sys_, (1e-8, 0.0), 0.01, 1e-6); ev = res.events
     # spring pulls to 0, f0 pushes in: bounce sequence completed, then contact forever
     assert ev.zeno_times.size == 1 and ev.contact_open
     assert res.q.min() >= 0.0
@@ -340,7 +341,7 @@ def test_tiny_initial_impact_is_completed():
 def test_random_systems_match_event_driven_reference(m, k, c, f0, F, Om, e, q0, u0):
     sys_ = ImpactOscillator(m=m, k=k, c=c, f0=f0, F=F, Omega=Om, e=e)
     T = 8.0
-    res, ev = simulate_exact(sys_, (q0, u0), T, 2e-3, return_events=True)
+    res = simulate_exact(sys_, (q0, u0), T, 2e-3); ev = res.events
     scale = 1.0 + abs(q0) + abs(u0) + (abs(f0) + F) / max(k / m, 1e-2)
     assert res.q.min() >= -1e-11 * scale          # never below the wall
     assert np.all(np.diff(ev.impact_times) >= 0) and np.all(ev.impact_velocities <= 0)
@@ -364,7 +365,7 @@ def test_random_conservative_systems_energy_budget(m, k, f0, e, q0, u0):
     """c = F = 0: E = m u^2/2 + k q^2/2 - f0 q is constant between impacts and drops by
     (1 - e^2) m u^-^2 / 2 at each impact; a completed Zeno series ends at E = 0."""
     sys_ = ImpactOscillator(m=m, k=k, c=0.0, f0=f0, e=e)
-    res, ev = simulate_exact(sys_, (q0, u0), 8.0, 1e-3, return_events=True)
+    res = simulate_exact(sys_, (q0, u0), 8.0, 1e-3); ev = res.events
     q, u, t = res.q[:, 0], res.u[:, 0], res.t
     E = 0.5 * m * u ** 2 + 0.5 * k * q ** 2 - f0 * q
     E0 = 0.5 * m * u0 ** 2 + 0.5 * k * q0 ** 2 - f0 * q0
@@ -381,7 +382,7 @@ def test_random_conservative_systems_energy_budget(m, k, f0, e, q0, u0):
 
 # ----------------------------------------------------------------- API and bad input
 def test_dispatch_through_simulate_and_records():
-    sys_ = ImpactOscillator(m=1, k=1, c=0, f0=0.2, F=0.5, Omega=2.5, e=0.9)
+    sys_ = ImpactOscillator(**FORCED_PAIR)
     a = simulate(sys_, (1.0, 0.0), 7.0, 1e-3, scheme="exact", record_every=7, t0=0.5)
     b = simulate(sys_, (1.0, 0.0), 7.0, 1e-3, record_every=7, t0=0.5)
     assert a.scheme == "exact" and a.t.shape == b.t.shape and a.q.shape == b.q.shape

@@ -1,4 +1,4 @@
-"""FMU export and modelDescription.xml (SPEC §7). Nothing here loads the FMU's
+"""FMU export and modelDescription.xml (docs/design.md §4.3). Nothing here loads the FMU's
 binary: the FMUs are run in child processes by tests/test_fmu_run.py."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Running the FMUs (SPEC §7): fmpy vs the core, libcosimpy vs fmpy, FMU states,
+"""Running the FMUs (docs/design.md §4.3): fmpy vs the core, libcosimpy vs fmpy, FMU states,
 bad input, and a clean exit of fresh processes.
 
 Every FMU is loaded in a child process, never in the pytest process: the

@@ -1,4 +1,4 @@
-"""The impact map Z (SPEC §2) against its defining properties."""
+"""The impact map Z (docs/design.md §2.2) against its defining properties."""
 import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st

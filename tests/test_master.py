@@ -1,4 +1,4 @@
-"""Co-simulation master against the monolithic core (SPEC §8)."""
+"""Co-simulation master against the monolithic core (docs/design.md §4.4)."""
 import numpy as np
 import pytest
 
@@ -6,9 +6,10 @@ from fmu_sync.core import ImpactOscillator
 from fmu_sync.core.pair import simulate_pair
 from fmu_sync.master import cosimulate
 
-PAPER = dict(m=1.0, k=1.0, c=0.0, f0=0.2, F=0.5, Omega=2.5, e=0.9)
-X1, X2 = (1.0, 0.0), (0.2, 0.5)
-GAINS = dict(Kp=1.0, Kd=0.5)
+from builtin_scenes import FORCED_GAINS as GAINS
+from builtin_scenes import FORCED_PAIR as PAPER
+from builtin_scenes import FORCED_X1 as X1
+from builtin_scenes import FORCED_X2 as X2
 
 
 @pytest.fixture(scope="module")
@@ -84,8 +85,11 @@ def test_event_aware_stepping_repairs_the_euclidean_law(fmu, system):
 def test_failing_slave_stops_the_run_with_a_complete_record(fmu):
     # an absurd gain makes the explicit exchange blow up until a slave receives a
     # non-finite input and answers fmi2Error
-    res = cosimulate(fmu, X1, X2, 50.0, 1e-2, coupling="euclidean", Kp=1e9, Kd=0.0)
-    assert res.error is not None
+    from fmu_sync import SlaveError
+    with pytest.raises(SlaveError) as err:
+        cosimulate(fmu, X1, X2, 50.0, 1e-2, coupling="euclidean", Kp=1e9, Kd=0.0)
+    res = err.value.partial
+    assert res.error is not None and res.error == str(err.value) and not res.success
     assert "system" in res.error and "t = " in res.error
     assert "coupling omega_c*H = 447" in res.error
     assert res.t.size > 1 and res.t[-1] < 50.0
@@ -93,7 +97,7 @@ def test_failing_slave_stops_the_run_with_a_complete_record(fmu):
 
 
 @pytest.mark.parametrize("kwargs, match", [
-    (dict(H=0.0), "H must be a positive finite number, got 0.0"),
+    (dict(H=0.0), "H must be a positive finite step, got 0.0"),
     (dict(coupling="magnetic"), "coupling must be one of"),
     (dict(method="newton"), "method must be 'jacobi' or 'gauss-seidel'"),
     (dict(x1=(-1.0, 0.0)), "x1"),

@@ -1,12 +1,13 @@
-"""Two coupled systems in one compiled loop (SPEC §5)."""
+"""Two coupled systems in one compiled loop (docs/design.md §2.5)."""
 import numpy as np
 import pytest
 
 from fmu_sync.core import ImpactOscillator, MechanicalSystem, SimulationDiverged, moreau
 from fmu_sync.core.pair import simulate_pair
 
-PAPER = dict(m=1, k=1, c=0, f0=0.2, F=0.5, Omega=2.5, e=0.9)
-X1, X2 = (1.0, 0.0), (0.2, 0.5)
+from builtin_scenes import FORCED_PAIR as PAPER
+from builtin_scenes import FORCED_X1 as X1
+from builtin_scenes import FORCED_X2 as X2
 
 
 @pytest.fixture(scope="module")

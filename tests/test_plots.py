@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from builtin_scenes import FORCED_PAIR
 from fmu_sync import plots, report
 from fmu_sync.core import ImpactOscillator, MechanicalSystem, simulate
 from fmu_sync.core.result import PairResult
@@ -28,7 +29,7 @@ def fake_pair(system, x1, x2, t_end=12.0, dt=1e-3, every=10, coupling="switching
 
 @pytest.fixture(scope="module")
 def osc():
-    return ImpactOscillator(m=1, k=1, c=0, f0=0.2, F=0.5, Omega=2.5, e=0.9)
+    return ImpactOscillator(**FORCED_PAIR)
 
 
 @pytest.fixture(scope="module")
@@ -50,7 +51,7 @@ def check_png(path, min_bytes=8000):
 
 @pytest.mark.parametrize("kind", sorted(plots.PLOTTERS))
 def test_each_plot_is_written(tmp_path, pair, osc, kind):
-    p = plots.PLOTTERS[kind](pair, tmp_path / f"{kind}.png", system=osc, title="paper-example: test")
+    p = plots.PLOTTERS[kind](pair, tmp_path / f"{kind}.png", system=osc, title="forced-pair: test")
     assert p == tmp_path / f"{kind}.png"
     check_png(p)
 

@@ -1,4 +1,4 @@
-"""Scenes (SPEC §6): the built-in files load, bad files fail loudly, overrides apply,
+"""Scenes (docs/design.md §4.5): the built-in files load, bad files fail loudly, overrides apply,
 and running a scene builds only what it names."""
 import sys
 import types
@@ -8,18 +8,19 @@ import pytest
 
 from fmu_sync.core import SimulationResult
 from fmu_sync.core.result import PairResult
-from fmu_sync.scene import (SceneError, list_scenes, load_scene, parse_override, run_scene)
+from fmu_sync import SceneError, list_scenes, load_scene, run_scene
+from fmu_sync.scenes.loading import parse_override
 from fmu_sync.scenes import SCENE_DIR, builtin_names
 
-SPEC_SCENES = {"paper-example", "zeno-table", "grazing", "bouncing-ball", "stiff-wall", "plastic",
+BUILTIN_SCENES = {"forced-pair", "zeno-table", "grazing", "bouncing-ball", "stiff-wall", "plastic",
                "elastic", "two-dof"}
 
 
 # ------------------------------------------------------------------ built-in scenes
 def test_all_spec_scenes_are_built_in():
-    assert SPEC_SCENES <= set(builtin_names())
+    assert BUILTIN_SCENES <= set(builtin_names())
     described = dict(list_scenes())
-    assert all(described[n] for n in SPEC_SCENES), "every scene has a one-line description"
+    assert all(described[n] for n in BUILTIN_SCENES), "every scene has a one-line description"
 
 
 @pytest.mark.parametrize("name", builtin_names())
@@ -33,8 +34,9 @@ def test_builtin_scene_loads_and_validates(name):
         assert v.system.gap(np.atleast_1d(v.x1[0])) >= 0
 
 
-def test_paper_example_matches_the_paper():
-    s = load_scene("paper-example")
+def test_forced_pair_has_our_parameters():
+    """The forced-pair scene holds the values the project chose (not the paper's: not available)."""
+    s = load_scene("forced-pair")
     assert [v.name for v in s.variants] == ["uncoupled", "euclidean", "switching"]
     assert [v.law for v in s.variants] == ["none", "euclidean", "switching"]
     v = s.variant("switching")
@@ -157,7 +159,7 @@ def test_two_dof_shapes_are_checked(tmp_path):
 
 
 def test_missing_scene():
-    with pytest.raises(SceneError, match="unknown scene 'nope'.*paper-example"):
+    with pytest.raises(SceneError, match="unknown scene 'nope'.*forced-pair"):
         load_scene("nope")
     with pytest.raises(FileNotFoundError, match="nope.toml"):
         load_scene("nope.toml")
@@ -176,23 +178,23 @@ def test_parse_override():
 
 
 def test_overrides_apply_to_every_variant():
-    s = load_scene("paper-example", {"coupling.Kp": 2, "run.t_end": 5, "solver.scheme": "theta"})
+    s = load_scene("forced-pair", {"coupling.Kp": 2, "run.t_end": 5, "solver.scheme": "theta"})
     for v in s.variants:
         assert v.Kp == 2.0 and v.cfg["run.t_end"] == 5.0 and v.cfg["solver.scheme"] == "theta"
     # an override wins over what a variant sets
-    s = load_scene("paper-example", {"coupling.law": "euclidean"})
+    s = load_scene("forced-pair", {"coupling.law": "euclidean"})
     assert {v.law for v in s.variants} == {"euclidean"}
     s2 = s.with_overrides({"run.t_end": 3.0})
     assert s2.variants[0].cfg["run.t_end"] == 3.0 and s2.variants[0].law == "euclidean"
 
 
 def test_bad_override_names_the_set(tmp_path):
-    with pytest.raises(SceneError, match=r"paper-example\.toml: --set coupling\.Kp = -3: is out of range"):
-        load_scene("paper-example", {"coupling.Kp": -3})
+    with pytest.raises(SceneError, match=r"forced-pair\.toml: --set coupling\.Kp = -3: is out of range"):
+        load_scene("forced-pair", {"coupling.Kp": -3})
     with pytest.raises(SceneError, match=r"unknown key --set run\.tend = 5"):
-        load_scene("paper-example", {"run.tend": 5})
+        load_scene("forced-pair", {"run.tend": 5})
     with pytest.raises(SceneError, match=r"--set t_end = 5: not a key"):
-        load_scene("paper-example", {"t_end": 5})
+        load_scene("forced-pair", {"t_end": 5})
 
 
 # ------------------------------------------------------------------ running
@@ -241,7 +243,7 @@ def test_pair_plumbing_without_distance(tmp_path, monkeypatch):
     calls = []
     monkeypatch.setitem(sys.modules, "fmu_sync.core.pair", _fake_pair_module(calls))
     seen = []
-    sr = run_scene("paper-example", tmp_path, variants=["uncoupled"], progress=seen.append,
+    sr = run_scene("forced-pair", tmp_path, variants=["uncoupled"], progress=seen.append,
                    overrides={"record.distance": False, "plot.plots": ["positions", "forces", "phase"],
                               "plot.compare": False, "run.t_end": 1.0})
     assert calls == [dict(coupling=None, Kp=1.0, Kd=0.5, Q=None, scheme="midpoint", record_every=10,
@@ -253,7 +255,7 @@ def test_pair_plumbing_without_distance(tmp_path, monkeypatch):
     assert not any(n.endswith(".fmu") for n in names)
     # switching needs d even when not recorded: the law is still passed through
     calls.clear()
-    run_scene("paper-example", tmp_path, variants=["switching"], plots=False,
+    run_scene("forced-pair", tmp_path, variants=["switching"], plots=False,
               overrides={"record.distance": False, "run.t_end": 1.0})
     assert calls[0]["coupling"] == "switching"
 
@@ -261,8 +263,8 @@ def test_pair_plumbing_without_distance(tmp_path, monkeypatch):
 # ------------------------------------------------------------------ needs the lead's simulate_pair
 # These run the real monolithic pair simulation (fmu_sync.core.pair, being written by the lead).
 # They fail (ImportError) until it exists; they are meant to fail then, not to be skipped.
-def test_paper_example_core_runs(tmp_path):
-    sr = run_scene("paper-example", tmp_path, overrides={"run.t_end": 2.0}, variants=["uncoupled", "switching"])
+def test_forced_pair_core_runs(tmp_path):
+    sr = run_scene("forced-pair", tmp_path, overrides={"run.t_end": 2.0}, variants=["uncoupled", "switching"])
     assert [r.name for r in sr.runs] == ["uncoupled", "switching"]
     for r in sr.runs:
         assert r.result.d is not None and np.all(np.isfinite(r.result.d))
@@ -284,7 +286,7 @@ def test_two_dof_core_runs(tmp_path):
 # ------------------------------------------------------------------ cosim plumbing with stand-ins
 def _fake_cosim_modules(monkeypatch, calls):
     """Stand-ins for fmu_sync.export / fmu_sync.master / simulate_pair recording their arguments."""
-    import fmu_sync.scene as scene_mod
+    import fmu_sync.scenes.running as scene_mod
 
     def export_fmu(model, path, start_values=None):
         calls.append(("export", model))
@@ -318,7 +320,7 @@ def _fake_cosim_modules(monkeypatch, calls):
 def test_cosim_scene_plumbing(tmp_path, monkeypatch):
     calls = []
     _fake_cosim_modules(monkeypatch, calls)
-    sr = run_scene("paper-example", tmp_path, plots=False,
+    sr = run_scene("forced-pair", tmp_path, plots=False,
                    overrides={"run.mode": "cosim", "run.t_end": 1.0, "run.method": "gauss-seidel"})
     assert calls[0] == ("export", "impact-oscillator")
     assert [c[0] for c in calls] == ["export", "cosim", "cosim", "cosim"], "one FMU for all variants"
@@ -330,7 +332,7 @@ def test_cosim_scene_plumbing(tmp_path, monkeypatch):
 def test_demo_plumbing_with_stand_ins(tmp_path, monkeypatch):
     """run_demo against stand-ins of export/cosimulate/simulate_pair: what it runs and writes."""
     from fmu_sync import plots
-    from fmu_sync.scene import run_demo
+    from fmu_sync import run_demo
     calls = []
     _fake_cosim_modules(monkeypatch, calls)
 

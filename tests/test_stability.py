@@ -11,7 +11,7 @@ import pytest
 
 from fmu_sync.benchmarks import stability as st
 from fmu_sync.core import ImpactOscillator, simulate
-from fmu_sync.core.simulate import SimulationDiverged
+from fmu_sync.core import SimulationDiverged
 
 pytestmark = pytest.mark.stability
 

@@ -13,9 +13,9 @@ from fmu_sync.sweeps.store import read_dataset
 
 xr = pytest.importorskip("xarray")
 
-PAPER = dict(m=1, k=1, c=0, f0=0.2, F=0.5, Omega=2.5, e=0.9)
+FORCED = dict(m=1, k=1, c=0, f0=0.2, F=0.5, Omega=2.5, e=0.9)
 X1, X2 = (1.0, 0.0), (0.2, 0.5)
-SCENE = "paper-example"
+SCENE = "forced-pair"
 EVERY = 10            # run.record_every of the scene: the metrics' sample grid
 
 
@@ -28,7 +28,7 @@ def gain_map():
 
 
 def _single(Kp, Kd, t_end=3.0, dt=1e-3, coupling="switching", every=EVERY, x1=X1, x2=X2, **kw):
-    s = ImpactOscillator(**{**PAPER, **kw.pop("system", {})})
+    s = ImpactOscillator(**{**FORCED, **kw.pop("system", {})})
     return simulate_pair(s, x1, x2, t_end, dt, coupling=coupling, Kp=Kp, Kd=Kd, record_every=every, **kw)
 
 
@@ -96,7 +96,7 @@ def test_contact_episodes_equal_those_of_single_runs():
     ds = sweep(SCENE, variant="uncoupled", grid={"system.e": [0.0, 0.6]},
                overrides={"run.t_end": 20.0}, quiet=True)
     for j, e in enumerate([0.0, 0.6]):
-        s = ImpactOscillator(**{**PAPER, "e": e})
+        s = ImpactOscillator(**{**FORCED, "e": e})
         for x, name in ((X1, "episodes1"), (X2, "episodes2")):
             r = simulate(s, x, 20.0, 1e-3)
             assert int(ds[name].values[j]) == contact_starts(r.percussion).size > 0
@@ -238,20 +238,21 @@ def test_maps_are_written(tmp_path):
 def test_cli_sweep_writes_netcdf_and_map(tmp_path, capsys):
     from fmu_sync.cli import main
     out = tmp_path / "s"
-    code = main(["sweep", "paper-example", "--variant", "switching", "--grid", "coupling.Kp=logspace(-1,1,3)",
+    code = main(["sweep", "forced-pair", "--variant", "switching", "--grid", "coupling.Kp=logspace(-1,1,3)",
                  "--grid", "coupling.Kd=[0.2, 1.0]", "--set", "run.t_end=3", "-o", str(out), "--quiet"])
     assert code == 0
     text = capsys.readouterr().out
     assert "6 runs (6 computed" in text and "map.png" in text
     assert read_dataset(out / "sweep.nc")["status"].shape == (3, 2)
-    assert main(["sweep", "paper-example", "--grid", "coupling.Kp=-1", "--variant", "switching",
+    assert main(["sweep", "forced-pair", "--grid", "coupling.Kp=-1", "--variant", "switching",
                  "-o", str(tmp_path / "bad"), "--quiet"]) == 2
     assert "coupling.Kp = -1" in capsys.readouterr().err
 
 
 @pytest.mark.slow
 def test_cosimulated_sweep_runs_in_worker_processes_and_equals_single_cosimulations(tmp_path):
-    from fmu_sync.scene import export_for, load_scene, run_variant
+    from fmu_sync.scenes.loading import load_scene
+    from fmu_sync.scenes.running import export_for, run_variant
     over = {"run.t_end": 4.0, "run.mode": "cosim", "run.record_every": 1}
     ds = sweep(SCENE, variant="switching", grid={"coupling.Kp": [0.5, 2.0], "run.H": [1e-2]},
                overrides=over, workers=2, quiet=True)
@@ -276,7 +277,8 @@ def test_cosimulated_sweep_runs_in_worker_processes_and_equals_single_cosimulati
 
 
 def test_two_dof_core_pairs_run_in_worker_processes_and_equal_single_runs():
-    from fmu_sync.scene import load_scene, run_variant
+    from fmu_sync.scenes.loading import load_scene
+    from fmu_sync.scenes.running import run_variant
     ds = sweep("two-dof", grid={"coupling.Kp": [0.5, 2.0]}, overrides={"run.t_end": 3.0}, workers=2, quiet=True)
     assert ds.attrs["process_runs"] == 2 and ds.attrs["compiled_runs"] == 0
     for i, kp in enumerate([0.5, 2.0]):
@@ -292,11 +294,11 @@ def test_mismatched_second_system_uncoupled_equals_two_single_runs():
     # system2.* lays keys over system 2 only; uncoupled, each system is a single run of its own
     ds = sweep(SCENE, variant="uncoupled", grid={"system2.k": [0.5, 1.0, 2.0], "system2.f0": [0.2, 0.35]},
                overrides={"run.t_end": 10.0}, quiet=True)
-    r1 = simulate(ImpactOscillator(**PAPER), X1, 10.0, 1e-3)
+    r1 = simulate(ImpactOscillator(**FORCED), X1, 10.0, 1e-3)
     for i, k in enumerate([0.5, 1.0, 2.0]):
         for j, f0 in enumerate([0.2, 0.35]):
             run = ds.isel({"system2.k": i, "system2.f0": j})
-            r2 = simulate(ImpactOscillator(**{**PAPER, "k": k, "f0": f0}), X2, 10.0, 1e-3)
+            r2 = simulate(ImpactOscillator(**{**FORCED, "k": k, "f0": f0}), X2, 10.0, 1e-3)
             assert float(run["q1"]) == r1.q[-1, 0] and float(run["u1"]) == r1.u[-1, 0]
             assert float(run["q2"]) == r2.q[-1, 0] and float(run["u2"]) == r2.u[-1, 0]
             assert int(run["impacts2"]) == r2.impacts

@@ -10,7 +10,7 @@ distributed = pytest.importorskip("distributed")
 
 from fmu_sync.sweeps import sweep  # noqa: E402
 
-SCENE = "paper-example"
+SCENE = "forced-pair"
 KW = dict(variant="switching", grid={"coupling.Kp": "logspace(-1, 1, 8)", "coupling.Kd": "logspace(-1, 0.5, 6)"},
           overrides={"run.t_end": 20.0}, chunk_size=3, plots=False, quiet=True)      # 48 runs, 16 chunks
 VARS = ("status", "q1", "u1", "q2", "u2", "d0", "d_final", "d_max", "tau_max", "t_sync", "decay_rate",

@@ -48,7 +48,7 @@ def _load() -> str:
 
 def _export(tmp: Path):
     try:
-        from fmu_sync.export import export_fmu
+        from fmu_sync import export_fmu
         return export_fmu("impact-oscillator", tmp / "ImpactOscillator.fmu"), None
     except Exception as ex:  # pragma: no cover - FMU tool chain missing
         return None, f"{type(ex).__name__}: {ex}"

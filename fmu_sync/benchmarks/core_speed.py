@@ -65,9 +65,9 @@ def simulate_vs_c(repeats: int = 5, n_steps: int = 20_000_000, dt: float = 1e-5)
 
 
 def pair_speed(repeats: int = 5, t_end: float = 100.0, dt: float = 1e-5):
-    """Steps per second of simulate_pair with the switching coupling (paper example)."""
+    """Steps per second of simulate_pair with the switching coupling (forced pair)."""
     from fmu_sync.core import ImpactOscillator
-    from fmu_sync.core.pair import simulate_pair
+    from fmu_sync.core import simulate_pair
 
     s = ImpactOscillator(m=1, k=1, c=0, f0=0.2, F=0.5, Omega=2.5, e=0.9)
     kw = dict(coupling="switching", Kp=1.0, Kd=0.5, record_every=1000)

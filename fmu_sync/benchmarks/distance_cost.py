@@ -26,9 +26,8 @@ import time
 import numpy as np
 from numba import njit
 
-from fmu_sync.core.coupling import SWITCHING, coupling_kernel, coupling_kernel1, gain_matrix
-from fmu_sync.core.distance import (_core_2d, distance1, distance_kernel, distance_kernel_unpruned,
-                                    make_geometry)
+from fmu_sync.core.kernels import (SWITCHING, core_2d, coupling_kernel, coupling_kernel1, distance1,
+                                   distance_kernel, distance_kernel_unpruned, gain_matrix, make_geometry)
 
 
 @njit(cache=True)
@@ -109,7 +108,7 @@ def _loop_distance1(sg, Q1, U1, Q2, U2, unpruned):
             X2 = (sg.w1 * Q2[i, 0] + sg.g0) / sg.sqrtWQ
             Y1 = sg.w1 * U1[i, 0] / sg.sqrtW
             Y2 = sg.w1 * U2[i, 0] / sg.sqrtW
-            r = _core_2d(X1, Y1, X2, Y2, X1 - X2, Y1 - Y2, sg.e, sg.k, False)
+            r = core_2d(X1, Y1, X2, Y2, X1 - X2, Y1 - Y2, sg.e, sg.k, False)
             acc += r[0] + r[2]
         else:
             r1 = distance1(sg, Q1[i, 0], U1[i, 0], Q2[i, 0], U2[i, 0])

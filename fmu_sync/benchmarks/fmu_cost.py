@@ -1,4 +1,4 @@
-"""Benchmark of the fmu-sync co-simulation slave (SPEC §7).
+"""Benchmark of the fmu-sync co-simulation slave (docs/design.md §4.3).
 
     python -m fmu_sync.benchmarks.fmu_cost                      # per-step cost + first-step latency
     python -m fmu_sync.benchmarks.fmu_cost --exit-check 200     # + 200 fresh fmpy processes must exit with 0
@@ -100,7 +100,7 @@ def per_step_costs(fmu_path: Path, steps: int, repeat: int) -> dict:
     from fmpy.fmi2 import FMU2Slave
 
     from fmu_sync.core import ImpactOscillator
-    from fmu_sync.core.moreau import advance
+    from fmu_sync.core.kernels import advance
 
     md = read_model_description(str(fmu_path))
     vr = {v.name: v.valueReference for v in md.modelVariables}
@@ -197,7 +197,7 @@ def exit_check(fmu_path: Path, n: int, without_fix: bool, jobs: int = 2) -> dict
 
 def run(quick: bool = False) -> str:
     """Per-step cost and first-step latency as a markdown section (for ``fmu-sync bench``)."""
-    from fmu_sync.export import export_fmu
+    from fmu_sync import export_fmu
     steps, repeat, fresh = (5000, 3, 3) if quick else (20000, 3, 5)
     with tempfile.TemporaryDirectory(prefix="bench-fmu-") as tmp:
         fmu_path = export_fmu("impact-oscillator", Path(tmp) / "ImpactOscillator.fmu")
@@ -224,7 +224,7 @@ def main(argv=None) -> int:
     ap.add_argument("--json", action="store_true", help="print the results as JSON")
     args = ap.parse_args(argv)
 
-    from fmu_sync.export import export_fmu
+    from fmu_sync import export_fmu
     results = {}
     with tempfile.TemporaryDirectory(prefix="bench-fmu-") as tmp:
         fmu_path = export_fmu("impact-oscillator", Path(tmp) / "ImpactOscillator.fmu")

@@ -16,61 +16,27 @@ ones directly):
   the remaining Zeno tail lasts ~10 dt/(1-e)); 1e-12 t_inf for the exact solver.
 * :func:`grazing` — the grazing orbit: position error vs exact, spurious low-speed impacts.
 * :func:`coupling_gains` — two unit masses coupled by PD gains (Kp, Kd = ζ√(2Kp), ζ = 0.354
-  as in the paper example), Kp = 1e-2 … 1e6: stability limit of the explicit (zero-order-hold)
+  as in the forced pair), Kp = 1e-2 … 1e6: stability limit of the explicit (zero-order-hold)
   exchange, monolithic (dt) and co-simulated (H, Jacobi and Gauss–Seidel), against the exact
   limit of the ZOH map, h* = ω_c H* = min(4ζ, 1/ζ) (≤ 2, = 2 at ζ = ½), ω_c = sqrt(2 Kp/m).
 * :func:`scale_invariance` — the same runs with states scaled by 1e-9 and 1e6.
 * :func:`large_step` — dt larger than the forcing period.
 """
+
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
 
 import numpy as np
+
+from .stability_base import G, ZETA, Row, div_ok, fmt3, osc  # noqa: F401
+from .stability_coupling import coupling_gains, gauss_seidel_rho, zoh_limit, zoh_rho  # noqa: F401
+from .stability_report import grouped_tables, summary, table, write_csv  # noqa: F401
 
 __all__ = ["Row", "stiff_wall", "restitution_limits", "zeno_rest_times", "grazing", "coupling_gains",
            "scale_invariance", "large_step", "zoh_limit", "zoh_rho", "gauss_seidel_rho", "run", "write_csv",
            "table"]
-
-G = 9.81
-ZETA = 0.5 / math.sqrt(2.0)          # the paper example: Kp = 1, Kd = 0.5 -> zeta of the relative mode
-
-
-@dataclass
-class Row:
-    group: str
-    case: str
-    method: str
-    setting: str
-    outcome: str
-    measured: str
-    criterion: str
-    passed: bool
-    seconds: float = 0.0
-    value: float = math.nan          # the headline number (for tests and the CSV)
-
-    CSV_FIELDS = ("group", "case", "method", "setting", "outcome", "measured", "criterion", "result",
-                  "seconds", "value")
-
-    def row(self) -> list:
-        return [self.group, self.case, self.method, self.setting, self.outcome, self.measured,
-                self.criterion, "pass" if self.passed else "FAIL", f"{self.seconds:.3g}", f"{self.value:.6g}"]
-
-
-def _osc(**kw):
-    from fmu_sync.core import ImpactOscillator
-    return ImpactOscillator(**kw)
-
-
-def _g(x):
-    return f"{x:.3g}"
-
-
-def _div_ok(msg: str) -> bool:
-    """A divergence message must name the step and omega_max*dt."""
-    return "dt =" in msg and "omega_max*dt" in msg
 
 
 # ===================================================================== stiff wall
@@ -96,13 +62,13 @@ def stiff_wall(dts=STIFF_DTS, t_end: float = 0.2, schemes=(("midpoint", "midpoin
                                                               ("theta0.5", "theta", 0.5),
                                                               ("theta1", "theta", 1.0))) -> list[Row]:
     from fmu_sync.core import simulate
-    from fmu_sync.core.exact import exact_events
-    from fmu_sync.core.simulate import SimulationDiverged
-    s = _osc(**STIFF)
+    from fmu_sync.core import exact_events
+    from fmu_sync.core import SimulationDiverged
+    s = osc(**STIFF)
     wmax = s.omega_max()
     q_b, u_b = _stiff_bounds()
     ev = exact_events(s, STIFF_X0, t_end)
-    crit = (f"|q| <= {_g(2 * q_b)} and |u| <= {_g(2 * u_b)} (2x the energy bound of x0), "
+    crit = (f"|q| <= {fmt3(2 * q_b)} and |u| <= {fmt3(2 * u_b)} (2x the energy bound of x0), "
             "or SimulationDiverged naming dt and omega_max*dt")
     rows = []
     for label, scheme, theta in schemes:
@@ -113,7 +79,7 @@ def stiff_wall(dts=STIFF_DTS, t_end: float = 0.2, schemes=(("midpoint", "midpoin
                 r = simulate(s, STIFF_X0, t_end, dt, scheme=scheme, theta=theta,
                              record_every=max(1, int(round(1e-5 / dt))))
             except SimulationDiverged as ex:
-                ok = _div_ok(str(ex))
+                ok = div_ok(str(ex))
                 rows.append(Row("stiff-wall", "k=1e8, f0=-1, e=0.5, x0=(1e-6,0)", label, setting,
                                 "SimulationDiverged", str(ex).split(" The ")[0], crit, ok,
                                 time.perf_counter() - t0))
@@ -128,7 +94,7 @@ def stiff_wall(dts=STIFF_DTS, t_end: float = 0.2, schemes=(("midpoint", "midpoin
             outcome = "bounded" if ok else ("NaN returned" if not finite else
                                             "returned data outside the bound, no error raised")
             rows.append(Row("stiff-wall", "k=1e8, f0=-1, e=0.5, x0=(1e-6,0)", label, setting, outcome,
-                            f"max|q|={_g(qm)}, max|u|={_g(um)}, max|q-q_exact|={_g(err)}", crit, ok, sec,
+                            f"max|q|={fmt3(qm)}, max|u|={fmt3(um)}, max|q-q_exact|={fmt3(err)}", crit, ok, sec,
                             value=max(qm / q_b, um / u_b)))
     return rows
 
@@ -147,8 +113,9 @@ def _chunks(system, x0, t_end, dt, chunk=1_000_000):
     rejects as an initial state. Yields (t, u, q, percussion) per chunk; row 0 of each
     chunk is the last row of the previous one.
     """
-    from fmu_sync.core.moreau import DIVERGED, MIDPOINT, kernels_for
-    from fmu_sync.core.simulate import SimulationDiverged, divergence_message
+    from fmu_sync.core.kernels import DIVERGED, MIDPOINT, kernels_for
+    from fmu_sync.core import SimulationDiverged
+    from fmu_sync.core.checks import divergence_message
     sa = system.arrays()
     kern = kernels_for(sa)
     q = np.array([x0[0]], dtype=float)
@@ -171,7 +138,7 @@ def _chunks(system, x0, t_end, dt, chunk=1_000_000):
 
 def restitution_limits(n_impacts: int = 10_000, dt: float = 1e-3) -> list[Row]:
     from fmu_sync.core import simulate
-    from fmu_sync.core.exact import exact_events
+    from fmu_sync.core import exact_events
     rows = []
 
     # --- e = 1, bouncing ball (no forcing, no damping): energy conserved?
@@ -180,7 +147,7 @@ def restitution_limits(n_impacts: int = 10_000, dt: float = 1e-3) -> list[Row]:
     T = (n_impacts + 0.5) * period
     for label, scheme, theta in (("midpoint", "midpoint", 0.5), ("theta0.5", "theta", 0.5),
                                  ("theta1", "theta", 1.0)):
-        s = _osc(m=1.0, k=0.0, c=0.0, f0=-G, e=1.0)
+        s = osc(m=1.0, k=0.0, c=0.0, f0=-G, e=1.0)
         t0 = time.perf_counter()
         r = simulate(s, (q0, 0.0), T, dt, scheme=scheme, theta=theta, record_every=10)
         sec = time.perf_counter() - t0
@@ -198,8 +165,8 @@ def restitution_limits(n_impacts: int = 10_000, dt: float = 1e-3) -> list[Row]:
                         "secular energy drift (median of E over the last vs the first 10 % of the run) "
                         "<= 1e-9 E0, impact count within 1 % of exact", ok, sec, value=drift))
 
-    # --- e = 1, forced elastic oscillator (SPEC "elastic" scene): bounded, impact count
-    s = _osc(m=1.0, k=1.0, c=0.0, f0=0.2, F=0.5, Omega=2.5, e=1.0)
+    # --- e = 1, forced elastic oscillator (the built-in "elastic" scene): bounded, impact count
+    s = osc(m=1.0, k=1.0, c=0.0, f0=0.2, F=0.5, Omega=2.5, e=1.0)
     ev_probe = exact_events(s, (1.0, 0.0), 2000.0)
     rate = max(ev_probe.n_impacts, 1) / 2000.0
     T = n_impacts / rate
@@ -213,11 +180,11 @@ def restitution_limits(n_impacts: int = 10_000, dt: float = 1e-3) -> list[Row]:
     ok = qm <= 2 * qmax_ex and abs(n - ev.n_impacts) <= 0.02 * ev.n_impacts
     rows.append(Row("restitution", "e=1 forced (elastic scene)", "midpoint", f"dt={dt:g}, T={T:.0f} s",
                     "bounded" if qm <= 2 * qmax_ex else "unbounded",
-                    f"impacts {n} (exact {ev.n_impacts}), max|q|={_g(qm)} (exact {_g(qmax_ex)})",
+                    f"impacts {n} (exact {ev.n_impacts}), max|q|={fmt3(qm)} (exact {fmt3(qmax_ex)})",
                     "max|q| <= 2x exact and impact count within 2 % of exact", ok, sec, value=n / ev.n_impacts))
 
-    # --- e = 0, plastic oscillator (SPEC "plastic" scene): no rebound, 1e4 impacts
-    s = _osc(m=1.0, k=1.0, c=0.0, f0=0.2, F=0.5, Omega=2.5, e=0.0)
+    # --- e = 0, plastic oscillator (the built-in "plastic" scene): no rebound, 1e4 impacts
+    s = osc(m=1.0, k=1.0, c=0.0, f0=0.2, F=0.5, Omega=2.5, e=0.0)
     ev_probe = exact_events(s, (1.0, 0.0), 2000.0)
     rate = max(ev_probe.n_impacts, 1) / 2000.0
     T = n_impacts / rate
@@ -242,7 +209,7 @@ def restitution_limits(n_impacts: int = 10_000, dt: float = 1e-3) -> list[Row]:
     rows.append(Row("restitution", "e=0 forced (plastic scene)", "midpoint", f"dt={dt:g}, T={T:.0f} s",
                     "no rebound" if rebound == 0.0 else "rebound",
                     f"impacts {n} (exact {ev.n_impacts}), max|u| after impact step={rebound:.1e}, "
-                    f"min q={qmin:.2e} (penetration), max q={_g(qmax)}",
+                    f"min q={qmin:.2e} (penetration), max q={fmt3(qmax)}",
                     "u = 0 exactly after every impact step, impact count within 1 % of exact, bounded",
                     ok, sec, value=n / max(ev.n_impacts, 1)))
     return rows
@@ -254,13 +221,13 @@ ZENO_ES = (0.1, 0.3, 0.5, 0.7, 0.8, 0.9, 0.95)
 
 def zeno_rest_times(es=ZENO_ES, dts=(1e-3, 1e-4), q0: float = 1.0) -> list[Row]:
     from fmu_sync.core import simulate
-    from fmu_sync.core.exact import exact_events
-    from .work_precision import closed_form_rest_time, rest_time_of
+    from fmu_sync.core import exact_events
+    from .work_precision_cases import closed_form_rest_time, rest_time_of
     rows = []
     for e in es:
         p = dict(m=1.0, k=0.0, c=0.0, f0=-G, e=e)
         t_inf = closed_form_rest_time(p, q0)
-        s = _osc(**p)
+        s = osc(**p)
         T = t_inf + 1.0
         t0 = time.perf_counter()
         ev = exact_events(s, (q0, 0.0), T)
@@ -292,8 +259,8 @@ GRAZING = dict(m=1.0, k=1.0, c=0.0, f0=0.4, F=0.3, Omega=0.5, e=0.8)
 
 def grazing(dts=(1e-3, 1e-4), t_end: float = 60.0) -> list[Row]:
     from fmu_sync.core import simulate
-    from fmu_sync.core.exact import exact_events
-    s = _osc(**GRAZING)
+    from fmu_sync.core import exact_events
+    s = osc(**GRAZING)
     x0 = (0.8, 0.0)
     t0 = time.perf_counter()
     ev = exact_events(s, x0, t_end)
@@ -325,205 +292,6 @@ def grazing(dts=(1e-3, 1e-4), t_end: float = 60.0) -> list[Row]:
     return rows
 
 
-# ===================================================================== coupling gains
-def zoh_matrix(h: float, zeta: float) -> np.ndarray:
-    """One step of the zero-order-hold PD exchange for the relative mode (x, v/ω_c), h = ω_c H."""
-    return np.array([[1.0 - 0.5 * h * h, h - zeta * h * h], [-h, 1.0 - 2.0 * zeta * h]])
-
-
-def zoh_rho(h: float, zeta: float) -> float:
-    return float(np.max(np.abs(np.linalg.eigvals(zoh_matrix(h, zeta)))))
-
-
-def zoh_limit(zeta: float) -> float:
-    """Exact stability limit h* = ω_c H* of the ZOH exchange (Jury test): min(4ζ, 1/ζ); 0 for ζ = 0."""
-    return min(4.0 * zeta, 1.0 / zeta) if zeta > 0 else 0.0
-
-
-def gauss_seidel_matrix(h: float, zeta: float, Kp: float = 0.5) -> np.ndarray:
-    """One Gauss-Seidel exchange step (slave 1 first, ZOH, exact integration of the held force)
-    of two unit masses coupled by PD, on (q1, u1, q2, u2); h = ω_c H."""
-    wc = math.sqrt(2.0 * Kp)
-    Kd, H = zeta * wc, h / wc
-    M = np.zeros((4, 4))
-    for j in range(4):
-        q1, u1, q2, u2 = np.eye(4)[j]
-        F1 = -Kp * (q1 - q2) - Kd * (u1 - u2)
-        q1n, u1n = q1 + H * u1 + 0.5 * H * H * F1, u1 + H * F1
-        F2 = -Kp * (q2 - q1n) - Kd * (u2 - u1n)
-        M[:, j] = (q1n, u1n, q2 + H * u2 + 0.5 * H * H * F2, u2 + H * F2)
-    return M
-
-
-def gauss_seidel_rho(h: float, zeta: float) -> float:
-    return float(np.max(np.abs(np.linalg.eigvals(gauss_seidel_matrix(h, zeta)))))
-
-
-_FREE = dict(m=1.0, k=0.0, c=0.0, f0=0.0, e=0.5)
-_DELTA = 1e-6
-
-
-def _gain_case(Kp, zeta):
-    wc = math.sqrt(2.0 * Kp / _FREE["m"])
-    Kd = zeta * wc * _FREE["m"]            # relative mode: x'' + (2 Kd/m) x' + (2 Kp/m) x = 0
-    return wc, Kd
-
-
-def _growth(q1, u1, q2, u2, wc):
-    x = np.asarray(q1)[:, 0] - np.asarray(q2)[:, 0]
-    v = np.asarray(u1)[:, 0] - np.asarray(u2)[:, 0]
-    with np.errstate(over="ignore", invalid="ignore"):
-        A = np.hypot(x, v / wc)
-    n = max(1, len(A) // 4)
-    first, last = np.max(A[:n]), np.max(A[-n:])
-    if not np.isfinite(last):
-        return math.inf
-    return float(last / first)
-
-
-def _probe_core(Kp, Kd, wc, h, n_steps):
-    """True if the monolithic run grows (or diverges) at dt = h/ω_c."""
-    from fmu_sync.core.pair import simulate_pair
-    from fmu_sync.core.simulate import SimulationDiverged
-    s = _osc(**_FREE)
-    dt = h / wc
-    try:
-        r = simulate_pair(s, (1 + _DELTA, 0.0), (1 - _DELTA, 0.0), n_steps * dt, dt, coupling="euclidean",
-                          Kp=Kp, Kd=Kd, record_distance=False)
-    except SimulationDiverged:
-        return True
-    return _growth(r.q1, r.u1, r.q2, r.u2, wc) > 1.0
-
-
-def _cosim(fmu, Kp, Kd, H, n_steps, method="jacobi"):
-    from fmu_sync.master import cosimulate
-    sv = {"m": 1.0, "k": 0.0, "c": 0.0, "f0": 0.0, "F": 0.0, "Omega": 0.0, "phi": 0.0, "e": 0.5,
-          "solver.dt": H}
-    return cosimulate(fmu, (1 + _DELTA, 0.0), (1 - _DELTA, 0.0), n_steps * H, H, coupling="euclidean",
-                      Kp=Kp, Kd=Kd, method=method, start_values=sv, record_distance=False)
-
-
-def _probe_cosim(fmu, Kp, Kd, wc, h, n_steps, method):
-    r = _cosim(fmu, Kp, Kd, h / wc, n_steps, method)
-    if r.error:
-        return True
-    return _growth(r.q1, r.u1, r.q2, r.u2, wc) > 1.0
-
-
-def _bisect(unstable, lo=0.25, hi=8.0, iters=10):
-    """Log bisection of the stability limit h* (stable at lo, unstable at hi)."""
-    if unstable(lo):
-        return 0.0
-    if not unstable(hi):
-        return math.inf
-    for _ in range(iters):
-        mid = math.sqrt(lo * hi)
-        if unstable(mid):
-            hi = mid
-        else:
-            lo = mid
-    return math.sqrt(lo * hi)
-
-
-def coupling_gains(kps=(1e-2, 1.0, 1e2, 1e4, 1e6), zeta: float = ZETA, fmu=None, cosim_kps=None,
-                   methods=("jacobi", "gauss-seidel"), n_steps: int = 400, iters: int = 10,
-                   tol: float = 0.02, divergence_check: bool = True) -> list[Row]:
-    """Stability limit of the explicit exchange vs the gain; see the module docstring."""
-    from fmu_sync.core.pair import simulate_pair
-    from fmu_sync.core.simulate import SimulationDiverged
-    rows = []
-    h_th = zoh_limit(zeta)
-    crit = f"|ω_c H* / h* - 1| <= {tol:.0%}, h* = min(4ζ, 1/ζ) = {h_th:.4f} (rule of thumb: 2)"
-    for Kp in kps:
-        wc, Kd = _gain_case(Kp, zeta)
-        case = f"Kp={Kp:g}, Kd={Kd:.3g} (ζ={zeta:.3f}), ω_c={wc:.3g}"
-        t0 = time.perf_counter()
-        hs = _bisect(lambda h: _probe_core(Kp, Kd, wc, h, n_steps), iters=iters)
-        sec = time.perf_counter() - t0
-        ok = math.isfinite(hs) and abs(hs / h_th - 1.0) <= tol
-        rows.append(Row("coupling", case, "monolithic simulate_pair (ZOH coupling)", f"dt ladder, {n_steps} steps",
-                        f"unstable for dt > {hs / wc:.4g} s",
-                        f"ω_c dt* = {hs:.4f} (h* = {h_th:.4f}, rule of thumb 2)", crit, ok, sec, value=hs))
-        if divergence_check:
-            h = 3.0 * h_th
-            rho = zoh_rho(h, zeta)
-            n = int(math.ceil((710.0 - math.log(_DELTA)) / math.log(rho))) + 20
-            s = _osc(**_FREE)
-            t0 = time.perf_counter()
-            try:
-                simulate_pair(s, (1 + _DELTA, 0.0), (1 - _DELTA, 0.0), n * h / wc, h / wc, coupling="euclidean",
-                              Kp=Kp, Kd=Kd, record_every=max(1, n // 10), record_distance=False)
-                outcome, msg, ok = "returned data, no error", "", False
-            except SimulationDiverged as ex:
-                outcome, msg, ok = "SimulationDiverged", str(ex).split(" The ")[0], True
-            rows.append(Row("coupling", case, "monolithic simulate_pair (ZOH coupling)",
-                            f"dt = 3 dt*_theory, {n} steps (enough to overflow)", outcome, msg,
-                            "divergence reported as SimulationDiverged", ok, time.perf_counter() - t0))
-        if fmu is not None and (cosim_kps is None or Kp in cosim_kps):
-            for method in methods:
-                t0 = time.perf_counter()
-                if method == "jacobi":
-                    hs = _bisect(lambda h: _probe_cosim(fmu, Kp, Kd, wc, h, n_steps, method), iters=iters)
-                    ok = math.isfinite(hs) and abs(hs / h_th - 1.0) <= tol
-                    rows.append(Row("coupling", case, "co-simulation FMU + master (jacobi)",
-                                    f"H ladder, {n_steps} steps, slave dt = H", f"unstable for H > {hs / wc:.4g} s",
-                                    f"ω_c H* = {hs:.4f} (h* = {h_th:.4f}, rule of thumb 2)", crit, ok,
-                                    time.perf_counter() - t0, value=hs))
-                    continue
-                # Gauss-Seidel: slave 2 sees slave 1 at t + H while it is at t, so tau2 != -tau1 and
-                # the exchange is not Galilean invariant: the map has a real eigenvalue > 1 for every H
-                # (both masses accelerate together), see gauss_seidel_rho.
-                h = 0.1
-                steps = 3000
-                r = _cosim(fmu, Kp, Kd, h / wc, steps, method)
-                rho_th = gauss_seidel_rho(h, zeta)
-                dev = np.column_stack([r.q1[:, 0] - 1.0, r.u1[:, 0] / wc, r.q2[:, 0] - 1.0, r.u2[:, 0] / wc])
-                A = np.linalg.norm(dev, axis=1)
-                k0 = steps // 2
-                rho = float((A[-1] / A[k0]) ** (1.0 / (A.size - 1 - k0)))
-                ok = not r.error and abs(rho - rho_th) <= 0.01 * (rho_th - 1.0)
-                rows.append(Row("coupling", case, "co-simulation FMU + master (gauss-seidel)",
-                                f"ω_c H = {h:g}, {steps} steps, slave dt = H",
-                                "unstable for every H: the pair accelerates together",
-                                f"growth/step {rho:.7f} (GS map eigenvalue {rho_th:.7f} ≈ 1 + h²/4); "
-                                f"common drift q1-1 = {float(r.q1[-1, 0]) - 1:.2e} after {steps} steps",
-                                "measured growth = largest eigenvalue of the Gauss-Seidel ZOH map (±1 % of "
-                                "its excess over 1)", ok, time.perf_counter() - t0, value=rho))
-            if divergence_check:
-                h = 3.0 * h_th
-                rho = zoh_rho(h, zeta)
-                n = int(math.ceil((710.0 - math.log(_DELTA)) / math.log(rho))) + 20
-                t0 = time.perf_counter()
-                r = _cosim(fmu, Kp, Kd, h / wc, n)
-                finite = all(np.all(np.isfinite(a)) for a in (r.q1, r.u1, r.q2, r.u2))
-                ok = bool(r.error) and finite
-                rows.append(Row("coupling", case, "co-simulation FMU + master (jacobi)",
-                                f"H = 3 H*_theory, {n} steps", "run stopped with an error" if r.error else
-                                "returned data, no error", (r.error or "")[:200],
-                                "divergence reported (PairResult.error), recorded data finite", ok,
-                                time.perf_counter() - t0))
-    # zero damping: the Jacobi/ZOH exchange is unstable for every step (rho = sqrt(1 + h^2/2))
-    Kp = 1.0
-    wc, _ = _gain_case(Kp, 0.0)
-    h = 0.1
-    steps = 2000
-    s = _osc(**_FREE)
-    t0 = time.perf_counter()
-    r = simulate_pair(s, (1 + _DELTA, 0.0), (1 - _DELTA, 0.0), steps * h / wc, h / wc, coupling="euclidean",
-                      Kp=Kp, Kd=0.0, record_distance=False)
-    x = r.q1[:, 0] - r.q2[:, 0]
-    v = r.u1[:, 0] - r.u2[:, 0]
-    A2 = x * x + (v / wc) ** 2
-    # the amplitude of the non-normal map oscillates: fit the log of the quadratic invariant
-    rho_meas = math.exp(np.polyfit(np.arange(A2.size), 0.5 * np.log(A2), 1)[0])
-    rho_th = math.sqrt(1 + h * h / 2)
-    ok = abs(rho_meas - rho_th) <= 1e-3 * (rho_th - 1) + 1e-5
-    rows.append(Row("coupling", "Kp=1, Kd=0 (no damping)", "monolithic simulate_pair (ZOH coupling)",
-                    f"ω_c dt = {h:g}, {steps} steps", "slow growth (energy pumped in by the hold)",
-                    f"growth/step {rho_meas:.7f} (theory sqrt(1+h²/2) = {rho_th:.7f})",
-                    "measured growth factor = theory (±1e-5): with Kd = 0 the ZOH exchange is unstable "
-                    "for every step", ok, time.perf_counter() - t0, value=rho_meas))
-    return rows
 
 
 # ===================================================================== scale invariance
@@ -533,21 +301,21 @@ SCALES = (1e-9, 1.0, 1e6)
 def scale_invariance(scales=SCALES, dt: float = 1e-3, fmu=None, tol: float = 1e-6) -> list[Row]:
     """Relative errors of runs whose states (and forces) are scaled by s: must not depend on s."""
     from fmu_sync.core import simulate
-    from fmu_sync.core.exact import exact_events, simulate_exact
-    from fmu_sync.core.pair import simulate_pair
-    from .work_precision import closed_form_rest_time, rest_time_of
+    from fmu_sync.core import exact_events, simulate_exact
+    from fmu_sync.core import simulate_pair
+    from .work_precision_cases import closed_form_rest_time, rest_time_of
 
     def ball(sc):
         return dict(m=1.0, k=0.0, c=0.0, f0=-G * sc, e=0.8), (sc, 0.0), 5.0
 
-    def paper(sc):
+    def forced_pair(sc):
         return dict(m=1.0, k=1.0, c=0.0, f0=0.2 * sc, F=0.5 * sc, Omega=2.5, e=0.9), (sc, 0.0), 20.0
 
     cases = {}
     for sc in scales:
         out = {}
         p, x0, T = ball(sc)
-        s = _osc(**p)
+        s = osc(**p)
         ev = exact_events(s, x0, T)
         r = simulate(s, x0, T, dt)
         qe, _ = ev.state(r.t)
@@ -556,25 +324,29 @@ def scale_invariance(scales=SCALES, dt: float = 1e-3, fmu=None, tol: float = 1e-
         out[("bouncing ball", "midpoint", "|t_rest - t_inf| (s)")] = abs(rest_time_of(r.t, r.u[:, 0], 1e-6 * math.sqrt(2 * G) * sc)
                                                        - t_inf)
         out[("bouncing ball", "exact", "|t_rest - t_inf|/t_inf")] = abs(float(ev.zeno_times[0]) - t_inf) / t_inf
-        p, x0, T = paper(sc)
-        s = _osc(**p)
+        p, x0, T = forced_pair(sc)
+        s = osc(**p)
         ev = exact_events(s, x0, T)
         for label, scheme, theta in (("midpoint", "midpoint", 0.5), ("theta1", "theta", 1.0)):
             r = simulate(s, x0, T, dt, scheme=scheme, theta=theta)
             qe, _ = ev.state(r.t)
-            out[("paper example", label, "max|q-q_exact|/s")] = float(np.max(np.abs(r.q[:, 0] - qe))) / sc
+            out[("forced pair", label, "max|q-q_exact|/s")] = float(np.max(np.abs(r.q[:, 0] - qe))) / sc
         rx = simulate_exact(s, x0, T, dt)
-        out[("paper example", "exact", "q(T)/s")] = float(rx.q[-1, 0]) / sc
+        out[("forced pair", "exact", "q(T)/s")] = float(rx.q[-1, 0]) / sc
         rp = simulate_pair(s, x0, (0.2 * sc, 0.5 * sc), 10.0, dt, coupling="switching", Kp=1.0, Kd=0.5,
                            record_every=10)
-        out[("paper example, coupled pair (switching)", "simulate_pair midpoint", "max d/s, d(T)/s")] = (float(np.max(rp.d)) / sc, float(rp.d[-1]) / sc)
+        out[("forced pair, coupled pair (switching)", "simulate_pair midpoint", "max d/s, d(T)/s")] = (float(np.max(rp.d)) / sc, float(rp.d[-1]) / sc)
         if fmu is not None:
-            from fmu_sync.master import cosimulate
-            sv = {"m": 1.0, "k": 1.0, "c": 0.0, "f0": 0.2 * sc, "F": 0.5 * sc, "Omega": 2.5, "phi": 0.0,
-                  "e": 0.9, "solver.dt": dt}
-            rc = cosimulate(fmu, x0, (0.2 * sc, 0.5 * sc), 10.0, 0.01, coupling="switching", Kp=1.0, Kd=0.5,
-                            start_values=sv, record_every=10)
-            out[("paper example, coupled pair (switching)", "co-simulation H=0.01", "max d/s, d(T)/s")] = (
+            from fmu_sync import SlaveError, cosimulate
+            from fmu_sync.fmus.contract import MODELS
+            io = MODELS["impact-oscillator"]
+            sv = {**io.values(s), **io.solver_values(dt)}
+            try:
+                rc = cosimulate(fmu, x0, (0.2 * sc, 0.5 * sc), 10.0, 0.01, coupling="switching", Kp=1.0,
+                                Kd=0.5, start_values=sv, record_every=10)
+            except SlaveError as exc:
+                rc = exc.partial
+            out[("forced pair, coupled pair (switching)", "co-simulation H=0.01", "max d/s, d(T)/s")] = (
                 (float(np.max(rc.d)) / sc, float(rc.d[-1]) / sc) if not rc.error else (math.nan, math.nan))
         cases[sc] = out
     rows = []
@@ -605,14 +377,14 @@ def scale_invariance(scales=SCALES, dt: float = 1e-3, fmu=None, tol: float = 1e-
 def large_step(dts=(1.0, 3.0, 7.0), t_end: float = 2000.0) -> list[Row]:
     """dt larger than the forcing period: bounded (no secular growth) or SimulationDiverged."""
     from fmu_sync.core import simulate
-    from fmu_sync.core.exact import exact_events
-    from fmu_sync.core.simulate import SimulationDiverged
+    from fmu_sync.core import exact_events
+    from fmu_sync.core import SimulationDiverged
     rows = []
-    for name, p, x0 in (("paper-example (period 2.51 s, omega_max = 1)",
+    for name, p, x0 in (("forced-pair (period 2.51 s, omega_max = 1)",
                          dict(m=1.0, k=1.0, c=0.0, f0=0.2, F=0.5, Omega=2.5, e=0.9), (1.0, 0.0)),
                         ("zeno-table (period 2.09 s, k = 0)",
                          dict(m=1.0, k=0.0, c=0.0, f0=-1.0, F=2.0, Omega=3.0, e=0.5), (0.0, 0.0))):
-        s = _osc(**p)
+        s = osc(**p)
         ev = exact_events(s, x0, t_end)
         qex = float(np.max(np.abs(ev.state(np.linspace(0.0, t_end, 400_001))[0])))
         period = 2 * math.pi / p["Omega"]
@@ -627,7 +399,7 @@ def large_step(dts=(1.0, 3.0, 7.0), t_end: float = 2000.0) -> list[Row]:
                     r = simulate(s, x0, t_end, dt, scheme=scheme, theta=theta)
                 except SimulationDiverged as ex:
                     rows.append(Row("large-dt", name, label, setting, "SimulationDiverged",
-                                    str(ex).split(" The ")[0], crit, _div_ok(str(ex)), time.perf_counter() - t0))
+                                    str(ex).split(" The ")[0], crit, div_ok(str(ex)), time.perf_counter() - t0))
                     continue
                 sec = time.perf_counter() - t0
                 q = r.q[:, 0]
@@ -637,114 +409,13 @@ def large_step(dts=(1.0, 3.0, 7.0), t_end: float = 2000.0) -> list[Row]:
                 ok = finite and a2 <= 2 * a1
                 qe, _ = ev.state(r.t)
                 rows.append(Row("large-dt", name, label, setting, "bounded" if ok else "grows",
-                                f"max|q| {_g(max(a1, a2))} (exact {_g(qex)}), max|q-q_exact| "
-                                f"{_g(float(np.max(np.abs(q - qe))))}: aliased forcing, no warning given",
+                                f"max|q| {fmt3(max(a1, a2))} (exact {fmt3(qex)}), max|q-q_exact| "
+                                f"{fmt3(float(np.max(np.abs(q - qe))))}: aliased forcing, no warning given",
                                 crit, ok, sec, value=max(a1, a2) / qex))
     return rows
 
 
 # ===================================================================== report
-def table(rows) -> str:
-    lines = ["| group | case | method | setting | outcome | measured | criterion | result |",
-             "|---|---|---|---|---|---|---|---|"]
-    for r in rows:
-        lines.append(f"| {r.group} | {r.case} | {r.method} | {r.setting} | {r.outcome} | {r.measured} | "
-                     f"{r.criterion} | {'pass' if r.passed else '**FAIL**'} |")
-    return "\n".join(lines)
-
-
-GROUP_TITLES = {
-    "stiff-wall": "Stiff wall (k = 1e8, omega_max = 1e4 rad/s)",
-    "restitution": "Restitution limits e = 1 and e = 0 over 1e4 impacts",
-    "zeno": "Zeno: bouncing ball rest time vs closed form",
-    "grazing": "Grazing orbit",
-    "coupling": "Coupling gains: explicit exchange, monolithic and co-simulated",
-    "scale": "State magnitudes 1e-9 and 1e6 (scale invariance)",
-    "large-dt": "Step larger than the forcing period",
-}
-
-
-def grouped_tables(rows) -> str:
-    """Markdown: one table per group; a criterion shared by the whole group is stated once."""
-    out = []
-    groups = []
-    for r in rows:
-        if r.group not in groups:
-            groups.append(r.group)
-    for g in groups:
-        rs = [r for r in rows if r.group == g]
-        out.append(f"### {GROUP_TITLES.get(g, g)}")
-        out.append("")
-        crits = {r.criterion for r in rs}
-        shared = len(crits) == 1
-        if shared:
-            out.append(f"Criterion: {rs[0].criterion}.")
-            out.append("")
-            out.append("| case | method | setting | outcome | measured | result |")
-            out.append("|---|---|---|---|---|---|")
-        else:
-            out.append("| case | method | setting | outcome | measured | criterion | result |")
-            out.append("|---|---|---|---|---|---|---|")
-        for r in rs:
-            res = "pass" if r.passed else "**FAIL**"
-            cells = [r.case, r.method, r.setting, r.outcome, r.measured] + ([] if shared else [r.criterion]) + [res]
-            out.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
-        out.append("")
-    return "\n".join(out)
-
-
-def write_csv(rows, path) -> None:
-    import csv
-    with open(path, "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(Row.CSV_FIELDS)
-        for r in rows:
-            w.writerow(r.row())
-
-
-def _summary(rows) -> list[str]:
-    out = []
-    g = {}
-    for r in rows:
-        g.setdefault(r.group, []).append(r)
-    fails = [r for r in rows if not r.passed]
-    out.append(f"- {len(rows) - len(fails)} of {len(rows)} rows pass.")
-    for r in fails:
-        out.append(f"- **FAIL** {r.group} / {r.case} / {r.method} / {r.setting}: {r.outcome} ({r.measured}).")
-    coup = [r for r in g.get("coupling", []) if r.measured.startswith(("ω_c H*", "ω_c dt*"))]
-    if coup:
-        vals = [r.value for r in coup if math.isfinite(r.value) and r.value > 0]
-        if vals:
-            kinds = sorted({"co-simulated (Jacobi)" if "co-simulation" in r.method else "monolithic" for r in coup})
-            out.append(f"- Explicit (zero-order-hold) coupling: measured ω_c·H* = {min(vals):.3f}–{max(vals):.3f} "
-                       f"for every Kp from {min(_kps(coup)):g} to {max(_kps(coup)):g} ({' and '.join(kinds)}, "
-                       f"{len(vals)} bisections), i.e. H* = h*/sqrt(2 Kp/m) with h* = min(4ζ, 1/ζ) = "
-                       f"{zoh_limit(ZETA):.3f} for ζ = {ZETA:.3f}; the rule of thumb H·ω_c ≈ 2 is the best case "
-                       f"(ζ = 1/2) and overestimates the limit by ×{2 / zoh_limit(ZETA):.2f} at the paper's damping ratio.")
-    if any("omega_max*dt = 0)" in r.measured and "omega_c" not in r.measured for r in g.get("coupling", [])):
-        out.append("- The `SimulationDiverged` message of a diverging coupled run reports omega_max*dt = 0 "
-                   "(the uncoupled systems' stiffness only): it ignores the coupling frequency "
-                   "ω_c = sqrt(2 Kp/m), so it does not point at the cause (ω_c·dt > h*).")
-    gs = [r for r in g.get("coupling", []) if "gauss-seidel" in r.method]
-    if gs:
-        out.append(f"- Gauss–Seidel exchange (slave 2 sees slave 1 already at t + H): τ2 ≠ −τ1, so momentum "
-                   f"is not conserved and the exchange is not Galilean invariant (two synchronized masses "
-                   f"moving at speed V get τ2 = Kp·H·V); its ZOH map has a real eigenvalue ≈ 1 + (ω_c H)²/4 > 1 "
-                   f"for every H: measured growth/step {gs[0].value:.7f} at ω_c H = 0.1, the pair drifting "
-                   f"off together. Jacobi (the default) conserves momentum and is stable up to h*.")
-    return out
-
-
-def _kps(rows):
-    out = []
-    for r in rows:
-        try:
-            out.append(float(r.case.split(",")[0].split("=")[1]))
-        except (IndexError, ValueError):
-            pass
-    return out or [math.nan]
-
-
 def run(quick: bool = False, fmu=None, progress=None, smoke: bool = False):
     """All groups; returns (rows, markdown)."""
     t_start = time.perf_counter()
@@ -781,6 +452,6 @@ def run(quick: bool = False, fmu=None, progress=None, smoke: bool = False):
     mode = "smoke" if smoke else ("quick" if quick else "full")
     md = [f"## Stability ({mode}, {seconds:.0f} s)", "",
           "Every row states its criterion; a divergence must be reported as an error "
-          "(`SimulationDiverged` in the core, `PairResult.error` in co-simulation), never returned as data.",
-          "", "### Findings", ""] + _summary(rows) + ["", grouped_tables(rows), ""]
+          "(`SimulationDiverged` in the core, `SlaveError` with the partial record in co-simulation), never returned as data.",
+          "", "### Findings", ""] + summary(rows) + ["", grouped_tables(rows), ""]
     return rows, "\n".join(md) + "\n"

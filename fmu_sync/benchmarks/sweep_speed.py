@@ -1,7 +1,7 @@
 """Sweep throughput: the embedded engine and a Dask LocalCluster against single runs, in one run.
 
 Through the public API only (``fmu_sync.sweep``, ``simulate_pair``), on the
-switching-coupled pair of the ``paper-example`` scene (dt = 1e-3):
+switching-coupled pair of the ``forced-pair`` scene (dt = 1e-3):
 
 * **single pair**: pair steps per second of ``simulate_pair`` (one run at a
   time, the scene's record_every), runs taken from the sweep's own gains;
@@ -25,7 +25,7 @@ import subprocess
 import sys
 import time
 
-SCENE = "paper-example"
+SCENE = "forced-pair"
 VARIANT = "switching"
 DT = 1e-3
 
@@ -37,9 +37,8 @@ def _kps(R):
 
 def _single_rate(kps, steps):
     """Pair steps per second of simulate_pair, one run after another."""
-    from fmu_sync.core import ImpactOscillator
-    from fmu_sync.core.pair import simulate_pair
-    from fmu_sync.scene import load_scene
+    from fmu_sync.core import ImpactOscillator, simulate_pair
+    from fmu_sync import load_scene
     v = load_scene(SCENE, None, [VARIANT]).variants[0]
     s = ImpactOscillator(m=v.cfg["system.m"], k=v.cfg["system.k"], c=v.cfg["system.c"], f0=v.cfg["system.f0"],
                          F=v.cfg["system.F"], Omega=v.cfg["system.Omega"], phi=v.cfg["system.phi"],
@@ -70,7 +69,7 @@ _MEM_CHILD = r"""
 import resource, sys
 import fmu_sync
 R, steps = int(sys.argv[1]), int(sys.argv[2])
-fmu_sync.sweep("paper-example", variant="switching", grid={"coupling.Kp": "linspace(0.5, 2, %d)" % R},
+fmu_sync.sweep("forced-pair", variant="switching", grid={"coupling.Kp": "linspace(0.5, 2, %d)" % R},
                overrides={"run.t_end": steps * 1e-3}, quiet=True)
 print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
 """
@@ -156,7 +155,7 @@ def run(quick: bool = False, smoke: bool = False) -> str:
     r = measure(**kw)
     M = 1e6
     lines = [f"## Sweep throughput ({r['runs']} runs x {r['steps']:.0e} steps, switching-coupled "
-             f"paper-example pair, {r['cores']} cores)", "",
+             f"forced-pair pair, {r['cores']} cores)", "",
              f"load average {load0} at the start, {_load()} at the end (shared machine: the parallel "
              "ratios need idle cores).", "",
              "| measurement | value | target |", "|---|---|---|",

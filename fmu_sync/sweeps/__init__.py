@@ -1,7 +1,7 @@
 """Sweeps: families of coupled-pair runs as labelled arrays (gain maps, basins, ...).
 
     import fmu_sync
-    ds = fmu_sync.sweep("paper-example", variant="switching",
+    ds = fmu_sync.sweep("forced-pair", variant="switching",
                         grid={"coupling.Kp": "logspace(-2, 2, 41)", "coupling.Kd": "logspace(-2, 2, 41)"},
                         out="gain-map")
     ds["decay_rate"].sel({"coupling.Kd": 0.5}, method="nearest")
@@ -164,13 +164,12 @@ def _versions() -> dict:
 
 
 def _fingerprint(scene, variant, keys, runs, method, seed, threshold, chunk) -> str:
-    from ..core._cache import core_stamp
     h = hashlib.sha256()
     h.update(Path(scene.path).read_bytes())
     h.update(json.dumps(dict(overrides=scene.overrides, variant=variant, keys=keys, method=method, seed=seed,
                              threshold=threshold, chunk=chunk), sort_keys=True, default=repr).encode())
     h.update(json.dumps(runs, sort_keys=True, default=repr).encode())
-    h.update(core_stamp())
+    h.update(json.dumps(_versions(), sort_keys=True).encode())
     return h.hexdigest()
 
 
@@ -218,7 +217,7 @@ def sweep(scene, grid: dict | None = None, *, sample: dict | None = None, n: int
 
     Parameters
     ----------
-    scene : built-in scene name, ``.toml`` path or :class:`fmu_sync.scene.Scene`
+    scene : built-in scene name, ``.toml`` path or :class:`fmu_sync.Scene`
         (a built-in *sweep* scene name, e.g. ``"gain-map"``, brings its own grid).
     grid : ``{parameter: values}`` -- a full grid; values as in :mod:`.spec`
         (``"logspace(-2, 2, 41)"``, ``"linspace(0, 1, 11)"``, a list, an array).
@@ -237,7 +236,7 @@ def sweep(scene, grid: dict | None = None, *, sample: dict | None = None, n: int
     """
     from ..core.batch import COL, DIVERGED, OK
     from ..report import SYNC_THRESHOLD
-    from ..scene import Scene, load_scene
+    from ..scenes.loading import Scene, load_scene
     from . import store
     from .engine import divergence_reason, prepare
 

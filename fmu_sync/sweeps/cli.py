@@ -9,10 +9,10 @@ __all__ = ["add_parser", "run"]
 HELP = """\
 examples:
   fmu-sync sweep gain-map -o out/gain-map                      (built-in sweep scene: 41 x 41 Kp, Kd)
-  fmu-sync sweep paper-example --variant switching \\
+  fmu-sync sweep forced-pair --variant switching \\
       --grid coupling.Kp='logspace(-2,2,41)' --grid coupling.Kd='logspace(-2,2,41)' -o out/map
   fmu-sync sweep basin -o out/basin                             (basin over the start state of system 2)
-  fmu-sync sweep paper-example --variant switching --method lhs --n 500 --seed 1 \\
+  fmu-sync sweep forced-pair --variant switching --method lhs --n 500 --seed 1 \\
       --sample coupling.Kp='loguniform(0.01,100)' --sample system.e='uniform(0.5,1)'
   fmu-sync sweep gain-map --scheduler tcp://HOST:8786          (chunks as tasks on a Dask cluster)
 
@@ -65,7 +65,7 @@ def _pairs(items, what):
 def run(args) -> int:
     import numpy as np
 
-    from ..scene import parse_override
+    from ..scenes.loading import parse_override
     from . import SweepTaskError, list_sweep_scenes, load_sweep_scene, sweep
     if args.list or not args.scene:
         rows = list_sweep_scenes()

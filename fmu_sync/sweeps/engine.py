@@ -5,7 +5,7 @@
   :func:`fmu_sync.core.batch.run_pairs1` (numba ``prange``, one thread per core).
 * **per-run chunks** -- co-simulated runs (FMU instances belong to a process)
   and core pairs with n > 1: each run is loaded from the scene and run by
-  :func:`fmu_sync.scene.run_variant` in a worker process; only its metrics
+  :func:`fmu_sync.scenes.running.run_variant` in a worker process; only its metrics
   come back (:func:`fmu_sync.core.batch.metrics_from_records`).
 
 Both kinds of task are plain functions of picklable payloads, so the same
@@ -103,7 +103,8 @@ def _scene_overrides(run: dict, variant) -> dict:
 def _validate_values(scene, variant_name, key, values):
     """Check per-run values against the scene's own rules (each distinct value, or the
     extremes of a large sample); raise :class:`SweepSpecError` naming the parameter."""
-    from ..scene import SceneError, load_scene
+    from ..scenes.loading import load_scene
+    from ..scenes.schema import SceneError
     vals = sorted(set(values), key=lambda v: (str(type(v)), v))
     if len(vals) > 256:
         vals = [vals[0], vals[-1]]
@@ -117,8 +118,9 @@ def _validate_values(scene, variant_name, key, values):
 def prepare(scene, runs: list[dict], variant_name: str | None) -> Prepared:
     """Resolve every run against the scene: system groups, per-run inputs, refusals."""
     from ..core.distance import geometry
-    from ..core.simulate import _n_steps
-    from ..scene import SceneError, load_scene
+    from ..core.checks import n_steps as _n_steps
+    from ..scenes.loading import load_scene
+    from ..scenes.schema import SceneError
 
     R = len(runs)
     out = batch.empty_out(R)
@@ -272,7 +274,8 @@ def _group_overrides(r: dict) -> dict:
 def _system2(scene, v, r, s2: dict):
     """System 2 of a run: system 1 with the ``system2.*`` keys laid over it (through the scene's
     own checks); it must share the impact geometry (M, w, g0, e) with system 1."""
-    from ..scene import SceneError, load_scene
+    from ..scenes.loading import load_scene
+    from ..scenes.schema import SceneError
     over = {**scene.overrides, **_group_overrides(r), **{"system." + k[len(SYSTEM2):]: x for k, x in s2.items()}}
     try:
         sys2 = load_scene(scene.path, over, [v.name]).variants[0].system
@@ -290,7 +293,7 @@ def _system2(scene, v, r, s2: dict):
 def divergence_reason(prep: Prepared, i: int, t_stop: float) -> str:
     """The message simulate_pair would raise for a compiled run that diverged."""
     from ..core.coupling import gain_matrix
-    from ..core.simulate import divergence_message
+    from ..core.checks import divergence_message
     v = prep.systems[int(prep.groups[i])]
     a = prep.arrays
     law = int(a["law"][i])
@@ -346,8 +349,8 @@ _FMUS: dict = {}
 
 def _fmu_for(variant):
     """The FMU of the variant's model, exported once per process."""
-    from ..scene import FMU_MODELS, export_for
-    key = FMU_MODELS[(variant.cfg["system.model"], variant.system.n)]
+    from ..scenes.running import export_for
+    key = (variant.cfg["system.model"], variant.system.n)
     if key not in _FMUS:
         d = tempfile.mkdtemp(prefix=f"fmu-sync-sweep-{os.getpid()}-")
         _FMUS[key] = export_for(variant, d)
@@ -355,8 +358,10 @@ def _fmu_for(variant):
 
 
 def _one_python_run(path, overrides, vname, threshold):
-    from ..core import SimulationDiverged
-    from ..scene import SceneError, load_scene, run_variant
+    from ..core import RunFailed
+    from ..scenes.loading import load_scene
+    from ..scenes.running import run_variant
+    from ..scenes.schema import SceneError
     row = np.full(len(COLUMNS), np.nan)
     try:
         v = load_scene(path, overrides, [vname]).variants[0]
@@ -366,7 +371,7 @@ def _one_python_run(path, overrides, vname, threshold):
     reason = ""
     try:
         res = run_variant(v, _fmu_for(v) if v.mode == "cosim" else None)
-    except SimulationDiverged as exc:
+    except RunFailed as exc:
         res = getattr(exc, "partial", None)
         reason = str(exc)
         if res is None:  # refused before the first step

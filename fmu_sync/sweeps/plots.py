@@ -63,7 +63,7 @@ def _label(k):
 
 def _base_variant(ds):
     """The scene variant the sweep was made from (for the parameters it did not sweep)."""
-    from ..scene import load_scene
+    from ..scenes.loading import load_scene
     try:
         sc = load_scene(ds.attrs["scene_file"], json.loads(ds.attrs.get("overrides", "{}")),
                         [ds.attrs["variant"]] if ds.attrs.get("variant") else None)

@@ -1,0 +1,50 @@
+"""Single-system simulation: the plain functional entry point over the kernels
+(Moreau schemes of :mod:`.moreau`, or the exact solver of :mod:`.exact`)."""
+from __future__ import annotations
+
+import numpy as np
+
+from .checks import check_run, check_stable, divergence_message, scheme_code
+from .errors import SimulationDiverged
+from .exact import simulate_exact
+from .model import MechanicalSystem, as_state
+from .moreau import DIVERGED, kernels_for
+from .result import SimulationResult
+
+__all__ = ["simulate"]
+
+
+def simulate(system: MechanicalSystem, x0, t_end: float, dt: float, scheme: str = "midpoint",
+             theta: float = 0.5, tau=None, record_every: int = 1, t0: float = 0.0) -> SimulationResult:
+    """Simulate one system from ``x0 = (q0, u0)`` over ``[t0, t_end]`` with fixed step ``dt``.
+
+    ``scheme`` is ``"midpoint"`` (default), ``"theta"`` (Moreau–Jean, ``theta`` in
+    [0.5, 1]) or ``"exact"`` (event-driven, 1-DOF linear force law only).
+    ``tau`` is a constant input (length m). The run ends after
+    ``floor((t_end - t0)/dt)`` steps. Raises :class:`SimulationDiverged` if the
+    state becomes non-finite (never returns NaN data).
+    """
+    dt, steps, record_every = check_run(t_end, dt, record_every, t0)
+    q0, u0 = as_state(system, x0)
+    g = system.gap(q0)
+    if g < 0.0:
+        raise ValueError(f"initial state violates the constraint: g(q0) = {g:.6g} < 0 (need g(q0) >= 0)")
+    tau = np.zeros(system.m) if tau is None else np.array(tau, dtype=np.float64, ndmin=1).reshape(-1)
+    if tau.shape != (system.m,) or not np.all(np.isfinite(tau)):
+        raise ValueError(f"tau must be {system.m} finite numbers, got {tau.tolist()}")
+    if scheme == "exact":
+        return simulate_exact(system, (q0, u0), t_end, dt, tau=tau, record_every=record_every, t0=t0)
+    code, theta = scheme_code(scheme, theta)
+    check_stable(system, scheme, dt)
+    rows = steps // record_every + 1
+    n = system.n
+    T = np.empty(rows)
+    Q = np.empty((rows, n))
+    U = np.empty((rows, n))
+    P = np.empty(rows)
+    sa = system.arrays()
+    status, done, written = kernels_for(sa)(sa, q0.copy(), u0.copy(), float(t0), dt, steps,
+                                            tau, code, theta, record_every, T, Q, U, P)
+    if status == DIVERGED:
+        raise SimulationDiverged(divergence_message(system, scheme, dt, t0 + done * dt))
+    return SimulationResult(T, Q, U, P, scheme, dt)

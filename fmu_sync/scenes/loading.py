@@ -1,0 +1,326 @@
+"""Loading a scene (docs/design.md §4.5): a TOML file (built-in name or path) and
+overrides -> a validated :class:`Scene` of :class:`~.schema.Variant` runs."""
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..core import ImpactOscillator, MechanicalSystem
+from ..fmus import contract
+from . import SCENE_DIR, builtin_names
+from .schema import (DISTANCE_PLOTS, KEYS, MODELS, NAME_RE, PLOTS, REQUIRED, SINGLE_PLOTS, SYSTEM_KEYS, TABLES,
+                     VARIANT_TABLES, BadValue, SceneError, Variant, choice, show_value)
+
+__all__ = ["Scene", "load_scene", "list_scenes", "parse_override"]
+
+
+@dataclass(frozen=True)
+class Scene:
+    name: str
+    path: Path
+    description: str
+    variants: tuple
+    plots: tuple
+    compare: bool
+    overrides: dict = field(default_factory=dict)
+
+    def variant(self, name: str) -> Variant:
+        for v in self.variants:
+            if v.name == name:
+                return v
+        raise SceneError(f"{self.path.name}: no variant {name!r}; variants: "
+                         + ", ".join(v.name for v in self.variants))
+
+    def with_overrides(self, overrides: dict) -> "Scene":
+        return load_scene(self.path, {**self.overrides, **overrides}, [v.name for v in self.variants])
+
+    def select(self, names) -> "Scene":
+        """The scene with only the named variants (re-validated)."""
+        return load_scene(self.path, self.overrides, list(names))
+
+
+# ---------------------------------------------------------------- loading
+def list_scenes() -> list[tuple[str, str]]:
+    """``(name, one-line description)`` of every built-in scene."""
+    out = []
+    for name in builtin_names():
+        path = SCENE_DIR / f"{name}.toml"
+        try:
+            with open(path, "rb") as fh:
+                desc = tomllib.load(fh).get("description", "")
+        except (OSError, tomllib.TOMLDecodeError) as exc:
+            desc = f"(unreadable: {exc})"
+        out.append((name, str(desc).strip().splitlines()[0] if desc else ""))
+    return out
+
+
+def _scene_path(name_or_path) -> Path:
+    p = Path(name_or_path)
+    if p.suffix == ".toml" or p.parent != Path(".") or p.is_file():
+        if not p.is_file():
+            raise FileNotFoundError(f"scene file not found: {p}")
+        return p
+    builtin = SCENE_DIR / f"{name_or_path}.toml"
+    if builtin.is_file():
+        return builtin
+    raise SceneError(f"unknown scene {str(name_or_path)!r}; built-in scenes: {', '.join(builtin_names())} "
+                     "(or give the path of a .toml file)")
+
+
+def parse_override(text: str) -> tuple[str, Any]:
+    """``"coupling.Kp=2"`` -> ``("coupling.Kp", 2)``. Values are TOML (numbers, booleans,
+    strings, arrays); a bare word that is not TOML is taken as a string (``scheme=theta``)."""
+    if "=" not in text:
+        raise SceneError(f"--set {text!r}: expected key=value, e.g. coupling.Kp=2")
+    key, raw = (s.strip() for s in text.split("=", 1))
+    try:
+        value = tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw
+    return key, value
+
+
+def _flatten(data: dict, ctx: str, prefix: str = "") -> dict:
+    """Tables -> dotted keys (one level; deeper structure stays a value and fails its check)."""
+    flat = {}
+    for k, v in data.items():
+        if k in TABLES:
+            if not isinstance(v, dict):
+                raise SceneError(f"{ctx}: {prefix}{k} = {show_value(v)}: must be a table [{k}]")
+            for k2, v2 in v.items():
+                flat[f"{k}.{k2}"] = v2
+        else:
+            flat[k] = v
+    return flat
+
+
+def load_scene(name_or_path, overrides: dict | None = None, variants=None) -> Scene:
+    """Load and validate a scene (built-in name or path).
+
+    ``overrides`` maps dotted keys to values (``{"coupling.Kp": 2}``); ``variants``
+    (names) keeps only those variants, and only they are checked against [plot].
+    """
+    path = _scene_path(name_or_path)
+    ctx = path.name
+    try:
+        with open(path, "rb") as fh:
+            data = tomllib.load(fh)
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"{ctx}: not valid TOML: {exc}") from None
+    overrides = dict(overrides or {})
+
+    runs = data.pop("runs", None)
+    base = _flatten(data, ctx)
+    origin = {k: k for k in base}
+    description = base.pop("description", "")
+    if not isinstance(description, str):
+        raise SceneError(f"{ctx}: description = {show_value(description)}: is not a string; allowed: a string")
+    for k in base:
+        if "." not in k:
+            raise SceneError(f"{ctx}: unknown key {k} = {show_value(base[k])}; allowed at the top: "
+                             f"description, [{'], ['.join(TABLES)}], [[runs]]")
+
+    if runs is None:
+        raw_variants = [({"name": path.stem, "description": ""}, {}, {})]
+    else:
+        if not isinstance(runs, list) or not runs or not all(isinstance(r, dict) for r in runs):
+            raise SceneError(f"{ctx}: runs = {show_value(runs)}: must be one or more [[runs]] tables")
+        raw_variants = []
+        for i, r in enumerate(runs):
+            where = f"runs[{i + 1}]."
+            r = dict(r)
+            head = {"name": r.pop("name", None), "description": r.pop("description", "")}
+            if not isinstance(head["name"], str) or not NAME_RE.match(head["name"]):
+                raise SceneError(f"{ctx}: {where}name = {show_value(head['name'])}: missing or not a valid name; "
+                                 "allowed: a string of letters, digits, '-', '_', '.' (it names output files)")
+            if not isinstance(head["description"], str):
+                raise SceneError(f"{ctx}: {where}description = {show_value(head['description'])}: is not a string")
+            flat = _flatten(r, ctx, where)
+            for k, v in flat.items():
+                if k.split(".")[0] not in VARIANT_TABLES:
+                    raise SceneError(f"{ctx}: unknown key {where}{k} = {show_value(v)}; a variant may set keys of "
+                                     f"[{'], ['.join(VARIANT_TABLES)}] (plots are set for the whole scene)")
+            raw_variants.append((head, flat, {k: where + k for k in flat}))
+        names = [h["name"] for h, _, _ in raw_variants]
+        dup = {n for n in names if names.count(n) > 1}
+        if dup:
+            raise SceneError(f"{ctx}: runs[].name = {show_value(sorted(dup)[0])}: repeated; variant names must be unique")
+
+    if variants:
+        known = [h["name"] for h, _, _ in raw_variants]
+        unknown = [n for n in variants if n not in known]
+        if unknown:
+            raise SceneError(f"{ctx}: no variant {unknown[0]!r}; variants: {', '.join(known)}")
+        raw_variants = [rv for rv in raw_variants if rv[0]["name"] in variants]
+
+    for key, value in overrides.items():
+        table = key.split(".")[0]
+        if key.count(".") != 1 or table not in TABLES:
+            raise SceneError(f"{ctx}: --set {key} = {show_value(value)}: not a key of the scene; allowed: "
+                             f"dotted keys table.key with table one of {', '.join(TABLES)} (e.g. run.t_end=50)")
+        base[key] = value
+        origin[key] = f"--set {key}"
+        for _, flat, orig in raw_variants:
+            if key in flat:
+                flat[key] = value
+                orig[key] = f"--set {key}"
+
+    built = []
+    for head, flat, orig in raw_variants:
+        merged = {**base, **flat}
+        where = {**origin, **orig}
+        cfg = _validate(merged, where, ctx)
+        built.append(_build_variant(head["name"], head["description"], cfg, where, ctx, merged))
+
+    plots, compare = _resolve_plots(origin, ctx, built)
+    return Scene(name=path.stem, path=path, description=description, variants=tuple(built),
+                 plots=tuple(plots), compare=compare, overrides=overrides)
+
+
+def _validate(flat: dict, where: dict, ctx: str) -> dict:
+    """Check every dotted key against the schema of its table; return them with defaults filled."""
+    def fail(key, value, problem, allowed):
+        raise SceneError(f"{ctx}: {where.get(key, key)} = {show_value(value)}: {problem}; allowed: {allowed}")
+
+    model = flat.get("system.model", REQUIRED)
+    if model is REQUIRED:
+        raise SceneError(f"{ctx}: system.model is missing; allowed: one of "
+                         + ", ".join(f'"{m}"' for m in MODELS))
+    try:
+        choice(*MODELS)(model)
+    except BadValue as b:
+        fail("system.model", model, b.problem, b.allowed)
+    schema = {f"system.{k}": s for k, s in SYSTEM_KEYS[model].items()}
+    for table, keys in KEYS.items():
+        schema.update({f"{table}.{k}": s for k, s in keys.items()})
+
+    cfg = {}
+    for key, value in flat.items():
+        if key not in schema:
+            table = key.split(".")[0]
+            known = [k.split(".", 1)[1] for k in schema if k.startswith(table + ".")]
+            scope = f'[system] with model = "{model}"' if table == "system" else f"[{table}]"
+            raise SceneError(f"{ctx}: unknown key {where.get(key, key)} = {show_value(value)}; allowed keys in "
+                             f"{scope}: {', '.join(known)}")
+        try:
+            cfg[key] = schema[key][0](value)
+        except BadValue as b:
+            fail(key, value, b.problem, b.allowed)
+    for key, (check, default, _) in schema.items():
+        if key not in cfg:
+            if default is REQUIRED:
+                raise SceneError(f"{ctx}: {key} is missing (required)")
+            cfg[key] = default
+    return cfg
+
+
+def _build_variant(name: str, description: str, cfg: dict, where: dict, ctx: str, raw: dict) -> Variant:
+    def fail(key, value, problem, allowed=None):
+        tail = f"; allowed: {allowed}" if allowed else ""
+        value = raw.get(key, value)  # show the value as written
+        raise SceneError(f"{ctx}: {where.get(key, key)} = {show_value(value)}: {problem}{tail}")
+
+    try:
+        if cfg["system.model"] == "impact-oscillator":
+            system = ImpactOscillator(m=cfg["system.m"], k=cfg["system.k"], c=cfg["system.c"],
+                                      f0=cfg["system.f0"], F=cfg["system.F"], Omega=cfg["system.Omega"],
+                                      phi=cfg["system.phi"], e=cfg["system.e"])
+        else:
+            M = np.array(cfg["system.M"])
+            n = M.shape[0]
+            zeros = np.zeros((n, n))
+            system = MechanicalSystem(M=M, K=cfg["system.K"] if cfg["system.K"] is not None else zeros,
+                                      C=cfg["system.C"] if cfg["system.C"] is not None else zeros,
+                                      f0=cfg["system.f0"] if cfg["system.f0"] is not None else np.zeros(n),
+                                      w=cfg["system.w"], g0=cfg["system.g0"], e=cfg["system.e"],
+                                      forcing=tuple(cfg["system.forcing"]))
+    except ValueError as exc:
+        raise SceneError(f"{ctx}: [system]: {exc}") from None
+    n = system.n
+
+    def state(key):
+        v = cfg[key]
+        if v is None:
+            return None
+        if len(v[0]) != n:
+            fail(key, v, f"has {len(v[0])} entries per q and u, the system has n = {n}",
+                 "[q, u]" if n == 1 else f"[[{n} positions], [{n} velocities]]")
+        q, u = np.array(v[0]), np.array(v[1])
+        g = system.gap(q)
+        if g < 0:
+            fail(key, v, f"violates the wall: g(q) = {g:.6g} < 0", "states with g(q) >= 0")
+        return (float(q[0]), float(u[0])) if n == 1 else (q, u)
+
+    def square(key, v):
+        a = np.array(v, dtype=float)
+        if a.shape != (n, n):
+            fail(key, v, f"is {a.shape[0]} x {a.shape[1]}, the system has n = {n}", f"a number or an {n} x {n} matrix")
+        return a
+
+    x1, x2 = state("initial.x1"), state("initial.x2")
+    Kp, Kd, Q = cfg["coupling.Kp"], cfg["coupling.Kd"], cfg["coupling.Q"]
+    if isinstance(Kp, list):
+        Kp = square("coupling.Kp", Kp)
+    if isinstance(Kd, list):
+        Kd = square("coupling.Kd", Kd)
+    if Q is not None:
+        Q = Q * np.eye(n) if not isinstance(Q, list) else square("coupling.Q", Q)
+        if not (np.allclose(Q, Q.T) and np.linalg.eigvalsh(Q)[0] > 0):
+            fail("coupling.Q", cfg["coupling.Q"], "is not symmetric positive definite",
+                 "a number > 0 or an SPD matrix")
+
+    law, mode, scheme = cfg["coupling.law"], cfg["run.mode"], cfg["solver.scheme"]
+    if x2 is None:
+        if law != "none":
+            fail("coupling.law", law, "a coupling needs two systems: this scene has no initial.x2",
+                 '"none" for a single system, or add initial.x2')
+        if mode != "core":
+            fail("run.mode", mode, "a single system runs in the core (no master, no FMU)", '"core"')
+        if cfg["record.distance"]:
+            fail("record.distance", True, "a single system has no distance", "false (or add initial.x2)")
+        cfg["record.distance"] = False
+    else:
+        if cfg["record.distance"] is None:
+            cfg["record.distance"] = True
+        if scheme == "exact":
+            fail("solver.scheme", scheme, "the exact solver runs single 1-DOF systems only",
+                 '"midpoint" or "theta" for pairs')
+        if mode == "cosim" and contract.model_for(cfg["system.model"], n) is None:
+            fail("run.mode", mode, f"there is no FMU for a {cfg['system.model']} with n = {n}",
+                 '"core", or a model with an FMU: impact-oscillator, mechanical-system with n = 2')
+    if scheme == "exact" and (n != 1):
+        fail("solver.scheme", scheme, "the exact solver is for 1-DOF systems", '"midpoint" or "theta"')
+    return Variant(name=name, description=description, cfg=cfg, system=system, x1=x1, x2=x2,
+                   Kp=Kp, Kd=Kd, Q=Q)
+
+
+def _resolve_plots(origin: dict, ctx: str, variants: list) -> tuple[list, bool]:
+    """Scene-wide [plot] settings (already type-checked; variants cannot set them) against the variants."""
+    plots, compare = variants[0].cfg["plot.plots"], variants[0].cfg["plot.compare"]
+    pair = any(v.pair for v in variants)
+    all_d = all(v.has_distance for v in variants)
+    if plots is None:
+        plots = [p for p in PLOTS if (pair or p in SINGLE_PLOTS) and (all_d or p not in DISTANCE_PLOTS)]
+    for p in plots:
+        for v in variants:
+            if not v.pair and p not in SINGLE_PLOTS:
+                raise SceneError(f"{ctx}: {origin.get('plot.plots', 'plot.plots')} = {show_value(plots)}: "
+                                 f'"{p}" needs two systems (variant {v.name!r} has no initial.x2); '
+                                 f"allowed for a single system: {', '.join(SINGLE_PLOTS)}")
+            if p in DISTANCE_PLOTS and not v.has_distance:
+                raise SceneError(f"{ctx}: {origin.get('plot.plots', 'plot.plots')} = {show_value(plots)}: "
+                                 f'"{p}" needs the distance, but variant {v.name!r} computes none '
+                                 f'(record.distance = false, coupling.law = "{v.law}"); '
+                                 "set record.distance = true or drop the plot")
+    if compare is None:
+        compare = len(variants) > 1 and all_d
+    elif compare and not all_d:
+        raise SceneError(f"{ctx}: {origin.get('plot.compare', 'plot.compare')} = true: comparing d(t) needs "
+                         "the distance in every variant; set record.distance = true or compare = false")
+    return plots, compare
+
+
