@@ -229,7 +229,7 @@ def sweep(scene, grid: dict | None = None, *, sample: dict | None = None, n: int
     client, scheduler : a ``dask.distributed.Client`` or a scheduler address: run the chunks there.
     workers : worker processes for co-simulated runs (default: cores).
     threads : numba threads of the embedded engine (default: one per core).
-    chunk_size : runs per compiled call / Dask task (default: ~50 chunks, >= 8 runs per thread).
+    chunk_size : runs per compiled call / Dask task (default: ~50 chunks, >= 32 runs per thread).
     threshold : d below it counts as synchronized (default ``fmu_sync.report.SYNC_THRESHOLD``).
     progress : callable ``progress(done, total, failed)`` (default: a :class:`SweepProgress` bar
         unless ``quiet``).
@@ -290,7 +290,7 @@ def sweep(scene, grid: dict | None = None, *, sample: dict | None = None, n: int
         client = Client(scheduler)
     threads = threads or _default_threads()
     R = len(runs)
-    chunk = chunk_size or max(8 * threads if client is None else 8, math.ceil(R / 50))
+    chunk = chunk_size or max(32 * threads if client is None else 8, math.ceil(R / 50))
     fp = _fingerprint(scene, variant, keys, runs, method, seed, threshold, chunk)
     attrs = dict(sweep_scene=sweep_name, scene=scene.name, scene_file=str(scene.path), scene_toml=Path(scene.path).read_text(),
                  variant=str(variant or ""), overrides=json.dumps(scene.overrides, default=repr),
