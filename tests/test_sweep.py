@@ -228,6 +228,9 @@ def test_maps_are_written(tmp_path):
           overrides={"run.t_end": 20.0}, out=tmp_path / "map", quiet=True)
     sweep("basin", grid={"initial.q2": "linspace(-0.5, 2, 4)", "initial.u2": "linspace(-1, 1, 3)"},
           overrides={"run.t_end": 5.0}, out=tmp_path / "basin", quiet=True)
+    sweep(SCENE, variant="switching", grid={"system.e": [0.5, 0.9]}, overrides={"run.t_end": 5.0},
+          out=tmp_path / "line", quiet=True)
+    assert (tmp_path / "line" / "line.png").stat().st_size > 15_000
     assert (tmp_path / "map" / "map.png").stat().st_size > 20_000
     assert (tmp_path / "basin" / "basin.png").stat().st_size > 15_000
     # the ZOH limit of stability.py: zeta <= 1/2 -> Kp h < 2 Kd; zeta >= 1/2 -> Kd h < m

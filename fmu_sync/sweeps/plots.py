@@ -8,6 +8,7 @@
   co-simulated; ``solver.dt`` in the core, whose explicit midpoint step holds
   the forces over dt the same way); see :mod:`fmu_sync.benchmarks.stability`.
 * :func:`basin` -- time to synchronize over a start state (q0, u0).
+* :func:`line_plot` -- one swept parameter: decay rate and t_sync against it.
 * :func:`sweep_plots` -- the maps that fit a Dataset (called by ``sweep(out=...)``).
 """
 from __future__ import annotations
@@ -18,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["heat_map", "basin", "scatter", "sweep_plots", "zoh_margin", "LABELS"]
+__all__ = ["heat_map", "basin", "scatter", "line_plot", "sweep_plots", "zoh_margin", "LABELS"]
 
 LABELS = {"coupling.Kp": "$K_p$ (N/m)", "coupling.Kd": "$K_d$ (N s/m)", "solver.dt": "dt (s)",
           "run.H": "H (s)", "system.e": "restitution e", "system.m": "m (kg)",
@@ -278,6 +279,48 @@ def scatter(ds, x: str, y: str, path) -> Path:
     return path
 
 
+def line_plot(ds, x: str, path) -> Path:
+    """One swept parameter: decay rate (with its uncertainty) and t_sync against it, one line
+    per combination of the other swept values (up to 8), failures marked."""
+    plt = _plt()
+    import itertools
+    others = [d for d in ds.dims if d != x]
+    combos = list(itertools.product(*(range(ds.sizes[d]) for d in others)))[:8]
+    xv = ds[x].values.astype(float)
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.6), constrained_layout=True)
+    for n, combo in enumerate(combos):
+        sub = ds.isel(dict(zip(others, combo))) if others else ds
+        label = ", ".join(f"{d} = {ds[d].values[i]}" for d, i in zip(others, combo)) or None
+        ok = sub["status"].values == 0
+        rate = np.where(ok, sub["decay_rate"].values, np.nan)
+        err = np.where(ok, sub["decay_rate_err"].values, np.nan)
+        ts = np.where(sub["synchronized"].values, sub["t_sync"].values, np.nan)
+        c = f"C{n}"
+        axes[0].errorbar(xv, rate, yerr=err, color=c, marker="o", ms=3, capsize=2, label=label)
+        axes[1].plot(xv, ts, color=c, marker="o", ms=3, label=label)
+        bad = sub["status"].values != 0
+        for ax in axes:
+            if bad.any():
+                ax.plot(xv[bad], np.zeros(bad.sum()), "x", color="#b2182b", ms=7,
+                        label="diverged / refused" if n == 0 else None)
+    log = _is_log(xv)
+    for ax, yl in ((axes[0], "decay rate of d (1/s)"), (axes[1], "t_sync (s)")):
+        if log:
+            ax.set_xscale("log")
+        ax.set_xlabel(_label(x))
+        ax.set_ylabel(yl)
+        ax.grid(alpha=0.3)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=8)
+    n, nf = int(ds["status"].size), int((ds["status"].values != 0).sum())
+    fig.suptitle(f"sweep of {ds.attrs.get('scene', '')}: {n} runs, {nf} failed; t_sync where synchronized",
+                 fontsize=11)
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def sweep_plots(ds, out_dir, axes: dict | None = None) -> list[Path]:
     """The maps that fit the Dataset: basin (two start-state axes), heat map (two swept
     numeric parameters) or a scatter plot (samples). ``axes`` may name ``x``, ``y``."""
@@ -291,6 +334,8 @@ def sweep_plots(ds, out_dir, axes: dict | None = None) -> list[Path]:
             cand = numeric
         else:
             cand = [k for k in numeric if ds.sizes.get(k, 0) > 1]
+        if len(cand) == 1 and "run" not in ds.dims:
+            return [line_plot(ds, cand[0], out_dir / "line.png")]
         if len(cand) < 2:
             return []
         x, y = cand[0], cand[1]
