@@ -105,9 +105,9 @@ def _validate_values(scene, variant_name, key, values):
     extremes of a large sample); raise :class:`SweepSpecError` naming the parameter."""
     from ..scenes.loading import load_scene
     from ..scenes.schema import SceneError
-    vals = sorted(set(values), key=lambda v: (str(type(v)), v))
-    if len(vals) > 256:
-        vals = [vals[0], vals[-1]]
+    vals = list({repr(v): v for v in values}.values())
+    if len(vals) > 256 and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in vals):
+        vals = [min(vals), max(vals)]   # the scene's checks on numbers are ranges
     for v in vals:
         try:
             load_scene(scene.path, {**scene.overrides, key: v}, [variant_name])
@@ -223,8 +223,8 @@ def prepare(scene, runs: list[dict], variant_name: str | None) -> Prepared:
                     over[k] = val
             python_items[i] = (str(scene.path), over, v.name)
             continue
-        kp = float(r.get("coupling.Kp", v.Kp))
-        kd = float(r.get("coupling.Kd", v.Kd))
+        kp = _scalar_gain(r.get("coupling.Kp", v.Kp))
+        kd = _scalar_gain(r.get("coupling.Kd", v.Kd))
         dt = float(r.get("solver.dt", cfg["solver.dt"]))
         theta = float(r.get("solver.theta", cfg["solver.theta"]))
         t_end = float(r.get("run.t_end", cfg["run.t_end"]))
@@ -260,6 +260,11 @@ def _refusal(v, system2, q1, q2, dt) -> str:
                 return (f"the explicit midpoint scheme diverges for omega_max*dt >= 2: dt = {dt:.3g}, "
                         f"omega_max*dt = {wdt:.3g}")
     return ""
+
+
+def _scalar_gain(K) -> float:
+    """A 1-DOF gain: a number or a 1 x 1 matrix."""
+    return float(np.asarray(K, dtype=float).ravel()[0])
 
 
 def _group_key(r: dict, system2: bool):

@@ -108,16 +108,22 @@ def to_dataset(out: np.ndarray, reasons: list, keys: list, axes, runs: list, att
     import xarray as xr
 
     R = out.shape[0]
+
+    def labels(values):   # matrices or start states as coordinates: their text
+        if any(isinstance(v, (list, tuple)) for v in values):
+            return np.array([str(v) for v in values])
+        return np.array(values)
+
     if axes is not None:
         shape = tuple(len(a) for a in axes)
         dims = tuple(keys)
-        coords = {k: np.array(a) for k, a in zip(keys, axes)}
+        coords = {k: labels(a) for k, a in zip(keys, axes)}
     else:
         shape = (R,)
         dims = ("run",)
         coords = {"run": np.arange(R)}
         for k in keys:
-            coords[k] = ("run", np.array([r[k] for r in runs]))
+            coords[k] = ("run", labels([r[k] for r in runs]))
     data = {}
     for name, (col, dtype, units, long) in VARIABLES.items():
         v = out[:, COL[col]]
