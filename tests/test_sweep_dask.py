@@ -80,3 +80,14 @@ def test_sweep_bench_section_at_smoke_size(client):
         assert r[k] > 0, k
     # no trajectories: 100 times longer runs need no more memory
     assert r["mem_long"] < 1.05 * r["mem_short"] + 8.0
+
+
+def test_cosimulated_runs_as_dask_tasks_equal_local_worker_processes(client):
+    kw = dict(variant="switching", grid={"coupling.Kp": [0.5, 2.0]}, plots=False, quiet=True,
+              overrides={"run.t_end": 2.0, "run.mode": "cosim", "run.record_every": 1})
+    ds = sweep(SCENE, client=client, **kw)
+    local = sweep(SCENE, workers=1, **kw)
+    assert ds.attrs["process_runs"] == 2 and ds.attrs["engine"] == "dask"
+    assert (ds["status"].values == 0).all()
+    for v in ("q1", "u1", "q2", "u2", "d_final", "d_max", "tau_max", "impacts1"):
+        np.testing.assert_array_equal(ds[v].values, local[v].values, err_msg=v)
