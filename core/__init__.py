@@ -4,10 +4,15 @@ The public API of the core (everything a user of the standalone engine needs):
 
 * models: :class:`MechanicalSystem`, :func:`ImpactOscillator`;
 * the impact map :func:`impact_map`;
-* runs: :func:`simulate` (one system), :func:`simulate_pair` (two coupled systems);
+* runs: :func:`simulate` (one system), :func:`simulate_pair` (two coupled systems,
+  identical or not), :func:`simulate_network` (N systems on a graph: :func:`ring`,
+  :func:`path`, :func:`star`, :func:`all_to_all`);
+* synchronization metrics :func:`sync_metrics` (decay rate with uncertainty,
+  t_sync, ultimate bound; :class:`SyncMetrics`) and the stability limit of the
+  held coupling :func:`exchange_limit` (:class:`UnstableExchange` when refused);
 * the quotient distance :func:`quotient_distance` and the coupling laws
   :func:`coupling_forces`;
-* results :class:`SimulationResult`, :class:`PairResult`, and the errors
+* results :class:`SimulationResult`, :class:`PairResult`, :class:`NetworkResult`, and the errors
   :class:`SimulationDiverged`.
 
 The raw compiled kernels (for benchmarks and custom loops) are in :mod:`.kernels`.
@@ -17,13 +22,17 @@ from . import _cache  # noqa: F401  (first: every core kernel's cache is keyed o
 from .model import ImpactOscillator, MechanicalSystem, SystemArrays
 from .impact import impact_map
 from .errors import RunFailed, SimulationDiverged
-from .result import PairResult, SimulationResult
+from .result import NetworkResult, PairResult, SimulationResult
 from .single import simulate
 from .distance import quotient_distance
 from .coupling import coupling_forces
 from .pair import simulate_pair
+from .metrics import SyncMetrics, sync_metrics
+from .exchange import UnstableExchange, exchange_limit
+from .network import all_to_all, path, ring, simulate_network, star
 from .exact import ExactEvents, exact_events, simulate_exact
 
 __all__ = ["ImpactOscillator", "MechanicalSystem", "SystemArrays", "impact_map", "simulate", "simulate_pair",
            "quotient_distance", "coupling_forces", "simulate_exact", "exact_events", "ExactEvents", "SimulationResult", "PairResult", "RunFailed",
-           "SimulationDiverged"]
+           "SimulationDiverged", "NetworkResult", "simulate_network", "ring", "path", "star", "all_to_all",
+           "sync_metrics", "SyncMetrics", "exchange_limit", "UnstableExchange"]

@@ -49,7 +49,7 @@ STATUS_NAMES = ("ok", "diverged", "refused")
 #: One row of ``out`` per run.
 COLUMNS = ("status", "steps", "t_stop", "q1", "u1", "q2", "u2", "d0", "d_final", "d_max", "tau_max",
            "impacts1", "impacts2", "episodes1", "episodes2", "t_sync", "decay_rate", "decay_rate_err",
-           "t_fit", "bound", "samples")
+           "t_fit", "bound", "samples", "exchange_stable")
 COL = {name: i for i, name in enumerate(COLUMNS)}
 COL_D0, COL_DFINAL, COL_DMAX, COL_TAUMAX = COL["d0"], COL["d_final"], COL["d_max"], COL["tau_max"]
 COL_TSYNC, COL_RATE, COL_RATE_ERR = COL["t_sync"], COL["decay_rate"], COL["decay_rate_err"]
@@ -75,7 +75,7 @@ def group_row(system, geo):
 
 
 def empty_out(R: int) -> np.ndarray:
-    """An output table for R runs (NaN everywhere)."""
+    """An output table for R runs (NaN everywhere; ``exchange_stable`` is the caller's)."""
     return np.full((R, len(COLUMNS)), np.nan)
 
 

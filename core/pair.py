@@ -17,6 +17,7 @@ from .coupling import LAWS as COUPLING_LAWS
 from .coupling import (BRANCH_NONE, SWITCHING, UNCOUPLED, p_norm_diff, coupling_kernel,
                        coupling_kernel1, euclidean_coupling1, gain_matrix)
 from .distance import distance1, distance_value, geometry
+from .exchange import check_exchange
 from .model import MechanicalSystem, as_state
 from .moreau import (DIVERGED, OK, THETA, finish_step, midpoint_step, midpoint_step1, scalar_params,
                      step_workspace, theta_step, theta_step1)
@@ -24,7 +25,7 @@ from .result import PairResult
 from .checks import check_run, check_stable, check_start, divergence_message, scheme_code
 from .errors import SimulationDiverged
 
-__all__ = ["simulate_pair", "coupling_step", "LAWS", "gain_matrix"]
+__all__ = ["simulate_pair", "coupling_step", "LAWS", "gain_matrix", "check_common_geometry", "as_systems"]
 
 #: Coupling names accepted by :func:`simulate_pair` and the master.
 LAWS = {None: UNCOUPLED, **COUPLING_LAWS}
@@ -66,13 +67,15 @@ def coupling_step1(law, sg, kp, kd, q1, u1, q2, u2, need_d):
 
 
 @njit(cache=True)
-def integrate_pair(sa, geo, law, Kp, Kd, q1, u1, q2, u2, t0, k0, dt, n_steps, scheme, theta,
+def integrate_pair(sa1, sa2, geo, law, Kp, Kd, q1, u1, q2, u2, t0, k0, dt, n_steps, scheme, theta,
                    record_every, record_d, T, Q1, U1, Q2, U2, TAU1, TAU2, D, BR, EU):
     """The monolithic loop over steps ``k0 .. k0 + n_steps`` (time ``t0 + k dt``).
 
+    ``sa1``, ``sa2``: the two systems (the same object for identical systems).
     Returns ``(status, steps_done, rows_written, impacts1, impacts2)``."""
     n = q1.shape[0]
-    qM, h, uf, Sinv, Sinv_w, WS = step_workspace(sa, dt, scheme, theta)
+    qM, h, uf, Sinv1, Sinv_w1, WS1 = step_workspace(sa1, dt, scheme, theta)
+    _, _, _, Sinv2, Sinv_w2, WS2 = step_workspace(sa2, dt, scheme, theta)
     tau1 = np.zeros(n)
     tau2 = np.zeros(n)
     zero1 = np.zeros(n)  # forces of the uncoupled law (zero), for distance-only records
@@ -81,16 +84,22 @@ def integrate_pair(sa, geo, law, Kp, Kd, q1, u1, q2, u2, t0, k0, dt, n_steps, sc
     c1u = np.empty(n)
     c2q = np.empty(n)
     c2u = np.empty(n)
-    scalar = n == 1 and sa.B.shape[1] == 1
-    p = scalar_params(sa) if scalar else (0.0,) * 10
+    scalar = n == 1 and sa1.B.shape[1] == 1 and sa2.B.shape[1] == 1
+    p1 = scalar_params(sa1) if scalar else (0.0,) * 10
+    p2 = scalar_params(sa2) if scalar else (0.0,) * 10
     sg = geo.scalar
     kp = Kp[0, 0]
     kd = Kd[0, 0]
-    F = sa.F
-    Omega = sa.Omega
-    phi = sa.phi
-    Si = Sinv[0, 0]
-    Si_w = Sinv_w[0]
+    F1 = sa1.F
+    Omega1 = sa1.Omega
+    phi1 = sa1.phi
+    F2 = sa2.F
+    Omega2 = sa2.Omega
+    phi2 = sa2.phi
+    Si1 = Sinv1[0, 0]
+    Si_w1 = Sinv_w1[0]
+    Si2 = Sinv2[0, 0]
+    Si_w2 = Sinv_w2[0]
     imp1 = 0
     imp2 = 0
     row = 0
@@ -135,20 +144,20 @@ def integrate_pair(sa, geo, law, Kp, Kd, q1, u1, q2, u2, t0, k0, dt, n_steps, sc
         t = t0 + (k0 + k) * dt
         if scalar:  # the 1-DOF fast path (bitwise identical to the general step)
             if scheme == THETA:
-                q1[0], u1[0], P1 = theta_step1(p, F, Omega, phi, Si, Si_w, WS, theta, q1[0], u1[0],
-                                               tau1[0], t, dt)
-                q2[0], u2[0], P2 = theta_step1(p, F, Omega, phi, Si, Si_w, WS, theta, q2[0], u2[0],
-                                               tau2[0], t, dt)
+                q1[0], u1[0], P1 = theta_step1(p1, F1, Omega1, phi1, Si1, Si_w1, WS1, theta, q1[0],
+                                               u1[0], tau1[0], t, dt)
+                q2[0], u2[0], P2 = theta_step1(p2, F2, Omega2, phi2, Si2, Si_w2, WS2, theta, q2[0],
+                                               u2[0], tau2[0], t, dt)
             else:
-                q1[0], u1[0], P1 = midpoint_step1(p, F, Omega, phi, q1[0], u1[0], tau1[0], t, dt)
-                q2[0], u2[0], P2 = midpoint_step1(p, F, Omega, phi, q2[0], u2[0], tau2[0], t, dt)
+                q1[0], u1[0], P1 = midpoint_step1(p1, F1, Omega1, phi1, q1[0], u1[0], tau1[0], t, dt)
+                q2[0], u2[0], P2 = midpoint_step1(p2, F2, Omega2, phi2, q2[0], u2[0], tau2[0], t, dt)
         else:
             if scheme == THETA:
-                P1 = theta_step(sa, q1, u1, tau1, t, dt, theta, Sinv, Sinv_w, WS, qM, h, uf)
-                P2 = theta_step(sa, q2, u2, tau2, t, dt, theta, Sinv, Sinv_w, WS, qM, h, uf)
+                P1 = theta_step(sa1, q1, u1, tau1, t, dt, theta, Sinv1, Sinv_w1, WS1, qM, h, uf)
+                P2 = theta_step(sa2, q2, u2, tau2, t, dt, theta, Sinv2, Sinv_w2, WS2, qM, h, uf)
             else:
-                P1 = midpoint_step(sa, q1, u1, tau1, t, dt, qM, h, uf)
-                P2 = midpoint_step(sa, q2, u2, tau2, t, dt, qM, h, uf)
+                P1 = midpoint_step(sa1, q1, u1, tau1, t, dt, qM, h, uf)
+                P2 = midpoint_step(sa2, q2, u2, tau2, t, dt, qM, h, uf)
             finish_step(q1, u1)
             finish_step(q2, u2)
         if P1 > 0.0:
@@ -158,12 +167,52 @@ def integrate_pair(sa, geo, law, Kp, Kd, q1, u1, q2, u2, t0, k0, dt, n_steps, sc
     return OK, n_steps, row, imp1, imp2
 
 
-def simulate_pair(system: MechanicalSystem, x1, x2, t_end: float, dt: float, coupling=None,
+def check_common_geometry(systems, names=None) -> None:
+    """The quotient distance identifies states through one impact map: the systems must
+    share M, w, g0 and e (stiffness, damping, offset force and forcing may differ).
+    Raises ValueError naming the first quantity that differs and both values."""
+    systems = list(systems)
+    names = names or [f"system {i + 1}" for i in range(len(systems))]
+    a = systems[0]
+    for name, b in zip(names[1:], systems[1:]):
+        if b.n != a.n:
+            raise ValueError(f"coupled systems must have the same number of degrees of freedom: "
+                             f"{names[0]} has n = {a.n}, {name} has n = {b.n}")
+        for key in ("M", "w", "g0", "e"):
+            va, vb = getattr(a, key), getattr(b, key)
+            if not np.array_equal(va, vb):
+                fmt = (lambda v: np.asarray(v).tolist())
+                raise ValueError(
+                    f"the quotient distance needs a common impact geometry (equal M, w, g0 and e): "
+                    f"{key} differs: {names[0]} has {key} = {fmt(va)}, {name} has {key} = {fmt(vb)}")
+
+
+def as_systems(system, count: int, what: str = "system") -> list:
+    """One MechanicalSystem for all, or a sequence of ``count`` of them."""
+    if isinstance(system, MechanicalSystem):
+        return [system] * count
+    try:
+        systems = list(system)
+    except TypeError:
+        raise ValueError(f"{what} must be a MechanicalSystem or a sequence of {count}, "
+                         f"got {system!r}") from None
+    if len(systems) != count or not all(isinstance(s, MechanicalSystem) for s in systems):
+        raise ValueError(f"{what} must be a MechanicalSystem or a sequence of {count} MechanicalSystem "
+                         f"objects, got {len(systems)} item(s) of types "
+                         f"{sorted({type(s).__name__ for s in systems})}")
+    return systems
+
+
+def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
                   Kp=0.0, Kd=0.0, Q=None, scheme: str = "midpoint", theta: float = 0.5,
                   record_every: int = 1, record_distance: bool = True, progress=None,
-                  t0: float = 0.0) -> PairResult:
-    """Simulate two copies of ``system`` from ``x1``, ``x2``, coupled by ``coupling``.
+                  t0: float = 0.0, allow_unstable: bool = False) -> PairResult:
+    """Simulate two systems from ``x1``, ``x2``, coupled by ``coupling``.
 
+    ``system``: one :class:`MechanicalSystem` (two identical copies) or a pair
+    ``(system1, system2)`` of non-identical systems; they must share M, w, g0
+    and e (the impact geometry of the quotient distance) and may differ in K,
+    C, f0 and forcing.
     ``coupling``: None (uncoupled), ``"euclidean"`` (PD baseline) or
     ``"switching"`` (the quotient coupling of docs/design.md §2.5), gains ``Kp``, ``Kd``
     (scalars or n×n), position weight ``Q`` of the norm (default identity).
@@ -171,26 +220,42 @@ def simulate_pair(system: MechanicalSystem, x1, x2, t_end: float, dt: float, cou
     ``record_distance=False`` and no coupling, no distance is computed.
     ``progress``: callable ``progress(fraction)``; the run is then made in
     ~100 compiled chunks (same numbers as one chunk).
+
+    Before the first step, a step known to diverge is refused: the explicit
+    midpoint scheme (omega_max*dt >= 2, :class:`SimulationDiverged`) and the
+    held coupling forces (omega_c*dt beyond min(4 zeta, 1/zeta),
+    :class:`fmu_sync.core.exchange.UnstableExchange`, a ValueError); pass
+    ``allow_unstable=True`` to run anyway.
     Returns a :class:`PairResult`; raises :class:`SimulationDiverged` (with the
-    records up to the failure in ``.partial``) if a state becomes non-finite.
+    records up to the failure, marked failed, in ``.partial``) if a state
+    becomes non-finite.
     """
     if coupling not in LAWS:
         raise ValueError(f"coupling must be one of {list(LAWS)}, got {coupling!r}")
     law = LAWS[coupling]
+    systems = as_systems(system, 2)
+    check_common_geometry(systems)
+    s1, s2 = systems
     dt, n_steps, record_every = check_run(t_end, dt, record_every, t0)
     code, theta = scheme_code(scheme, theta)
-    check_stable(system, scheme, dt)
-    q1, u1 = as_state(system, x1, "x1")
-    q2, u2 = as_state(system, x2, "x2")
-    check_start(system, q1, "x1")
-    check_start(system, q2, "x2")
-    n = system.n
-    if system.m != n or not np.array_equal(system.B, np.eye(n)):
-        raise ValueError(f"coupled systems take the forces through B = I (tau has n = {n} entries); "
-                         f"got B of shape {system.B.shape}")
+    if not allow_unstable:
+        for s in systems if s1 is not s2 else systems[:1]:
+            check_stable(s, scheme, dt)
+    q1, u1 = as_state(s1, x1, "x1")
+    q2, u2 = as_state(s2, x2, "x2")
+    check_start(s1, q1, "x1")
+    check_start(s1, q2, "x2")
+    n = s1.n
+    for s in systems:
+        if s.m != n or not np.array_equal(s.B, np.eye(n)):
+            raise ValueError(f"coupled systems take the forces through B = I (tau has n = {n} entries); "
+                             f"got B of shape {s.B.shape}")
     record_d = bool(record_distance) or law == SWITCHING
-    geo = geometry(system, Q)
+    geo = geometry(s1, Q)
     Kp_m, Kd_m = gain_matrix(Kp, n, "Kp"), gain_matrix(Kd, n, "Kd")
+    limit = None
+    if law != UNCOUPLED:
+        limit = check_exchange(s1.M, Kp_m, Kd_m, dt, allow_unstable=allow_unstable, step_name="dt")
     rows = n_steps // record_every + 1
     T = np.full(rows, np.nan)
     Q1, U1, Q2, U2, TAU1, TAU2 = (np.full((rows, n), np.nan) for _ in range(6))
@@ -198,7 +263,8 @@ def simulate_pair(system: MechanicalSystem, x1, x2, t_end: float, dt: float, cou
     TAU2[0] = 0.0
     D, EU = np.full(rows, np.nan), np.full(rows, np.nan)
     BR = np.full(rows, BRANCH_NONE, dtype=np.int64)
-    sa = system.arrays()
+    sa1 = s1.arrays()
+    sa2 = s2.arrays()
     # chunks of whole record intervals, so that chunking changes no number
     if progress is None:
         chunks = [n_steps]
@@ -212,7 +278,7 @@ def simulate_pair(system: MechanicalSystem, x1, x2, t_end: float, dt: float, cou
         sl = slice(row0, rows)
         # a chunk records its start row; the next chunk starts on the row it ended on
         status, done, written, i1, i2 = integrate_pair(
-            sa, geo, law, Kp_m, Kd_m, q1, u1, q2, u2, t0, k0, dt, steps, code, theta,
+            sa1, sa2, geo, law, Kp_m, Kd_m, q1, u1, q2, u2, t0, k0, dt, steps, code, theta,
             record_every, record_d, T[sl], Q1[sl], U1[sl], Q2[sl], U2[sl], TAU1[sl], TAU2[sl],
             D[sl], BR[sl], EU[sl])
         imp1 += i1
@@ -226,13 +292,16 @@ def simulate_pair(system: MechanicalSystem, x1, x2, t_end: float, dt: float, cou
         if progress is not None:
             progress(k0 / max(n_steps, 1))
     sl = slice(0, row0 if status != OK else rows)
+    info = dict(mode="core", dt=dt, scheme=scheme, steps=n_steps, identical=s1 is s2)
+    if limit is not None:
+        info.update(omega_c_dt=limit.h, exchange_bound=limit.bound, zeta=limit.zeta,
+                    dt_max=limit.H_max)
     res = PairResult(T[sl], Q1[sl], U1[sl], Q2[sl], U2[sl], TAU1[sl], TAU2[sl],
                      D[sl] if record_d else None, BR[sl] if record_d else None,
                      EU[sl] if record_d else None, impacts1=imp1, impacts2=imp2,
-                     coupling=coupling if coupling != "none" else None,
-                     info=dict(mode="core", dt=dt, scheme=scheme, steps=n_steps))
+                     coupling=coupling if coupling != "none" else None, info=info)
     if status != OK:
-        err = SimulationDiverged(divergence_message(system, scheme, dt, t0 + k0 * dt,
+        err = SimulationDiverged(divergence_message(s1, scheme, dt, t0 + k0 * dt,
                                                     what="a coupled state",
                                                     Kp=Kp_m if law != UNCOUPLED else None))
         res.error = str(err)

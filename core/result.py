@@ -1,8 +1,9 @@
 """The results of a run (docs/design.md §5.2).
 
-:class:`SimulationResult` (one system) and :class:`PairResult` (two coupled
+:class:`SimulationResult` (one system), :class:`PairResult` (two coupled
 systems: the monolithic pair and the co-simulation master, same fields, so
-reports and plots take either). A result attached to a
+reports and plots take either) and :class:`NetworkResult` (N systems on a
+graph: the monolithic network and the co-simulated one). A result attached to a
 :class:`~fmu_sync.core.errors.RunFailed` as ``partial`` has ``error`` set:
 ``success`` is then False and ``message`` names what happened.
 """
@@ -13,8 +14,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .distance import BRANCH_NAMES
+from .metrics import SyncMetrics, sync_metrics
 
-__all__ = ["RunStatus", "SimulationResult", "PairResult", "BRANCH_NAMES"]
+__all__ = ["RunStatus", "SimulationResult", "PairResult", "NetworkResult", "BRANCH_NAMES"]
 
 
 class RunStatus:
@@ -91,6 +93,35 @@ class PairResult(RunStatus):
     def branch_names(self) -> list[str] | None:
         return None if self.branch is None else [BRANCH_NAMES[b] for b in self.branch]
 
+    def sync(self, threshold: float = 1e-6, **window) -> SyncMetrics:
+        """Synchronization metrics of d (:mod:`fmu_sync.core.metrics`): decay rate of its
+        envelope with its uncertainty, ``t_sync`` (time after which d < threshold),
+        ``t_fit``, and the ultimate bound (max d over the last 20 % of the run).
+        ``window``: ``hi``, ``lo``, ``floor_abs``, ``tail`` of :func:`sync_metrics`."""
+        if self.d is None:
+            raise ValueError("this run did not record the distance d")
+        return sync_metrics(self.t, self.d, threshold, **window)
+
+    @property
+    def rate(self) -> float:
+        """Decay rate of the envelope of d (1/s), default window; see :meth:`sync`."""
+        return self.sync().rate
+
+    @property
+    def rate_err(self) -> float:
+        """Standard uncertainty of :attr:`rate`."""
+        return self.sync().rate_err
+
+    @property
+    def t_sync(self) -> float:
+        """Time after which d stays below 1e-6 (inf: never); see :meth:`sync`."""
+        return self.sync().t_sync
+
+    @property
+    def bound(self) -> float:
+        """Ultimate bound of d: max d over the last 20 % of the run (practical synchronization)."""
+        return self.sync().bound
+
     def time_to_sync(self, threshold: float = 1e-6) -> float:
         """First time after which d stays below ``threshold`` (inf if never)."""
         if self.d is None:
@@ -121,3 +152,45 @@ class PairResult(RunStatus):
             names += ["d", "V", "euclidean", "branch"]
         np.savetxt(path, np.column_stack(cols), delimiter=",", header=",".join(names),
                    comments="", fmt="%.17g")
+
+
+@dataclass
+class NetworkResult(RunStatus):
+    """Sampled run of N coupled systems on a weighted graph: the co-simulated network
+    (:func:`fmu_sync.master.cosimulate_network`) and its monolithic reference
+    (:func:`fmu_sync.core.network.simulate_network`).
+
+    ``q, u, tau``: (rows, N, n) (``tau`` row i: the forces held over the step
+    that ends at ``t[i]``, row 0 the forces at the start); ``edges``: the
+    coupled pairs (i, j), i < j;
+    ``d, euclidean`` (rows, n_edges) and ``branch`` (rows, n_edges) per edge;
+    ``V = 1/2 sum_edges a_ij d_ij^2`` (rows,) with a_ij the mean of the two
+    directed weights; ``impacts`` (N,) counts steps (communication steps) with
+    a positive percussion. ``error`` names the failure (a slave, a divergence;
+    only on the ``partial`` result of a :class:`~fmu_sync.core.errors.RunFailed`).
+    """
+
+    t: np.ndarray
+    q: np.ndarray
+    u: np.ndarray
+    tau: np.ndarray
+    edges: list
+    d: np.ndarray | None
+    branch: np.ndarray | None
+    euclidean: np.ndarray | None
+    V: np.ndarray | None
+    impacts: list
+    info: dict = field(default_factory=dict)
+    error: str | None = None
+
+    @property
+    def d_max(self) -> np.ndarray | None:
+        """max over the edges of the pairwise distances, per row (rows,)."""
+        return None if self.d is None else np.max(self.d, axis=1)
+
+    def sync(self, threshold: float = 1e-6, **window) -> SyncMetrics:
+        """:func:`fmu_sync.core.metrics.sync_metrics` of :attr:`d_max` (the network is
+        synchronized when its largest pairwise distance is)."""
+        if self.d is None:
+            raise ValueError("this run did not record the distances d")
+        return sync_metrics(self.t, self.d_max, threshold, **window)

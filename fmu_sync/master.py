@@ -17,26 +17,31 @@ the recording as methods; :func:`cosimulate_network` and :func:`cosimulate`
 are the plain functional entry points.
 
 Failure convention (docs/design.md §5.1): bad arguments or a foreign FMU raise
-a ValueError before any instance is created; a slave that fails mid-run raises
-:class:`SlaveError` (a :class:`fmu_sync.core.RunFailed`) whose ``partial``
-holds everything recorded up to the failure.
+a ValueError before any instance is created; an exchange known to be unstable
+(:func:`fmu_sync.core.exchange.check_exchange`) or instances with different
+impact geometries (M, w, g0, e) raise a ValueError before the first step; a
+slave that fails mid-run raises :class:`SlaveError` and a run whose states or
+distances become non-finite raises :class:`fmu_sync.core.SimulationDiverged`
+(both :class:`fmu_sync.core.RunFailed`) whose ``partial`` holds everything
+recorded up to the failure (finite rows only).
 """
 from __future__ import annotations
 
 import math
 import shutil
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from .core.checks import check_run, check_start, check_step, coupling_omega
+from .core.checks import check_run, check_start, check_step
 from .core.coupling import chain_work, gain_matrix
 from .core.distance import geometry
-from .core.errors import RunFailed
+from .core.errors import RunFailed, SimulationDiverged
+from .core.exchange import check_exchange, exchange_limit
 from .core.model import MechanicalSystem, as_state
-from .core.pair import LAWS, coupling_step
-from .core.result import PairResult, RunStatus
+from .core.network import coupled_weights, edge_laws, edges_of, weights
+from .core.pair import LAWS, check_common_geometry, coupling_step
+from .core.result import NetworkResult, PairResult
 from .fmus import contract
 
 __all__ = ["cosimulate", "cosimulate_network", "NetworkMaster", "NetworkResult", "SlaveError", "FmuInstance",
@@ -125,46 +130,6 @@ def system_from_fmu(instance: FmuInstance, model=None) -> MechanicalSystem:
     return model.geometry_system(dict(zip(model.geometry, instance.get(list(model.geometry)))))
 
 
-@dataclass
-class NetworkResult(RunStatus):
-    """Sampled co-simulation of N coupled instances on a weighted graph.
-
-    ``q, u, tau``: (rows, N, n); ``edges``: the coupled pairs (i, j), i < j;
-    ``d, euclidean`` (rows, n_edges) and ``branch`` (rows, n_edges) per edge;
-    ``V = 1/2 sum_edges a_ij d_ij^2`` (rows,) with a_ij the mean of the two
-    directed weights; ``impacts`` (N,). ``error`` names a failed slave (only on
-    the ``partial`` result of a :class:`SlaveError`).
-    """
-
-    t: np.ndarray
-    q: np.ndarray
-    u: np.ndarray
-    tau: np.ndarray
-    edges: list
-    d: np.ndarray | None
-    branch: np.ndarray | None
-    euclidean: np.ndarray | None
-    V: np.ndarray | None
-    impacts: list
-    info: dict = field(default_factory=dict)
-    error: str | None = None
-
-
-def _weights(A, N: int | None) -> np.ndarray:
-    try:
-        a = np.array(A, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"A must be an N x N matrix of weights, got {A!r}") from None
-    if a.ndim != 2 or a.shape[0] != a.shape[1] or (N is not None and a.shape[0] != N):
-        raise ValueError(f"A must be a square N x N weight matrix with N = number of states "
-                         f"({N}), got shape {a.shape}")
-    if not np.all(np.isfinite(a)) or np.any(a < 0.0):
-        raise ValueError(f"A must hold finite weights >= 0, got {a.tolist()}")
-    if np.any(np.diag(a) != 0.0):
-        raise ValueError(f"A must have a zero diagonal (no self-coupling), got {np.diag(a).tolist()}")
-    return a
-
-
 class NetworkMaster:
     """One co-simulation run of N instances of one FMU coupled on a weighted graph.
 
@@ -179,11 +144,9 @@ class NetworkMaster:
 
     def __init__(self, fmu, states, A, t_end: float, H: float, coupling: str | None = "switching",
                  Kp=0.0, Kd=0.0, Q=None, method: str = "jacobi", record_every: int = 1,
-                 event_aware: bool = False, H_min: float | None = None, start_values: dict | None = None,
-                 record_distance: bool = True):
+                 event_aware: bool = False, H_min: float | None = None, start_values=None,
+                 record_distance: bool = True, allow_unstable: bool = False):
         H, n_steps, record_every = check_run(t_end, H, record_every, dt_name="H")
-        if coupling not in LAWS:
-            raise ValueError(f"coupling must be one of {list(LAWS)}, got {coupling!r}")
         if method not in self.METHODS:
             raise ValueError(f"method must be {' or '.join(repr(m) for m in self.METHODS)}, got {method!r}")
         if event_aware:
@@ -196,9 +159,17 @@ class NetworkMaster:
         self.N = N = len(self.states)
         if N < 2:
             raise ValueError(f"a network needs at least 2 states, got {N}")
-        self.A = _weights(A, N)
-        self.edges = [(i, j) for i in range(N) for j in range(i + 1, N)
-                      if self.A[i, j] > 0.0 or self.A[j, i] > 0.0]
+        self.A = weights(A, N)
+        self.edges = edges_of(self.A)
+        self.laws = edge_laws(coupling, self.edges)  # one law per edge
+        self.coupled = bool(np.any(self.laws != LAWS[None]))
+        if start_values is None or isinstance(start_values, dict):
+            self.start_values = [dict(start_values or {})] * N
+        else:
+            self.start_values = [dict(v or {}) for v in start_values]
+            if len(self.start_values) != N:
+                raise ValueError(f"start_values must be one dict or a sequence of N = {N} dicts (one "
+                                 f"per instance), got {len(self.start_values)}")
         self.fmu = str(fmu)
         if not Path(self.fmu).is_file():
             raise FileNotFoundError(f"FMU not found: {self.fmu}")
@@ -206,12 +177,13 @@ class NetworkMaster:
         self.md = read_model_description(self.fmu)
         self.model = fmu_model(self.md)  # a foreign FMU fails here, naming what it lacks
         self.H, self.n_steps, self.record_every = H, n_steps, record_every
-        self.coupling, self.law = coupling, LAWS[coupling]
+        self.coupling = coupling
+        self.allow_unstable = bool(allow_unstable)
+        self.limit = None
         self.Kp, self.Kd, self.Q = Kp, Kd, Q
         self.method, self.exchange = method, getattr(self, "step_" + method.replace("-", "_"))
         self.event_aware, self.H_min = event_aware, H_min
-        self.start_values = dict(start_values or {})
-        self.need_d = record_distance or self.law != LAWS[None]
+        self.need_d = bool(record_distance) or self.coupled
         self.slaves: list[FmuInstance] = []
         self.retakes = 0
 
@@ -220,9 +192,13 @@ class NetworkMaster:
         model, N = self.model, self.N
         for i in range(N):
             self.slaves.append(FmuInstance(unzipdir, self.md, f"system{i + 1}"))
-        for s in self.slaves:
-            s.set(self.start_values)
-        self.system = system = system_from_fmu(self.slaves[0], model)
+        for s, sv in zip(self.slaves, self.start_values):
+            s.set(sv)
+        systems = [system_from_fmu(s, model) for s in self.slaves]
+        check_common_geometry(systems, [f"instance {i + 1}" for i in range(N)])
+        self.system = system = systems[0]
+        if not self.allow_unstable:
+            self._check_internal_steps()
         for i, (s, x) in enumerate(zip(self.slaves, self.states)):
             label = f"x{i + 1}"
             q0, u0 = as_state(system, x, label)
@@ -231,6 +207,10 @@ class NetworkMaster:
         n = model.n
         self.geo = geometry(system, self.Q)
         self.Kp_m, self.Kd_m = gain_matrix(self.Kp, n, "Kp"), gain_matrix(self.Kd, n, "Kd")
+        self.A_coupled = coupled_weights(self.A, self.edges, self.laws)
+        if self.coupled:  # before the first step: the held exchange must be stable at H
+            self.limit = check_exchange(system.M, self.Kp_m, self.Kd_m, self.H, A=self.A_coupled,
+                                        allow_unstable=self.allow_unstable)
         E, rows = len(self.edges), self.n_steps // self.record_every + 1
         self.T = np.full(rows, np.nan)
         self.Qr, self.Ur, self.TAU = (np.full((rows, N, n), np.nan) for _ in range(3))
@@ -240,35 +220,53 @@ class NetworkMaster:
         self.t1, self.t2 = np.zeros(n), np.zeros(n)
         self.work = chain_work(n)
 
+    def _check_internal_steps(self) -> None:
+        """Before the first step: each instance's own scheme limit (the explicit midpoint
+        needs omega_max*dt < 2 for its internal step dt), from its parameter values, with
+        the core's check; the slave would refuse its first doStep otherwise."""
+        from .core.checks import check_stable
+        names = [v.name for v in self.model.declare() if v.causality == "parameter" and v.type == "Real"]
+        for i, s in enumerate(self.slaves):
+            values = dict(zip(names, s.get(names)))
+            scheme = contract.scheme_name(s.get_integer(contract.SOLVER_SCHEME))
+            if scheme is None:
+                continue
+            try:
+                check_stable(self.model.system(values), scheme, values[contract.SOLVER_DT])
+            except SimulationDiverged as exc:
+                raise SimulationDiverged(f"refused before the first step: instance {i + 1}: {exc} "
+                                         f"(allow_unstable=True runs anyway)") from None
+
     def read(self, s: FmuInstance) -> list:
         v = s.get(self.model.q + self.model.u)
         n = self.model.n
         return [v[:n].copy(), v[n:].copy()]
 
     # ------------------------------------------------------------ coupling
-    def pair(self, i: int, j: int, x, want_d: bool):
-        """The pairwise law on edge (i, j) at states x: fills t1 (on i), t2 (on j)."""
-        return coupling_step(self.law, self.geo, self.Kp_m, self.Kd_m, x[i][0], x[i][1], x[j][0], x[j][1],
-                             self.t1, self.t2, *self.work, want_d)
+    def pair(self, k: int, x, want_d: bool):
+        """The pairwise law of edge k = (i, j) at states x: fills t1 (on i), t2 (on j)."""
+        i, j = self.edges[k]
+        return coupling_step(self.laws[k], self.geo, self.Kp_m, self.Kd_m, x[i][0], x[i][1], x[j][0],
+                             x[j][1], self.t1, self.t2, *self.work, want_d)
 
     def input_of(self, i: int, x) -> None:
         """tau_i = sum_j a_ij tau_i^(j) at states x (one node at a time)."""
         A, tau = self.A, self.tau
         tau[i] = 0.0
-        for a, b in self.edges:
+        for k, (a, b) in enumerate(self.edges):
             if i == a and A[a, b] > 0.0:
-                self.pair(a, b, x, False)
+                self.pair(k, x, False)
                 tau[i] += A[a, b] * self.t1
             elif i == b and A[b, a] > 0.0:
-                self.pair(a, b, x, False)
+                self.pair(k, x, False)
                 tau[i] += A[b, a] * self.t2
 
     def inputs(self, x) -> None:
         """tau_i for every i at states x: each edge's law evaluated once."""
         A, tau = self.A, self.tau
         tau[:] = 0.0
-        for a, b in self.edges:
-            self.pair(a, b, x, False)
+        for k, (a, b) in enumerate(self.edges):
+            self.pair(k, x, False)
             if A[a, b] > 0.0:
                 tau[a] += A[a, b] * self.t1
             if A[b, a] > 0.0:
@@ -276,11 +274,11 @@ class NetworkMaster:
 
     def check_forces(self, i: int, t: float, h: float) -> None:
         if not np.all(np.isfinite(self.tau[i])):
-            wc = coupling_omega(self.system, self.Kp_m) * h
+            lim = exchange_limit(self.system.M, self.Kp_m, self.Kd_m, h, self.A_coupled)
             raise SlaveError(f"system{i + 1}", t, "coupling", 3, [
                 f"its coupling force became non-finite ({self.tau[i].tolist()}): the explicit "
-                f"exchange is unstable for these gains and this step (coupling omega_c*H = "
-                f"{wc:.3g}; stable only below min(4 zeta, 1/zeta) <= 2): lower Kp or H, or add Kd"])
+                f"exchange is unstable for these gains and this step ({lim.message()}): lower "
+                f"Kp or H, or add Kd"])
 
     def _give(self, i: int, s: FmuInstance, t: float, h: float) -> None:
         s.set(dict(zip(self.model.tau, self.tau[i])))
@@ -342,34 +340,46 @@ class NetworkMaster:
             self.Qr[row, i], self.Ur[row, i] = x[i]
         self.TAU[row] = held
         if self.need_d:
-            for k, (i, j) in enumerate(self.edges):
-                self.D[row, k], self.BR[row, k], self.EU[row, k] = self.pair(i, j, x, True)
+            for k in range(len(self.edges)):
+                self.D[row, k], self.BR[row, k], self.EU[row, k] = self.pair(k, x, True)
 
     def result(self, rows: int, impacts: list, error: str | None) -> NetworkResult:
         sl, need_d, A = slice(0, rows), self.need_d, self.A
         V = None
         if need_d:
             a_sym = np.array([0.5 * (A[i, j] + A[j, i]) for i, j in self.edges])
-            V = 0.5 * (self.D[sl] ** 2) @ a_sym
+            with np.errstate(over="ignore"):  # a failed run may end on huge (finite) d
+                V = 0.5 * (self.D[sl] ** 2) @ a_sym
         return NetworkResult(
             self.T[sl], self.Qr[sl], self.Ur[sl], self.TAU[sl], self.edges,
             self.D[sl] if need_d else None, self.BR[sl] if need_d else None,
             self.EU[sl] if need_d else None, V, impacts=impacts,
             info=dict(mode="cosim", H=self.H, method=self.method, event_aware=self.event_aware,
                       H_min=self.H_min if self.event_aware else None, retaken_steps=self.retakes,
-                      fmu=self.fmu, steps=self.n_steps, coupling=self.coupling),
+                      fmu=self.fmu, steps=self.n_steps, coupling=self.coupling,
+                      **({} if self.limit is None else dict(
+                          omega_c_H=self.limit.h, exchange_bound=self.limit.bound,
+                          zeta=self.limit.zeta, H_max=self.limit.H_max))),
             error=error)
+
+    def diverged(self, t: float, what: str) -> SimulationDiverged:
+        hint = f" ({self.limit.message()})" if self.limit is not None else ""
+        return SimulationDiverged(
+            f"the co-simulation diverged: {what} became non-finite at t = {t:.6g}; the run stopped "
+            f"there and the record ends at the last finite row{hint}")
 
     # ------------------------------------------------------------ the run
     def run(self, progress=None) -> NetworkResult:
-        """Run to t_end; raises :class:`SlaveError` (``partial``: the record so far) if a slave fails."""
+        """Run to t_end; raises :class:`SlaveError` if a slave fails and
+        :class:`SimulationDiverged` if a state or distance becomes non-finite
+        (``partial``: the finite record so far)."""
         from fmpy import extract
         unzipdir = extract(self.fmu)  # one unpacked copy shared by all instances, removed at the end
         failure = None
         try:
             self._start(unzipdir)
             x = [self.read(s) for s in self.slaves]
-            if self.law != LAWS[None]:
+            if self.coupled:
                 self.inputs(x)
             self.record(0, 0.0, x, self.tau)
             row = 1
@@ -382,8 +392,14 @@ class NetworkMaster:
                 except SlaveError as ex:
                     failure = ex
                     break
+                if not all(np.all(np.isfinite(xi[0])) and np.all(np.isfinite(xi[1])) for xi in x):
+                    failure = self.diverged((k + 1) * H, "a state")
+                    break
                 if (k + 1) % self.record_every == 0:
                     self.record(row, (k + 1) * H, x, self.tau.copy())
+                    if self.need_d and not np.all(np.isfinite(self.D[row])):
+                        failure = self.diverged((k + 1) * H, "a distance")
+                        break
                     row += 1
                 if progress is not None and (k + 1) % report_every == 0:
                     progress((k + 1) / n_steps)
@@ -403,19 +419,31 @@ class NetworkMaster:
 def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | None = "switching",
                        Kp=0.0, Kd=0.0, Q=None, method: str = "jacobi", record_every: int = 1,
                        event_aware: bool = False, H_min: float | None = None,
-                       start_values: dict | None = None, progress=None,
-                       record_distance: bool = True) -> NetworkResult:
+                       start_values=None, progress=None,
+                       record_distance: bool = True, allow_unstable: bool = False) -> NetworkResult:
     """Co-simulate N instances of ``fmu`` coupled on a weighted graph (docs/design.md §2.5, §4.4).
 
     ``states``: N start states (q, u); ``A``: N×N weights a_ij >= 0 (zero
     diagonal); system i receives ``tau_i = sum_j a_ij tau_i^(j)``, with
     ``tau_i^(j)`` the force of the pairwise law (``coupling``, gains ``Kp``,
-    ``Kd``, norm weight ``Q``) on i in the pair (i, j). Other arguments as
-    :func:`cosimulate`; Gauss–Seidel updates the instances in index order, each
-    one's input computed from the newest states of the others.
+    ``Kd``, norm weight ``Q``) on i in the pair (i, j); ``coupling`` is one law
+    name for every edge or a sequence of names, one per edge in the order of
+    ``result.edges`` (:func:`fmu_sync.core.network.edges_of`). The monolithic
+    reference is :func:`fmu_sync.core.network.simulate_network` (reproduced to
+    round-off at H = dt with Jacobi). Other arguments as :func:`cosimulate`;
+    Gauss–Seidel updates the instances in index order, each one's input
+    computed from the newest states of the others.
+    ``start_values``: one dict of parameter start values for every instance, or
+    a sequence of N dicts (or None), one per instance (non-identical systems:
+    K, C, f0, forcing may differ; M, w, g0 and e must not).
+    The stability of the held exchange over ``H`` is checked before the first
+    step by :func:`fmu_sync.core.exchange.check_exchange` (refused with
+    ``UnstableExchange``, a ValueError, unless ``allow_unstable``), and so is
+    each instance's internal midpoint step (omega_max*dt < 2, refused with
+    ``SimulationDiverged`` whose ``partial`` is None).
     """
     return NetworkMaster(fmu, states, A, t_end, H, coupling, Kp, Kd, Q, method, record_every, event_aware,
-                         H_min, start_values, record_distance).run(progress)
+                         H_min, start_values, record_distance, allow_unstable).run(progress)
 
 
 def _pair_result(r: NetworkResult, coupling) -> PairResult:
@@ -428,8 +456,8 @@ def _pair_result(r: NetworkResult, coupling) -> PairResult:
 
 def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None, Kp=0.0, Kd=0.0,
                Q=None, method: str = "jacobi", record_every: int = 1, event_aware: bool = False,
-               H_min: float | None = None, start_values: dict | None = None, progress=None,
-               record_distance: bool = True) -> PairResult:
+               H_min: float | None = None, start_values=None, progress=None,
+               record_distance: bool = True, allow_unstable: bool = False) -> PairResult:
     """Co-simulate two instances of ``fmu`` coupled by ``coupling`` (docs/design.md §2.5, §4.4).
 
     Parameters
@@ -445,12 +473,17 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
     event_aware : when a slave's impact counter moves during a step, restore both
         slaves and retake the step in pieces of ``H_min`` (default ``H/16``) so the
         coupling sees the impact.
-    start_values : extra parameter start values for both instances (e.g. ``{"e": 0.8}``).
+    start_values : extra parameter start values, one dict for both instances (e.g.
+        ``{"e": 0.8}``) or a pair of dicts, one per instance (non-identical systems,
+        e.g. ``[{}, {"k": 1.05}]``; M, w, g0 and e must agree).
+    allow_unstable : run even if the held exchange is unstable at ``H`` (by default
+        refused before the first step with ``UnstableExchange``, a ValueError).
     progress : callable ``progress(fraction)`` or None.
 
     Returns a :class:`PairResult`. Bad arguments, or an FMU that does not follow
     the FMU contract, raise a ValueError naming what is wrong. If a slave fails,
-    the run stops there and raises :class:`SlaveError`; its ``partial`` is the
+    the run stops there and raises :class:`SlaveError` (:class:`SimulationDiverged`
+    if the states or distances become non-finite); its ``partial`` is the
     :class:`PairResult` recorded up to the failure, whose ``error`` names the
     slave, the time and the reason. (The pair is the two-node graph of
     :func:`cosimulate_network`.)
@@ -458,8 +491,9 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
     try:
         r = cosimulate_network(fmu, [x1, x2], [[0.0, 1.0], [1.0, 0.0]], t_end, H, coupling, Kp, Kd, Q,
                                method, record_every, event_aware, H_min, start_values, progress,
-                               record_distance)
-    except SlaveError as exc:
-        exc.partial = _pair_result(exc.partial, coupling)
+                               record_distance, allow_unstable)
+    except RunFailed as exc:
+        if exc.partial is not None:  # None: refused before the first step
+            exc.partial = _pair_result(exc.partial, coupling)
         raise
     return _pair_result(r, coupling)

@@ -82,16 +82,26 @@ def test_event_aware_stepping_repairs_the_euclidean_law(fmu, system):
     assert abs(aware.time_to_sync(1e-6) - t_core) < abs(plain.time_to_sync(1e-6) - t_core)
 
 
+def test_unstable_exchange_is_refused_before_the_first_step(fmu):
+    from fmu_sync.core.exchange import UnstableExchange
+    # the case: Kp = 1e5, Kd = 150, H = 1e-2: omega_c*H = 4.47 > 1.342
+    with pytest.raises(UnstableExchange, match=r"omega_c\*H = 4.472 against the zero-order-hold "
+                                               r"bound min\(4 zeta, 1/zeta\) = 1.342 \(zeta = 0.3354\)"
+                                               r".*largest stable H = 0.003\b"):
+        cosimulate(fmu, X1, X2, 5.0, 1e-2, coupling="switching", Kp=1e5, Kd=150)
+
+
 def test_failing_slave_stops_the_run_with_a_complete_record(fmu):
-    # an absurd gain makes the explicit exchange blow up until a slave receives a
-    # non-finite input and answers fmi2Error
-    from fmu_sync import SlaveError
-    with pytest.raises(SlaveError) as err:
-        cosimulate(fmu, X1, X2, 50.0, 1e-2, coupling="euclidean", Kp=1e9, Kd=0.0)
+    # an absurd gain (forced past the up-front refusal) makes the explicit exchange blow
+    # up: the run stops, raising with the finite record so far (no NaN data passed on)
+    from fmu_sync.core import RunFailed
+    with pytest.raises(RunFailed) as err:
+        cosimulate(fmu, X1, X2, 50.0, 1e-2, coupling="euclidean", Kp=1e9, Kd=0.0, allow_unstable=True)
     res = err.value.partial
     assert res.error is not None and res.error == str(err.value) and not res.success
-    assert "system" in res.error and "t = " in res.error
-    assert "coupling omega_c*H = 447" in res.error
+    assert "non-finite at t = " in res.error
+    assert "omega_c*H = 447" in res.error
+    assert np.all(np.isfinite(res.d))
     assert res.t.size > 1 and res.t[-1] < 50.0
     assert np.all(np.isfinite(res.t)) and np.all(np.isfinite(res.q1))
 
@@ -141,3 +151,72 @@ def test_network_rejects_bad_weights(fmu, A, match):
     from fmu_sync.master import cosimulate_network
     with pytest.raises(ValueError, match=match):
         cosimulate_network(fmu, [X1, X2, X1], A, 1.0, 1e-2)
+
+
+# ------------------------------------------------------------ non-identical instances
+def test_mismatched_pair_cosim_reproduces_the_core(fmu, system):
+    # 5 % stiffness mismatch through per-instance start values: d stays bounded, not 0
+    other = ImpactOscillator(**{**PAPER, "k": 1.05})
+    core = simulate_pair((system, other), X1, X2, 60.0, 1e-3, coupling="switching", **GAINS)
+    cos = cosimulate(fmu, X1, X2, 60.0, 1e-3, coupling="switching", start_values=[{}, {"k": 1.05}],
+                     **GAINS)
+    assert cos.success
+    assert np.max(np.abs(cos.d - core.d)) < 1e-9
+    assert np.max(np.abs(cos.q2 - core.q2)) < 1e-9
+    m = cos.sync(1e-6)
+    assert m.t_sync == np.inf and 1e-4 < m.bound < 0.05 * np.max(cos.d)
+    assert m.bound == pytest.approx(core.bound, rel=1e-6)
+
+
+@pytest.mark.parametrize("values, match", [
+    ([{}, {"m": 1.1}], r"M differs: instance 1 has M = \[\[1.0\]\], instance 2 has M = \[\[1.1\]\]"),
+    ([{"e": 0.5}, {}], r"e differs: instance 1 has e = 0.5, instance 2 has e = 0.9"),
+    ([{}], r"a sequence of N = 2 dicts"),
+])
+def test_mismatched_instances_are_refused(fmu, values, match):
+    with pytest.raises(ValueError, match=match):
+        cosimulate(fmu, X1, X2, 1.0, 1e-2, coupling="switching", start_values=values, **GAINS)
+
+
+# ------------------------------------------------------------ network against the core
+RING_X = [(0.2 + 0.9 * (i % 3) / 2, 0.5 * np.sin(1.7 * i)) for i in range(8)]
+
+
+def test_ring_of_8_cosim_reproduces_the_core_network_and_synchronizes(fmu, system):
+    from fmu_sync.core.network import ring, simulate_network
+    from fmu_sync.master import cosimulate_network
+    kw = dict(coupling="switching", Kp=4.0, Kd=2.0)
+    core = simulate_network(system, RING_X, ring(8), 40.0, 1e-2, **kw)
+    cos = cosimulate_network(fmu, RING_X, ring(8), 40.0, 1e-2, start_values={"solver.dt": 1e-2}, **kw)
+    assert cos.success and cos.edges == core.edges
+    assert np.array_equal(cos.t, core.t)
+    assert np.max(np.abs(cos.q - core.q)) < 1e-9 and np.max(np.abs(cos.d - core.d)) < 1e-9
+    assert np.array_equal(cos.branch, core.branch) and cos.impacts == core.impacts
+    assert np.max(np.abs(cos.tau - core.tau)) < 1e-9        # row 0 included: forces at the start
+    assert cos.sync(1e-6).t_sync < 40.0 and cos.d_max[-1] < 1e-7
+
+
+def test_mismatched_network_with_mixed_laws_cosim_reproduces_the_core(fmu):
+    from fmu_sync.core.network import simulate_network, star
+    from fmu_sync.master import cosimulate_network
+    ks = [1.0, 1.05, 0.95, 1.02]
+    nodes = [ImpactOscillator(**{**PAPER, "k": k}) for k in ks]
+    laws = ["switching", "euclidean", "switching"]          # star edges (0,1), (0,2), (0,3)
+    A = star(4)
+    A[0, 1] = 0.5                                            # directed weights differ on one edge
+    core = simulate_network(nodes, RING_X[:4], A, 20.0, 1e-2, coupling=laws, Kp=2.0, Kd=1.0)
+    cos = cosimulate_network(fmu, RING_X[:4], A, 20.0, 1e-2, coupling=laws, Kp=2.0, Kd=1.0,
+                             start_values=[{"solver.dt": 1e-2, "k": k} for k in ks])
+    assert cos.success
+    assert np.max(np.abs(cos.q - core.q)) < 1e-9 and np.max(np.abs(cos.d - core.d)) < 1e-9
+    assert np.isfinite(cos.sync().bound) and cos.sync().t_sync == np.inf
+
+
+def test_an_instance_whose_midpoint_step_diverges_is_refused_before_the_first_step(fmu):
+    from fmu_sync.core import SimulationDiverged
+    # instance 2 gets k = 1e8 with the FMU's dt = 1e-3: omega_max*dt = 10 >= 2
+    with pytest.raises(SimulationDiverged, match=r"refused before the first step: instance 2: the "
+                                                 r"explicit midpoint scheme diverges .*omega_max\*dt = 10"
+                                                 ) as err:
+        cosimulate(fmu, X1, X2, 1.0, 1e-3, coupling="switching", start_values=[{}, {"k": 1e8}], **GAINS)
+    assert err.value.partial is None                       # nothing ran

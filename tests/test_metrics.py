@@ -120,3 +120,27 @@ def test_forced_pair_rate_above_the_impact_resolution_agrees_to_a_percent(forced
     # level (floor_abs = 1e-3) gives a rate independent of dt (measured: to 0.3 %).
     rates = [sync_metrics(t, d, floor_abs=1e-3).rate for t, d in forced_pairs.values()]
     assert max(rates) - min(rates) < 0.01 * np.mean(rates)
+
+
+def test_decimator_runs_inside_a_compiled_loop():
+    from numba import njit
+
+    from fmu_sync.core.metrics import decimated_kernel, decimator_init, decimator_push
+
+    @njit
+    def sweep(sigma, n, size):
+        # a compiled loop that keeps O(1) memory per run: no record of d at all
+        bt, bd, st = decimator_init(size, 1e-6, 48.0)
+        dt = 60.0 / n
+        for k in range(n + 1):
+            t = k * dt
+            x = np.exp(-sigma * t) * np.cos(1.7 * t + 0.3)
+            v = np.exp(-sigma * t) * (-sigma * np.cos(1.7 * t + 0.3) - 1.7 * np.sin(1.7 * t + 0.3))
+            decimator_push(bt, bd, st, t, np.sqrt(x * x + v * v))
+        return decimated_kernel(bt, bd, st, 0.1, 1e-10, 0.0, 0.2)
+
+    rate, err, t_from, t_to, n_fit, t_sync, t_fit, bound = sweep(0.5, 600_000, 256)
+    t = np.linspace(0.0, 60.0, 600_001)
+    full = sync_metrics(t, _damped(t))
+    assert rate == pytest.approx(0.5, rel=5e-3) and abs(rate - 0.5) < 3 * err + 1e-3
+    assert t_sync == pytest.approx(full.t_sync, abs=1e-9) and bound == pytest.approx(full.bound)

@@ -106,12 +106,81 @@ def test_two_dof_pair_synchronizes():
 
 
 def test_divergence_is_reported_with_partial_record():
-    # the explicit (zero-order-hold) coupling with Kd = 0 is unstable: omega_c*dt = 14
+    # the explicit (zero-order-hold) coupling with Kd = 0 is unstable: omega_c*dt = 14;
+    # refused up front, and when forced, it stops as failed with the finite part of the record
     ball = ImpactOscillator(m=1, k=0, f0=-1, e=0.5)
     with pytest.raises(SimulationDiverged, match=r"coupling omega_c\*dt = 14.1") as err:
-        simulate_pair(ball, (1.0 + 1e-6, 0.0), (1.0, 0.0), 10.0, 1e-2, coupling="euclidean", Kp=1e6)
+        simulate_pair(ball, (1.0 + 1e-6, 0.0), (1.0, 0.0), 10.0, 1e-2, coupling="euclidean", Kp=1e6,
+                      allow_unstable=True)
     part = err.value.partial
+    assert not part.success and "non-finite" in part.error
     assert part.t.size > 1 and np.all(np.isfinite(part.q1)) and np.all(np.isfinite(part.d))
+
+
+def test_unstable_exchange_is_refused_before_the_first_step(paper):
+    from fmu_sync.core.exchange import UnstableExchange, exchange_limit
+    # the case: Kp = 1e5, Kd = 150 -> omega_c = 447, zeta = 0.335, bound 1.342
+    with pytest.raises(UnstableExchange, match=r"omega_c\*dt = 4.472 against the zero-order-hold "
+                                               r"bound min\(4 zeta, 1/zeta\) = 1.342 \(zeta = 0.3354\)"
+                                               r".*largest stable dt = 0.003\b"):
+        simulate_pair(paper, X1, X2, 5.0, 1e-2, coupling="switching", Kp=1e5, Kd=150)
+    # a ValueError: bad input, like the other refusals
+    with pytest.raises(ValueError, match="no dt is stable without damping"):
+        simulate_pair(paper, X1, X2, 5.0, 1e-3, coupling="euclidean", Kp=1.0, Kd=0.0)
+    # the limit is the measured ZOH limit: d decays just below it and grows just above it
+    lim = exchange_limit(paper.M, 1e5, 150, 1e-2)
+    assert lim.H_max == pytest.approx(1.342 / 447.2, rel=1e-3)
+
+    def growth(factor):
+        r = simulate_pair(paper, X1, X2, 1.0, factor * lim.H_max, coupling="euclidean", Kp=1e5,
+                          Kd=150, allow_unstable=factor > 1)
+        k = r.t.size // 5
+        return r, np.max(r.d[-k:]) / np.max(r.d[:k])
+    r, below = growth(0.97)
+    assert below < 0.5
+    assert r.info["dt_max"] == lim.H_max and r.info["omega_c_dt"] < r.info["exchange_bound"]
+    assert growth(1.03)[1] > 2.0
+    # the midpoint scheme's own limit is checked first, and opt-in skips both
+    stiff = ImpactOscillator(m=1, k=1e8, f0=-1, e=0.5)
+    with pytest.raises(SimulationDiverged, match=r"omega_max\*dt = 10"):
+        simulate_pair(stiff, (1e-6, 0.0), (0.0, 0.0), 1e-2, 1e-3)
+
+
+def test_mismatched_pair_is_practically_synchronized(paper):
+    # 5 % stiffness mismatch: exact synchronization is impossible, d settles to a small bound
+    other = ImpactOscillator(**{**PAPER, "k": 1.05})
+    r = simulate_pair((paper, other), X1, X2, 100.0, 1e-3, coupling="switching", Kp=1.0, Kd=0.5)
+    assert r.success and r.info["identical"] is False
+    m = r.sync(1e-6)
+    assert m.t_sync == np.inf                 # never below 1e-6
+    assert 1e-4 < m.bound < 0.05 * np.max(r.d)
+    same = simulate_pair((paper, paper), X1, X2, 100.0, 1e-3, coupling="switching", Kp=1.0, Kd=0.5)
+    assert same.bound < 1e-9
+    # the same pair with the systems given once is bitwise the same run
+    assert np.array_equal(same.d, simulate_pair(paper, X1, X2, 100.0, 1e-3, coupling="switching",
+                                                Kp=1.0, Kd=0.5).d)
+
+
+@pytest.mark.parametrize("change, match", [
+    (dict(m=1.1), r"M differs: system 1 has M = \[\[1.0\]\], system 2 has M = \[\[1.1\]\]"),
+    (dict(e=0.8), r"e differs: system 1 has e = 0.9, system 2 has e = 0.8"),
+])
+def test_mismatched_impact_geometry_is_refused(paper, change, match):
+    other = ImpactOscillator(**{**PAPER, **change})
+    with pytest.raises(ValueError, match=match):
+        simulate_pair((paper, other), X1, X2, 1.0, 1e-3, coupling="switching", Kp=1.0, Kd=0.5)
+
+
+def test_mismatched_wall_is_refused():
+    a = MechanicalSystem(M=[[1.0]], K=[[1.0]], C=[[0.0]], f0=[0.0], w=[1.0], g0=0.0, e=0.5)
+    b = MechanicalSystem(M=[[1.0]], K=[[1.0]], C=[[0.0]], f0=[0.0], w=[1.0], g0=0.1, e=0.5)
+    with pytest.raises(ValueError, match=r"g0 differs: system 1 has g0 = 0.0, system 2 has g0 = 0.1"):
+        simulate_pair((a, b), X1, X2, 1.0, 1e-3)
+    c = MechanicalSystem(M=[[1.0]], K=[[1.0]], C=[[0.0]], f0=[0.0], w=[2.0], g0=0.0, e=0.5)
+    with pytest.raises(ValueError, match=r"w differs: system 1 has w = \[1.0\], system 2 has w = \[2.0\]"):
+        simulate_pair((a, c), X1, X2, 1.0, 1e-3)
+    with pytest.raises(ValueError, match="sequence of 2"):
+        simulate_pair((a, a, a), X1, X2, 1.0, 1e-3)
 
 
 @pytest.mark.parametrize("kwargs, match", [

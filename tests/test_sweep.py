@@ -30,7 +30,8 @@ def gain_map():
 
 def _single(Kp, Kd, t_end=3.0, dt=1e-3, coupling="switching", every=EVERY, x1=X1, x2=X2, **kw):
     s = ImpactOscillator(**{**FORCED, **kw.pop("system", {})})
-    return simulate_pair(s, x1, x2, t_end, dt, coupling=coupling, Kp=Kp, Kd=Kd, record_every=every, **kw)
+    return simulate_pair(s, x1, x2, t_end, dt, coupling=coupling, Kp=Kp, Kd=Kd, record_every=every,
+                         allow_unstable=kw.pop("allow_unstable", True), **kw)
 
 
 def _same(ds_run, r):
@@ -137,8 +138,13 @@ def test_diverging_runs_finish_as_rows_with_their_reason():
         assert "became non-finite" in reason and "dt = 0.02" in reason
         assert 0 < float(ds["t_stop"][k]) < 50.0
         assert np.isinf(float(ds["t_sync"][k]))
-        with pytest.raises(Exception, match="non-finite|unstable"):
+        with pytest.raises(Exception, match="non-finite"):
             _single(1.0, float(ds["coupling.Kd"][k]), t_end=50.0, dt=2e-2)
+        # the core's own check refuses it up front; the sweep runs it and flags it
+        assert float(ds["exchange_stable"][k]) == 0.0
+    assert float(ds["exchange_stable"][0]) == 1.0
+    with pytest.raises(ValueError, match="unstable"):
+        _single(1.0, 80.0, t_end=1.0, dt=2e-2, allow_unstable=False)
 
 
 def test_refused_step_is_a_row_not_an_error():
@@ -239,6 +245,12 @@ def test_maps_are_written(tmp_path):
     # the ZOH limit of stability.py: zeta <= 1/2 -> Kp h < 2 Kd; zeta >= 1/2 -> Kd h < m
     assert zoh_margin(1.0, 0.01, 0.02, 1.0) > 1 > zoh_margin(1.0, 0.011, 0.02, 1.0)
     assert zoh_margin(1.0, 49.0, 0.02, 1.0) < 1 < zoh_margin(1.0, 51.0, 0.02, 1.0)
+    # the line drawn is the core's own stability check of the held exchange
+    from fmu_sync.core.exchange import exchange_limit
+    rng = np.random.default_rng(5)
+    for kp, kd, h, m in zip(10 ** rng.uniform(-2, 2, 40), 10 ** rng.uniform(-2, 2, 40),
+                            10 ** rng.uniform(-3, -1, 40), rng.uniform(0.5, 2, 40)):
+        assert (zoh_margin(kp, kd, h, m) < 1) == exchange_limit([[m]], kp, kd, h).stable
 
 
 def test_cli_sweep_writes_netcdf_and_map(tmp_path, capsys):
@@ -275,11 +287,11 @@ def test_cosimulated_sweep_runs_in_worker_processes_and_equals_single_cosimulati
         assert float(run["t_sync"]) == r.time_to_sync(1e-6)
         assert int(run["impacts1"]) == r.impacts1
         assert float(run["tau_max"]) == max(np.max(np.abs(r.tau1)), np.max(np.abs(r.tau2)))
-    # Kp = 50, Kd = 0, H = 0.5 s: omega_c H = 5 -> the exchange diverges: a row with its reason
+    # Kp = 50, Kd = 0, H = 0.5 s: the held exchange is unstable; the master refuses it up front
     bad = sweep(SCENE, variant="switching", grid={"coupling.Kp": [50.0]},
                 overrides={**over, "run.H": 0.5, "run.t_end": 400.0, "coupling.Kd": 0.0}, workers=1, quiet=True)
-    assert int(bad["status"][0]) == 1 and bad["reason"].values[0] != ""
-    assert 0 < float(bad["t_stop"][0]) < 400.0
+    assert int(bad["status"][0]) == 2 and "unstable" in bad["reason"].values[0]
+    assert float(bad["exchange_stable"][0]) == 0.0
 
 
 def test_two_dof_core_pairs_run_in_worker_processes_and_equal_single_runs():

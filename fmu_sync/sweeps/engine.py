@@ -213,6 +213,7 @@ def prepare(scene, runs: list[dict], variant_name: str | None) -> Prepared:
               for name in ("law", "scheme", "theta", "group1", "group2", "kp", "kd", "q1", "u1", "q2", "u2",
                            "dt", "n_steps", "every")}
     python_items = {}
+    cache = {}
     for i, r in enumerate(runs):
         v = variants[group[i]]
         cfg = v.cfg
@@ -236,6 +237,7 @@ def prepare(scene, runs: list[dict], variant_name: str | None) -> Prepared:
         a["q1"][i], a["u1"][i], a["q2"][i], a["u2"][i], a["dt"][i] = q1, u1, q2, u2, dt
         a["n_steps"][i] = _n_steps(t_end, dt)
         a["every"][i] = cfg["run.record_every"]
+        out[i, COL["exchange_stable"]] = _exchange_stable(v, kp, kd, dt, cache)
         why = _refusal(v, rows[group2[i]], q1, q2, dt)
         if why:
             out[i, COL["status"]] = REFUSED
@@ -260,6 +262,18 @@ def _refusal(v, system2, q1, q2, dt) -> str:
                 return (f"the explicit midpoint scheme diverges for omega_max*dt >= 2: dt = {dt:.3g}, "
                         f"omega_max*dt = {wdt:.3g}")
     return ""
+
+
+def _exchange_stable(v, kp, kd, dt, cache) -> float:
+    """1.0 if the held coupling is stable at this step (the core's own check), else 0.0.
+    The sweep runs either way (as ``simulate_pair(..., allow_unstable=True)``)."""
+    from ..core.exchange import exchange_limit
+    if v.law == "none":
+        return 1.0
+    key = (float(v.system.M[0, 0]), kp, kd, dt)
+    if key not in cache:
+        cache[key] = 1.0 if exchange_limit(v.system.M, kp, kd, dt, step_name="dt").stable else 0.0
+    return cache[key]
 
 
 def _scalar_gain(K) -> float:
@@ -364,6 +378,7 @@ def _fmu_for(variant):
 
 def _one_python_run(path, overrides, vname, threshold):
     from ..core import RunFailed
+    from ..core.exchange import UnstableExchange
     from ..scenes.loading import load_scene
     from ..scenes.running import run_variant
     from ..scenes.schema import SceneError
@@ -376,6 +391,10 @@ def _one_python_run(path, overrides, vname, threshold):
     reason = ""
     try:
         res = run_variant(v, _fmu_for(v) if v.mode == "cosim" else None)
+    except UnstableExchange as exc:   # refused up front by the core's / master's check
+        row[COL["status"]], row[COL["steps"]], row[COL["t_stop"]] = REFUSED, 0, 0.0
+        row[COL["exchange_stable"]] = 0.0
+        return row, str(exc)
     except RunFailed as exc:
         res = getattr(exc, "partial", None)
         reason = str(exc)
@@ -401,6 +420,7 @@ def _one_python_run(path, overrides, vname, threshold):
     for name, arr in (("q1", res.q1), ("u1", res.u1), ("q2", res.q2), ("u2", res.u2)):
         row[COL[name]] = float(np.asarray(arr)[last].ravel()[0]) if t.size else np.nan
     row[COL["impacts1"]], row[COL["impacts2"]] = res.impacts1, res.impacts2
+    row[COL["exchange_stable"]] = 1.0   # it ran: the core's / master's check let it
     if failed and not reason:
         reason = f"non-finite state or distance at t = {row[COL['t_stop']]:.6g}"
     return row, reason

@@ -74,13 +74,21 @@ def _base_variant(ds):
 
 
 def zoh_margin(Kp, Kd, h, m):
-    """``omega_c h / min(4 zeta, 1/zeta)``: the exchange is stable below 1 (inf for zeta = 0)."""
+    """``omega_c h / h*(zeta)`` of the relative mode of a 1-DOF pair, with ``h*`` the core's
+    :func:`fmu_sync.core.exchange.zoh_bound`: the held exchange is stable below 1.
+    A pair's relative mode has ``omega_c = sqrt(2 Kp / m)``, ``zeta = Kd / (m omega_c)``;
+    without Kp the limit is ``2 Kd h / m < 2``; without Kd no step is stable (inf)."""
+    from ..core.exchange import zoh_bound
     Kp, Kd, h, m = np.broadcast_arrays(*(np.asarray(x, dtype=float) for x in (Kp, Kd, h, m)))
-    wc = np.sqrt(2.0 * Kp / m)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        zeta = Kd / (m * wc)
-        limit = np.minimum(4.0 * zeta, 1.0 / zeta)
-        return np.where(limit > 0, wc * h / limit, np.inf)
+    out = np.empty(Kp.shape)
+    for i in np.ndindex(Kp.shape):
+        wc = math.sqrt(2.0 * Kp[i] / m[i])
+        if wc > 0.0:
+            bound = zoh_bound(Kd[i] / (m[i] * wc))
+            out[i] = wc * h[i] / bound if bound > 0.0 else np.inf
+        else:
+            out[i] = Kd[i] * h[i] / m[i]
+    return out if out.shape else float(out)
 
 
 def _zoh_line(ax, ds, x, y, xlog, ylog):

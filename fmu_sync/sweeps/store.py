@@ -51,6 +51,8 @@ VARIABLES = {
     "q2": ("q2", "f8", "m", "final position of system 2 (first coordinate)"),
     "u2": ("u2", "f8", "m/s", "final velocity of system 2 (first coordinate)"),
     "samples": ("samples", "f8", "", "samples of d used by the metrics"),
+    "exchange_stable": ("exchange_stable", "f8", "", "1 if the held coupling is stable at the step "
+                        "(fmu_sync.core.exchange); compiled runs run either way, others are refused"),
 }
 
 

@@ -1,0 +1,194 @@
+"""Stability of the explicit exchange of coupling forces (zero-order hold).
+
+Both the monolithic pair/network and the co-simulation master compute the
+coupling forces from the states at the start of a step and hold them over the
+step (``dt`` in the core, the communication step ``H`` in the master). On the
+Euclidean branch the relative motion of identical systems is linear; on a graph
+with (symmetrised) weights ``a_ij`` it splits along the eigenvectors of the
+weighted Laplacian ``L`` (eigenvalues ``lambda_k``; a pair has ``lambda = 2``)
+into modes
+
+    M x'' = -lambda_k (Kp x + Kd x')      (forces held over each step).
+
+With modal gains (``Kp``, ``Kd`` diagonal in the M-orthonormal eigenvectors of
+``M^-1 Kp``) each mode is a scalar oscillator with ``omega = sqrt(lambda kp)``
+and damping ratio ``zeta = lambda kd / (2 omega)`` (per unit modal mass), and
+the zero-order-hold map of the step ``H`` is stable exactly for
+
+    omega H < h*(zeta) = min(4 zeta, 1/zeta)           (h* <= 2, = 2 at zeta = 1/2)
+
+(``fmu_sync.benchmarks.stability.zoh_limit``, measured by ``fmu-sync bench``);
+a mode with ``kp = 0`` needs ``lambda kd H < 2``. Without damping (``Kd = 0``)
+no H is stable (the map grows by ``1 + (omega H)^2 / 4`` per step). For
+non-modal gains the spectral radius of the hold map itself is bisected.
+
+:func:`exchange_limit` computes the limit; :func:`check_exchange` refuses an
+unstable step with :class:`UnstableExchange` (a ``ValueError``) unless the
+caller passes ``allow_unstable=True``. The core (``simulate_pair``,
+``simulate_network``) and the master call these same functions.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["UnstableExchange", "ExchangeLimit", "exchange_limit", "check_exchange", "zoh_bound",
+           "laplacian_modes", "hold_map_radius"]
+
+
+class UnstableExchange(ValueError):
+    """The coupling forces held over a step make the relative motion grow."""
+
+
+def zoh_bound(zeta: float) -> float:
+    """h*(zeta) = min(4 zeta, 1/zeta): the zero-order-hold limit of omega*H (0 for zeta <= 0)."""
+    return min(4.0 * zeta, 1.0 / zeta) if zeta > 0.0 else 0.0
+
+
+@dataclass(frozen=True)
+class ExchangeLimit:
+    """The binding (least stable) relative mode of the held coupling at step ``H``.
+
+    ``omega_c``: its frequency; ``zeta``: its damping ratio (NaN for non-modal
+    gains); ``bound``: the limit of ``omega_c*H`` (``min(4 zeta, 1/zeta)``);
+    ``H_max``: the largest stable step over all modes (inf: no coupling);
+    ``stable``: ``H < H_max``."""
+
+    H: float
+    omega_c: float
+    zeta: float
+    bound: float
+    H_max: float
+    lam: float
+    step_name: str = "H"
+
+    @property
+    def h(self) -> float:
+        """omega_c * H."""
+        return self.omega_c * self.H
+
+    @property
+    def stable(self) -> bool:
+        return self.H < self.H_max
+
+    def message(self) -> str:
+        s = self.step_name
+        if math.isinf(self.H_max):
+            return f"the coupling adds no relative mode: any {s} is stable"
+        if self.H_max == 0.0:
+            largest = (f"no {s} is stable without damping of the relative mode (Kd = 0: the held "
+                       f"forces grow it by 1 + (omega_c*{s})^2/4 per step); add Kd > 0")
+        else:
+            largest = f"largest stable {s} = {self.H_max:.4g}"
+        if math.isnan(self.zeta):
+            against = (f"the limit {self.bound:.4g} of the hold map (gains not modal: no single "
+                       f"zeta)")
+        else:
+            against = (f"the zero-order-hold bound min(4 zeta, 1/zeta) = {self.bound:.4g} "
+                       f"(zeta = {self.zeta:.4g})")
+        return (f"coupling forces held over {s} = {self.H:.4g}: omega_c*{s} = {self.h:.4g} against "
+                f"{against}, omega_c = {self.omega_c:.4g} rad/s; {largest}")
+
+
+def laplacian_modes(A) -> np.ndarray:
+    """Nonzero eigenvalues of the weighted Laplacian of the symmetrised weights
+    ``(A + A^T)/2`` (a pair with weight 1: ``[2]``)."""
+    A = np.asarray(A, dtype=np.float64)
+    S = 0.5 * (A + A.T)
+    L = np.diag(S.sum(axis=1)) - S
+    ev = np.linalg.eigvalsh(L)
+    tol = 1e-12 * max(1.0, float(np.max(np.abs(ev))) if ev.size else 1.0)
+    return ev[ev > tol]
+
+
+def hold_map_radius(Ap: np.ndarray, Ad: np.ndarray, H: float) -> float:
+    """Spectral radius of the zero-order-hold step of ``x'' = -Ap x - Ad x'``
+    (exact free flight under the held force; the midpoint step gives the same map)."""
+    n = Ap.shape[0]
+    I = np.eye(n)
+    Phi = np.block([[I - 0.5 * H * H * Ap, H * I - 0.5 * H * H * Ad], [-H * Ap, I - H * Ad]])
+    return float(np.max(np.abs(np.linalg.eigvals(Phi))))
+
+
+def _bisect_radius(Ap, Ad, scale):
+    """Largest H with radius <= 1 (bisection from a step known stable or 0)."""
+    lo, hi = 0.0, 1.0 / scale
+    while hold_map_radius(Ap, Ad, hi) <= 1.0 + 1e-12:
+        lo, hi = hi, 2.0 * hi
+        if hi > 1e6 / scale:
+            return math.inf
+    if hold_map_radius(Ap, Ad, hi * 1e-6) > 1.0 + 1e-12:
+        return 0.0
+    for _ in range(80):
+        mid = 0.5 * (lo + hi)
+        if hold_map_radius(Ap, Ad, mid) <= 1.0 + 1e-12:
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
+def exchange_limit(M, Kp, Kd, H: float, A=None, step_name: str = "H") -> ExchangeLimit:
+    """The stability limit of the held coupling (see the module docstring).
+
+    ``M``: the (common) mass matrix; ``Kp, Kd``: gains (scalars or n x n);
+    ``A``: graph weights (default: a pair with weight 1)."""
+    M = np.atleast_2d(np.asarray(M, dtype=np.float64))
+    n = M.shape[0]
+    Kp = np.asarray(Kp, dtype=np.float64)
+    Kd = np.asarray(Kd, dtype=np.float64)
+    Kp = Kp * np.eye(n) if Kp.ndim == 0 else 0.5 * (Kp + Kp.T)
+    Kd = Kd * np.eye(n) if Kd.ndim == 0 else 0.5 * (Kd + Kd.T)
+    lams = laplacian_modes([[0.0, 1.0], [1.0, 0.0]] if A is None else A)
+    H = float(H)
+    # M-orthonormal coordinates: M = L L^T, Kp~ = L^-1 Kp L^-T
+    Lc = np.linalg.cholesky(M)
+    Li = np.linalg.inv(Lc)
+    kp_t = Li @ Kp @ Li.T
+    kd_t = Li @ Kd @ Li.T
+    kappa, V = np.linalg.eigh(kp_t)
+    D = V.T @ kd_t @ V
+    off = D - np.diag(np.diag(D))
+    modal = np.max(np.abs(off), initial=0.0) <= 1e-9 * max(1e-300, np.max(np.abs(D), initial=0.0))
+    best = None  # (H_max, omega, zeta, bound, lam)
+    for lam in lams:
+        if modal:
+            for kp, kd in zip(np.maximum(kappa, 0.0), np.diag(D)):
+                w = math.sqrt(lam * kp)
+                if w > 0.0:
+                    zeta = lam * kd / (2.0 * w)
+                    bound = zoh_bound(zeta)
+                    H_max = bound / w
+                elif kd > 0.0:
+                    zeta, bound, H_max = math.inf, 2.0, 2.0 / (lam * kd)
+                else:
+                    continue
+                if best is None or H_max < best[0]:
+                    best = (H_max, w, zeta, bound, lam)
+        else:
+            Minv = np.linalg.inv(M)
+            Ap, Ad = lam * Minv @ Kp, lam * Minv @ Kd
+            w = math.sqrt(max(float(np.max(np.linalg.eigvals(Ap).real)), 0.0))
+            H_max = _bisect_radius(Ap, Ad, max(w, 1e-300))
+            bound = w * H_max if math.isfinite(H_max) else math.inf
+            if best is None or H_max < best[0]:
+                best = (H_max, w, math.nan, bound, lam)
+    if best is None:
+        return ExchangeLimit(H, 0.0, math.nan, math.inf, math.inf, 0.0, step_name)
+    H_max, w, zeta, bound, lam = best
+    return ExchangeLimit(H, w, zeta, bound, H_max, lam, step_name)
+
+
+def check_exchange(M, Kp, Kd, H: float, A=None, allow_unstable: bool = False,
+                   step_name: str = "H") -> ExchangeLimit:
+    """:func:`exchange_limit`, refused with :class:`UnstableExchange` when unstable
+    (``H >= H_max``) unless ``allow_unstable``."""
+    lim = exchange_limit(M, Kp, Kd, H, A, step_name)
+    if not lim.stable and not allow_unstable:
+        raise UnstableExchange(
+            f"refused before the first step: the explicit exchange is unstable: {lim.message()}. "
+            f"Lower Kp or {step_name}, add Kd, or pass allow_unstable=True to run anyway "
+            f"(the run then stops as failed when it diverges).")
+    return lim

@@ -1,0 +1,383 @@
+"""N coupled systems on a weighted graph in one compiled loop (monolithic
+reference of :func:`fmu_sync.master.cosimulate_network`).
+
+System i receives ``tau_i = sum_j a_ij tau_i^(j)``, where ``tau_i^(j)`` is the
+force on i of the pairwise law of edge (i, j) (switching or Euclidean, one law
+per edge; :func:`fmu_sync.core.pair.coupling_step`, the function the master
+calls) and ``a_ij >= 0`` the weight of the directed link j -> i. As in the pair,
+every step computes all forces from the states at its start (Jacobi, zero-order
+hold) and then advances each system by one Moreau step, so a co-simulation with
+``H = dt`` reproduces this run to round-off.
+
+The systems may differ in K, C, f0 and forcing; they share M, w, g0 and e (the
+impact geometry of the quotient distance). Graph helpers: :func:`ring`,
+:func:`path`, :func:`star`, :func:`all_to_all`, or any N x N weight matrix.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .coupling import BRANCH_NONE, UNCOUPLED, gain_matrix
+from .distance import geometry
+from .exchange import check_exchange
+from .model import MechanicalSystem, SystemArrays, as_state
+from .checks import check_run, check_stable, check_start, divergence_message, scheme_code
+from .errors import SimulationDiverged
+from .moreau import DIVERGED, OK, THETA, finish_step, midpoint_step, theta_matrices, theta_step
+from .pair import LAWS, as_systems, check_common_geometry, coupling_step
+from .result import NetworkResult
+
+__all__ = ["simulate_network", "ring", "path", "star", "all_to_all", "GRAPHS", "graph", "weights",
+           "edges_of", "edge_laws", "coupled_weights"]
+
+
+# ------------------------------------------------------------------ graphs
+def _count(N) -> int:
+    N = int(N)
+    if N < 2:
+        raise ValueError(f"a network needs N >= 2 systems, got {N}")
+    return N
+
+
+def ring(N: int, weight: float = 1.0) -> np.ndarray:
+    """Cycle 0-1-...-(N-1)-0 (for N = 2: the single pair)."""
+    N = _count(N)
+    A = np.zeros((N, N))
+    for i in range(N):
+        j = (i + 1) % N
+        if i != j:
+            A[i, j] = A[j, i] = weight
+    return A
+
+
+def path(N: int, weight: float = 1.0) -> np.ndarray:
+    """Chain 0-1-...-(N-1)."""
+    N = _count(N)
+    A = np.zeros((N, N))
+    for i in range(N - 1):
+        A[i, i + 1] = A[i + 1, i] = weight
+    return A
+
+
+def star(N: int, weight: float = 1.0, center: int = 0) -> np.ndarray:
+    """Every node linked to ``center``."""
+    N = _count(N)
+    if not 0 <= center < N:
+        raise ValueError(f"center must be a node index in [0, {N - 1}], got {center}")
+    A = np.zeros((N, N))
+    for i in range(N):
+        if i != center:
+            A[i, center] = A[center, i] = weight
+    return A
+
+
+def all_to_all(N: int, weight: float = 1.0) -> np.ndarray:
+    """Complete graph."""
+    N = _count(N)
+    return weight * (np.ones((N, N)) - np.eye(N))
+
+
+GRAPHS = {"ring": ring, "path": path, "star": star, "all-to-all": all_to_all}
+
+
+def graph(kind: str, N: int, weight: float = 1.0) -> np.ndarray:
+    """Weight matrix of a named graph (``ring``, ``path``, ``star``, ``all-to-all``)."""
+    if kind not in GRAPHS:
+        raise ValueError(f"graph must be one of {sorted(GRAPHS)} or an N x N weight matrix, got {kind!r}")
+    return GRAPHS[kind](N, weight)
+
+
+def weights(A, N: int | None = None) -> np.ndarray:
+    """Validated N x N weights: finite, >= 0, zero diagonal."""
+    try:
+        a = np.array(A, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"A must be an N x N matrix of weights, got {A!r}") from None
+    if a.ndim != 2 or a.shape[0] != a.shape[1] or (N is not None and a.shape[0] != N):
+        raise ValueError(f"A must be a square N x N weight matrix with N = number of states "
+                         f"({N}), got shape {a.shape}")
+    if not np.all(np.isfinite(a)) or np.any(a < 0.0):
+        raise ValueError(f"A must hold finite weights >= 0, got {a.tolist()}")
+    if np.any(np.diag(a) != 0.0):
+        raise ValueError(f"A must have a zero diagonal (no self-coupling), got {np.diag(a).tolist()}")
+    return a
+
+
+def edges_of(A) -> list:
+    """The coupled pairs (i, j), i < j, in lexicographic order (the record's columns)."""
+    N = A.shape[0]
+    return [(i, j) for i in range(N) for j in range(i + 1, N) if A[i, j] > 0.0 or A[j, i] > 0.0]
+
+
+def edge_laws(coupling, edges) -> np.ndarray:
+    """Law codes per edge from one law name or a sequence of names (one per edge)."""
+    if coupling is None or isinstance(coupling, str):
+        if coupling not in LAWS:
+            raise ValueError(f"coupling must be one of {list(LAWS)} or one of them per edge, got {coupling!r}")
+        return np.full(len(edges), LAWS[coupling], dtype=np.int64)
+    names = list(coupling)
+    if len(names) != len(edges):
+        raise ValueError(f"coupling per edge needs {len(edges)} laws (edges {edges}), got {len(names)}")
+    for k, c in enumerate(names):
+        if c not in LAWS:
+            raise ValueError(f"coupling of edge {edges[k]} must be one of {list(LAWS)}, got {c!r}")
+    return np.array([LAWS[c] for c in names], dtype=np.int64)
+
+
+def coupled_weights(A, edges, laws) -> np.ndarray:
+    """``A`` without the edges whose law is "none" (they carry no force): the graph whose
+    Laplacian sets the stability limit of the exchange."""
+    Ac = np.array(A, dtype=np.float64)
+    for (i, j), law in zip(edges, laws):
+        if law == LAWS[None]:
+            Ac[i, j] = Ac[j, i] = 0.0
+    return Ac
+
+
+# ------------------------------------------------------------------ kernel
+@njit(cache=True, inline="always")
+def _node(base, K, C, f0, F, Omega, phi, i):
+    """The SystemArrays of node i: the common geometry of ``base``, the node's forces."""
+    return SystemArrays(base.M, base.Minv, K[i], C[i], f0[i], F[i], Omega[i], phi[i], base.B, base.w,
+                        base.g0, base.e, base.Minv_w, base.W)
+
+
+@njit(cache=True)
+def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, q, u, t0, k0, dt,
+                      n_steps, scheme, theta, record_every, record_d, T, Qr, Ur, TAU, D, BR, EU):
+    """The monolithic loop over steps ``k0 .. k0 + n_steps`` (time ``t0 + k dt``).
+
+    ``base``: SystemArrays with the common M, w, g0, e (and B = I); ``K, C``
+    (N, n, n), ``f0`` (N, n), ``F`` (N, nf, n), ``Omega, phi`` (N, nf): the
+    nodes' forces. ``E2`` (E, 2) edges (i, j); ``W2`` (E, 2) weights
+    (a_ij, a_ji); ``laws`` (E,). ``q, u`` (N, n), advanced in place.
+    Returns ``(status, steps_done, rows_written, impacts (N,))``."""
+    N = q.shape[0]
+    n = q.shape[1]
+    E = E2.shape[0]
+    qM = np.empty(n)
+    h = np.empty(n)
+    uf = np.empty(n)
+    Sinv = np.zeros((N, n, n))
+    Sinv_w = np.zeros((N, n))
+    WS = np.zeros(N)
+    if scheme == THETA:
+        for i in range(N):
+            WS[i] = theta_matrices(_node(base, K, C, f0, F, Omega, phi, i), dt, theta, Sinv[i], Sinv_w[i])
+    tau = np.zeros((N, n))
+    t1 = np.zeros(n)
+    t2 = np.zeros(n)
+    c1q = np.empty(n)
+    c1u = np.empty(n)
+    c2q = np.empty(n)
+    c2u = np.empty(n)
+    dk = np.full(E, np.nan)
+    bk = np.full(E, BRANCH_NONE)
+    ek = np.full(E, np.nan)
+    imp = np.zeros(N, dtype=np.int64)
+    coupled = False
+    for k in range(E):
+        if laws[k] != UNCOUPLED:
+            coupled = True
+    row = 0
+    countdown = 1  # row 0 is the initial state
+    for k in range(n_steps + 1):
+        is_row = False
+        countdown -= 1
+        if countdown == 0:
+            countdown = record_every
+            is_row = True
+        need_d = is_row and record_d
+        # forces from the states at the start of the step (Jacobi, zero-order hold)
+        if coupled or need_d:
+            for i in range(N):
+                for c in range(n):
+                    tau[i, c] = 0.0
+            for e_ in range(E):
+                a = E2[e_, 0]
+                b = E2[e_, 1]
+                d, br, eu = coupling_step(laws[e_], geo, Kp, Kd, q[a], u[a], q[b], u[b], t1, t2,
+                                          c1q, c1u, c2q, c2u, need_d)
+                if laws[e_] != UNCOUPLED:
+                    if W2[e_, 0] > 0.0:
+                        for c in range(n):
+                            tau[a, c] += W2[e_, 0] * t1[c]
+                    if W2[e_, 1] > 0.0:
+                        for c in range(n):
+                            tau[b, c] += W2[e_, 1] * t2[c]
+                dk[e_] = d
+                bk[e_] = br
+                ek[e_] = eu
+        if k == 0 and k0 == 0:
+            for i in range(N):
+                for c in range(n):
+                    TAU[0, i, c] = tau[i, c]
+        if is_row:
+            T[row] = t0 + (k0 + k) * dt
+            ok = True
+            for i in range(N):
+                for c in range(n):
+                    Qr[row, i, c] = q[i, c]
+                    Ur[row, i, c] = u[i, c]
+                if not finish_step(q[i], u[i]):
+                    ok = False
+            if record_d:
+                for e_ in range(E):
+                    D[row, e_] = dk[e_]
+                    BR[row, e_] = bk[e_]
+                    EU[row, e_] = ek[e_]
+                    if not math.isfinite(dk[e_]):
+                        ok = False
+            if not ok:
+                return DIVERGED, k, row, imp
+            row += 1
+        if k == n_steps:
+            break
+        if countdown == 1:
+            for i in range(N):
+                for c in range(n):
+                    TAU[row, i, c] = tau[i, c]
+        t = t0 + (k0 + k) * dt
+        for i in range(N):
+            sa = _node(base, K, C, f0, F, Omega, phi, i)
+            if scheme == THETA:
+                P = theta_step(sa, q[i], u[i], tau[i], t, dt, theta, Sinv[i], Sinv_w[i], WS[i], qM, h, uf)
+            else:
+                P = midpoint_step(sa, q[i], u[i], tau[i], t, dt, qM, h, uf)
+            finish_step(q[i], u[i])
+            if P > 0.0:
+                imp[i] += 1
+    return OK, n_steps, row, imp
+
+
+# ------------------------------------------------------------------ Python API
+def _stack(systems, n):
+    nf = max(len(s.forcing) for s in systems)
+    N = len(systems)
+    K = np.zeros((N, n, n))
+    C = np.zeros((N, n, n))
+    f0 = np.zeros((N, n))
+    F = np.zeros((N, nf, n))
+    Om = np.zeros((N, nf))
+    ph = np.zeros((N, nf))
+    for i, s in enumerate(systems):
+        sa = s.arrays()
+        K[i], C[i], f0[i] = sa.K, sa.C, sa.f0
+        m = sa.Omega.shape[0]
+        F[i, :m], Om[i, :m], ph[i, :m] = sa.F, sa.Omega, sa.phi  # padding: F = 0 terms
+    return K, C, f0, F, Om, ph
+
+
+def simulate_network(system, states, A, t_end: float, dt: float, coupling="switching", Kp=0.0,
+                     Kd=0.0, Q=None, scheme: str = "midpoint", theta: float = 0.5,
+                     record_every: int = 1, record_distance: bool = True, progress=None,
+                     t0: float = 0.0, allow_unstable: bool = False) -> NetworkResult:
+    """Simulate N systems coupled on the graph ``A`` (monolithic, compiled).
+
+    ``system``: one :class:`MechanicalSystem` for every node or a sequence of N
+    (equal M, w, g0, e; K, C, f0, forcing per node); ``states``: N start states
+    (q, u); ``A``: N x N weights (``a_ij``: weight of the force on i from edge
+    (i, j); zero diagonal), e.g. :func:`ring`; ``coupling``: a law name for every
+    edge or one per edge (order of :func:`edges_of`); gains ``Kp``, ``Kd``; norm
+    weight ``Q``. The same stability checks as :func:`fmu_sync.core.pair.simulate_pair`
+    (``allow_unstable`` to skip them). Returns a :class:`NetworkResult`
+    (``d_max``: the largest pairwise distance per row); raises
+    :class:`SimulationDiverged` with the finite part of the record, marked
+    failed, in ``.partial``.
+    """
+    states = list(states)
+    N = len(states)
+    if N < 2:
+        raise ValueError(f"a network needs at least 2 states, got {N}")
+    systems = as_systems(system, N)
+    check_common_geometry(systems, [f"node {i + 1}" for i in range(N)])
+    A = weights(A, N)
+    edges = edges_of(A)
+    laws = edge_laws(coupling, edges)
+    s0 = systems[0]
+    n = s0.n
+    dt, n_steps, record_every = check_run(t_end, dt, record_every, t0)
+    code, theta = scheme_code(scheme, theta)
+    if not allow_unstable:
+        seen = []
+        for s in systems:
+            if not any(s is o for o in seen):
+                check_stable(s, scheme, dt)
+                seen.append(s)
+    for s in systems:
+        if s.m != n or not np.array_equal(s.B, np.eye(n)):
+            raise ValueError(f"coupled systems take the forces through B = I (tau has n = {n} entries); "
+                             f"got B of shape {s.B.shape}")
+    q = np.zeros((N, n))
+    u = np.zeros((N, n))
+    for i, x in enumerate(states):
+        q[i], u[i] = as_state(s0, x, f"x{i + 1}")
+        check_start(s0, q[i], f"x{i + 1}")
+    Kp_m, Kd_m = gain_matrix(Kp, n, "Kp"), gain_matrix(Kd, n, "Kd")
+    coupled = bool(np.any(laws != LAWS[None]))
+    limit = None
+    if coupled:
+        limit = check_exchange(s0.M, Kp_m, Kd_m, dt, A=coupled_weights(A, edges, laws),
+                               allow_unstable=allow_unstable, step_name="dt")
+    record_d = bool(record_distance) or bool(np.any(laws == LAWS["switching"]))
+    geo = geometry(s0, Q)
+    rows = n_steps // record_every + 1
+    E = len(edges)
+    T = np.full(rows, np.nan)
+    Qr, Ur, TAU = (np.full((rows, N, n), np.nan) for _ in range(3))
+    D, EU = np.full((rows, E), np.nan), np.full((rows, E), np.nan)
+    BR = np.full((rows, E), BRANCH_NONE, dtype=np.int64)
+    E2 = np.array(edges, dtype=np.int64).reshape(E, 2)
+    W2 = np.array([[A[i, j], A[j, i]] for i, j in edges], dtype=np.float64).reshape(E, 2)
+    K, C, f0, F, Om, ph = _stack(systems, n)
+    base = s0.arrays()
+    if progress is None:
+        chunks = [n_steps]
+    else:
+        per = max(1, (n_steps // record_every) // 100) * record_every
+        chunks = [per] * (n_steps // per) + ([n_steps % per] if n_steps % per else [])
+    row0, k0 = 0, 0
+    imp = np.zeros(N, dtype=np.int64)
+    status = OK
+    for c, steps in enumerate(chunks):
+        last = c == len(chunks) - 1
+        sl = slice(row0, rows)
+        status, done, written, i_ = integrate_network(
+            base, K, C, f0, F, Om, ph, geo, laws, E2, W2, Kp_m, Kd_m, q, u, float(t0), k0, dt, steps,
+            code, theta, record_every, record_d, T[sl], Qr[sl], Ur[sl], TAU[sl], D[sl], BR[sl], EU[sl])
+        imp += i_
+        if status != OK:
+            row0 += written
+            k0 += done
+            break
+        k0 += steps
+        row0 += written - (0 if last else 1)
+        if progress is not None:
+            progress(k0 / max(n_steps, 1))
+    sl = slice(0, row0 if status != OK else rows)
+    V = None
+    if record_d:
+        a_sym = np.array([0.5 * (A[i, j] + A[j, i]) for i, j in edges])
+        with np.errstate(over="ignore"):  # a failed run may end on huge (finite) d
+            V = 0.5 * (D[sl] ** 2) @ a_sym
+    info = dict(mode="core", dt=dt, scheme=scheme, steps=n_steps, N=N,
+                coupling=coupling if isinstance(coupling, str) or coupling is None else list(coupling))
+    if limit is not None:
+        info.update(omega_c_dt=limit.h, exchange_bound=limit.bound, zeta=limit.zeta,
+                    dt_max=limit.H_max)
+    res = NetworkResult(T[sl], Qr[sl], Ur[sl], TAU[sl], edges, D[sl] if record_d else None,
+                        BR[sl] if record_d else None, EU[sl] if record_d else None, V,
+                        impacts=[int(v) for v in imp], info=info)
+    if status != OK:
+        msg = divergence_message(s0, scheme, dt, t0 + k0 * dt, what="a network state or distance",
+                                 Kp=Kp_m if coupled else None)
+        if limit is not None:
+            msg += f" ({limit.message()})"
+        err = SimulationDiverged(msg)
+        res.error = str(err)
+        err.partial = res
+        raise err
+    return res
