@@ -325,6 +325,10 @@ def test_mismatched_second_system_uncoupled_equals_two_single_runs():
               quiet=True)
     assert bool(c["synchronized"][0]) and not bool(c["synchronized"][1])
     assert 0 < float(c["bound"][1]) < 0.1 * float(c["d0"][1])
+    # ... bit for bit the non-identical pair of simulate_pair((system1, system2), ...)
+    s1, s2 = ImpactOscillator(**FORCED), ImpactOscillator(**{**FORCED, "f0": 0.3})
+    r = simulate_pair((s1, s2), X1, X2, 60.0, 1e-3, coupling="switching", Kp=1.0, Kd=0.5, record_every=EVERY)
+    _same(c.isel({"system2.f0": 1}), r)
     with pytest.raises(SweepSpecError, match="common impact geometry.*not in e"):
         sweep(SCENE, variant="switching", grid={"system2.e": [0.5]}, quiet=True)
 
