@@ -6,7 +6,7 @@
   ``omega_c h = min(4 zeta, 1/zeta)`` with ``omega_c = sqrt(2 Kp / m)``,
   ``zeta = Kd / (m omega_c)`` and ``h`` the exchange step (``run.H`` when
   co-simulated; ``solver.dt`` in the core, whose explicit midpoint step holds
-  the forces over dt the same way); see :mod:`fmu_sync.benchmarks.stability`.
+  the forces over dt the same way); the bound is :func:`fmu_sync.core.exchange.zoh_bound`.
 * :func:`basin` -- time to synchronize over a start state (q0, u0).
 * :func:`line_plot` -- one swept parameter: decay rate and t_sync against it.
 * :func:`sweep_plots` -- the maps that fit a Dataset (called by ``sweep(out=...)``).
