@@ -12,6 +12,8 @@ The public API of the core (everything a user of the standalone engine needs):
   held coupling :func:`exchange_limit` (:class:`UnstableExchange` when refused);
 * the quotient distance :func:`quotient_distance` and the coupling laws
   :func:`coupling_forces`;
+* the exact event-driven solvers :func:`simulate_exact` / :func:`exact_events` (1-DOF)
+  and :func:`simulate_exact_nd` / :func:`exact_events_nd` (n-DOF, linear input);
 * results :class:`SimulationResult`, :class:`PairResult`, :class:`NetworkResult`, and the errors
   :class:`SimulationDiverged`.
 
@@ -31,8 +33,10 @@ from .metrics import SyncMetrics, sync_metrics
 from .exchange import UnstableExchange, exchange_limit
 from .network import all_to_all, path, ring, simulate_network, star
 from .exact import ExactEvents, exact_events, simulate_exact
+from .exact_nd import ExactEventsND, exact_events_nd, simulate_exact_nd
 
 __all__ = ["ImpactOscillator", "MechanicalSystem", "SystemArrays", "impact_map", "simulate", "simulate_pair",
-           "quotient_distance", "coupling_forces", "simulate_exact", "exact_events", "ExactEvents", "SimulationResult", "PairResult", "RunFailed",
+           "quotient_distance", "coupling_forces", "simulate_exact", "exact_events", "ExactEvents",
+           "simulate_exact_nd", "exact_events_nd", "ExactEventsND", "SimulationResult", "PairResult", "RunFailed",
            "SimulationDiverged", "NetworkResult", "simulate_network", "ring", "path", "star", "all_to_all",
            "sync_metrics", "SyncMetrics", "exchange_limit", "UnstableExchange"]

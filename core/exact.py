@@ -563,8 +563,11 @@ def _grow1(x):
 
 @njit(cache=True)
 def _run(prm, rc, roots, hs, hO, hph, hcc, hcs, t0, g_init, v_init, t_hor, max_events,
-         zeno_ttol, zeno_vtol, cutoff_vtol):
-    """Event loop. Returns (status, segs, nseg, evs, nev, grz, ngr).
+         zeno_ttol, zeno_vtol, cutoff_vtol, vref0=0.0):
+    """Event loop. Returns (status, segs, nseg, evs, nev, grz, ngr, vref).
+
+    ``vref0 > 0``: the velocity scale V_ref carried over from an earlier part of
+    the run (communication steps); otherwise it is initialised from the state.
 
     segs rows: (t_start, kind, g, v, aux) with kind FREE (initial g, v), CONTACT,
     ZENO (completed accumulation: v = first post-impact speed, aux = a_w).
@@ -599,6 +602,8 @@ def _run(prm, rc, roots, hs, hO, hph, hcc, hcs, t0, g_init, v_init, t_hor, max_e
     vref = max(abs(v), math.sqrt(2.0 * prm[_F0] * max(g, 0.0)))
     if smax > 0.0:
         vref = max(vref, prm[_F0] / smax)
+    if vref0 > 0.0:
+        vref = vref0
     count = 0
     status = 0
     while t <= t_hor:
@@ -720,7 +725,7 @@ def _run(prm, rc, roots, hs, hO, hph, hcc, hcs, t0, g_init, v_init, t_hor, max_e
             g = 0.0
             v = 0.0
             left = True
-    return status, segs, nseg, evs, nev, grz, ngr
+    return status, segs, nseg, evs, nev, grz, ngr, vref
 
 
 # --------------------------------------------------------------------------- sampling
@@ -992,7 +997,7 @@ def _run_events(system, x0, t_end, tau, t0, max_events, zeno_ttol, zeno_vtol, cu
         raise ValueError(f"initial state violates the constraint: g(q0) = {g:.6g} < 0 (need g(q0) >= 0)")
     v = float(md.w * u0[0])
     max_events = int(max_events)
-    status, segs, nseg, evs, nev, grz, ngr = _run(
+    status, segs, nseg, evs, nev, grz, ngr, _ = _run(
         md.prm, md.rc, md.roots, md.hs, md.hO, md.hph, md.hcc, md.hcs, t0, g, v, t_end,
         max_events, float(zeno_ttol), float(zeno_vtol), float(cutoff_vtol))
     if status == 2:
@@ -1067,3 +1072,119 @@ def simulate_exact(system: MechanicalSystem, x0, t_end: float, dt: float, tau=No
     _sample(T, ev._segs, ev._segs.shape[0], ev._evs, ev._evs.shape[0], md.prm, md.rc, md.roots,
             md.hs, md.hO, md.hph, md.hcc, md.hcs, md.w, md.g0, q, u, P, True)
     return SimulationResult(T, q.reshape(rows, 1), u.reshape(rows, 1), P, "exact", dt, events=ev)
+
+
+# --------------------------------------------------------------------------- communication step
+# The exact solver as an FMU slave's internal solver: one call per communication
+# step [t, t + H] with tau constant over it. Plain arrays and floats only, so that
+# a numba cfunc (the FMU binary) can call it.
+
+#: layout of the packed model (:func:`exact_model`)
+_M_NH, _M_NIN, _M_W, _M_G0, _M_PRM = 0, 1, 2, 3, 4
+_M_RC = _M_PRM + _NPRM
+_M_ROOTS = _M_RC + NT
+_M_SB = _M_ROOTS + 4
+
+#: exact_step status codes
+STEP_OK, STEP_TOO_MANY_EVENTS, STEP_NO_PROGRESS = 0, 1, 2
+
+
+def exact_model(system: MechanicalSystem) -> np.ndarray:
+    """The 1-DOF system packed into one float64 array for :func:`exact_step`.
+
+    Layout: ``[nh, m, w, g0, prm (16), rc (28), roots (re, im, re, im), sB (m),
+    then per harmonic term j < nh: s_j, Omega_j, phi_j, Yc series (28), Ys series (28)]``
+    with ``prm`` for ``tau = 0`` and ``sB = w B / m`` (the gap acceleration per
+    unit input). Raises ValueError for n != 1.
+    """
+    md = _model(system, np.zeros(system.m))
+    sa = system.arrays()
+    nh = md.hs.size
+    sB = md.w * sa.B[0, :] / float(sa.M[0, 0])
+    parts = [np.array([nh, system.m, md.w, md.g0], dtype=np.float64), md.prm, md.rc,
+             np.array([md.roots[0].real, md.roots[0].imag, md.roots[1].real, md.roots[1].imag]),
+             sB.astype(np.float64)]
+    for j in range(nh):
+        parts += [np.array([md.hs[j], md.hO[j], md.hph[j]]), md.hcc[j], md.hcs[j]]
+    return np.ascontiguousarray(np.concatenate(parts))
+
+
+@njit(cache=True)
+def _unpack(model, tau):
+    nh = int(model[_M_NH])
+    nin = int(model[_M_NIN])
+    w = model[_M_W]
+    g0w = model[_M_G0]
+    prm = model[_M_PRM:_M_PRM + _NPRM].copy()
+    rc = model[_M_RC:_M_RC + NT].copy()
+    roots = np.empty(2, dtype=np.complex128)
+    roots[0] = complex(model[_M_ROOTS], model[_M_ROOTS + 1])
+    roots[1] = complex(model[_M_ROOTS + 2], model[_M_ROOTS + 3])
+    s0 = prm[_S0]
+    for j in range(nin):
+        s0 += model[_M_SB + j] * tau[j]
+    off = _M_SB + nin
+    hs = np.empty(nh)
+    hO = np.empty(nh)
+    hph = np.empty(nh)
+    hcc = np.empty((nh, NT))
+    hcs = np.empty((nh, NT))
+    F0 = abs(s0)
+    for j in range(nh):
+        b = off + j * (3 + 2 * NT)
+        hs[j] = model[b]
+        hO[j] = model[b + 1]
+        hph[j] = model[b + 2]
+        for k in range(NT):
+            hcc[j, k] = model[b + 3 + k]
+            hcs[j, k] = model[b + 3 + NT + k]
+        F0 += abs(hs[j])
+    prm[_S0] = s0
+    prm[_F0] = F0
+    return prm, rc, roots, hs, hO, hph, hcc, hcs, w, g0w
+
+
+@njit(cache=True)
+def exact_step(model, q, u, t, H, tau, vref, max_events=1_000_000, zeno_ttol=1e-12,
+               zeno_vtol=1e-10, cutoff_vtol=1e-6):
+    """Advance the 1-DOF state exactly over one communication step ``[t, t + H]``
+    with the input ``tau`` (array, length m) constant over it.
+
+    ``model``: :func:`exact_model` of the system; ``q, u, t, H``: floats. The
+    flow between events is the closed form, impacts are located by the certified
+    root search, accumulations are completed and followed by persistent contact
+    with release when the contact force changes sign -- exactly as
+    :func:`simulate_exact`, which this step reproduces when chained (same
+    ``vref``). ``vref`` is the run's velocity scale for the Zeno criteria: pass
+    0.0 on the first step and the returned value on the next one (it is part of
+    the slave's state). Returns ``(status, q, u, percussion, impacts, vref)``:
+    the state at ``t + H`` (post-impact if an impact falls on ``t + H``), the
+    wall impulse over ``(t, t + H]`` (impacts, completed accumulations and the
+    persistent contact force), the number of individually resolved impacts, and
+    status STEP_OK, STEP_TOO_MANY_EVENTS (more than ``max_events`` events in the
+    step) or STEP_NO_PROGRESS (undecidable contact; the state is unchanged then).
+    """
+    prm, rc, roots, hs, hO, hph, hcc, hcs, w, g0w = _unpack(model, tau)
+    g = w * q + g0w
+    if g != 0.0 and abs(g) <= 4.0 * EPS * (abs(w * q) + abs(g0w)):
+        g = 0.0                      # on the wall within the round-off of q = (0 - g0)/w
+    if g < 0.0:
+        g = 0.0
+    v = w * u
+    status, segs, nseg, evs, nev, grz, ngr, vref = _run(
+        prm, rc, roots, hs, hO, hph, hcc, hcs, t, g, v, t + H, max_events, zeno_ttol,
+        zeno_vtol, cutoff_vtol, vref)
+    if status != 0:
+        return status, q, u, 0.0, 0, vref
+    T = np.empty(2)
+    T[0] = t
+    T[1] = t + H
+    Q = np.empty(2)
+    U = np.empty(2)
+    P = np.zeros(2)
+    _sample(T, segs, nseg, evs, nev, prm, rc, roots, hs, hO, hph, hcc, hcs, w, g0w, Q, U, P, True)
+    impacts = 0
+    for i in range(nev):
+        if evs[i, 1] == IMPACT_EV and t < evs[i, 0] <= t + H:
+            impacts += 1
+    return STEP_OK, Q[1], U[1], P[1], impacts, vref

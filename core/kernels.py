@@ -16,14 +16,18 @@ status codes instead of raising. Prefer the checked entry points of
   pruning: the reference of the pruning benchmark), :func:`core_2d` (planar core);
 * coupling: :func:`coupling_kernel`, :func:`coupling_kernel1`, :func:`gain_matrix`,
   law codes ``SWITCHING``/``EUCLIDEAN``/``UNCOUPLED``;
-* :func:`impact_map_kernel`.
+* :func:`impact_map_kernel`;
+* the exact communication step of a 1-DOF slave: :func:`exact_model` (pack a system),
+  :func:`exact_step` (compiled; one step [t, t + H] with constant tau), status ``STEP_OK``.
 """
 from .coupling import EUCLIDEAN, SWITCHING, UNCOUPLED, coupling_kernel, coupling_kernel1, gain_matrix
 from .distance import (core_2d, distance1, distance_kernel, distance_kernel_unpruned, distance_value,
                        make_geometry)
 from .impact import impact_map_kernel
+from .exact import STEP_OK, exact_model, exact_step
 from .moreau import DIVERGED, MIDPOINT, OK, THETA, advance, kernels_for
 
 __all__ = ["kernels_for", "advance", "OK", "DIVERGED", "MIDPOINT", "THETA", "make_geometry", "distance_kernel",
            "distance_value", "distance1", "distance_kernel_unpruned", "core_2d", "coupling_kernel",
-           "coupling_kernel1", "gain_matrix", "SWITCHING", "EUCLIDEAN", "UNCOUPLED", "impact_map_kernel"]
+           "coupling_kernel1", "gain_matrix", "SWITCHING", "EUCLIDEAN", "UNCOUPLED", "impact_map_kernel",
+           "exact_model", "exact_step", "STEP_OK"]

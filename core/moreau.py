@@ -9,12 +9,32 @@ percussion ``P >= 0`` (N s) applied in that step:
   iteration matrix ``S = M + θ dt C + θ² dt² K``, which also takes the place of
   M in the (scalar, explicit) contact problem.
 
+Both are one formula (:func:`step_h`) with ``a = θ dt`` (midpoint: θ = 1/2) and
+``X = M^-1`` (midpoint) or ``S^-1`` (theta)::
+
+    y   = hc - (K q0 + (C + a K) u0)          hc = f0 + B tau + sum_j F_j cos(Omega_j tf + phi_j)
+    u1  = u0 + (dt X) y + X w P               tf = t + a
+    q1  = q0 + (dt u0 + (a dt X) y) + a X w P
+    contact if g(q0 + dt/2 u0) <= 0; P = max(0, -(w^T u1free + e w^T u0)) / (w^T X w)
+
+(the midpoint scheme: ``qM = q0 + dt/2 u0``, ``u1 = u0 + dt M^-1 h(qM, u0, tf)``,
+``q1 = qM + dt/2 u1``; theta: ``S (u1 - u0) = dt h(q0 + θ dt u0, u0, tf) + w P``,
+``q1 = q0 + dt (θ u1 + (1 - θ) u0)``). The operation order keeps everything
+that does not depend on the state (hc, the coefficient products) off the
+dependency chain from one step's state to the next: 6 dependent operations per
+step, which is what bounds a long run's speed once the forcing costs nothing
+(and a single rounding at the magnitude of q per step).
+
 Two loops use them, so that the monolithic simulation and the FMU slave run the
 very same arithmetic:
 
 * :func:`integrate` — ``n_steps`` fixed steps, recording every ``record_every``;
 * :func:`advance` — one communication step ``H`` made of internal steps ``dt``,
   the last one adjusted to land exactly on ``t + H`` (one call per FMU doStep).
+
+Harmonic forcing: a cos per step and term (the *cos path*) or a rotation
+recurrence re-synchronised exactly every :data:`PHASOR_SYNC` steps (the
+*phasor path*, within 1e-13 of the cos path; see below).
 
 Everything is nopython and ``cache=True``; the loops allocate nothing per step.
 """
@@ -32,44 +52,161 @@ SCHEMES = {"midpoint": MIDPOINT, "theta": THETA}
 OK = 0
 DIVERGED = 1
 
-#: Velocities and positions below this magnitude are set to 0 after each step.
+#: Velocities and positions below this magnitude are set to 0 (see :func:`_flush`).
 #: Geometric decay in accumulation phases (u -> -e u per contact step) would
 #: otherwise drift into subnormal numbers, which slow arithmetic ~20x; 1e-280 is
 #: hundreds of decades below any physical velocity or position.
 FLUSH = 1e-280
 
 
+# ----------------------------------------------------------------------------
+# Harmonic forcing: cos path and phasor path.
+#
+# The cos path evaluates cos(Omega_j tf + phi_j) at every step's force time tf.
+# The phasor path carries (c, s) = (cos, sin)(Omega_j tf + phi_j) from step to
+# step by the rotation (c, s) <- (c cr - s sr, s cr + c sr), (cr, sr) =
+# (cos, sin)(Omega_j dt), and re-synchronises it exactly -- to the very cos/sin
+# values the cos path computes -- every PHASOR_SYNC steps (and at every block
+# start). One rotation step adds at most ~4 eps of error (two rounded products
+# and a rounded sum per component, |c|, |s| <= 1, plus the rounding of cr, sr),
+# so the drift from the exact harmonic stays below 4 PHASOR_SYNC eps = 5.7e-14
+# < 1e-13 between re-synchronisations; the cos path itself carries the rounding
+# of its argument, ~eps |Omega t + phi| (2.7e-14 at Omega t = 240).
+# ----------------------------------------------------------------------------
+
+#: steps between exact re-synchronisations of the phasor (4 N eps <= 1e-13)
+PHASOR_SYNC = 64
+assert 4 * PHASOR_SYNC * 2.220446049250313e-16 < 1e-13
+
+
 @njit(cache=True, inline="always")
-def _force(sa, q, u, tau, t, h):
-    """h = -K q - C u + f0 + sum_j F_j cos(Omega_j t + phi_j) + B tau, written into h."""
-    n = q.shape[0]
-    for i in range(n):
-        s = sa.f0[i]
-        for j in range(n):
-            s -= sa.K[i, j] * q[j] + sa.C[i, j] * u[j]
-        for j in range(tau.shape[0]):
-            s += sa.B[i, j] * tau[j]
-        h[i] = s
-    for j in range(sa.Omega.shape[0]):
-        c = math.cos(sa.Omega[j] * t + sa.phi[j])
+def _hsum_cos(F, Omega, phi, tf, hf):
+    """hf = sum_j F_j cos(Omega_j tf + phi_j) (the cos path), summed in term order."""
+    n = hf.shape[0]
+    if Omega.shape[0] == 0:
         for i in range(n):
-            h[i] += sa.F[j, i] * c
+            hf[i] = 0.0
+        return
+    c = math.cos(Omega[0] * tf + phi[0])
+    for i in range(n):
+        hf[i] = F[0, i] * c
+    for j in range(1, Omega.shape[0]):
+        c = math.cos(Omega[j] * tf + phi[j])
+        for i in range(n):
+            hf[i] += F[j, i] * c
 
 
 @njit(cache=True, inline="always")
-def _gap(sa, q):
-    s = sa.g0
-    for i in range(q.shape[0]):
-        s += sa.w[i] * q[i]
+def _hsum1_cos(F, Omega, phi, tf):
+    """:func:`_hsum_cos` for n = 1 (same operation order)."""
+    if Omega.shape[0] == 0:
+        return 0.0
+    fc = F[0, 0] * math.cos(Omega[0] * tf + phi[0])
+    for j in range(1, Omega.shape[0]):
+        fc += F[j, 0] * math.cos(Omega[j] * tf + phi[j])
+    return fc
+
+
+@njit(cache=True, inline="always")
+def _ph_sync(Omega, phi, tf, cv, sv):
+    """Exact (re-)synchronisation of the phasor at force time tf: returns the first
+    term's (cos, sin) (kept in registers by the loops), the others go to cv, sv."""
+    for j in range(1, Omega.shape[0]):
+        x = Omega[j] * tf + phi[j]
+        cv[j] = math.cos(x)
+        sv[j] = math.sin(x)
+    x = Omega[0] * tf + phi[0]
+    return math.cos(x), math.sin(x)
+
+
+@njit(cache=True, inline="always")
+def _ph_rot(c0, s0, cr, sr, cv, sv):
+    """Advance the phasor by one step; returns the first term's (cos, sin)."""
+    for j in range(1, cv.shape[0]):
+        c = cv[j]
+        s = sv[j]
+        cv[j] = c * cr[j] - s * sr[j]
+        sv[j] = s * cr[j] + c * sr[j]
+    return c0 * cr[0] - s0 * sr[0], s0 * cr[0] + c0 * sr[0]
+
+
+@njit(cache=True, inline="always")
+def _hsum_ph(F, c0, cv, hf):
+    """hf = sum_j F_j c_j from the phasor (same operation order as :func:`_hsum_cos`)."""
+    n = hf.shape[0]
+    for i in range(n):
+        hf[i] = F[0, i] * c0
+    for j in range(1, cv.shape[0]):
+        c = cv[j]
+        for i in range(n):
+            hf[i] += F[j, i] * c
+
+
+@njit(cache=True, inline="always")
+def _hsum1_ph(F, c0, cv):
+    fc = F[0, 0] * c0
+    for j in range(1, cv.shape[0]):
+        fc += F[j, 0] * cv[j]
+    return fc
+
+
+@njit(cache=True)
+def harmonic_workspace(Omega, dt):
+    """(cv, sv, cr, sr): phasor state and the one-step rotation for step dt."""
+    nf = Omega.shape[0]
+    cr = np.empty(nf)
+    sr = np.empty(nf)
+    for j in range(nf):
+        cr[j] = math.cos(Omega[j] * dt)
+        sr[j] = math.sin(Omega[j] * dt)
+    return np.zeros(nf), np.zeros(nf), cr, sr
+
+
+@njit(cache=True)
+def harmonic_table(Omega, phi, t0, dt, a, n_steps, phasor):
+    """cos(Omega_j (t0 + k dt + a) + phi_j) for k < n_steps, rows k, as the loops
+    see them (cos path or phasor path): for tests of the phasor's drift."""
+    nf = Omega.shape[0]
+    out = np.empty((n_steps, nf))
+    cv, sv, cr, sr = harmonic_workspace(Omega, dt)
+    c0 = 0.0
+    s0 = 0.0
+    to_sync = 0
+    for k in range(n_steps):
+        if not phasor:
+            for j in range(nf):
+                out[k, j] = math.cos(Omega[j] * ((t0 + k * dt) + a) + phi[j])
+            continue
+        if to_sync == 0:
+            c0, s0 = _ph_sync(Omega, phi, (t0 + k * dt) + a, cv, sv)
+            to_sync = PHASOR_SYNC
+        out[k, 0] = c0
+        for j in range(1, nf):
+            out[k, j] = cv[j]
+        c0, s0 = _ph_rot(c0, s0, cr, sr, cv, sv)
+        to_sync -= 1
+    return out
+
+
+# ----------------------------------------------------------------------------
+# The step
+# ----------------------------------------------------------------------------
+
+@njit(cache=True, inline="always")
+def _hbase(sa, tau, i):
+    """f0_i + (B tau)_i: the constant part of the force, row i."""
+    s = sa.f0[i]
+    for j in range(tau.shape[0]):
+        s += sa.B[i, j] * tau[j]
     return s
 
 
 @njit(cache=True, inline="always")
-def _wdot(sa, v):
-    s = 0.0
-    for i in range(v.shape[0]):
-        s += sa.w[i] * v[i]
-    return s
+def _hc_cos(sa, tau, tf, hc):
+    """hc = (f0 + B tau) + sum_j F_j cos(Omega_j tf + phi_j) (cos path, term order)."""
+    _hsum_cos(sa.F, sa.Omega, sa.phi, tf, hc)
+    for i in range(hc.shape[0]):
+        hc[i] = _hbase(sa, tau, i) + hc[i]
 
 
 @njit(cache=True, inline="always")
@@ -83,7 +220,13 @@ def _contact(sa, g, uf, u, W_, iw):
     """
     P = 0.0
     if g <= 0.0:
-        xi = _wdot(sa, uf) + sa.e * _wdot(sa, u)
+        xi = 0.0
+        for i in range(uf.shape[0]):
+            xi += sa.w[i] * uf[i]
+        xu = 0.0
+        for i in range(u.shape[0]):
+            xu += sa.w[i] * u[i]
+        xi = xi + sa.e * xu
         if xi < 0.0:
             P = -xi / W_
             for i in range(uf.shape[0]):
@@ -92,23 +235,51 @@ def _contact(sa, g, uf, u, W_, iw):
 
 
 @njit(cache=True, inline="always")
-def midpoint_step(sa, q, u, tau, t, dt, qM, h, uf):
-    """One Moreau midpoint step (docs/design.md §2.3), in place. Returns the percussion P."""
+def step_h(sa, X, iw, WX, a, q, u, hc, dt, y, uf):
+    """One step of either scheme (module docstring), in place on (q, u).
+
+    ``X`` = M^-1 (midpoint, ``a = dt/2``) or S^-1 (theta, ``a = θ dt``), ``iw = X w``,
+    ``WX = w^T X w``; ``hc`` the state-independent force at ``t + a``; ``y`` and
+    ``uf`` scratch. The coefficient products (dt X, a dt X, C + a K, a X w) are
+    written inline: the scalar kernels precompute the same products, and numba
+    hoists them out of the loops. Returns (P, g): the percussion and the gap at
+    the contact-detection point ``q0 + dt/2 u0``.
+    """
     n = q.shape[0]
-    half = 0.5 * dt
+    hd = 0.5 * dt
     for i in range(n):
-        qM[i] = q[i] + half * u[i]
-    _force(sa, qM, u, tau, t + half, h)
+        lin = sa.K[i, 0] * q[0] + (sa.C[i, 0] + a * sa.K[i, 0]) * u[0]
+        for j in range(1, n):
+            lin += sa.K[i, j] * q[j] + (sa.C[i, j] + a * sa.K[i, j]) * u[j]
+        y[i] = hc[i] - lin
+    g = sa.g0
     for i in range(n):
-        s = 0.0
-        for j in range(n):
-            s += sa.Minv[i, j] * h[j]
-        uf[i] = u[i] + dt * s
-    P = _contact(sa, _gap(sa, qM), uf, u, sa.W, sa.Minv_w)
+        g += sa.w[i] * (q[i] + hd * u[i])
     for i in range(n):
+        s = (dt * X[i, 0]) * y[0]
+        for j in range(1, n):
+            s += (dt * X[i, j]) * y[j]
+        uf[i] = u[i] + s
+    P = _contact(sa, g, uf, u, WX, iw)
+    for i in range(n):
+        s = (a * (dt * X[i, 0])) * y[0]
+        for j in range(1, n):
+            s += (a * (dt * X[i, j])) * y[j]
+        qn = q[i] + (dt * u[i] + s)
+        if P > 0.0:
+            qn = qn + (a * iw[i]) * P
+        q[i] = qn
         u[i] = uf[i]
-        q[i] = qM[i] + half * uf[i]
-    return P
+    return P, g
+
+
+@njit(cache=True, inline="always")
+def midpoint_step(sa, q, u, tau, t, dt, qM, h, uf):
+    """One Moreau midpoint step (docs/design.md §2.3) at time t with input tau, in place
+    (``qM, h, uf``: scratch). Returns the percussion P."""
+    a = 0.5 * dt
+    _hc_cos(sa, tau, t + a, h)
+    return step_h(sa, sa.Minv, sa.Minv_w, sa.W, a, q, u, h, dt, qM, uf)[0]
 
 
 @njit(cache=True)
@@ -162,29 +333,15 @@ def theta_matrices(sa, dt, theta, Sinv, Sinv_w):
 
 @njit(cache=True, inline="always")
 def theta_step(sa, q, u, tau, t, dt, theta, Sinv, Sinv_w, WS, qM, h, uf):
-    """One Moreau–Jean θ step, in place. Returns the percussion P.
+    """One Moreau–Jean θ step at time t with input tau, in place. Returns P.
 
     S (u1 - u0) = dt h(q0 + θ dt u0, u0, tau, t + θ dt) + w P,
     q1 = q0 + dt (θ u1 + (1 - θ) u0),
     contact active if g(q0 + dt/2 u0) <= 0, Newton's law on w^T u1 + e w^T u0.
     """
-    n = q.shape[0]
     a = theta * dt
-    for i in range(n):
-        qM[i] = q[i] + a * u[i]
-    _force(sa, qM, u, tau, t + a, h)
-    for i in range(n):
-        s = 0.0
-        for j in range(n):
-            s += Sinv[i, j] * h[j]
-        uf[i] = u[i] + dt * s
-    for i in range(n):
-        qM[i] = q[i] + 0.5 * dt * u[i]
-    P = _contact(sa, _gap(sa, qM), uf, u, WS, Sinv_w)
-    for i in range(n):
-        q[i] += dt * (theta * uf[i] + (1.0 - theta) * u[i])
-        u[i] = uf[i]
-    return P
+    _hc_cos(sa, tau, t + a, h)
+    return step_h(sa, Sinv, Sinv_w, WS, a, q, u, h, dt, qM, uf)[0]
 
 
 @njit(cache=True)
@@ -214,38 +371,104 @@ def finish_step(q, u):
     return ok
 
 
+@njit(cache=True, inline="always")
+def _flush(q, u):
+    """Set |x| < FLUSH to 0 (would-be subnormals).
+
+    The loops flush after every *contact* step (where the geometric decay
+    u -> -e u of an accumulation happens, and where the velocity of persistent
+    contact lives at round-off level) and at the end of every block of steps
+    (record or phasor re-synchronisation, at most PHASOR_SYNC steps with the
+    phasor); free flight in between is not flushed. Decay from |x| >= FLUSH to a
+    subnormal (< 2.2e-308, 28 decades further) within one block would need a
+    contraction by > 0.6 per step, far outside the step sizes that resolve a
+    physical system; and a subnormal is only slow, never wrong.
+    """
+    for i in range(q.shape[0]):
+        if abs(q[i]) < FLUSH:
+            q[i] = 0.0
+        if abs(u[i]) < FLUSH:
+            u[i] = 0.0
+
+
+@njit(cache=True, inline="always")
+def _finite(q, u):
+    # a non-finite value never turns finite again (inf - inf = NaN, NaN propagates),
+    # so checking once per block is enough and keeps the hot loop free of it
+    ok = True
+    for i in range(q.shape[0]):
+        if not (math.isfinite(q[i]) and math.isfinite(u[i])):
+            ok = False
+    return ok
+
+
 @njit(cache=True)
-def integrate(sa, q, u, t0, dt, n_steps, tau, scheme, theta, record_every, T, Qr, Ur, Pr):
+def integrate(sa, q, u, t0, dt, n_steps, tau, scheme, theta, record_every, T, Qr, Ur, Pr,
+              phasor=False):
     """Run ``n_steps`` steps of ``scheme`` from ``(q, u)`` at ``t0`` (in place).
 
     Row 0 of the records is the initial state; row r >= 1 is the state after
     ``r * record_every`` steps with, in ``Pr[r]``, the percussion summed over
-    those ``record_every`` steps. Returns ``(status, steps_done, rows_written)``;
-    ``status`` is DIVERGED if the state became non-finite (rows written so far
-    are valid).
+    those ``record_every`` steps. ``phasor``: harmonic forcing by the phasor
+    recurrence (within 1e-13 of the cos path, see above) instead of a cos per
+    step. Returns ``(status, steps_done, rows_written)``; ``status`` is DIVERGED
+    if the state became non-finite (checked at the end of each block of steps,
+    i.e. at least at every record; rows written so far are valid).
     """
     n = q.shape[0]
-    qM, h, uf, Sinv, Sinv_w, WS = step_workspace(sa, dt, scheme, theta)
+    y, hf, uf, Sinv, Sinv_w, WS = step_workspace(sa, dt, scheme, theta)
+    if scheme == THETA:
+        X, iw, WX, a = Sinv, Sinv_w, WS, theta * dt
+    else:
+        X, iw, WX, a = sa.Minv, sa.Minv_w, sa.W, 0.5 * dt
+    Omega = sa.Omega
+    phi = sa.phi
+    F = sa.F
+    cv, sv, cr, sr = harmonic_workspace(Omega, dt)
+    hc = np.zeros(n)
+    hb = np.empty(n)
+    for i in range(n):
+        hb[i] = _hbase(sa, tau, i)
+    use_ph = phasor and Omega.shape[0] > 0
+    c0 = 0.0
+    s0 = 0.0
     T[0] = t0
     Qr[0, :] = q
     Ur[0, :] = u
     Pr[0] = 0.0
     row = 1
     Psum = 0.0
-    countdown = record_every  # (k + 1) % record_every without an integer division per step
-    for k in range(n_steps):
-        t = t0 + k * dt
-        if scheme == THETA:
-            P = theta_step(sa, q, u, tau, t, dt, theta, Sinv, Sinv_w, WS, qM, h, uf)
-        else:
-            P = midpoint_step(sa, q, u, tau, t, dt, qM, h, uf)
-        Psum += P
-        if not finish_step(q, u):
-            return DIVERGED, k + 1, row
-        countdown -= 1
-        if countdown == 0:
-            countdown = record_every
-            T[row] = t0 + (k + 1) * dt
+    k = 0
+    to_rec = record_every
+    to_sync = 0
+    while k < n_steps:
+        if use_ph and to_sync == 0:
+            c0, s0 = _ph_sync(Omega, phi, (t0 + k * dt) + a, cv, sv)
+            to_sync = PHASOR_SYNC
+        m = min(to_rec, n_steps - k)
+        if use_ph:
+            m = min(m, to_sync)
+        for i in range(k, k + m):
+            if use_ph:
+                _hsum_ph(F, c0, cv, hf)
+                c0, s0 = _ph_rot(c0, s0, cr, sr, cv, sv)
+            else:
+                _hsum_cos(F, Omega, phi, (t0 + i * dt) + a, hf)
+            for j in range(n):
+                hc[j] = hb[j] + hf[j]
+            P, g = step_h(sa, X, iw, WX, a, q, u, hc, dt, y, uf)
+            if g <= 0.0:
+                _flush(q, u)
+            Psum += P
+        k += m
+        to_rec -= m
+        to_sync -= m
+        _flush(q, u)
+        if not _finite(q, u):
+            return DIVERGED, k, row
+        if to_rec == 0:
+            to_rec = record_every
+            T[row] = t0 + k * dt
             for i in range(n):
                 Qr[row, i] = q[i]
                 Ur[row, i] = u[i]
@@ -267,34 +490,85 @@ def substeps(H, dt):
 
 
 @njit(cache=True)
-def advance(sa, q, u, t0, H, dt, tau, scheme, theta):
+def advance(sa, q, u, t0, H, dt, tau, scheme, theta, taudot=None, phasor=False):
     """Advance ``(q, u)`` in place from ``t0`` to ``t0 + H`` with internal step ``dt``.
 
     The internal steps are ``dt`` except the last, which ends exactly at
-    ``t0 + H``. The input ``tau`` is held over the step. Returns
-    ``(status, percussion_sum, steps_with_impact)``.
+    ``t0 + H``. The input is ``tau`` held over the step (zero-order hold) or,
+    with ``taudot`` given (array like ``tau``), the first-order hold
+    ``tau(t) = tau + taudot (t - t0)`` evaluated at each internal step's force
+    time (``t + dt/2`` for the midpoint, ``t + θ dt`` for theta), where the
+    scheme evaluates every other time-dependent force; ``taudot = 0`` (or None)
+    gives bit for bit the zero-order hold. ``phasor``: harmonic forcing by the
+    phasor recurrence (re-synchronised at ``t0``; a shortened last step uses
+    cos). Returns ``(status, percussion_sum, steps_with_impact)``.
     """
-    qM, h, uf, Sinv, Sinv_w, WS = step_workspace(sa, dt, scheme, theta)
+    if taudot is None:
+        return _advance(sa, q, u, t0, H, dt, tau, tau, False, scheme, theta, phasor)
+    else:
+        foh = False
+        for j in range(taudot.shape[0]):
+            if taudot[j] != 0.0:
+                foh = True
+        return _advance(sa, q, u, t0, H, dt, tau, taudot, foh, scheme, theta, phasor)
+
+
+@njit(cache=True)
+def _advance(sa, q, u, t0, H, dt, tau, taudot, foh, scheme, theta, phasor):
+    n = q.shape[0]
+    y, hf, uf, Sinv, Sinv_w, WS = step_workspace(sa, dt, scheme, theta)
+    Omega = sa.Omega
+    phi = sa.phi
+    F = sa.F
+    cv, sv, cr, sr = harmonic_workspace(Omega, dt)
+    hc = np.zeros(n)
+    hb = np.empty(n)
+    for i in range(n):
+        hb[i] = _hbase(sa, tau, i)
+    use_ph = phasor and Omega.shape[0] > 0
+    c0 = 0.0
+    s0 = 0.0
+    tk = tau.copy()
     k_steps = substeps(H, dt)
     Psum = 0.0
     impacts = 0
+    to_sync = 0
     for k in range(k_steps):
         t = t0 + k * dt
+        hk = dt
         if k == k_steps - 1:
             hk = (t0 + H) - t if k > 0 else H
             if scheme == THETA and hk != dt:
                 WS = theta_matrices(sa, hk, theta, Sinv, Sinv_w)
-        else:
-            hk = dt
         if scheme == THETA:
-            P = theta_step(sa, q, u, tau, t, hk, theta, Sinv, Sinv_w, WS, qM, h, uf)
+            X, iw, WX, a = Sinv, Sinv_w, WS, theta * hk
         else:
-            P = midpoint_step(sa, q, u, tau, t, hk, qM, h, uf)
+            X, iw, WX, a = sa.Minv, sa.Minv_w, sa.W, 0.5 * hk
+        if use_ph and hk == dt:
+            if to_sync == 0:
+                c0, s0 = _ph_sync(Omega, phi, t + a, cv, sv)
+                to_sync = PHASOR_SYNC
+            _hsum_ph(F, c0, cv, hf)
+            c0, s0 = _ph_rot(c0, s0, cr, sr, cv, sv)
+            to_sync -= 1
+        else:                     # cos path (and a shortened last step of the phasor path)
+            _hsum_cos(F, Omega, phi, t + a, hf)
+        if foh:
+            for j in range(tau.shape[0]):
+                tk[j] = tau[j] + taudot[j] * ((t + a) - t0)
+            for i in range(n):
+                hb[i] = _hbase(sa, tk, i)
+        for i in range(n):
+            hc[i] = hb[i] + hf[i]
+        P, g = step_h(sa, X, iw, WX, a, q, u, hc, hk, y, uf)
+        if g <= 0.0:
+            _flush(q, u)
         if P > 0.0:
             impacts += 1
             Psum += P
-        if not finish_step(q, u):
-            return DIVERGED, Psum, impacts
+    _flush(q, u)
+    if not _finite(q, u):
+        return DIVERGED, Psum, impacts
     return OK, Psum, impacts
 
 
@@ -305,16 +579,6 @@ def advance(sa, q, u, t0, H, dt, tau, scheme, theta):
 # the *same operation order* so that they reproduce the general kernels bit
 # for bit (tests/test_moreau.py checks this).  Dispatch: :func:`kernels_for`.
 # ----------------------------------------------------------------------------
-
-@njit(cache=True, inline="always")
-def _force1(f0, K, C, B, F, Omega, phi, q, u, tau, t):
-    s = f0
-    s -= K * q + C * u
-    s += B * tau
-    for j in range(Omega.shape[0]):
-        s += F[j, 0] * math.cos(Omega[j] * t + phi[j])
-    return s
-
 
 @njit(cache=True, inline="always")
 def _flush1(x):
@@ -330,57 +594,74 @@ def scalar_params(sa):
 
 
 @njit(cache=True, inline="always")
-def _contact1(w, e, g, uf, u, W_, iw):
-    """:func:`_contact` on scalars (same operation order). Returns (uf, P)."""
-    P = 0.0
+def step_coeffs1(p, X, iw, WX, a, dt):
+    """The scalar coefficients of :func:`step_h` (the same products):
+    (K, C + a K, dt X, a dt X, w, g0, e, X w, a X w, w X w, dt/2)."""
+    Minv, K, C, f0, B, w, g0, e, Minv_w, W = p
+    G1 = dt * X
+    return (K, C + a * K, G1, a * G1, w, g0, e, iw, a * iw, WX, 0.5 * dt)
+
+
+@njit(cache=True, inline="always")
+def step1_h(c, q, u, hc, dt):
+    """:func:`step_h` on scalars (same operation order), flushing would-be
+    subnormals after a contact step; ``c`` from :func:`step_coeffs1`.
+    Returns (q, u, P). (The contact correction sits inside the contact branch, so
+    that the free-flight path carries no select on its dependency chain.)"""
+    K, CK, G1, G2, w, g0, e, iw, aiw, WX, hd = c
+    y = hc - (K * q + CK * u)
+    g = g0
+    g += w * (q + hd * u)
+    uf = u + G1 * y
+    qn = q + (dt * u + G2 * y)
     if g <= 0.0:
+        P = 0.0
         xi = 0.0
         xi += w * uf
         xu = 0.0
         xu += w * u
         xi = xi + e * xu
         if xi < 0.0:
-            P = -xi / W_
+            P = -xi / WX
             uf += iw * P
-    return uf, P
+            qn = qn + aiw * P
+        return _flush1(qn), _flush1(uf), P
+    return qn, uf, 0.0
 
 
 @njit(cache=True, inline="always")
 def midpoint_step1(p, F, Omega, phi, q, u, tau, t, dt):
-    """:func:`midpoint_step` on scalars (same operation order). Returns (q, u, P)."""
-    Minv, K, C, f0, B, w, g0, e, Minv_w, W = p
-    half = 0.5 * dt
-    qM = q + half * u
-    h = _force1(f0, K, C, B, F, Omega, phi, qM, u, tau, t + half)
-    s = 0.0
-    s += Minv * h
-    uf = u + dt * s
-    g = g0
-    g += w * qM
-    uf, P = _contact1(w, e, g, uf, u, W, Minv_w)
-    return _flush1(qM + half * uf), _flush1(uf), P
+    """:func:`midpoint_step` on scalars (same operation order), flushing would-be
+    subnormals after every step. Returns (q, u, P)."""
+    a = 0.5 * dt
+    c = step_coeffs1(p, p[0], p[8], p[9], a, dt)
+    hc = (p[3] + p[4] * tau) + _hsum1_cos(F, Omega, phi, t + a)
+    q, u, P = step1_h(c, q, u, hc, dt)
+    return _flush1(q), _flush1(u), P
 
 
 @njit(cache=True, inline="always")
 def theta_step1(p, F, Omega, phi, Si, Si_w, WS, theta, q, u, tau, t, dt):
-    """:func:`theta_step` on scalars (same operation order); ``Si = S^-1``,
-    ``Si_w = S^-1 w``, ``WS = w^T S^-1 w``. Returns (q, u, P)."""
-    Minv, K, C, f0, B, w, g0, e, Minv_w, W = p
+    """:func:`theta_step` on scalars (same operation order), flushing would-be
+    subnormals after every step; ``Si = S^-1``, ``Si_w = S^-1 w``,
+    ``WS = w^T S^-1 w``. Returns (q, u, P)."""
     a = theta * dt
-    h = _force1(f0, K, C, B, F, Omega, phi, q + a * u, u, tau, t + a)
-    s = 0.0
-    s += Si * h
-    uf = u + dt * s
-    g = g0
-    g += w * (q + 0.5 * dt * u)
-    uf, P = _contact1(w, e, g, uf, u, WS, Si_w)
-    q = q + dt * (theta * uf + (1.0 - theta) * u)
-    return _flush1(q), _flush1(uf), P
+    c = step_coeffs1(p, Si, Si_w, WS, a, dt)
+    hc = (p[3] + p[4] * tau) + _hsum1_cos(F, Omega, phi, t + a)
+    q, u, P = step1_h(c, q, u, hc, dt)
+    return _flush1(q), _flush1(u), P
 
 
 @njit(cache=True)
-def integrate1(sa, q_, u_, t0, dt, n_steps, tau_, scheme, theta, record_every, T, Qr, Ur, Pr):
-    """:func:`integrate` for n = m = 1 on scalars (bitwise identical results)."""
+def integrate1(sa, q_, u_, t0, dt, n_steps, tau_, scheme, theta, record_every, T, Qr, Ur, Pr,
+               phasor=False):
+    """:func:`integrate` for n = m = 1 on scalars (bitwise identical results).
+
+    One loop per forcing path with nothing but the step in it: the record, the
+    flush of free flight, the finite check and the phasor's re-synchronisation
+    happen between blocks of steps; a single harmonic term's phasor and
+    coefficients live in registers.
+    """
     p = scalar_params(sa)
     F = sa.F
     Omega = sa.Omega
@@ -389,34 +670,74 @@ def integrate1(sa, q_, u_, t0, dt, n_steps, tau_, scheme, theta, record_every, T
     q = q_[0]
     u = u_[0]
     _, _, _, Sinv, Sinv_w, WS = step_workspace(sa, dt, scheme, theta)
-    Si = Sinv[0, 0]
-    Si_w = Sinv_w[0]
+    if scheme == THETA:
+        a = theta * dt
+        c = step_coeffs1(p, Sinv[0, 0], Sinv_w[0], WS, a, dt)
+    else:
+        a = 0.5 * dt
+        c = step_coeffs1(p, p[0], p[8], p[9], a, dt)
+    hb = p[3] + p[4] * tau            # f0 + B tau (as _hbase)
+    cv, sv, cr, sr = harmonic_workspace(Omega, dt)
+    use_ph = phasor and Omega.shape[0] > 0
+    one = Omega.shape[0] == 1
+    F00 = F[0, 0] if one else 0.0
+    Om0 = Omega[0] if one else 0.0
+    phi0 = phi[0] if one else 0.0
+    cr0 = cr[0] if one else 0.0
+    sr0 = sr[0] if one else 0.0
+    c0 = 0.0
+    s0 = 0.0
     T[0] = t0
     Qr[0, 0] = q
     Ur[0, 0] = u
     Pr[0] = 0.0
     row = 1
     Psum = 0.0
-    countdown = record_every  # (k + 1) % record_every without an integer division per step
-    for k in range(n_steps):
-        t = t0 + k * dt
-        if scheme == THETA:
-            q, u, P = theta_step1(p, F, Omega, phi, Si, Si_w, WS, theta, q, u, tau, t, dt)
+    k = 0
+    to_rec = record_every
+    to_sync = 0
+    while k < n_steps:
+        if use_ph and to_sync == 0:
+            c0, s0 = _ph_sync(Omega, phi, (t0 + k * dt) + a, cv, sv)
+            to_sync = PHASOR_SYNC
+        m = min(to_rec, n_steps - k)
+        if use_ph:
+            m = min(m, to_sync)
+        if one:   # a single harmonic term: phasor and coefficients in registers
+            if use_ph:
+                for i in range(m):
+                    fc = F00 * c0
+                    c0, s0 = c0 * cr0 - s0 * sr0, s0 * cr0 + c0 * sr0
+                    q, u, P = step1_h(c, q, u, hb + fc, dt)
+                    Psum += P
+            else:
+                for i in range(k, k + m):
+                    fc = F00 * math.cos(Om0 * ((t0 + i * dt) + a) + phi0)
+                    q, u, P = step1_h(c, q, u, hb + fc, dt)
+                    Psum += P
+        elif use_ph:
+            for i in range(m):
+                fc = _hsum1_ph(F, c0, cv)
+                c0, s0 = _ph_rot(c0, s0, cr, sr, cv, sv)
+                q, u, P = step1_h(c, q, u, hb + fc, dt)
+                Psum += P
         else:
-            q, u, P = midpoint_step1(p, F, Omega, phi, q, u, tau, t, dt)
-        Psum += P
-        countdown -= 1
-        if countdown == 0 or k == n_steps - 1:
-            # A non-finite value never turns finite again (inf - inf = NaN, NaN
-            # propagates), so checking once per record is enough and keeps the
-            # hot loop free of it.
-            if not (math.isfinite(q) and math.isfinite(u)):
-                q_[0] = q
-                u_[0] = u
-                return DIVERGED, k + 1, row
-        if countdown == 0:
-            countdown = record_every
-            T[row] = t0 + (k + 1) * dt
+            for i in range(k, k + m):
+                fc = _hsum1_cos(F, Omega, phi, (t0 + i * dt) + a)
+                q, u, P = step1_h(c, q, u, hb + fc, dt)
+                Psum += P
+        k += m
+        to_rec -= m
+        to_sync -= m
+        q = _flush1(q)
+        u = _flush1(u)
+        if not (math.isfinite(q) and math.isfinite(u)):
+            q_[0] = q
+            u_[0] = u
+            return DIVERGED, k, row
+        if to_rec == 0:
+            to_rec = record_every
+            T[row] = t0 + k * dt
             Qr[row, 0] = q
             Ur[row, 0] = u
             Pr[row] = Psum

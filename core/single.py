@@ -1,5 +1,5 @@
 """Single-system simulation: the plain functional entry point over the kernels
-(Moreau schemes of :mod:`.moreau`, or the exact solver of :mod:`.exact`)."""
+(Moreau schemes of :mod:`.moreau`, or the exact solvers of :mod:`.exact` and :mod:`.exact_nd`)."""
 from __future__ import annotations
 
 import numpy as np
@@ -15,13 +15,17 @@ __all__ = ["simulate"]
 
 
 def simulate(system: MechanicalSystem, x0, t_end: float, dt: float, scheme: str = "midpoint",
-             theta: float = 0.5, tau=None, record_every: int = 1, t0: float = 0.0) -> SimulationResult:
+             theta: float = 0.5, tau=None, record_every: int = 1, t0: float = 0.0,
+             phasor: bool = True) -> SimulationResult:
     """Simulate one system from ``x0 = (q0, u0)`` over ``[t0, t_end]`` with fixed step ``dt``.
 
     ``scheme`` is ``"midpoint"`` (default), ``"theta"`` (Moreau–Jean, ``theta`` in
-    [0.5, 1]) or ``"exact"`` (event-driven, 1-DOF linear force law only).
+    [0.5, 1]) or ``"exact"`` (event-driven, linear force law: :mod:`.exact` for
+    n = 1, :mod:`.exact_nd` for n > 1).
     ``tau`` is a constant input (length m). The run ends after
-    ``floor((t_end - t0)/dt)`` steps. Raises :class:`SimulationDiverged` if the
+    ``floor((t_end - t0)/dt)`` steps. ``phasor`` (default): harmonic forcing by
+    the phasor recurrence, within 1e-13 of a cos per step (``phasor=False``; see
+    :mod:`.moreau`). Raises :class:`SimulationDiverged` if the
     state becomes non-finite (never returns NaN data).
     """
     dt, steps, record_every = check_run(t_end, dt, record_every, t0)
@@ -33,6 +37,9 @@ def simulate(system: MechanicalSystem, x0, t_end: float, dt: float, scheme: str 
     if tau.shape != (system.m,) or not np.all(np.isfinite(tau)):
         raise ValueError(f"tau must be {system.m} finite numbers, got {tau.tolist()}")
     if scheme == "exact":
+        if system.n > 1:
+            from .exact_nd import simulate_exact_nd
+            return simulate_exact_nd(system, (q0, u0), t_end, dt, tau=tau, record_every=record_every, t0=t0)
         return simulate_exact(system, (q0, u0), t_end, dt, tau=tau, record_every=record_every, t0=t0)
     code, theta = scheme_code(scheme, theta)
     check_stable(system, scheme, dt)
@@ -44,7 +51,7 @@ def simulate(system: MechanicalSystem, x0, t_end: float, dt: float, scheme: str 
     P = np.empty(rows)
     sa = system.arrays()
     status, done, written = kernels_for(sa)(sa, q0.copy(), u0.copy(), float(t0), dt, steps,
-                                            tau, code, theta, record_every, T, Q, U, P)
+                                            tau, code, theta, record_every, T, Q, U, P, bool(phasor))
     if status == DIVERGED:
         raise SimulationDiverged(divergence_message(system, scheme, dt, t0 + done * dt))
     return SimulationResult(T, Q, U, P, scheme, dt)

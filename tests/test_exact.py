@@ -400,8 +400,6 @@ def test_bad_input():
     with pytest.raises(ValueError, match="1-DOF"):
         simulate_exact(two, ([1, 0], [0, 0]), 1.0, 1e-3)
     with pytest.raises(ValueError, match="1-DOF"):
-        simulate(two, ([1, 0], [0, 0]), 1.0, 1e-3, scheme="exact")
-    with pytest.raises(ValueError, match="1-DOF"):
         exact_events(two, ([1, 0], [0, 0]), 1.0)
     osc = ImpactOscillator(m=1, k=1, e=0.5)
     for bad in (float("nan"), float("inf"), 0.0, -1e-3, "x"):
@@ -422,3 +420,50 @@ def test_bad_input():
     ev = exact_events(osc, (1.0, 0.0), 1.0)
     with pytest.raises(ValueError, match="times"):
         ev.state([2.0])
+
+
+# ------------------------------------------------------------ exact communication step (FMU slave)
+def _chain_exact_steps(system, x0, t_end, H, tau):
+    from fmu_sync.core.exact import STEP_OK, exact_model, exact_step
+    md = exact_model(system)
+    q, u = x0
+    vref = 0.0
+    n = int(round(t_end / H))
+    Q, U, P, imp = [q], [u], [0.0], 0
+    for k in range(n):
+        st, q, u, p, i, vref = exact_step(md, q, u, k * H, H, np.array([tau]), vref)
+        assert st == STEP_OK
+        Q.append(q)
+        U.append(u)
+        P.append(p)
+        imp += i
+    return np.array(Q), np.array(U), np.array(P), imp
+
+
+@pytest.mark.parametrize("case", ["bouncing-ball", "forced", "forced-zeno"])
+def test_exact_step_chained_matches_simulate_exact_at_every_communication_point(case):
+    system, x0, tau = {
+        "bouncing-ball": (ImpactOscillator(m=1, f0=-9.81, e=0.8), (1.0, 0.0), 0.0),
+        "forced": (ImpactOscillator(m=1, k=1, c=0.1, f0=0.3, F=1.0, Omega=1.2, e=0.8), (1.0, 0.0), 0.0),
+        # accumulations then contact, released when the forcing turns: with an input tau
+        "forced-zeno": (ImpactOscillator(m=1, k=1, c=0.0, f0=-0.2, F=0.8, Omega=1.0, e=0.5), (0.5, 0.0), -0.3),
+    }[case]
+    H, t_end = 0.01, 20.0
+    Q, U, P, imp = _chain_exact_steps(system, x0, t_end, H, tau)
+    r = simulate_exact(system, x0, t_end, H, tau=[tau])
+    ev = r.events
+    assert np.array_equal(simulate(system, x0, t_end, H, scheme="exact", tau=[tau]).q, r.q)
+    assert Q.size == r.t.size
+    if case != "forced":
+        assert ev.zeno_times.size >= 1 and ev.contact_intervals.shape[0] >= 1   # across accumulations
+    assert imp == ev.n_impacts
+    assert np.max(np.abs(Q - r.q[:, 0])) < 1e-12
+    assert np.max(np.abs(U - r.u[:, 0])) < 1e-12
+    assert np.max(np.abs(P - r.percussion)) < 1e-12
+
+
+def test_exact_step_rejects_n_dof_model():
+    s = MechanicalSystem(M=np.eye(2), K=np.eye(2), C=np.zeros((2, 2)), f0=[0, 0], w=[1, 0])
+    from fmu_sync.core.exact import exact_model
+    with pytest.raises(ValueError, match="1-DOF"):
+        exact_model(s)

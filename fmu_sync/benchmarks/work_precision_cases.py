@@ -10,7 +10,7 @@ from typing import Callable
 
 import numpy as np
 
-from .ivp_baseline import ivp_impacts
+from .ivp_baseline import ivp_impacts, ivp_impacts_nd
 
 __all__ = ["SCENES", "Case", "Point", "WorkPrecision", "METHOD_DOC", "LADDERS", "measure", "horizon",
            "rest_time_of", "closed_form_rest_time"]
@@ -24,9 +24,10 @@ METHOD_DOC = {
     "midpoint": "Moreau midpoint (core), step = dt",
     "theta0.5": "Moreau–Jean θ = 0.5 (core), step = dt",
     "theta1": "Moreau–Jean θ = 1 (core), step = dt",
-    "exact": "exact event-driven solver (core/exact.py), output every 1 ms; it is the reference, "
-             "so its own error is 0 except against a closed form",
-    "solve_ivp": "scipy solve_ivp RK45 + terminal impact event, restart with u -> -e u, Zeno guard; "
+    "exact": "exact event-driven solver (core/exact.py, n-DOF: core/exact_nd.py), output every 1 ms; "
+             "it is the reference, so its own error is 0 except against a closed form (tests check it "
+             "against DOP853 to 1e-12 (1-DOF) and 1e-10 (two-dof))",
+    "solve_ivp": "scipy solve_ivp RK45 + terminal impact event, restart with the impact map, Zeno guard; "
                  "step = rtol (atol = 1e-3 rtol)",
     "cosim": "co-simulation: FMU + master (fmpy, Jacobi), slave dt = H; step = H",
     "cosim-ea": "co-simulation, event-aware (impact steps retaken in H/16 pieces), slave dt = H",
@@ -46,6 +47,8 @@ class Case:
     t_end_quick: float
     metrics: tuple = ("max_q",)
     pair: dict | None = None      # coupled pair for the "d" metric: x2, Kp, Kd
+    system: object = None         # n-DOF scene: its MechanicalSystem (params unused)
+    fmu: bool = True              # the 1-DOF FMU applies (co-simulation runs)
 
     def horizon(self, quick: bool) -> float:
         return self.t_end_quick if quick else self.t_end
@@ -66,11 +69,19 @@ def _builtin(name: str, t_end: float, t_end_quick: float, metrics=("max_q",), pa
     return Case(name, params, v.x1, t_end, t_end_quick, metrics=metrics, pair=coupled)
 
 
+def _builtin_nd(name: str, t_end: float, t_end_quick: float) -> Case:
+    """An n-DOF benchmark case (its system and x1) from the built-in scene ``name``."""
+    from fmu_sync import load_scene
+    v = load_scene(name).variants[0]
+    return Case(name, {}, v.x1, t_end, t_end_quick, system=v.system, fmu=False)
+
+
 SCENES = (
     _builtin("bouncing-ball", 5.0, 5.0, metrics=("rest_time", "max_q")),
     _builtin("forced-pair", 20.0, 10.0, pair="switching"),
     _builtin("zeno-table", 20.0, 10.0),
     _builtin("grazing", 60.0, 20.0),
+    _builtin_nd("two-dof", 60.0, 20.0),
 )
 
 
@@ -143,6 +154,8 @@ class WorkPrecision:
 # ------------------------------------------------------------------ runners
 def _system(scene: Case):
     from fmu_sync.core import ImpactOscillator
+    if scene.system is not None:
+        return scene.system
     return ImpactOscillator(**scene.params)
 
 
@@ -163,13 +176,20 @@ def _core_single(scene, T, scheme, theta, dt, fine):
 
     def fn():
         r = simulate(system, scene.x0, T, dt, scheme=scheme, theta=theta, record_every=rec)
-        return r.t, r.q[:, 0], r.u[:, 0], None
+        return (r.t, r.q, r.u, None) if system.n > 1 else (r.t, r.q[:, 0], r.u[:, 0], None)
     return fn
 
 
 def _exact_single(scene, T):
     from fmu_sync.core import simulate_exact
     system = _system(scene)
+    if system.n > 1:
+        from fmu_sync.core import simulate_exact_nd
+
+        def fn_nd():
+            r = simulate_exact_nd(system, scene.x0, T, 1e-3)
+            return r.t, r.q, r.u, None
+        return fn_nd
 
     def fn():
         r = simulate_exact(system, scene.x0, T, 1e-3)
@@ -182,6 +202,13 @@ def _exact_single(scene, T):
 def _ivp_single(scene, T, rtol):
     n = int(round(T / 1e-3))
     grid = np.arange(n + 1) * 1e-3
+    if scene.system is not None:
+        system = scene.system
+
+        def fn_nd():
+            Q, U, _ = ivp_impacts_nd(system, scene.x0, T, grid, rtol)
+            return grid, Q, U, None
+        return fn_nd
 
     def fn():
         Q, U, _, rest = ivp_impacts(scene.params, scene.x0, T, grid, rtol)
@@ -260,7 +287,7 @@ def _configs(mode: str, fmu, scenes=SCENES):
         cfgs.append(_Config("exact", sc, 1e-3, _exact_single(sc, T), sc.metrics))
         for rtol in lad["rtol"]:
             cfgs.append(_Config("solve_ivp", sc, rtol, _ivp_single(sc, T, rtol), sc.metrics))
-        if fmu is not None:
+        if fmu is not None and sc.fmu:
             for H in lad["H"]:
                 for ea in (False, True):
                     cfgs.append(_Config("cosim-ea" if ea else "cosim", sc, H,
@@ -300,7 +327,12 @@ def _references(cfgs, mode):
     for sc in {c.scene.name: c.scene for c in cfgs}.values():
         T = horizon(sc, mode)
         ref = _Reference()
-        ref.events = exact_events(_system(sc), sc.x0, T)
+        system = _system(sc)
+        if system.n > 1:
+            from fmu_sync.core import exact_events_nd
+            ref.events = exact_events_nd(system, sc.x0, T)
+        else:
+            ref.events = exact_events(system, sc.x0, T)
         if "rest_time" in sc.metrics:
             ref.t_inf = closed_form_rest_time(sc.params, sc.x0[0])
             ref.v_tol = V_REST_REL * math.sqrt(2.0 * G * sc.x0[0])
@@ -333,7 +365,7 @@ def _evaluate(cfg: _Config, out, ref: _Reference) -> dict:
             if not np.all(np.isfinite(q[inside])):
                 errs["max_q"] = math.nan
             else:
-                errs["max_q"] = float(np.max(np.abs(q[inside] - qe)))
+                errs["max_q"] = float(np.max(np.abs(q[inside] - qe.reshape(q[inside].shape))))
     if "rest_time" in cfg.metrics:
         tr = rest if rest is not None else rest_time_of(t, u, ref.v_tol)
         errs["rest_time"] = abs(tr - ref.t_inf) if math.isfinite(tr) else math.nan
@@ -347,7 +379,7 @@ def _reference_label(cfg: _Config, metric: str, ref: _Reference) -> str:
         return ref.d_label
     if metric == "rest_time":
         return "closed form t_inf"
-    return "exact (core/exact.py)"
+    return "exact (core/exact_nd.py)" if cfg.scene.system is not None else "exact (core/exact.py)"
 
 
 # ------------------------------------------------------------------ measurement loop
@@ -355,7 +387,7 @@ def _warm_up(cfgs, progress=None):
     """One short run of each kind so that no timing includes compilation / cache loading."""
     seen = set()
     for c in cfgs:
-        key = (c.method, c.kind)
+        key = (c.method, c.kind, c.scene.system is not None)   # n-DOF kernels compile apart
         if key in seen:
             continue
         seen.add(key)

@@ -12,7 +12,7 @@ import numpy as np
 from .work_precision_cases import LADDERS, METHOD_DOC, Point, SCENES, horizon
 
 __all__ = ["measured_order", "slope_stderr", "cost_crossover", "midpoint_vs_exact", "cosim_h_dependence",
-           "table", "report", "write_csv"]
+           "best_vs_ivp", "table", "report", "write_csv"]
 
 
 # ------------------------------------------------------------------ analysis
@@ -124,6 +124,42 @@ def midpoint_vs_exact(points, scene, metric):
     return None
 
 
+#: error levels of the "best method vs solve_ivp" comparison
+LEVELS = tuple(10.0 ** -k for k in range(2, 11))
+#: the project's own methods (single system)
+OWN_METHODS = ("midpoint", "theta0.5", "theta1", "exact")
+#: verified accuracy of the exact solvers against DOP853 (tests/test_exact.py: 1e-12 on the
+#: 1-DOF closed forms; tests/test_exact_nd.py: 1e-10 asserted on the two-dof scene)
+EXACT_VERIFIED = {1: 1e-12, 2: 1e-10}
+
+
+def best_vs_ivp(points, scene, metric, n_dof=1):
+    """At each error level 1e-2..1e-10: the cheapest run of the project's own methods with
+    error <= level (the exact solver counts with its verified accuracy where its error is the
+    reference's 0) against the cheapest solve_ivp run with error <= level.
+
+    Returns rows (level, own method, own seconds, solve_ivp seconds or nan, ok) with ok =
+    own <= solve_ivp (True where solve_ivp never reaches the level)."""
+    rows = []
+    pts = [p for p in points if p.scene == scene and p.metric == metric and math.isfinite(p.seconds)]
+    for lev in LEVELS:
+        own = []
+        for p in pts:
+            if p.method not in OWN_METHODS or not math.isfinite(p.error):
+                continue
+            err = p.error
+            if p.method == "exact" and err == 0.0:
+                err = EXACT_VERIFIED.get(n_dof, EXACT_VERIFIED[2])
+            if err <= lev:
+                own.append((p.seconds, p.method, p.step))
+        ivp = [p.seconds for p in pts if p.method == "solve_ivp" and math.isfinite(p.error) and p.error <= lev]
+        best = min(own) if own else (math.nan, "none", math.nan)
+        tivp = min(ivp) if ivp else math.nan
+        ok = (not math.isnan(best[0])) and (math.isnan(tivp) or best[0] <= tivp)
+        rows.append((lev, best[1], best[2], best[0], tivp, ok))
+    return rows
+
+
 def cosim_h_dependence(points, scene, metric):
     """Slope of log error vs log H for each co-simulation variant and the event-aware gain."""
     out = {}
@@ -190,7 +226,8 @@ def _interpretations(points, findings, mode) -> list[str]:
     for scene, metric, kw in (("bouncing-ball", "rest_time", {}), ("bouncing-ball", "max_q", {}),
                               ("forced-pair", "max_q", {}),
                               ("forced-pair", "d", dict(min_step=10 * lad["dt_ref_pair"])),
-                              ("zeno-table", "max_q", {}), ("grazing", "max_q", {})):
+                              ("zeno-table", "max_q", {}), ("grazing", "max_q", {}),
+                              ("two-dof", "max_q", {})):
         slope, pts = measured_order(points, scene, metric, "midpoint", **kw)
         if pts:
             findings.setdefault("order", {})[f"{scene}/{metric}"] = slope
@@ -199,7 +236,7 @@ def _interpretations(points, findings, mode) -> list[str]:
                        f"{pts[-1].step:g}, {len(pts)} points).")
     # exact vs midpoint, solve_ivp vs midpoint
     for scene, metric in (("bouncing-ball", "max_q"), ("forced-pair", "max_q"), ("zeno-table", "max_q"),
-                          ("grazing", "max_q")):
+                          ("grazing", "max_q"), ("two-dof", "max_q")):
         mx = midpoint_vs_exact(points, scene, metric)
         if mx is not None:
             findings.setdefault("exact_crossover", {})[scene] = mx
@@ -212,6 +249,25 @@ def _interpretations(points, findings, mode) -> list[str]:
         line = _crossover_line(points, scene, metric, "midpoint", "solve_ivp", findings)
         if line:
             out.append(line)
+    # the project's best method against solve_ivp at every error level
+    for sc in SCENES:
+        n_dof = 2 if sc.system is not None else 1
+        for metric in sc.metrics:
+            rows = best_vs_ivp(points, sc.name, metric, n_dof)
+            if not any(math.isfinite(r[3]) for r in rows):
+                continue
+            findings.setdefault("best_vs_ivp", {})[f"{sc.name}/{metric}"] = rows
+            bad = [r for r in rows if not r[5]]
+            cells = ", ".join(f"{_fmt(r[0], 1)}: {r[1]} {_fmt(r[3], 2)} s vs "
+                              f"{_fmt(r[4], 2) + ' s' if math.isfinite(r[4]) else 'not reached'}"
+                              for r in rows)
+            verdict = ("at least as cheap as solve_ivp at every level" if not bad else
+                       "NOT cheaper at " + ", ".join(_fmt(r[0], 1) for r in bad))
+            out.append(f"- **Best own method vs solve_ivp, {sc.name} / {metric}**: {verdict} "
+                       f"(level: cheapest own run with error ≤ level vs cheapest solve_ivp run; {cells}).")
+        if sc.pair is not None:
+            out.append(f"- **Best own method vs solve_ivp, {sc.name} / d**: solve_ivp is not run on the "
+                       "coupled pair (no baseline): no comparison.")
     # co-simulation vs H
     for scene, metric in (("forced-pair", "d"), ("bouncing-ball", "rest_time"), ("bouncing-ball", "max_q"),
                           ("forced-pair", "max_q")):
@@ -261,7 +317,8 @@ def report(points, mode, seconds) -> tuple[str, dict]:
              f"{seconds:.0f} s)", ""]
     lines.append("Methods: " + "; ".join(f"`{k}` = {v}" for k, v in METHOD_DOC.items()) + ".")
     lines.append("")
-    lines.append("Errors: `max_q` = max |q − q_exact| over the run's output times (exact = core/exact.py); "
+    lines.append("Errors: `max_q` = max |q − q_exact| over the run's output times (exact = core/exact.py, "
+                 "core/exact_nd.py for two-dof); "
                  "`rest_time` = |t_rest − t_inf| with t_inf in closed form; `d` = max |d − d_ref| of the "
                  "coupled pair (switching coupling, Kp = 1, Kd = 0.5) on a 10 ms grid, d_ref from "
                  f"`simulate_pair` at dt = {lad['dt_ref_pair']:g} (the exact solver does not apply to a "
