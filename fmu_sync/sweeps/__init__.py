@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .spec import SweepSpecError, grid_runs, parse_values, sample_runs
+from .spec import SweepSpecError, grid_runs, sample_runs
 
 __all__ = ["sweep", "SweepSpecError", "SweepTaskError", "SweepProgress", "load_sweep_scene", "list_sweep_scenes",
            "SWEEP_SCENE_DIR"]
@@ -292,7 +292,8 @@ def sweep(scene, grid: dict | None = None, *, sample: dict | None = None, n: int
     R = len(runs)
     chunk = chunk_size or max(32 * threads if client is None else 8, math.ceil(R / 50))
     fp = _fingerprint(scene, variant, keys, runs, method, seed, threshold, chunk)
-    attrs = dict(sweep_scene=sweep_name, scene=scene.name, scene_file=str(scene.path), scene_toml=Path(scene.path).read_text(),
+    attrs = dict(sweep_scene=sweep_name, scene=scene.name, scene_file=str(scene.path),
+                 scene_toml=Path(scene.path).read_text(),
                  variant=str(variant or ""), overrides=json.dumps(scene.overrides, default=repr),
                  swept=json.dumps(keys), method=method, seed=int(seed) if method != "grid" else -1,
                  spec=json.dumps(grid if method == "grid" else sample, default=repr),

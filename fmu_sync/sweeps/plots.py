@@ -121,7 +121,8 @@ def _zoh_line(ax, ds, x, y, xlog, ylog):
     ax.contour(X, Y, Mf, levels=[1.0], colors="crimson", linewidths=1.4, linestyles="--")
     ax.plot([], [], color="crimson", ls="--", lw=1.4,
             label=f"ZOH limit $\\omega_c h = \\min(4\\zeta, 1/\\zeta)$, h = {'H' if cosim else 'dt'}"
-                  f" = {base[hkey]:g} s" if hkey not in (x, y) else "ZOH limit $\\omega_c h = \\min(4\\zeta, 1/\\zeta)$")
+                  f" = {base[hkey]:g} s" if hkey not in (x, y)
+            else "ZOH limit $\\omega_c h = \\min(4\\zeta, 1/\\zeta)$")
     from matplotlib.patches import Patch
     ax.legend_handles_extra = getattr(ax, "legend_handles_extra", []) + [
         Patch(facecolor="none", edgecolor="0.3", hatch="//", label="beyond the ZOH limit (unstable exchange)")]
