@@ -6,6 +6,7 @@
     fmu-sync export ...                        export an FMU (see `fmu-sync export --help`)
     fmu-sync validate FILE.fmu                 check an FMU with fmpy (exit 1 on problems)
     fmu-sync bench [--quick] [-o DIR]          benchmarks (see `fmu-sync bench --help`)
+    fmu-sync sweep SCENE --grid K=V.. [-o DIR] gain maps, basins, samples (see `fmu-sync sweep --help`)
 
 Errors in the input (a bad scene, a diverged run, a missing file) end with one line
 ``fmu-sync: error: ...`` on stderr and exit status 2.
@@ -53,6 +54,8 @@ def _parser() -> argparse.ArgumentParser:
     v = sub.add_parser("validate", help="validate an FMU with fmpy; exit 1 if it has problems")
     v.add_argument("fmu", type=Path, help="path of the .fmu file")
     sub.add_parser("bench", help="benchmarks (options: see `fmu-sync bench --help`)", add_help=False)
+    from .sweeps.cli import add_parser as add_sweep
+    add_sweep(sub)
     return p
 
 
@@ -145,8 +148,11 @@ def main(argv=None) -> int:
             return _cmd_demo(args)
         if args.command == "validate":
             return _cmd_validate(args.fmu)
+        if args.command == "sweep":
+            from .sweeps.cli import run as run_sweep
+            return run_sweep(args)
         raise AssertionError(args.command)
-    except (SceneError, SimulationDiverged, FileNotFoundError, ValueError, ImportError) as exc:
+    except (SceneError, SimulationDiverged, FileNotFoundError, FileExistsError, ValueError, ImportError) as exc:
         prefix = "missing component: " if isinstance(exc, ImportError) else ""
         print(f"{PROG}: error: {prefix}{_one_line(exc)}", file=sys.stderr)
         return 2
