@@ -7,10 +7,12 @@ The component-level API (the core's own API is :mod:`fmu_sync.core`):
 * :func:`export_fmu` — build an FMI 2.0 co-simulation FMU of a registered model;
 * :func:`load_scene`, :func:`run_scene`, :func:`list_scenes`, :func:`run_demo` — scenes
   (:class:`SceneError` for a bad scene);
+* :func:`sweep` — families of pair runs (gain maps, basins, samples) as an xarray Dataset,
+  on all cores or a Dask cluster (:mod:`fmu_sync.sweeps`);
 * ``__version__`` (from the installed package metadata; single source: pyproject.toml).
 
 The names load on first use (PEP 562), so ``import fmu_sync`` imports neither
-fmpy nor pythonfmu, and a core-only run never loads the master.
+fmpy nor the FMU export, and a core-only run never loads the master.
 """
 from importlib import import_module
 from importlib.metadata import PackageNotFoundError
@@ -27,6 +29,7 @@ _API = {
     "export_fmu": "export",
     "load_scene": "scenes.loading", "list_scenes": "scenes.loading", "Scene": "scenes.schema",
     "SceneError": "scenes.schema", "run_scene": "scenes.running", "run_demo": "scenes.demo",
+    "sweep": "sweeps",
 }
 
 __all__ = ["__version__", *_API]

@@ -6,6 +6,7 @@
     fmu-sync export ...                        export an FMU (see `fmu-sync export --help`)
     fmu-sync validate FILE.fmu                 check an FMU with fmpy (exit 1 on problems)
     fmu-sync bench [--quick] [-o DIR]          benchmarks (see `fmu-sync bench --help`)
+    fmu-sync sweep SCENE --grid K=V.. [-o DIR] gain maps, basins, samples (see `fmu-sync sweep --help`)
 
 Exit status:
 
@@ -77,6 +78,8 @@ def _parser() -> argparse.ArgumentParser:
     v = sub.add_parser("validate", help="validate an FMU with fmpy; exit 1 if it has problems")
     v.add_argument("fmu", type=Path, help="path of the .fmu file")
     sub.add_parser("bench", help="benchmarks (options: see `fmu-sync bench --help`)", add_help=False)
+    from .sweeps.cli import add_parser as add_sweep
+    add_sweep(sub)
     return p
 
 
@@ -168,6 +171,14 @@ def _cmd_validate(path: Path) -> int:
     return 0
 
 
+def _refused_up_front(exc) -> bool:
+    """The midpoint stability check raises SimulationDiverged before the first step (no
+    record): that is a refusal of the input (status 2), not a failed run."""
+    from .core import SimulationDiverged
+    return (isinstance(exc, SimulationDiverged) and exc.partial is None
+            and "diverges for omega_max*dt >= 2" in str(exc))
+
+
 def _one_line(exc: BaseException) -> str:
     msg = str(exc).strip() or type(exc).__name__
     return " ".join(line.strip() for line in msg.splitlines() if line.strip())
@@ -205,11 +216,14 @@ def _main(argv) -> int:
             return _cmd_demo(args)
         if args.command == "validate":
             return _cmd_validate(args.fmu)
+        if args.command == "sweep":
+            from .sweeps.cli import run as run_sweep
+            return run_sweep(args)
         raise AssertionError(args.command)
     except RunFailed as exc:   # a run that failed mid-way (or a diverging single system)
         print(f"{PROG}: error: {_one_line(exc)}", file=sys.stderr)
-        return EXIT_FAILED
-    except (SceneError, FileNotFoundError, ValueError, ImportError) as exc:
+        return EXIT_BAD_INPUT if _refused_up_front(exc) else EXIT_FAILED
+    except (SceneError, FileNotFoundError, FileExistsError, ValueError, ImportError) as exc:
         prefix = "missing component: " if isinstance(exc, ImportError) else ""
         print(f"{PROG}: error: {prefix}{_one_line(exc)}", file=sys.stderr)
         return EXIT_BAD_INPUT

@@ -11,8 +11,8 @@ What fmpy's ``FMU2Slave`` leaves to the caller, done once:
 * get/set/serialise FMU states;
 * a clean shutdown: terminate, fmi2FreeInstance, then remove the unpacked files.
 
-The pythonfmu exit crash (pythonfmu issue #228) is handled inside our FMUs
-(:mod:`fmu_sync.fmus._export_lib`), not here: any Python host is safe.
+Refused calls return fmi2Error and change nothing (the instance stays usable);
+a doStep that cannot complete returns fmi2Discard (see the README, *The FMU*).
 """
 from __future__ import annotations
 
@@ -113,12 +113,15 @@ class FMUHost:
 
     def initialize(self, start_time: float = 0.0, start_values: dict | None = None) -> int:
         """setupExperiment, enterInitializationMode, set start values, exitInitializationMode."""
-        worst = OK
-        for st in (self.call("setupExperiment", None, start_time)[0],
-                   self.call("enterInitializationMode")[0],
-                   self.set(start_values or {}),
-                   self.call("exitInitializationMode")[0]):
-            worst = max(worst, st)
+        return max(self.enter_initialization(start_time), self.exit_initialization(start_values))
+
+    def enter_initialization(self, start_time: float = 0.0) -> int:
+        """setupExperiment and enterInitializationMode (parameters can be read from here on)."""
+        return max(self.call("setupExperiment", None, start_time)[0], self.call("enterInitializationMode")[0])
+
+    def exit_initialization(self, start_values: dict | None = None) -> int:
+        """Set start values, then exitInitializationMode."""
+        worst = max(self.set(start_values or {}), self.call("exitInitializationMode")[0])
         self._stepping = True
         return worst
 

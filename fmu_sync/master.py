@@ -92,8 +92,16 @@ class FmuInstance:
         self._check("fmi2SetReal", self.host.set(values))
 
     def initialize(self, t0: float, start_values: dict) -> None:
+        self.enter_initialization(t0)
+        self.exit_initialization(start_values)
+
+    def enter_initialization(self, t0: float) -> None:
+        """setupExperiment + enterInitializationMode: variables are readable from here on (FMI 2.0)."""
         self.t = t0
-        self._check("initialization", self.host.initialize(t0, start_values))
+        self._check("initialization", self.host.enter_initialization(t0))
+
+    def exit_initialization(self, start_values: dict) -> None:
+        self._check("initialization", self.host.exit_initialization(start_values))
 
     def do_step(self, t: float, h: float) -> None:
         self.t = t
@@ -193,6 +201,7 @@ class NetworkMaster:
         for i in range(N):
             self.slaves.append(FmuInstance(unzipdir, self.md, f"system{i + 1}"))
         for s, sv in zip(self.slaves, self.start_values):
+            s.enter_initialization(0.0)   # FMI 2.0: variables are readable from initialization mode on
             s.set(sv)
         systems = [system_from_fmu(s, model) for s in self.slaves]
         check_common_geometry(systems, [f"instance {i + 1}" for i in range(N)])
@@ -203,7 +212,7 @@ class NetworkMaster:
             label = f"x{i + 1}"
             q0, u0 = as_state(system, x, label)
             check_start(system, q0, label)
-            s.initialize(0.0, model.state_values(q0, u0))
+            s.exit_initialization(model.state_values(q0, u0))
         n = model.n
         self.geo = geometry(system, self.Q)
         self.Kp_m, self.Kd_m = gain_matrix(self.Kp, n, "Kp"), gain_matrix(self.Kd, n, "Kd")
@@ -273,10 +282,11 @@ class NetworkMaster:
                 tau[b] += A[b, a] * self.t2
 
     def check_forces(self, i: int, t: float, h: float) -> None:
-        if not np.all(np.isfinite(self.tau[i])):
+        if not np.all(np.abs(self.tau[i]) <= contract.INPUT_BOUND):   # also catches NaN
             lim = exchange_limit(self.system.M, self.Kp_m, self.Kd_m, h, self.A_coupled)
             raise SlaveError(f"system{i + 1}", t, "coupling", 3, [
-                f"its coupling force became non-finite ({self.tau[i].tolist()}): the explicit "
+                f"its coupling force became non-finite or exceeds the FMU's input bound "
+                f"{contract.INPUT_BOUND:g} ({self.tau[i].tolist()}): the explicit "
                 f"exchange is unstable for these gains and this step ({lim.message()}): lower "
                 f"Kp or H, or add Kd"])
 

@@ -1,8 +1,8 @@
 """Variable declarations and the FMI 2.0 modelDescription.xml of our slaves.
 
-pythonfmu 0.7.0 writes no units, bounds, type definitions or InitialUnknowns,
-so the slaves build the whole model description themselves from the interface
-declared in :mod:`.contract` (one :class:`Var` per scalar).
+The FMU binary knows nothing of the interface: the whole model description is
+built here from the interface declared in :mod:`.contract` (one :class:`Var`
+per scalar).
 """
 from __future__ import annotations
 
@@ -34,16 +34,16 @@ UNITS: dict[str, dict[str, int]] = {
 
 
 def generation_tool() -> str:
-    import pythonfmu
-
     from fmu_sync import __version__
-    return f"fmu-sync {__version__} (PythonFMU {pythonfmu.__version__})"
+    return f"fmu-sync {__version__} (own FMI 2.0 binary, Python slave)"
 
 
-def model_guid(model: str, start_values: dict) -> str:
-    """Deterministic GUID: changes with the model, the package version and the start values."""
+def model_guid(model: str, start_values: dict, code: str = "") -> str:
+    """Deterministic GUID: changes with the model, the package version, the start
+    values and the FMU's code (hash of the carried Python code and the C source)."""
     from fmu_sync import __version__
-    key = json.dumps({"model": model, "version": __version__, "start": start_values}, sort_keys=True)
+    key = json.dumps({"model": model, "version": __version__, "start": start_values, "code": code},
+                     sort_keys=True)
     return "{" + str(uuid.uuid5(uuid.NAMESPACE_URL, "https://fmu-sync/" + key)) + "}"
 
 
@@ -84,7 +84,7 @@ def model_description(*, model_name: str, model_identifier: str, guid: str, desc
     })
     SubElement(root, "CoSimulation", {
         "modelIdentifier": model_identifier,
-        "needsExecutionTool": "true",
+        "needsExecutionTool": "false",
         "canHandleVariableCommunicationStepSize": "true",
         "canInterpolateInputs": "false",
         "maxOutputDerivativeOrder": "0",

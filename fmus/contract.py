@@ -25,9 +25,9 @@ from typing import Callable
 
 import numpy as np
 
-from fmu_sync.core.model import MechanicalSystem
+from ..core.model import MechanicalSystem
 
-__all__ = ["Var", "FmuModel", "ContractError", "MODELS", "POSITIVE_MIN", "SCHEME_TYPE", "SCHEME_ITEMS",
+__all__ = ["Var", "FmuModel", "ContractError", "MODELS", "POSITIVE_MIN", "INPUT_BOUND", "SCHEME_TYPE", "SCHEME_ITEMS",
            "SOLVER_DT", "SOLVER_SCHEME", "SOLVER_THETA", "GAP", "IMPACTS", "PERCUSSION", "ENERGY",
            "model", "model_for", "identify", "indexed", "scheme_value", "scheme_name"]
 
@@ -38,6 +38,10 @@ GAP, IMPACTS, PERCUSSION, ENERGY = "gap", "impacts", "percussion", "energy"
 #: Smallest positive normal double: the inclusive FMI ``min`` of quantities that
 #: must be strictly positive (m > 0, dt > 0).
 POSITIVE_MIN = 2.2250738585072014e-308
+#: Inputs must lie in [-INPUT_BOUND, INPUT_BOUND] (the min/max of every input in
+#: modelDescription.xml; the FMU's binary refuses other values at fmi2SetReal).
+#: Larger forces are far outside any mechanical model and overflow the energy.
+INPUT_BOUND = 1e12
 
 SCHEME_TYPE = "fmu_sync.Scheme"
 #: FMI enumeration items of solver.scheme: (name, value, description); the
@@ -145,10 +149,10 @@ def _solver_variables(dt: float = 1e-3) -> list[Var]:
 def _inputs(n: int) -> list[Var]:
     if n == 1:
         return [Var("tau", "Real", "input", "continuous", "Control force (held over each communication step)",
-                    unit="N", start=0.0)]
+                    unit="N", start=0.0, min=-INPUT_BOUND, max=INPUT_BOUND)]
     return [Var(name, "Real", "input", "continuous",
                 f"Control force on coordinate {i + 1} (B = I; held over each communication step)",
-                unit="N", start=0.0) for i, name in enumerate(indexed("tau", n))]
+                unit="N", start=0.0, min=-INPUT_BOUND, max=INPUT_BOUND) for i, name in enumerate(indexed("tau", n))]
 
 
 def _outputs(n: int, depends: dict) -> list[Var]:
@@ -254,7 +258,7 @@ class FmuModel:
 
 
 def _io_system(p: dict) -> MechanicalSystem:
-    from fmu_sync.core.model import ImpactOscillator
+    from ..core.model import ImpactOscillator
     return ImpactOscillator(m=p["m"], k=p["k"], c=p["c"], f0=p["f0"], F=p["F"],
                             Omega=p["Omega"], e=p["e"], phi=p["phi"])
 

@@ -16,7 +16,7 @@ __all__ = ["ImpactOscillatorSlave"]
 
 
 class ImpactOscillatorSlave(MechanicalSlave):
-    """pythonfmu slave of the 1-DOF impact oscillator (core: ``ImpactOscillator``)."""
+    """Slave of the 1-DOF impact oscillator (core: ``ImpactOscillator``)."""
 
     CONTRACT = MODELS["impact-oscillator"]
     MODEL = CONTRACT.key

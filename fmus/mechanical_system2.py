@@ -17,7 +17,7 @@ __all__ = ["MechanicalSystem2Slave"]
 
 
 class MechanicalSystem2Slave(MechanicalSlave):
-    """pythonfmu slave of the 2-DOF system with an oblique wall (core: ``MechanicalSystem``)."""
+    """Slave of the 2-DOF system with an oblique wall (core: ``MechanicalSystem``)."""
 
     CONTRACT = MODELS["mechanical-system-2"]
     MODEL = CONTRACT.key

@@ -17,7 +17,7 @@ ENV = {**os.environ, "CI": "true"}   # no progress output in the subprocesses
 def run_cli(args, cwd, timeout=300, check_modules=False):
     """Run ``fmu-sync ARGS`` in a fresh interpreter; optionally report which FMI packages it imported."""
     code = ("import json, sys\nfrom fmu_sync.cli import main\nrc = main(sys.argv[1:])\n"
-            + ("print(json.dumps({m: m in sys.modules for m in ('fmpy', 'pythonfmu', 'fmu_sync.master',"
+            + ("print(json.dumps({m: m in sys.modules for m in ('fmpy', 'fmu_sync.master',"
                " 'fmu_sync.export')}))\n" if check_modules else "")
             + "sys.exit(rc)\n")
     return subprocess.run([sys.executable, "-c", code, *args], cwd=cwd, capture_output=True, text=True,
@@ -30,7 +30,7 @@ def test_core_only_single_scene_end_to_end(tmp_path):
                   check_modules=True)
     assert out.returncode == 0, out.stderr
     modules = json.loads(out.stdout.strip().splitlines()[-1])
-    assert modules == {"fmpy": False, "pythonfmu": False, "fmu_sync.master": False, "fmu_sync.export": False}
+    assert modules == {"fmpy": False, "fmu_sync.master": False, "fmu_sync.export": False}
     folder = tmp_path / "fmu-sync-out" / "bouncing-ball"
     for name in ("summary.md", "bouncing-ball.csv", "bouncing-ball.npz", "bouncing-ball-positions.png",
                  "bouncing-ball-phase.png"):
@@ -147,9 +147,7 @@ def test_scaled_progress():
 
 
 # ------------------------------------------------------------------ needs the master and the FMU export
-# The following load the FMU in a subprocess. pythonfmu 0.7.0's export library used to abort
-# at interpreter exit (shared/NOTES-fmi.md); fmu_sync/fmus/_export_lib.py fixes that, so a
-# clean exit (status 0) is required here.
+# The following load the FMU in a subprocess; a clean exit (status 0) is required here.
 def _finished(out, marker):
     return out.returncode == 0 and marker in out.stdout
 

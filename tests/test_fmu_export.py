@@ -41,7 +41,12 @@ def test_schema_and_fmpy_validation(fmus, model):
     with zipfile.ZipFile(path) as zf:
         names = set(zf.namelist())
     assert f"binaries/linux64/{IDENT[model]}.so" in names
-    assert "resources/slavemodule.txt" in names
+    # the FMU carries its code (core + slave), its boot script and how it finds Python
+    assert "resources/fmu_sync_code/core/moreau.py" in names
+    assert "resources/fmu_sync_code/fmus/stepper.py" in names
+    assert "resources/fmu_sync_code/fmus/contract.py" in names
+    assert {"resources/fmu_sync_build.json", "resources/fmu_sync_python.txt"} <= names
+    assert any(n.startswith("resources/fmu_sync_boot_") and n.endswith(".py") for n in names)
 
 
 @pytest.mark.parametrize("model", sorted(MODELS))

@@ -131,8 +131,6 @@ def test_no_module_is_over_500_lines_except_the_numerical_kernels():
     kernels = {"fmu_sync.core.exact", "fmu_sync.core.distance",  # one numerical concept each
                "fmu_sync.core.moreau",     # the Moreau step, its loops, the 1-DOF fast path, the phasor
                "fmu_sync.core.exact_nd"}   # the n-DOF event-driven solver
-    # the pythonfmu slave base class is being replaced by the C FMI binary (issue 8)
-    kernels.add("fmu_sync.fmus.slave")
     long = {n: len(p.read_text().splitlines()) for n, p in MODULES.items() if n not in kernels}
     assert {n: k for n, k in long.items() if k > 520} == {}
 

@@ -6,7 +6,8 @@ Writes into DIR (default ``./fmu-sync-bench/``):
   reference, note (one row per run; see :mod:`.work_precision`);
 * ``work_precision_<scene>_<metric>.png`` — log–log error vs run time;
 * ``stability.csv`` — one row per stability case with its criterion and pass/FAIL;
-* ``bench.md`` — the three reports (tables and one-line interpretations).
+* ``bench.md`` — the reports (tables and one-line interpretations); the speed section includes
+  the sweep throughput (:mod:`.sweep_speed`, also alone with ``--only sweep``).
 
 ``--quick`` shrinks ladders, horizons and repeats (a few minutes on 2 cores);
 ``--smoke`` (for the test suite) shrinks everything further and skips the core speed
@@ -25,7 +26,7 @@ from pathlib import Path
 __all__ = ["main", "EXTRA_SECTIONS"]
 
 #: optional sibling benchmark modules, included when they provide ``run(quick) -> markdown``
-EXTRA_SECTIONS = ("fmu_cost",)  # distance_cost is part of core_speed
+EXTRA_SECTIONS = ("fmu_cost", "sweep_speed")  # distance_cost is part of core_speed
 
 
 def _versions() -> str:
@@ -63,7 +64,7 @@ def main(argv=None) -> int:
     parser.add_argument("--smoke", action="store_true",
                         help="tiny ladders, no core speed section: checks the pipeline only (for tests)")
     parser.add_argument("--no-cosim", action="store_true", help="leave out the FMU co-simulation runs")
-    parser.add_argument("--only", choices=("speed", "work-precision", "stability"), action="append",
+    parser.add_argument("--only", choices=("speed", "work-precision", "stability", "sweep"), action="append",
                         help="run only these sections (repeatable)")
     args = parser.parse_args(argv)
     quick = args.quick or args.smoke
@@ -104,10 +105,13 @@ def main(argv=None) -> int:
         else:
             parts.append("## Core speed\n\nskipped (--smoke).\n")
 
-        if "speed" in sections:
+        if sections & {"speed", "sweep"}:
             # sibling benchmarks that offer the same entry point as core_speed: run(quick) -> markdown
             import importlib
             for name in EXTRA_SECTIONS:
+                need = {"speed", "sweep"} if name == "sweep_speed" else {"speed"}
+                if not need & sections:
+                    continue
                 try:
                     mod = importlib.import_module(f"{__name__}.{name}")
                 except ImportError:

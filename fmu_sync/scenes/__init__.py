@@ -79,7 +79,7 @@ the top-level tables with the variant's keys laid over them. ``--set`` style
 overrides (``{"coupling.Kp": 2}``) replace a key everywhere, variants included.
 
 Only what a scene names is built: a core scene never exports an FMU nor imports
-fmpy/pythonfmu, a single system runs :func:`fmu_sync.core.simulate` (no master,
+fmpy, a single system runs :func:`fmu_sync.core.simulate` (no master,
 no distance), and the distance is computed only when recorded or needed by the
 coupling law.
 """

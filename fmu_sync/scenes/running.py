@@ -167,7 +167,8 @@ def run_variant(variant: Variant, fmu_path=None, progress: Callable | None = Non
     except RunFailed as exc:
         if str(exc).startswith(label):
             raise
-        err = type(exc)(f"{label}: {exc}")
+        cls = SimulationDiverged if isinstance(exc, SimulationDiverged) else RunFailed
+        err = cls(f"{label}: {exc}")
         err.partial = exc.partial
         raise err from None
 

@@ -1,0 +1,355 @@
+"""Maps of a sweep: heat maps over two swept parameters, basins, sample scatter plots.
+
+* :func:`heat_map` -- decay rate and t_sync over two parameters (e.g. Kp, Kd),
+  runs that diverged / were refused / did not synchronize marked, and the
+  zero-order-hold stability limit of the relative mode drawn:
+  ``omega_c h = min(4 zeta, 1/zeta)`` with ``omega_c = sqrt(2 Kp / m)``,
+  ``zeta = Kd / (m omega_c)`` and ``h`` the exchange step (``run.H`` when
+  co-simulated; ``solver.dt`` in the core, whose explicit midpoint step holds
+  the forces over dt the same way); the bound is :func:`fmu_sync.core.exchange.zoh_bound`.
+* :func:`basin` -- time to synchronize over a start state (q0, u0).
+* :func:`line_plot` -- one swept parameter: decay rate and t_sync against it.
+* :func:`sweep_plots` -- the maps that fit a Dataset (called by ``sweep(out=...)``).
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["heat_map", "basin", "scatter", "line_plot", "sweep_plots", "zoh_margin", "LABELS"]
+
+LABELS = {"coupling.Kp": "$K_p$ (N/m)", "coupling.Kd": "$K_d$ (N s/m)", "solver.dt": "dt (s)",
+          "run.H": "H (s)", "system.e": "restitution e", "system.m": "m (kg)",
+          "initial.q1": "$q_1(0)$ (m)", "initial.u1": "$u_1(0)$ (m/s)",
+          "initial.q2": "$q_2(0)$ (m)", "initial.u2": "$u_2(0)$ (m/s)"}
+_ZOH_KEYS = ("coupling.Kp", "coupling.Kd", "solver.dt", "run.H", "system.m")
+_STATE_KEYS = ("initial.q1", "initial.u1", "initial.q2", "initial.u2")
+
+
+def _plt():
+    import matplotlib
+    if matplotlib.get_backend().lower() not in ("agg", "pdf", "svg", "ps", "cairo"):
+        try:
+            matplotlib.use("Agg")
+        except Exception:  # pragma: no cover
+            pass
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def _is_log(v) -> bool:
+    v = np.asarray(v, dtype=float)
+    if v.size < 3 or np.any(v <= 0):
+        return False
+    r = v[1:] / v[:-1]
+    return bool(v.max() / v.min() > 20 and np.allclose(r, r[0], rtol=1e-6))
+
+
+def _edges(v, log):
+    v = np.asarray(v, dtype=float)
+    if v.size == 1:
+        return np.array([v[0] * 0.9, v[0] * 1.1]) if log else np.array([v[0] - 0.5, v[0] + 0.5])
+    x = np.log(v) if log else v
+    mid = 0.5 * (x[1:] + x[:-1])
+    e = np.concatenate(([x[0] - (mid[0] - x[0])], mid, [x[-1] + (x[-1] - mid[-1])]))
+    return np.exp(e) if log else e
+
+
+def _label(k):
+    return LABELS.get(k, k)
+
+
+def _base_variant(ds):
+    """The scene variant the sweep was made from (for the parameters it did not sweep)."""
+    from ..scenes.loading import load_scene
+    try:
+        sc = load_scene(ds.attrs["scene_file"], json.loads(ds.attrs.get("overrides", "{}")),
+                        [ds.attrs["variant"]] if ds.attrs.get("variant") else None)
+        return sc.variants[0]
+    except Exception:
+        return None
+
+
+def zoh_margin(Kp, Kd, h, m):
+    """``omega_c h / h*(zeta)`` of the relative mode of a 1-DOF pair, with ``h*`` the core's
+    :func:`fmu_sync.core.exchange.zoh_bound`: the held exchange is stable below 1.
+    A pair's relative mode has ``omega_c = sqrt(2 Kp / m)``, ``zeta = Kd / (m omega_c)``;
+    without Kp the limit is ``2 Kd h / m < 2``; without Kd no step is stable (inf)."""
+    from ..core.exchange import zoh_bound
+    Kp, Kd, h, m = np.broadcast_arrays(*(np.asarray(x, dtype=float) for x in (Kp, Kd, h, m)))
+    out = np.empty(Kp.shape)
+    for i in np.ndindex(Kp.shape):
+        wc = math.sqrt(2.0 * Kp[i] / m[i])
+        if wc > 0.0:
+            bound = zoh_bound(Kd[i] / (m[i] * wc))
+            out[i] = wc * h[i] / bound if bound > 0.0 else np.inf
+        else:
+            out[i] = Kd[i] * h[i] / m[i]
+    return out if out.shape else float(out)
+
+
+def _zoh_line(ax, ds, x, y, xlog, ylog):
+    """Draw the ZOH limit where the two axes are parameters of it; return whether drawn."""
+    if not ({x, y} & set(_ZOH_KEYS)):
+        return False
+    v = _base_variant(ds)
+    if v is None or v.system.n != 1 or v.law == "none":
+        return False
+    cfg = v.cfg
+    cosim = cfg["run.mode"] == "cosim"
+    hkey = "run.H" if cosim else "solver.dt"
+    base = {"coupling.Kp": float(np.asarray(v.Kp).ravel()[0]), "coupling.Kd": float(np.asarray(v.Kd).ravel()[0]),
+            hkey: cfg[hkey], "system.m": float(v.system.M[0, 0])}
+    xv, yv = np.asarray(ds[x].values, float), np.asarray(ds[y].values, float)
+    xs = np.geomspace(xv.min(), xv.max(), 300) if xlog else np.linspace(xv.min(), xv.max(), 300)
+    ys = np.geomspace(yv.min(), yv.max(), 300) if ylog else np.linspace(yv.min(), yv.max(), 300)
+    X, Y = np.meshgrid(xs, ys)
+    p = {k: np.full_like(X, val) for k, val in base.items()}
+    if x in p:
+        p[x] = X
+    if y in p:
+        p[y] = Y
+    M = zoh_margin(p["coupling.Kp"], p["coupling.Kd"], p[hkey], p["system.m"])
+    Mf = np.where(np.isfinite(M), M, 1e6)
+    if not (np.nanmin(Mf) < 1.0 < np.nanmax(Mf)):
+        return False
+    ax.contourf(X, Y, Mf, levels=[1.0, np.inf], colors="none", hatches=["//"])
+    ax.contour(X, Y, Mf, levels=[1.0], colors="white", linewidths=2.6)
+    ax.contour(X, Y, Mf, levels=[1.0], colors="crimson", linewidths=1.4, linestyles="--")
+    ax.plot([], [], color="crimson", ls="--", lw=1.4,
+            label=f"ZOH limit $\\omega_c h = \\min(4\\zeta, 1/\\zeta)$, h = {'H' if cosim else 'dt'}"
+                  f" = {base[hkey]:g} s" if hkey not in (x, y)
+            else "ZOH limit $\\omega_c h = \\min(4\\zeta, 1/\\zeta)$")
+    from matplotlib.patches import Patch
+    ax.legend_handles_extra = getattr(ax, "legend_handles_extra", []) + [
+        Patch(facecolor="none", edgecolor="0.3", hatch="//", label="beyond the ZOH limit (unstable exchange)")]
+    return True
+
+
+def _masks(da_status, sync):
+    st = np.asarray(da_status)
+    return st == 1, st == 2, (st == 0) & ~np.asarray(sync)
+
+
+def _overlay(ax, XE, YE, mask, color, label):
+    """Cells where ``mask`` holds painted ``color``, with a legend entry."""
+    if not mask.any():
+        return
+    from matplotlib.patches import Patch
+    Z = np.where(mask, 1.0, np.nan)
+    ax.pcolormesh(XE, YE, Z.T, cmap=_single(color), shading="flat", alpha=0.85)
+    ax.legend_handles_extra = getattr(ax, "legend_handles_extra", []) + [
+        Patch(facecolor=color, alpha=0.85, label=label)]
+
+
+def _single(color):
+    from matplotlib.colors import ListedColormap
+    return ListedColormap([color])
+
+
+def _two_d(ds, x, y):
+    """The Dataset reduced to dims (x, y): other dims at their first value; note of them."""
+    others = [d for d in ds.dims if d not in (x, y)]
+    note = ", ".join(f"{d} = {ds[d].values[0]}" for d in others)
+    sub = ds.isel({d: 0 for d in others}).transpose(x, y)
+    return sub, note
+
+
+def heat_map(ds, x: str, y: str, path, title: str | None = None) -> Path:
+    """Decay rate and t_sync over (x, y), failures marked, the ZOH limit drawn."""
+    plt = _plt()
+    from matplotlib.colors import LogNorm
+    sub, note = _two_d(ds, x, y)
+    xv, yv = sub[x].values.astype(float), sub[y].values.astype(float)
+    xlog, ylog = _is_log(xv), _is_log(yv)
+    XE, YE = _edges(xv, xlog), _edges(yv, ylog)
+    div, ref, nosync = _masks(sub["status"].values, sub["synchronized"].values)
+    fig, axes = plt.subplots(1, 2, figsize=(13, 5.4), constrained_layout=True)
+    rate = np.where(sub["status"].values == 0, sub["decay_rate"].values, np.nan)
+    ts = np.where(sub["synchronized"].values, sub["t_sync"].values, np.nan)
+    panels = [(axes[0], rate, "decay rate of d (1/s)", "viridis", None),
+              (axes[1], ts, "t_sync: time to d < %.0e (s)" % ds.attrs.get("threshold", 1e-6), "magma_r",
+               "log")]
+    for ax, Z, clabel, cmap, scale in panels:
+        finite = Z[np.isfinite(Z)]
+        norm = None
+        if scale == "log" and finite.size and finite.min() > 0:
+            norm = LogNorm(vmin=finite.min(), vmax=finite.max())
+        kw = {} if norm else dict(vmin=float(np.nanmin(finite)) if finite.size else 0,
+                                  vmax=float(np.nanmax(finite)) if finite.size else 1)
+        if not norm and finite.size and scale is None:
+            kw["vmin"] = min(0.0, kw["vmin"])
+        m = ax.pcolormesh(XE, YE, Z.T, cmap=cmap, norm=norm, shading="flat", **kw)
+        fig.colorbar(m, ax=ax, label=clabel)
+        if ax is axes[1]:
+            _overlay(ax, XE, YE, nosync & ~div & ~ref, "0.82", "not synchronized by t_end")
+        else:
+            _overlay(ax, XE, YE, (sub["status"].values == 0) & ~np.isfinite(rate), "0.82",
+                     "no decay (envelope of d stays above 0.1 max d)")
+        _overlay(ax, XE, YE, div, "#b2182b", "diverged (stopped early)")
+        _overlay(ax, XE, YE, ref, "black", "refused (invalid start)")
+        drawn = _zoh_line(ax, ds, x, y, xlog, ylog)
+        if xlog:
+            ax.set_xscale("log")
+        if ylog:
+            ax.set_yscale("log")
+        ax.set_xlim(XE[0], XE[-1])
+        ax.set_ylim(YE[0], YE[-1])
+        ax.set_xlabel(_label(x))
+        ax.set_ylabel(_label(y))
+        handles = getattr(ax, "legend_handles_extra", [])
+        if drawn:
+            handles = ax.get_legend_handles_labels()[0] + handles
+        if handles:
+            ax.legend(handles=handles, loc="lower right", fontsize=8, framealpha=0.9)
+    n, nf = int(ds["status"].size), int((ds["status"].values != 0).sum())
+    head = title or (f"{ds.attrs['sweep_scene']}: " if ds.attrs.get("sweep_scene") else "sweep of ") + \
+        ds.attrs.get("scene", "")
+    v = ds.attrs.get("variant")
+    fig.suptitle(f"{head}{' (' + v + ')' if v else ''}: {n} runs, {nf} failed"
+                 + (f"  [{note}]" if note else ""), fontsize=12)
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def basin(ds, x: str, y: str, path, title: str | None = None) -> Path:
+    """Basin of synchronization over a start state: t_sync where it synchronizes."""
+    plt = _plt()
+    from matplotlib.colors import LogNorm
+    sub, note = _two_d(ds, x, y)
+    xv, yv = sub[x].values.astype(float), sub[y].values.astype(float)
+    XE, YE = _edges(xv, False), _edges(yv, False)
+    div, ref, nosync = _masks(sub["status"].values, sub["synchronized"].values)
+    ts = np.where(sub["synchronized"].values, sub["t_sync"].values, np.nan)
+    fig, ax = plt.subplots(figsize=(7.5, 5.8), constrained_layout=True)
+    finite = ts[np.isfinite(ts) & (ts > 0)]
+    norm = LogNorm(vmin=finite.min(), vmax=finite.max()) if finite.size else None
+    m = ax.pcolormesh(XE, YE, np.where(ts > 0, ts, np.nan).T, cmap="viridis_r", norm=norm, shading="flat")
+    fig.colorbar(m, ax=ax, label="t_sync: time to d < %.0e (s)" % ds.attrs.get("threshold", 1e-6))
+    _overlay(ax, XE, YE, nosync & ~div & ~ref, "0.82", "not synchronized by t_end")
+    _overlay(ax, XE, YE, div, "#b2182b", "diverged")
+    _overlay(ax, XE, YE, ref, "black", "refused (start violates the wall)")
+    v = _base_variant(ds)
+    if v is not None and v.system.n == 1:
+        other = "x1" if x.endswith("2") else "x2"
+        q, u = getattr(v, other)
+        ax.plot([q], [u], marker="*", ms=14, color="white", mec="black", ls="none",
+                label=f"the other system's start ({q:g}, {u:g})")
+        if x.startswith("initial.q") and XE[0] < 0 < XE[-1]:
+            ax.axvline(0.0, color="black", lw=1.5)
+    handles = ax.get_legend_handles_labels()[0] + getattr(ax, "legend_handles_extra", [])
+    if handles:
+        ax.legend(handles=handles, loc="upper right", fontsize=8, framealpha=0.9)
+    ax.set_xlim(XE[0], XE[-1])
+    ax.set_ylim(YE[0], YE[-1])
+    ax.set_xlabel(_label(x))
+    ax.set_ylabel(_label(y))
+    n, nf = int(ds["status"].size), int((ds["status"].values != 0).sum())
+    fig.suptitle((title or f"basin of synchronization, {ds.attrs.get('scene', '')}"
+                  + (f" ({ds.attrs['variant']})" if ds.attrs.get("variant") else ""))
+                 + f": {n} runs, {nf} failed" + (f"  [{note}]" if note else ""), fontsize=11)
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def scatter(ds, x: str, y: str, path) -> Path:
+    """Random / LHS samples: decay rate at the sampled points, failures marked."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7.5, 5.8), constrained_layout=True)
+    xv, yv = ds[x].values.astype(float), ds[y].values.astype(float)
+    st = ds["status"].values
+    ok = st == 0
+    m = ax.scatter(xv[ok], yv[ok], c=ds["decay_rate"].values[ok], cmap="viridis", s=18)
+    fig.colorbar(m, ax=ax, label="decay rate of d (1/s)")
+    for code, color, label in ((1, "#b2182b", "diverged"), (2, "black", "refused")):
+        sel = st == code
+        if sel.any():
+            ax.scatter(xv[sel], yv[sel], marker="x", color=color, s=24, label=label)
+    if _is_log(np.sort(xv)) or (np.all(xv > 0) and xv.max() / xv.min() > 50):
+        ax.set_xscale("log")
+    if np.all(yv > 0) and yv.max() / yv.min() > 50:
+        ax.set_yscale("log")
+    ax.set_xlabel(_label(x))
+    ax.set_ylabel(_label(y))
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=8)
+    ax.set_title(f"{ds.attrs.get('method', '')} sample of {ds.attrs.get('scene', '')}: {st.size} runs, "
+                 f"{int((st != 0).sum())} failed")
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def line_plot(ds, x: str, path) -> Path:
+    """One swept parameter: decay rate (with its uncertainty) and t_sync against it, one line
+    per combination of the other swept values (up to 8), failures marked."""
+    plt = _plt()
+    import itertools
+    others = [d for d in ds.dims if d != x]
+    combos = list(itertools.product(*(range(ds.sizes[d]) for d in others)))[:8]
+    xv = ds[x].values.astype(float)
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.6), constrained_layout=True)
+    for n, combo in enumerate(combos):
+        sub = ds.isel(dict(zip(others, combo))) if others else ds
+        label = ", ".join(f"{d} = {ds[d].values[i]}" for d, i in zip(others, combo)) or None
+        ok = sub["status"].values == 0
+        rate = np.where(ok, sub["decay_rate"].values, np.nan)
+        err = np.where(ok, sub["decay_rate_err"].values, np.nan)
+        ts = np.where(sub["synchronized"].values, sub["t_sync"].values, np.nan)
+        c = f"C{n}"
+        axes[0].errorbar(xv, rate, yerr=err, color=c, marker="o", ms=3, capsize=2, label=label)
+        axes[1].plot(xv, ts, color=c, marker="o", ms=3, label=label)
+        bad = sub["status"].values != 0
+        for ax in axes:
+            if bad.any():
+                ax.plot(xv[bad], np.zeros(bad.sum()), "x", color="#b2182b", ms=7,
+                        label="diverged / refused" if n == 0 else None)
+    log = _is_log(xv)
+    for ax, yl in ((axes[0], "decay rate of d (1/s)"), (axes[1], "t_sync (s)")):
+        if log:
+            ax.set_xscale("log")
+        ax.set_xlabel(_label(x))
+        ax.set_ylabel(yl)
+        ax.grid(alpha=0.3)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=8)
+    n, nf = int(ds["status"].size), int((ds["status"].values != 0).sum())
+    fig.suptitle(f"sweep of {ds.attrs.get('scene', '')}: {n} runs, {nf} failed; t_sync where synchronized",
+                 fontsize=11)
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def sweep_plots(ds, out_dir, axes: dict | None = None) -> list[Path]:
+    """The maps that fit the Dataset: basin (two start-state axes), heat map (two swept
+    numeric parameters) or a scatter plot (samples). ``axes`` may name ``x``, ``y``."""
+    out_dir = Path(out_dir)
+    axes = axes or {}
+    swept = json.loads(ds.attrs.get("swept", "[]"))
+    numeric = [k for k in swept if np.issubdtype(np.asarray(ds[k].values).dtype, np.number)]
+    x, y = axes.get("x"), axes.get("y")
+    if x is None or y is None:
+        if "run" in ds.dims:
+            cand = numeric
+        else:
+            cand = [k for k in numeric if ds.sizes.get(k, 0) > 1]
+        if len(cand) == 1 and "run" not in ds.dims:
+            return [line_plot(ds, cand[0], out_dir / "line.png")]
+        if len(cand) < 2:
+            return []
+        x, y = cand[0], cand[1]
+    if "run" in ds.dims:
+        return [scatter(ds, x, y, out_dir / "samples.png")]
+    if x in _STATE_KEYS and y in _STATE_KEYS:
+        return [basin(ds, x, y, out_dir / "basin.png")]
+    return [heat_map(ds, x, y, out_dir / "map.png")]

@@ -1,0 +1,1 @@
+"""Built-in sweep scenes (``fmu-sync sweep --list``): a scene, a grid or sample, the map's axes."""

@@ -1,0 +1,150 @@
+"""Boot script of an fmu-sync FMU (``resources/fmu_sync_boot_<hash>.py``).
+
+Imported once per process by the FMU's binary (resources/ briefly on sys.path),
+with the standard library only. For each fmi2Instantiate, :func:`instantiate`:
+
+1. reads ``resources/fmu_sync_build.json`` (model, package name, content hash,
+   Python/numpy/numba versions the FMU was built with) and checks the running
+   environment: a missing numpy or numba is an error (fmi2Instantiate returns
+   NULL with the reason logged), other versions than the build's are logged as
+   warnings;
+2. copies the carried code (``resources/fmu_sync_code``) once to a per-user
+   cache folder keyed on its content, ``$FMU_SYNC_CACHE`` or
+   ``$XDG_CACHE_HOME/fmu-sync`` or ``~/.cache/fmu-sync`` (a temp folder if none
+   is writable), ``<folder>/<hash>/<package>``: a stable source path, so numba's
+   on-disk cache hits across the fresh temp folders an importer unzips to;
+3. imports ``<package>.fmus.runtime`` from there (a package name unique to the
+   content: two FMUs of different code coexist in one process) and returns a
+   new instance.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import sys
+import tempfile
+
+BUILD_FILE = "fmu_sync_build.json"
+CODE_DIR = "fmu_sync_code"
+_checked: dict[str, list[str]] = {}
+
+
+def code_hash(root: str) -> str:
+    """sha256 over the relative paths and contents of the ``*.py`` files under ``root``."""
+    h = hashlib.sha256()
+    for dirpath, dirnames, filenames in os.walk(root):
+        dirnames[:] = sorted(d for d in dirnames if d != "__pycache__")
+        rel = os.path.relpath(dirpath, root).replace(os.sep, "/")
+        for name in sorted(filenames):
+            if name.endswith(".py"):
+                h.update(f"{rel}/{name}\n".encode())
+                with open(os.path.join(dirpath, name), "rb") as f:
+                    h.update(f.read())
+    return h.hexdigest()
+
+
+def _version(dist: str) -> str | None:
+    try:
+        from importlib.metadata import version
+        return version(dist)
+    except Exception:
+        import importlib.util
+        return "unknown" if importlib.util.find_spec(dist) is not None else None
+
+
+def check_runtime(built: dict) -> list[str]:
+    """Messages about the running environment versus the build (E: missing, W: different)."""
+    out = []
+    where = f"the Python environment {sys.prefix} (Python {sys.version.split()[0]}, {sys.executable})"
+    py_now = ".".join(map(str, sys.version_info[:3]))
+    if py_now != built.get("python"):
+        out.append(f"W:fmi2Instantiate: running on Python {py_now}; the FMU was built with Python "
+                   f"{built.get('python')} (its code is plain Python; numba compiles it for this one)")
+    for dist in ("numpy", "numba"):
+        have = _version(dist)
+        want = built.get(dist)
+        if have is None:
+            out.append(f"E:fmi2Instantiate: {where} lacks {dist} (the FMU was built with {dist} {want}); "
+                       f"install numpy and numba there, or set FMU_SYNC_PYTHON to an interpreter that has them")
+        elif have != want:
+            out.append(f"W:fmi2Instantiate: {dist} {have} in {where}; the FMU was built with {dist} {want}")
+    return out
+
+
+def cache_root() -> str:
+    for base in (os.environ.get("FMU_SYNC_CACHE"),
+                 os.path.join(os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "fmu-sync"),
+                 os.path.join(tempfile.gettempdir(), f"fmu-sync-{os.getuid() if hasattr(os, 'getuid') else 0}")):
+        if not base:
+            continue
+        try:
+            os.makedirs(base, exist_ok=True)
+            if os.access(base, os.W_OK):
+                return base
+        except OSError:
+            continue
+    raise RuntimeError("no writable cache folder for the FMU's code (set FMU_SYNC_CACHE)")
+
+
+def unpack(resources_dir: str, build: dict) -> str:
+    """The folder to put on sys.path (holds ``<package>/``), unpacking if needed."""
+    digest, package = build["code_hash"], build["package"]
+    root = cache_root()
+    dest = os.path.join(root, digest)
+    marker = os.path.join(dest, ".complete")
+    if os.path.isfile(marker) and code_hash(os.path.join(dest, package)) == digest:
+        return dest
+    src = os.path.join(resources_dir, CODE_DIR)
+    if code_hash(src) != digest:
+        raise RuntimeError(f"the FMU's code in {src} does not match its recorded hash {digest[:12]}: "
+                           f"the FMU is damaged")
+    tmp = tempfile.mkdtemp(prefix=f".{digest[:12]}.", dir=root)
+    try:
+        shutil.copytree(src, os.path.join(tmp, package))
+        with open(os.path.join(tmp, ".complete"), "w") as f:
+            f.write(digest + "\n")
+        if os.path.isdir(dest):            # stale or damaged copy: replace it
+            shutil.rmtree(dest, ignore_errors=True)
+        try:
+            os.rename(tmp, dest)
+        except OSError:
+            if not os.path.isfile(marker):  # another process won the race: use its copy
+                raise
+    finally:
+        if os.path.isdir(tmp):
+            shutil.rmtree(tmp, ignore_errors=True)
+    return dest
+
+
+def instantiate(resources_dir: str, instance_name: str, guid: str):
+    """(reply, instance or None) for the binary; never raises."""
+    msgs: list[str] = []
+    try:
+        with open(os.path.join(resources_dir, BUILD_FILE), encoding="utf-8") as f:
+            build = json.load(f)
+        key = build["code_hash"]
+        if key not in _checked:
+            _checked[key] = check_runtime(build["built_with"])
+        msgs += _checked[key]
+        if any(m.startswith("E:") for m in msgs):
+            return "\x1e".join(msgs), None
+        package = build["package"]
+        if package not in sys.modules:
+            path = unpack(resources_dir, build)
+            if path not in sys.path:
+                sys.path.insert(0, path)
+        import importlib
+        runtime = importlib.import_module(f"{package}.fmus.runtime")
+        module, cls = build["slave"].split(":")
+        slave_cls = getattr(importlib.import_module(f"{package}.{module}"), cls)
+        reply, inst = runtime.create(slave_cls, resources_dir, build["model"])
+        if reply:
+            msgs.append(reply)
+        return "\x1e".join(msgs), inst
+    except Exception as exc:
+        import traceback
+        tb = traceback.format_exc(limit=4).replace("\x1e", " ")
+        msgs.append(f"E:fmi2Instantiate: cannot set up the Python slave: {exc!r}\n{tb}")
+        return "\x1e".join(msgs), None

@@ -1,0 +1,241 @@
+"""The Python object behind one FMU instance (called by ``fmus/c/fmu_sync_fmi2.c``).
+
+The binary holds a reference to an :class:`FMUInstance` and reads, once, its
+:meth:`layout`: the addresses of the variable array ``x`` (float64, one slot per
+value reference; Integer and Enumeration values are exact in a double), of the
+per-variable table (type, causality, min, max, names, allowed values), of the
+work array and of the stepper cfunc. Those arrays are owned here and never
+reallocated, so the addresses stay valid for the instance's life.
+
+Every method the binary calls returns a *reply*: messages separated by
+``\\x1e``, each prefixed ``I:``/``W:``/``D:``/``E:`` (status of the call); the
+empty string is OK. No method raises on bad input: a refused call changes nothing.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import struct
+
+import numpy as np
+
+from . import stepper as S
+from ._xml import POSITIVE_MIN, SCHEME_ITEMS
+from .slave import PHASES, START_FILE, STATE_FORMAT
+
+__all__ = ["FMUInstance", "create", "LAYOUT_VERSION"]
+
+LAYOUT_VERSION = 1
+TYPE_REAL, TYPE_INTEGER, TYPE_ENUM = 0, 1, 2
+CAUS_PARAMETER, CAUS_INPUT, CAUS_OUTPUT = 0, 1, 2
+_PHASE_NAMES = {code: name for name, code in PHASES.items()}
+
+
+def _q_u_names(n):
+    if n == 1:
+        return ["q"], ["u"]
+    return [f"q[{i + 1}]" for i in range(n)], [f"u[{i + 1}]" for i in range(n)]
+
+
+class FMUInstance:
+    """One instance: variable array, table, work array; validation and state."""
+
+    def __init__(self, slave_cls, start_values: dict):
+        self.cls = slave_cls
+        self.vars = slave_cls.variables(start_values)
+        nv = len(self.vars)
+        self.index = {v.name: i for i, v in enumerate(self.vars)}
+        self.params = [v for v in self.vars if v.causality == "parameter"]
+        self.inputs = [v for v in self.vars if v.causality == "input"]
+        self.starts = np.array([float(v.start) if v.start is not None else math.nan for v in self.vars])
+
+        self.x = self.starts.copy()
+        self.vtype = np.array([{"Real": TYPE_REAL, "Integer": TYPE_INTEGER, "Enumeration": TYPE_ENUM}[v.type]
+                               for v in self.vars], dtype=np.int32)
+        self.vcaus = np.array([{"parameter": CAUS_PARAMETER, "input": CAUS_INPUT, "output": CAUS_OUTPUT}[v.causality]
+                               for v in self.vars], dtype=np.int32)
+        self.vmin = np.full(nv, -math.inf)
+        self.vmax = np.full(nv, math.inf)
+        hints = []
+        for i, v in enumerate(self.vars):
+            hint = ""
+            if v.type == "Enumeration":
+                values = [val for _, val, _ in SCHEME_ITEMS]
+                self.vmin[i], self.vmax[i] = min(values), max(values)
+                assert sorted(values) == list(range(min(values), max(values) + 1))
+                hint = ", ".join(f"{val} ({name})" for name, val, _ in SCHEME_ITEMS)
+            if v.min is not None:
+                self.vmin[i] = v.min
+            if v.max is not None:
+                self.vmax[i] = v.max
+            hints.append(hint)
+        assert POSITIVE_MIN == 2.2250738585072014e-308  # DBL_MIN: the binary prints "> 0" for it
+        self._names = np.frombuffer(b"".join(v.name.encode() + b"\0" for v in self.vars), dtype=np.uint8).copy()
+        self._hints = np.frombuffer(b"".join(h.encode() + b"\0" for h in hints), dtype=np.uint8).copy()
+
+        n, m = slave_cls.N, len(self.inputs)
+        qn, un = _q_u_names(n)
+        self.n, self.m = n, m
+        self.work = np.zeros(S.work_size(n, m, slave_cls.NF_MAX))
+        w = self.work
+        w[S.H_LEN] = w.shape[0]
+        w[S.H_VERSION] = S.WORK_VERSION
+        w[S.H_NX] = nv
+        w[S.H_IQ], w[S.H_IU] = self.index[qn[0]], self.index[un[0]]
+        w[S.H_ITAU] = self.index[self.inputs[0].name]
+        assert [self.index[a] for a in qn] == list(range(int(w[S.H_IQ]), int(w[S.H_IQ]) + n))
+        assert [self.index[a] for a in un] == list(range(int(w[S.H_IU]), int(w[S.H_IU]) + n))
+        assert [self.index[v.name] for v in self.inputs] == list(range(int(w[S.H_ITAU]), int(w[S.H_ITAU]) + m))
+        self.i_q, self.i_u, self.i_tau = int(w[S.H_IQ]), int(w[S.H_IU]), int(w[S.H_ITAU])
+        w[S.H_IGAP], w[S.H_IENERGY] = self.index["gap"], self.index["energy"]
+        w[S.H_IIMPACTS], w[S.H_IPERC] = self.index["impacts"], self.index["percussion"]
+        self.i_gap, self.i_energy = self.index["gap"], self.index["energy"]
+        self.i_impacts, self.i_perc = self.index["impacts"], self.index["percussion"]
+        self.cfg = None
+        import ctypes
+        self._step = ctypes.CFUNCTYPE(ctypes.c_int32, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_double,
+                                      ctypes.c_double)(S.step.address)
+        self._reset_values()
+
+    # ------------------------------------------------------------ for the binary
+    def layout(self) -> bytes:
+        return struct.pack("<11Q", LAYOUT_VERSION, len(self.vars), self.x.ctypes.data, self.vtype.ctypes.data,
+                           self.vcaus.ctypes.data, self.vmin.ctypes.data, self.vmax.ctypes.data,
+                           self.work.ctypes.data, S.step.address, self._names.ctypes.data,
+                           self._hints.ctypes.data)
+
+    def free(self) -> None:
+        self.cfg = None
+
+    # ------------------------------------------------------------ helpers
+    def _parameters(self) -> dict:
+        out = {}
+        for v in self.params:
+            x = self.x[self.index[v.name]]
+            out[v.name] = int(x) if v.type in ("Integer", "Enumeration") else float(x)
+        return out
+
+    def _reset_values(self) -> None:
+        self.x[:] = self.starts
+        self.x[self.i_impacts] = 0.0
+        self.x[self.i_perc] = 0.0
+        self.work[S.H_TIME] = 0.0
+        self.work[S.H_CONFIGURED] = 0.0
+        self.cfg = None
+        self.refresh()
+
+    def _install(self, cfg) -> None:
+        """Pack a validated configuration into the work array."""
+        S.pack(self.work, cfg.system.arrays(), cfg.dt, cfg.scheme, cfg.theta)
+        self.work[S.H_CONFIGURED] = 1.0
+        self.cfg = cfg
+
+    def _outputs_from_stepper(self) -> None:
+        """gap and energy by the stepper's own code (H = 0): the same numbers as after a step."""
+        self._step(self.x.ctypes.data, self.work.ctypes.data, float(self.work[S.H_TIME]), 0.0)
+
+    # ------------------------------------------------------------ life cycle
+    def refresh(self) -> str:
+        """Outputs in initialization mode: q, u from q_start, u_start; gap and
+        energy of the current parameters (NaN while they are not a valid system)."""
+        p = self._parameters()
+        q0, u0 = self.cls.start_state(p)
+        self.x[self.i_q:self.i_q + self.n] = q0
+        self.x[self.i_u:self.i_u + self.n] = u0
+        try:
+            system = self.cls.build_system(p)
+            self.x[self.i_gap] = system.gap(q0)
+            self.x[self.i_energy] = system.energy(q0, u0)
+        except ValueError:
+            self.x[self.i_gap] = math.nan
+            self.x[self.i_energy] = math.nan
+        return ""
+
+    def exit_initialization(self) -> str:
+        try:
+            cfg = self.cls.configure(self._parameters())
+        except ValueError as exc:
+            return (f"E:fmi2ExitInitializationMode: invalid configuration: {exc}; the instance stays in "
+                    f"initialization mode (set valid parameters and call it again, or fmi2Reset)")
+        self._install(cfg)
+        self.x[self.i_q:self.i_q + self.n] = cfg.q0
+        self.x[self.i_u:self.i_u + self.n] = cfg.u0
+        self.x[self.i_impacts] = 0.0
+        self.x[self.i_perc] = 0.0
+        self._outputs_from_stepper()
+        return ""
+
+    def reset(self) -> str:
+        self._reset_values()
+        return ""
+
+    # ------------------------------------------------------------ FMU state
+    def get_state(self) -> dict:
+        x = self.x
+        return {
+            "format": STATE_FORMAT,
+            "model": self.cls.MODEL,
+            "phase": _PHASE_NAMES.get(int(self.work[S.H_PHASE]), "instantiated"),
+            "time": float(self.work[S.H_TIME]),
+            "q": x[self.i_q:self.i_q + self.n].tolist(),
+            "u": x[self.i_u:self.i_u + self.n].tolist(),
+            "tau": x[self.i_tau:self.i_tau + self.m].tolist(),
+            "impacts": int(x[self.i_impacts]),
+            "percussion": float(x[self.i_perc]),
+            "parameters": self._parameters(),
+        }
+
+    def set_state(self, s) -> str:
+        reason, cfg = self.cls.check_state(s, self.params, self.inputs)
+        if reason:
+            return f"E:fmi2SetFMUstate: {reason}; state unchanged"
+        for name, value in s["parameters"].items():
+            self.x[self.index[name]] = value
+        x = self.x
+        x[self.i_q:self.i_q + self.n] = s["q"]
+        x[self.i_u:self.i_u + self.n] = s["u"]
+        x[self.i_tau:self.i_tau + self.m] = s["tau"]
+        x[self.i_impacts] = s["impacts"]
+        x[self.i_perc] = s["percussion"]
+        self.work[S.H_TIME] = s["time"]
+        self.work[S.H_PHASE] = PHASES[s["phase"]]
+        if s["phase"] in ("step", "terminated"):
+            self._install(cfg)
+            self._outputs_from_stepper()
+        else:
+            self.cfg = None
+            self.work[S.H_CONFIGURED] = 0.0
+            self.refresh()
+        return ""
+
+    def serialize(self, s) -> bytes:
+        return self.cls.state_to_bytes(s)
+
+    def deserialize(self, data: bytes):
+        try:
+            s = self.cls.state_from_bytes(data)
+        except Exception as exc:
+            return (f"E:fmi2DeSerializeFMUstate: cannot deserialise the FMU state ({len(data)} bytes): {exc}",
+                    None)
+        reason, _ = self.cls.check_state(s, self.params, self.inputs)
+        if reason:
+            return f"E:fmi2DeSerializeFMUstate: {reason}", None
+        return "", s
+
+
+def create(slave_cls, resources_dir: str, model: str) -> tuple[str, FMUInstance | None]:
+    """A new instance with the start values of ``resources/fmu_sync_start.json``."""
+    path = os.path.join(resources_dir, START_FILE)
+    try:
+        with open(path, encoding="utf-8") as f:
+            data = json.load(f)
+    except Exception as exc:
+        return f"E:fmi2Instantiate: cannot read the start values {path}: {exc}", None
+    if data.get("model") != model:
+        return f"E:fmi2Instantiate: {path} holds start values of model {data.get('model')!r}, not {model!r}", None
+    try:
+        starts = slave_cls.normalize_start_values(data.get("start", {}))
+    except ValueError as exc:
+        return f"E:fmi2Instantiate: bad start value in {path}: {exc}", None
+    return "", FMUInstance(slave_cls, starts)

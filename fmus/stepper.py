@@ -1,0 +1,182 @@
+"""The FMU's hot path: one numba ``cfunc`` that the C binary calls per fmi2DoStep.
+
+    int32 step(double *x, double *work, double t, double H)
+
+``x`` is the FMU's variable array (indexed by value reference), ``work`` the
+instance's work array: a header (the H_* slots, shared with
+``fmus/c/fmu_sync_fmi2.c``) followed by the system's arrays as the core's
+kernels take them (:class:`fmu_sync.core.model.SystemArrays`, packed by
+:func:`pack`). The cfunc rebuilds the ``SystemArrays`` as views of ``work``,
+makes exactly one call to the core's :func:`fmu_sync.core.moreau.advance_in` (``advance`` without allocation)
+(all internal steps, input held) and writes q, u, gap, energy, impacts and
+percussion into ``x``. It returns 0, or 1 after rolling the step back when the
+state (or an output) became non-finite. ``H == 0`` only recomputes gap and
+energy (used after a restore, so that the outputs are the very same numbers).
+
+No Python object is touched: the binary calls it without the GIL. Compiled with
+``cache=True``; its source path is stable because the FMU's code is unpacked to
+a per-user cache folder keyed on its content (see ``boot.py``).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import carray, cfunc, njit, types
+
+from ..core.model import SystemArrays
+from ..core.moreau import MIDPOINT, OK, THETA, advance_in
+
+__all__ = ["step", "pack", "work_size", "H_LEN", "H_VERSION", "H_TIME", "H_PHASE", "H_DT",
+           "H_CONFIGURED", "WORK_VERSION"]
+
+# --- header slots (the first six are read by the C binary: keep in sync with fmu_sync_fmi2.c)
+H_LEN, H_VERSION, H_TIME, H_PHASE, H_DT, H_CONFIGURED = 0, 1, 2, 3, 4, 5
+H_N, H_M, H_NF, H_SCHEME, H_THETA, H_NX = 6, 7, 8, 9, 10, 11
+H_IQ, H_IU, H_ITAU, H_IGAP, H_IENERGY, H_IIMPACTS, H_IPERC = 12, 13, 14, 15, 16, 17, 18
+H_DATA = 24
+WORK_VERSION = 1.0
+
+def work_size(n: int, m: int, nf: int) -> int:
+    """Length of the work array for n DOF, m inputs, nf harmonic forces."""
+    return H_DATA + 4 * n * n + n + nf * n + 2 * nf + n * m + n + 2 + n + 1 + 2 * n + (6 * n + n * n + 4 * nf + m)
+
+
+def pack(work: np.ndarray, sa: SystemArrays, dt: float, scheme: int, theta: float) -> None:
+    """Write the system ``sa`` and the solver data into ``work`` (header slots
+    H_N.. and the data part; the index slots are set by the runtime)."""
+    n, m = sa.B.shape
+    nf = sa.Omega.shape[0]
+    need = work_size(n, m, nf)
+    if need > work.shape[0]:
+        raise ValueError(f"work array of {work.shape[0]} slots, the system needs {need}")
+    work[H_N], work[H_M], work[H_NF] = n, m, nf
+    work[H_SCHEME], work[H_THETA], work[H_DT] = scheme, theta, dt
+    k = H_DATA
+    for a in (sa.M, sa.Minv, sa.K, sa.C, sa.f0, sa.F, sa.Omega, sa.phi, sa.B, sa.w):
+        flat = np.ascontiguousarray(a, dtype=np.float64).reshape(-1)
+        work[k:k + flat.size] = flat
+        k += flat.size
+    work[k], work[k + 1] = sa.g0, sa.e
+    k += 2
+    work[k:k + n] = sa.Minv_w
+    work[k + n] = sa.W
+
+
+@njit(cache=True, inline="always")
+def _unpack(w):
+    n = int(w[H_N])
+    m = int(w[H_M])
+    nf = int(w[H_NF])
+    k = H_DATA
+    M = w[k:k + n * n].reshape((n, n))
+    k += n * n
+    Minv = w[k:k + n * n].reshape((n, n))
+    k += n * n
+    K = w[k:k + n * n].reshape((n, n))
+    k += n * n
+    C = w[k:k + n * n].reshape((n, n))
+    k += n * n
+    f0 = w[k:k + n]
+    k += n
+    F = w[k:k + nf * n].reshape((nf, n))
+    k += nf * n
+    Omega = w[k:k + nf]
+    k += nf
+    phi = w[k:k + nf]
+    k += nf
+    B = w[k:k + n * m].reshape((n, m))
+    k += n * m
+    wv = w[k:k + n]
+    k += n
+    g0 = w[k]
+    e = w[k + 1]
+    k += 2
+    Minv_w = w[k:k + n]
+    W = w[k + n]
+    k += n + 1
+    sa = SystemArrays(M, Minv, K, C, f0, F, Omega, phi, B, wv, g0, e, Minv_w, W)
+    return sa, k
+
+
+@njit(cache=True, inline="always")
+def _outputs(sa, q, u):
+    """gap g(q) = w^T q + g0 and energy 1/2 u^T M u + 1/2 q^T K q - f0^T q."""
+    n = q.shape[0]
+    g = sa.g0
+    for i in range(n):
+        g += sa.w[i] * q[i]
+    ek = 0.0
+    ep = 0.0
+    for i in range(n):
+        for j in range(n):
+            ek += u[i] * sa.M[i, j] * u[j]
+            ep += q[i] * sa.K[i, j] * q[j]
+    E = 0.5 * ek + 0.5 * ep
+    for i in range(n):
+        E -= sa.f0[i] * q[i]
+    return g, E
+
+
+@njit(cache=True, inline="always")
+def _advance(sa, q, u, t, H, dt, tau, scheme, theta, s):
+    """One communication step with the scheme's stepper; (status, percussion, impacts).
+
+    ``scheme`` is the core's scheme code (``solver.scheme`` item -> code in
+    ``MechanicalSlave.configure`` via ``core.checks.scheme_code``). The place for
+    more schemes: a new item in ``contract.SCHEME_ITEMS`` (e.g. the exact
+    communication step of the 1-DOF slave, ``core.exact.exact_step``), and a
+    branch here."""
+    n = q.shape[0]
+    nf = sa.Omega.shape[0]
+    m = tau.shape[0]
+    if scheme == MIDPOINT or scheme == THETA:
+        # scratch: y, hf, uf, Sinv_w, hc, hb (n each), Sinv (n*n), cv, sv, cr, sr (nf each), tk (m)
+        k = 6 * n + n * n
+        return advance_in(sa, q, u, t, H, dt, tau, tau, False, scheme, theta, False,
+                          s[0:n], s[n:2 * n], s[2 * n:3 * n], s[6 * n:k].reshape((n, n)), s[3 * n:4 * n],
+                          s[k:k + nf], s[k + nf:k + 2 * nf], s[k + 2 * nf:k + 3 * nf],
+                          s[k + 3 * nf:k + 4 * nf], s[4 * n:5 * n], s[5 * n:6 * n],
+                          s[k + 4 * nf:k + 4 * nf + m])
+    # further schemes dispatch here
+    return -1, 0.0, 0
+
+
+_SIG = types.int32(types.CPointer(types.float64), types.CPointer(types.float64), types.float64, types.float64)
+
+
+@cfunc(_SIG, cache=True, nopython=True)
+def step(x_ptr, w_ptr, t, H):
+    w = carray(w_ptr, (int(w_ptr[H_LEN]),))
+    x = carray(x_ptr, (int(w[H_NX]),))
+    sa, k = _unpack(w)
+    n = int(w[H_N])
+    m = int(w[H_M])
+    iq = int(w[H_IQ])
+    iu = int(w[H_IU])
+    it = int(w[H_ITAU])
+    q = x[iq:iq + n]
+    u = x[iu:iu + n]
+    tau = x[it:it + m]
+    if H == 0.0:
+        g, E = _outputs(sa, q, u)
+        x[int(w[H_IGAP])] = g
+        x[int(w[H_IENERGY])] = E
+        return 0
+    save = w[k:k + 2 * n]
+    for i in range(n):
+        save[i] = q[i]
+        save[n + i] = u[i]
+    status, P, hits = _advance(sa, q, u, t, H, w[H_DT], tau, int(w[H_SCHEME]), w[H_THETA],
+                               w[k + 2 * n:])
+    g, E = _outputs(sa, q, u)
+    if status != OK or not (math.isfinite(g) and math.isfinite(E)):
+        for i in range(n):
+            q[i] = save[i]
+            u[i] = save[n + i]
+        return 1
+    x[int(w[H_IPERC])] = P
+    x[int(w[H_IIMPACTS])] += hits
+    x[int(w[H_IGAP])] = g
+    x[int(w[H_IENERGY])] = E
+    return 0

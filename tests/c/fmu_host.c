@@ -1,0 +1,225 @@
+/* A plain C FMI 2.0 co-simulation host for the tests (no Python in this process).
+ *
+ *   fmu_host UNZIPDIR [options]
+ *     --stop T --step H        run setup/enter/exit, doStep 0..T by H, write CSV (default 10, 0.01)
+ *     --out FILE.csv           CSV: time and every --var value after each step
+ *     --var VR                 Real output value reference to record (repeatable)
+ *     --set VR=VALUE           setReal in initialization mode (repeatable)
+ *     --input VR=VALUE         setReal before every doStep
+ *     --uri URI                fmuResourceLocation (default: file:// + percent-encoded UNZIPDIR/resources)
+ *     --guid G                 GUID passed to fmi2Instantiate (default: read from modelDescription.xml)
+ *     --type N                 fmuType (default 1 = fmi2CoSimulation)
+ *     --cycles N               instantiate / 1 doStep / free N times; print RSS after 20 and after N
+ *     --nolog                  loggingOn = false
+ *
+ * Prints "instantiate NULL" and exits 3 if fmi2Instantiate fails; "status CALL S"
+ * for any call that does not return fmi2OK; the logger writes to stderr as
+ * "LOG status category: message". Exit code 0 when every call returned fmi2OK.
+ */
+#define _GNU_SOURCE
+#include <dlfcn.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+typedef void *fmi2Component;
+typedef unsigned int fmi2ValueReference;
+typedef enum { fmi2OK, fmi2Warning, fmi2Discard, fmi2Error, fmi2Fatal, fmi2Pending } fmi2Status;
+typedef void (*Logger)(void *, const char *, fmi2Status, const char *, const char *, ...);
+typedef struct {
+    Logger logger;
+    void *(*allocateMemory)(size_t, size_t);
+    void (*freeMemory)(void *);
+    void (*stepFinished)(void *, fmi2Status);
+    void *componentEnvironment;
+} Callbacks;
+
+typedef fmi2Component (*Instantiate)(const char *, int, const char *, const char *, const Callbacks *, int, int);
+typedef void (*FreeInstance)(fmi2Component);
+typedef fmi2Status (*Setup)(fmi2Component, int, double, double, int, double);
+typedef fmi2Status (*Simple)(fmi2Component);
+typedef fmi2Status (*SetReal)(fmi2Component, const fmi2ValueReference *, size_t, const double *);
+typedef fmi2Status (*GetReal)(fmi2Component, const fmi2ValueReference *, size_t, double *);
+typedef fmi2Status (*DoStep)(fmi2Component, double, double, int);
+
+static void logger(void *env, const char *name, fmi2Status s, const char *cat, const char *msg, ...) {
+    (void)env; (void)name;
+    char buf[8192];
+    va_list ap;
+    va_start(ap, msg);
+    vsnprintf(buf, sizeof buf, msg, ap);   /* the message is a printf format */
+    va_end(ap);
+    fprintf(stderr, "LOG %d %s: %s\n", (int)s, cat ? cat : "", buf);
+}
+
+static long rss_kb(void) {
+    FILE *f = fopen("/proc/self/statm", "r");
+    long pages = 0, res = 0;
+    if (f) {
+        if (fscanf(f, "%ld %ld", &pages, &res) != 2) res = 0;
+        fclose(f);
+    }
+    return res * 4;
+}
+
+static void *sym(void *lib, const char *name) {
+    void *p = dlsym(lib, name);
+    if (!p) {
+        printf("missing symbol %s\n", name);
+        exit(4);
+    }
+    return p;
+}
+
+static int worst = 0;
+static void check(const char *call, fmi2Status s) {
+    if (s != fmi2OK) {
+        printf("status %s %d\n", call, (int)s);
+        fflush(stdout);
+    }
+    if ((int)s > worst) worst = (int)s;
+}
+
+static void read_attr(const char *xml, const char *attr, char *out, size_t n) {
+    FILE *f = fopen(xml, "r");
+    out[0] = '\0';
+    if (!f) return;
+    static char buf[1 << 20];
+    size_t len = fread(buf, 1, sizeof buf - 1, f);
+    buf[len] = '\0';
+    fclose(f);
+    char key[64];
+    snprintf(key, sizeof key, "%s=\"", attr);
+    char *p = strstr(buf, key);
+    if (!p) return;
+    p += strlen(key);
+    char *e = strchr(p, '"');
+    if (!e) return;
+    snprintf(out, n, "%.*s", (int)(e - p), p);
+}
+
+static void uri_of(const char *dir, char *out, size_t n) {
+    static const char *hex = "0123456789ABCDEF";
+    size_t j = snprintf(out, n, "file://");
+    for (const unsigned char *p = (const unsigned char *)dir; *p && j + 4 < n; ++p) {
+        int keep = (*p >= 'a' && *p <= 'z') || (*p >= 'A' && *p <= 'Z') || (*p >= '0' && *p <= '9') ||
+                   strchr("-._~/", *p);
+        if (keep) out[j++] = (char)*p;
+        else {
+            out[j++] = '%';
+            out[j++] = hex[*p >> 4];
+            out[j++] = hex[*p & 15];
+        }
+    }
+    snprintf(out + j, n - j, "/resources");
+}
+
+int main(int argc, char **argv) {
+    if (argc < 2) {
+        fprintf(stderr, "usage: fmu_host UNZIPDIR [options]\n");
+        return 2;
+    }
+    const char *dir = argv[1];
+    double stop = 10.0, H = 0.01;
+    const char *out = NULL, *uri_opt = NULL, *guid_opt = NULL;
+    int type = 1, cycles = 0, logging = 1;
+    unsigned vars[64], setv[64], inv[64];
+    double setx[64], inx[64];
+    int nvars = 0, nset = 0, nin = 0;
+    for (int i = 2; i < argc; ++i) {
+        const char *a = argv[i];
+        const char *v = i + 1 < argc ? argv[i + 1] : "";
+        if (!strcmp(a, "--stop")) stop = atof(v), ++i;
+        else if (!strcmp(a, "--step")) H = atof(v), ++i;
+        else if (!strcmp(a, "--out")) out = v, ++i;
+        else if (!strcmp(a, "--var")) vars[nvars++] = (unsigned)strtoul(v, NULL, 10), ++i;
+        else if (!strcmp(a, "--set")) { setv[nset] = (unsigned)strtoul(v, NULL, 10); setx[nset++] = atof(strchr(v, '=') + 1); ++i; }
+        else if (!strcmp(a, "--input")) { inv[nin] = (unsigned)strtoul(v, NULL, 10); inx[nin++] = atof(strchr(v, '=') + 1); ++i; }
+        else if (!strcmp(a, "--uri")) uri_opt = v, ++i;
+        else if (!strcmp(a, "--guid")) guid_opt = v, ++i;
+        else if (!strcmp(a, "--type")) type = atoi(v), ++i;
+        else if (!strcmp(a, "--cycles")) cycles = atoi(v), ++i;
+        else if (!strcmp(a, "--nolog")) logging = 0;
+        else { fprintf(stderr, "unknown option %s\n", a); return 2; }
+    }
+    char path[4096], ident[256], guid[256], uri[8192];
+    snprintf(path, sizeof path, "%s/modelDescription.xml", dir);
+    read_attr(path, "modelIdentifier", ident, sizeof ident);
+    read_attr(path, "guid", guid, sizeof guid);
+    snprintf(path, sizeof path, "%s/binaries/linux64/%s.so", dir, ident);
+    void *lib = dlopen(path, RTLD_NOW | RTLD_LOCAL);
+    if (!lib) {
+        printf("dlopen failed: %s\n", dlerror());
+        return 5;
+    }
+    Instantiate inst = (Instantiate)sym(lib, "fmi2Instantiate");
+    FreeInstance freei = (FreeInstance)sym(lib, "fmi2FreeInstance");
+    Setup setup = (Setup)sym(lib, "fmi2SetupExperiment");
+    Simple enter = (Simple)sym(lib, "fmi2EnterInitializationMode");
+    Simple exiti = (Simple)sym(lib, "fmi2ExitInitializationMode");
+    Simple term = (Simple)sym(lib, "fmi2Terminate");
+    SetReal setr = (SetReal)sym(lib, "fmi2SetReal");
+    GetReal getr = (GetReal)sym(lib, "fmi2GetReal");
+    DoStep dostep = (DoStep)sym(lib, "fmi2DoStep");
+    if (uri_opt) snprintf(uri, sizeof uri, "%s", uri_opt);
+    else uri_of(dir, uri, sizeof uri);
+    Callbacks cb = {logger, calloc, free, NULL, NULL};
+
+    if (cycles > 0) {
+        long rss20 = 0;
+        for (int k = 0; k < cycles; ++k) {
+            fmi2Component c = inst("cycle", type, guid_opt ? guid_opt : guid, uri, &cb, 0, logging);
+            if (!c) { printf("instantiate NULL\n"); return 3; }
+            check("setup", setup(c, 0, 0.0, 0.0, 0, 0.0));
+            check("enter", enter(c));
+            check("exit", exiti(c));
+            check("doStep", dostep(c, 0.0, H, 1));
+            unsigned bad = 4294967295u;
+            double x;
+            if (getr(c, &bad, 1, &x) != fmi2Error) worst = 9;   /* logs a message each cycle */
+            check("terminate", term(c));
+            freei(c);
+            if (k + 1 == 20) rss20 = rss_kb();
+        }
+        printf("rss_kb_after_20 %ld\nrss_kb_after_%d %ld\n", rss20, cycles, rss_kb());
+        return worst > fmi2OK ? 1 : 0;
+    }
+
+    fmi2Component c = inst("host", type, guid_opt ? guid_opt : guid, uri, &cb, 0, logging);
+    if (!c) {
+        printf("instantiate NULL\n");
+        return 3;
+    }
+    FILE *csv = out ? fopen(out, "w") : NULL;
+    check("fmi2SetupExperiment", setup(c, 0, 0.0, 0.0, 1, stop));
+    check("fmi2EnterInitializationMode", enter(c));
+    for (int i = 0; i < nset; ++i) check("fmi2SetReal", setr(c, &setv[i], 1, &setx[i]));
+    check("fmi2ExitInitializationMode", exiti(c));
+    double vals[64];
+    if (csv) {
+        fprintf(csv, "time");
+        for (int i = 0; i < nvars; ++i) fprintf(csv, ",vr%u", vars[i]);
+        fprintf(csv, "\n");
+    }
+    long nsteps = (long)(stop / H + 0.5);
+    for (long k = 0; k <= nsteps; ++k) {
+        double t = k * H;
+        if (k > 0) {
+            for (int i = 0; i < nin; ++i) check("fmi2SetReal", setr(c, &inv[i], 1, &inx[i]));
+            fmi2Status s = dostep(c, (k - 1) * H, H, 1);
+            check("fmi2DoStep", s);
+            if (s > fmi2Warning) break;
+        }
+        if (nvars) check("fmi2GetReal", getr(c, vars, (size_t)nvars, vals));
+        if (csv) {
+            fprintf(csv, "%.17g", t);
+            for (int i = 0; i < nvars; ++i) fprintf(csv, ",%.17g", vals[i]);
+            fprintf(csv, "\n");
+        }
+    }
+    if (csv) fclose(csv);
+    check("fmi2Terminate", term(c));
+    freei(c);
+    return worst > fmi2OK ? 1 : 0;
+}

@@ -1,0 +1,188 @@
+"""The exported FMU in a plain C host (tests/c/fmu_host.c): no Python in the host
+process, an empty environment (no venv on PATH, no LD_PRELOAD). The stand-in, in
+CI, for third-party importers such as Reference-FMUs' fmusim or the FMU
+Compliance Checker: the binary must find and start Python itself.
+
+The reference results come from fmpy, run in a child process (no FMU is ever
+loaded into the pytest process)."""
+from __future__ import annotations
+
+import csv
+import json
+import os
+import shutil
+import subprocess
+import sys
+import zipfile
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fmu_sync.export import export_fmu
+
+HOST_SRC = Path(__file__).parent / "c" / "fmu_host.c"
+FRESH = 50
+#: value references of the 1-DOF FMU: tau 0, q 1, u 2, gap 3, impacts 4, percussion 5, energy 6
+VR_Q, VR_U, VR_GAP, VR_ENERGY, VR_TAU = 1, 2, 3, 6, 0
+
+
+def _clean_env(**extra):
+    """What a tool-chain user's C importer sees: no venv, no PYTHON*, no LD_PRELOAD."""
+    env = {"HOME": os.environ.get("HOME", "/root"), "PATH": "/usr/bin:/bin"}
+    for k in ("XDG_CACHE_HOME", "FMU_SYNC_CACHE", "NUMBA_CACHE_DIR", "TMPDIR"):
+        if k in os.environ:
+            env[k] = os.environ[k]
+    env.update(extra)
+    return env
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("chost")
+    fmu = export_fmu("impact-oscillator", tmp / "io.fmu")
+    host = tmp / "fmu_host"
+    p = subprocess.run(["gcc", "-O2", "-Wall", "-o", str(host), str(HOST_SRC), "-ldl"],
+                       capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    unz = tmp / "io"
+    with zipfile.ZipFile(fmu) as zf:
+        zf.extractall(unz)
+    os.chmod(next(unz.glob("binaries/linux64/*.so")), 0o755)
+    return {"tmp": tmp, "fmu": fmu, "host": host, "dir": unz}
+
+
+def _run_host(setup, *args, env=None, dir=None, timeout=120):
+    cmd = [str(setup["host"]), str(dir or setup["dir"]), *map(str, args)]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env or _clean_env())
+
+
+def _read_csv(path):
+    with open(path) as f:
+        rows = list(csv.reader(f))
+    return np.array([[float(x) for x in r] for r in rows[1:]])
+
+
+def _fmpy_reference(fmu, tmp, stop, H, tau, names=("q", "u", "gap", "energy"), tau_name="tau"):
+    code = (
+        "import json, sys\n"
+        "from fmpy import simulate_fmu\n"
+        "import numpy as np\n"
+        f"r = simulate_fmu({str(fmu)!r}, stop_time={stop!r}, output_interval={H!r}, "
+        f"start_values={{{tau_name!r}: {tau!r}}}, output={list(names)!r})\n"
+        "print(json.dumps({n: r[n].tolist() for n in r.dtype.names}))\n")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr[-2000:]
+    return json.loads(p.stdout.strip().splitlines()[-1])
+
+
+def test_c_host_fresh_processes_match_fmpy(setup):
+    """FRESH fresh C-host processes: every exit code 0, every CSV the same, equal to fmpy's to 1e-12."""
+    stop, H, tau = 5.0, 0.01, 0.05
+    args = ["--stop", stop, "--step", H, "--set", f"{VR_TAU}={tau}",
+            "--var", VR_Q, "--var", VR_U, "--var", VR_GAP, "--var", VR_ENERGY]
+
+    def one(i):
+        out = setup["tmp"] / f"run{i}.csv"
+        p = _run_host(setup, *args, "--out", out)
+        return p.returncode, p.stdout + p.stderr[-1500:], out
+
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        results = list(pool.map(one, range(FRESH)))
+    bad = [(rc, msg) for rc, msg, _ in results if rc != 0]
+    assert not bad, f"{len(bad)} of {FRESH} C-host processes failed: {bad[:2]}"
+    first = _read_csv(results[0][2])
+    for _, _, out in results[1:]:
+        assert np.array_equal(_read_csv(out), first)
+    ref = _fmpy_reference(setup["fmu"], setup["tmp"], stop, H, tau)
+    assert first.shape == (len(ref["time"]), 5)
+    np.testing.assert_allclose(first[:, 0], ref["time"], rtol=0, atol=1e-12)
+    for j, name in enumerate(("q", "u", "gap", "energy"), start=1):
+        assert np.max(np.abs(first[:, j] - np.array(ref[name]))) <= 1e-12, name
+    assert np.ptp(first[:, 1]) > 0.1 and first[:, 3].min() >= -1e-3   # it moved and hit the wall
+
+
+def test_c_host_two_dof_matches_fmpy(setup):
+    """The 2-DOF FMU (oblique wall) in the C host, against fmpy."""
+    fmu = export_fmu("mechanical-system-2", setup["tmp"] / "ms2.fmu")
+    d = setup["tmp"] / "ms2"
+    with zipfile.ZipFile(fmu) as zf:
+        zf.extractall(d)
+    from fmpy import read_model_description
+    vr = {v.name: v.valueReference for v in read_model_description(str(fmu)).modelVariables}
+    names = ["q[1]", "q[2]", "u[1]", "u[2]", "gap", "energy"]
+    out = setup["tmp"] / "ms2.csv"
+    p = _run_host(setup, "--stop", 5.0, "--step", 0.01, "--set", f"{vr['tau[1]']}=0.1", "--out", out,
+                  *[a for n in names for a in ("--var", vr[n])], dir=d)
+    assert p.returncode == 0, p.stdout + p.stderr
+    got = _read_csv(out)
+    ref = _fmpy_reference(fmu, setup["tmp"], 5.0, 0.01, 0.1, names, "tau[1]")
+    for j, name in enumerate(names, start=1):
+        assert np.max(np.abs(got[:, j] - np.array(ref[name]))) <= 1e-12, name
+    assert got[:, 5].min() < 0.05   # it reached the wall
+
+
+@pytest.mark.parametrize("form", ["encoded", "raw_utf8", "file_colon_slash", "localhost"])
+def test_resources_folder_with_cafe_and_plus(setup, form):
+    """A folder named 'café +dir': percent-encoded, raw UTF-8, file:/ and file://localhost URIs."""
+    d = setup["tmp"] / "café +dir" / "io"
+    if not d.exists():
+        shutil.copytree(setup["dir"], d)
+    res = str(d / "resources")
+    uri = {"encoded": None, "raw_utf8": "file://" + res, "file_colon_slash": "file:" + res,
+           "localhost": "file://localhost" + res.replace(" ", "%20").replace("é", "%C3%A9")}[form]
+    extra = ["--uri", uri] if uri else []
+    out = setup["tmp"] / f"cafe_{form}.csv"
+    p = _run_host(setup, "--stop", 1.0, "--var", VR_Q, "--out", out, *extra, dir=d)
+    assert p.returncode == 0, p.stdout + p.stderr
+    assert _read_csv(out).shape == (101, 2)
+
+
+@pytest.mark.parametrize("args, rc, words", [
+    (["--guid", "{wrong}"], 3, ["GUID '{wrong}' does not match"]),
+    (["--type", "0"], 3, ["Model Exchange", "Co-Simulation only"]),
+    (["--uri", "file:///nonexistent/resources"], 3, ["is not a folder"]),
+    (["--uri", "file:///bad%zzescape"], 3, ["bad percent-encoding"]),
+    (["--uri", "file://otherhost/x"], 3, ["only local files"]),
+])
+def test_c_host_instantiate_refusals(setup, args, rc, words):
+    p = _run_host(setup, "--stop", 0.1, *args)
+    assert p.returncode == rc, p.stdout + p.stderr
+    assert "instantiate NULL" in p.stdout
+    log = [ln for ln in p.stderr.splitlines() if ln.startswith("LOG 3 logStatusError")]
+    assert log and all(w in log[0] for w in words), p.stderr
+
+
+def test_c_host_refused_calls_return_error_and_discard(setup):
+    """A refused parameter (fmi2Error, reason logged even with logging off) and a huge step (fmi2Discard)."""
+    p = _run_host(setup, "--stop", 0.02, "--step", 0.01, "--set", "14=1.5", "--nolog")  # vr 14: e
+    assert p.returncode == 1
+    assert "status fmi2SetReal 3" in p.stdout
+    assert "parameter e = 1.5 rejected: must be finite, >= 0 and <= 1" in p.stderr
+    p = _run_host(setup, "--stop", 1e6, "--step", 1e6)
+    assert "status fmi2DoStep 2" in p.stdout
+    assert "1e+09 internal steps" in p.stderr
+
+
+def test_rss_does_not_grow_over_1000_instances(setup):
+    """1000 instantiate / doStep / logged refusal / free cycles in one C process: RSS grows < 1 MB after 20."""
+    p = _run_host(setup, "--cycles", 1000, "--step", 0.01, timeout=600)
+    assert p.returncode == 0, p.stdout + p.stderr[-2000:]
+    vals = dict(line.split() for line in p.stdout.splitlines() if line.startswith("rss_kb"))
+    growth = int(vals["rss_kb_after_1000"]) - int(vals["rss_kb_after_20"])
+    assert growth < 1024, f"RSS grew by {growth} kB from cycle 20 to 1000"
+    assert p.stderr.count("unknown value reference 4294967295") == 1000   # each cycle logged one message
+
+
+def test_python_override_variable(setup, tmp_path):
+    """FMU_SYNC_PYTHON chooses the interpreter; one without numpy/numba gives a clear error, no crash."""
+    p = _run_host(setup, "--stop", 0.1, env=_clean_env(FMU_SYNC_PYTHON=sys.executable))
+    assert p.returncode == 0, p.stdout + p.stderr
+    p = _run_host(setup, "--stop", 0.1, env=_clean_env(FMU_SYNC_PYTHON="/nonexistent/python"))
+    assert p.returncode == 3 and "FMU_SYNC_PYTHON = /nonexistent/python" in p.stderr
+    bare = tmp_path / "bare"
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(bare)], check=True, timeout=120)
+    p = _run_host(setup, "--stop", 0.1, env=_clean_env(FMU_SYNC_PYTHON=str(bare / "bin" / "python")))
+    assert p.returncode == 3, p.stdout + p.stderr
+    assert "lacks numpy" in p.stderr and "lacks numba" in p.stderr and "FMU_SYNC_PYTHON" in p.stderr
