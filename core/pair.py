@@ -120,6 +120,10 @@ def integrate_pair(sa1, sa2, geo, law, Kp, Kd, q1, u1, q2, u2, t0, k0, dt, n_ste
             d, br, E = coupling_step(law, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u, need_d)
         elif need_d:
             d, br, E = coupling_step(UNCOUPLED, geo, Kp, Kd, q1, u1, q2, u2, zero1, zero2, c1q, c1u, c2q, c2u, True)
+        if k == 0 and k0 == 0:  # row 0 of the run: the forces at the start
+            for i in range(n):
+                TAU1[0, i] = tau1[i]
+                TAU2[0, i] = tau2[i]
         if is_row:
             T[row] = t0 + (k0 + k) * dt
             for i in range(n):
@@ -206,7 +210,8 @@ def as_systems(system, count: int, what: str = "system") -> list:
 def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
                   Kp=0.0, Kd=0.0, Q=None, scheme: str = "midpoint", theta: float = 0.5,
                   record_every: int = 1, record_distance: bool = True, progress=None,
-                  t0: float = 0.0, allow_unstable: bool = False) -> PairResult:
+                  t0: float = 0.0, allow_unstable: bool = False, sink=None,
+                  chunk_rows: int = 65536) -> PairResult:
     """Simulate two systems from ``x1``, ``x2``, coupled by ``coupling``.
 
     ``system``: one :class:`MechanicalSystem` (two identical copies) or a pair
@@ -220,6 +225,13 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
     ``record_distance=False`` and no coupling, no distance is computed.
     ``progress``: callable ``progress(fraction)``; the run is then made in
     ~100 compiled chunks (same numbers as one chunk).
+    ``sink``: callable ``sink(chunk)``; the record then goes to it in chunks of
+    at most ``chunk_rows`` rows (each a :class:`PairResult` of consecutive rows,
+    in order, no row twice) and only one chunk is held in memory: the memory of
+    a run no longer grows with its length (same numbers as one chunk). The
+    returned result then holds the last row only (``info["rows"]``: the rows
+    sent to the sink).
+    ``tau1[0]``, ``tau2[0]``: the forces at the start (those held over the first step).
 
     Before the first step, a step known to diverge is refused: the explicit
     midpoint scheme (omega_max*dt >= 2, :class:`SimulationDiverged`) and the
@@ -257,25 +269,49 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
     if law != UNCOUPLED:
         limit = check_exchange(s1.M, Kp_m, Kd_m, dt, allow_unstable=allow_unstable, step_name="dt")
     rows = n_steps // record_every + 1
-    T = np.full(rows, np.nan)
-    Q1, U1, Q2, U2, TAU1, TAU2 = (np.full((rows, n), np.nan) for _ in range(6))
-    TAU1[0] = 0.0
-    TAU2[0] = 0.0
-    D, EU = np.full(rows, np.nan), np.full(rows, np.nan)
-    BR = np.full(rows, BRANCH_NONE, dtype=np.int64)
+    if sink is not None:
+        chunk_rows = int(chunk_rows)
+        if chunk_rows < 1:
+            raise ValueError(f"chunk_rows must be >= 1, got {chunk_rows}")
+        cap = min(rows, chunk_rows + 1)   # a chunk re-records its start row (dropped)
+        per = chunk_rows * record_every
+        chunks = [per] * (n_steps // per) + ([n_steps % per] if n_steps % per else [])
+        if not chunks:
+            chunks = [0]
+    else:
+        cap = rows
+        # chunks of whole record intervals, so that chunking changes no number
+        if progress is None:
+            chunks = [n_steps]
+        else:
+            per = max(1, (n_steps // record_every) // 100) * record_every
+            chunks = [per] * (n_steps // per) + ([n_steps % per] if n_steps % per else [])
+    T = np.full(cap, np.nan)
+    Q1, U1, Q2, U2, TAU1, TAU2 = (np.full((cap, n), np.nan) for _ in range(6))
+    D, EU = np.full(cap, np.nan), np.full(cap, np.nan)
+    BR = np.full(cap, BRANCH_NONE, dtype=np.int64)
     sa1 = s1.arrays()
     sa2 = s2.arrays()
-    # chunks of whole record intervals, so that chunking changes no number
-    if progress is None:
-        chunks = [n_steps]
-    else:
-        per = max(1, (n_steps // record_every) // 100) * record_every
-        chunks = [per] * (n_steps // per) + ([n_steps % per] if n_steps % per else [])
-    row0, k0, imp1, imp2 = 0, 0, 0, 0
+    info = dict(mode="core", dt=dt, scheme=scheme, steps=n_steps, identical=s1 is s2)
+    if limit is not None:
+        info.update(omega_c_dt=limit.h, exchange_bound=limit.bound, zeta=limit.zeta,
+                    dt_max=limit.H_max)
+    arrays = (T, Q1, U1, Q2, U2, TAU1, TAU2)
+
+    def result(sl):
+        take = (lambda a: a[sl].copy()) if sink is not None else (lambda a: a[sl])
+        return PairResult(*(take(a) for a in arrays),
+                          take(D) if record_d else None, take(BR) if record_d else None,
+                          take(EU) if record_d else None, impacts1=imp1, impacts2=imp2,
+                          coupling=coupling if coupling != "none" else None, info=dict(info))
+
+    row0, k0, imp1, imp2, sent = 0, 0, 0, 0, 0
     status = OK
     for c, steps in enumerate(chunks):
         last = c == len(chunks) - 1
-        sl = slice(row0, rows)
+        if sink is not None:  # every chunk fills the buffer from row 0 (its start row, sent once)
+            row0 = 0
+        sl = slice(row0, cap)
         # a chunk records its start row; the next chunk starts on the row it ended on
         status, done, written, i1, i2 = integrate_pair(
             sa1, sa2, geo, law, Kp_m, Kd_m, q1, u1, q2, u2, t0, k0, dt, steps, code, theta,
@@ -283,6 +319,11 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
             D[sl], BR[sl], EU[sl])
         imp1 += i1
         imp2 += i2
+        if sink is not None:
+            first = 0 if c == 0 else 1
+            if written > first:
+                sink(result(slice(first, written)))
+                sent += written - first
         if status != OK:
             row0 += written
             k0 += done
@@ -291,15 +332,12 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
         row0 += written - (0 if last else 1)
         if progress is not None:
             progress(k0 / max(n_steps, 1))
-    sl = slice(0, row0 if status != OK else rows)
-    info = dict(mode="core", dt=dt, scheme=scheme, steps=n_steps, identical=s1 is s2)
-    if limit is not None:
-        info.update(omega_c_dt=limit.h, exchange_bound=limit.bound, zeta=limit.zeta,
-                    dt_max=limit.H_max)
-    res = PairResult(T[sl], Q1[sl], U1[sl], Q2[sl], U2[sl], TAU1[sl], TAU2[sl],
-                     D[sl] if record_d else None, BR[sl] if record_d else None,
-                     EU[sl] if record_d else None, impacts1=imp1, impacts2=imp2,
-                     coupling=coupling if coupling != "none" else None, info=info)
+    if sink is not None:
+        info["rows"] = sent
+        last_row = max(written - 1, 0)
+        res = result(slice(last_row, last_row + 1))
+    else:
+        res = result(slice(0, row0 if status != OK else rows))
     if status != OK:
         err = SimulationDiverged(divergence_message(s1, scheme, dt, t0 + k0 * dt,
                                                     what="a coupled state",

@@ -8,8 +8,19 @@
     fmu-sync bench [--quick] [-o DIR]          benchmarks (see `fmu-sync bench --help`)
     fmu-sync sweep SCENE --grid K=V.. [-o DIR] gain maps, basins, samples (see `fmu-sync sweep --help`)
 
-Errors in the input (a bad scene, a diverged run, a missing file) end with one line
-``fmu-sync: error: ...`` on stderr and exit status 2.
+Exit status:
+
+    0  every run reached its end
+    2  bad input, refused before anything ran or was written: a bad scene or
+       option, a missing file, an output path that is a file or not writable,
+       a step known to be unstable (midpoint omega_max*dt >= 2, or the held
+       coupling exchange beyond its limit: the message names omega_c*H and the
+       largest stable H), a record above the memory/disk budget
+    3  a run failed mid-way (diverged, a slave failed): the summary says which,
+       its record up to the failure is written marked partial (no plots)
+  130  interrupted
+
+Errors end with one line ``fmu-sync: error: ...`` on stderr.
 """
 from __future__ import annotations
 
@@ -22,6 +33,8 @@ from . import __version__
 __all__ = ["main"]
 
 PROG = "fmu-sync"
+EXIT_BAD_INPUT = 2
+EXIT_FAILED = 3
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -48,6 +61,17 @@ def _parser() -> argparse.ArgumentParser:
                    help="run only this variant of the scene (repeatable)")
     r.add_argument("--no-plots", action="store_true", help="write data and summary only")
     r.add_argument("--quiet", action="store_true", help="no progress display")
+    r.add_argument("--format", dest="formats", default=None, metavar="LIST",
+                   help="data files to write: csv, npz, both (npz,csv) or none "
+                        "(default: the scene's record.formats, csv and npz)")
+    r.add_argument("--allow-unstable", action="store_true",
+                   help="run even if the coupling exchange is unstable at this step (same as "
+                        "--set run.allow_unstable=true); a run that then diverges exits with status 3")
+    r.add_argument("--max-memory", default=None, metavar="SIZE",
+                   help="memory budget of a run's record, e.g. 4GB (default 2GB); a core pair above it "
+                        "is written in chunks while it runs, other runs are refused")
+    r.add_argument("--max-disk", default=None, metavar="SIZE",
+                   help="disk budget of a run's data files, e.g. 50GB (default 20GB)")
 
     sub.add_parser("scenes", help="list the built-in scenes")
     sub.add_parser("export", help="export an FMU (options: see `fmu-sync export --help`)", add_help=False)
@@ -67,12 +91,18 @@ def _progress(label: str, quiet: bool):
 def _print_summary(sr, title: str) -> None:
     from . import report
     print(f"\n{title}")
-    header, table = report.rows(sr.runs, demo=title.startswith("demo"))
-    report.print_table(header, table)
+    written = [r for r in sr.runs if r.result is not None]
+    if written:
+        header, table = report.rows(written, demo=title.startswith("demo"))
+        report.print_table(header, table)
     for r in sr.runs:
         if r.metrics.get("error"):
-            print(f"  note: {r.name} stopped early: {r.metrics['error']}")
-    print(f"\nwritten to {sr.out_dir}/ (summary: {sr.summary.name}, {len(sr.files)} data/plot files)")
+            kept = "record kept, marked partial, no plots" if r.result is not None else "nothing recorded"
+            print(f"  FAILED: {r.name}: {r.metrics['error']} ({kept})")
+    if sr.summary is not None:
+        print(f"\nwritten to {sr.out_dir}/ (summary: {sr.summary.name}, {len(sr.files)} data/plot files)")
+    else:
+        print("\nnothing written")
 
 
 def _cmd_scenes() -> int:
@@ -89,20 +119,39 @@ def _cmd_scenes() -> int:
 def _cmd_run(args) -> int:
     from .scenes.loading import load_scene, parse_override
     from .scenes.running import run_scene
+    from .output import parse_formats, parse_size
     overrides = dict(parse_override(s) for s in args.overrides)
+    if args.allow_unstable:
+        overrides["run.allow_unstable"] = True
+    formats = parse_formats(args.formats) if args.formats is not None else None
+    max_memory = parse_size(args.max_memory) if args.max_memory is not None else None
+    max_disk = parse_size(args.max_disk) if args.max_disk is not None else None
     scene = load_scene(args.scene, overrides, args.variant or None)
+    _announce_compilation(scene, args.quiet)
     with _progress(scene.name, args.quiet) as bar:
-        sr = run_scene(scene, args.out, progress=bar, plots=not args.no_plots)
+        sr = run_scene(scene, args.out, progress=bar, plots=not args.no_plots, formats=formats,
+                       max_memory=max_memory, max_disk=max_disk)
     _print_summary(sr, f"scene {scene.name}")
-    return 0
+    return EXIT_FAILED if sr.failed else 0
+
+
+def _announce_compilation(scene, quiet: bool) -> None:
+    """Say so when numba's caches are cold: the first run compiles the kernels (up to a minute)."""
+    if quiet:
+        return
+    from .progress import caches_cold
+    if caches_cold():
+        print("compiling kernels, first run only (about a minute; later runs load them from the cache)",
+              file=sys.stderr, flush=True)
 
 
 def _cmd_demo(args) -> int:
     from .scenes.demo import run_demo
+    _announce_compilation(None, args.quiet)
     with _progress("demo", args.quiet) as bar:
         sr = run_demo(args.out, quick=args.quick, progress=bar, t_end=args.t_end)
     _print_summary(sr, "demo: forced pair, co-simulation vs core")
-    return 0
+    return EXIT_FAILED if sr.failed else 0
 
 
 def _cmd_validate(path: Path) -> int:
@@ -122,6 +171,14 @@ def _cmd_validate(path: Path) -> int:
     return 0
 
 
+def _refused_up_front(exc) -> bool:
+    """The midpoint stability check raises SimulationDiverged before the first step (no
+    record): that is a refusal of the input (status 2), not a failed run."""
+    from .core import SimulationDiverged
+    return (isinstance(exc, SimulationDiverged) and exc.partial is None
+            and "diverges for omega_max*dt >= 2" in str(exc))
+
+
 def _one_line(exc: BaseException) -> str:
     msg = str(exc).strip() or type(exc).__name__
     return " ".join(line.strip() for line in msg.splitlines() if line.strip())
@@ -129,7 +186,18 @@ def _one_line(exc: BaseException) -> str:
 
 def main(argv=None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    from .core import SimulationDiverged
+    import warnings
+
+    import numpy as np
+    with warnings.catch_warnings(), np.errstate(all="ignore"):
+        # a diverging run's arithmetic (overflow, nan) is reported by the run's own failure,
+        # not by numpy RuntimeWarnings
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return _main(argv)
+
+
+def _main(argv) -> int:
+    from .core import RunFailed, SimulationDiverged
     from .scenes.schema import SceneError
     try:
         # export and bench keep their own option parsers: hand them the rest of the line
@@ -152,10 +220,16 @@ def main(argv=None) -> int:
             from .sweeps.cli import run as run_sweep
             return run_sweep(args)
         raise AssertionError(args.command)
-    except (SceneError, SimulationDiverged, FileNotFoundError, FileExistsError, ValueError, ImportError) as exc:
+    except RunFailed as exc:   # a run that failed mid-way (or a diverging single system)
+        print(f"{PROG}: error: {_one_line(exc)}", file=sys.stderr)
+        return EXIT_BAD_INPUT if _refused_up_front(exc) else EXIT_FAILED
+    except (SceneError, FileNotFoundError, FileExistsError, ValueError, ImportError) as exc:
         prefix = "missing component: " if isinstance(exc, ImportError) else ""
         print(f"{PROG}: error: {prefix}{_one_line(exc)}", file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
+    except OSError as exc:   # the disk filled up, a folder vanished, ...: while writing
+        print(f"{PROG}: error: {_one_line(exc)}", file=sys.stderr)
+        return EXIT_FAILED
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted", file=sys.stderr)
         return 130

@@ -12,13 +12,15 @@ from pathlib import Path
 from typing import Mapping
 
 import matplotlib
+import matplotlib.transforms
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from .report import SYNC_THRESHOLD, contact_starts, impact_records, is_pair, wall
+from .report import SYNC_THRESHOLD, contact_starts, decay_resolved, impact_records, is_network, is_pair, wall
 
 __all__ = ["plot_positions", "plot_distance", "plot_lyapunov", "plot_forces", "plot_phase",
+           "plot_impact_zoom", "impact_window",
            "compare_plot", "PLOTTERS"]
 
 STYLE = {
@@ -62,7 +64,8 @@ def _positive(y):
 
 
 def _title(ax, title, what):
-    ax.set_title(f"{title}\n{what}" if title else what)
+    """One title line: ``<scene, run>: <what the plot shows>``."""
+    ax.set_title(f"{title}: {what}" if title else what)
 
 
 def _wall_band(ax, horizontal=True, label="wall"):
@@ -81,8 +84,48 @@ def _wall_band(ax, horizontal=True, label="wall"):
         ax.set_xlim(min(lo, -0.04 * span), hi)
 
 
+def _network_positions(result, path, system=None, title=None) -> Path:
+    t = np.asarray(result.t)
+    q = np.asarray(result.q)
+    N, n = q.shape[1], q.shape[2]
+    w, g0 = wall(system, n)
+    fig, (ax,) = _figure(width=9.0)
+    cmap = matplotlib.colormaps["viridis"]
+    for i in range(N):
+        ax.plot(t, q[:, i] @ w + g0, color=cmap(i / max(N - 1, 1)), lw=0.9, label=f"node {i + 1}")
+    _wall_band(ax)
+    ax.set_ylabel("gap g(q) = w·q + g0 [m]" if n > 1 else "position q [m]")
+    ax.set_xlabel("time t [s]")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8.5)
+    _title(ax, title, f"positions of the {N} nodes")
+    return _save(fig, path)
+
+
+def _network_distance(result, path, system=None, title=None) -> Path:
+    t = np.asarray(result.t)
+    fig, (ax,) = _figure()
+    D = np.asarray(result.d)
+    one = len(result.edges) == 1
+    if not one:
+        for k, (i, j) in enumerate(result.edges):
+            ax.semilogy(t, _positive(D[:, k]), color="#7f7f7f", lw=0.6, alpha=0.6,
+                        label=f"pairwise d of the {len(result.edges)} edges" if k == 0 else None)
+    ax.semilogy(t, _positive(result.d_max), color="k", lw=1.8,
+                label="quotient distance d" if one else "max d over the edges")
+    ax.axhline(SYNC_THRESHOLD, color="k", ls=":", lw=1.0, label=f"sync threshold {SYNC_THRESHOLD:g}")
+    _sync_marks(ax, result, t)
+    _zero_note(ax, t, result.d_max, "k", "max d")
+    ax.set_xlabel("time t [s]")
+    ax.set_ylabel("quotient distance d (P-norm)")
+    ax.legend(loc="upper right", fontsize=8.5)
+    _title(ax, title, "quotient distance d" if one else "pairwise quotient distances and their maximum")
+    return _save(fig, path)
+
+
 def plot_positions(result, path, system=None, title=None) -> Path:
-    """q(t) of each system with the wall and the impacts marked (n > 1: q components and the gap g)."""
+    """q(t) of each system with the wall and the starts of contact episodes marked (n > 1: q components and the gap g)."""
+    if is_network(result):
+        return _network_positions(result, path, system, title)
     t = np.asarray(result.t)
     parts = _systems(result, system)
     n = parts[0][1].shape[1]
@@ -100,11 +143,11 @@ def plot_positions(result, path, system=None, title=None) -> Path:
     ax = axes[-1]
     for k, (label, q, u, hits) in enumerate(parts):
         g = q @ w + g0
-        ax.plot(t, g, color=COLORS[k], label=label)
+        ax.plot(t, g, color=COLORS[k], ls="-" if k == 0 else "--", label=label)
         if hits.size:
             ax.plot(t[hits], np.zeros(hits.size), ls="none", marker="v" if k == 0 else "^", ms=5,
-                    color=COLORS[k], mec="k", mew=0.5, label=f"impacts {label.split()[-1]} ({hits.size})"
-                    if len(parts) > 1 else f"impacts ({hits.size})")
+                    color=COLORS[k], mec="k", mew=0.5, label=f"contact episodes {label.split()[-1]} ({hits.size})"
+                    if len(parts) > 1 else f"contact episodes ({hits.size})")
     _wall_band(ax)
     ax.set_ylabel("gap g(q) = w·q + g0 [m]" if n > 1 else "position q [m]")
     ax.set_xlabel("time t [s]")
@@ -114,17 +157,143 @@ def plot_positions(result, path, system=None, title=None) -> Path:
     return _save(fig, path)
 
 
+def _zero_note(ax, t, y, color, name="d"):
+    """Where ``y`` is exactly 0 a log axis draws nothing: say so on the plot (no silent stop).
+    The time axis keeps the whole run (a log curve that ends early does not shorten it)."""
+    if len(t):
+        lo, hi = ax.get_xlim()
+        t0, t1 = float(np.asarray(t)[0]), float(np.asarray(t)[-1])
+        if t1 > t0:
+            ax.set_xlim(min(lo, t0), max(hi, t1))
+    y = np.asarray(y, dtype=float)
+    zero = np.nonzero(y == 0.0)[0]
+    if zero.size == 0:
+        return
+    t = np.asarray(t)
+    stays = bool(np.all(y[zero[0]:] == 0.0))
+    text = (f"{name} = 0 exactly from t = {t[zero[0]]:.4g} s (off the log axis)" if stays else
+            f"{name} = 0 exactly at {zero.size} records from t = {t[zero[0]]:.4g} s (gaps)")
+    trans = matplotlib.transforms.blended_transform_factory(ax.transData, ax.transAxes)
+    ax.plot([t[zero[0]]], [0.02], transform=trans, ls="none", marker="v", ms=8, color=color, mec="k",
+            clip_on=False, label=text)
+
+
+def _sync_marks(ax, result, t):
+    """t_sync (vertical line) and the fitted decay of d's envelope (dashed), when known."""
+    m = None
+    if hasattr(result, "sync"):
+        try:
+            m = result.sync(SYNC_THRESHOLD)
+        except (ValueError, AttributeError):
+            m = None
+    if m is not None:
+        t_sync = m.t_sync
+    elif hasattr(result, "time_to_sync"):
+        t_sync = result.time_to_sync(SYNC_THRESHOLD)
+    else:
+        return
+    if np.isfinite(t_sync) and t_sync > t[0]:
+        ax.axvline(t_sync, color="k", ls="--", lw=0.9, label=f"t_sync = {t_sync:.4g} s (d < {SYNC_THRESHOLD:g} after)")
+    elif not np.isfinite(t_sync):
+        ax.plot([], [], ls="none", label=f"t_sync: d not below {SYNC_THRESHOLD:g} within t_end")
+    if m is None:
+        return
+    if decay_resolved(m.rate, m.rate_err, m.t_sync) and np.isfinite(m.t_fit):
+        tt = np.linspace(m.t_from, m.t_to, 50)
+        ax.semilogy(tt, SYNC_THRESHOLD * np.exp(-m.rate * (tt - m.t_fit)), color="k", ls="-.", lw=1.2,
+                    label=f"fitted decay rate {m.rate:.3g} ± {m.rate_err:.1g} 1/s")
+    if not np.isfinite(m.t_sync) and np.isfinite(m.bound) and m.bound >= SYNC_THRESHOLD:
+        # not synchronized within t_end: the level d stays at (practical synchronization)
+        t_tail = t[-1] - 0.2 * (t[-1] - t[0])
+        ax.hlines(m.bound, t_tail, t[-1], color="#d62728", lw=2.0,
+                  label=f"ultimate bound {m.bound:.3g} (max d over the last 20 %)")
+
+
 def plot_distance(result, path, system=None, title=None) -> Path:
-    """Euclidean error ||x1 - x2||_P (peaking at impacts) and the quotient distance d, log axis."""
+    """Euclidean error ||x1 - x2||_P (peaking at impacts) and the quotient distance d, log axis,
+    with t_sync and the fitted decay rate marked (a network: the pairwise d and their maximum)."""
+    if is_network(result):
+        return _network_distance(result, path, system, title)
     fig, (ax,) = _figure()
     t = np.asarray(result.t)
     ax.semilogy(t, _positive(result.euclidean), color="#ff7f0e", lw=1.0, label="Euclidean error ‖x1 − x2‖_P")
     ax.semilogy(t, _positive(result.d), color="#2ca02c", lw=1.8, label="quotient distance d")
     ax.axhline(SYNC_THRESHOLD, color="k", ls=":", lw=1.0, label=f"sync threshold {SYNC_THRESHOLD:g}")
+    _sync_marks(ax, result, t)
+    _zero_note(ax, t, result.d, "#2ca02c")
     ax.set_xlabel("time t [s]")
     ax.set_ylabel("distance (P-norm)")
-    ax.legend(loc="best")
+    ax.legend(loc="upper right", fontsize=8.5)
     _title(ax, title, "Euclidean error vs quotient distance")
+    return _save(fig, path)
+
+
+def impact_window(result, system=None, halfwidth: float | None = None):
+    """``(i0, i1, i_peak)``: the records around the largest peaking ``E - d`` of the
+    Euclidean error over the quotient distance (an impact mismatch), or None."""
+    if result.d is None or len(result.t) < 5:
+        return None
+    t = np.asarray(result.t)
+    d, E = np.asarray(result.d), np.asarray(result.euclidean)
+    gap = np.where(np.isfinite(E - d), E - d, 0.0)
+    k = int(np.argmax(gap))
+    if not gap[k] > 1e-3 * max(float(np.nanmax(E)), 1e-300):
+        return None
+    # the peaking episode: where the peaking stays above 5 % of its maximum
+    lo = k
+    while lo > 0 and gap[lo - 1] > 0.05 * gap[k]:
+        lo -= 1
+    hi = k
+    while hi + 1 < len(t) and gap[hi + 1] > 0.05 * gap[k]:
+        hi += 1
+    span = max(t[hi] - t[lo], 20 * (t[1] - t[0]))
+    w = halfwidth if halfwidth is not None else max(1.5 * span, 0.3)
+    i0 = int(np.searchsorted(t, t[lo] - w))
+    i1 = int(np.searchsorted(t, t[hi] + w, side="right"))
+    return i0, min(i1, len(t)), k
+
+
+def plot_impact_zoom(result, path, system=None, title=None) -> Path:
+    """The paper's central point on one impact window (linear axes): the positions
+    with the wall; below, the Euclidean error jumping at the impact mismatch while
+    the quotient distance d stays continuous."""
+    fig, (axq, ax) = _figure(2, height=6.4, width=8.0)
+    win = impact_window(result, system)
+    t = np.asarray(result.t)
+    if win is None:
+        for a in (axq, ax):
+            a.text(0.5, 0.5, "no impact mismatch in this run (the Euclidean error never exceeds d)",
+                   ha="center", va="center", transform=a.transAxes)
+        _title(axq, title, "impact window")
+        return _save(fig, path)
+    i0, i1, k = win
+    sl = slice(i0, i1)
+    parts = _systems(result, system)
+    n = parts[0][1].shape[1]
+    w, g0 = wall(system, n)
+    for c, (label, q, _, hits) in enumerate(parts):
+        axq.plot(t[sl], (q @ w + g0)[sl], color=COLORS[c], label=label)
+        h = hits[(hits >= i0) & (hits < i1)]
+        if h.size:
+            axq.plot(t[h], np.zeros(h.size), ls="none", marker="v" if c == 0 else "^", ms=7,
+                     color=COLORS[c], mec="k", mew=0.5, label=f"contact episode begins ({label})")
+    _wall_band(axq)
+    axq.set_ylabel("gap g(q) [m]" if n > 1 else "position q [m]")
+    axq.legend(loc="upper center", ncol=2, fontsize=8.5)
+    axq.set_ylim(top=axq.get_ylim()[1] * 1.35)
+    E, d = np.asarray(result.euclidean), np.asarray(result.d)
+    ax.plot(t[sl], E[sl], color="#ff7f0e", lw=1.4, label="Euclidean error ‖x1 − x2‖_P")
+    ax.plot(t[sl], d[sl], color="#2ca02c", lw=2.0, label="quotient distance d")
+    ax.set_ylim(bottom=0.0, top=1.3 * float(np.nanmax(E[sl])))
+    ax.annotate(f"Euclidean error {E[k] - d[k]:.3g} above d\n(one system hit the wall, the other not yet)",
+                xy=(t[k], E[k]), xytext=(0.98, 0.6), textcoords="axes fraction", ha="right", fontsize=9,
+                arrowprops=dict(arrowstyle="->", lw=0.8))
+    ax.set_xlabel("time t [s]")
+    ax.set_ylabel("distance (P-norm)")
+    ax.legend(loc="upper left", fontsize=9)
+    what = "impact window: d continuous, Euclidean error jumps"
+    with matplotlib.rc_context(STYLE):
+        fig.suptitle(f"{title}: {what}" if title else what, fontsize=11)
     return _save(fig, path)
 
 
@@ -132,23 +301,36 @@ def plot_lyapunov(result, path, system=None, title=None) -> Path:
     """V(t) = d²/2 on a log axis."""
     fig, (ax,) = _figure()
     ax.semilogy(np.asarray(result.t), _positive(result.V), color="#9467bd", lw=1.5, label="V = d²/2")
+    _zero_note(ax, result.t, result.V, "#9467bd", "V")
     ax.set_xlabel("time t [s]")
     ax.set_ylabel("Lyapunov function V")
-    ax.legend(loc="best")
+    ax.legend(loc="upper right")
     _title(ax, title, "Lyapunov function V(t)")
     return _save(fig, path)
 
 
 def plot_forces(result, path, system=None, title=None) -> Path:
-    """Coupling forces tau1(t), tau2(t) (held over each step); below, |tau| on a log axis."""
-    fig, (ax, axl) = _figure(2, height=6.4)
+    """Coupling forces tau1(t), tau2(t) (held over each step); below, |tau| on a log axis
+    (uncoupled: one panel saying so, no empty axes)."""
     t = np.asarray(result.t)
-    for k, (name, tau) in enumerate((("τ1", result.tau1), ("τ2", result.tau2))):
-        tau = np.asarray(tau).reshape(len(t), -1)
+    taus = [np.asarray(tau).reshape(len(t), -1) for tau in (result.tau1, result.tau2)]
+    if not any(np.any(np.nan_to_num(tau) != 0.0) for tau in taus):
+        fig, (ax,) = _figure(height=3.0)
+        ax.text(0.5, 0.5, "no coupling force: τ1 = τ2 = 0 throughout the run", ha="center", va="center",
+                transform=ax.transAxes)
+        ax.set_xlim(t[0], t[-1] if len(t) > 1 else t[0] + 1)
+        ax.set_yticks([])
+        ax.set_xlabel("time t [s]")
+        _title(ax, title, f"coupling forces ({getattr(result, 'coupling', None) or 'none'})")
+        return _save(fig, path)
+    fig, (ax, axl) = _figure(2, height=6.4)
+    for k, (name, tau) in enumerate(zip(("τ1", "τ2"), taus)):
         for j in range(tau.shape[1]):
             label = name if tau.shape[1] == 1 else f"{name}[{j + 1}]"
             ax.step(t, tau[:, j], where="pre", color=COLORS[k], ls="-" if j == 0 else "--", label=label)
-        axl.semilogy(t, _positive(np.linalg.norm(tau, axis=1)), color=COLORS[k], lw=1.0, label=f"|{name}|")
+        norm = np.linalg.norm(tau, axis=1)
+        axl.semilogy(t, _positive(norm), color=COLORS[k], lw=1.0, label=f"|{name}|")
+        _zero_note(axl, t, norm, COLORS[k], f"|{name}|")
     ax.axhline(0.0, color="k", lw=0.6)
     ax.set_ylabel("coupling force τ [N]")
     ax.legend(loc="upper right")
@@ -194,22 +376,25 @@ def compare_plot(results: Mapping[str, object], path, quantity: str = "d", title
     if quantity not in _LABELS:
         raise ValueError(f"quantity must be one of {sorted(_LABELS)}, got {quantity!r}")
     what, ylabel = _LABELS[quantity]
-    fig, (ax,) = _figure()
+    fig, (ax,) = _figure(width=10.0)
     for k, (label, r) in enumerate(results.items()):
-        y = getattr(r, quantity)
+        y = r.d_max if quantity == "d" and is_network(r) else getattr(r, quantity)
+        if quantity == "euclidean" and is_network(r) and y is not None:
+            y = np.max(y, axis=1)
         if y is None:
             continue
         color = (colors or {}).get(label, f"C{k % 10}")
         ax.semilogy(np.asarray(r.t), _positive(y), color=color, lw=1.3,
                     ls="--" if label in dashed else "-", label=label)
+        _zero_note(ax, r.t, y, color, f"{quantity} of {label}")
     if quantity == "d":
         ax.axhline(SYNC_THRESHOLD, color="k", ls=":", lw=1.0, label=f"sync threshold {SYNC_THRESHOLD:g}")
     ax.set_xlabel("time t [s]")
     ax.set_ylabel(ylabel)
-    ax.legend(loc="best")
-    _title(ax, title, f"{what}: comparison")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8.5)
+    ax.set_title(title if title else f"{what} of each run")
     return _save(fig, path)
 
 
 PLOTTERS = {"positions": plot_positions, "distance": plot_distance, "lyapunov": plot_lyapunov,
-            "forces": plot_forces, "phase": plot_phase}
+            "forces": plot_forces, "phase": plot_phase, "impact-zoom": plot_impact_zoom}

@@ -17,7 +17,7 @@ import os
 import sys
 import time
 
-__all__ = ["Progress", "scaled"]
+__all__ = ["Progress", "scaled", "caches_cold"]
 
 
 def _env_flag(name: str) -> bool | None:
@@ -105,3 +105,14 @@ def scaled(progress, start: float, stop: float):
         progress(start + (stop - start) * min(max(float(fraction), 0.0), 1.0))
 
     return sub
+
+
+def caches_cold() -> bool:
+    """True when numba has no valid on-disk cache of the core's pair kernel yet (a
+    fresh install, or the core changed): the first run then compiles its kernels."""
+    try:
+        from .core.pair import integrate_pair
+        cache_file = integrate_pair._cache._cache_file
+        return not cache_file._load_index()
+    except Exception:  # numba internals moved: say nothing rather than guess
+        return False

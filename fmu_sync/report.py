@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["SYNC_THRESHOLD", "is_pair", "wall", "impact_rows", "impact_records", "contact_starts", "metrics", "write_data", "rows", "write_summary",
+__all__ = ["SYNC_THRESHOLD", "is_pair", "wall", "impact_rows", "impact_records", "contact_starts", "metrics", "record_columns", "write_data", "rows", "write_summary",
            "print_table", "max_abs_difference", "format_value"]
 
 #: d below this counts as synchronized (time to sync = first time after which d stays below it).
@@ -22,6 +22,57 @@ SYNC_THRESHOLD = 1e-6
 def is_pair(result) -> bool:
     """PairResult (two systems) rather than a single-system SimulationResult."""
     return hasattr(result, "q2")
+
+
+def is_network(result) -> bool:
+    """NetworkResult (N systems on a graph)."""
+    return hasattr(result, "edges")
+
+
+def _sync(result, threshold):
+    """The robust synchronization metrics (``result.sync``: fitted decay rate with its
+    uncertainty, t_sync, ultimate bound), or None where the core does not provide them."""
+    if getattr(result, "d", None) is None or not hasattr(result, "sync"):
+        return None
+    try:
+        return result.sync(threshold)
+    except ValueError:
+        return None
+
+
+def _sync_fields(m) -> dict:
+    if m is None:
+        return {}
+    return dict(rate=m.rate, rate_err=m.rate_err, t_fit=m.t_fit, bound=m.bound, fit_from=m.t_from,
+                fit_to=m.t_to)
+
+
+def network_metrics(result, threshold: float = SYNC_THRESHOLD) -> dict:
+    """Summary numbers of a network run (d: the largest pairwise distance d_max)."""
+    t = np.asarray(result.t)
+    tau = np.abs(np.asarray(result.tau))
+    out = {"t_end": float(t[-1]) if t.size else 0.0, "records": int(t.size), "kind": "network",
+           "N": int(np.asarray(result.q).shape[1]), "edges": len(result.edges),
+           "coupling": _coupling_name(result.info.get("coupling")),
+           "impact_steps": int(np.sum(result.impacts)), "peak_tau": float(np.nanmax(tau)) if tau.size else 0.0,
+           "error": result.error}
+    if result.d is None:
+        out.update(t_sync=None, final_d=None)
+        return out
+    dmax = result.d_max
+    above = np.nonzero(~(dmax < threshold))[0]
+    t_sync = float(t[0]) if above.size == 0 else (math.inf if above[-1] == len(t) - 1 else float(t[above[-1] + 1]))
+    out.update(t_sync=t_sync, final_d=float(dmax[-1]), **_sync_fields(_sync(result, threshold)))
+    return out
+
+
+def _coupling_name(c) -> str:
+    if c is None:
+        return "none"
+    if isinstance(c, str):
+        return c
+    names = sorted({x or "none" for x in c})
+    return "/".join(names) + " (per edge)"
 
 
 def wall(system, n: int):
@@ -86,6 +137,8 @@ def contact_starts(percussion) -> np.ndarray:
 
 def metrics(result, system=None, threshold: float = SYNC_THRESHOLD) -> dict:
     """Summary numbers of one run (keys documented in :data:`PAIR_COLUMNS` / :data:`SINGLE_COLUMNS`)."""
+    if is_network(result):
+        return network_metrics(result, threshold)
     t = np.asarray(result.t)
     out = {"t_end": float(t[-1]) if t.size else 0.0, "records": int(t.size)}
     if not is_pair(result):
@@ -99,18 +152,21 @@ def metrics(result, system=None, threshold: float = SYNC_THRESHOLD) -> dict:
                    scheme=result.scheme, dt=float(result.dt))
         return out
     tau = np.concatenate([np.abs(np.asarray(result.tau1)).ravel(), np.abs(np.asarray(result.tau2)).ravel()])
+    e1, e2 = impact_records(result, 1, system), impact_records(result, 2, system)
     out.update(kind="pair", coupling=result.coupling or "none", impacts1=int(result.impacts1),
-               impacts2=int(result.impacts2), peak_tau=float(tau.max()) if tau.size else 0.0,
-               error=result.error)
+               impacts2=int(result.impacts2), episodes1=int(e1.size), episodes2=int(e2.size),
+               peak_tau=float(np.nanmax(tau)) if tau.size else 0.0, error=result.error)
     if result.d is None:
         out.update(t_sync=None, final_d=None, euclid_max=None, peaking=None, dV_impact=None, dE_impact=None)
         return out
     d, E, V = np.asarray(result.d), np.asarray(result.euclidean), np.asarray(result.V)
-    hits = np.union1d(impact_records(result, 1, system), impact_records(result, 2, system))
+    hits = np.union1d(e1, e2)
+    hits = hits[hits > 0]
+    out.update(_sync_fields(_sync(result, threshold)))
     out.update(t_sync=result.time_to_sync(threshold), final_d=float(d[-1]), euclid_max=float(E.max()),
                peaking=float(np.max(E - d)),
-               dV_impact=float(np.max(np.abs(V[hits] - V[hits - 1]))) if hits.size else 0.0,
-               dE_impact=float(np.max(np.abs(E[hits] - E[hits - 1]))) if hits.size else 0.0,
+               dV_impact=float(np.max(np.abs(V[hits] - V[hits - 1]))) if hits.size else None,
+               dE_impact=float(np.max(np.abs(E[hits] - E[hits - 1]))) if hits.size else None,
                impact_records=int(hits.size))
     return out
 
@@ -132,21 +188,48 @@ def max_abs_difference(a, b, attr: str = "d") -> float | None:
 
 
 # ---------------------------------------------------------------- data files
-def write_data(result, stem) -> list[Path]:
-    """Write ``<stem>.csv`` (tidy, one row per record) and ``<stem>.npz``; return both paths."""
-    stem = Path(stem)
-    csv, npz = stem.with_name(stem.name + ".csv"), stem.with_name(stem.name + ".npz")
-    if is_pair(result):
-        result.to_csv(csv)
-        result.to_npz(npz)
+def record_columns(result) -> tuple[list, dict]:
+    """``(columns, data)`` of a result for :class:`~fmu_sync.output.RecordWriter`."""
+    from .output import network_columns, pair_columns, single_columns
+    if is_network(result):
+        rows, N, n = np.asarray(result.q).shape
+        E = len(result.edges)
+        cols = network_columns(N, n, E, result.d is not None)
+        data = {"t": result.t, "q": np.asarray(result.q).reshape(rows, N * n),
+                "u": np.asarray(result.u).reshape(rows, N * n), "tau": np.asarray(result.tau).reshape(rows, N * n)}
+        if result.d is not None:
+            data.update(d=result.d, euclidean=result.euclidean, branch=result.branch, V=result.V,
+                        d_max=result.d_max)
+    elif is_pair(result):
+        n = np.asarray(result.q1).reshape(len(result.t), -1).shape[1]
+        cols = pair_columns(n, result.d is not None)
+        data = {k: getattr(result, k) for k, _ in cols}
     else:
-        n = result.q.shape[1]
-        names = ["t"] + ([f"q[{j + 1}]" for j in range(n)] + [f"u[{j + 1}]" for j in range(n)]
-                         if n > 1 else ["q", "u"]) + ["percussion"]
-        np.savetxt(csv, np.column_stack([result.t, result.q, result.u, result.percussion]), delimiter=",",
-                   header=",".join(names), comments="", fmt="%.17g")
-        np.savez_compressed(npz, t=result.t, q=result.q, u=result.u, percussion=result.percussion)
-    return [csv, npz]
+        n = np.asarray(result.q).reshape(len(result.t), -1).shape[1]
+        cols = single_columns(n)
+        data = {k: getattr(result, k) for k, _ in cols}
+    return cols, data
+
+
+def write_data(result, stem, formats=("csv", "npz"), progress=None, partial: bool = False) -> list[Path]:
+    """Write ``<stem>.csv`` (tidy, one row per record) and/or ``<stem>.npz`` in chunks of
+    rows (``progress(fraction)`` after each); a failed run's record is named
+    ``<stem>.partial.csv`` / ``.partial.npz``. Returns the paths written."""
+    from .output import WRITE_ROWS, RecordWriter
+    if not formats:
+        return []
+    cols, data = record_columns(result)
+    w = RecordWriter(stem, cols, formats)
+    try:
+        n = len(result.t)
+        for a in range(0, max(n, 1), WRITE_ROWS):
+            w.append({k: np.asarray(v)[a:a + WRITE_ROWS] for k, v in data.items()})
+            if progress is not None:
+                progress(min(1.0, (a + WRITE_ROWS) / max(n, 1)))
+        return w.close(partial=partial)
+    except BaseException:
+        w.abort()
+        raise
 
 
 # ---------------------------------------------------------------- tables
@@ -167,19 +250,64 @@ def format_value(x) -> str:
     return f"{x:.4g}"
 
 
+def _episodes(m):
+    """``e1/e2``; "—" for a system whose solver counted impact steps while its record shows no
+    arrival at the wall (unresolved chatter, or a record too coarse to see them)."""
+    if "episodes1" not in m:
+        return "—"
+    cells = []
+    for i in (1, 2):
+        e, k = m[f"episodes{i}"], m.get(f"impacts{i}", 0)
+        cells.append("—" if e == 0 and k > 0 else str(e))
+    return "/".join(cells)
+
+
+def _rate(m):
+    """``rate ± err`` of the fitted decay of d's envelope (— without a decay window)."""
+    r, e = m.get("rate"), m.get("rate_err")
+    if not decay_resolved(r, e, m.get("t_sync")):
+        return None   # no exponential decay resolved (e.g. a bounded d of non-identical systems)
+    return f"{r:.4g} ± {e:.2g}"
+
+
+def decay_resolved(rate, rate_err, t_sync) -> bool:
+    """A fitted decay worth showing: a positive rate that is either above twice its
+    uncertainty or belongs to a run that synchronized (t_sync finite)."""
+    if rate is None or not math.isfinite(rate) or not rate > 0.0:
+        return False
+    synced = isinstance(t_sync, (int, float)) and math.isfinite(t_sync)
+    return rate > 2.0 * rate_err or synced
+
+
 #: (column header, function of the metrics dict)
 PAIR_COLUMNS = [
     ("variant", lambda m: m["name"]),
     ("coupling", lambda m: m.get("coupling", "—")),
-    (f"t_sync [s] (d<{SYNC_THRESHOLD:g})", lambda m: m.get("t_sync")),
+    (f"t_sync [s] (d<{SYNC_THRESHOLD:g})", lambda m: "not within t_end" if m.get("t_sync") == math.inf
+     else m.get("t_sync")),
+    ("decay rate [1/s]", lambda m: _rate(m)),
+    ("ultimate bound", lambda m: m.get("bound")),
     ("max|tau| [N]", lambda m: m.get("peak_tau")),
-    ("impacts 1/2", lambda m: f"{m['impacts1']}/{m['impacts2']}" if "impacts1" in m else "—"),
+    ("impact steps 1/2", lambda m: f"{m['impacts1']}/{m['impacts2']}" if "impacts1" in m else "—"),
+    ("contact episodes 1/2", lambda m: _episodes(m)),
     ("max(|x1-x2|-d)", lambda m: m.get("peaking")),
     ("final d", lambda m: m.get("final_d")),
-    ("max dV at impacts", lambda m: m.get("dV_impact")),
+    ("max dV over an episode start", lambda m: m.get("dV_impact")),
 ]
 DEMO_COLUMNS = [("variant", lambda m: m.get("variant", m["name"])), ("mode", lambda m: m.get("mode"))] + PAIR_COLUMNS[1:] + [
     ("max|d - d_core|", lambda m: m.get("d_vs_core"))]
+NETWORK_COLUMNS = [
+    ("variant", lambda m: m["name"]),
+    ("N", lambda m: m.get("N")),
+    ("coupling", lambda m: m.get("coupling", "—")),
+    (f"t_sync [s] (max d<{SYNC_THRESHOLD:g})", lambda m: "not within t_end" if m.get("t_sync") == math.inf
+     else m.get("t_sync")),
+    ("decay rate [1/s]", lambda m: _rate(m)),
+    ("ultimate bound", lambda m: m.get("bound")),
+    ("final max d", lambda m: m.get("final_d")),
+    ("max|tau| [N]", lambda m: m.get("peak_tau")),
+    ("impact steps (all nodes)", lambda m: m.get("impact_steps")),
+]
 SINGLE_COLUMNS = [
     ("run", lambda m: m["name"]),
     ("t_end [s]", lambda m: m["t_end"]),
@@ -194,11 +322,14 @@ SINGLE_COLUMNS = [
 def rows(runs, demo: bool = False) -> tuple[list[str], list[list[str]]]:
     """Header and formatted rows for a list of runs (objects with ``.name`` and ``.metrics``)."""
     single = all(r.metrics.get("kind") == "single" for r in runs)
-    cols = SINGLE_COLUMNS if single else (DEMO_COLUMNS if demo else PAIR_COLUMNS)
+    network = all(r.metrics.get("kind") == "network" for r in runs)
+    cols = SINGLE_COLUMNS if single else NETWORK_COLUMNS if network else (DEMO_COLUMNS if demo else PAIR_COLUMNS)
     table = []
     for r in runs:
         m = {**r.metrics, "name": r.name}
-        table.append([format_value(f(m)) if (single or m.get("kind") == "pair" or i == 0) else "—"
+        if m.get("error"):   # a failed run: no synchronization numbers from its garbage
+            m.update(t_sync="FAILED", rate=None, bound=None, final_d=None)
+        table.append([format_value(f(m)) if (single or network or m.get("kind") == "pair" or i == 0) else "—"
                       for i, (_, f) in enumerate(cols)])
     return [h for h, _ in cols], table
 
@@ -226,11 +357,14 @@ def _numeric(cells) -> bool:
     """A column of numbers (or never / — / counts like 3/4): right-aligned."""
     def num(c):
         c = str(c)
-        if c in ("never", "—", "-inf", "nan"):
+        if c in ("never", "not within t_end", "FAILED", "—", "-inf", "nan"):
             return True
+        if " ± " in c:
+            c = c.split(" ± ")[0]
         try:
             for part in c.split("/"):
-                float(part)
+                if part != "—":
+                    float(part)
             return True
         except ValueError:
             return False
@@ -254,11 +388,24 @@ def write_summary(path, title: str, description: str, rows, settings=(), files=(
     if description:
         lines += [description.strip(), ""]
     lines += ["## Results", ""] + _md_table(header, table) + [""]
+    lines += ["- decay rate: exponential decay rate of the envelope of d (of max d for a network), fitted "
+              "on its decay window, ± its standard uncertainty (well-conditioned: compare runs with this, "
+              "not with t_sync differences; — where no decay is resolved: a run that does not synchronize and "
+              "whose rate is not above twice its uncertainty). "
+              "ultimate bound: max d over the last 20 % of the run "
+              "(practical synchronization of non-identical systems)."]
     lines += [f"- t_sync: first time after which the quotient distance d stays below {SYNC_THRESHOLD:g} "
-              "(never: not within the run).",
+              "(not within t_end: d was still at or above it at the end of the run; a longer run may get there).",
               "- max(|x1-x2|-d): the Euclidean error's peaking above d (largest at impact mismatches).",
-              "- max dV at impacts: largest change of V = d^2/2 over a record containing an impact "
-              "(O(dt) for the quotient distance; the Euclidean error jumps by about (1+e)|w.u-|)."]
+              "- impact steps: steps (dt in the core, H in co-simulation) with a positive percussion; "
+              "a plastic impact or persistent contact gives many per contact.",
+              "- contact episodes: arrivals at the wall seen in the record (each begins one episode of "
+              "contact; the markers of the position plots).",
+              "- max dV over an episode start: largest change of V = d^2/2 over a record in which a contact "
+              "episode begins (O(dt) for the quotient distance, while the Euclidean error jumps by about "
+              "(1+e)|w.u-|); — when the record shows no contact episode (a contact episodes cell — : the "
+              "solver counted impact steps but the record does not resolve the arrivals, e.g. unresolved "
+              "stiff chatter or a coarse record_every)."]
     lines += [f"- {n}" for n in notes] + [""]
     if settings:
         lines += ["## Settings", ""] + _md_table(["key", "value"], [[k, f"`{v}`"] for k, v in settings]) + [""]

@@ -125,7 +125,7 @@ def test_tables_and_summary(tmp_path, pair, osc):
     runs = [Run("switching", pair), Run("never", fake_pair(osc, (1.0, 0.0), (0.5, 0.0), t_end=3.0))]
     runs[1].metrics["t_sync"] = math.inf
     header, table = report.rows(runs)
-    assert header[0] == "variant" and len(table) == 2 and table[1][2] == "never"
+    assert header[0] == "variant" and len(table) == 2 and table[1][2] == "not within t_end"
     buf = io.StringIO()
     report.print_table(header, table, file=buf)
     lines = buf.getvalue().splitlines()
@@ -159,3 +159,61 @@ def test_max_abs_difference(pair):
     assert report.max_abs_difference(fine, pair) == 0.0
     nod = PairResult(pair.t, pair.q1, pair.u1, pair.q2, pair.u2, pair.tau1, pair.tau2, None, None, None)
     assert report.max_abs_difference(nod, pair) is None
+
+
+# ------------------------------------------------------------------ what the figures say
+def _texts(fig_path_fn, *args, **kw):
+    """Run a plotter with Figure.savefig captured: the figure's texts and legend labels."""
+    from matplotlib.figure import Figure
+    seen = {}
+    orig = Figure.savefig
+
+    def capture(self, path, **k):
+        seen["fig"] = self
+        return orig(self, path, **k)
+    Figure.savefig = capture
+    try:
+        fig_path_fn(*args, **kw)
+    finally:
+        Figure.savefig = orig
+    fig = seen["fig"]
+    out = [t.get_text() for t in fig.findobj(lambda o: hasattr(o, "get_text"))]
+    for ax in fig.axes:
+        out.append("TITLE:" + ax.get_title())
+        leg = ax.get_legend()
+        if leg is not None:
+            out += [t.get_text() for t in leg.get_texts()]
+    return fig, out
+
+
+def test_impact_zoom_window_shows_the_jump_with_d_continuous(osc):
+    """A real coupled pair: the zoom window holds the largest peaking of the Euclidean error
+    over d; inside it E jumps by O(1) between two records while d changes by O(dt) only."""
+    from fmu_sync.core import simulate_pair
+    r = simulate_pair(osc, (1.0, 0.0), (0.2, 0.5), 20.0, 1e-3, coupling="switching", Kp=1.0, Kd=0.5,
+                      record_every=10)
+    i0, i1, k = plots.impact_window(r, osc)
+    assert i0 < k < i1
+    E, d = r.euclidean[i0:i1], r.d[i0:i1]
+    assert np.max(np.abs(np.diff(E))) > 0.5                 # the Euclidean error jumps ...
+    assert np.max(np.abs(np.diff(d))) < 0.05                # ... the quotient distance does not
+    assert r.euclidean[k] - r.d[k] == pytest.approx(np.max(r.euclidean - r.d))
+
+
+def test_titles_single_and_zero_noted(tmp_path, pair, osc):
+    fig, texts = _texts(plots.plot_distance, pair, tmp_path / "d.png", system=osc, title="scene, run")
+    titles = [t for t in texts if t.startswith("TITLE:") and t != "TITLE:"]
+    assert titles == ["TITLE:scene, run: Euclidean error vs quotient distance"]
+    assert any("d = 0 exactly from t = " in t for t in texts), texts      # no silent stop
+    assert any(t.startswith("t_sync") for t in texts)
+    _, texts = _texts(plots.compare_plot, {"a": pair}, tmp_path / "c.png", title="only this")
+    assert [t for t in texts if t.startswith("TITLE:")] == ["TITLE:only this"]
+
+
+def test_uncoupled_forces_one_panel_no_empty_axes(tmp_path, pair, osc):
+    z = np.zeros_like(pair.tau1)
+    unc = PairResult(pair.t, pair.q1, pair.u1, pair.q2, pair.u2, z, z, pair.d, pair.branch, pair.euclidean)
+    fig, texts = _texts(plots.plot_forces, unc, tmp_path / "f.png", system=osc)
+    assert len(fig.axes) == 1 and any("no coupling force" in t for t in texts)
+    fig, _ = _texts(plots.plot_forces, pair, tmp_path / "g.png", system=osc)
+    assert len(fig.axes) == 2 and all(ax.lines for ax in fig.axes)

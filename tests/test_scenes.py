@@ -31,7 +31,8 @@ def test_builtin_scene_loads_and_validates(name):
     for v in s.variants:
         assert v.cfg["run.t_end"] > 0 and v.cfg["solver.dt"] > 0
         assert 0.0 <= v.system.e <= 1.0
-        assert v.system.gap(np.atleast_1d(v.x1[0])) >= 0
+        starts = v.network.states if v.is_network else [x for x in (v.x1, v.x2) if x is not None]
+        assert all(v.system.gap(np.atleast_1d(x[0])) >= 0 for x in starts)
 
 
 def test_forced_pair_has_our_parameters():
@@ -215,9 +216,12 @@ def test_single_system_scene_runs_simulate_only(tmp_path):
 def test_divergence_names_the_scene_and_step(tmp_path):
     text = BASE.replace("k = 1.0", "k = 1e8").replace("x2 = [0.5, 0.0]\n", "").replace(
         'law = "switching"\nKp = 1.0\n', "").replace("[run]", '[solver]\ndt = 1e-3\n[run]')
-    from fmu_sync.core import SimulationDiverged
-    with pytest.raises(SimulationDiverged, match=r"scene 'stiff'.*dt = 0\.001.*omega_max\*dt = 10"):
+    from fmu_sync.scenes.running import RunRefused
+    # refused before the first step (a ValueError: bad input), nothing written
+    with pytest.raises(RunRefused, match=r"scene 'stiff'.*refused before the first step.*dt = 0\.001.*"
+                                         r"omega_max\*dt = 10"):
         run_scene(load_scene(write(tmp_path, text, "stiff.toml")), tmp_path / "o")
+    assert not (tmp_path / "o").exists()
 
 
 def _fake_pair_module(calls):

@@ -31,7 +31,14 @@ types and bad values raise :class:`SceneError` naming file, key and value)::
     x1 = [1.0, 0.0]             # [q, u]; for n > 1: [[q1, .., qn], [u1, .., un]]
     x2 = [0.2, 0.5]             # optional: without x2 the scene is a single system
 
-    [coupling]                  # pair scenes only
+    [network]                   # instead of [initial]: N >= 2 systems on a graph (see ring-8.toml)
+    graph = "ring"              # "ring" | "path" | "star" | "all-to-all" | N x N weight matrix
+    weight = 1.0                # edge weight of a named graph (default 1); center = 1: a star's hub
+    states = [[1.0, 0.0], ...]  # one start state per node (N = len(states))
+    nodes = [{}, {k = 1.05}]    # optional: [system] keys per node (not m/M, w, g0, e: common)
+    laws = ["switching", ...]   # optional: one law per edge, order (1,2), (1,3), .., (2,3), ..
+
+    [coupling]                  # pair and network scenes only
     law = "switching"           # "none" | "switching" | "euclidean"   (default "none")
     Kp = 1.0                    # >= 0, number or n x n matrix         (default 0)
     Kd = 0.5                    # >= 0, number or n x n matrix         (default 0)
@@ -50,12 +57,16 @@ types and bad values raise :class:`SceneError` naming file, key and value)::
     method = "jacobi"           # "jacobi" | "gauss-seidel" (cosim)
     event_aware = false         # cosim: retake steps that contain an impact
     record_every = 10           # keep every k-th step (core: steps dt; cosim: steps H)
+    allow_unstable = false      # run even if the held coupling exchange is unstable at this step
+                                # (refused before the first step by default; CLI: --allow-unstable)
 
     [record]
     distance = true             # compute d, branch, V, Euclidean error (pairs; default true)
+    formats = ["csv", "npz"]    # data files to write: any of "csv", "npz" (CLI: --format npz,csv)
 
     [plot]
-    plots = ["positions", "distance", "lyapunov", "forces", "phase"]
+    plots = ["positions", "distance", "impact-zoom", "lyapunov", "forces", "phase"]
+                                # impact-zoom: one impact window, Euclidean error vs d (linear axes)
     compare = true              # d(t) of all variants on one axis (default: when >= 2 variants)
 
     [[runs]]                    # optional variants; each one is a run of its own.

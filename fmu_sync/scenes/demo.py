@@ -15,8 +15,9 @@ __all__ = ["run_demo", "DEMO_OUT", "DEMO_VARIANTS", "DEMO_QUICK_T_END"]
 # ---------------------------------------------------------------- the demo
 DEMO_OUT = Path("fmu-sync-demo")
 DEMO_VARIANTS = ("uncoupled", "euclidean", "switching")
-#: --quick: long enough for the coupled runs to reach d < 1e-6 (about 26 s and 29 s with the defaults).
-DEMO_QUICK_T_END = 40.0
+#: --quick: long enough for every coupled run to reach d < 1e-6 (the core about 26 s and 29 s,
+#: the Euclidean co-simulation about 43 s with the defaults).
+DEMO_QUICK_T_END = 50.0
 
 
 def run_demo(out_dir=None, quick: bool = False, progress: Callable | None = None,
@@ -27,7 +28,7 @@ def run_demo(out_dir=None, quick: bool = False, progress: Callable | None = None
     ``cosimulate`` (H = run.H) and ``simulate_pair`` (dt = solver.dt) for the
     uncoupled, Euclidean and switching variants, compares d on the common
     grid (max |d_cosim - d_core|) and writes data, plots and ``summary.md``.
-    ``quick`` shortens the run to ``DEMO_QUICK_T_END`` (40 s); ``t_end`` sets it outright.
+    ``quick`` shortens the run to ``DEMO_QUICK_T_END`` (50 s); ``t_end`` sets it outright.
     """
     from .. import plots as P
     from .. import report
@@ -55,7 +56,8 @@ def run_demo(out_dir=None, quick: bool = False, progress: Callable | None = None
             k += 1
             run = RunRecord(f"{name}-{tag}", v, result, report.metrics(result, v.system))
             run.metrics.update(mode=tag, variant=name)
-            write_run(run, out_dir, scene.plots if tag == "cosim" else (), "forced-pair")
+            write_run(run, out_dir, scene.plots if tag == "cosim" else (), "forced-pair",
+                      formats=tuple(v.cfg["record.formats"]))
             runs.append(run)
         rc, rm = runs[-2], runs[-1]
         diff = report.max_abs_difference(rc.result, rm.result, "d")
@@ -63,15 +65,15 @@ def run_demo(out_dir=None, quick: bool = False, progress: Callable | None = None
     files += [f for r in runs for f in r.files]
     cos = {r.name.removesuffix("-cosim"): r.result for r in runs if r.name.endswith("-cosim")}
     files.append(P.compare_plot(cos, out_dir / "compare-distance.png",
-                                title="forced-pair (co-simulation): quotient distance d"))
+                                title=f"forced-pair, co-simulation (H = {H:g} s): quotient distance d"))
     files.append(P.compare_plot(cos, out_dir / "compare-euclidean.png", quantity="euclidean",
-                                title="forced-pair (co-simulation): Euclidean error"))
+                                title=f"forced-pair, co-simulation (H = {H:g} s): Euclidean error"))
     both = {f"{r.metrics['variant']} ({r.metrics['mode']})": r.result for r in runs}
     colors = {f"{r.metrics['variant']} ({r.metrics['mode']})": f"C{DEMO_VARIANTS.index(r.metrics['variant'])}"
               for r in runs}
     files.append(P.compare_plot(both, out_dir / "cosim-vs-core.png", colors=colors,
                                 dashed=[k for k in both if k.endswith("(core)")],
-                                title=f"co-simulation (H = {H:g} s) vs monolithic core (dt = {dt:g} s)"))
+                                title=f"forced-pair: d, co-simulation (H = {H:g} s) vs core (dt = {dt:g} s)"))
     sr = SceneRun(scene, out_dir, runs, files)
     note = (f"Co-simulation: the FMU `{fmu_path.name}`, two instances, communication step H = {H:g} s, "
             f"{v0.cfg['run.method']} exchange, coupling forces held over each H. Core: `simulate_pair` with "
@@ -79,6 +81,7 @@ def run_demo(out_dir=None, quick: bool = False, progress: Callable | None = None
             f"common time grid.")
     sr.summary = report.write_summary(out_dir / "summary.md", title="fmu-sync demo: forced pair",
                                       description=scene.description, rows=report.rows(runs, demo=True),
-                                      settings=settings_table(scene, list(scene.variants)), files=files,
+                                      settings=settings_table(scene, [r.variant for r in runs],
+                                                              [r.name for r in runs]), files=files,
                                       base=out_dir, notes=[note] + error_notes(runs))
     return sr

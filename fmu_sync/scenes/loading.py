@@ -12,8 +12,9 @@ import numpy as np
 from ..core import ImpactOscillator, MechanicalSystem
 from ..fmus import contract
 from . import SCENE_DIR, builtin_names
-from .schema import (DISTANCE_PLOTS, KEYS, MODELS, NAME_RE, PLOTS, REQUIRED, SINGLE_PLOTS, SYSTEM_KEYS, TABLES,
-                     VARIANT_TABLES, BadValue, SceneError, Variant, choice, show_value)
+from .schema import (DISTANCE_PLOTS, KEYS, MODELS, NAME_RE, NETWORK_PLOTS, PLOTS, REQUIRED, SINGLE_PLOTS,
+                     SYSTEM_KEYS, TABLES, VARIANT_TABLES, BadValue, NetworkSpec, SceneError, Variant, choice,
+                     show_value)
 
 __all__ = ["Scene", "load_scene", "list_scenes", "parse_override"]
 
@@ -218,6 +219,84 @@ def _validate(flat: dict, where: dict, ctx: str) -> dict:
     return cfg
 
 
+def _make_system(cfg: dict):
+    """The MechanicalSystem of the (validated) ``system.*`` keys of ``cfg``."""
+    if cfg["system.model"] == "impact-oscillator":
+        return ImpactOscillator(m=cfg["system.m"], k=cfg["system.k"], c=cfg["system.c"],
+                                f0=cfg["system.f0"], F=cfg["system.F"], Omega=cfg["system.Omega"],
+                                phi=cfg["system.phi"], e=cfg["system.e"])
+    M = np.array(cfg["system.M"])
+    n = M.shape[0]
+    zeros = np.zeros((n, n))
+    return MechanicalSystem(M=M, K=cfg["system.K"] if cfg["system.K"] is not None else zeros,
+                            C=cfg["system.C"] if cfg["system.C"] is not None else zeros,
+                            f0=cfg["system.f0"] if cfg["system.f0"] is not None else np.zeros(n),
+                            w=cfg["system.w"], g0=cfg["system.g0"], e=cfg["system.e"],
+                            forcing=tuple(cfg["system.forcing"]))
+
+
+def _build_network(cfg: dict, system, ctx: str, fail, state_of) -> NetworkSpec:
+    """The [network] table of a variant -> :class:`NetworkSpec` (graph, node systems, states)."""
+    from ..core import network as net   # the core's graphs (ring, path, star, all-to-all)
+    states_raw = cfg["network.states"]
+    if states_raw is None:
+        fail("network.states", None, "a network needs one start state per node", "a list of N states [q, u]")
+    N = len(states_raw)
+    g = cfg["network.graph"]
+    if cfg["network.N"] is not None and cfg["network.N"] != N:
+        fail("network.N", cfg["network.N"], f"differs from the number of start states ({N})",
+             "N = len(network.states), or leave N out")
+    if isinstance(g, str):
+        w = cfg["network.weight"]
+        if g == "star":
+            if cfg["network.center"] > N:
+                fail("network.center", cfg["network.center"], f"is not a node of {N}", f"1 .. {N}")
+            A = net.star(N, w, cfg["network.center"] - 1)
+        else:
+            A = net.graph(g, N, w)
+        kind = g
+    else:
+        A = np.array(g, dtype=float)
+        if A.shape[0] != N:
+            fail("network.graph", g, f"is {A.shape[0]} x {A.shape[0]}, there are {N} start states",
+                 f"an {N} x {N} weight matrix")
+        kind = "matrix"
+    edges = net.edges_of(A)
+    if not edges:
+        fail("network.graph", g, "has no edge", "a graph with at least one weight > 0")
+    laws = cfg["network.laws"]
+    if laws is not None and len(laws) != len(edges):
+        fail("network.laws", laws, f"has {len(laws)} laws for {len(edges)} edges {edges}",
+             f"{len(edges)} law names, one per edge in the order {edges}")
+    nodes = cfg["network.nodes"]
+    if nodes is None:
+        nodes = [{}] * N
+    if len(nodes) != N:
+        fail("network.nodes", nodes, f"has {len(nodes)} tables for {N} nodes", f"{N} tables ({{}} for the defaults)")
+    schema = SYSTEM_KEYS[cfg["system.model"]]
+    systems = []
+    for i, t in enumerate(nodes):
+        if not t:
+            systems.append(system)
+            continue
+        node_cfg = dict(cfg)
+        for k, v in t.items():
+            if k not in schema:
+                fail("network.nodes", nodes, f"node {i + 1} sets an unknown key {k}",
+                     "keys of [system]: " + ", ".join(x for x in schema if x not in ("model", "m", "M", "w", "g0", "e")))
+            try:
+                node_cfg[f"system.{k}"] = schema[k][0](v)
+            except BadValue as b:
+                fail("network.nodes", nodes, f"node {i + 1}: {k} = {show_value(v)} {b.problem}", b.allowed)
+        try:
+            systems.append(_make_system(node_cfg))
+        except ValueError as exc:
+            fail("network.nodes", nodes, f"node {i + 1}: {exc}")
+    states = tuple(state_of(f"network.states[{i + 1}]", x) for i, x in enumerate(states_raw))
+    return NetworkSpec(A=A, graph=kind, systems=tuple(systems), states=states, nodes=tuple(dict(t) for t in nodes),
+                       laws=tuple(laws) if laws is not None else None)
+
+
 def _build_variant(name: str, description: str, cfg: dict, where: dict, ctx: str, raw: dict) -> Variant:
     def fail(key, value, problem, allowed=None):
         tail = f"; allowed: {allowed}" if allowed else ""
@@ -225,25 +304,13 @@ def _build_variant(name: str, description: str, cfg: dict, where: dict, ctx: str
         raise SceneError(f"{ctx}: {where.get(key, key)} = {show_value(value)}: {problem}{tail}")
 
     try:
-        if cfg["system.model"] == "impact-oscillator":
-            system = ImpactOscillator(m=cfg["system.m"], k=cfg["system.k"], c=cfg["system.c"],
-                                      f0=cfg["system.f0"], F=cfg["system.F"], Omega=cfg["system.Omega"],
-                                      phi=cfg["system.phi"], e=cfg["system.e"])
-        else:
-            M = np.array(cfg["system.M"])
-            n = M.shape[0]
-            zeros = np.zeros((n, n))
-            system = MechanicalSystem(M=M, K=cfg["system.K"] if cfg["system.K"] is not None else zeros,
-                                      C=cfg["system.C"] if cfg["system.C"] is not None else zeros,
-                                      f0=cfg["system.f0"] if cfg["system.f0"] is not None else np.zeros(n),
-                                      w=cfg["system.w"], g0=cfg["system.g0"], e=cfg["system.e"],
-                                      forcing=tuple(cfg["system.forcing"]))
+        system = _make_system(cfg)
     except ValueError as exc:
         raise SceneError(f"{ctx}: [system]: {exc}") from None
     n = system.n
 
-    def state(key):
-        v = cfg[key]
+    def state(key, v=None):
+        v = cfg[key] if v is None else v
         if v is None:
             return None
         if len(v[0]) != n:
@@ -261,7 +328,22 @@ def _build_variant(name: str, description: str, cfg: dict, where: dict, ctx: str
             fail(key, v, f"is {a.shape[0]} x {a.shape[1]}, the system has n = {n}", f"a number or an {n} x {n} matrix")
         return a
 
-    x1, x2 = state("initial.x1"), state("initial.x2")
+    spec = None
+    if cfg["network.graph"] is not None:
+        if cfg["initial.x1"] is not None or cfg["initial.x2"] is not None:
+            fail("initial.x1" if cfg["initial.x1"] is not None else "initial.x2", None,
+                 "a network scene gives its start states in network.states", "leave [initial] out")
+        spec = _build_network(cfg, system, ctx, fail, state)
+        x1 = x2 = None
+    else:
+        net_keys = [k for k in ("network.states", "network.nodes", "network.laws", "network.N")
+                    if cfg[k] is not None]
+        if net_keys:
+            fail(net_keys[0], cfg[net_keys[0]], "needs network.graph", 'network.graph = "ring" (or another graph)')
+        if cfg["initial.x1"] is None:
+            raise SceneError(f"{ctx}: initial.x1 is missing (required; a network scene sets network.graph "
+                             "and network.states instead)")
+        x1, x2 = state("initial.x1"), state("initial.x2")
     Kp, Kd, Q = cfg["coupling.Kp"], cfg["coupling.Kd"], cfg["coupling.Q"]
     if isinstance(Kp, list):
         Kp = square("coupling.Kp", Kp)
@@ -274,7 +356,16 @@ def _build_variant(name: str, description: str, cfg: dict, where: dict, ctx: str
                  "a number > 0 or an SPD matrix")
 
     law, mode, scheme = cfg["coupling.law"], cfg["run.mode"], cfg["solver.scheme"]
-    if x2 is None:
+    if spec is not None:
+        if cfg["record.distance"] is None:
+            cfg["record.distance"] = True
+        if scheme == "exact":
+            fail("solver.scheme", scheme, "the exact solver runs single 1-DOF systems only",
+                 '"midpoint" or "theta" for networks')
+        if mode == "cosim" and contract.model_for(cfg["system.model"], n) is None:
+            fail("run.mode", mode, f"there is no FMU for a {cfg['system.model']} with n = {n}",
+                 '"core", or a model with an FMU: impact-oscillator, mechanical-system with n = 2')
+    elif x2 is None:
         if law != "none":
             fail("coupling.law", law, "a coupling needs two systems: this scene has no initial.x2",
                  '"none" for a single system, or add initial.x2')
@@ -295,7 +386,7 @@ def _build_variant(name: str, description: str, cfg: dict, where: dict, ctx: str
     if scheme == "exact" and (n != 1):
         fail("solver.scheme", scheme, "the exact solver is for 1-DOF systems", '"midpoint" or "theta"')
     return Variant(name=name, description=description, cfg=cfg, system=system, x1=x1, x2=x2,
-                   Kp=Kp, Kd=Kd, Q=Q)
+                   Kp=Kp, Kd=Kd, Q=Q, network=spec)
 
 
 def _resolve_plots(origin: dict, ctx: str, variants: list) -> tuple[list, bool]:
@@ -303,10 +394,16 @@ def _resolve_plots(origin: dict, ctx: str, variants: list) -> tuple[list, bool]:
     plots, compare = variants[0].cfg["plot.plots"], variants[0].cfg["plot.compare"]
     pair = any(v.pair for v in variants)
     all_d = all(v.has_distance for v in variants)
+    net = any(v.is_network for v in variants)
     if plots is None:
-        plots = [p for p in PLOTS if (pair or p in SINGLE_PLOTS) and (all_d or p not in DISTANCE_PLOTS)]
+        plots = [p for p in PLOTS if (pair or p in SINGLE_PLOTS) and (all_d or p not in DISTANCE_PLOTS)
+                 and (not net or p in NETWORK_PLOTS)]
     for p in plots:
         for v in variants:
+            if v.is_network and p not in NETWORK_PLOTS:
+                raise SceneError(f"{ctx}: {origin.get('plot.plots', 'plot.plots')} = {show_value(plots)}: "
+                                 f'"{p}" is not drawn for a network (variant {v.name!r}); allowed for '
+                                 f"networks: {', '.join(NETWORK_PLOTS)}")
             if not v.pair and p not in SINGLE_PLOTS:
                 raise SceneError(f"{ctx}: {origin.get('plot.plots', 'plot.plots')} = {show_value(plots)}: "
                                  f'"{p}" needs two systems (variant {v.name!r} has no initial.x2); '

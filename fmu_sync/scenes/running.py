@@ -14,7 +14,7 @@ from ..progress import scaled
 from .loading import Scene, load_scene
 from .schema import DEFAULT_OUT, TABLES, SceneError, Variant
 
-__all__ = ["RunRecord", "SceneRun", "run_scene", "run_variant", "fmu_start_values", "export_for",
+__all__ = ["RunRecord", "SceneRun", "RunRefused", "preflight", "run_scene", "run_variant", "fmu_start_values", "export_for",
            "write_run", "error_notes", "settings_table"]
 
 
@@ -25,6 +25,7 @@ class RunRecord:
     result: Any                 # PairResult or SimulationResult
     metrics: dict
     files: list = field(default_factory=list)
+    streamed: bool = False
 
 
 @dataclass
@@ -35,13 +36,18 @@ class SceneRun:
     files: list
     summary: Path | None = None
 
+    @property
+    def failed(self) -> list:
+        """The runs that stopped before their end."""
+        return [r for r in self.runs if r.metrics.get("error")]
+
 
 # ---------------------------------------------------------------- running
 def _coupling_arg(law: str):
     return None if law == "none" else law
 
 
-def fmu_start_values(fmu_path, variant: Variant) -> dict:
+def fmu_start_values(fmu_path, variant: Variant, system=None) -> dict:
     """Start values for the FMU's parameters from the scene, as the FMU contract names them.
 
     The FMU must be the contract's model of the variant's system family
@@ -58,7 +64,7 @@ def fmu_start_values(fmu_path, variant: Variant) -> dict:
         if model is not want:
             raise contract.ContractError(f"it is the {model.key} model, the scene needs "
                                          f"{want.key if want else 'a model the registry does not have'}")
-        return {**model.values(variant.system),
+        return {**model.values(variant.system if system is None else system),
                 **model.solver_values(cfg["solver.dt"], cfg["solver.scheme"], cfg["solver.theta"])}
     except contract.ContractError as exc:
         raise SceneError(f"{name}: cannot take the scene's values: {exc}") from None
@@ -74,11 +80,62 @@ def export_for(variant: Variant, out_dir) -> Path:
     return Path(export_fmu(model, Path(out_dir) / f"{model.replace('-', '_')}.fmu", None))
 
 
-def run_variant(variant: Variant, fmu_path=None, progress: Callable | None = None, scene_name: str = ""):
-    """Run one variant: ``simulate`` (single system), ``simulate_pair`` (core) or ``cosimulate``."""
+class RunRefused(ValueError):
+    """A variant refused before its first step (a step known to be unstable)."""
+
+
+def _label(variant: Variant, scene_name: str = "") -> str:
+    return f"scene {scene_name!r}, variant {variant.name!r}" if scene_name else f"variant {variant.name!r}"
+
+
+def preflight(variant: Variant, scene_name: str = "") -> None:
+    """Refuse, before anything runs or is written, a variant whose step is known to be
+    unstable: the midpoint scheme at omega_max*dt >= 2, and the held coupling exchange
+    beyond its zero-order-hold limit (unless ``run.allow_unstable``). Raises :class:`RunRefused`."""
+    from ..core.checks import check_stable
     cfg = variant.cfg
-    label = f"scene {scene_name!r}, variant {variant.name!r}" if scene_name else f"variant {variant.name!r}"
+    label = _label(variant, scene_name)
     try:
+        check_stable(variant.system, cfg["solver.scheme"], cfg["solver.dt"])
+    except SimulationDiverged as exc:
+        raise RunRefused(f"{label}: refused before the first step: {exc}") from None
+    coupled = variant.law != "none" or (variant.is_network and variant.network.laws is not None
+                                         and any(x != "none" for x in variant.network.laws))
+    if variant.pair and coupled and not cfg["run.allow_unstable"]:
+        try:
+            from ..core.exchange import check_exchange
+        except ImportError:   # the exchange check arrives with the core of issue 10
+            return
+        cosim = variant.mode == "cosim"
+        A = None
+        if variant.is_network:
+            from ..core.network import coupled_weights, edge_laws, edges_of
+            spec = variant.network
+            edges = edges_of(spec.A)
+            A = coupled_weights(spec.A, edges, edge_laws(_laws_arg(variant), edges))
+        try:
+            check_exchange(variant.system.M, variant.Kp, variant.Kd, cfg["run.H"] if cosim else cfg["solver.dt"],
+                           A=A, step_name="H" if cosim else "dt")
+        except ValueError as exc:
+            raise RunRefused(f"{label}: {exc} From the command line: --allow-unstable (or --set "
+                             f"run.allow_unstable=true).") from None
+
+
+def run_variant(variant: Variant, fmu_path=None, progress: Callable | None = None, scene_name: str = "",
+                sink: Callable | None = None, chunk_rows: int = 65536):
+    """Run one variant: ``simulate`` (single system), ``simulate_pair`` (core) or ``cosimulate``.
+
+    ``sink``/``chunk_rows`` (core pairs only): stream the record in chunks
+    (:func:`fmu_sync.core.simulate_pair`). A run that fails mid-way raises
+    :class:`~fmu_sync.core.RunFailed` naming the scene and variant, with the
+    record up to the failure in ``.partial`` (None where there is none).
+    """
+    cfg = variant.cfg
+    label = _label(variant, scene_name)
+    extra = {"allow_unstable": True} if cfg["run.allow_unstable"] else {}
+    try:
+        if variant.is_network:
+            return _run_network(variant, fmu_path, progress, label, extra)
         if not variant.pair:
             result = simulate(variant.system, variant.x1, cfg["run.t_end"], cfg["solver.dt"],
                               scheme=cfg["solver.scheme"], theta=cfg["solver.theta"],
@@ -88,50 +145,141 @@ def run_variant(variant: Variant, fmu_path=None, progress: Callable | None = Non
             return result
         if variant.mode == "core":
             from ..core.pair import simulate_pair
+            if sink is not None:
+                extra.update(sink=sink, chunk_rows=chunk_rows)
             return simulate_pair(variant.system, variant.x1, variant.x2, cfg["run.t_end"], cfg["solver.dt"],
                                  coupling=_coupling_arg(variant.law), Kp=variant.Kp, Kd=variant.Kd, Q=variant.Q,
                                  scheme=cfg["solver.scheme"], theta=cfg["solver.theta"],
                                  record_every=cfg["run.record_every"],
-                                 record_distance=bool(cfg["record.distance"]), progress=progress)
+                                 record_distance=bool(cfg["record.distance"]), progress=progress, **extra)
         from ..master import cosimulate  # imports fmpy: cosim branch only
         if fmu_path is None:
             raise ValueError(f"{label}: mode = cosim needs an exported FMU (fmu_path)")
-        try:
-            return cosimulate(fmu_path, variant.x1, variant.x2, cfg["run.t_end"], cfg["run.H"],
-                              coupling=_coupling_arg(variant.law), Kp=variant.Kp, Kd=variant.Kd, Q=variant.Q,
-                              method=cfg["run.method"], record_every=cfg["run.record_every"],
-                              event_aware=cfg["run.event_aware"], H_min=cfg["run.H_min"],
-                              start_values=fmu_start_values(fmu_path, variant),
-                              record_distance=bool(cfg["record.distance"]), progress=progress)
-        except RunFailed as exc:  # a failed slave: the scene reports it and keeps the record
-            if exc.partial is None:
-                raise
-            return exc.partial
-    except SimulationDiverged as exc:
-        raise SimulationDiverged(f"{label}: {exc}") from None
+        result = cosimulate(fmu_path, variant.x1, variant.x2, cfg["run.t_end"], cfg["run.H"],
+                            coupling=_coupling_arg(variant.law), Kp=variant.Kp, Kd=variant.Kd, Q=variant.Q,
+                            method=cfg["run.method"], record_every=cfg["run.record_every"],
+                            event_aware=cfg["run.event_aware"], H_min=cfg["run.H_min"],
+                            start_values=fmu_start_values(fmu_path, variant),
+                            record_distance=bool(cfg["record.distance"]), progress=progress, **extra)
+        if getattr(result, "error", None):   # a record that stopped early (older masters return it)
+            raise RunFailed(result.error, partial=result)
+        return result
+    except RunFailed as exc:
+        if str(exc).startswith(label):
+            raise
+        cls = SimulationDiverged if isinstance(exc, SimulationDiverged) else RunFailed
+        err = cls(f"{label}: {exc}")
+        err.partial = exc.partial
+        raise err from None
 
 
-def write_run(run: RunRecord, out_dir: Path, plots, title: str) -> None:
+def _laws_arg(variant: Variant):
+    """The coupling of a network variant: one law name (None: uncoupled) or one per edge."""
+    spec = variant.network
+    if spec is not None and spec.laws is not None:
+        return [None if x == "none" else x for x in spec.laws]
+    return _coupling_arg(variant.law)
+
+
+def _run_network(variant: Variant, fmu_path, progress, label, extra):
+    """A network variant: ``simulate_network`` (core) or ``cosimulate_network`` (master)."""
+    cfg = variant.cfg
+    spec = variant.network
+    if variant.mode == "core":
+        from ..core.network import simulate_network
+        return simulate_network(list(spec.systems), list(spec.states), spec.A, cfg["run.t_end"], cfg["solver.dt"],
+                                coupling=_laws_arg(variant), Kp=variant.Kp, Kd=variant.Kd, Q=variant.Q,
+                                scheme=cfg["solver.scheme"], theta=cfg["solver.theta"],
+                                record_every=cfg["run.record_every"],
+                                record_distance=bool(cfg["record.distance"]), progress=progress, **extra)
+    from ..master import cosimulate_network
+    if fmu_path is None:
+        raise ValueError(f"{label}: mode = cosim needs an exported FMU (fmu_path)")
+    starts = [fmu_start_values(fmu_path, variant, s) for s in spec.systems]
+    result = cosimulate_network(fmu_path, list(spec.states), spec.A, cfg["run.t_end"], cfg["run.H"],
+                                coupling=_laws_arg(variant), Kp=variant.Kp, Kd=variant.Kd, Q=variant.Q,
+                                method=cfg["run.method"], record_every=cfg["run.record_every"],
+                                event_aware=cfg["run.event_aware"], H_min=cfg["run.H_min"],
+                                start_values=starts, record_distance=bool(cfg["record.distance"]),
+                                progress=progress, **extra)
+    if getattr(result, "error", None):
+        raise RunFailed(result.error, partial=result)
+    return result
+
+
+def write_run(run: RunRecord, out_dir: Path, plots, title: str, formats=("csv", "npz"),
+              progress: Callable | None = None) -> None:
+    """Data (``formats``) and plots of a run; a failed run (``run.result.error``) gets its
+    record marked partial and no plots (its data may be garbage past the failure)."""
     from .. import report
-    run.files += report.write_data(run.result, out_dir / run.name)
-    if plots:
+    failed = bool(getattr(run.result, "error", None))
+    if not run.streamed:
+        run.files += report.write_data(run.result, out_dir / run.name, formats, progress=progress,
+                                       partial=failed)
+    if plots and not failed:
         from .. import plots as P
         if run.name != title:
-            title = f"{title}: {run.name}"
+            title = f"{title}, {run.name}"
         for p in plots:
             run.files.append(P.PLOTTERS[p](run.result, out_dir / f"{run.name}-{p}.png",
                                            system=run.variant.system, title=title))
 
 
+def _stream_run(v: Variant, out_dir: Path, fmu_path, progress, scene_name, formats, est, max_memory):
+    """A core pair whose whole record exceeds the memory budget: written in chunks while it runs."""
+    from .. import report
+    from ..output import RecordWriter, pair_columns
+    per_row = 8.0 * est.values_per_row
+    chunk_rows = max(16, min(1 << 18, int(max_memory / (per_row * 8))))  # the chunk, its copies, the CSV block
+    plot_rows = max(1000, min(20000, int(max_memory / (per_row * 8))))
+    writer = RecordWriter(out_dir / v.name, pair_columns(v.system.n, v.has_distance), formats)
+    from ..stream import StreamRecord
+    sink = StreamRecord(writer, v.system, est.rows, plot_rows)
+    try:
+        last = run_variant(v, fmu_path, progress, scene_name, sink=sink, chunk_rows=chunk_rows)
+    except RunFailed as exc:
+        if sink.rows == 0:
+            writer.abort()
+            raise
+        files = writer.close(partial=True)
+        result = sink.thinned()
+        result.error = str(exc)
+        run = RunRecord(v.name, v, result, sink.metrics(result), files=files, streamed=True)
+        run.metrics["error"] = str(exc)
+        return run
+    except BaseException:
+        writer.abort()
+        raise
+    files = writer.close()
+    result = sink.thinned()
+    metrics = sink.metrics(last)
+    # the fitted decay (envelope of d) and the ultimate bound from the thinned record (sampled
+    # every `thinned_every` records); t_sync, the maxima and the jumps above are exact
+    metrics.update(report._sync_fields(report._sync(result, report.SYNC_THRESHOLD)))
+    run = RunRecord(v.name, v, result, metrics, files=files, streamed=True)
+    return run
+
+
 def run_scene(scene, out_dir=None, overrides: dict | None = None, progress: Callable | None = None,
-              variants=None, plots: bool = True) -> SceneRun:
+              variants=None, plots: bool = True, formats=None, max_memory: float | None = None,
+              max_disk: float | None = None) -> SceneRun:
     """Run every (or the named) variant(s) of a scene and write data, plots and ``summary.md``.
 
     ``scene`` is a :class:`Scene` or a name/path for :func:`load_scene`. ``out_dir``
     defaults to ``./fmu-sync-out/<scene>``. ``progress(fraction)`` gets the overall
-    fraction done. Returns a :class:`SceneRun`.
+    fraction done (running and writing). ``formats``: data files (``("csv", "npz")``,
+    default the scene's ``record.formats``). ``max_memory``/``max_disk`` (bytes): the
+    budget of a run's record (:mod:`fmu_sync.output`); a core pair whose whole record
+    exceeds ``max_memory`` is written in chunks while it runs.
+
+    Everything is checked before anything is written: the output folder, the
+    stability of each variant's step (:func:`preflight`) and its record size
+    (:func:`fmu_sync.output.check_budget`). A variant that fails mid-way keeps
+    its record, marked partial, without plots (``SceneRun.failed``); if nothing
+    was recorded, nothing is left behind. Returns a :class:`SceneRun`.
     """
     from .. import report
+    from ..output import DEFAULT_MAX_DISK, DEFAULT_MAX_MEMORY, check_budget, check_out_dir
 
     if not isinstance(scene, Scene):
         scene = load_scene(scene, overrides, variants)
@@ -141,34 +289,93 @@ def run_scene(scene, out_dir=None, overrides: dict | None = None, progress: Call
         if variants:
             scene = scene.select(variants)
     chosen = list(scene.variants)
-    out_dir = Path(out_dir) if out_dir is not None else DEFAULT_OUT / scene.name
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir = check_out_dir(Path(out_dir) if out_dir is not None else DEFAULT_OUT / scene.name)
+    max_memory = DEFAULT_MAX_MEMORY if max_memory is None else float(max_memory)
+    max_disk = DEFAULT_MAX_DISK if max_disk is None else float(max_disk)
+    plan = []
+    for v in chosen:
+        preflight(v, scene.name)
+        fmts = tuple(v.cfg["record.formats"]) if formats is None else tuple(formats)
+        est, stream = check_budget(v, fmts, max_memory, max_disk,
+                                   can_stream=v.pair and v.mode == "core" and not v.is_network,
+                                   label=_label(v, scene.name))
+        plan.append((v, fmts, est, stream))
 
+    created = not out_dir.exists()
+    out_dir.mkdir(parents=True, exist_ok=True)
     fmus = {}
     runs = []
-    for i, v in enumerate(chosen):
-        fmu_path = None
-        if v.pair and v.mode == "cosim":
-            model = (v.cfg["system.model"], v.system.n)
-            if model not in fmus:
-                fmus[model] = export_for(v, out_dir)
-            fmu_path = fmus[model]
-        result = run_variant(v, fmu_path, scaled(progress, i / len(chosen), (i + 1) / len(chosen)), scene.name)
-        run = RunRecord(v.name, v, result, report.metrics(result, v.system))
-        write_run(run, out_dir, scene.plots if plots else (), scene.name)
-        runs.append(run)
+    try:
+        for i, (v, fmts, est, stream) in enumerate(plan):
+            fmu_path = None
+            if v.pair and v.mode == "cosim":
+                model = (v.cfg["system.model"], v.system.n)
+                if model not in fmus:
+                    fmus[model] = export_for(v, out_dir)
+                fmu_path = fmus[model]
+            a, b = i / len(plan), (i + 1) / len(plan)
+            mid = a + 0.8 * (b - a) if not stream else b
+            if stream:
+                run = _stream_run(v, out_dir, fmu_path, scaled(progress, a, b), scene.name, fmts, est, max_memory)
+            else:
+                try:
+                    result = run_variant(v, fmu_path, scaled(progress, a, mid), scene.name)
+                except RunFailed as exc:
+                    if exc.partial is None:
+                        runs.append(RunRecord(v.name, v, None, {"error": str(exc), "kind": "failed"}))
+                        continue
+                    result = exc.partial
+                    result.error = result.error or str(exc)
+                run = RunRecord(v.name, v, result, report.metrics(result, v.system))
+            if run.result is not None and getattr(run.result, "error", None):
+                run.metrics["error"] = run.result.error
+            write_run(run, out_dir, scene.plots if plots else (), scene.name, fmts, scaled(progress, mid, b))
+            if progress is not None:
+                progress(b)
+            runs.append(run)
+    except BaseException:
+        _clean(out_dir, created, [f for r in runs for f in r.files] + list(fmus.values()))
+        raise
 
+    written = [r for r in runs if r.result is not None]
+    if not written:   # every run failed without a record: leave nothing behind
+        _clean(out_dir, created, list(fmus.values()))
+        sr = SceneRun(scene, out_dir, runs, [])
+        return sr
     files = list(fmus.values()) + [f for r in runs for f in r.files]
-    if plots and scene.compare and len(runs) > 1 and all(r.variant.has_distance for r in runs):
+    ok = [r for r in written if not r.metrics.get("error")]
+    if plots and scene.compare and len(ok) > 1 and all(r.variant.has_distance for r in ok):
         from .. import plots as P
-        files.append(P.compare_plot({r.name: r.result for r in runs}, out_dir / "compare-distance.png",
-                                    title=scene.name))
+        files.append(P.compare_plot({r.name: r.result for r in ok}, out_dir / "compare-distance.png",
+                                    title=f"{scene.name}: quotient distance d of each variant"))
     sr = SceneRun(scene, out_dir, runs, files)
     sr.summary = report.write_summary(out_dir / "summary.md", title=f"Scene `{scene.name}`",
-                                      description=scene.description, rows=report.rows(runs),
+                                      description=scene.description, rows=report.rows(written),
                                       settings=settings_table(scene, chosen), files=files, base=out_dir,
-                                      notes=error_notes(runs))
+                                      notes=error_notes(runs) + stream_notes(runs))
     return sr
+
+
+def _clean(out_dir: Path, created: bool, files) -> None:
+    """Remove what this run wrote (and the folder if it made it and it is empty)."""
+    for f in files:
+        try:
+            Path(f).unlink()
+        except OSError:
+            pass
+    if created:
+        try:
+            out_dir.rmdir()
+        except OSError:
+            pass
+
+
+def stream_notes(runs) -> list[str]:
+    return [f"**{r.name}**: its record exceeded the memory budget and was written in chunks while it ran; "
+            f"the plots, the fitted decay rate and the ultimate bound use every "
+            f"{r.metrics['thinned_every']}-th of its "
+            f"{r.metrics['records']} records (t_sync, maxima and jumps use all of them)"
+            for r in runs if r.metrics.get("thinned_every", 1) > 1]
 
 
 _COSIM_KEYS = ("run.H", "run.H_min", "run.method", "run.event_aware")
@@ -181,6 +388,10 @@ def _relevant(key: str, variants) -> bool:
             continue
         if key.startswith("coupling.") and not v.pair:
             continue
+        if key.startswith("network.") and not v.is_network:
+            continue
+        if key.startswith("initial.") and v.is_network:
+            continue
         if key in _COSIM_KEYS and v.mode != "cosim":
             continue
         if key == "solver.theta" and v.cfg["solver.scheme"] != "theta":
@@ -190,10 +401,16 @@ def _relevant(key: str, variants) -> bool:
 
 
 def error_notes(runs) -> list[str]:
-    return [f"**{r.name} stopped early**: {r.metrics['error']}" for r in runs if r.metrics.get("error")]
+    return [f"**{r.name} failed**: {r.metrics['error']}"
+            + (" Its record up to the failure is marked partial (no plots)." if r.result is not None else
+               " Nothing was recorded.")
+            for r in runs if r.metrics.get("error")]
 
 
-def settings_table(scene: Scene, variants) -> list[tuple[str, str]]:
+def settings_table(scene: Scene, variants, names=None) -> list[tuple[str, str]]:
+    """Settings of the variants that ran (one value, or each run's own: ``names`` label
+    the runs, default the variant names)."""
+    names = [v.name for v in variants] if names is None else list(names)
     rows = [("scene file", str(scene.path))]
     if scene.overrides:
         rows.append(("overrides", ", ".join(f"{k}={v!r}" for k, v in scene.overrides.items())))
@@ -203,7 +420,7 @@ def settings_table(scene: Scene, variants) -> list[tuple[str, str]]:
         if len(values) == 1:
             rows.append((k, values.pop()))
         else:
-            rows.append((k, "; ".join(f"{v.name}: {v.cfg[k]!r}" for v in variants)))
+            rows.append((k, "; ".join(f"{n}: {v.cfg[k]!r}" for n, v in zip(names, variants))))
     return rows
 
 

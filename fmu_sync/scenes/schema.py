@@ -19,7 +19,7 @@ from ..core.coupling import LAWS as COUPLING_LAWS
 
 __all__ = ["SceneError", "Variant", "PLOTS", "DEFAULT_OUT", "KEYS", "SYSTEM_KEYS", "BadValue", "REQUIRED",
            "MODELS", "LAWS", "SCHEMES", "MODES", "METHODS", "TABLES", "VARIANT_TABLES", "SINGLE_PLOTS",
-           "DISTANCE_PLOTS", "NAME_RE", "show_value", "choice"]
+           "DISTANCE_PLOTS", "NAME_RE", "show_value", "choice", "GRAPHS", "NETWORK_PLOTS", "NetworkSpec"]
 
 MODELS = ("impact-oscillator", "mechanical-system")
 #: the scenes' coupling.law values: the core's coupling laws, "none" first
@@ -27,11 +27,14 @@ LAWS = ("none",) + tuple(k for k in COUPLING_LAWS if k != "none")
 SCHEMES = ("midpoint", "theta", "exact")
 MODES = ("core", "cosim")
 METHODS = ("jacobi", "gauss-seidel")
-PLOTS = ("positions", "distance", "lyapunov", "forces", "phase")
+PLOTS = ("positions", "distance", "impact-zoom", "lyapunov", "forces", "phase")
 SINGLE_PLOTS = ("positions", "phase")
-DISTANCE_PLOTS = ("distance", "lyapunov")
-TABLES = ("system", "initial", "coupling", "solver", "run", "record", "plot")
-VARIANT_TABLES = ("system", "initial", "coupling", "solver", "run", "record")
+DISTANCE_PLOTS = ("distance", "impact-zoom", "lyapunov")
+TABLES = ("system", "initial", "network", "coupling", "solver", "run", "record", "plot")
+VARIANT_TABLES = ("system", "initial", "network", "coupling", "solver", "run", "record")
+GRAPHS = ("ring", "path", "star", "all-to-all")
+#: plots of a network run (N systems on a graph)
+NETWORK_PLOTS = ("positions", "distance", "lyapunov")
 DEFAULT_OUT = Path("fmu-sync-out")
 NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 
@@ -176,6 +179,63 @@ def _plots(v):
     return list(v)
 
 
+def _formats(v):
+    allowed = 'a list of data formats from "csv", "npz" (may be empty)'
+    if not isinstance(v, list) or not all(isinstance(f, str) for f in v):
+        raise BadValue("is not a list of strings", allowed)
+    if any(f not in ("csv", "npz") for f in v) or len(set(v)) != len(v):
+        raise BadValue("has unknown or repeated entries", allowed)
+    return list(v)
+
+
+def _graph(v):
+    allowed = ('one of "ring", "path", "star", "all-to-all", or an N x N matrix of weights >= 0 '
+               "with a zero diagonal")
+    if isinstance(v, str):
+        if v not in GRAPHS:
+            raise BadValue("is not a known graph", allowed)
+        return v
+    try:
+        a = _matrix(v)
+    except BadValue:
+        raise BadValue("is neither a graph name nor a square matrix", allowed) from None
+    if len(a) < 2 or any(x < 0 for r in a for x in r) or any(a[i][i] != 0 for i in range(len(a))):
+        raise BadValue("is not a weight matrix (N >= 2, weights >= 0, zero diagonal)", allowed)
+    return a
+
+
+def _states(v):
+    allowed = "a list of N start states [q, u] (n > 1: [[q1, .., qn], [u1, .., un]])"
+    if not isinstance(v, list) or len(v) < 2:
+        raise BadValue("is not a list of at least 2 states", allowed)
+    out = []
+    for k, x in enumerate(v):
+        try:
+            out.append(_state(x))
+        except BadValue as b:
+            raise BadValue(f"has a state {k + 1} that {b.problem}", allowed) from None
+    return out
+
+
+def _nodes(v):
+    allowed = ("a list of N tables of [system] keys that differ per node, e.g. [{}, {k = 1.05}] "
+               "(M, w, g0 and e must be common)")
+    if not isinstance(v, list) or not all(isinstance(t, dict) for t in v):
+        raise BadValue("is not a list of tables", allowed)
+    for t in v:
+        bad = [k for k in t if k in ("model", "m", "M", "w", "g0", "e")]
+        if bad:
+            raise BadValue(f"sets {bad[0]} per node; the impact geometry (M, w, g0, e) must be common", allowed)
+    return [dict(t) for t in v]
+
+
+def _laws(v):
+    allowed = "a list with one law per edge, each one of " + ", ".join(f'"{x}"' for x in LAWS)
+    if not isinstance(v, list) or not all(isinstance(x, str) and x in LAWS for x in v):
+        raise BadValue("is not a list of law names", allowed)
+    return list(v)
+
+
 def _forcing(v):
     allowed = "a list of tables {F = [..n numbers..], Omega = <rad/s>, phi = <rad, default 0>}"
     if not isinstance(v, list) or not all(isinstance(t, dict) for t in v):
@@ -220,7 +280,10 @@ _MS_KEYS = {
 }
 SYSTEM_KEYS = {"impact-oscillator": _IO_KEYS, "mechanical-system": _MS_KEYS}
 KEYS = {
-    "initial": {"x1": _key(_state), "x2": _key(_state, None)},
+    "initial": {"x1": _key(_state, None), "x2": _key(_state, None)},
+    "network": {"graph": _key(_graph, None), "N": _key(_integer(2), None), "weight": _key(_number(gt=0), 1.0),
+                "center": _key(_integer(1), 1), "states": _key(_states, None), "nodes": _key(_nodes, None),
+                "laws": _key(_laws, None)},
     "coupling": {"law": _key(choice(*LAWS), "none"), "Kp": _key(_gain, 0.0), "Kd": _key(_gain, 0.0),
                  "Q": _key(_weight, None)},
     "solver": {"scheme": _key(choice(*SCHEMES), "midpoint"), "dt": _key(_number(gt=0), 1e-3),
@@ -228,8 +291,8 @@ KEYS = {
     "run": {"t_end": _key(_number(gt=0)), "mode": _key(choice(*MODES), "core"),
             "H": _key(_number(gt=0), 1e-2), "H_min": _key(_number(gt=0), None),
             "method": _key(choice(*METHODS), "jacobi"), "event_aware": _key(_boolean, False),
-            "record_every": _key(_integer(1), 1)},
-    "record": {"distance": _key(_boolean, None)},
+            "record_every": _key(_integer(1), 1), "allow_unstable": _key(_boolean, False)},
+    "record": {"distance": _key(_boolean, None), "formats": _key(_formats, ["csv", "npz"])},
     "plot": {"plots": _key(_plots, None), "compare": _key(_boolean, None)},
 }
 
@@ -241,6 +304,24 @@ def show_value(v) -> str:
 
 
 # ---------------------------------------------------------------- data classes
+@dataclass(frozen=True)
+class NetworkSpec:
+    """A network scene's graph and nodes: weights ``A`` (N x N), the node systems
+    (equal M, w, g0, e), their start states, the per-node parameter tables as
+    written (for the FMU's start values) and the law of each edge (None: ``coupling.law``)."""
+
+    A: np.ndarray
+    graph: str
+    systems: tuple
+    states: tuple
+    nodes: tuple
+    laws: tuple | None = None
+
+    @property
+    def N(self) -> int:
+        return len(self.states)
+
+
 @dataclass(frozen=True)
 class Variant:
     """One run of a scene: validated settings (``cfg``, dotted keys, defaults filled) and the system."""
@@ -254,10 +335,16 @@ class Variant:
     Kp: Any = 0.0
     Kd: Any = 0.0
     Q: np.ndarray | None = None
+    network: Any = None          #: :class:`NetworkSpec` of a network scene (N systems on a graph)
 
     @property
     def pair(self) -> bool:
-        return self.x2 is not None
+        """Two or more coupled systems (a pair or a network)."""
+        return self.x2 is not None or self.network is not None
+
+    @property
+    def is_network(self) -> bool:
+        return self.network is not None
 
     @property
     def law(self) -> str:

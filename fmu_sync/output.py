@@ -1,0 +1,343 @@
+"""Outputs that scale: the size of a run's record estimated before the run, a
+budget for memory and disk, the output folder checked up front, and a record
+writer that appends rows in chunks (CSV and/or NPZ, the user's choice).
+
+* :func:`estimate` — rows, columns, memory and disk of a variant's record,
+  computed from the scene's settings alone (nothing runs).
+* :func:`check_budget` — refuses (:class:`OutputTooLarge`, a ValueError) a run
+  whose record exceeds the disk budget, or whose whole record would exceed
+  the memory budget and cannot be streamed to disk; the message gives the
+  estimate and the smallest ``run.record_every`` that fits.
+* :func:`check_out_dir` — an output path that is a file, or a folder that
+  cannot be written, is refused before anything runs (:class:`OutputPathError`).
+* :class:`RecordWriter` — ``append(columns)`` chunk after chunk; CSV rows are
+  appended to the file, NPZ arrays go to raw temporary files and are packed
+  into the ``.npz`` (one ``.npy`` member per array, zip64) at :meth:`close`,
+  so memory stays at one chunk whatever the length of the run.
+"""
+from __future__ import annotations
+
+import math
+import os
+import re
+import tempfile
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["FORMATS", "DEFAULT_MAX_MEMORY", "DEFAULT_MAX_DISK", "OutputTooLarge", "OutputPathError",
+           "Estimate", "parse_size", "format_size", "parse_formats", "estimate", "check_budget",
+           "check_out_dir", "RecordWriter", "pair_columns", "network_columns", "single_columns", "WRITE_ROWS"]
+
+FORMATS = ("csv", "npz")
+#: memory a run may use for its record unless the user raises it (``--max-memory``)
+DEFAULT_MAX_MEMORY = 2 * 1024**3
+#: disk a run may write unless the user raises it (``--max-disk``)
+DEFAULT_MAX_DISK = 20 * 1024**3
+#: rows per chunk when writing a record held in memory
+WRITE_ROWS = 65536
+#: bytes of one value in the CSV (``%.17g`` and a separator, upper bound)
+CSV_BYTES = 25
+#: a whole-record run holds the record about this many times (the core's arrays,
+#: the arrays derived for metrics and plots)
+WHOLE_FACTOR = 3.0
+
+
+class OutputTooLarge(ValueError):
+    """The run's record would exceed the memory or disk budget."""
+
+
+class OutputPathError(ValueError):
+    """The output folder cannot be used (it is a file, or not writable)."""
+
+
+_UNITS = {"": 1, "b": 1, "k": 1024, "kb": 1024, "kib": 1024, "m": 1024**2, "mb": 1024**2, "mib": 1024**2,
+          "g": 1024**3, "gb": 1024**3, "gib": 1024**3, "t": 1024**4, "tb": 1024**4, "tib": 1024**4}
+
+
+def parse_size(text) -> int:
+    """``"2GB"``, ``"500 MiB"``, ``"1e9"`` (bytes) -> bytes (units are binary: 1 GB = 1024**3 B)."""
+    if isinstance(text, (int, float)) and not isinstance(text, bool):
+        value, unit = float(text), ""
+    else:
+        m = re.fullmatch(r"\s*([0-9.]+(?:[eE][+-]?[0-9]+)?)\s*([A-Za-z]*)\s*", str(text))
+        if not m or m.group(2).lower() not in _UNITS:
+            raise ValueError(f"a size must be a number with an optional unit (B, KB, MB, GB, TB), got {text!r}")
+        value, unit = float(m.group(1)), m.group(2).lower()
+    size = value * _UNITS[unit]
+    if not (math.isfinite(size) and size > 0):
+        raise ValueError(f"a size must be positive and finite, got {text!r}")
+    return int(size)
+
+
+def format_size(n: float) -> str:
+    for unit, f in (("TiB", 1024**4), ("GiB", 1024**3), ("MiB", 1024**2), ("KiB", 1024)):
+        if n >= f:
+            return f"{n / f:.3g} {unit}"
+    return f"{int(n)} B"
+
+
+def parse_formats(value) -> tuple[str, ...]:
+    """``"npz,csv"`` or ``["npz"]`` -> ``("npz", "csv")``; ``"none"`` or ``[]`` -> ``()``."""
+    items = value.split(",") if isinstance(value, str) else list(value)
+    out = []
+    for f in items:
+        f = str(f).strip().lower()
+        if f in ("", "none"):
+            continue
+        if f not in FORMATS:
+            raise ValueError(f"unknown data format {f!r}; allowed: {', '.join(FORMATS)} (comma separated), "
+                             "or none")
+        if f not in out:
+            out.append(f)
+    return tuple(out)
+
+
+# ---------------------------------------------------------------- columns
+def pair_columns(n: int, distance: bool) -> list[tuple[str, int]]:
+    """``(name, width)`` of a pair record's arrays, in CSV order."""
+    cols = [("t", 1)] + [(k, n) for k in ("q1", "u1", "q2", "u2", "tau1", "tau2")]
+    if distance:
+        cols += [("d", 1), ("V", 1), ("euclidean", 1), ("branch", 1)]
+    return cols
+
+
+def network_columns(N: int, n: int, E: int, distance: bool) -> list[tuple[str, int]]:
+    """A network record: states and forces of the N nodes (node-major), d, euclidean and
+    branch of the E edges, V and the largest pairwise distance d_max."""
+    cols = [("t", 1), ("q", N * n), ("u", N * n), ("tau", N * n)]
+    if distance:
+        cols += [("d", E), ("euclidean", E), ("branch", E), ("V", 1), ("d_max", 1)]
+    return cols
+
+
+def single_columns(n: int) -> list[tuple[str, int]]:
+    return [("t", 1), ("q", n), ("u", n), ("percussion", 1)]
+
+
+def csv_names(columns) -> list[str]:
+    names = []
+    for name, width in columns:
+        if width == 1:
+            names.append(name)
+        else:
+            names += [f"{name}[{j + 1}]" for j in range(width)]
+    return names
+
+
+# ---------------------------------------------------------------- estimate
+@dataclass(frozen=True)
+class Estimate:
+    """Size of one variant's record (before the run)."""
+
+    name: str
+    steps: int
+    record_every: int
+    rows: int
+    values_per_row: int
+    formats: tuple
+
+    @property
+    def record_bytes(self) -> float:
+        """The record's arrays in memory (float64)."""
+        return 8.0 * self.rows * self.values_per_row
+
+    @property
+    def memory(self) -> float:
+        """Peak memory of a run that holds its whole record (estimate)."""
+        return WHOLE_FACTOR * self.record_bytes
+
+    @property
+    def disk(self) -> float:
+        """Bytes written for the chosen formats (CSV: 25 B per value; NPZ: 8 B per value, an upper bound)."""
+        per = (CSV_BYTES if "csv" in self.formats else 0) + (8 if "npz" in self.formats else 0)
+        return float(self.rows * self.values_per_row * per)
+
+    def describe(self) -> str:
+        return (f"{self.steps:.4g} steps recorded every {self.record_every}: {self.rows:.4g} rows x "
+                f"{self.values_per_row} values = {format_size(self.record_bytes)} in memory "
+                f"(a run holding it all: about {format_size(self.memory)}), "
+                f"{format_size(self.disk)} on disk as {'+'.join(self.formats) or 'no data files'}")
+
+
+def _steps(cfg) -> tuple[int, float, str]:
+    step, name = (cfg["run.H"], "run.H") if cfg["run.mode"] == "cosim" and cfg.get("initial.x2") is not None \
+        else (cfg["solver.dt"], "solver.dt")
+    r = cfg["run.t_end"] / step
+    return int(math.floor(r + 1e-9)), step, name
+
+
+def estimate(variant, formats=FORMATS) -> Estimate:
+    """The record size of a :class:`~fmu_sync.scenes.schema.Variant` (nothing runs)."""
+    cfg = variant.cfg
+    steps, _, _ = _steps(cfg)
+    every = int(cfg["run.record_every"])
+    n = variant.system.n
+    if variant.is_network:
+        A = variant.network.A
+        E = int(np.count_nonzero(np.triu(A + A.T, 1)))
+        cols = network_columns(variant.network.N, n, E, variant.has_distance)
+    elif variant.pair:
+        cols = pair_columns(n, variant.has_distance)
+    else:
+        cols = single_columns(n)
+    return Estimate(variant.name, steps, every, steps // every + 1, sum(w for _, w in cols),
+                    tuple(formats))
+
+
+def check_budget(variant, formats, max_memory: float = DEFAULT_MAX_MEMORY,
+                 max_disk: float = DEFAULT_MAX_DISK, can_stream: bool = False,
+                 label: str = "") -> tuple[Estimate, bool]:
+    """Refuse a record above the budget; returns ``(estimate, stream)``.
+
+    ``stream``: the whole record exceeds ``max_memory`` but the run can write it
+    in chunks while it runs (``can_stream``); its memory is then bounded by
+    ``max_memory``. Refused (:class:`OutputTooLarge`) when the disk estimate
+    exceeds ``max_disk`` or the memory estimate exceeds ``max_memory`` and the
+    run cannot stream; the message names the estimate and the smallest
+    ``run.record_every`` that fits.
+    """
+    est = estimate(variant, formats)
+    over_disk = est.disk > max_disk
+    over_mem = est.memory > max_memory
+    if not over_disk and (not over_mem or can_stream):
+        return est, over_mem
+    ratio = max(est.disk / max_disk if over_disk else 0.0,
+                est.memory / max_memory if over_mem and not can_stream else 0.0)
+    every = max(est.record_every + 1, math.ceil(est.record_every * ratio * 1.05))
+    if every > est.steps:
+        hint = "shorten run.t_end or raise the step"
+    else:
+        hint = f"set run.record_every = {every} (or larger)"
+    what = (f"disk {format_size(est.disk)} > budget {format_size(max_disk)} (--max-disk)" if over_disk else
+            f"memory {format_size(est.memory)} > budget {format_size(max_memory)} (--max-memory; this "
+            f"run cannot write its record in chunks)")
+    who = f"{label}: " if label else ""
+    raise OutputTooLarge(f"{who}refused before running: the record is too large: {what}. Estimate: "
+                         f"{est.describe()}. {hint}, choose fewer formats (--format), or raise the budget.")
+
+
+def check_out_dir(path) -> Path:
+    """Refuse an output folder that is a file or cannot be written (before anything runs)."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise OutputPathError(f"the output path {path} is a file, not a folder; choose another -o")
+    probe = path
+    while not probe.exists():
+        if probe.parent == probe:
+            break
+        probe = probe.parent
+    if probe.exists() and not probe.is_dir():
+        raise OutputPathError(f"the output path {path} lies inside {probe}, which is a file; choose another -o")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise OutputPathError(f"the output folder {path} is not writable ({probe} does not allow writing); "
+                              "choose another -o")
+    return path
+
+
+# ---------------------------------------------------------------- writing
+class RecordWriter:
+    """Writes a record chunk by chunk: ``<stem>.csv`` and/or ``<stem>.npz``.
+
+    ``columns``: ``[(name, width), ...]`` (:func:`pair_columns`); ``append``
+    takes a dict ``name -> array`` of equal row counts. ``close(partial=...)``
+    finishes the files (a partial record is named ``<stem>.partial.csv`` /
+    ``.partial.npz``) and returns their paths. ``abort()`` removes everything.
+    """
+
+    def __init__(self, stem, columns, formats=FORMATS):
+        self.stem = Path(stem)
+        self.columns = list(columns)
+        self.formats = tuple(formats)
+        self.rows = 0
+        self._csv = None
+        self._raw = {}
+        self._tmpdir = None
+        self.stem.parent.mkdir(parents=True, exist_ok=True)
+        if "csv" in self.formats:
+            self._csv_path = self.stem.with_name(self.stem.name + ".csv.tmp")
+            self._csv = open(self._csv_path, "w", encoding="ascii", newline="\n")
+            self._csv.write(",".join(csv_names(self.columns)) + "\n")
+        if "npz" in self.formats:
+            self._tmpdir = Path(tempfile.mkdtemp(prefix=".record-", dir=self.stem.parent))
+            for name, _ in self.columns:
+                self._raw[name] = open(self._tmpdir / f"{name}.raw", "wb")
+        self._dtypes = {}
+        self._tails = {}
+
+    def append(self, data: dict) -> None:
+        arrays = []
+        rows = None
+        for name, width in self.columns:
+            a = np.asarray(data[name])
+            self._tails.setdefault(name, a.shape[1:])
+            rows = len(a) if rows is None else rows
+            if len(a) != rows:
+                raise ValueError(f"column {name} has {len(a)} rows, expected {rows}")
+            arrays.append((name, a))
+        if not rows:
+            return
+        if self._csv is not None:
+            block = np.column_stack([a.reshape(rows, -1).astype(np.float64, copy=False) for _, a in arrays])
+            row = ",".join(["%.17g"] * block.shape[1]) + "\n"
+            for a in range(0, rows, 1024):   # one format call per 1024 rows (faster than savetxt)
+                part = block[a:a + 1024]
+                self._csv.write((row * len(part)) % tuple(part.ravel().tolist()))
+        for name, a in arrays:
+            if name in self._raw:
+                self._dtypes.setdefault(name, a.dtype)
+                self._raw[name].write(np.ascontiguousarray(a, dtype=self._dtypes[name]).tobytes())
+        self.rows += rows
+
+    def close(self, partial: bool = False) -> list[Path]:
+        files = []
+        tag = ".partial" if partial else ""
+        if self._csv is not None:
+            self._csv.close()
+            path = self.stem.with_name(self.stem.name + tag + ".csv")
+            os.replace(self._csv_path, path)
+            files.append(path)
+            self._csv = None
+        if self._raw:
+            path = self.stem.with_name(self.stem.name + tag + ".npz")
+            tmp = path.with_name(path.name + ".tmp")
+            with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED, allowZip64=True) as zf:
+                for name, width in self.columns:
+                    fh = self._raw.pop(name)
+                    fh.close()
+                    dtype = np.dtype(self._dtypes.get(name, np.float64))
+                    shape = (self.rows,) + tuple(self._tails.get(name, () if width == 1 else (width,)))
+                    with zf.open(f"{name}.npy", "w", force_zip64=True) as out, \
+                            open(fh.name, "rb") as src:
+                        np.lib.format.write_array_header_1_0(
+                            out, {"descr": np.lib.format.dtype_to_descr(dtype), "fortran_order": False,
+                                  "shape": shape})
+                        while True:
+                            buf = src.read(1 << 18)
+                            if not buf:
+                                break
+                            out.write(buf)
+            os.replace(tmp, path)
+            files.append(path)
+        self._cleanup()
+        return files
+
+    def abort(self) -> None:
+        if self._csv is not None:
+            self._csv.close()
+            self._csv = None
+            if self._csv_path.exists():
+                self._csv_path.unlink()
+        for fh in self._raw.values():
+            fh.close()
+        self._raw = {}
+        self._cleanup()
+
+    def _cleanup(self):
+        if self._tmpdir is not None and self._tmpdir.exists():
+            for f in self._tmpdir.iterdir():
+                f.unlink()
+            self._tmpdir.rmdir()
+        self._tmpdir = None

@@ -1,0 +1,134 @@
+"""A pair run streamed to disk in chunks (``simulate_pair(..., sink=...)``): the sink
+that writes each chunk, keeps the metrics of :func:`fmu_sync.report.metrics` exact over
+the whole record, and a thinned copy for the plots (memory: one chunk, whatever the run)."""
+from __future__ import annotations
+
+import numpy as np
+
+from .report import SYNC_THRESHOLD, impact_records
+
+__all__ = ["StreamRecord"]
+
+
+class StreamRecord:
+    """Sink of a pair run streamed in chunks (``simulate_pair(..., sink=...)``).
+
+    Each chunk is written (``writer``: a :class:`~fmu_sync.output.RecordWriter`),
+    folded into the metrics of :func:`metrics` (exact: maxima, t_sync, final d,
+    contact episodes and the jumps of V and of the Euclidean error over them,
+    found with the two rows before each chunk), and thinned to every
+    ``every``-th row for the plots (:meth:`thinned`). Memory: one chunk plus the
+    thinned copy, whatever the length of the run.
+    """
+
+    def __init__(self, writer, system=None, total_rows: int = 0, plot_rows: int = 20000,
+                 threshold: float = SYNC_THRESHOLD, progress=None):
+        self.writer, self.system, self.threshold, self.progress = writer, system, threshold, progress
+        self.total = max(int(total_rows), 1)
+        self.every = max(1, -(-self.total // max(int(plot_rows), 1)))
+        self.rows = 0
+        self.keep = []
+        self.tail = None             # the last 2 rows of the previous chunk
+        self.last = None             # the last row
+        self.m = dict(peak_tau=0.0, euclid_max=-np.inf, peaking=-np.inf, dV=None, dE=None, hits=0,
+                      e1=0, e2=0, last_above=None, first_t=None, any_d=False)
+
+    _FIELDS = ("t", "q1", "u1", "q2", "u2", "tau1", "tau2", "d", "branch", "euclidean")
+
+    def __call__(self, chunk) -> None:
+        from .output import pair_columns
+        n = np.asarray(chunk.q1).shape[1]
+        cols = pair_columns(n, chunk.d is not None)
+        self.writer.append({k: getattr(chunk, k) for k, _ in cols})
+        m = self.m
+        t = np.asarray(chunk.t)
+        if m["first_t"] is None:
+            m["first_t"] = float(t[0])
+        tau = np.concatenate([np.abs(chunk.tau1).ravel(), np.abs(chunk.tau2).ravel()])
+        if tau.size:
+            m["peak_tau"] = max(m["peak_tau"], float(np.nanmax(tau)))
+        # contact episodes and the jumps over them, with the two rows before the chunk
+        ext = chunk if self.tail is None else _concat([self.tail, chunk])
+        off = 0 if self.tail is None else len(self.tail.t)
+        e = []
+        for i in (1, 2):
+            h = impact_records(ext, i, self.system)
+            h = h[h >= max(off, 1)]
+            m[f"e{i}"] += int(h.size)
+            e.append(h)
+        if chunk.d is not None:
+            m["any_d"] = True
+            d, E = np.asarray(chunk.d), np.asarray(chunk.euclidean)
+            m["euclid_max"] = max(m["euclid_max"], float(np.max(E)))
+            m["peaking"] = max(m["peaking"], float(np.max(E - d)))
+            above = np.nonzero(~(d < self.threshold))[0]
+            if above.size:
+                m["last_above"] = self.rows + int(above[-1])
+                m["after_above"] = float(t[above[-1] + 1]) if above[-1] + 1 < len(t) else None
+            elif m["last_above"] is not None and m.get("after_above") is None:
+                m["after_above"] = float(t[0])
+            hits = np.union1d(*e)
+            if hits.size:
+                V, Ee = np.asarray(ext.V), np.asarray(ext.euclidean)
+                dV = float(np.max(np.abs(V[hits] - V[hits - 1])))
+                dE = float(np.max(np.abs(Ee[hits] - Ee[hits - 1])))
+                m["dV"] = dV if m["dV"] is None else max(m["dV"], dV)
+                m["dE"] = dE if m["dE"] is None else max(m["dE"], dE)
+                m["hits"] += int(hits.size)
+        # thinning for the plots: global rows 0, every, 2 every, ...
+        idx = np.arange(self.rows, self.rows + len(t))
+        sel = np.nonzero(idx % self.every == 0)[0]
+        if sel.size:
+            self.keep.append(_take(chunk, sel))
+        self.tail = _take(chunk, np.arange(max(0, len(t) - 2), len(t)))
+        self.last = _take(chunk, np.arange(len(t) - 1, len(t)))
+        self.last.impacts1, self.last.impacts2 = chunk.impacts1, chunk.impacts2
+        self.rows += len(t)
+        if self.progress is not None:
+            self.progress(min(1.0, self.rows / self.total))
+
+    def thinned(self):
+        """The kept rows (every ``every``-th and the last) as one PairResult, for the plots."""
+        parts = list(self.keep)
+        if self.last is not None and (not parts or parts[-1].t[-1] != self.last.t[-1]):
+            parts.append(self.last)
+        r = _concat(parts)
+        r.info = dict(r.info, thinned_every=self.every, rows=self.rows)
+        return r
+
+    def metrics(self, result=None) -> dict:
+        """The :func:`metrics` dict of the whole streamed record."""
+        m, last = self.m, self.last
+        res = last if result is None else result
+        out = {"t_end": float(last.t[-1]), "records": self.rows, "kind": "pair",
+               "coupling": res.coupling or "none", "impacts1": int(res.impacts1),
+               "impacts2": int(res.impacts2), "episodes1": m["e1"], "episodes2": m["e2"],
+               "peak_tau": m["peak_tau"], "error": res.error, "thinned_every": self.every}
+        if not m["any_d"]:
+            out.update(t_sync=None, final_d=None, euclid_max=None, peaking=None, dV_impact=None,
+                       dE_impact=None)
+            return out
+        if m["last_above"] is None:
+            t_sync = m["first_t"]
+        else:
+            t_sync = m.get("after_above")
+            t_sync = float("inf") if t_sync is None else t_sync
+        out.update(t_sync=t_sync, final_d=float(last.d[-1]), euclid_max=m["euclid_max"],
+                   peaking=m["peaking"], dV_impact=m["dV"], dE_impact=m["dE"], impact_records=m["hits"])
+        return out
+
+
+def _take(r, idx):
+    from .core.result import PairResult
+    g = lambda a: None if a is None else np.asarray(a)[idx]  # noqa: E731
+    return PairResult(*(g(getattr(r, k)) for k in StreamRecord._FIELDS), impacts1=r.impacts1,
+                      impacts2=r.impacts2, coupling=r.coupling, info=dict(r.info), error=r.error)
+
+
+def _concat(parts):
+    from .core.result import PairResult
+    first = parts[0]
+    g = lambda k: None if getattr(first, k) is None else np.concatenate([getattr(p, k) for p in parts])  # noqa: E731
+    last = parts[-1]
+    return PairResult(*(g(k) for k in StreamRecord._FIELDS), impacts1=last.impacts1, impacts2=last.impacts2,
+                      coupling=first.coupling, info=dict(first.info), error=last.error)
