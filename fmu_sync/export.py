@@ -183,7 +183,7 @@ def export_fmu(model: str = "impact-oscillator", path=None, start_values: dict |
     path.parent.mkdir(parents=True, exist_ok=True)
 
     code = carried_files()
-    c_source = (_fmus_dir() / _C_SOURCE).read_bytes()
+    c_source = b"".join(p.read_bytes() for p in sorted((_fmus_dir() / "c").glob("*.[ch]")))
     digest = _code_hash(code)
     package = f"fmu_sync_m{digest[:16]}"
     boot_module = f"fmu_sync_boot_{digest[:16]}"

@@ -3,25 +3,13 @@
  *   x' = v,  v' = -k x + f     (symplectic Euler, one internal step per doStep)
  *
  * Variables (value references): 0 x (output), 1 v (output), 2 k (parameter),
- * 3 f (input). Written for the fmu-sync tests; the FMI 2.0 types it needs are
- * declared here (the standard's headers are not required).
+ * 3 f (input). Written for the fmu-sync tests; the FMI 2.0 types come from
+ * fmus/c/fmi2_abi.h (the standard's headers are not required).
  */
 #include <stdlib.h>
 #include <string.h>
 
-typedef void *fmi2Component;
-typedef void *fmi2ComponentEnvironment;
-typedef void *fmi2FMUstate;
-typedef unsigned int fmi2ValueReference;
-typedef double fmi2Real;
-typedef int fmi2Integer;
-typedef int fmi2Boolean;
-typedef char fmi2Char;
-typedef const fmi2Char *fmi2String;
-typedef char fmi2Byte;
-typedef enum { fmi2OK, fmi2Warning, fmi2Discard, fmi2Error, fmi2Fatal, fmi2Pending } fmi2Status;
-typedef enum { fmi2ModelExchange, fmi2CoSimulation } fmi2Type;
-typedef int fmi2StatusKind;
+#include "../../fmus/c/fmi2_abi.h"   /* the FMI 2.0 types (not our model code) */
 
 #define EXPORT __attribute__((visibility("default")))
 
