@@ -61,24 +61,34 @@ class Progress:
             return
         f = 0.0 if not math.isfinite(f) else min(max(f, 0.0), 1.0)
         if self.tty:
-            now = time.monotonic()
-            if f < 1.0 and now - self._last_draw < self.min_interval:
-                return
-            self._last_draw = now
             filled = int(round(f * self.width))
-            elapsed = now - self._start
+            elapsed = time.monotonic() - self._start
             eta = f"  ETA {elapsed * (1 - f) / f:4.0f} s" if 0.02 < f < 1.0 else ""
             label = f"{self.label} " if self.label else ""
-            self.stream.write(f"\r{label}[{'#' * filled}{'.' * (self.width - filled)}] "
-                              f"{100 * f:5.1f}%{eta}   ")
+            text = f"{label}[{'#' * filled}{'.' * (self.width - filled)}] {100 * f:5.1f}%{eta}"
+        else:
+            label = f"{self.label}: " if self.label else ""
+            text = f"{label}{10 * int(f * 10 + 1e-9)}%"
+        self.show(f, text)
+
+    def show(self, fraction: float, text: str) -> None:
+        """Draw ``text`` for progress ``fraction``: on a terminal in place (at most every
+        ``min_interval`` s, always at 1), otherwise one line per 10 % reached."""
+        if not self.enabled:
+            return
+        if self.tty:
+            now = time.monotonic()
+            if fraction < 1.0 and now - self._last_draw < self.min_interval:
+                return
+            self._last_draw = now
+            self.stream.write("\r" + text + "   ")
             self.stream.flush()
             self._drawn = True
         else:
-            decile = int(f * 10 + 1e-9)
+            decile = int(fraction * 10 + 1e-9)
             if decile > self._last_decile:
                 self._last_decile = decile
-                label = f"{self.label}: " if self.label else ""
-                self.stream.write(f"{label}{10 * decile}%\n")
+                self.stream.write(text + "\n")
                 self.stream.flush()
 
     def close(self) -> None:

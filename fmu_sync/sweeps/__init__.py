@@ -65,8 +65,6 @@ class SweepProgress:
         self.label = label
         self.width = width
         self._start = time.monotonic()
-        self._last = -math.inf
-        self._decile = -1
         self._base = None
         self.line = ""
 
@@ -83,21 +81,7 @@ class SweepProgress:
         filled = int(round(f * self.width))
         self.line = (f"{self.label} [{'#' * filled}{'.' * (self.width - filled)}] {done}/{total} runs, "
                      f"{failed} failed" + (f", {rate:.3g} runs/s" if rate else "") + eta)
-        if not p.enabled:
-            return
-        if p.tty:
-            if done < total and now - self._last < p.min_interval:
-                return
-            self._last = now
-            p.stream.write("\r" + self.line + "   ")
-            p.stream.flush()
-            p._drawn = True
-        else:
-            dec = int(10 * f + 1e-9)
-            if dec > self._decile:
-                self._decile = dec
-                p.stream.write(self.line + "\n")
-                p.stream.flush()
+        p.show(f, self.line)
 
     def close(self):
         self._p.close()
