@@ -239,7 +239,7 @@ class NetworkMaster:
         self.A_coupled = coupled_weights(self.A, self.edges, self.laws)
         if self.coupled:  # before the first step: the held exchange must be stable at H
             self.limit = check_exchange(system.M, self.Kp_m, self.Kd_m, self.H, A=self.A_coupled,
-                                        allow_unstable=self.allow_unstable)
+                                        allow_unstable=self.allow_unstable, hold=self.hold)
         E, rows = len(self.edges), self.n_steps // self.record_every + 1
         self.T = np.full(rows, np.nan)
         self.Qr, self.Ur, self.TAU = (np.full((rows, N, n), np.nan) for _ in range(3))
@@ -305,7 +305,7 @@ class NetworkMaster:
 
     def check_forces(self, i: int, t: float, h: float) -> None:
         if not np.all(np.abs(self.tau[i]) <= contract.INPUT_BOUND):   # also catches NaN
-            lim = exchange_limit(self.system.M, self.Kp_m, self.Kd_m, h, self.A_coupled)
+            lim = exchange_limit(self.system.M, self.Kp_m, self.Kd_m, h, self.A_coupled, hold=self.hold)
             raise SlaveError(f"system{i + 1}", t, "coupling", 3, [
                 f"its coupling force became non-finite or exceeds the FMU's input bound "
                 f"{contract.INPUT_BOUND:g} ({self.tau[i].tolist()}): the explicit "

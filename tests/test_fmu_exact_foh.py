@@ -264,3 +264,29 @@ def test_master_with_exact_slaves_has_only_the_coupling_error(fmus):
     Q = np.array(Q)
     assert r.impacts1 > 0
     assert np.max(np.abs(r.q1[:, 0] - Q[:, 0])) < 1e-12 and np.max(np.abs(r.q2[:, 0] - Q[:, 1])) < 1e-12
+
+
+def test_first_order_hold_changes_the_exchange_stability_range(fmus):
+    """The hold map of the first-order hold (core.exchange) against co-simulation runs:
+    Kp = 1, Kd = 1 (zeta = 0.71): ZOH stable for H < 1.0, FOH only for H < 0.523."""
+    from fmu_sync.core.exchange import UnstableExchange, exchange_limit, hold_bound
+    assert hold_bound(0.1, "foh") > hold_bound(0.1, "zoh")        # light damping: larger
+    assert hold_bound(1.0, "foh") < 0.52 * hold_bound(1.0, "zoh")  # heavy damping: about half
+    lim = exchange_limit(1.0, 1.0, 1.0, 0.5, hold="foh")
+    assert 0.52 < lim.H_max < 0.525 and exchange_limit(1.0, 1.0, 1.0, 0.5).H_max == pytest.approx(1.0)
+    with pytest.raises(UnstableExchange, match="first-order-hold bound"):
+        cosimulate(fmus["far"], FAR_X1, FAR_X2, 5.0, 0.6, coupling="switching", Kp=1.0, Kd=1.0, hold="foh")
+
+    def final_d(hold, H):
+        r = cosimulate(fmus["far"], FAR_X1, FAR_X2, 150.0, H, coupling="switching", Kp=1.0, Kd=1.0,
+                       hold=hold, allow_unstable=True)
+        return float(np.max(np.abs(np.ravel(r.d)[-10:])))
+
+    assert final_d("foh", 0.5) < 1e-3                              # stable just below 0.523
+    assert final_d("zoh", 0.6) < 1e-6                              # the held exchange is stable there
+    from fmu_sync.core.errors import RunFailed
+    try:
+        grown = final_d("foh", 0.55) > 1.0                          # just above: grows
+    except RunFailed:   # the run stops as failed once the forces exceed the input bound
+        grown = True
+    assert grown
