@@ -516,19 +516,40 @@ def advance(sa, q, u, t0, H, dt, tau, scheme, theta, taudot=None, phasor=False):
 @njit(cache=True)
 def _advance(sa, q, u, t0, H, dt, tau, taudot, foh, scheme, theta, phasor):
     n = q.shape[0]
-    y, hf, uf, Sinv, Sinv_w, WS = step_workspace(sa, dt, scheme, theta)
+    nf = sa.Omega.shape[0]
+    return advance_in(sa, q, u, t0, H, dt, tau, taudot, foh, scheme, theta, phasor,
+                      np.empty(n), np.empty(n), np.empty(n), np.empty((n, n)), np.empty(n),
+                      np.empty(nf), np.empty(nf), np.empty(nf), np.empty(nf),
+                      np.empty(n), np.empty(n), np.empty(tau.shape[0]))
+
+
+@njit(cache=True, inline="always")
+def advance_in(sa, q, u, t0, H, dt, tau, taudot, foh, scheme, theta, phasor,
+               y, hf, uf, Sinv, Sinv_w, cv, sv, cr, sr, hc, hb, tk):
+    """:func:`advance` in caller-provided scratch arrays (nothing is allocated: the
+    FMU's stepper calls it once per doStep): ``y, hf, uf, Sinv_w, hc, hb`` (n,),
+    ``Sinv`` (n, n), ``cv, sv, cr, sr`` (nf,), ``tk`` like ``tau``. Bit for bit
+    :func:`advance`."""
+    n = q.shape[0]
+    WS = 0.0
+    if scheme == THETA:
+        WS = theta_matrices(sa, dt, theta, Sinv, Sinv_w)
     Omega = sa.Omega
     phi = sa.phi
     F = sa.F
-    cv, sv, cr, sr = harmonic_workspace(Omega, dt)
-    hc = np.zeros(n)
-    hb = np.empty(n)
+    for j in range(Omega.shape[0]):      # harmonic_workspace, in place
+        cr[j] = math.cos(Omega[j] * dt)
+        sr[j] = math.sin(Omega[j] * dt)
+        cv[j] = 0.0
+        sv[j] = 0.0
     for i in range(n):
+        hc[i] = 0.0
         hb[i] = _hbase(sa, tau, i)
     use_ph = phasor and Omega.shape[0] > 0
     c0 = 0.0
     s0 = 0.0
-    tk = tau.copy()
+    for j in range(tau.shape[0]):
+        tk[j] = tau[j]
     k_steps = substeps(H, dt)
     Psum = 0.0
     impacts = 0

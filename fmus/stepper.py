@@ -7,7 +7,8 @@ instance's work array: a header (the H_* slots, shared with
 ``fmus/c/fmu_sync_fmi2.c``) followed by the system's arrays as the core's
 kernels take them (:class:`fmu_sync.core.model.SystemArrays`, packed by
 :func:`pack`). The cfunc rebuilds the ``SystemArrays`` as views of ``work``,
-makes exactly one call to the core's :func:`fmu_sync.core.moreau.advance`
+makes exactly one call to the core's :func:`fmu_sync.core.moreau.advance_in`
+(``advance`` in the work array's scratch, nothing allocated)
 (all internal steps; the input held, or with the first-order hold
 ``tau + taudot (t - t_c)`` when the master set input derivatives) -- or, with
 ``solver.scheme = exact`` (1-DOF), one call to the core's exact communication
@@ -40,7 +41,7 @@ from numba import carray, cfunc, njit, types
 from ..core.exact import NT as _EXACT_NT
 from ..core.exact import STEP_OK, exact_step
 from ..core.model import SystemArrays
-from ..core.moreau import MIDPOINT, OK, THETA, advance
+from ..core.moreau import MIDPOINT, OK, THETA, advance_in
 
 __all__ = ["step", "pack", "work_size", "H_LEN", "H_VERSION", "H_TIME", "H_PHASE", "H_DT",
            "H_CONFIGURED", "WORK_VERSION", "H_VREF", "H_ITAUDOT", "H_IEXACT", "EXACT", "exact_size"]
@@ -62,10 +63,16 @@ def exact_size(n: int, m: int, nf: int) -> int:
     return 0 if n != 1 else 4 + 16 + _EXACT_NT + 4 + m + nf * (3 + 2 * _EXACT_NT)
 
 
+@njit(cache=True, inline="always")
+def _scratch(n, m, nf):
+    """Slots of the Moreau step's scratch (``core.moreau.advance_in``)."""
+    return 6 * n + n * n + 4 * nf + m
+
+
 def work_size(n: int, m: int, nf: int) -> int:
     """Length of the work array for n DOF, m inputs, nf harmonic forces."""
     system = H_DATA + 4 * n * n + n + nf * n + 2 * nf + n * m + n + 2 + n + 1
-    return system + 2 * n + exact_size(n, m, nf) + m
+    return system + 2 * n + _scratch(n, m, nf) + exact_size(n, m, nf) + m
 
 
 def pack(work: np.ndarray, sa: SystemArrays, dt: float, scheme: int, theta: float, exact=None) -> None:
@@ -88,7 +95,7 @@ def pack(work: np.ndarray, sa: SystemArrays, dt: float, scheme: int, theta: floa
     k += 2
     work[k:k + n] = sa.Minv_w
     work[k + n] = sa.W
-    k += n + 1 + 2 * n                      # the save area
+    k += n + 1 + 2 * n + _scratch(n, m, nf)   # the save area and the scratch
     work[H_IEXACT] = 0.0
     if exact is not None:
         if k + exact.size > int(work[H_ITAUDOT]):
@@ -154,16 +161,30 @@ def _outputs(sa, q, u):
 
 
 @njit(cache=True, inline="always")
-def _advance(sa, q, u, t, H, dt, tau, taudot, scheme, theta):
+def _advance(sa, q, u, t, H, dt, tau, taudot, scheme, theta, s):
     """One communication step with a Moreau scheme; (status, percussion, impacts).
 
     ``scheme`` is the core's scheme code (``solver.scheme`` item -> code in
     ``MechanicalSlave.configure`` via ``core.checks.scheme_code``); ``taudot``
-    the input slope (zeros: bit for bit the zero-order hold). The exact scheme
-    is dispatched in :func:`step`. The place for more schemes: a new item in
-    ``contract.SCHEME_ITEMS`` and a branch here."""
+    the input slope (zeros: bit for bit the zero-order hold); ``s`` the scratch
+    (:func:`_scratch` slots). The exact scheme is dispatched in :func:`step`.
+    The place for more schemes: a new item in ``contract.SCHEME_ITEMS`` and a
+    branch here."""
+    n = q.shape[0]
+    nf = sa.Omega.shape[0]
+    m = tau.shape[0]
     if scheme == MIDPOINT or scheme == THETA:
-        return advance(sa, q, u, t, H, dt, tau, scheme, theta, taudot)
+        foh = False
+        for j in range(m):
+            if taudot[j] != 0.0:
+                foh = True
+        # scratch: y, hf, uf, Sinv_w, hc, hb (n each), Sinv (n*n), cv, sv, cr, sr (nf each), tk (m)
+        k = 6 * n + n * n
+        return advance_in(sa, q, u, t, H, dt, tau, taudot, foh, scheme, theta, False,
+                          s[0:n], s[n:2 * n], s[2 * n:3 * n], s[6 * n:k].reshape((n, n)), s[3 * n:4 * n],
+                          s[k:k + nf], s[k + nf:k + 2 * nf], s[k + 2 * nf:k + 3 * nf],
+                          s[k + 3 * nf:k + 4 * nf], s[4 * n:5 * n], s[5 * n:6 * n],
+                          s[k + 4 * nf:k + 4 * nf + m])
     # further schemes dispatch here
     return -1, 0.0, 0
 
@@ -208,7 +229,8 @@ def step(x_ptr, w_ptr, t, H):
         u[0] = u1
         status = OK
     else:
-        status, P, hits = _advance(sa, q, u, t, H, w[H_DT], tau, taudot, scheme, w[H_THETA])
+        status, P, hits = _advance(sa, q, u, t, H, w[H_DT], tau, taudot, scheme, w[H_THETA],
+                                   w[k + 2 * n:k + 2 * n + _scratch(n, m, int(w[H_NF]))])
         vref = w[H_VREF]
     g, E = _outputs(sa, q, u)
     if status != OK or not (math.isfinite(g) and math.isfinite(E)):

@@ -99,7 +99,8 @@ def test_failing_slave_stops_the_run_with_a_complete_record(fmu):
         cosimulate(fmu, X1, X2, 50.0, 1e-2, coupling="euclidean", Kp=1e9, Kd=0.0, allow_unstable=True)
     res = err.value.partial
     assert res.error is not None and res.error == str(err.value) and not res.success
-    assert "non-finite at t = " in res.error
+    # the states diverge, or first the coupling force leaves the FMU's documented input bound
+    assert "non-finite at t = " in res.error or "exceeds the FMU's input bound 1e+12" in res.error
     assert "omega_c*H = 447" in res.error
     assert np.all(np.isfinite(res.d))
     assert res.t.size > 1 and res.t[-1] < 50.0
