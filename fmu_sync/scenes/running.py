@@ -101,7 +101,7 @@ def run_variant(variant: Variant, fmu_path=None, progress: Callable | None = Non
                               coupling=_coupling_arg(variant.law), Kp=variant.Kp, Kd=variant.Kd, Q=variant.Q,
                               method=cfg["run.method"], record_every=cfg["run.record_every"],
                               event_aware=cfg["run.event_aware"], H_min=cfg["run.H_min"],
-                              start_values=fmu_start_values(fmu_path, variant),
+                              hold=cfg["run.hold"], start_values=fmu_start_values(fmu_path, variant),
                               record_distance=bool(cfg["record.distance"]), progress=progress)
         except RunFailed as exc:  # a failed slave: the scene reports it and keeps the record
             if exc.partial is None:
@@ -171,7 +171,7 @@ def run_scene(scene, out_dir=None, overrides: dict | None = None, progress: Call
     return sr
 
 
-_COSIM_KEYS = ("run.H", "run.H_min", "run.method", "run.event_aware")
+_COSIM_KEYS = ("run.H", "run.H_min", "run.method", "run.event_aware", "run.hold")
 
 
 def _relevant(key: str, variants) -> bool:
