@@ -43,6 +43,7 @@ from .core.network import coupled_weights, edge_laws, edges_of, weights
 from .core.pair import LAWS, check_common_geometry, coupling_step
 from .core.result import NetworkResult, PairResult
 from .fmus import contract
+from .hold import InputHistory, check_hold, check_schemes
 
 __all__ = ["cosimulate", "cosimulate_network", "NetworkMaster", "NetworkResult", "SlaveError", "FmuInstance",
            "fmu_model", "system_from_fmu"]
@@ -90,10 +91,6 @@ class FmuInstance:
 
     def set(self, values: dict) -> None:
         self._check("fmi2SetReal", self.host.set(values))
-
-    def set_derivatives(self, values: dict) -> None:
-        """First time derivatives of inputs for the next doStep (fmi2SetRealInputDerivatives, order 1)."""
-        self._check("fmi2SetRealInputDerivatives", self.host.set_input_derivatives(values))
 
     def initialize(self, t0: float, start_values: dict) -> None:
         self.enter_initialization(t0)
@@ -153,9 +150,6 @@ class NetworkMaster:
     """
 
     METHODS = ("jacobi", "gauss-seidel")
-    #: input holds over a communication step: zero-order (tau constant) or first-order
-    #: (tau + taudot (t - t_k), taudot extrapolated from the last two communication points)
-    HOLDS = ("zoh", "foh")
 
     def __init__(self, fmu, states, A, t_end: float, H: float, coupling: str | None = "switching",
                  Kp=0.0, Kd=0.0, Q=None, method: str = "jacobi", record_every: int = 1,
@@ -164,8 +158,6 @@ class NetworkMaster:
         H, n_steps, record_every = check_run(t_end, H, record_every, dt_name="H")
         if method not in self.METHODS:
             raise ValueError(f"method must be {' or '.join(repr(m) for m in self.METHODS)}, got {method!r}")
-        if hold not in self.HOLDS:
-            raise ValueError(f"hold must be {' or '.join(repr(m) for m in self.HOLDS)}, got {hold!r}")
         if event_aware:
             H_min = H / 16 if H_min is None else check_step(H_min, "H_min")
             if H_min > H:
@@ -193,11 +185,7 @@ class NetworkMaster:
         from fmpy import read_model_description
         self.md = read_model_description(self.fmu)
         self.model = fmu_model(self.md)  # a foreign FMU fails here, naming what it lacks
-        self.hold = hold
-        if hold == "foh" and not (self.md.coSimulation is not None and self.md.coSimulation.canInterpolateInputs):
-            raise ValueError(f"hold='foh' needs an FMU that interpolates its inputs (canInterpolateInputs = "
-                             f"true, fmi2SetRealInputDerivatives); {self.fmu} declares canInterpolateInputs = "
-                             f"false: use hold='zoh'")
+        self.hold = check_hold(hold, self.md, self.fmu)
         self.H, self.n_steps, self.record_every = H, n_steps, record_every
         self.coupling = coupling
         self.allow_unstable = bool(allow_unstable)
@@ -217,12 +205,7 @@ class NetworkMaster:
         for s, sv in zip(self.slaves, self.start_values):
             s.enter_initialization(0.0)   # FMI 2.0: variables are readable from initialization mode on
             s.set(sv)
-        if self.hold == "foh":
-            for i, s in enumerate(self.slaves):
-                if contract.scheme_name(s.get_integer(contract.SOLVER_SCHEME)) == "exact":
-                    raise ValueError(f"hold='foh': instance {i + 1} has solver.scheme = exact, which holds its "
-                                     f"input constant over a step (the exact solver needs a constant tau): "
-                                     f"use hold='zoh' with it, or the midpoint/theta scheme")
+        check_schemes(self.hold, [contract.scheme_name(s.get_integer(contract.SOLVER_SCHEME)) for s in self.slaves])
         systems = [system_from_fmu(s, model) for s in self.slaves]
         check_common_geometry(systems, [f"instance {i + 1}" for i in range(N)])
         self.system = system = systems[0]
@@ -246,8 +229,7 @@ class NetworkMaster:
         self.D, self.EU = np.full((rows, E), np.nan), np.full((rows, E), np.nan)
         self.BR = np.full((rows, E), -1, dtype=np.int64)
         self.tau = np.zeros((N, n))
-        # coupling history for the first-order hold: inputs at the last communication point
-        self.tau_prev, self.t_prev = np.zeros((N, n)), None
+        self.history = InputHistory(N, n)
         self.t1, self.t2 = np.zeros(n), np.zeros(n)
         self.work = chain_work(n)
 
@@ -312,22 +294,11 @@ class NetworkMaster:
                 f"exchange is unstable for these gains and this step ({lim.message()}): lower "
                 f"Kp or H, or add Kd"])
 
-    def slope(self, i: int, t: float) -> np.ndarray:
-        """First-order hold: d tau_i/dt extrapolated from the inputs at the last two
-        communication points, (tau_i(t) - tau_i(t_prev)) / (t - t_prev); 0 on the first step."""
-        if self.t_prev is None or not t > self.t_prev:
-            return np.zeros_like(self.tau[i])
-        return (self.tau[i] - self.tau_prev[i]) / (t - self.t_prev)
-
-    def remember(self, t: float) -> None:
-        """Keep the inputs given at t (the first-order hold's history)."""
-        self.tau_prev[:] = self.tau
-        self.t_prev = t
-
     def _give(self, i: int, s: FmuInstance, t: float, h: float) -> None:
         s.set(dict(zip(self.model.tau, self.tau[i])))
-        if self.hold == "foh":   # after the value: setting an input resets its derivative
-            s.set_derivatives(dict(zip(self.model.tau, self.slope(i, t))))
+        if self.hold == "foh":   # after the value (setting an input resets its derivative); fmu_sync.hold
+            s._check("fmi2SetRealInputDerivatives", s.host.set_input_derivatives(
+                dict(zip(self.model.tau, self.history.slope(i, self.tau[i], t)))))
         s.do_step(t, h)
 
     # ------------------------------------------------------------ exchange strategies
@@ -338,7 +309,7 @@ class NetworkMaster:
             self.check_forces(i, t, h)
         for i, s in enumerate(self.slaves):
             self._give(i, s, t, h)
-        self.remember(t)
+        self.history.remember(self.tau, t)
         return [self.read(s) for s in self.slaves]
 
     def step_gauss_seidel(self, t: float, h: float, x) -> list:
@@ -349,7 +320,7 @@ class NetworkMaster:
             self.check_forces(i, t, h)
             self._give(i, s, t, h)
             x[i] = self.read(s)
-        self.remember(t)
+        self.history.remember(self.tau, t)
         return x
 
     def communication_step(self, t: float, x, impacts: list) -> tuple[list, list]:
@@ -358,12 +329,11 @@ class NetworkMaster:
         if not self.event_aware:
             new = self.exchange(t, self.H, x)
             return new, [s.get_integer(contract.IMPACTS) for s in self.slaves]
-        saved = [s.save() for s in self.slaves]
-        history = (self.tau_prev.copy(), self.t_prev)
+        saved, history = [s.save() for s in self.slaves], self.history.save()
         new = self.exchange(t, self.H, x)
         now = [s.get_integer(contract.IMPACTS) for s in self.slaves]
         if now != impacts:
-            self.tau_prev[:], self.t_prev = history
+            self.history.restore(history)
             new, now = self.retake(t, x, saved)
         for s, st in zip(self.slaves, saved):
             s.free_state(st)
@@ -470,8 +440,7 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
                        Kp=0.0, Kd=0.0, Q=None, method: str = "jacobi", record_every: int = 1,
                        event_aware: bool = False, H_min: float | None = None,
                        start_values=None, progress=None,
-                       record_distance: bool = True, allow_unstable: bool = False,
-                       hold: str = "zoh") -> NetworkResult:
+                       record_distance: bool = True, allow_unstable: bool = False, hold: str = "zoh") -> NetworkResult:
     """Co-simulate N instances of ``fmu`` coupled on a weighted graph (docs/design.md §2.5, §4.4).
 
     ``states``: N start states (q, u); ``A``: N×N weights a_ij >= 0 (zero
@@ -492,11 +461,6 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
     ``UnstableExchange``, a ValueError, unless ``allow_unstable``), and so is
     each instance's internal midpoint step (omega_max*dt < 2, refused with
     ``SimulationDiverged`` whose ``partial`` is None).
-    ``hold``: ``"zoh"`` (default) holds each input over a step; ``"foh"`` also
-    gives the slaves the input slope extrapolated from the last two
-    communication points (fmi2SetRealInputDerivatives; the FMU must declare
-    canInterpolateInputs, ValueError otherwise): second order in H away from
-    impacts (README, *First-order hold*).
     """
     return NetworkMaster(fmu, states, A, t_end, H, coupling, Kp, Kd, Q, method, record_every, event_aware,
                          H_min, start_values, record_distance, allow_unstable, hold).run(progress)
@@ -534,9 +498,7 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
         e.g. ``[{}, {"k": 1.05}]``; M, w, g0 and e must agree).
     allow_unstable : run even if the held exchange is unstable at ``H`` (by default
         refused before the first step with ``UnstableExchange``, a ValueError).
-    hold : ``"zoh"`` (inputs held over a step) or ``"foh"`` (first-order hold: the
-        input slope extrapolated from the last two communication points is given
-        to the slaves with fmi2SetRealInputDerivatives; needs canInterpolateInputs).
+    hold : ``"zoh"`` (inputs held over a step) or ``"foh"`` (first-order hold, :mod:`fmu_sync.hold`).
     progress : callable ``progress(fraction)`` or None.
 
     Returns a :class:`PairResult`. Bad arguments, or an FMU that does not follow
