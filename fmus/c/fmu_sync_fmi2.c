@@ -1213,7 +1213,7 @@ EXPORT fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real t, fmi2Real H, fmi2Boo
                       "state to go back in time)", G(t), G(H), G(now), G(t), G(now));
     double dt = w[H_DT];
     double count = ceil(H / dt - 1e-9);       /* computed in double: cannot overflow */
-    if (!(count <= FMU_SYNC_MAX_SUBSTEPS))
+    if (w[H_SCHEME] != SCHEME_EXACT && !(count <= FMU_SYNC_MAX_SUBSTEPS))   /* exact: no internal steps */
         return refuse(c, fmi2Discard, "doStep(t = %s, H = %s) refused, state unchanged: it needs "
                       "ceil(H/dt) = %.6g internal steps of solver.dt = %s, more than the limit %.0f "
                       "(FMU_SYNC_MAX_SUBSTEPS); use a smaller H or a larger solver.dt", G(t), G(H), count, G(dt),
