@@ -30,7 +30,7 @@ from .distance import quotient_distance
 from .coupling import coupling_forces
 from .pair import simulate_pair
 from .metrics import SyncMetrics, sync_metrics
-from .exchange import UnstableExchange, exchange_limit
+from .exchange import UnstableExchange, exchange_limit, hold_bound
 from .network import all_to_all, path, ring, simulate_network, star
 from .exact import ExactEvents, exact_events, simulate_exact
 from .exact_nd import ExactEventsND, exact_events_nd, simulate_exact_nd
@@ -39,4 +39,4 @@ __all__ = ["ImpactOscillator", "MechanicalSystem", "SystemArrays", "impact_map",
            "quotient_distance", "coupling_forces", "simulate_exact", "exact_events", "ExactEvents",
            "simulate_exact_nd", "exact_events_nd", "ExactEventsND", "SimulationResult", "PairResult", "RunFailed",
            "SimulationDiverged", "NetworkResult", "simulate_network", "ring", "path", "star", "all_to_all",
-           "sync_metrics", "SyncMetrics", "exchange_limit", "UnstableExchange"]
+           "sync_metrics", "SyncMetrics", "exchange_limit", "hold_bound", "UnstableExchange"]

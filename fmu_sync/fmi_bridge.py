@@ -102,6 +102,15 @@ class FMUHost:
             worst = max(worst, st)
         return worst
 
+    def set_input_derivatives(self, values: dict, order: int = 1) -> int:
+        """fmi2SetRealInputDerivatives: the ``order``-th time derivatives of the named inputs."""
+        if not values:
+            return OK
+        names = list(values)
+        st, _ = self.call("setRealInputDerivatives", [self.vr(n) for n in names], [int(order)] * len(names),
+                          [float(values[n]) for n in names])
+        return st
+
     def get(self, names) -> list:
         """Values of the named variables (ints for Integer/Enumeration)."""
         out = []

@@ -43,6 +43,7 @@ from .core.network import coupled_weights, edge_laws, edges_of, weights
 from .core.pair import LAWS, check_common_geometry, coupling_step
 from .core.result import NetworkResult, PairResult
 from .fmus import contract
+from .hold import InputHistory, check_hold, check_schemes
 
 __all__ = ["cosimulate", "cosimulate_network", "NetworkMaster", "NetworkResult", "SlaveError", "FmuInstance",
            "fmu_model", "system_from_fmu"]
@@ -153,7 +154,7 @@ class NetworkMaster:
     def __init__(self, fmu, states, A, t_end: float, H: float, coupling: str | None = "switching",
                  Kp=0.0, Kd=0.0, Q=None, method: str = "jacobi", record_every: int = 1,
                  event_aware: bool = False, H_min: float | None = None, start_values=None,
-                 record_distance: bool = True, allow_unstable: bool = False):
+                 record_distance: bool = True, allow_unstable: bool = False, hold: str = "zoh"):
         H, n_steps, record_every = check_run(t_end, H, record_every, dt_name="H")
         if method not in self.METHODS:
             raise ValueError(f"method must be {' or '.join(repr(m) for m in self.METHODS)}, got {method!r}")
@@ -184,6 +185,7 @@ class NetworkMaster:
         from fmpy import read_model_description
         self.md = read_model_description(self.fmu)
         self.model = fmu_model(self.md)  # a foreign FMU fails here, naming what it lacks
+        self.hold = check_hold(hold, self.md, self.fmu)
         self.H, self.n_steps, self.record_every = H, n_steps, record_every
         self.coupling = coupling
         self.allow_unstable = bool(allow_unstable)
@@ -203,6 +205,7 @@ class NetworkMaster:
         for s, sv in zip(self.slaves, self.start_values):
             s.enter_initialization(0.0)   # FMI 2.0: variables are readable from initialization mode on
             s.set(sv)
+        check_schemes(self.hold, [contract.scheme_name(s.get_integer(contract.SOLVER_SCHEME)) for s in self.slaves])
         systems = [system_from_fmu(s, model) for s in self.slaves]
         check_common_geometry(systems, [f"instance {i + 1}" for i in range(N)])
         self.system = system = systems[0]
@@ -219,13 +222,14 @@ class NetworkMaster:
         self.A_coupled = coupled_weights(self.A, self.edges, self.laws)
         if self.coupled:  # before the first step: the held exchange must be stable at H
             self.limit = check_exchange(system.M, self.Kp_m, self.Kd_m, self.H, A=self.A_coupled,
-                                        allow_unstable=self.allow_unstable)
+                                        allow_unstable=self.allow_unstable, hold=self.hold)
         E, rows = len(self.edges), self.n_steps // self.record_every + 1
         self.T = np.full(rows, np.nan)
         self.Qr, self.Ur, self.TAU = (np.full((rows, N, n), np.nan) for _ in range(3))
         self.D, self.EU = np.full((rows, E), np.nan), np.full((rows, E), np.nan)
         self.BR = np.full((rows, E), -1, dtype=np.int64)
         self.tau = np.zeros((N, n))
+        self.history = InputHistory(N, n)
         self.t1, self.t2 = np.zeros(n), np.zeros(n)
         self.work = chain_work(n)
 
@@ -283,7 +287,7 @@ class NetworkMaster:
 
     def check_forces(self, i: int, t: float, h: float) -> None:
         if not np.all(np.abs(self.tau[i]) <= contract.INPUT_BOUND):   # also catches NaN
-            lim = exchange_limit(self.system.M, self.Kp_m, self.Kd_m, h, self.A_coupled)
+            lim = exchange_limit(self.system.M, self.Kp_m, self.Kd_m, h, self.A_coupled, hold=self.hold)
             raise SlaveError(f"system{i + 1}", t, "coupling", 3, [
                 f"its coupling force became non-finite or exceeds the FMU's input bound "
                 f"{contract.INPUT_BOUND:g} ({self.tau[i].tolist()}): the explicit "
@@ -292,6 +296,9 @@ class NetworkMaster:
 
     def _give(self, i: int, s: FmuInstance, t: float, h: float) -> None:
         s.set(dict(zip(self.model.tau, self.tau[i])))
+        if self.hold == "foh":   # after the value (setting an input resets its derivative); fmu_sync.hold
+            s._check("fmi2SetRealInputDerivatives", s.host.set_input_derivatives(
+                dict(zip(self.model.tau, self.history.slope(i, self.tau[i], t)))))
         s.do_step(t, h)
 
     # ------------------------------------------------------------ exchange strategies
@@ -302,6 +309,7 @@ class NetworkMaster:
             self.check_forces(i, t, h)
         for i, s in enumerate(self.slaves):
             self._give(i, s, t, h)
+        self.history.remember(self.tau, t)
         return [self.read(s) for s in self.slaves]
 
     def step_gauss_seidel(self, t: float, h: float, x) -> list:
@@ -312,6 +320,7 @@ class NetworkMaster:
             self.check_forces(i, t, h)
             self._give(i, s, t, h)
             x[i] = self.read(s)
+        self.history.remember(self.tau, t)
         return x
 
     def communication_step(self, t: float, x, impacts: list) -> tuple[list, list]:
@@ -320,10 +329,11 @@ class NetworkMaster:
         if not self.event_aware:
             new = self.exchange(t, self.H, x)
             return new, [s.get_integer(contract.IMPACTS) for s in self.slaves]
-        saved = [s.save() for s in self.slaves]
+        saved, history = [s.save() for s in self.slaves], self.history.save()
         new = self.exchange(t, self.H, x)
         now = [s.get_integer(contract.IMPACTS) for s in self.slaves]
         if now != impacts:
+            self.history.restore(history)
             new, now = self.retake(t, x, saved)
         for s, st in zip(self.slaves, saved):
             s.free_state(st)
@@ -366,7 +376,7 @@ class NetworkMaster:
             self.EU[sl] if need_d else None, V, impacts=impacts,
             info=dict(mode="cosim", H=self.H, method=self.method, event_aware=self.event_aware,
                       H_min=self.H_min if self.event_aware else None, retaken_steps=self.retakes,
-                      fmu=self.fmu, steps=self.n_steps, coupling=self.coupling,
+                      fmu=self.fmu, steps=self.n_steps, coupling=self.coupling, hold=self.hold,
                       **({} if self.limit is None else dict(
                           omega_c_H=self.limit.h, exchange_bound=self.limit.bound,
                           zeta=self.limit.zeta, H_max=self.limit.H_max))),
@@ -430,7 +440,7 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
                        Kp=0.0, Kd=0.0, Q=None, method: str = "jacobi", record_every: int = 1,
                        event_aware: bool = False, H_min: float | None = None,
                        start_values=None, progress=None,
-                       record_distance: bool = True, allow_unstable: bool = False) -> NetworkResult:
+                       record_distance: bool = True, allow_unstable: bool = False, hold: str = "zoh") -> NetworkResult:
     """Co-simulate N instances of ``fmu`` coupled on a weighted graph (docs/design.md §2.5, §4.4).
 
     ``states``: N start states (q, u); ``A``: N×N weights a_ij >= 0 (zero
@@ -453,7 +463,7 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
     ``SimulationDiverged`` whose ``partial`` is None).
     """
     return NetworkMaster(fmu, states, A, t_end, H, coupling, Kp, Kd, Q, method, record_every, event_aware,
-                         H_min, start_values, record_distance, allow_unstable).run(progress)
+                         H_min, start_values, record_distance, allow_unstable, hold).run(progress)
 
 
 def _pair_result(r: NetworkResult, coupling) -> PairResult:
@@ -467,7 +477,7 @@ def _pair_result(r: NetworkResult, coupling) -> PairResult:
 def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None, Kp=0.0, Kd=0.0,
                Q=None, method: str = "jacobi", record_every: int = 1, event_aware: bool = False,
                H_min: float | None = None, start_values=None, progress=None,
-               record_distance: bool = True, allow_unstable: bool = False) -> PairResult:
+               record_distance: bool = True, allow_unstable: bool = False, hold: str = "zoh") -> PairResult:
     """Co-simulate two instances of ``fmu`` coupled by ``coupling`` (docs/design.md §2.5, §4.4).
 
     Parameters
@@ -488,6 +498,7 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
         e.g. ``[{}, {"k": 1.05}]``; M, w, g0 and e must agree).
     allow_unstable : run even if the held exchange is unstable at ``H`` (by default
         refused before the first step with ``UnstableExchange``, a ValueError).
+    hold : ``"zoh"`` (inputs held over a step) or ``"foh"`` (first-order hold, :mod:`fmu_sync.hold`).
     progress : callable ``progress(fraction)`` or None.
 
     Returns a :class:`PairResult`. Bad arguments, or an FMU that does not follow
@@ -501,7 +512,7 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
     try:
         r = cosimulate_network(fmu, [x1, x2], [[0.0, 1.0], [1.0, 0.0]], t_end, H, coupling, Kp, Kd, Q,
                                method, record_every, event_aware, H_min, start_values, progress,
-                               record_distance, allow_unstable)
+                               record_distance, allow_unstable, hold)
     except RunFailed as exc:
         if exc.partial is not None:  # None: refused before the first step
             exc.partial = _pair_result(exc.partial, coupling)

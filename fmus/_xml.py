@@ -64,7 +64,7 @@ def _unit_definitions(root: Element, used: set[str]) -> None:
 def _type_definitions(root: Element) -> None:
     defs = SubElement(root, "TypeDefinitions")
     st = SubElement(defs, "SimpleType", name=SCHEME_TYPE,
-                    description="Moreau time-stepping scheme of the internal steps")
+                    description="Solver of a communication step (Moreau schemes or the exact 1-DOF step)")
     en = SubElement(st, "Enumeration")
     for name, value, desc in SCHEME_ITEMS:
         SubElement(en, "Item", name=name, value=str(value), description=desc)
@@ -86,7 +86,7 @@ def model_description(*, model_name: str, model_identifier: str, guid: str, desc
         "modelIdentifier": model_identifier,
         "needsExecutionTool": "false",
         "canHandleVariableCommunicationStepSize": "true",
-        "canInterpolateInputs": "false",
+        "canInterpolateInputs": "true",
         "maxOutputDerivativeOrder": "0",
         "canRunAsynchronuously": "false",
         "canBeInstantiatedOnlyOncePerProcess": "false",

@@ -49,6 +49,8 @@ SCHEME_TYPE = "fmu_sync.Scheme"
 SCHEME_ITEMS = (
     ("midpoint", 1, "Moreau midpoint scheme, explicit in the smooth forces (stable for omega_max*dt < 2)"),
     ("theta", 2, "Moreau-Jean theta scheme, linear part (K, C) implicit"),
+    ("exact", 3, "Exact communication step (1-DOF only): closed-form flow, impacts, completed "
+                 "accumulations and persistent contact, tau constant over the step; solver.dt unused"),
 )
 
 
@@ -139,7 +141,8 @@ def _solver_variables(dt: float = 1e-3) -> list[Var]:
                "communication step is shortened to land on the communication point (> 0)",
                dt, min=POSITIVE_MIN),
         Var(SOLVER_SCHEME, "Enumeration", "parameter", "fixed",
-            "Time-stepping scheme of the internal steps (midpoint or theta)",
+            "Solver of a communication step: Moreau midpoint or theta with internal step solver.dt, "
+            "or exact (1-DOF model only)",
             initial="exact", start=1, declared_type=SCHEME_TYPE),
         _param(SOLVER_THETA, "1", "Theta of the Moreau-Jean scheme (used when solver.scheme = theta)",
                0.5, min=0.5, max=1.0),

@@ -82,6 +82,9 @@ class FMUInstance:
         w[S.H_LEN] = w.shape[0]
         w[S.H_VERSION] = S.WORK_VERSION
         w[S.H_NX] = nv
+        w[S.H_M] = m
+        w[S.H_ITAUDOT] = w.shape[0] - m          # the input derivatives: the last m slots
+        self.i_taudot = int(w[S.H_ITAUDOT])
         w[S.H_IQ], w[S.H_IU] = self.index[qn[0]], self.index[un[0]]
         w[S.H_ITAU] = self.index[self.inputs[0].name]
         assert [self.index[a] for a in qn] == list(range(int(w[S.H_IQ]), int(w[S.H_IQ]) + n))
@@ -122,12 +125,18 @@ class FMUInstance:
         self.x[self.i_perc] = 0.0
         self.work[S.H_TIME] = 0.0
         self.work[S.H_CONFIGURED] = 0.0
+        self.work[S.H_VREF] = 0.0
+        self.work[self.i_taudot:self.i_taudot + self.m] = 0.0
         self.cfg = None
         self.refresh()
 
     def _install(self, cfg) -> None:
         """Pack a validated configuration into the work array."""
-        S.pack(self.work, cfg.system.arrays(), cfg.dt, cfg.scheme, cfg.theta)
+        exact = None
+        if cfg.scheme == S.EXACT:
+            from ..core.exact import exact_model
+            exact = exact_model(cfg.system)
+        S.pack(self.work, cfg.system.arrays(), cfg.dt, cfg.scheme, cfg.theta, exact)
         self.work[S.H_CONFIGURED] = 1.0
         self.cfg = cfg
 
@@ -163,6 +172,7 @@ class FMUInstance:
         self.x[self.i_u:self.i_u + self.n] = cfg.u0
         self.x[self.i_impacts] = 0.0
         self.x[self.i_perc] = 0.0
+        self.work[S.H_VREF] = 0.0               # the exact run's velocity scale: set by its first step
         self._outputs_from_stepper()
         return ""
 
@@ -181,6 +191,8 @@ class FMUInstance:
             "q": x[self.i_q:self.i_q + self.n].tolist(),
             "u": x[self.i_u:self.i_u + self.n].tolist(),
             "tau": x[self.i_tau:self.i_tau + self.m].tolist(),
+            "taudot": self.work[self.i_taudot:self.i_taudot + self.m].tolist(),
+            "vref": float(self.work[S.H_VREF]),
             "impacts": int(x[self.i_impacts]),
             "percussion": float(x[self.i_perc]),
             "parameters": self._parameters(),
@@ -200,12 +212,15 @@ class FMUInstance:
         x[self.i_perc] = s["percussion"]
         self.work[S.H_TIME] = s["time"]
         self.work[S.H_PHASE] = PHASES[s["phase"]]
+        self.work[self.i_taudot:self.i_taudot + self.m] = s["taudot"]
         if s["phase"] in ("step", "terminated"):
             self._install(cfg)
+            self.work[S.H_VREF] = s["vref"]
             self._outputs_from_stepper()
         else:
             self.cfg = None
             self.work[S.H_CONFIGURED] = 0.0
+            self.work[S.H_VREF] = 0.0
             self.refresh()
         return ""
 

@@ -33,7 +33,7 @@ __all__ = ["MechanicalSlave", "STATE_FORMAT", "START_FILE", "Configuration", "PH
 #: Name of the start-value file in the FMU's resources/ (written by fmu_sync.export).
 START_FILE = "fmu_sync_start.json"
 #: Tag of the serialised FMU state (JSON).
-STATE_FORMAT = "fmu-sync-state/2"
+STATE_FORMAT = "fmu-sync-state/3"
 #: FMU phases as saved in a state (names) and their C state codes (fmu_sync_fmi2.c)
 PHASES = {"instantiated": 1, "initialization": 2, "step": 4, "terminated": 8}
 _SCHEME_BY_VALUE = {value: name for name, value, _ in SCHEME_ITEMS}
@@ -177,11 +177,19 @@ class MechanicalSlave:
         scheme_name = _SCHEME_BY_VALUE.get(p["solver.scheme"])
         if scheme_name is None:
             raise ValueError(f"solver.scheme must be one of {sorted(_SCHEME_BY_VALUE)}, got {p['solver.scheme']!r}")
-        code, theta = scheme_code(scheme_name, p["solver.theta"])
-        try:
-            check_stable(system, scheme_name, dt)
-        except SimulationDiverged as exc:  # known before the run: a configuration error
-            raise ValueError(str(exc)) from None
+        if scheme_name == "exact":
+            if cls.N != 1:
+                raise ValueError(f"solver.scheme = exact is offered by the 1-DOF model only (the exact "
+                                 f"communication step of the core, core.exact.exact_step); this model has "
+                                 f"{cls.N} degrees of freedom: use midpoint or theta")
+            from .stepper import EXACT
+            code, theta = EXACT, float(p["solver.theta"])
+        else:
+            code, theta = scheme_code(scheme_name, p["solver.theta"])
+            try:
+                check_stable(system, scheme_name, dt)
+            except SimulationDiverged as exc:  # known before the run: a configuration error
+                raise ValueError(str(exc)) from None
         q0, u0 = cls.start_state(p)
         g = system.gap(q0)
         if not g >= 0.0:
@@ -221,16 +229,17 @@ class MechanicalSlave:
         try:
             if s["phase"] not in PHASES:
                 return f"bad phase {s['phase']!r} (one of {', '.join(PHASES)})", None
-            for key, size in (("q", n), ("u", n), ("tau", m)):
+            for key, size in (("q", n), ("u", n), ("tau", m), ("taudot", m)):
                 x = s[key]
                 if (not isinstance(x, list) or len(x) != size
                         or not all(_is_real(a) and math.isfinite(a) for a in x)):
                     return f"{key} must be a list of {size} finite numbers, got {x!r}", None
-            for key in ("time", "percussion"):
+            for key in ("time", "percussion", "vref"):
                 if not (_is_real(s[key]) and math.isfinite(s[key])):
                     return f"{key} must be a finite number, got {s[key]!r}", None
-            if s["percussion"] < 0.0:
-                return f"percussion must be >= 0, got {s['percussion']!r}", None
+            for key in ("percussion", "vref"):
+                if s[key] < 0.0:
+                    return f"{key} must be >= 0, got {s[key]!r}", None
             if not isinstance(s["impacts"], int) or isinstance(s["impacts"], bool) or not 0 <= s["impacts"] < 2**53:
                 return f"impacts must be a non-negative integer, got {s['impacts']!r}", None
             for v, x in zip(inputs, s["tau"]):

@@ -7,11 +7,25 @@ instance's work array: a header (the H_* slots, shared with
 ``fmus/c/fmu_sync_fmi2.c``) followed by the system's arrays as the core's
 kernels take them (:class:`fmu_sync.core.model.SystemArrays`, packed by
 :func:`pack`). The cfunc rebuilds the ``SystemArrays`` as views of ``work``,
-makes exactly one call to the core's :func:`fmu_sync.core.moreau.advance_in` (``advance`` without allocation)
-(all internal steps, input held) and writes q, u, gap, energy, impacts and
-percussion into ``x``. It returns 0, or 1 after rolling the step back when the
-state (or an output) became non-finite. ``H == 0`` only recomputes gap and
-energy (used after a restore, so that the outputs are the very same numbers).
+makes exactly one call to the core's :func:`fmu_sync.core.moreau.advance_in`
+(``advance`` in the work array's scratch, nothing allocated)
+(all internal steps; the input held, or with the first-order hold
+``tau + taudot (t - t_c)`` when the master set input derivatives) -- or, with
+``solver.scheme = exact`` (1-DOF), one call to the core's exact communication
+step :func:`fmu_sync.core.exact.exact_step` (closed-form flow, impacts,
+completed accumulations and persistent contact; tau constant over the step) --
+and writes q, u, gap, energy, impacts and percussion into ``x``. It returns 0,
+1 after rolling the step back when the state (or an output) became non-finite
+or the exact solver could not complete the step, or 2 (nothing done) when the
+exact scheme is given a non-zero input derivative. ``H == 0`` only recomputes
+gap and energy (used after a restore, so that the outputs are the very same
+numbers).
+
+Work array: the header (H_* slots), the system (:func:`pack`), a save area of
+2n slots, the exact model (``core.exact.exact_model``, 1-DOF only, at
+``H_IEXACT``) and, last, the m input derivatives (at ``H_ITAUDOT``: set by the
+binary's fmi2SetRealInputDerivatives, consumed by the next doStep). The exact
+run's velocity scale ``vref`` lives in ``H_VREF`` (part of the FMU state).
 
 No Python object is touched: the binary calls it without the GIL. Compiled with
 ``cache=True``; its source path is stable because the FMU's code is unpacked to
@@ -24,27 +38,47 @@ import math
 import numpy as np
 from numba import carray, cfunc, njit, types
 
+from ..core.exact import NT as _EXACT_NT
+from ..core.exact import STEP_OK, exact_step
 from ..core.model import SystemArrays
 from ..core.moreau import MIDPOINT, OK, THETA, advance_in
 
 __all__ = ["step", "pack", "work_size", "H_LEN", "H_VERSION", "H_TIME", "H_PHASE", "H_DT",
-           "H_CONFIGURED", "WORK_VERSION"]
+           "H_CONFIGURED", "WORK_VERSION", "H_VREF", "H_ITAUDOT", "H_IEXACT", "EXACT", "exact_size"]
 
 # --- header slots (the first six are read by the C binary: keep in sync with fmu_sync_fmi2.c)
 H_LEN, H_VERSION, H_TIME, H_PHASE, H_DT, H_CONFIGURED = 0, 1, 2, 3, 4, 5
 H_N, H_M, H_NF, H_SCHEME, H_THETA, H_NX = 6, 7, 8, 9, 10, 11
 H_IQ, H_IU, H_ITAU, H_IGAP, H_IENERGY, H_IIMPACTS, H_IPERC = 12, 13, 14, 15, 16, 17, 18
+# (read by the C binary too: H_M, H_SCHEME, H_ITAU, H_ITAUDOT)
+H_VREF, H_ITAUDOT, H_IEXACT = 19, 20, 21
 H_DATA = 24
-WORK_VERSION = 1.0
+WORK_VERSION = 2.0
+#: the FMU's code of solver.scheme = exact (the core's Moreau codes are MIDPOINT, THETA)
+EXACT = 2
+
+
+def exact_size(n: int, m: int, nf: int) -> int:
+    """Slots of the packed exact model (``core.exact.exact_model``; 0 for n > 1)."""
+    return 0 if n != 1 else 4 + 16 + _EXACT_NT + 4 + m + nf * (3 + 2 * _EXACT_NT)
+
+
+@njit(cache=True, inline="always")
+def _scratch(n, m, nf):
+    """Slots of the Moreau step's scratch (``core.moreau.advance_in``)."""
+    return 6 * n + n * n + 4 * nf + m
+
 
 def work_size(n: int, m: int, nf: int) -> int:
     """Length of the work array for n DOF, m inputs, nf harmonic forces."""
-    return H_DATA + 4 * n * n + n + nf * n + 2 * nf + n * m + n + 2 + n + 1 + 2 * n + (6 * n + n * n + 4 * nf + m)
+    system = H_DATA + 4 * n * n + n + nf * n + 2 * nf + n * m + n + 2 + n + 1
+    return system + 2 * n + _scratch(n, m, nf) + exact_size(n, m, nf) + m
 
 
-def pack(work: np.ndarray, sa: SystemArrays, dt: float, scheme: int, theta: float) -> None:
+def pack(work: np.ndarray, sa: SystemArrays, dt: float, scheme: int, theta: float, exact=None) -> None:
     """Write the system ``sa`` and the solver data into ``work`` (header slots
-    H_N.. and the data part; the index slots are set by the runtime)."""
+    H_N.. and the data part; the index slots are set by the runtime);
+    ``exact``: the packed exact model (``core.exact.exact_model``) for the exact scheme."""
     n, m = sa.B.shape
     nf = sa.Omega.shape[0]
     need = work_size(n, m, nf)
@@ -61,6 +95,14 @@ def pack(work: np.ndarray, sa: SystemArrays, dt: float, scheme: int, theta: floa
     k += 2
     work[k:k + n] = sa.Minv_w
     work[k + n] = sa.W
+    k += n + 1 + 2 * n + _scratch(n, m, nf)   # the save area and the scratch
+    work[H_IEXACT] = 0.0
+    if exact is not None:
+        if k + exact.size > int(work[H_ITAUDOT]):
+            raise ValueError(f"the exact model needs {exact.size} slots, the work array has "
+                             f"{int(work[H_ITAUDOT]) - k}")
+        work[k:k + exact.size] = exact
+        work[H_IEXACT] = k
 
 
 @njit(cache=True, inline="always")
@@ -119,21 +161,26 @@ def _outputs(sa, q, u):
 
 
 @njit(cache=True, inline="always")
-def _advance(sa, q, u, t, H, dt, tau, scheme, theta, s):
-    """One communication step with the scheme's stepper; (status, percussion, impacts).
+def _advance(sa, q, u, t, H, dt, tau, taudot, scheme, theta, s):
+    """One communication step with a Moreau scheme; (status, percussion, impacts).
 
     ``scheme`` is the core's scheme code (``solver.scheme`` item -> code in
-    ``MechanicalSlave.configure`` via ``core.checks.scheme_code``). The place for
-    more schemes: a new item in ``contract.SCHEME_ITEMS`` (e.g. the exact
-    communication step of the 1-DOF slave, ``core.exact.exact_step``), and a
+    ``MechanicalSlave.configure`` via ``core.checks.scheme_code``); ``taudot``
+    the input slope (zeros: bit for bit the zero-order hold); ``s`` the scratch
+    (:func:`_scratch` slots). The exact scheme is dispatched in :func:`step`.
+    The place for more schemes: a new item in ``contract.SCHEME_ITEMS`` and a
     branch here."""
     n = q.shape[0]
     nf = sa.Omega.shape[0]
     m = tau.shape[0]
     if scheme == MIDPOINT or scheme == THETA:
+        foh = False
+        for j in range(m):
+            if taudot[j] != 0.0:
+                foh = True
         # scratch: y, hf, uf, Sinv_w, hc, hb (n each), Sinv (n*n), cv, sv, cr, sr (nf each), tk (m)
         k = 6 * n + n * n
-        return advance_in(sa, q, u, t, H, dt, tau, tau, False, scheme, theta, False,
+        return advance_in(sa, q, u, t, H, dt, tau, taudot, foh, scheme, theta, False,
                           s[0:n], s[n:2 * n], s[2 * n:3 * n], s[6 * n:k].reshape((n, n)), s[3 * n:4 * n],
                           s[k:k + nf], s[k + nf:k + 2 * nf], s[k + 2 * nf:k + 3 * nf],
                           s[k + 3 * nf:k + 4 * nf], s[4 * n:5 * n], s[5 * n:6 * n],
@@ -164,17 +211,36 @@ def step(x_ptr, w_ptr, t, H):
         x[int(w[H_IENERGY])] = E
         return 0
     save = w[k:k + 2 * n]
+    itd = int(w[H_ITAUDOT])
+    taudot = w[itd:itd + m]
     for i in range(n):
         save[i] = q[i]
         save[n + i] = u[i]
-    status, P, hits = _advance(sa, q, u, t, H, w[H_DT], tau, int(w[H_SCHEME]), w[H_THETA],
-                               w[k + 2 * n:])
+    scheme = int(w[H_SCHEME])
+    if scheme == EXACT:
+        for j in range(m):
+            if taudot[j] != 0.0:
+                return 2
+        ie = int(w[H_IEXACT])
+        st, q1, u1, P, hits, vref = exact_step(w[ie:], q[0], u[0], t, H, tau, w[H_VREF])
+        if st != STEP_OK:
+            return 1
+        q[0] = q1
+        u[0] = u1
+        status = OK
+    else:
+        status, P, hits = _advance(sa, q, u, t, H, w[H_DT], tau, taudot, scheme, w[H_THETA],
+                                   w[k + 2 * n:k + 2 * n + _scratch(n, m, int(w[H_NF]))])
+        vref = w[H_VREF]
     g, E = _outputs(sa, q, u)
     if status != OK or not (math.isfinite(g) and math.isfinite(E)):
         for i in range(n):
             q[i] = save[i]
             u[i] = save[n + i]
         return 1
+    w[H_VREF] = vref
+    for j in range(m):
+        taudot[j] = 0.0                       # consumed: it applied to this step only
     x[int(w[H_IPERC])] = P
     x[int(w[H_IIMPACTS])] += hits
     x[int(w[H_IGAP])] = g

@@ -80,6 +80,7 @@ def test_bench_md_and_stdout(bench):
     out, p = bench
     md = (out / "bench.md").read_text()
     for head in ("# fmu-sync benchmarks", "## Core speed", "## Work–precision", "## Stability",
-                 "Measured order, midpoint, bouncing-ball", "Measured order, midpoint, forced-pair"):
+                 "Measured order, midpoint, bouncing-ball", "Measured order, midpoint, forced-pair",
+                 "## Co-simulation hold: zero- vs first-order", "| FOH | "):
         assert head in md, head
     assert "## Work–precision" in p.stdout and "## Stability" in p.stdout

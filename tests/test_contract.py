@@ -94,8 +94,9 @@ def test_values_refuse_what_the_fmu_cannot_represent():
                            forcing=(([1.0], 1.0, 0.0), ([1.0], 2.0, 0.0)))
     with pytest.raises(contract.ContractError, match="one forcing term, the system has 2"):
         io.values(two)
-    with pytest.raises(ValueError, match="no scheme 'exact'"):
-        io.solver_values(1e-3, "exact")
+    with pytest.raises(ValueError, match="no scheme 'rk4'"):
+        io.solver_values(1e-3, "rk4")
+    assert io.solver_values(1e-3, "exact") == {"solver.dt": 1e-3, "solver.scheme": 3}
     assert io.solver_values(1e-3, "theta", 0.7) == {"solver.dt": 1e-3, "solver.scheme": 2, "solver.theta": 0.7}
 
 

@@ -55,7 +55,7 @@ def test_capabilities_are_declared(fmus, model):
     assert cs.canHandleVariableCommunicationStepSize
     assert cs.canGetAndSetFMUstate
     assert cs.canSerializeFMUstate
-    assert not cs.canInterpolateInputs            # held inputs, nothing else advertised
+    assert cs.canInterpolateInputs                # first-order hold (fmi2SetRealInputDerivatives)
     assert not cs.providesDirectionalDerivative
     assert not cs.canBeInstantiatedOnlyOncePerProcess
 
@@ -92,7 +92,7 @@ def test_impact_oscillator_interface(fmus):
     assert float(v["q_start"].min) == 0.0          # the wall: g(q) = q >= 0
     assert v["solver.scheme"].type == "Enumeration"
     items = {i.name: int(i.value) for i in v["solver.scheme"].declaredType.items}
-    assert items == {"midpoint": 1, "theta": 2}
+    assert items == {"midpoint": 1, "theta": 2, "exact": 3}
 
 
 def test_model_structure_dependencies(fmus):

@@ -589,8 +589,8 @@ def test_fmu_state_round_trips_reproduce_the_run(runs, key):
     assert r["t_end"] == pytest.approx(r["t_expected"], abs=1e-12)   # variable steps accepted
     assert r["errors"] == []
     state = json.loads(r["blob"])   # plain JSON, everything that determines the future
-    assert state["format"] == "fmu-sync-state/2"
-    for k in ("time", "q", "u", "tau", "impacts", "percussion", "parameters", "phase"):
+    assert state["format"] == "fmu-sync-state/3"
+    for k in ("time", "q", "u", "tau", "taudot", "vref", "impacts", "percussion", "parameters", "phase"):
         assert k in state
     assert state["parameters"]["solver.dt"] == DT
 

@@ -307,8 +307,8 @@ def _fake_cosim_modules(monkeypatch, calls):
 
     def cosimulate(fmu_path, x1, x2, t_end, H, coupling=None, Kp=0.0, Kd=0.0, Q=None, method="jacobi",
                    record_every=1, event_aware=False, H_min=None, start_values=None, record_distance=True,
-                   progress=None):
-        calls.append(("cosim", coupling, H, method, record_every, event_aware, start_values))
+                   progress=None, hold="zoh"):
+        calls.append(("cosim", coupling, H, method, record_every, event_aware, start_values, hold))
         return fake_result(t_end, H * record_every, coupling)
 
     def simulate_pair(system, x1, x2, t_end, dt, coupling=None, record_every=1, progress=None, **kw):
@@ -331,6 +331,11 @@ def test_cosim_scene_plumbing(tmp_path, monkeypatch):
     assert [c[1] for c in calls[1:]] == [None, "euclidean", "switching"]
     assert all(c[2:6] == (1e-2, "gauss-seidel", 10, False) and c[6] == {"e": 0.9} for c in calls[1:])
     assert len(list(tmp_path.glob("*.fmu"))) == 1 and len(sr.runs) == 3
+    assert all(c[7] == "zoh" for c in calls[1:])
+    calls.clear()
+    run_scene("forced-pair", tmp_path / "foh", plots=False,
+              overrides={"run.mode": "cosim", "run.t_end": 1.0, "run.hold": "foh"})
+    assert [c[7] for c in calls if c[0] == "cosim"] == ["foh"] * 3     # scene key run.hold -> master
 
 
 def test_demo_plumbing_with_stand_ins(tmp_path, monkeypatch):

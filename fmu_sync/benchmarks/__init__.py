@@ -64,11 +64,11 @@ def main(argv=None) -> int:
     parser.add_argument("--smoke", action="store_true",
                         help="tiny ladders, no core speed section: checks the pipeline only (for tests)")
     parser.add_argument("--no-cosim", action="store_true", help="leave out the FMU co-simulation runs")
-    parser.add_argument("--only", choices=("speed", "work-precision", "stability", "sweep"), action="append",
+    parser.add_argument("--only", choices=("speed", "work-precision", "stability", "sweep", "hold"), action="append",
                         help="run only these sections (repeatable)")
     args = parser.parse_args(argv)
     quick = args.quick or args.smoke
-    sections = set(args.only or ("speed", "work-precision", "stability"))
+    sections = set(args.only or ("speed", "work-precision", "stability", "hold"))
     if args.smoke:
         sections.discard("speed")
 
@@ -146,6 +146,19 @@ def main(argv=None) -> int:
             timings["stability"] = time.perf_counter() - t0
             print(md, flush=True)
             parts.append(md)
+
+        if "hold" in sections:
+            if fmu is None:
+                parts.append(f"## Co-simulation hold: zero- vs first-order (and the exact slave)\n\nnot run "
+                             f"(co-simulation skipped: {why}).\n")
+            else:
+                from . import hold_order
+                t0 = time.perf_counter()
+                with Progress("hold") as bar:
+                    md = hold_order.run(quick=quick, smoke=args.smoke, progress=bar)
+                timings["hold"] = time.perf_counter() - t0
+                print(md, flush=True)
+                parts.append(md)
 
     total = time.perf_counter() - t_start
     head = [

@@ -158,7 +158,7 @@ def run_variant(variant: Variant, fmu_path=None, progress: Callable | None = Non
         result = cosimulate(fmu_path, variant.x1, variant.x2, cfg["run.t_end"], cfg["run.H"],
                             coupling=_coupling_arg(variant.law), Kp=variant.Kp, Kd=variant.Kd, Q=variant.Q,
                             method=cfg["run.method"], record_every=cfg["run.record_every"],
-                            event_aware=cfg["run.event_aware"], H_min=cfg["run.H_min"],
+                            event_aware=cfg["run.event_aware"], H_min=cfg["run.H_min"], hold=cfg["run.hold"],
                             start_values=fmu_start_values(fmu_path, variant),
                             record_distance=bool(cfg["record.distance"]), progress=progress, **extra)
         if getattr(result, "error", None):   # a record that stopped early (older masters return it)
@@ -199,7 +199,7 @@ def _run_network(variant: Variant, fmu_path, progress, label, extra):
     result = cosimulate_network(fmu_path, list(spec.states), spec.A, cfg["run.t_end"], cfg["run.H"],
                                 coupling=_laws_arg(variant), Kp=variant.Kp, Kd=variant.Kd, Q=variant.Q,
                                 method=cfg["run.method"], record_every=cfg["run.record_every"],
-                                event_aware=cfg["run.event_aware"], H_min=cfg["run.H_min"],
+                                event_aware=cfg["run.event_aware"], H_min=cfg["run.H_min"], hold=cfg["run.hold"],
                                 start_values=starts, record_distance=bool(cfg["record.distance"]),
                                 progress=progress, **extra)
     if getattr(result, "error", None):
@@ -378,7 +378,7 @@ def stream_notes(runs) -> list[str]:
             for r in runs if r.metrics.get("thinned_every", 1) > 1]
 
 
-_COSIM_KEYS = ("run.H", "run.H_min", "run.method", "run.event_aware")
+_COSIM_KEYS = ("run.H", "run.H_min", "run.method", "run.event_aware", "run.hold")
 
 
 def _relevant(key: str, variants) -> bool:

@@ -27,6 +27,8 @@ LAWS = ("none",) + tuple(k for k in COUPLING_LAWS if k != "none")
 SCHEMES = ("midpoint", "theta", "exact")
 MODES = ("core", "cosim")
 METHODS = ("jacobi", "gauss-seidel")
+#: the master's input hold over a communication step (fmu_sync.master.NetworkMaster.HOLDS)
+HOLDS = ("zoh", "foh")
 PLOTS = ("positions", "distance", "impact-zoom", "lyapunov", "forces", "phase")
 SINGLE_PLOTS = ("positions", "phase")
 DISTANCE_PLOTS = ("distance", "impact-zoom", "lyapunov")
@@ -291,6 +293,7 @@ KEYS = {
     "run": {"t_end": _key(_number(gt=0)), "mode": _key(choice(*MODES), "core"),
             "H": _key(_number(gt=0), 1e-2), "H_min": _key(_number(gt=0), None),
             "method": _key(choice(*METHODS), "jacobi"), "event_aware": _key(_boolean, False),
+            "hold": _key(choice(*HOLDS), "zoh"),
             "record_every": _key(_integer(1), 1), "allow_unstable": _key(_boolean, False)},
     "record": {"distance": _key(_boolean, None), "formats": _key(_formats, ["csv", "npz"])},
     "plot": {"plots": _key(_plots, None), "compare": _key(_boolean, None)},

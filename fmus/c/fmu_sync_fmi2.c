@@ -133,8 +133,10 @@ enum { T_REAL = 0, T_INTEGER = 1, T_ENUM = 2 };
 enum { C_PARAMETER = 0, C_INPUT = 1, C_OUTPUT = 2 };
 
 /* work array header (fmus/stepper.py: H_*) read by the C side */
-enum { H_LEN = 0, H_VERSION = 1, H_TIME = 2, H_PHASE = 3, H_DT = 4, H_CONFIGURED = 5 };
-#define WORK_VERSION 1.0
+enum { H_LEN = 0, H_VERSION = 1, H_TIME = 2, H_PHASE = 3, H_DT = 4, H_CONFIGURED = 5, H_M = 7, H_SCHEME = 9,
+       H_ITAU = 14, H_ITAUDOT = 20 };
+#define WORK_VERSION 2.0
+#define SCHEME_EXACT 2.0            /* fmus/stepper.py: EXACT */
 
 /* layout handed over by FMUInstance.layout() (fmus/runtime.py) */
 enum {
@@ -891,6 +893,12 @@ static fmi2Status set_value(Instance *c, int call, fmi2ValueReference vr, double
     }
     c->x[vr] = v;
     if (caus == C_PARAMETER) c->init_dirty = 1;
+    if (caus == C_INPUT) {
+        /* a new input value starts a new input polynomial: its derivative is 0
+         * unless fmi2SetRealInputDerivatives sets it again (for the next doStep) */
+        double *w = c->work;
+        w[(size_t)w[H_ITAUDOT] + (vr - (size_t)w[H_ITAU])] = 0.0;
+    }
     return fmi2OK;
 }
 
@@ -1111,13 +1119,42 @@ EXPORT fmi2Status fmi2GetDirectionalDerivative(fmi2Component comp, const fmi2Val
     return refuse(c, fmi2Error, "fmi2GetDirectionalDerivative: not provided (providesDirectionalDerivative = false)");
 }
 
+/* canInterpolateInputs = true: the first derivative of an input, with respect to
+ * the start of the next communication step (FMI 2.0, section 4.2.3), makes the
+ * next doStep use tau(t) = tau + taudot (t - t_c) (first-order hold). It applies
+ * to that one doStep: the step consumes it, and setting the input again resets
+ * it to 0 (zero-order hold unless the master sets a derivative again). Order 1
+ * only; the call is all-or-nothing (a refused call changes nothing). */
 EXPORT fmi2Status fmi2SetRealInputDerivatives(fmi2Component comp, const fmi2ValueReference vr[], size_t n,
                                               const fmi2Integer order[], const fmi2Real value[]) {
     Instance *c;
-    (void)vr; (void)n; (void)order; (void)value;
     if (invalid(comp, F_SetInputDeriv, &c)) return fmi2Error;
-    return refuse(c, fmi2Error, "fmi2SetRealInputDerivatives: inputs are held over a step "
-                  "(canInterpolateInputs = false)");
+    if (n && (!vr || !order || !value))
+        return refuse(c, fmi2Error, "fmi2SetRealInputDerivatives: NULL vr, order or value array");
+    double *w = c->work;
+    int exact = w[H_CONFIGURED] != 0.0 && w[H_SCHEME] == SCHEME_EXACT;
+    for (size_t i = 0; i < n; ++i) {
+        if (!check_vr(c, F_SetInputDeriv, vr[i], 0)) return fmi2Error;
+        const char *nm = c->name_of[vr[i]];
+        if (c->vcaus[vr[i]] != C_INPUT)
+            return refuse(c, fmi2Error, "fmi2SetRealInputDerivatives: %s is a %s: only inputs have derivatives; "
+                          "nothing set", nm, caus_name(c->vcaus[vr[i]]));
+        if (order[i] != 1)
+            return refuse(c, fmi2Error, "fmi2SetRealInputDerivatives: order %d of %s refused: this FMU "
+                          "interpolates its inputs linearly (order 1 only%s); nothing set", (int)order[i], nm,
+                          order[i] < 1 ? "; order 0 is the value itself: use fmi2SetReal" : "");
+        if (!isfinite(value[i]))
+            return refuse(c, fmi2Error, "fmi2SetRealInputDerivatives: d%s/dt = %s rejected: must be finite; "
+                          "nothing set", nm, G(value[i]));
+        if (exact && value[i] != 0.0)
+            return refuse(c, fmi2Error, "fmi2SetRealInputDerivatives: d%s/dt = %s refused: solver.scheme = "
+                          "exact holds the input constant over a communication step (the exact solver "
+                          "needs a constant tau); only 0 is accepted, or use solver.scheme = midpoint or "
+                          "theta; nothing set", nm, G(value[i]));
+    }
+    for (size_t i = 0; i < n; ++i)
+        w[(size_t)w[H_ITAUDOT] + (vr[i] - (size_t)w[H_ITAU])] = value[i];
+    return fmi2OK;
 }
 
 EXPORT fmi2Status fmi2GetRealOutputDerivatives(fmi2Component comp, const fmi2ValueReference vr[], size_t n,
@@ -1151,12 +1188,21 @@ EXPORT fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real t, fmi2Real H, fmi2Boo
                       "state to go back in time)", G(t), G(H), G(now), G(t), G(now));
     double dt = w[H_DT];
     double count = ceil(H / dt - 1e-9);       /* computed in double: cannot overflow */
-    if (!(count <= FMU_SYNC_MAX_SUBSTEPS))
+    if (w[H_SCHEME] != SCHEME_EXACT && !(count <= FMU_SYNC_MAX_SUBSTEPS))   /* exact: no internal steps */
         return refuse(c, fmi2Discard, "doStep(t = %s, H = %s) refused, state unchanged: it needs "
                       "ceil(H/dt) = %.6g internal steps of solver.dt = %s, more than the limit %.0f "
                       "(FMU_SYNC_MAX_SUBSTEPS); use a smaller H or a larger solver.dt", G(t), G(H), count, G(dt),
                       (double)FMU_SYNC_MAX_SUBSTEPS);
     int32_t rc = c->stepper(c->x, w, now, H);
+    if (rc == 2)
+        return refuse(c, fmi2Error, "doStep(t = %s, H = %s) refused, state unchanged: solver.scheme = exact "
+                      "holds the input constant over a communication step, but a non-zero input derivative "
+                      "was set (fmi2SetRealInputDerivatives before fmi2ExitInitializationMode); set it to 0 "
+                      "or use solver.scheme = midpoint or theta", G(t), G(H));
+    if (rc != 0 && w[H_SCHEME] == SCHEME_EXACT)
+        return refuse(c, fmi2Discard, "doStep(t = %s, H = %s): the exact solver could not complete the step "
+                      "(more than its event limit in one step, or an undecidable contact). The step was "
+                      "rolled back: state unchanged at t = %s.", G(t), G(H), G(now));
     if (rc != 0)
         return refuse(c, fmi2Discard, "doStep(t = %s, H = %s): the state became non-finite with "
                       "solver.dt = %s (a diverging scheme or an overflowing force, e.g. an input or "
