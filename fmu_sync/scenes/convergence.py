@@ -96,6 +96,13 @@ def _verdict(rows) -> tuple[str, bool]:
             f"the uncertainty of the two fits (refine the step further)"), False
 
 
+def _metrics(result, threshold):
+    """``result.sync(threshold)`` (fitted rate, t_sync, bound), None without a distance record."""
+    if getattr(result, "d", None) is None:
+        return None
+    return result.sync(threshold)
+
+
 def _final_d(result) -> float:
     d = getattr(result, "d_max", None) if hasattr(result, "edges") else result.d
     return float(d[-1]) if d is not None and len(d) else math.nan
@@ -117,7 +124,7 @@ def convergence(scene, out_dir=None, overrides: dict | None = None, variants=Non
     from .. import report
     from ..core import RunFailed
     from ..output import DEFAULT_MAX_DISK, DEFAULT_MAX_MEMORY, check_budget, check_out_dir
-    from .running import _label, export_for, preflight, run_variant
+    from .running import export_for, preflight, run_variant
 
     if not isinstance(scene, Scene):
         scene = load_scene(scene, overrides, variants)
@@ -143,7 +150,7 @@ def convergence(scene, out_dir=None, overrides: dict | None = None, variants=Non
             vk = load_scene(scene.path, {**scene.overrides, **refined_overrides(v, k)}, [v.name]).variants[0]
             preflight(vk, scene.name)
             est, _ = check_budget(vk, (), max_memory, max_disk, can_stream=False,
-                                  label=f"{_label(vk, scene.name)} at {_step_name(v)}/{2 ** k}")
+                                  label=f"scene {scene.name!r}, variant {v.name!r} at {_step_name(v)}/{2 ** k}")
             runs.append((vk, est.steps))
         plan.append((v, runs))
     total = sum(s for _, runs in plan for _, s in runs)
@@ -168,7 +175,7 @@ def convergence(scene, out_dir=None, overrides: dict | None = None, variants=Non
                     raise RunFailed(f"{exc} (convergence check at {vc.step_name} = "
                                     f"{vk.cfg[vc.step_name]:g})", partial=None) from None
                 done += steps
-                m = report._sync(result, report.SYNC_THRESHOLD)
+                m = _metrics(result, report.SYNC_THRESHOLD)
                 nan = math.nan
                 vc.rows.append(ConvergenceRow(
                     step=float(vk.cfg[vc.step_name]), dt=float(vk.cfg["solver.dt"]),
