@@ -5,7 +5,7 @@ The component-level API (the core's own API is :mod:`fmu_sync.core`):
 * :func:`cosimulate`, :func:`cosimulate_network` — the co-simulation master
   (:class:`SlaveError` when a slave fails; :class:`NetworkResult`);
 * :func:`export_fmu` — build an FMI 2.0 co-simulation FMU of a registered model;
-* :func:`load_scene`, :func:`run_scene`, :func:`list_scenes`, :func:`run_demo` — scenes
+* :func:`load_scene`, :func:`run_scene`, :func:`convergence`, :func:`list_scenes`, :func:`run_demo` — scenes
   (:class:`SceneError` for a bad scene);
 * :func:`sweep` — families of pair runs (gain maps, basins, samples) as an xarray Dataset,
   on all cores or a Dask cluster (:mod:`fmu_sync.sweeps`);
@@ -28,7 +28,8 @@ _API = {
     "cosimulate": "master", "cosimulate_network": "master", "NetworkResult": "master", "SlaveError": "master",
     "export_fmu": "export",
     "load_scene": "scenes.loading", "list_scenes": "scenes.loading", "Scene": "scenes.schema",
-    "SceneError": "scenes.schema", "run_scene": "scenes.running", "run_demo": "scenes.demo",
+    "SceneError": "scenes.schema", "run_scene": "scenes.running",
+    "convergence": "scenes.convergence", "run_demo": "scenes.demo",
     "sweep": "sweeps",
 }
 

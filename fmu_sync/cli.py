@@ -2,6 +2,7 @@
 
     fmu-sync demo [-o DIR] [--quick]           export the FMU, co-simulate the forced pair 3 ways
     fmu-sync run SCENE [-o DIR] [--set k=v]..  run a built-in scene (name) or a scene file (path)
+    fmu-sync run SCENE --convergence           rerun at the step, /2, /4: decay rate and t_sync
     fmu-sync scenes                            list the built-in scenes
     fmu-sync export ...                        export an FMU (see `fmu-sync export --help`)
     fmu-sync validate FILE.fmu                 check an FMU with fmpy (exit 1 on problems)
@@ -72,6 +73,9 @@ def _parser() -> argparse.ArgumentParser:
                         "is written in chunks while it runs, other runs are refused")
     r.add_argument("--max-disk", default=None, metavar="SIZE",
                    help="disk budget of a run's data files, e.g. 50GB (default 20GB)")
+    r.add_argument("--convergence", action="store_true",
+                   help="rerun each variant at its step, /2 and /4 (solver.dt in core mode, run.H in cosim) "
+                        "and write only the metrics (decay rate, t_sync, bound) to convergence.md/.csv")
 
     sub.add_parser("scenes", help="list the built-in scenes")
     sub.add_parser("export", help="export an FMU (options: see `fmu-sync export --help`)", add_help=False)
@@ -128,11 +132,31 @@ def _cmd_run(args) -> int:
     max_disk = parse_size(args.max_disk) if args.max_disk is not None else None
     scene = load_scene(args.scene, overrides, args.variant or None)
     _announce_compilation(scene, args.quiet)
+    if args.convergence:
+        return _cmd_convergence(scene, args, max_memory, max_disk)
     with _progress(scene.name, args.quiet) as bar:
         sr = run_scene(scene, args.out, progress=bar, plots=not args.no_plots, formats=formats,
                        max_memory=max_memory, max_disk=max_disk)
     _print_summary(sr, f"scene {scene.name}")
     return EXIT_FAILED if sr.failed else 0
+
+
+def _cmd_convergence(scene, args, max_memory, max_disk) -> int:
+    from .scenes.convergence import convergence, format_table, verdicts
+    from .output import estimate
+    steps = sum(estimate(v).steps for v in scene.variants)
+    if not args.quiet:
+        print(f"convergence check: each variant at its step, /2 and /4: 7x the steps of one run "
+              f"({7 * steps:.4g} steps in all), only the metrics kept", file=sys.stderr, flush=True)
+    with _progress(f"{scene.name} convergence", args.quiet) as bar:
+        cr = convergence(scene, args.out, progress=bar, max_memory=max_memory, max_disk=max_disk)
+    print(f"\nscene {scene.name}: convergence of the synchronization metrics")
+    print(format_table(cr.variants))
+    print()
+    for line in verdicts(cr.variants):
+        print(f"  {line}")
+    print(f"\nwritten to {cr.out_dir}/ (convergence.md, convergence.csv)")
+    return 0
 
 
 def _announce_compilation(scene, quiet: bool) -> None:

@@ -1,0 +1,109 @@
+"""The convergence check (``fmu-sync run SCENE --convergence``): each variant rerun at its
+step, /2 and /4, only the metrics kept; checked on a pair whose decay rate is known in
+closed form."""
+import csv
+import math
+
+import pytest
+
+from fmu_sync.scenes.convergence import convergence, refined_overrides
+from fmu_sync.scenes.loading import load_scene
+from test_cli import run_cli
+
+# f0 = 10 k keeps both oscillators far from the wall (q ~ 10 +- 1.5): no impacts, the
+# switching law stays on branch E, where it is the PD law. The relative mode x = q1 - q2:
+#   m x'' + (c + 2 Kd) x' + (k + 2 Kp) x = 0  ->  d ~ exp(-(c + 2 Kd)/(2 m) t)  (tests/test_metrics.py)
+M, K, C, KP, KD = 2.0, 3.0, 0.1, 1.5, 0.6
+SIGMA = (C + 2 * KD) / (2 * M)
+LINEAR = f"""description = "linear coupled pair, no impacts (closed-form decay rate)"
+[system]
+model = "impact-oscillator"
+m = {M}
+k = {K}
+c = {C}
+f0 = {10 * K}
+e = 0.9
+[initial]
+x1 = [10.0, 0.0]
+x2 = [11.0, 0.5]
+[coupling]
+law = "switching"
+Kp = {KP}
+Kd = {KD}
+[solver]
+dt = 1e-4
+[run]
+t_end = 50.0
+record_every = 100
+"""
+
+
+@pytest.fixture
+def linear(tmp_path):
+    path = tmp_path / "linear.toml"
+    path.write_text(LINEAR)
+    return path
+
+
+def test_linear_pair_rates_match_the_closed_form_at_every_step(linear, tmp_path):
+    cr = convergence(linear, tmp_path / "out")
+    (vc,) = cr.variants
+    assert [r.step for r in vc.rows] == pytest.approx([1e-4, 5e-5, 2.5e-5], rel=1e-12)
+    assert [r.record_every for r in vc.rows] == [100, 200, 400]   # the same record times
+    for r in vc.rows:
+        # within 3 standard uncertainties (measured: 1.2, 2.0, 1.5 rate_err) and 1e-4 relative
+        assert abs(r.rate - SIGMA) <= 3 * r.rate_err, (r.rate, r.rate_err)
+        assert r.rate == pytest.approx(SIGMA, rel=1e-4)
+        # d(0) = 1.118, so the fitted envelope reaches 1e-6 near ln(1.118e6)/sigma = 42.8 s (plus the
+        # oscillation's phase); t_sync is within one period 2 pi / sqrt((k + 2 Kp)/m) of t_fit
+        assert abs(r.t_sync - r.t_fit) < 2 * math.pi / math.sqrt((K + 2 * KP) / M)
+        assert r.bound < 1e-5 and r.final_d < r.bound
+    assert all(r.within for r in vc.rows[1:]) and vc.converged
+    assert vc.verdict.startswith("rate converged: changes") and "< uncertainty" in vc.verdict
+    # the files: a markdown table and a CSV with one row per step; no records
+    names = {p.name for p in (tmp_path / "out").iterdir()}
+    assert names == {"convergence.md", "convergence.csv"}
+    rows = list(csv.DictReader(open(tmp_path / "out" / "convergence.csv")))
+    assert [float(r["step"]) for r in rows] == pytest.approx([1e-4, 5e-5, 2.5e-5])
+    assert float(rows[2]["rate"]) == pytest.approx(vc.rows[2].rate, rel=1e-15)
+    md = (tmp_path / "out" / "convergence.md").read_text()
+    assert md.count("| linear | solver.dt = ") == 3 and "rate converged" in md
+
+
+def test_a_coarse_step_is_reported_not_converged(linear, tmp_path):
+    # at dt = 1e-3 the zero-order hold shifts the rate by O(dt) (2.4e-4, 1.3e-4, 0.5e-4 at
+    # dt, dt/2, dt/4): more than the fits' own uncertainty (3e-5 .. 4e-5)
+    cr = convergence(linear, tmp_path / "out", overrides={"solver.dt": 1e-3, "run.record_every": 10})
+    (vc,) = cr.variants
+    assert not vc.converged and vc.verdict.startswith("not converged: rate changes")
+    rates = [r.rate for r in vc.rows]
+    assert abs(rates[2] - SIGMA) < abs(rates[0] - SIGMA)   # the error falls with the step
+
+
+def test_cosim_refines_H_and_keeps_dt_dividing_it():
+    v = load_scene("forced-pair", {"run.mode": "cosim"}, ["switching"]).variants[0]   # H = 1e-2, dt = 1e-3
+    o = [refined_overrides(v, k) for k in range(3)]
+    assert [x["run.H"] for x in o] == pytest.approx([1e-2, 5e-3, 2.5e-3])
+    assert [x["solver.dt"] for x in o] == pytest.approx([1e-3, 1e-3, 2.5e-3 / 3])
+    assert [x["run.record_every"] for x in o] == [10, 20, 40]
+    w = load_scene("forced-pair", {"run.mode": "cosim", "solver.dt": 1e-2}, ["switching"]).variants[0]
+    assert [refined_overrides(w, k)["solver.dt"] for k in range(3)] == pytest.approx([1e-2, 5e-3, 2.5e-3])
+
+
+def test_cli_convergence_exits_0_and_writes_the_table(tmp_path):
+    out = run_cli(["run", "forced-pair", "--variant", "switching", "--convergence", "--set", "run.t_end=8",
+                   "--quiet", "-o", str(tmp_path / "X")], tmp_path)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.count("| switching | solver.dt = ") == 3 and "switching: " in out.stdout
+    assert {p.name for p in (tmp_path / "X").iterdir()} == {"convergence.md", "convergence.csv"}
+
+
+def test_cli_convergence_refusals_exit_2(tmp_path):
+    unstable = ["run", "forced-pair", "--variant", "switching", "--convergence", "--set", "coupling.Kp=1e5",
+                "--set", "coupling.Kd=150", "--set", "solver.dt=1e-2", "--set", "run.t_end=5"]
+    out = run_cli(unstable + ["-o", str(tmp_path / "a")], tmp_path)
+    assert out.returncode == 2 and "omega_c*dt = 4.472" in out.stderr, out.stderr
+    assert not (tmp_path / "a").exists()
+    out = run_cli(["run", "bouncing-ball", "--convergence", "-o", str(tmp_path / "b")], tmp_path)
+    assert out.returncode == 2 and "single system" in out.stderr, out.stderr
+    assert not (tmp_path / "b").exists()
