@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Callable
 
 from ..progress import scaled
-from .loading import Scene, load_scene
+from .loading import Scene, as_scene, load_scene
 from .schema import DEFAULT_OUT, SceneError, Variant
 
 __all__ = ["ConvergenceRow", "VariantConvergence", "ConvergenceRun", "refined_overrides", "convergence",
@@ -126,13 +126,7 @@ def convergence(scene, out_dir=None, overrides: dict | None = None, variants=Non
     from ..output import DEFAULT_MAX_DISK, DEFAULT_MAX_MEMORY, check_budget, check_out_dir
     from .running import export_for, preflight, run_variant
 
-    if not isinstance(scene, Scene):
-        scene = load_scene(scene, overrides, variants)
-    else:
-        if overrides:
-            scene = scene.with_overrides(overrides)
-        if variants:
-            scene = scene.select(variants)
+    scene = as_scene(scene, overrides, variants)
     levels = int(levels)
     if levels < 2:
         raise ValueError(f"a convergence check needs at least 2 steps, got levels = {levels}")

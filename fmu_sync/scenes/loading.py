@@ -16,7 +16,7 @@ from .schema import (DISTANCE_PLOTS, KEYS, MODELS, NAME_RE, NETWORK_PLOTS, PLOTS
                      SYSTEM_KEYS, TABLES, VARIANT_TABLES, BadValue, NetworkSpec, SceneError, Variant, choice,
                      show_value)
 
-__all__ = ["Scene", "load_scene", "list_scenes", "parse_override"]
+__all__ = ["Scene", "load_scene", "as_scene", "list_scenes", "parse_override"]
 
 
 @dataclass(frozen=True)
@@ -180,6 +180,18 @@ def load_scene(name_or_path, overrides: dict | None = None, variants=None) -> Sc
     plots, compare = _resolve_plots(origin, ctx, built)
     return Scene(name=path.stem, path=path, description=description, variants=tuple(built),
                  plots=tuple(plots), compare=compare, overrides=overrides)
+
+
+def as_scene(scene, overrides: dict | None = None, variants=None) -> Scene:
+    """A :class:`Scene` from a name, a path or a Scene, with ``overrides`` applied and
+    only the ``variants`` named kept (the one entry of every scene-running function)."""
+    if not isinstance(scene, Scene):
+        return load_scene(scene, overrides, variants)
+    if overrides:
+        scene = scene.with_overrides(overrides)
+    if variants:
+        scene = scene.select(variants)
+    return scene
 
 
 def _validate(flat: dict, where: dict, ctx: str) -> dict:

@@ -11,7 +11,7 @@ from typing import Any, Callable
 from ..core import RunFailed, SimulationDiverged, simulate
 from ..fmus import contract
 from ..progress import scaled
-from .loading import Scene, load_scene
+from .loading import Scene, as_scene
 from .schema import DEFAULT_OUT, TABLES, SceneError, Variant
 
 __all__ = ["RunRecord", "SceneRun", "RunRefused", "preflight", "run_scene", "run_variant", "fmu_start_values", "export_for",
@@ -281,13 +281,7 @@ def run_scene(scene, out_dir=None, overrides: dict | None = None, progress: Call
     from .. import report
     from ..output import DEFAULT_MAX_DISK, DEFAULT_MAX_MEMORY, check_budget, check_out_dir
 
-    if not isinstance(scene, Scene):
-        scene = load_scene(scene, overrides, variants)
-    else:
-        if overrides:
-            scene = scene.with_overrides(overrides)
-        if variants:
-            scene = scene.select(variants)
+    scene = as_scene(scene, overrides, variants)
     chosen = list(scene.variants)
     out_dir = check_out_dir(Path(out_dir) if out_dir is not None else DEFAULT_OUT / scene.name)
     max_memory = DEFAULT_MAX_MEMORY if max_memory is None else float(max_memory)
