@@ -123,6 +123,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
+from .roots import taylor_start
 from .model import MechanicalSystem, as_state
 from .checks import check_run
 from .result import SimulationResult
@@ -390,25 +391,7 @@ def _refine(which, lo, hi, flo, fplo, fpplo, mode, prm, rc, roots, hs, hO, hcc, 
     if which == 0 and flo < 0.0:
         return lo
     slo = flo > 0.0
-    # first positive root of flo + fplo s + fpplo s^2/2
-    sig = -1.0
-    A = 0.5 * fpplo
-    if A == 0.0:
-        if fplo != 0.0:
-            sig = -flo / fplo
-    else:
-        disc = fplo * fplo - 4.0 * A * flo
-        if disc >= 0.0:
-            q = -0.5 * (fplo + math.copysign(math.sqrt(disc), fplo))
-            r1 = q / A
-            r2 = flo / q if q != 0.0 else -1.0
-            if r1 > 0.0 and (r2 <= 0.0 or r1 < r2):
-                sig = r1
-            elif r2 > 0.0:
-                sig = r2
-    x = lo + sig
-    if not (lo < x < hi):
-        x = 0.5 * (lo + hi)
+    x = taylor_start(lo, hi, flo, fplo, fpplo)
     dxold = hi - lo
     for _ in range(2200):
         r = _ev(mode, x, prm, rc, roots, hs, hO, hcc, hcs, cps, sps, g0, v0)

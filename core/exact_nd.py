@@ -56,6 +56,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from .roots import taylor_start
 from .model import MechanicalSystem, as_state
 
 __all__ = ["simulate_exact_nd", "exact_events_nd", "ExactEventsND"]
@@ -226,24 +227,7 @@ def _refine(seg, which, lo, hi, flo, fplo, fpplo):
     if which == 0 and flo < 0.0:
         return lo
     slo = flo > 0.0
-    sig = -1.0
-    Aq = 0.5 * fpplo
-    if Aq == 0.0:
-        if fplo != 0.0:
-            sig = -flo / fplo
-    else:
-        disc = fplo * fplo - 4.0 * Aq * flo
-        if disc >= 0.0:
-            qq = -0.5 * (fplo + math.copysign(math.sqrt(disc), fplo))
-            r1 = qq / Aq
-            r2 = flo / qq if qq != 0.0 else -1.0
-            if r1 > 0.0 and (r2 <= 0.0 or r1 < r2):
-                sig = r1
-            elif r2 > 0.0:
-                sig = r2
-    x = lo + sig
-    if not (lo < x < hi):
-        x = 0.5 * (lo + hi)
+    x = taylor_start(lo, hi, flo, fplo, fpplo)
     dxold = hi - lo
     for _ in range(400):
         r = seg.ev(x)
