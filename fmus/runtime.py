@@ -21,10 +21,10 @@ import struct
 import numpy as np
 
 from . import stepper as S
-from ._xml import POSITIVE_MIN, SCHEME_ITEMS
+from ._xml import POSITIVE_MIN
 from .slave import PHASES, START_FILE, STATE_FORMAT
 
-__all__ = ["FMUInstance", "create", "LAYOUT_VERSION"]
+__all__ = ["FMUInstance", "create", "LAYOUT_VERSION", "variable_table", "pack_layout", "read_start_file"]
 
 LAYOUT_VERSION = 1
 TYPE_REAL, TYPE_INTEGER, TYPE_ENUM = 0, 1, 2
@@ -38,6 +38,44 @@ def _q_u_names(n):
     return [f"q[{i + 1}]" for i in range(n)], [f"u[{i + 1}]" for i in range(n)]
 
 
+
+def variable_table(vars_: list) -> tuple:
+    """The arrays the binary reads per variable: (starts, type, causality, min, max,
+    names, hints); names and hints as '\\0'-separated bytes."""
+    nv = len(vars_)
+    starts = np.array([float(v.start) if v.start is not None else math.nan for v in vars_])
+    vtype = np.array([{"Real": TYPE_REAL, "Integer": TYPE_INTEGER, "Enumeration": TYPE_ENUM}[v.type]
+                      for v in vars_], dtype=np.int32)
+    vcaus = np.array([{"parameter": CAUS_PARAMETER, "input": CAUS_INPUT, "output": CAUS_OUTPUT}[v.causality]
+                      for v in vars_], dtype=np.int32)
+    vmin = np.full(nv, -math.inf)
+    vmax = np.full(nv, math.inf)
+    hints = []
+    for i, v in enumerate(vars_):
+        hint = ""
+        if v.type == "Enumeration":
+            values = [val for _, val, _ in v.items]
+            vmin[i], vmax[i] = min(values), max(values)
+            assert sorted(values) == list(range(min(values), max(values) + 1))
+            hint = ", ".join(f"{val} ({name})" for name, val, _ in v.items)
+        if v.min is not None:
+            vmin[i] = v.min
+        if v.max is not None:
+            vmax[i] = v.max
+        hints.append(hint)
+    assert POSITIVE_MIN == 2.2250738585072014e-308  # DBL_MIN: the binary prints "> 0" for it
+    names = np.frombuffer(b"".join(v.name.encode() + b"\0" for v in vars_), dtype=np.uint8).copy()
+    hint_bytes = np.frombuffer(b"".join(h.encode() + b"\0" for h in hints), dtype=np.uint8).copy()
+    return starts, vtype, vcaus, vmin, vmax, names, hint_bytes
+
+
+def pack_layout(x, vtype, vcaus, vmin, vmax, work, stepper_address, names, hints) -> bytes:
+    """What :meth:`FMUInstance.layout` hands to the binary (LAYOUT_VERSION)."""
+    return struct.pack("<11Q", LAYOUT_VERSION, x.shape[0], x.ctypes.data, vtype.ctypes.data, vcaus.ctypes.data,
+                       vmin.ctypes.data, vmax.ctypes.data, work.ctypes.data, stepper_address,
+                       names.ctypes.data, hints.ctypes.data)
+
+
 class FMUInstance:
     """One instance: variable array, table, work array; validation and state."""
 
@@ -48,31 +86,9 @@ class FMUInstance:
         self.index = {v.name: i for i, v in enumerate(self.vars)}
         self.params = [v for v in self.vars if v.causality == "parameter"]
         self.inputs = [v for v in self.vars if v.causality == "input"]
-        self.starts = np.array([float(v.start) if v.start is not None else math.nan for v in self.vars])
-
+        (self.starts, self.vtype, self.vcaus, self.vmin, self.vmax, self._names,
+         self._hints) = variable_table(self.vars)
         self.x = self.starts.copy()
-        self.vtype = np.array([{"Real": TYPE_REAL, "Integer": TYPE_INTEGER, "Enumeration": TYPE_ENUM}[v.type]
-                               for v in self.vars], dtype=np.int32)
-        self.vcaus = np.array([{"parameter": CAUS_PARAMETER, "input": CAUS_INPUT, "output": CAUS_OUTPUT}[v.causality]
-                               for v in self.vars], dtype=np.int32)
-        self.vmin = np.full(nv, -math.inf)
-        self.vmax = np.full(nv, math.inf)
-        hints = []
-        for i, v in enumerate(self.vars):
-            hint = ""
-            if v.type == "Enumeration":
-                values = [val for _, val, _ in SCHEME_ITEMS]
-                self.vmin[i], self.vmax[i] = min(values), max(values)
-                assert sorted(values) == list(range(min(values), max(values) + 1))
-                hint = ", ".join(f"{val} ({name})" for name, val, _ in SCHEME_ITEMS)
-            if v.min is not None:
-                self.vmin[i] = v.min
-            if v.max is not None:
-                self.vmax[i] = v.max
-            hints.append(hint)
-        assert POSITIVE_MIN == 2.2250738585072014e-308  # DBL_MIN: the binary prints "> 0" for it
-        self._names = np.frombuffer(b"".join(v.name.encode() + b"\0" for v in self.vars), dtype=np.uint8).copy()
-        self._hints = np.frombuffer(b"".join(h.encode() + b"\0" for h in hints), dtype=np.uint8).copy()
 
         n, m = slave_cls.N, len(self.inputs)
         qn, un = _q_u_names(n)
@@ -103,10 +119,8 @@ class FMUInstance:
 
     # ------------------------------------------------------------ for the binary
     def layout(self) -> bytes:
-        return struct.pack("<11Q", LAYOUT_VERSION, len(self.vars), self.x.ctypes.data, self.vtype.ctypes.data,
-                           self.vcaus.ctypes.data, self.vmin.ctypes.data, self.vmax.ctypes.data,
-                           self.work.ctypes.data, S.step.address, self._names.ctypes.data,
-                           self._hints.ctypes.data)
+        return pack_layout(self.x, self.vtype, self.vcaus, self.vmin, self.vmax, self.work, S.step.address,
+                           self._names, self._hints)
 
     def free(self) -> None:
         self.cfg = None
@@ -239,8 +253,8 @@ class FMUInstance:
         return "", s
 
 
-def create(slave_cls, resources_dir: str, model: str) -> tuple[str, FMUInstance | None]:
-    """A new instance with the start values of ``resources/fmu_sync_start.json``."""
+def read_start_file(resources_dir: str, model: str) -> tuple[str, dict | None]:
+    """(reply, contents of resources/fmu_sync_start.json or None)."""
     path = os.path.join(resources_dir, START_FILE)
     try:
         with open(path, encoding="utf-8") as f:
@@ -249,8 +263,16 @@ def create(slave_cls, resources_dir: str, model: str) -> tuple[str, FMUInstance 
         return f"E:fmi2Instantiate: cannot read the start values {path}: {exc}", None
     if data.get("model") != model:
         return f"E:fmi2Instantiate: {path} holds start values of model {data.get('model')!r}, not {model!r}", None
+    return "", data
+
+
+def create(slave_cls, resources_dir: str, model: str) -> tuple[str, FMUInstance | None]:
+    """A new instance with the start values of ``resources/fmu_sync_start.json``."""
+    reply, data = read_start_file(resources_dir, model)
+    if data is None:
+        return reply, None
     try:
         starts = slave_cls.normalize_start_values(data.get("start", {}))
     except ValueError as exc:
-        return f"E:fmi2Instantiate: bad start value in {path}: {exc}", None
+        return f"E:fmi2Instantiate: bad start value in {os.path.join(resources_dir, START_FILE)}: {exc}", None
     return "", FMUInstance(slave_cls, starts)

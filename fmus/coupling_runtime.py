@@ -1,0 +1,192 @@
+"""The Python object behind one coupling FMU instance (called by the FMU's binary).
+
+The same binary as the mechanical models (``fmus/c/fmu_sync_fmi2.c``) and the
+same protocol as :class:`fmu_sync.fmus.runtime.FMUInstance` (layout, replies,
+states); only the variables, the work array and the cfunc
+(:mod:`.coupling_stepper`) differ. The coupling has no state of its own: an FMU
+state holds the time, the phase, the inputs and the parameters.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from . import coupling_stepper as CS
+from .coupling import CouplingSpec, coupling_slave
+from .runtime import pack_layout, read_start_file, variable_table
+from .slave import PHASES, START_FILE
+from .stepper import H_CONFIGURED, H_PHASE, H_TIME
+
+__all__ = ["CouplingInstance", "create", "STATE_FORMAT"]
+
+STATE_FORMAT = "fmu-sync-coupling-state/1"
+_PHASE_NAMES = {code: name for name, code in PHASES.items()}
+
+
+class CouplingInstance:
+    """One instance of a coupling FMU: variable array, table, work array; validation and state."""
+
+    def __init__(self, slave_cls, start_values: dict):
+        self.cls = slave_cls
+        spec = slave_cls.SPEC
+        self.spec = spec
+        self.vars = slave_cls.variables(start_values)
+        self.index = {v.name: i for i, v in enumerate(self.vars)}
+        self.params = [v for v in self.vars if v.causality == "parameter"]
+        self.inputs = [v for v in self.vars if v.causality == "input"]
+        (self.starts, self.vtype, self.vcaus, self.vmin, self.vmax, self._names,
+         self._hints) = variable_table(self.vars)
+        self.x = self.starts.copy()
+        N, n, E, m = spec.N, spec.n, len(spec.edges), len(self.inputs)
+        self.m = m
+        self.work = np.zeros(CS.work_size(N, n, E, m))
+        first = {key: self.index[(f"{key}[1]" if key not in ("q", "u", "tau") or n == 1 else f"{key}[1,1]")]
+                 for key in ("q", "u", "tau", "d", "V", "euclidean", "branch")}
+        CS.init_header(self.work, N, n, E, m, len(self.vars), first)
+        self.i_in = int(self.work[CS.C_IQ])
+        self.outputs = [self.index[v.name] for v in self.vars if v.causality == "output"]
+        self.cfg = None
+        import ctypes
+        self._step = ctypes.CFUNCTYPE(ctypes.c_int32, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_double,
+                                      ctypes.c_double)(CS.step.address)
+        self._reset_values()
+
+    # ------------------------------------------------------------ for the binary
+    def layout(self) -> bytes:
+        return pack_layout(self.x, self.vtype, self.vcaus, self.vmin, self.vmax, self.work, CS.step.address,
+                           self._names, self._hints)
+
+    def free(self) -> None:
+        self.cfg = None
+
+    def _parameters(self) -> dict:
+        out = {}
+        for v in self.params:
+            x = self.x[self.index[v.name]]
+            out[v.name] = int(x) if v.type in ("Integer", "Enumeration") else float(x)
+        return out
+
+    def _reset_values(self) -> None:
+        self.x[:] = self.starts
+        self.work[H_TIME] = 0.0
+        self.cfg = None
+        self.work[H_CONFIGURED] = 0.0
+        self.refresh()
+
+    def _evaluate(self) -> None:
+        """The outputs from the current inputs, by the stepper's own code (H = 0)."""
+        self._step(self.x.ctypes.data, self.work.ctypes.data, 0.0, 0.0)
+
+    def _install(self, cfg) -> None:
+        CS.pack(self.work, cfg, self.spec.edges)
+        self.cfg = cfg
+
+    # ------------------------------------------------------------ life cycle
+    def refresh(self) -> str:
+        """Outputs in initialization mode: computed from the current inputs and
+        parameters (NaN while the parameters are not a valid set)."""
+        try:
+            cfg = self.cls.configure(self._parameters())
+        except ValueError:
+            self.work[H_CONFIGURED] = 0.0
+            self.x[self.outputs] = math.nan
+            return ""
+        self._install(cfg)
+        self._evaluate()
+        return ""
+
+    def exit_initialization(self) -> str:
+        try:
+            cfg = self.cls.configure(self._parameters())
+        except ValueError as exc:
+            return (f"E:fmi2ExitInitializationMode: invalid configuration: {exc}; the instance stays in "
+                    f"initialization mode (set valid parameters and call it again, or fmi2Reset)")
+        self._install(cfg)
+        self._evaluate()
+        return ""
+
+    def reset(self) -> str:
+        self._reset_values()
+        return ""
+
+    # ------------------------------------------------------------ FMU state
+    def get_state(self) -> dict:
+        return {"format": STATE_FORMAT, "model": self.cls.MODEL, "spec": self.spec.as_dict(),
+                "phase": _PHASE_NAMES.get(int(self.work[H_PHASE]), "instantiated"),
+                "time": float(self.work[H_TIME]),
+                "inputs": self.x[self.i_in:self.i_in + self.m].tolist(),
+                "parameters": self._parameters()}
+
+    def check_state(self, s) -> tuple[str | None, object]:
+        if not isinstance(s, dict) or s.get("format") != STATE_FORMAT:
+            return f"not a coupling FMU state (format {getattr(s, 'get', lambda k: None)('format')!r}, " \
+                   f"expected {STATE_FORMAT!r})", None
+        if s.get("spec") != self.spec.as_dict():
+            return f"state of a coupling with structure {s.get('spec')!r}, this FMU is {self.spec.as_dict()!r}", None
+        try:
+            if s["phase"] not in PHASES:
+                return f"bad phase {s['phase']!r} (one of {', '.join(PHASES)})", None
+            t = s["time"]
+            if not (isinstance(t, (int, float)) and math.isfinite(t)):
+                return f"time must be a finite number, got {t!r}", None
+            x = s["inputs"]
+            if not isinstance(x, list) or len(x) != self.m:
+                return f"inputs must be a list of {self.m} numbers", None
+            for v, a in zip(self.inputs, x):
+                r = v.check(a)
+                if r:
+                    return f"input {r}", None
+            p = s["parameters"]
+            if not isinstance(p, dict) or set(p) != {v.name for v in self.params}:
+                return "parameters do not match this FMU's parameters", None
+            for v in self.params:
+                r = v.check(p[v.name])
+                if r:
+                    return f"parameter {r}", None
+            cfg = self.cls.configure(p)
+        except KeyError as exc:
+            return f"missing entry {exc}", None
+        except ValueError as exc:
+            return f"its parameters are invalid: {exc}", None
+        return None, cfg
+
+    def set_state(self, s) -> str:
+        reason, cfg = self.check_state(s)
+        if reason:
+            return f"E:fmi2SetFMUstate: {reason}; state unchanged"
+        for name, value in s["parameters"].items():
+            self.x[self.index[name]] = value
+        self.x[self.i_in:self.i_in + self.m] = s["inputs"]
+        self.work[H_TIME] = s["time"]
+        self.work[H_PHASE] = PHASES[s["phase"]]
+        self._install(cfg)
+        self._evaluate()
+        return ""
+
+    def serialize(self, s) -> bytes:
+        return self.cls.state_to_bytes(s)
+
+    def deserialize(self, data: bytes):
+        try:
+            s = self.cls.state_from_bytes(data)
+        except Exception as exc:
+            return (f"E:fmi2DeSerializeFMUstate: cannot deserialise the FMU state ({len(data)} bytes): {exc}",
+                    None)
+        reason, _ = self.check_state(s)
+        if reason:
+            return f"E:fmi2DeSerializeFMUstate: {reason}", None
+        return "", s
+
+
+def create(slave_base, resources_dir: str, model: str) -> tuple[str, CouplingInstance | None]:
+    """A new instance: the structure and start values of ``resources/fmu_sync_start.json``."""
+    reply, data = read_start_file(resources_dir, model)
+    if data is None:
+        return reply, None
+    try:
+        cls = coupling_slave(CouplingSpec.from_dict(data["structure"]))
+        starts = cls.normalize_start_values(data.get("start", {}))
+    except (KeyError, TypeError, ValueError) as exc:
+        return f"E:fmi2Instantiate: bad structure or start value in {START_FILE}: {exc!r}", None
+    return "", CouplingInstance(cls, starts)
