@@ -5,8 +5,9 @@
 
 The FMU holds:
 
-* ``binaries/linux64/<ModelIdentifier>.so`` — our FMI 2.0 binary
-  (``fmus/c/fmu_sync_fmi2.c``), compiled here with gcc (GUID and boot module
+* ``binaries/linux64/<ModelIdentifier>.so`` — our FMI 2.0 binary: the FMI glue
+  (``fmus/c/fmu_sync_fmi2.c``) and the instance runtime that embeds Python
+  (``fmus/c/fmu_sync_runtime.c``), compiled here with gcc (GUID and boot module
   compiled in). It loads libpython itself, so any C host can load the FMU;
 * ``resources/fmu_sync_code/`` — the Python code it runs (the core and the
   slave), so the importing machine needs Python with numpy and numba, not
@@ -51,7 +52,9 @@ MODELS = contract.MODELS
 MAX_SUBSTEPS = 10_000_000
 
 _ZIP_DATE = (2020, 1, 1, 0, 0, 0)
-_C_SOURCE = "c/fmu_sync_fmi2.c"
+#: the FMI 2.0 glue; every binary also compiles the instance runtime (the Python embedding)
+_C_GLUE = "c/fmu_sync_fmi2.c"
+_C_RUNTIME = "c/fmu_sync_runtime.c"
 #: slave modules carried in the FMU (besides the whole core)
 _CARRIED_FMUS = ("__init__.py", "contract.py", "_xml.py", "slave.py", "stepper.py", "runtime.py",
                  "impact_oscillator.py", "mechanical_system2.py", "coupling.py", "coupling_runtime.py",
@@ -108,15 +111,16 @@ def _code_hash(files: list[tuple[str, bytes]]) -> str:
         return code_hash(tmp)
 
 
-def build_binary(out: Path, guid: str, boot_module: str, max_substeps: int = MAX_SUBSTEPS) -> Path:
-    """Compile the FMI binary with gcc (``$CC`` overrides) into ``out``."""
-    src = _fmus_dir() / _C_SOURCE
+def build_binary(out: Path, guid: str, boot_module: str, max_substeps: int = MAX_SUBSTEPS,
+                 glue: str = _C_GLUE) -> Path:
+    """Compile the FMI binary (``glue`` and the runtime) with gcc (``$CC`` overrides) into ``out``."""
+    srcs = [str(_fmus_dir() / glue), str(_fmus_dir() / _C_RUNTIME)]
     cc = os.environ.get("CC", "gcc")
     if shutil.which(cc) is None:
         raise RuntimeError(f"cannot build the FMU binary: C compiler {cc!r} not found (install gcc or set CC)")
     cmd = [cc, "-std=gnu11", "-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-s",
            f"-DFMU_SYNC_GUID=\"{guid}\"", f"-DFMU_SYNC_BOOT=\"{boot_module}\"",
-           f"-DFMU_SYNC_MAX_SUBSTEPS={float(max_substeps)!r}", "-o", str(out), str(src), "-ldl", "-lpthread", "-lm"]
+           f"-DFMU_SYNC_MAX_SUBSTEPS={float(max_substeps)!r}", "-o", str(out), *srcs, "-ldl", "-lpthread", "-lm"]
     p = subprocess.run(cmd, capture_output=True, text=True)
     if p.returncode != 0:
         raise RuntimeError(f"cannot build the FMU binary ({' '.join(cmd)}):\n{p.stderr[-3000:]}")

@@ -1,4 +1,4 @@
-"""The Python object behind one FMU instance (called by ``fmus/c/fmu_sync_fmi2.c``).
+"""The Python object behind one FMU instance (called by the FMU binary, ``fmus/c/fmu_sync_runtime.c``).
 
 The binary holds a reference to an :class:`FMUInstance` and reads, once, its
 :meth:`layout`: the addresses of the variable array ``x`` (float64, one slot per
