@@ -39,7 +39,7 @@ import numpy as np
 
 from .fmus import contract
 
-__all__ = ["write_ssp", "read_ssp", "run_ssp", "SspPackage", "fmpy_parameter_set", "SSD", "SsdError",
+__all__ = ["write_ssp", "read_ssp", "run_ssp", "save_result", "SspPackage", "fmpy_parameter_set", "SSD", "SsdError",
            "COUPLING_COMPONENT", "system_component"]
 
 SSD = "SystemStructure.ssd"
@@ -313,3 +313,111 @@ def fmpy_parameter_set(path):
             p.type, p.value, p.unit = "Real", repr(v), None
             ps.parameters.append(p)
     return ps
+
+
+# ------------------------------------------------------------------ running in our master
+def _coupling_setup(pkg: SspPackage, zf: zipfile.ZipFile, tmp: Path):
+    """(coupling slave class, its parameter values): the FMU's start values under the bindings."""
+    import json
+
+    from .fmus.coupling import CouplingSpec, coupling_slave
+    src = pkg.sources.get(COUPLING_COMPONENT)
+    if src is None:
+        raise SsdError(f"{pkg.path}: no component {COUPLING_COMPONENT!r} (the coupling FMU); components: "
+                       f"{', '.join(pkg.sources)}")
+    with zipfile.ZipFile(io.BytesIO(zf.read(src))) as fz:
+        try:
+            start = json.loads(fz.read("resources/fmu_sync_start.json"))
+        except KeyError:
+            raise SsdError(f"{pkg.path}: {src} is not an fmu-sync coupling FMU (no resources/"
+                           f"fmu_sync_start.json)") from None
+    if start.get("model") != "coupling":
+        raise SsdError(f"{pkg.path}: {src} is the {start.get('model')!r} model, not the coupling FMU")
+    cls = coupling_slave(CouplingSpec.from_dict(start["structure"]))
+    values = cls.start_parameters(cls.normalize_start_values(start["start"]))
+    values.update(cls.normalize_start_values(pkg.parameters.get(COUPLING_COMPONENT, {})))
+    return cls, values
+
+
+def run_ssp(path, method: str = "jacobi", t_end: float | None = None, H: float | None = None,
+            record_every: int = 1, progress=None, allow_unstable: bool = False):
+    """Run an fmu-sync SSP package in our master (:class:`fmu_sync.master.NetworkMaster`).
+
+    The systems are the package's oscillator components (one FMU file, each with its
+    bound parameters and start state); the graph, the law per edge, Kp, Kd and Q are
+    the coupling component's parameters; t_end and H the package's DefaultExperiment
+    (overridable). ``method``: the master's exchange order ("jacobi", "gauss-seidel",
+    or another master's: "delayed" = libcosim, "delayed-zero" = fmpy's SSP runner;
+    docs/ssp.md). Returns a :class:`~fmu_sync.core.result.NetworkResult`; a package
+    whose coupling geometry differs from the systems' is refused (ValueError).
+    """
+    pkg = read_ssp(path)
+    t_end = pkg.t_end if t_end is None else t_end
+    H = pkg.H if H is None else H
+    if t_end is None or H is None:
+        raise SsdError(f"{pkg.path}: no stopTime or no step size (osp:FixedStepAlgorithm baseStepSize) in "
+                       f"its DefaultExperiment: give t_end and H")
+    with zipfile.ZipFile(pkg.path) as zf, tempfile.TemporaryDirectory(prefix="fmu-sync-ssp-") as tmp:
+        ccls, cvals = _coupling_setup(pkg, zf, Path(tmp))
+        spec = ccls.SPEC
+        cfg = ccls.configure(cvals)
+        nodes = {}
+        for a, ac, b, bc in pkg.connections:
+            if b == COUPLING_COMPONENT and bc.startswith("q["):
+                nodes[int(bc[2:].split(",")[0].rstrip("]")) - 1] = a
+        if sorted(nodes) != list(range(spec.N)):
+            raise SsdError(f"{pkg.path}: the coupling's inputs q[1]..q[{spec.N}] must each be connected to a "
+                           f"system's q, found {', '.join(f'q[{i + 1}] <- {c}' for i, c in sorted(nodes.items()))}")
+        names = [nodes[i] for i in range(spec.N)]
+        srcs = {pkg.sources[c] for c in names}
+        if len(srcs) != 1:
+            raise SsdError(f"{pkg.path}: our master runs N instances of one FMU; the systems use {sorted(srcs)}")
+        fmu = Path(tmp) / "system.fmu"
+        fmu.write_bytes(zf.read(srcs.pop()))
+        return _run_master(pkg, fmu, names, spec, cfg, t_end, H, method, record_every, progress, allow_unstable)
+
+
+def _run_master(pkg, fmu, names, spec, cfg, t_end, H, method, record_every, progress, allow_unstable):
+    from fmpy import read_model_description
+
+    from .core.coupling import LAWS
+    from .core.model import MechanicalSystem
+    from .core.pair import check_common_geometry
+    from .master import NetworkMaster
+    model = contract.identify([v.name for v in read_model_description(str(fmu)).modelVariables])
+    starts, states = [], []
+    for c in names:
+        p = dict(pkg.parameters.get(c, {}))
+        q0, u0 = [p.pop(k) for k in model.q_start], [p.pop(k) for k in model.u_start]
+        starts.append(p)
+        states.append((np.array(q0), np.array(u0)) if model.n > 1 else (q0[0], u0[0]))
+    A = np.zeros((spec.N, spec.N))
+    for (i, j), (aij, aji) in zip(spec.edges, cfg.W2):
+        A[i, j], A[j, i] = aij, aji
+    code_name = {v: k for k, v in LAWS.items()}
+    laws = [code_name[int(c)] for c in cfg.laws]
+    geo = cfg.geo
+    # the coupling's geometry must be the systems' (the master itself reads theirs from the FMU)
+    declared = {v.name: v.start for v in model.declare() if v.start is not None}
+    systems = [model.geometry_system({**declared, **p}) for p in starts]
+    z = np.zeros((spec.n, spec.n))
+    mine = MechanicalSystem(M=geo.M, K=z, C=z, f0=np.zeros(spec.n), w=geo.w, g0=geo.g0, e=geo.e)
+    check_common_geometry(systems + [mine], names + ["the coupling component"])
+    master = NetworkMaster(fmu, states, A, t_end, H, [None if x == "none" else x for x in laws], cfg.Kp, cfg.Kd,
+                           geo.Q, method=method, record_every=record_every, start_values=starts,
+                           allow_unstable=allow_unstable)
+    res = master.run(progress)
+    res.info.update(package=str(pkg.path), components=names)
+    return res
+
+
+def save_result(res, out) -> Path:
+    """Write a package run's record to ``out/result.npz`` (t, q, u, tau, d, branch, euclidean,
+    V, edges) and return its path."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "result.npz"
+    arrays = {k: getattr(res, k) for k in ("t", "q", "u", "tau", "d", "branch", "euclidean", "V")
+              if getattr(res, k) is not None}
+    np.savez(path, edges=np.array(res.edges, dtype=np.int64).reshape(-1, 2), **arrays)
+    return path

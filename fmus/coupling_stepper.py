@@ -26,14 +26,12 @@ from numba import carray, cfunc, njit, types
 
 from ..core.distance import DistanceGeometry, ScalarGeometry
 from ..core.network import network_coupling
-from .stepper import H_CONFIGURED, H_DATA, H_DT, H_ITAU, H_ITAUDOT, H_LEN, H_M, H_NX, H_SCHEME, H_VERSION, \
-    WORK_VERSION
+from .stepper import (H_CONFIGURED, H_DATA, H_DT, H_FEEDTHROUGH, H_ITAU, H_ITAUDOT, H_LEN, H_M, H_NX,
+                      H_SCHEME, H_VERSION, WORK_VERSION)
 
 __all__ = ["step", "pack", "work_size", "H_FEEDTHROUGH", "C_NODES", "C_DOF", "C_EDGES", "C_IQ", "C_IU",
            "C_ITAU", "C_ID", "C_IV", "C_IEU", "C_IBR", "NO_SCHEME"]
 
-#: header slot read by the binary: 1 = outputs depend directly on the inputs (recompute on read)
-H_FEEDTHROUGH = 22
 #: the coupling's own header slots (free in the mechanical layout's header)
 C_NODES, C_DOF, C_EDGES = 6, 8, 10
 C_IQ, C_IU, C_ITAU, C_ID, C_IV, C_IEU, C_IBR = 12, 13, 15, 16, 17, 18, 19
