@@ -39,6 +39,8 @@ import zipfile
 from pathlib import Path
 from xml.etree import ElementTree as ET
 
+import numpy as np
+
 from .fmus import contract
 from . import __version__
 from .fmus.slave import model_guid
@@ -185,18 +187,29 @@ def export_fmu(model: str = "impact-oscillator", path=None, start_values: dict |
     return _export(cls, model, path, start_values, {"slave": _carried_slave(model)}, {}, warm)
 
 
-def export_coupling(path=None, A=None, n: int = 1, start_values: dict | None = None, warm: bool = True) -> Path:
+def export_coupling(path=None, A=None, n: int = 1, start_values: dict | None = None, warm: bool = True,
+                    K=1.0) -> Path:
     """Build the coupling FMU (:mod:`fmu_sync.fmus.coupling`) of the graph ``A``
     (N x N weights; default the pair ``[[0, 1], [1, 0]]``) for systems with ``n``
     degrees of freedom. The weights of ``A`` are the start values of ``a[i,j]``;
-    ``start_values`` sets any parameter (``"law[1]": "euclidean"``, ``"Kp": 2`` ...)."""
+    ``start_values`` sets any parameter (``"law[1]": "euclidean"``, ``"Kp": 2`` ...).
+    Without a start value for Q, Q is the law's own metric
+    :func:`fmu_sync.core.coupling.energy_metric` of the systems' stiffness ``K``
+    (default 1.0, the impact-oscillator FMU's k), Kp and the graph."""
+    from .core.coupling import energy_metric
     from .core.network import weights
+    from .fmus.contract import matrix
     from .fmus.coupling import CouplingSpec, coupling_slave
     A = weights([[0.0, 1.0], [1.0, 0.0]] if A is None else A)
     spec = CouplingSpec.from_weights(A, n)
     cls = coupling_slave(spec)
     starts = {f"a[{a + 1},{b + 1}]": float(A[a, b]) for i, j in spec.edges for a, b in ((i, j), (j, i))}
-    starts.update(start_values or {})
+    starts.update(cls.normalize_start_values(dict(start_values or {})))
+    q_names, kp_names = (["Q"], ["Kp"]) if n == 1 else (matrix("Q", n), matrix("Kp", n))
+    if not any(k in starts for k in q_names):
+        p = cls.start_parameters(starts)
+        Kp = np.array([p[k] for k in kp_names]).reshape(n, n)
+        starts.update(zip(q_names, (float(x) for x in energy_metric(K, Kp, A).reshape(-1))))
     return _export(cls, COUPLING, path, starts, _COUPLING_BUILD, {"structure": spec.as_dict()}, warm)
 
 
