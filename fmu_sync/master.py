@@ -149,10 +149,7 @@ class NetworkMaster:
     states ``x`` and returns the new states.
     """
 
-    #: "delayed": libcosim's order (all instances step, then outputs are transferred), so each
-    #: step is held at the forces of the states one step older, the first at those of the start;
-    #: "delayed-zero": fmpy's SSP runner (the same, with every connection starting at 0), see docs/ssp.md
-    METHODS = ("jacobi", "gauss-seidel", "delayed", "delayed-zero")
+    METHODS = ("jacobi", "gauss-seidel")
 
     def __init__(self, fmu, states, A, t_end: float, H: float, coupling: str | None = "switching",
                  Kp=0.0, Kd=0.0, Q=None, method: str = "jacobi", record_every: int = 1,
@@ -161,9 +158,6 @@ class NetworkMaster:
         H, n_steps, record_every = check_run(t_end, H, record_every, dt_name="H")
         if method not in self.METHODS:
             raise ValueError(f"method must be {' or '.join(repr(m) for m in self.METHODS)}, got {method!r}")
-        if method.startswith("delayed") and (event_aware or hold != "zoh"):
-            raise ValueError(f"method {method!r} (another master's exchange order) runs with hold='zoh' and "
-                             f"without event_aware, got hold={hold!r}, event_aware={event_aware!r}")
         if event_aware:
             H_min = H / 16 if H_min is None else check_step(H_min, "H_min")
             if H_min > H:
@@ -202,7 +196,6 @@ class NetworkMaster:
         self.need_d = bool(record_distance) or self.coupled
         self.slaves: list[FmuInstance] = []
         self.retakes = 0
-        self._next = None   # delayed methods: the forces transferred for the next step
 
     # ------------------------------------------------------------ set-up
     def _start(self, unzipdir: str) -> None:
@@ -330,30 +323,6 @@ class NetworkMaster:
         self.history.remember(self.tau, t)
         return x
 
-    def step_delayed(self, t: float, h: float, x) -> list:
-        """libcosim's order: every instance steps with the forces transferred after the previous
-        step (those of the states one step older; at the first step those of the start states),
-        then the forces of x are computed for the next step."""
-        fresh = self.tau.copy() if self._next is None else self._next
-        self.inputs(x)
-        self._next, self.tau = self.tau, fresh
-        return self._step_all(t, h)
-
-    def step_delayed_zero(self, t: float, h: float, x) -> list:
-        """fmpy's SSP runner: as :meth:`step_delayed`, but every connection starts at 0, so the
-        first two steps run without forces (at the first one the coupling's inputs are all 0)."""
-        if self._next is None:
-            self._next = np.zeros_like(self.tau)
-            self.tau = np.zeros_like(self.tau)
-            return self._step_all(t, h)
-        return self.step_delayed(t, h, x)
-
-    def _step_all(self, t: float, h: float) -> list:
-        for i, s in enumerate(self.slaves):
-            self.check_forces(i, t, h)
-            self._give(i, s, t, h)
-        return [self.read(s) for s in self.slaves]
-
     def communication_step(self, t: float, x, impacts: list) -> tuple[list, list]:
         """One step of length H from t; event-aware: retaken in pieces of H_min if an
         impact counter moved. Returns (new states, impact counters)."""
@@ -432,8 +401,6 @@ class NetworkMaster:
             x = [self.read(s) for s in self.slaves]
             if self.coupled:
                 self.inputs(x)
-            if self.method == "delayed-zero":
-                self.tau[:] = 0.0
             self.record(0, 0.0, x, self.tau)
             row = 1
             imp = [s.get_integer(contract.IMPACTS) for s in self.slaves]

@@ -22,7 +22,8 @@ The package (a zip archive) holds:
 
 :func:`run_ssp` reads a package back (ours, or one edited by another tool that
 keeps this structure) and runs it in :class:`fmu_sync.master.NetworkMaster`: the
-coupling component's parameters become the master's graph, laws and gains.
+coupling component's parameters become the master's graph, laws and gains
+(:class:`fmu_sync.ssp_master.SspMaster`, which also runs libcosim's and fmpy's orders).
 """
 from __future__ import annotations
 
@@ -58,9 +59,11 @@ class SsdError(ValueError):
     """A package that is not an fmu-sync coupled system (names what is missing)."""
 
 
-def system_component(i: int) -> str:
-    """The component name of system i (0-based)."""
-    return f"system{i + 1}"
+def system_component(i: int, N: int = 9) -> str:
+    """The component name of system i (0-based) of N: ``system1`` .. (zero-padded for N >= 10,
+    ``system01``: fmpy's runner matches parameters by the prefix of the component name, so no
+    name may be the prefix of another)."""
+    return f"system{i + 1:0{len(str(N))}d}"
 
 
 def _q(prefix: str, tag: str) -> str:
@@ -186,7 +189,8 @@ def write_ssp(scene, path, variant: str | None = None, overrides: dict | None = 
         cpl = export_coupling(Path(tmp) / "coupling.fmu", A, n, {**coupling_real, **coupling_enum})
         files = [(SSD, _ssd(sc.name, v, model, edges, len(systems), n, osc_name, cfg)),
                  (osc_name, osc.read_bytes()), (_COUPLING_FMU, cpl.read_bytes())]
-    files += [(f"resources/{system_component(i)}.ssv", _ssv(system_component(i), vals))
+    N = len(comp_values)
+    files += [(f"resources/{system_component(i, N)}.ssv", _ssv(system_component(i, N), vals))
               for i, vals in enumerate(comp_values)]
     files.append((f"resources/{COUPLING_COMPONENT}.ssv", _ssv(COUPLING_COMPONENT, coupling_real)))
     write_archive(path, files)
@@ -204,7 +208,7 @@ def _ssd(scene_name, v, model, edges, N, n, osc_name, cfg) -> bytes:
     for i in range(N):
         cons = [(a, "output", "Real", "m") for a in qn] + [(a, "output", "Real", "m/s") for a in un] + \
                [(a, "input", "Real", "N") for a in tn]
-        _component(elements, system_component(i), osc_name, cons, f"resources/{system_component(i)}.ssv")
+        _component(elements, system_component(i, N), osc_name, cons, f"resources/{system_component(i, N)}.ssv")
     E = len(edges)
     cons = []
     for base, unit in (("q", "m"), ("u", "m/s")):
@@ -217,12 +221,12 @@ def _ssd(scene_name, v, model, edges, N, n, osc_name, cfg) -> bytes:
     for i in range(N):
         for mine, theirs in list(zip(qn, node_names("q", i, n))) + list(zip(un, node_names("u", i, n))):
             ET.SubElement(conns, _q("ssd", "Connection"), {
-                "startElement": system_component(i), "startConnector": mine,
+                "startElement": system_component(i, N), "startConnector": mine,
                 "endElement": COUPLING_COMPONENT, "endConnector": theirs})
         for mine, theirs in zip(tn, node_names("tau", i, n)):
             ET.SubElement(conns, _q("ssd", "Connection"), {
                 "startElement": COUPLING_COMPONENT, "startConnector": theirs,
-                "endElement": system_component(i), "endConnector": mine})
+                "endElement": system_component(i, N), "endConnector": mine})
     exp = ET.SubElement(root, _q("ssd", "DefaultExperiment"),
                         {"startTime": "0.0", "stopTime": _fmt(cfg["run.t_end"])})
     ann = ET.SubElement(ET.SubElement(exp, _q("ssd", "Annotations")), _q("ssc", "Annotation"), {"type": OSP})
@@ -347,8 +351,8 @@ def run_ssp(path, method: str = "jacobi", t_end: float | None = None, H: float |
     bound parameters and start state); the graph, the law per edge, Kp, Kd and Q are
     the coupling component's parameters; t_end and H the package's DefaultExperiment
     (overridable). ``method``: the master's exchange order ("jacobi", "gauss-seidel",
-    or another master's: "delayed" = libcosim, "delayed-zero" = fmpy's SSP runner;
-    docs/ssp.md). Returns a :class:`~fmu_sync.core.result.NetworkResult`; a package
+    or another master's (:class:`fmu_sync.ssp_master.SspMaster`): "delayed" = libcosim,
+    "delayed-zero" = fmpy's SSP runner; docs/ssp.md). Returns a :class:`~fmu_sync.core.result.NetworkResult`; a package
     whose coupling geometry differs from the systems' is refused (ValueError).
     """
     pkg = read_ssp(path)
@@ -383,7 +387,7 @@ def _run_master(pkg, fmu, names, spec, cfg, t_end, H, method, record_every, prog
     from .core.coupling import LAWS
     from .core.model import MechanicalSystem
     from .core.pair import check_common_geometry
-    from .master import NetworkMaster
+    from .ssp_master import SspMaster
     model = contract.identify([v.name for v in read_model_description(str(fmu)).modelVariables])
     starts, states = [], []
     for c in names:
@@ -403,7 +407,7 @@ def _run_master(pkg, fmu, names, spec, cfg, t_end, H, method, record_every, prog
     z = np.zeros((spec.n, spec.n))
     mine = MechanicalSystem(M=geo.M, K=z, C=z, f0=np.zeros(spec.n), w=geo.w, g0=geo.g0, e=geo.e)
     check_common_geometry(systems + [mine], names + ["the coupling component"])
-    master = NetworkMaster(fmu, states, A, t_end, H, [None if x == "none" else x for x in laws], cfg.Kp, cfg.Kd,
+    master = SspMaster(fmu, states, A, t_end, H, [None if x == "none" else x for x in laws], cfg.Kp, cfg.Kd,
                            geo.Q, method=method, record_every=record_every, start_values=starts,
                            allow_unstable=allow_unstable)
     res = master.run(progress)

@@ -351,5 +351,45 @@ def test_run_ssp_refuses_a_coupling_geometry_that_differs(packages, tmp_path):
         run_ssp(bad)
 
 
+@pytest.mark.parametrize("scene, variant, words", [
+    ("forced-pair", None, ["variants uncoupled, euclidean, switching", "--variant"]),
+    ("forced-pair", "nonesuch", ["no variant 'nonesuch'"]),
+    ("bouncing-ball", None, ["single system"]),
+])
+def test_write_ssp_refuses_what_is_not_a_coupled_variant(tmp_path, scene, variant, words):
+    with pytest.raises(ValueError) as exc:
+        write_ssp(scene, tmp_path / "x.ssp", variant)
+    assert all(w in str(exc.value) for w in words), str(exc.value)
+    assert not list(tmp_path.iterdir())
+
+
+def test_write_ssp_refuses_a_wrong_suffix(tmp_path):
+    with pytest.raises(ValueError, match="must end in .ssp"):
+        write_ssp("forced-pair", tmp_path / "x.zip", "switching")
+
+
+def test_cli_export_coupling_lists_a_network_interface(capsys):
+    from fmu_sync.export import main_export
+    assert main_export(["coupling", "--nodes", "8", "--graph", "ring", "--list"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    names = [line.split()[0] for line in out]
+    assert names[:8] == [f"q[{i}]" for i in range(1, 9)] and "tau[8]" in names and "d[8]" in names
+    assert "law[8]" in names and "a[8,1]" in names and "d[9]" not in names
+    assert main_export(["impact-oscillator", "--nodes", "3", "--list"]) == 2
+    assert "--nodes and --dof are options of the coupling FMU" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_cli_runs_a_package_in_our_master(packages, tmp_path):
+    """``fmu-sync run FILE.ssp --method delayed`` (in a child process): the record is written."""
+    out = tmp_path / "out"
+    p = subprocess.run([sys.executable, "-m", "fmu_sync.cli", "run", packages[1]["switching"], "--method",
+                        "delayed", "-o", str(out), "--quiet"], capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr[-2000:]
+    assert "method delayed" in p.stdout and "t_sync(1e-6)" in p.stdout
+    rec = np.load(out / "result.npz")
+    assert rec["d"].shape == (int(T_SYNC / 0.01) + 1, 1) and rec["d"][-1, 0] < 1e-6
+
+
 if __name__ == "__main__":
     _child_main(sys.argv[1:])
