@@ -1,5 +1,5 @@
 """`fmu-sync bench`: the whole pipeline (work-precision with the FMU co-simulation, stability,
-CSVs, diagrams, bench.md) at --smoke size, in a child process (the FMU is never loaded in
+CSVs, diagrams, benchmarks.md) at --smoke size, in a child process (the FMU is never loaded in
 the pytest process, see tests/test_fmu_run.py). --smoke shrinks ladders, horizons and repeats
 and skips the core speed section; its numbers mean nothing, only the files are checked."""
 import csv
@@ -32,7 +32,7 @@ def _read(path):
 
 def test_files_are_written(bench):
     out, _ = bench
-    for name in ("bench.md", "work_precision.csv", "stability.csv"):
+    for name in ("benchmarks.md", "work_precision.csv", "stability.csv"):
         assert (out / name).is_file() and (out / name).stat().st_size > 0, name
     pngs = sorted(p.name for p in out.glob("work_precision_*.png"))
     assert "work_precision_bouncing-ball_rest_time.png" in pngs
@@ -78,7 +78,8 @@ def test_stability_csv(bench):
 
 def test_bench_md_and_stdout(bench):
     out, p = bench
-    md = (out / "bench.md").read_text()
+    md = (out / "benchmarks.md").read_text()
+    assert md.startswith("# fmu-sync benchmarks\n\nWritten by `fmu-sync bench --quick --smoke -o ")
     for head in ("# fmu-sync benchmarks", "## Core speed", "## Work–precision", "## Stability",
                  "Measured order, midpoint, bouncing-ball", "Measured order, midpoint, forced-pair",
                  "## Co-simulation hold: zero- vs first-order", "| FOH | "):

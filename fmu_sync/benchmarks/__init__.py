@@ -1,13 +1,25 @@
-"""``fmu-sync bench [--quick] [-o DIR]``: core speed, work–precision and stability reports.
+"""``fmu-sync bench [--quick] [-o DIR]``: the benchmark report, DIR/benchmarks.md.
+
+Two kinds of section (``--only`` picks among them):
+
+* the mission's **reports**, also run alone by ``fmu-sync report NAME`` (:data:`REPORTS`):
+  ``work-precision`` (error against run time, every solver on the built-in scenes:
+  :mod:`.work_precision`, its cases and analysis in ``work_precision_*``) and ``stability``
+  (stiff and extreme cases, each row with its criterion: :mod:`.stability`, ``stability_*``);
+* **timings** (developer benchmarks, ratios against a baseline measured in the same run):
+  ``speed`` (core kernels vs a C loop, the quotient distance, the FMU per step and at start-up,
+  :mod:`.core_speed`, :mod:`.distance_cost`, :mod:`.fmu_cost`), ``sweep`` (sweep throughput,
+  :mod:`.sweep_speed`) and ``hold`` (co-simulation hold order, :mod:`.hold_order`).
 
 Writes into DIR (default ``./fmu-sync-bench/``):
 
+* ``benchmarks.md`` — all sections run (tables and one-line interpretations), with the machine,
+  its load and the versions; copy it to the repository's ``docs/benchmarks.md`` to publish it
+  (docs/benchmarks.md says how);
 * ``work_precision.csv`` — method, scene, metric, step, error, seconds, repeats, spread,
   reference, note (one row per run; see :mod:`.work_precision`);
 * ``work_precision_<scene>_<metric>.png`` — log–log error vs run time;
-* ``stability.csv`` — one row per stability case with its criterion and pass/FAIL;
-* ``bench.md`` — the reports (tables and one-line interpretations); the speed section includes
-  the sweep throughput (:mod:`.sweep_speed`, also alone with ``--only sweep``).
+* ``stability.csv`` — one row per stability case with its criterion and pass/FAIL.
 
 ``--quick`` shrinks ladders, horizons and repeats (a few minutes on 2 cores);
 ``--smoke`` (for the test suite) shrinks everything further and skips the core speed
@@ -23,7 +35,15 @@ import tempfile
 import time
 from pathlib import Path
 
-__all__ = ["main", "EXTRA_SECTIONS"]
+__all__ = ["main", "EXTRA_SECTIONS", "REPORTS", "SECTIONS", "PAGE"]
+
+#: the mission's reports (``fmu-sync report NAME``): error against run time, stability on stiff
+#: and extreme cases
+REPORTS = ("work-precision", "stability")
+#: every section of ``fmu-sync bench`` (``--only``); the default runs all but ``sweep``
+SECTIONS = ("speed", "sweep", "hold") + REPORTS
+#: the markdown page ``fmu-sync bench`` writes into its output folder (docs/benchmarks.md when published)
+PAGE = "benchmarks.md"
 
 #: optional sibling benchmark modules, included when they provide ``run(quick) -> markdown``
 EXTRA_SECTIONS = ("fmu_cost", "sweep_speed")  # distance_cost is part of core_speed
@@ -57,18 +77,20 @@ def _export(tmp: Path):
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(
         prog="fmu-sync bench",
-        description="Core speed, work-precision (error vs run time) and stability reports.")
+        description=f"The benchmark report DIR/{PAGE}: timings (speed, sweep, hold) and the reports "
+                    "work-precision (error vs run time) and stability (stiff and extreme cases).")
     parser.add_argument("--quick", action="store_true", help="smaller ladders and fewer repeats (minutes)")
     parser.add_argument("-o", "--output", default="fmu-sync-bench", metavar="DIR",
                         help="output folder (default: ./fmu-sync-bench/)")
     parser.add_argument("--smoke", action="store_true",
                         help="tiny ladders, no core speed section: checks the pipeline only (for tests)")
     parser.add_argument("--no-cosim", action="store_true", help="leave out the FMU co-simulation runs")
-    parser.add_argument("--only", choices=("speed", "work-precision", "stability", "sweep", "hold"), action="append",
-                        help="run only these sections (repeatable)")
+    parser.add_argument("--only", choices=SECTIONS, action="append",
+                        help="run only these sections (repeatable); the reports alone: fmu-sync report NAME")
     args = parser.parse_args(argv)
+    argv_shown = list(sys.argv[1:] if argv is None else argv)
     quick = args.quick or args.smoke
-    sections = set(args.only or ("speed", "work-precision", "stability", "hold"))
+    sections = set(args.only or (s for s in SECTIONS if s != "sweep"))
     if args.smoke:
         sections.discard("speed")
 
@@ -163,6 +185,8 @@ def main(argv=None) -> int:
     total = time.perf_counter() - t_start
     head = [
         "# fmu-sync benchmarks", "",
+        f"Written by `fmu-sync bench{' ' + ' '.join(argv_shown) if argv_shown else ''}`; every number below "
+        "was measured in this run.", "",
         f"- mode: **{mode}**; wall time {total:.0f} s ("
         + ", ".join(f"{k} {v:.0f} s" for k, v in timings.items()) + ")",
         f"- machine: {platform.machine()}, {os.cpu_count()} CPUs, load average (1/5/15 min) {load0} at the "
@@ -172,8 +196,8 @@ def main(argv=None) -> int:
         f"- co-simulation: {'FMU exported by fmu_sync.export, run by fmu_sync.master (fmpy)' if fmu else 'skipped (' + str(why) + ')'}",
         "",
     ]
-    (out / "bench.md").write_text("\n".join(head) + "\n" + "\n".join(parts))
-    written = [out / "bench.md"]
+    (out / PAGE).write_text("\n".join(head) + "\n" + "\n".join(parts))
+    written = [out / PAGE]
     if "work-precision" in sections:
         written += [out / "work_precision.csv", out / "work_precision_*.png"]
     if "stability" in sections:
