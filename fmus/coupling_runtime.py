@@ -14,7 +14,7 @@ import numpy as np
 
 from . import coupling_stepper as CS
 from .coupling import CouplingSpec, coupling_slave
-from .runtime import pack_layout, read_start_file, variable_table
+from .runtime import InstanceBase, read_start_file
 from .slave import PHASES, START_FILE
 from .stepper import H_CONFIGURED, H_PHASE, H_TIME
 
@@ -24,20 +24,12 @@ STATE_FORMAT = "fmu-sync-coupling-state/1"
 _PHASE_NAMES = {code: name for name, code in PHASES.items()}
 
 
-class CouplingInstance:
+class CouplingInstance(InstanceBase):
     """One instance of a coupling FMU: variable array, table, work array; validation and state."""
 
     def __init__(self, slave_cls, start_values: dict):
-        self.cls = slave_cls
-        spec = slave_cls.SPEC
-        self.spec = spec
-        self.vars = slave_cls.variables(start_values)
-        self.index = {v.name: i for i, v in enumerate(self.vars)}
-        self.params = [v for v in self.vars if v.causality == "parameter"]
-        self.inputs = [v for v in self.vars if v.causality == "input"]
-        (self.starts, self.vtype, self.vcaus, self.vmin, self.vmax, self._names,
-         self._hints) = variable_table(self.vars)
-        self.x = self.starts.copy()
+        self._declare(slave_cls, start_values)
+        spec = self.spec = slave_cls.SPEC
         N, n, E, m = spec.N, spec.n, len(spec.edges), len(self.inputs)
         self.m = m
         self.work = np.zeros(CS.work_size(N, n, E, m))
@@ -47,25 +39,8 @@ class CouplingInstance:
         self.i_in = int(self.work[CS.C_IQ])
         self.outputs = [self.index[v.name] for v in self.vars if v.causality == "output"]
         self.cfg = None
-        import ctypes
-        self._step = ctypes.CFUNCTYPE(ctypes.c_int32, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_double,
-                                      ctypes.c_double)(CS.step.address)
+        self._bind(CS.step)
         self._reset_values()
-
-    # ------------------------------------------------------------ for the binary
-    def layout(self) -> bytes:
-        return pack_layout(self.x, self.vtype, self.vcaus, self.vmin, self.vmax, self.work, CS.step.address,
-                           self._names, self._hints)
-
-    def free(self) -> None:
-        self.cfg = None
-
-    def _parameters(self) -> dict:
-        out = {}
-        for v in self.params:
-            x = self.x[self.index[v.name]]
-            out[v.name] = int(x) if v.type in ("Integer", "Enumeration") else float(x)
-        return out
 
     def _reset_values(self) -> None:
         self.x[:] = self.starts
@@ -118,7 +93,7 @@ class CouplingInstance:
                 "inputs": self.x[self.i_in:self.i_in + self.m].tolist(),
                 "parameters": self._parameters()}
 
-    def check_state(self, s) -> tuple[str | None, object]:
+    def state_reason(self, s) -> tuple[str | None, object]:
         if not isinstance(s, dict) or s.get("format") != STATE_FORMAT:
             return f"not a coupling FMU state (format {getattr(s, 'get', lambda k: None)('format')!r}, " \
                    f"expected {STATE_FORMAT!r})", None
@@ -152,7 +127,7 @@ class CouplingInstance:
         return None, cfg
 
     def set_state(self, s) -> str:
-        reason, cfg = self.check_state(s)
+        reason, cfg = self.state_reason(s)
         if reason:
             return f"E:fmi2SetFMUstate: {reason}; state unchanged"
         for name, value in s["parameters"].items():
@@ -163,20 +138,6 @@ class CouplingInstance:
         self._install(cfg)
         self._evaluate()
         return ""
-
-    def serialize(self, s) -> bytes:
-        return self.cls.state_to_bytes(s)
-
-    def deserialize(self, data: bytes):
-        try:
-            s = self.cls.state_from_bytes(data)
-        except Exception as exc:
-            return (f"E:fmi2DeSerializeFMUstate: cannot deserialise the FMU state ({len(data)} bytes): {exc}",
-                    None)
-        reason, _ = self.check_state(s)
-        if reason:
-            return f"E:fmi2DeSerializeFMUstate: {reason}", None
-        return "", s
 
 
 def create(slave_base, resources_dir: str, model: str) -> tuple[str, CouplingInstance | None]:

@@ -24,7 +24,7 @@ from . import stepper as S
 from ._xml import POSITIVE_MIN
 from .slave import PHASES, START_FILE, STATE_FORMAT
 
-__all__ = ["FMUInstance", "create", "LAYOUT_VERSION", "variable_table", "pack_layout", "read_start_file"]
+__all__ = ["FMUInstance", "create", "LAYOUT_VERSION", "variable_table", "InstanceBase", "read_start_file"]
 
 LAYOUT_VERSION = 1
 TYPE_REAL, TYPE_INTEGER, TYPE_ENUM = 0, 1, 2
@@ -69,26 +69,68 @@ def variable_table(vars_: list) -> tuple:
     return starts, vtype, vcaus, vmin, vmax, names, hint_bytes
 
 
-def pack_layout(x, vtype, vcaus, vmin, vmax, work, stepper_address, names, hints) -> bytes:
-    """What :meth:`FMUInstance.layout` hands to the binary (LAYOUT_VERSION)."""
-    return struct.pack("<11Q", LAYOUT_VERSION, x.shape[0], x.ctypes.data, vtype.ctypes.data, vcaus.ctypes.data,
-                       vmin.ctypes.data, vmax.ctypes.data, work.ctypes.data, stepper_address,
-                       names.ctypes.data, hints.ctypes.data)
+class InstanceBase:
+    """What every Python instance behind the binary shares: the variables and their
+    table, the layout handed to the binary, the parameter values, state bytes."""
 
-
-class FMUInstance:
-    """One instance: variable array, table, work array; validation and state."""
-
-    def __init__(self, slave_cls, start_values: dict):
+    def _declare(self, slave_cls, start_values: dict) -> None:
         self.cls = slave_cls
         self.vars = slave_cls.variables(start_values)
-        nv = len(self.vars)
         self.index = {v.name: i for i, v in enumerate(self.vars)}
         self.params = [v for v in self.vars if v.causality == "parameter"]
         self.inputs = [v for v in self.vars if v.causality == "input"]
         (self.starts, self.vtype, self.vcaus, self.vmin, self.vmax, self._names,
          self._hints) = variable_table(self.vars)
         self.x = self.starts.copy()
+
+    def _bind(self, stepper) -> None:
+        """The numba cfunc ``stepper`` (same signature for every model), callable from Python."""
+        import ctypes
+        self._address = stepper.address
+        self._step = ctypes.CFUNCTYPE(ctypes.c_int32, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_double,
+                                      ctypes.c_double)(stepper.address)
+
+    def layout(self) -> bytes:
+        """What the binary reads once (LAYOUT_VERSION): the addresses of the arrays and the stepper."""
+        return struct.pack("<11Q", LAYOUT_VERSION, self.x.shape[0], self.x.ctypes.data, self.vtype.ctypes.data,
+                           self.vcaus.ctypes.data, self.vmin.ctypes.data, self.vmax.ctypes.data,
+                           self.work.ctypes.data, self._address, self._names.ctypes.data, self._hints.ctypes.data)
+
+    def free(self) -> None:
+        self.cfg = None
+
+    def _parameters(self) -> dict:
+        out = {}
+        for v in self.params:
+            x = self.x[self.index[v.name]]
+            out[v.name] = int(x) if v.type in ("Integer", "Enumeration") else float(x)
+        return out
+
+    def state_reason(self, s) -> tuple[str | None, object]:
+        """(None, configuration) for a valid saved state of this instance, else (reason, None)."""
+        raise NotImplementedError
+
+    def serialize(self, s) -> bytes:
+        return self.cls.state_to_bytes(s)
+
+    def deserialize(self, data: bytes):
+        try:
+            s = self.cls.state_from_bytes(data)
+        except Exception as exc:
+            return (f"E:fmi2DeSerializeFMUstate: cannot deserialise the FMU state ({len(data)} bytes): {exc}",
+                    None)
+        reason, _ = self.state_reason(s)
+        if reason:
+            return f"E:fmi2DeSerializeFMUstate: {reason}", None
+        return "", s
+
+
+class FMUInstance(InstanceBase):
+    """One instance: variable array, table, work array; validation and state."""
+
+    def __init__(self, slave_cls, start_values: dict):
+        self._declare(slave_cls, start_values)
+        nv = len(self.vars)
 
         n, m = slave_cls.N, len(self.inputs)
         qn, un = _q_u_names(n)
@@ -112,27 +154,10 @@ class FMUInstance:
         self.i_gap, self.i_energy = self.index["gap"], self.index["energy"]
         self.i_impacts, self.i_perc = self.index["impacts"], self.index["percussion"]
         self.cfg = None
-        import ctypes
-        self._step = ctypes.CFUNCTYPE(ctypes.c_int32, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_double,
-                                      ctypes.c_double)(S.step.address)
+        self._bind(S.step)
         self._reset_values()
 
-    # ------------------------------------------------------------ for the binary
-    def layout(self) -> bytes:
-        return pack_layout(self.x, self.vtype, self.vcaus, self.vmin, self.vmax, self.work, S.step.address,
-                           self._names, self._hints)
-
-    def free(self) -> None:
-        self.cfg = None
-
     # ------------------------------------------------------------ helpers
-    def _parameters(self) -> dict:
-        out = {}
-        for v in self.params:
-            x = self.x[self.index[v.name]]
-            out[v.name] = int(x) if v.type in ("Integer", "Enumeration") else float(x)
-        return out
-
     def _reset_values(self) -> None:
         self.x[:] = self.starts
         self.x[self.i_impacts] = 0.0
@@ -213,7 +238,7 @@ class FMUInstance:
         }
 
     def set_state(self, s) -> str:
-        reason, cfg = self.cls.check_state(s, self.params, self.inputs)
+        reason, cfg = self.state_reason(s)
         if reason:
             return f"E:fmi2SetFMUstate: {reason}; state unchanged"
         for name, value in s["parameters"].items():
@@ -238,19 +263,8 @@ class FMUInstance:
             self.refresh()
         return ""
 
-    def serialize(self, s) -> bytes:
-        return self.cls.state_to_bytes(s)
-
-    def deserialize(self, data: bytes):
-        try:
-            s = self.cls.state_from_bytes(data)
-        except Exception as exc:
-            return (f"E:fmi2DeSerializeFMUstate: cannot deserialise the FMU state ({len(data)} bytes): {exc}",
-                    None)
-        reason, _ = self.cls.check_state(s, self.params, self.inputs)
-        if reason:
-            return f"E:fmi2DeSerializeFMUstate: {reason}", None
-        return "", s
+    def state_reason(self, s) -> tuple[str | None, object]:
+        return self.cls.check_state(s, self.params, self.inputs)
 
 
 def read_start_file(resources_dir: str, model: str) -> tuple[str, dict | None]:

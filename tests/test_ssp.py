@@ -50,6 +50,15 @@ def scenario_outputs(a):
             t += 0.01
             after = dict(zip(reals, s.getReal([vr[n] for n in reals])))
             rows.append({"peek": peek, "after": after})
+            if len(rows) == 1:   # save the FMU state after the first row (and as bytes)
+                saved = s.getFMUstate()
+                blob = s.serializeFMUstate(saved)
+        s.setFMUstate(saved)
+        restored = s.getReal([vr[n] for n in reals])
+        s.setFMUstate(s.deSerializeFMUstate(blob))
+        rows.append({"restored": dict(zip(reals, restored)),
+                     "deserialized": dict(zip(reals, s.getReal([vr[n] for n in reals])))})
+        s.freeFMUstate(saved)
         s.terminate()
         s.freeInstance()
         out[key] = {"inputs": ins, "rows": rows}
@@ -220,6 +229,7 @@ def test_coupling_fmu_outputs_equal_the_core(fmus, key):
     case, rows = cases[key], got[key]["rows"]
     n = case["system"].n
     names = ["tau[1]", "tau[2]"] if n == 1 else ["tau[1,1]", "tau[1,2]", "tau[2,1]", "tau[2,2]"]
+    assert rows[-1]["restored"] == rows[-1]["deserialized"] == rows[0]["after"]   # FMU state: inputs and outputs
     seen = set()
     for (x1, x2), b, row in zip(case["pairs"], case["branches"], rows):
         t1, t2 = coupling_forces(case["system"], x1, x2, "switching", KP, KD, Q=Q)
