@@ -58,31 +58,21 @@ class CouplingInstance(InstanceBase):
         self.cfg = cfg
 
     # ------------------------------------------------------------ life cycle
-    def refresh(self) -> str:
-        """Outputs in initialization mode: computed from the current inputs and
-        parameters (NaN while the parameters are not a valid set)."""
-        try:
-            cfg = self.cls.configure(self._parameters())
-        except ValueError:
+    def exit_initialization(self) -> str:
+        """Outputs computed from the current inputs and parameters; refused (the reply)
+        while the parameters are not a valid set."""
+        reply, cfg = self._configuration()
+        if cfg is None:
             self.work[H_CONFIGURED] = 0.0
             self.x[self.outputs] = math.nan
-            return ""
+            return reply
         self._install(cfg)
         self._evaluate()
         return ""
 
-    def exit_initialization(self) -> str:
-        try:
-            cfg = self.cls.configure(self._parameters())
-        except ValueError as exc:
-            return (f"E:fmi2ExitInitializationMode: invalid configuration: {exc}; the instance stays in "
-                    f"initialization mode (set valid parameters and call it again, or fmi2Reset)")
-        self._install(cfg)
-        self._evaluate()
-        return ""
-
-    def reset(self) -> str:
-        self._reset_values()
+    def refresh(self) -> str:
+        """Outputs in initialization mode (NaN while the parameters are not a valid set)."""
+        self.exit_initialization()
         return ""
 
     # ------------------------------------------------------------ FMU state

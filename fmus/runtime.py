@@ -106,6 +106,19 @@ class InstanceBase:
             out[v.name] = int(x) if v.type in ("Integer", "Enumeration") else float(x)
         return out
 
+    def _configuration(self) -> tuple[str, object]:
+        """("", configuration) of the current parameters, or (the reply refusing
+        fmi2ExitInitializationMode, None)."""
+        try:
+            return "", self.cls.configure(self._parameters())
+        except ValueError as exc:
+            return (f"E:fmi2ExitInitializationMode: invalid configuration: {exc}; the instance stays in "
+                    f"initialization mode (set valid parameters and call it again, or fmi2Reset)"), None
+
+    def reset(self) -> str:
+        self._reset_values()
+        return ""
+
     def state_reason(self, s) -> tuple[str | None, object]:
         """(None, configuration) for a valid saved state of this instance, else (reason, None)."""
         raise NotImplementedError
@@ -201,11 +214,9 @@ class FMUInstance(InstanceBase):
         return ""
 
     def exit_initialization(self) -> str:
-        try:
-            cfg = self.cls.configure(self._parameters())
-        except ValueError as exc:
-            return (f"E:fmi2ExitInitializationMode: invalid configuration: {exc}; the instance stays in "
-                    f"initialization mode (set valid parameters and call it again, or fmi2Reset)")
+        reply, cfg = self._configuration()
+        if cfg is None:
+            return reply
         self._install(cfg)
         self.x[self.i_q:self.i_q + self.n] = cfg.q0
         self.x[self.i_u:self.i_u + self.n] = cfg.u0
@@ -213,10 +224,6 @@ class FMUInstance(InstanceBase):
         self.x[self.i_perc] = 0.0
         self.work[S.H_VREF] = 0.0               # the exact run's velocity scale: set by its first step
         self._outputs_from_stepper()
-        return ""
-
-    def reset(self) -> str:
-        self._reset_values()
         return ""
 
     # ------------------------------------------------------------ FMU state
