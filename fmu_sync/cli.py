@@ -54,8 +54,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="simulated time (default 100 s, 40 s with --quick)")
     d.add_argument("--quiet", action="store_true", help="no progress display")
 
-    r = sub.add_parser("run", help="run a scene (built-in name or .toml path)")
-    r.add_argument("scene", help="built-in scene name (see `fmu-sync scenes`) or path to a .toml file")
+    r = sub.add_parser("run", help="run a scene (built-in name or .toml path) or an SSP package (.ssp)")
+    r.add_argument("scene", help="built-in scene name (see `fmu-sync scenes`), path to a .toml file, or an "
+                   "SSP package written by `fmu-sync ssp` (run in our master)")
     r.add_argument("-o", "--out", type=Path, default=None, help="output folder (default ./fmu-sync-out/<scene>)")
     r.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scene key, e.g. --set coupling.Kp=2 --set run.t_end=50 (TOML values)")
@@ -77,6 +78,17 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--convergence", action="store_true",
                    help="rerun each variant at its step, /2 and /4 (solver.dt in core mode, run.H in cosim) "
                         "and write only the metrics (decay rate, t_sync, bound) to convergence.md/.csv")
+
+    r.add_argument("--method", default="jacobi", metavar="ORDER",
+                   help="SSP package only: the exchange order, jacobi (default), gauss-seidel, delayed "
+                        "(libcosim's) or delayed-zero (fmpy's SSP runner); see docs/ssp.md")
+
+    sp = sub.add_parser("ssp", help="write a coupled scene as an SSP 1.0 package (systems + coupling FMU)")
+    sp.add_argument("scene", help="built-in scene name or path to a .toml file (a pair or a network)")
+    sp.add_argument("--variant", default=None, metavar="NAME", help="the variant (required if the scene has several)")
+    sp.add_argument("-o", "--output", type=Path, required=True, help="package to write (FILE.ssp)")
+    sp.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                    help="override a scene key, e.g. --set run.t_end=60 (TOML values)")
 
     sub.add_parser("scenes", help="list the built-in scenes")
     sub.add_parser("export", help="export an FMU (options: see `fmu-sync export --help`)", add_help=False)
@@ -124,7 +136,34 @@ def _cmd_scenes() -> int:
     return 0
 
 
+def _cmd_ssp(args) -> int:
+    from .scenes.loading import parse_override
+    from .ssp import write_ssp
+    overrides = dict(parse_override(s) for s in args.overrides)
+    path = write_ssp(args.scene, args.output, args.variant, overrides)
+    print(f"wrote {path}")
+    return 0
+
+
+def _cmd_run_ssp(args) -> int:
+    from .ssp import run_ssp, save_result
+    if args.overrides or args.variant or args.convergence:
+        raise ValueError("an SSP package takes --method, -o, --allow-unstable and --quiet only "
+                         "(its values are the package's: edit its .ssv files, or the scene and write it again)")
+    with _progress(Path(args.scene).name, args.quiet) as bar:
+        res = run_ssp(args.scene, method=args.method, progress=bar, allow_unstable=args.allow_unstable)
+    out = args.out or Path("fmu-sync-out") / Path(args.scene).stem
+    path = save_result(res, out)
+    m = res.sync()
+    print(f"{args.scene}: {len(res.info['components'])} systems, method {args.method}, H = {res.info['H']:g}, "
+          f"t_end = {res.t[-1]:g} s; max d at the end {res.d_max[-1]:.3g}, t_sync(1e-6) = {m.t_sync:.4g} s")
+    print(f"written to {path}")
+    return 0
+
+
 def _cmd_run(args) -> int:
+    if str(args.scene).endswith(".ssp"):
+        return _cmd_run_ssp(args)
     from .scenes.loading import load_scene, parse_override
     from .scenes.running import run_scene
     from .output import parse_formats, parse_size
@@ -258,6 +297,8 @@ def _main(argv) -> int:
             return _cmd_scenes()
         if args.command == "run":
             return _cmd_run(args)
+        if args.command == "ssp":
+            return _cmd_ssp(args)
         if args.command == "demo":
             return _cmd_demo(args)
         if args.command == "validate":
