@@ -9,6 +9,9 @@ The component-level API (the core's own API is :mod:`fmu_sync.core`):
   (:class:`SceneError` for a bad scene);
 * :func:`sweep` — families of pair runs (gain maps, basins, samples) as an xarray Dataset,
   on all cores or a Dask cluster (:mod:`fmu_sync.sweeps`);
+* :func:`load` — a saved run (``.npz``, ``.csv``, ``.nc``) back into its result object, a
+  sweep's ``.nc`` into its Dataset; :func:`redraw` — a finished run's plots again
+  (``fmu-sync plot DIR``; docs/results.md);
 * ``__version__`` (from the installed package metadata; single source: pyproject.toml).
 
 The names load on first use (PEP 562), so ``import fmu_sync`` imports neither
@@ -31,6 +34,7 @@ _API = {
     "SceneError": "scenes.schema", "run_scene": "scenes.running",
     "convergence": "scenes.convergence", "run_demo": "scenes.demo",
     "sweep": "sweeps",
+    "load": "results", "redraw": "results",
 }
 
 __all__ = ["__version__", *_API]
