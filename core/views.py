@@ -362,7 +362,8 @@ def short_repr(result) -> str:
         parts.append(f"scheme {result.scheme}, dt = {result.dt:g} s, {result.impacts} impact steps")
     else:
         c = getattr(result, "coupling", None) if lay["kind"] == "pair" else result.info.get("coupling")
-        parts.append(f"coupling {c or 'none'}")
+        parts.append("coupling not in the file" if result.info.get("loaded_from") == "csv" else
+                     f"coupling {c or 'none'}")
         if lay["distance"] and t.size:
             d = result.d_max if lay["kind"] == "network" else result.d
             parts.append(f"final {'max ' if lay['kind'] == 'network' else ''}d {float(d[-1]):.3g}")

@@ -140,7 +140,7 @@ def _from_csv(path: Path):
         arrays = [data[:, pick(k[:-1], int(k[-1]))] for k in _PAIR]
         d = one("d")
         return PairResult(t, *arrays, d, None if d is None else one("branch").astype(np.int64),
-                          one("euclidean"), impacts1=None, impacts2=None)
+                          one("euclidean"), impacts1=None, impacts2=None, info={"loaded_from": "csv"})
     N = max(c[1] for c in cols if c[0] == "q")
     n = len(pick("q", 1))
     node = lambda k: np.stack([data[:, pick(k, i)] for i in range(1, N + 1)], axis=1)  # noqa: E731
@@ -150,7 +150,7 @@ def _from_csv(path: Path):
     edge_cols = lambda k: data[:, [i for i, c in enumerate(cols) if c[0] == k and c[2] in subs]]  # noqa: E731
     return NetworkResult(t, node("q"), node("u"), node("tau"), edges, d,
                          None if d is None else edge_cols("branch").astype(np.int64),
-                         None if d is None else edge_cols("euclidean"), one("V"), None)
+                         None if d is None else edge_cols("euclidean"), one("V"), None, info={"loaded_from": "csv"})
 
 
 # ---------------------------------------------------------------- nc
