@@ -21,7 +21,7 @@ from .report import SYNC_THRESHOLD, contact_starts, decay_resolved, impact_recor
 
 __all__ = ["plot_positions", "plot_distance", "plot_lyapunov", "plot_forces", "plot_phase",
            "plot_impact_zoom", "impact_window", "tail_start", "PHASE_TURNS",
-           "compare_plot", "PLOTTERS"]
+           "compare_plot", "skip_reason", "PLOTTERS"]
 
 STYLE = {
     "font.size": 11, "axes.titlesize": 12, "axes.labelsize": 11, "legend.fontsize": 9.5,
@@ -372,7 +372,9 @@ def plot_phase(result, path, system=None, title=None) -> Path:
         x, y = q @ w + g0, u @ w
         if start > 0:
             ax.plot(x[:start + 1], y[:start + 1], color=COLORS[k], lw=0.5, alpha=0.18)
-        ax.plot(x[start:], y[start:], color=COLORS[k], lw=0.9, alpha=0.9, label=label)
+        # system 2 dashed: synchronized systems draw one curve, both stay visible
+        ax.plot(x[start:], y[start:], color=COLORS[k], lw=0.9, alpha=0.9, ls="-" if k == 0 else (0, (4, 3)),
+                label=label)
         ax.plot(x[:1], y[:1], ls="none", marker="o", ms=7, color=COLORS[k], mec="k")
         ax.plot(x[-1:], y[-1:], ls="none", marker="s", ms=6, color=COLORS[k], mec="k")
     ax.plot([], [], ls="none", marker="o", ms=7, color="w", mec="k", label="start")
@@ -423,6 +425,16 @@ def compare_plot(results: Mapping[str, object], path, quantity: str = "d", title
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8.5)
     ax.set_title(title if title else f"{what} of each run")
     return _save(fig, path)
+
+
+def skip_reason(kind: str, result) -> str | None:
+    """Why a plot of ``kind`` would say nothing for ``result`` (then the run writes no file), or None:
+    an uncoupled run's forces are zero throughout."""
+    if kind == "forces" and is_pair(result) and not is_network(result):
+        taus = [np.nan_to_num(np.asarray(x, dtype=float)) for x in (result.tau1, result.tau2)]
+        if not any(np.any(x != 0.0) for x in taus):
+            return "no coupling force (τ1 = τ2 = 0 throughout the run)"
+    return None
 
 
 PLOTTERS = {"positions": plot_positions, "distance": plot_distance, "lyapunov": plot_lyapunov,

@@ -220,6 +220,8 @@ def redraw(folder, only=None) -> list[Path]:
                                                            g0=float(wall["g0"]))
         title = meta.get("title", name)
         for p in kinds:
+            if P.skip_reason(p, result) is not None:
+                continue
             written.append(P.PLOTTERS[p](result, folder / f"{name}-{p}.png", system=system, title=title))
         if k["distance"]:
             results[name] = result

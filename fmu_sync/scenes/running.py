@@ -15,7 +15,7 @@ from .loading import Scene, as_scene
 from .schema import DEFAULT_OUT, TABLES, SceneError, Variant
 
 __all__ = ["RunRecord", "SceneRun", "RunRefused", "preflight", "run_scene", "run_variant", "fmu_start_values", "export_for",
-           "write_run", "run_extra", "error_notes", "settings_table"]
+           "write_run", "run_extra", "error_notes", "skipped_notes", "settings_table"]
 
 
 @dataclass
@@ -26,6 +26,7 @@ class RunRecord:
     metrics: dict
     files: list = field(default_factory=list)
     streamed: bool = False
+    skipped: list = field(default_factory=list)   #: (plot, why it was not drawn)
 
 
 @dataclass
@@ -221,8 +222,12 @@ def write_run(run: RunRecord, out_dir: Path, plots, title: str, formats=("csv", 
     if plots and draw and not failed:
         from .. import plots as P
         for p in plots:
-            run.files.append(P.PLOTTERS[p](run.result, out_dir / f"{run.name}-{p}.png",
-                                           system=run.variant.system, title=title))
+            why = P.skip_reason(p, run.result)
+            if why is not None:
+                run.skipped.append((p, why))
+            else:
+                run.files.append(P.PLOTTERS[p](run.result, out_dir / f"{run.name}-{p}.png",
+                                               system=run.variant.system, title=title))
 
 
 def run_extra(variant: Variant, plots, title: str) -> dict:
@@ -272,10 +277,14 @@ def _stream_run(v: Variant, out_dir: Path, fmu_path, progress, scene_name, forma
 
 
 def _counted(result, sink, last=None):
-    """The thinned result of a streamed run with the counts of the whole run (for its file's meta)."""
+    """A streamed run for its file's meta: the counts and settings of the whole run (not those of
+    the thinned copy the plots use)."""
+    import copy
     src = last if last is not None else sink.last
-    result.impacts1, result.impacts2 = src.impacts1, src.impacts2
-    return result
+    out = copy.copy(result)
+    out.impacts1, out.impacts2 = src.impacts1, src.impacts2
+    out.info = {k: v for k, v in src.info.items() if k not in ("rows", "thinned_every")}
+    return out
 
 
 def _title(scene_name: str, name: str) -> str:
@@ -375,7 +384,7 @@ def run_scene(scene, out_dir=None, overrides: dict | None = None, progress: Call
     sr.summary = report.write_summary(out_dir / "summary.md", title=f"Scene `{scene.name}`",
                                       description=scene.description, rows=report.rows(written),
                                       settings=settings_table(scene, chosen), files=files, base=out_dir,
-                                      notes=error_notes(runs) + stream_notes(runs))
+                                      notes=error_notes(runs) + stream_notes(runs) + skipped_notes(runs))
     return sr
 
 
@@ -391,6 +400,10 @@ def _clean(out_dir: Path, created: bool, files) -> None:
             out_dir.rmdir()
         except OSError:
             pass
+
+
+def skipped_notes(runs) -> list[str]:
+    return [f"**{r.name}**: no {p} plot: {why}" for r in runs for p, why in r.skipped]
 
 
 def stream_notes(runs) -> list[str]:
