@@ -172,7 +172,8 @@ class PairResult(RunStatus):
         block = np.column_stack([a.astype(np.float64) for _, a in arrays])
         branch = [i for i, h in enumerate(names) if h.startswith("branch")]
         with open(path, "w", encoding="ascii", newline="\n") as fh:
-            fh.write(",".join(names) + "\n" + csv_lines(block, branch))
+            fh.write(",".join(names) + "\n")
+            fh.writelines(csv_lines(block, branch))
 
 
 @dataclass(repr=False)

@@ -19,7 +19,7 @@ import numpy as np
 from .distance import BRANCH_NAMES
 
 __all__ = ["BRANCH_LABELS", "branch_label", "branch_code", "UNITS", "LONG_NAMES", "layout", "column_headers", "parse_header", "csv_lines", "record_arrays",
-           "to_xarray", "from_xarray", "to_dataframe", "figure", "short_repr", "plain_settings"]
+           "to_xarray", "to_dataframe", "figure", "short_repr", "plain_settings"]
 
 #: a branch code's name; code -1 (BRANCH_NONE: an uncoupled edge, no branch chosen) is "none"
 BRANCH_LABELS = tuple(BRANCH_NAMES) + ("none",)
@@ -119,25 +119,20 @@ def parse_header(text: str) -> tuple[str, int | None, str | None, str | None]:
     return m.group("name"), (int(node) if node else None), m.group("sub"), m.group("unit")
 
 
-def csv_lines(block: np.ndarray, branch_columns=()) -> str:
-    """CSV text of a float block (rows x columns): each number with the digits it needs
-    (Python's shortest repr, which reads back to the same float), the branch columns
-    as names (E, J12, J21, J2)."""
-    rows = block.tolist()
-    if branch_columns:
-        for r in rows:
+def csv_lines(block: np.ndarray, branch_columns=()):
+    """CSV text of a float block (rows x columns), 1024 rows per yielded string (memory: one
+    part at a time): each number with the digits it needs (Python's shortest repr, which
+    reads back to the same float), the branch columns as names (E, J12, J21, J2, none)."""
+    if block.shape[0] == 0:
+        return
+    k = block.shape[1]
+    line = ",".join("%s" if c in branch_columns else "%r" for c in range(k)) + "\n"
+    for a in range(0, block.shape[0], 1024):
+        part = block[a:a + 1024].tolist()
+        for r in part if branch_columns else ():
             for c in branch_columns:
                 r[c] = branch_label(r[c])
-    if not rows:
-        return ""
-    line = ",".join(["%r"] * len(rows[0])) + "\n"
-    if branch_columns:
-        line = ",".join("%s" if c in branch_columns else "%r" for c in range(len(rows[0]))) + "\n"
-    out = []
-    for a in range(0, len(rows), 1024):
-        part = rows[a:a + 1024]
-        out.append((line * len(part)) % tuple(x for r in part for x in r))
-    return "".join(out)
+        yield (line * len(part)) % tuple(x for r in part for x in r)
 
 
 def record_arrays(result) -> list[tuple[str, np.ndarray]]:
@@ -255,46 +250,6 @@ def to_xarray(result, settings: dict | None = None):
     attrs.update({f"info:{k}": _attr(v) for k, v in info.items()})
     attrs.update({k: _attr(v) for k, v in plain_settings(settings or {}).items()})
     return xr.Dataset(data, coords=coords, attrs=attrs)
-
-
-def from_xarray(ds):
-    """The result a :func:`to_xarray` Dataset was made of (same arrays, bit for bit)."""
-    from .result import NetworkResult, PairResult, SimulationResult
-    kind = ds.attrs.get("fmu_sync_result")
-    if kind not in ("single", "pair", "network"):
-        raise ValueError(f"not a run of fmu-sync (attribute fmu_sync_result = {kind!r}; allowed: single, pair, "
-                         "network)")
-    error = ds.attrs.get("error") or None
-    info = {}
-    for k, v in ds.attrs.items():
-        if k.startswith("info:"):
-            try:
-                info[k[5:]] = json.loads(v) if isinstance(v, str) and v[:1] in "[{" else _plain(v)
-            except ValueError:
-                info[k[5:]] = _plain(v)
-    t = ds["t"].values
-    if kind == "single":
-        return SimulationResult(t, ds["q"].values, ds["u"].values, ds["percussion"].values,
-                                str(ds.attrs.get("scheme", "")), float(ds.attrs.get("dt", math.nan)), error=error)
-    has_d = "d" in ds
-    get = lambda k: ds[k].values if has_d else None  # noqa: E731
-    branch = get("branch")
-    branch = None if branch is None else branch.astype(np.int64)
-    if kind == "pair":
-        q, u, tau = ds["q"].values, ds["u"].values, ds["tau"].values
-        coupling = ds.attrs.get("coupling", "none")
-        return PairResult(t, q[:, 0], u[:, 0], q[:, 1], u[:, 1], tau[:, 0], tau[:, 1], get("d"), branch,
-                          get("euclidean"), impacts1=int(ds.attrs.get("impacts1", 0)),
-                          impacts2=int(ds.attrs.get("impacts2", 0)),
-                          coupling=None if coupling == "none" else coupling, info=info, error=error)
-    edges = [(int(i) - 1, int(j) - 1) for i, j in zip(ds["edge_i"].values, ds["edge_j"].values)]
-    return NetworkResult(t, ds["q"].values, ds["u"].values, ds["tau"].values, edges, get("d"), branch,
-                         get("euclidean"), get("V"), json.loads(ds.attrs.get("impacts", "[]")), info=info,
-                         error=error)
-
-
-def _plain(v):
-    return v.item() if isinstance(v, np.generic) else v
 
 
 def to_dataframe(result):

@@ -296,7 +296,7 @@ class RecordWriter:
         if self._csv is not None:
             from .core.views import csv_lines
             block = np.column_stack([a.reshape(rows, -1).astype(np.float64, copy=False) for _, a in arrays])
-            self._csv.write(csv_lines(block, self._branch))
+            self._csv.writelines(csv_lines(block, self._branch))
         for name, a in arrays:
             if name in self._raw:
                 self._dtypes.setdefault(name, a.dtype)

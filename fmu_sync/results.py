@@ -17,7 +17,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-__all__ = ["load", "load_meta", "redraw", "data_files"]
+__all__ = ["load", "load_meta", "from_xarray", "redraw", "data_files"]
 
 _PAIR = ("q1", "u1", "q2", "u2", "tau1", "tau2")
 
@@ -156,7 +156,6 @@ def _from_csv(path: Path):
 # ---------------------------------------------------------------- nc
 def _from_nc(path: Path):
     import xarray as xr
-    from .core.views import from_xarray
     with xr.open_dataset(path, engine="h5netcdf") as ds:
         ds = ds.load()
     if "fmu_sync_result" in ds.attrs:
@@ -165,6 +164,44 @@ def _from_nc(path: Path):
         return ds
     raise ValueError(f"{path.name}: neither a run nor a sweep of fmu-sync (no attribute fmu_sync_result, no "
                      "variables status and decay_rate)")
+
+
+def from_xarray(ds):
+    """The result a :meth:`~fmu_sync.core.result.PairResult.to_xarray` Dataset was made of
+    (same arrays, bit for bit)."""
+    from .core.result import NetworkResult, PairResult, SimulationResult
+    kind = ds.attrs.get("fmu_sync_result")
+    if kind not in ("single", "pair", "network"):
+        raise ValueError(f"not a run of fmu-sync (attribute fmu_sync_result = {kind!r}; allowed: single, pair, "
+                         "network)")
+    error = ds.attrs.get("error") or None
+    info = {}
+    for k, v in ds.attrs.items():
+        if k.startswith("info:"):
+            v = v.item() if isinstance(v, np.generic) else v
+            try:
+                info[k[5:]] = json.loads(v) if isinstance(v, str) and v[:1] in "[{" else v
+            except ValueError:
+                info[k[5:]] = v
+    t = ds["t"].values
+    if kind == "single":
+        return SimulationResult(t, ds["q"].values, ds["u"].values, ds["percussion"].values,
+                                str(ds.attrs.get("scheme", "")), float(ds.attrs.get("dt", float("nan"))),
+                                error=error)
+    has_d = "d" in ds
+    get = lambda k: ds[k].values if has_d else None  # noqa: E731
+    branch = None if not has_d else ds["branch"].values.astype(np.int64)
+    if kind == "pair":
+        q, u, tau = ds["q"].values, ds["u"].values, ds["tau"].values
+        coupling = ds.attrs.get("coupling", "none")
+        return PairResult(t, q[:, 0], u[:, 0], q[:, 1], u[:, 1], tau[:, 0], tau[:, 1], get("d"), branch,
+                          get("euclidean"), impacts1=int(ds.attrs.get("impacts1", 0)),
+                          impacts2=int(ds.attrs.get("impacts2", 0)),
+                          coupling=None if coupling == "none" else coupling, info=info, error=error)
+    edges = [(int(i) - 1, int(j) - 1) for i, j in zip(ds["edge_i"].values, ds["edge_j"].values)]
+    return NetworkResult(t, ds["q"].values, ds["u"].values, ds["tau"].values, edges, get("d"), branch,
+                         get("euclidean"), get("V"), json.loads(ds.attrs.get("impacts", "[]")), info=info,
+                         error=error)
 
 
 # ---------------------------------------------------------------- plots again
