@@ -260,8 +260,8 @@ def redraw(folder, only=None) -> list[Path]:
             if P.skip_reason(p, result) is not None:
                 continue
             written.append(P.PLOTTERS[p](result, folder / f"{name}-{p}.png", system=system, title=title))
-        if k["distance"]:
-            results[name] = result
+        if k["distance"] and meta.get("plots", possible):   # runs drawn without plots (the demo's core
+            results[name] = result                           # references) stay out of the comparison
     if only and not written:
         raise ValueError(f"--only {', '.join(only)}: not drawn for the runs in {folder} ({'; '.join(seen)}); "
                          f"a single system has {', '.join(plots_for(False, False, False))}, a network "
