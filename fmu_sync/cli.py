@@ -4,6 +4,8 @@
     fmu-sync run SCENE [-o DIR] [--set k=v]..  run a built-in scene (name) or a scene file (path)
     fmu-sync run SCENE --convergence           rerun at the step, /2, /4: decay rate and t_sync
     fmu-sync scenes                            list the built-in scenes
+    fmu-sync scenes --show NAME                print a scene as TOML (every key, defaults filled)
+    fmu-sync plot DIR [--only KIND]..          draw a finished run's (or sweep's) plots again from its data
     fmu-sync export ...                        export an FMU (see `fmu-sync export --help`)
     fmu-sync validate FILE.fmu                 check an FMU with fmpy (exit 1 on problems)
     fmu-sync bench [--quick] [-o DIR]          the benchmark report DIR/benchmarks.md (see `fmu-sync bench --help`)
@@ -65,8 +67,8 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--no-plots", action="store_true", help="write data and summary only")
     r.add_argument("--quiet", action="store_true", help="no progress display")
     r.add_argument("--format", dest="formats", default=None, metavar="LIST",
-                   help="data files to write: csv, npz, both (npz,csv) or none "
-                        "(default: the scene's record.formats, csv and npz)")
+                   help="data files to write, comma separated: csv, npz, nc (NetCDF, the result's "
+                        "xarray Dataset) or none (default: the scene's record.formats, csv and npz)")
     r.add_argument("--allow-unstable", action="store_true",
                    help="run even if the coupling exchange is unstable at this step (same as "
                         "--set run.allow_unstable=true); a run that then diverges exits with status 3")
@@ -90,7 +92,16 @@ def _parser() -> argparse.ArgumentParser:
     sp.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                     help="override a scene key, e.g. --set run.t_end=60 (TOML values)")
 
-    sub.add_parser("scenes", help="list the built-in scenes")
+    sc = sub.add_parser("scenes", help="list the built-in scenes, or print one as TOML (--show)")
+    sc.add_argument("--show", metavar="NAME", default=None,
+                    help="print the scene (built-in name or .toml path) as TOML with every key, defaults "
+                         "filled; it loads back to the same scene")
+    pl = sub.add_parser("plot", help="draw a finished run's plots again from its data files (or a sweep's "
+                        "maps from its sweep.nc)")
+    pl.add_argument("dir", type=Path, help="the output folder of `fmu-sync run`, `demo` or `sweep`")
+    pl.add_argument("--only", action="append", default=[], metavar="KIND",
+                    help="draw only this plot (repeatable): positions, distance, impact-zoom, lyapunov, "
+                         "forces, phase")
     sub.add_parser("export", help="export an FMU (options: see `fmu-sync export --help`)", add_help=False)
     v = sub.add_parser("validate", help="validate an FMU with fmpy; exit 1 if it has problems")
     v.add_argument("fmu", type=Path, help="path of the .fmu file")
@@ -125,7 +136,20 @@ def _print_summary(sr, title: str) -> None:
         print("\nnothing written")
 
 
-def _cmd_scenes() -> int:
+def _cmd_plot(args) -> int:
+    from .results import redraw
+    files = redraw(args.dir, [k for x in args.only for k in x.split(",") if k])
+    for f in files:
+        print(f)
+    print(f"\n{len(files)} plot file(s) written to {args.dir}/")
+    return 0
+
+
+def _cmd_scenes(show=None) -> int:
+    if show is not None:
+        from .scenes.reference import scene_toml
+        print(scene_toml(show), end="")
+        return 0
     from .scenes.loading import list_scenes
     from .scenes import SCENE_DIR
     rows = list_scenes()
@@ -294,7 +318,9 @@ def _main(argv) -> int:
             return _cmd_report(argv[1:])
         args = _parser().parse_args(argv)
         if args.command == "scenes":
-            return _cmd_scenes()
+            return _cmd_scenes(args.show)
+        if args.command == "plot":
+            return _cmd_plot(args)
         if args.command == "run":
             return _cmd_run(args)
         if args.command == "ssp":
