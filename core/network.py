@@ -27,7 +27,7 @@ from .model import MechanicalSystem, SystemArrays, as_state
 from .checks import check_run, check_stable, check_start, divergence_message, scheme_code
 from .errors import SimulationDiverged
 from .moreau import DIVERGED, OK, THETA, finish_step, midpoint_step, theta_matrices, theta_step
-from .pair import LAWS, as_systems, check_common_geometry, coupling_step
+from .pair import LAWS, as_systems, check_common_geometry, coupling_step, coupling_step1
 from .result import NetworkResult
 
 __all__ = ["simulate_network", "ring", "path", "star", "all_to_all", "GRAPHS", "graph", "weights",
@@ -154,6 +154,18 @@ def _node(base, K, C, f0, F, Omega, phi, i):
                         base.g0, base.e, base.Minv_w, base.W)
 
 
+@njit(cache=True, inline="always")
+def _edge(law, geo, Kp, Kd, q, u, a, b, t1, t2, c1q, c1u, c2q, c2u, need_d):
+    """:func:`fmu_sync.core.pair.coupling_step` of the edge (a, b) (its 1-DOF float form
+    ``coupling_step1`` for n = 1, the same arithmetic): forces into t1, t2; returns
+    ``(d, branch, euclidean)``."""
+    if q.shape[1] == 1:
+        t1[0], t2[0], d, br, eu = coupling_step1(law, geo.scalar, Kp[0, 0], Kd[0, 0], q[a, 0], u[a, 0], q[b, 0],
+                                                 u[b, 0], need_d)
+        return d, br, eu
+    return coupling_step(law, geo, Kp, Kd, q[a], u[a], q[b], u[b], t1, t2, c1q, c1u, c2q, c2u, need_d)
+
+
 @njit(cache=True)
 def network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, need_d, dk, bk, ek):
     """Every node's input ``tau_i = sum_j a_ij tau_i^(j)`` at the states ``q, u`` (N, n), each
@@ -168,8 +180,7 @@ def network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, 
     for e_ in range(E2.shape[0]):
         a = E2[e_, 0]
         b = E2[e_, 1]
-        d, br, eu = coupling_step(laws[e_], geo, Kp, Kd, q[a], u[a], q[b], u[b], t1, t2,
-                                  c1q, c1u, c2q, c2u, need_d)
+        d, br, eu = _edge(laws[e_], geo, Kp, Kd, q, u, a, b, t1, t2, c1q, c1u, c2q, c2u, need_d)
         if laws[e_] != UNCOUPLED:
             if W2[e_, 0] > 0.0:
                 for c in range(n):
@@ -196,7 +207,7 @@ def node_force(i, laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c
             continue
         w = W2[e_, 0] if i == a else W2[e_, 1]
         if w > 0.0:
-            coupling_step(laws[e_], geo, Kp, Kd, q[a], u[a], q[b], u[b], t1, t2, c1q, c1u, c2q, c2u, False)
+            _edge(laws[e_], geo, Kp, Kd, q, u, a, b, t1, t2, c1q, c1u, c2q, c2u, False)
             for c in range(n):
                 tau[i, c] += w * (t1[c] if i == a else t2[c])
 

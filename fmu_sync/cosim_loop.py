@@ -83,6 +83,14 @@ def fmi_call(typingctx, fn, args):
 
 
 @njit(cache=True, inline="always")
+def _copy(a, b):
+    """b[:, :] = a, element by element (no array views: no reference counting in the loop)."""
+    for i in range(a.shape[0]):
+        for c in range(a.shape[1]):
+            b[i, c] = a[i, c]
+
+
+@njit(cache=True, inline="always")
 def _failed(FAIL, fail_t, code, i, call, status, t):
     FAIL[0] = code
     FAIL[1] = i
@@ -92,7 +100,7 @@ def _failed(FAIL, fail_t, code, i, call, status, t):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _read(fn, comp, i, vr_out, buf, q, u, FAIL, fail_t, t):
     """fmi2GetReal of q_i, u_i (one call, 2n references) into q[i], u[i]."""
     n = q.shape[1]
@@ -105,7 +113,7 @@ def _read(fn, comp, i, vr_out, buf, q, u, FAIL, fail_t, t):
     return False
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _impacts(fn, comp, vr_imp, ibuf, imp, FAIL, fail_t, t):
     """fmi2GetInteger of every instance's impact counter into imp."""
     for i in range(comp.shape[0]):
@@ -116,7 +124,7 @@ def _impacts(fn, comp, vr_imp, ibuf, imp, FAIL, fail_t, t):
     return False
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _give(fn, comp, i, t, h, foh, no_prior, vr_tau, order, tau, hist_tau, hist_t, hist_valid, slope, FAIL,
           fail_t):
     """Instance i: the input bound check, fmi2SetReal(tau_i), for the first-order hold
@@ -126,7 +134,7 @@ def _give(fn, comp, i, t, h, foh, no_prior, vr_tau, order, tau, hist_tau, hist_t
     for c in range(n):
         if not abs(tau[i, c]) <= INPUT_BOUND:   # also catches NaN
             return _failed(FAIL, fail_t, FORCE_BOUND, i, -1, 3, t)
-    st = fmi_call(fn[i, SET_REAL], (comp[i], vr_tau.ctypes.data, np.int64(n), tau[i].ctypes.data))
+    st = fmi_call(fn[i, SET_REAL], (comp[i], vr_tau.ctypes.data, np.int64(n), tau.ctypes.data + np.uint64(8 * n * i)))
     if st > WARNING:
         return _failed(FAIL, fail_t, SLAVE_FAILED, i, SET_REAL, st, t)
     if foh:  # the slope from the inputs at the last communication point (0 on the first step)
@@ -142,7 +150,7 @@ def _give(fn, comp, i, t, h, foh, no_prior, vr_tau, order, tau, hist_tau, hist_t
     return False
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _exchange(fn, comp, vr_out, vr_tau, order, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau, hist_tau,
               hist, ctl, w, FAIL, fail_t):
     """One exchange over [t, t + h]: Jacobi (every input from the same states, then all
@@ -173,21 +181,23 @@ def _exchange(fn, comp, vr_out, vr_tau, order, laws, geo, Kp, Kd, E2, W2, flags,
         for i in range(N):
             if _read(fn, comp, i, vr_out, buf, q, u, FAIL, fail_t, t + h):
                 return True
-    hist_tau[:, :] = tau
+    _copy(tau, hist_tau)
     hist[0] = t
     ctl[HIST_VALID] = 1
     return False
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _record(row, t, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, T, Qr, Ur, TAU, D, BR, EU, scratch, w):
     """Row ``row`` at time t: the states, the inputs held over the step that ended here, and
     each edge's distance (returns False if a distance is not finite)."""
     t1, t2, c1q, c1u, c2q, c2u, dk, bk, ek, buf, slope = w
     T[row] = t
-    Qr[row] = q
-    Ur[row] = u
-    TAU[row] = tau
+    for i in range(q.shape[0]):
+        for c in range(q.shape[1]):
+            Qr[row, i, c] = q[i, c]
+            Ur[row, i, c] = u[i, c]
+            TAU[row, i, c] = tau[i, c]
     if not need_d:
         return True
     network_forces(laws, geo, Kp, Kd, E2, W2, q, u, scratch, t1, t2, c1q, c1u, c2q, c2u, True, dk, bk, ek)
@@ -242,9 +252,9 @@ def exchange_chunk(fn, comp, vr_out, vr_tau, vr_imp, order, laws, geo, Kp, Kd, E
                 if st > WARNING:
                     _failed(FAIL, fail_t, SLAVE_FAILED, i, GET_STATE, st, t)
                     return FAIL[0], k
-            qs[:, :] = q
-            us[:, :] = u
-            hts[:, :] = hist_tau
+            _copy(q, qs)
+            _copy(u, us)
+            _copy(hist_tau, hts)
             hs[0] = hist[0]
             hs[1] = ctl[HIST_VALID]
         if _exchange(fn, comp, vr_out, vr_tau, order, laws, geo, Kp, Kd, E2, W2, flags, t, H, q, u, tau,
@@ -258,7 +268,7 @@ def exchange_chunk(fn, comp, vr_out, vr_tau, vr_imp, order, laws, geo, Kp, Kd, E
                 if imp_new[i] != imp[i]:
                     moved = True
             if moved:  # restore every instance to t and retake [t, t + H] in pieces of about H_min
-                hist_tau[:, :] = hts
+                _copy(hts, hist_tau)
                 hist[0] = hs[0]
                 ctl[HIST_VALID] = np.int64(hs[1])
                 ctl[RETAKES] += 1
@@ -267,8 +277,8 @@ def exchange_chunk(fn, comp, vr_out, vr_tau, vr_imp, order, laws, geo, Kp, Kd, E
                     if st > WARNING:
                         _failed(FAIL, fail_t, SLAVE_FAILED, i, SET_STATE, st, t)
                         return FAIL[0], k
-                q[:, :] = qs
-                u[:, :] = us
+                _copy(qs, q)
+                _copy(us, u)
                 for p in range(pieces):
                     tp = t + p * (H / pieces)
                     hp = (t + H) - tp if p == pieces - 1 else H / pieces
@@ -282,7 +292,8 @@ def exchange_chunk(fn, comp, vr_out, vr_tau, vr_imp, order, laws, geo, Kp, Kd, E
                 if st > WARNING:
                     _failed(FAIL, fail_t, SLAVE_FAILED, i, FREE_STATE, st, t + H)
                     return FAIL[0], k
-        imp[:] = imp_new
+        for i in range(N):
+            imp[i] = imp_new[i]
         t_end = (k + 1) * H
         for i in range(N):
             for c in range(q.shape[1]):
