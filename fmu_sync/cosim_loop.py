@@ -44,8 +44,11 @@ SET_REAL, SET_DER, DO_STEP, GET_REAL, GET_INT, GET_STATE, SET_STATE, FREE_STATE 
 
 # outcome codes of a chunk (FAIL[0])
 DONE, SLAVE_FAILED, FORCE_BOUND, STATE_DIVERGED, DISTANCE_DIVERGED = range(5)
-# ctl: the loop's integer state between chunks
-ROW, RETAKES, HIST_VALID = range(3)
+# ctl: the loop's integer state between chunks (FRESH: tau already holds the Jacobi
+# forces at the current states, computed with the record's distances)
+ROW, RETAKES, HIST_VALID, FRESH = range(4)
+# ptr: addresses of the arrays the FMI calls read or write (taken once, in Python)
+P_VR_OUT, P_VR_TAU, P_VR_IMP, P_ORDER, P_TAU, P_BUF, P_SLOPE, P_IBUF, P_SAVED = range(9)
 # flags: the run's settings
 GAUSS_SEIDEL, FOH, EVENT_AWARE, NEED_D, COUPLED, RECORD_EVERY, PIECES = range(7)
 WARNING = 1
@@ -101,10 +104,10 @@ def _failed(FAIL, fail_t, code, i, call, status, t):
 
 
 @njit(cache=True, inline="always")
-def _read(fn, comp, i, vr_out, buf, q, u, FAIL, fail_t, t):
+def _read(ptr, fn, comp, i, buf, q, u, FAIL, fail_t, t):
     """fmi2GetReal of q_i, u_i (one call, 2n references) into q[i], u[i]."""
     n = q.shape[1]
-    st = fmi_call(fn[i, GET_REAL], (comp[i], vr_out.ctypes.data, np.int64(2 * n), buf.ctypes.data))
+    st = fmi_call(fn[i, GET_REAL], (comp[i], ptr[P_VR_OUT], np.int64(2 * n), ptr[P_BUF]))
     if st > WARNING:
         return _failed(FAIL, fail_t, SLAVE_FAILED, i, GET_REAL, st, t)
     for c in range(n):
@@ -114,10 +117,10 @@ def _read(fn, comp, i, vr_out, buf, q, u, FAIL, fail_t, t):
 
 
 @njit(cache=True, inline="always")
-def _impacts(fn, comp, vr_imp, ibuf, imp, FAIL, fail_t, t):
+def _impacts(ptr, fn, comp, ibuf, imp, FAIL, fail_t, t):
     """fmi2GetInteger of every instance's impact counter into imp."""
     for i in range(comp.shape[0]):
-        st = fmi_call(fn[i, GET_INT], (comp[i], vr_imp.ctypes.data, np.int64(1), ibuf.ctypes.data))
+        st = fmi_call(fn[i, GET_INT], (comp[i], ptr[P_VR_IMP], np.int64(1), ptr[P_IBUF]))
         if st > WARNING:
             return _failed(FAIL, fail_t, SLAVE_FAILED, i, GET_INT, st, t)
         imp[i] = ibuf[0]
@@ -125,7 +128,7 @@ def _impacts(fn, comp, vr_imp, ibuf, imp, FAIL, fail_t, t):
 
 
 @njit(cache=True, inline="always")
-def _give(fn, comp, i, t, h, foh, no_prior, vr_tau, order, tau, hist_tau, hist_t, hist_valid, slope, FAIL,
+def _give(ptr, fn, comp, i, t, h, foh, no_prior, tau, hist_tau, hist_t, hist_valid, slope, FAIL,
           fail_t):
     """Instance i: the input bound check, fmi2SetReal(tau_i), for the first-order hold
     fmi2SetRealInputDerivatives (after the value: setting an input resets its derivative),
@@ -134,14 +137,14 @@ def _give(fn, comp, i, t, h, foh, no_prior, vr_tau, order, tau, hist_tau, hist_t
     for c in range(n):
         if not abs(tau[i, c]) <= INPUT_BOUND:   # also catches NaN
             return _failed(FAIL, fail_t, FORCE_BOUND, i, -1, 3, t)
-    st = fmi_call(fn[i, SET_REAL], (comp[i], vr_tau.ctypes.data, np.int64(n), tau.ctypes.data + np.uint64(8 * n * i)))
+    st = fmi_call(fn[i, SET_REAL], (comp[i], ptr[P_VR_TAU], np.int64(n), ptr[P_TAU] + 8 * n * i))
     if st > WARNING:
         return _failed(FAIL, fail_t, SLAVE_FAILED, i, SET_REAL, st, t)
     if foh:  # the slope from the inputs at the last communication point (0 on the first step)
         for c in range(n):
             slope[c] = (tau[i, c] - hist_tau[i, c]) / (t - hist_t) if hist_valid and t > hist_t else 0.0
-        st = fmi_call(fn[i, SET_DER], (comp[i], vr_tau.ctypes.data, np.int64(n), order.ctypes.data,
-                                       slope.ctypes.data))
+        st = fmi_call(fn[i, SET_DER], (comp[i], ptr[P_VR_TAU], np.int64(n), ptr[P_ORDER],
+                                       ptr[P_SLOPE]))
         if st > WARNING:
             return _failed(FAIL, fail_t, SLAVE_FAILED, i, SET_DER, st, t)
     st = fmi_call(fn[i, DO_STEP], (comp[i], t, h, np.int32(no_prior)))
@@ -151,35 +154,38 @@ def _give(fn, comp, i, t, h, foh, no_prior, vr_tau, order, tau, hist_tau, hist_t
 
 
 @njit(cache=True, inline="always")
-def _exchange(fn, comp, vr_out, vr_tau, order, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau, hist_tau,
+def _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau, hist_tau,
               hist, ctl, w, FAIL, fail_t):
     """One exchange over [t, t + h]: Jacobi (every input from the same states, then all
     step) or Gauss–Seidel (in index order, each input from the newest states); then the
     inputs become the first-order hold's history. ``w``: the scratch arrays."""
     t1, t2, c1q, c1u, c2q, c2u, dk, bk, ek, buf, slope = w
     N = q.shape[0]
+    fresh = ctl[FRESH]
+    ctl[FRESH] = 0
     foh = flags[FOH] != 0
     no_prior = 0 if flags[EVENT_AWARE] else 1
     if flags[GAUSS_SEIDEL]:
         for i in range(N):
             node_force(i, laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u)
-            if _give(fn, comp, i, t, h, foh, no_prior, vr_tau, order, tau, hist_tau, hist[0], ctl[HIST_VALID],
+            if _give(ptr, fn, comp, i, t, h, foh, no_prior, tau, hist_tau, hist[0], ctl[HIST_VALID],
                      slope, FAIL, fail_t):
                 return True
-            if _read(fn, comp, i, vr_out, buf, q, u, FAIL, fail_t, t + h):
+            if _read(ptr, fn, comp, i, buf, q, u, FAIL, fail_t, t + h):
                 return True
     else:
-        network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, False, dk, bk, ek)
+        if fresh == 0:
+            network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, False, dk, bk, ek)
         for i in range(N):
             for c in range(tau.shape[1]):
                 if not abs(tau[i, c]) <= INPUT_BOUND:
                     return _failed(FAIL, fail_t, FORCE_BOUND, i, -1, 3, t)
         for i in range(N):
-            if _give(fn, comp, i, t, h, foh, no_prior, vr_tau, order, tau, hist_tau, hist[0], ctl[HIST_VALID],
+            if _give(ptr, fn, comp, i, t, h, foh, no_prior, tau, hist_tau, hist[0], ctl[HIST_VALID],
                      slope, FAIL, fail_t):
                 return True
         for i in range(N):
-            if _read(fn, comp, i, vr_out, buf, q, u, FAIL, fail_t, t + h):
+            if _read(ptr, fn, comp, i, buf, q, u, FAIL, fail_t, t + h):
                 return True
     _copy(tau, hist_tau)
     hist[0] = t
@@ -188,9 +194,11 @@ def _exchange(fn, comp, vr_out, vr_tau, order, laws, geo, Kp, Kd, E2, W2, flags,
 
 
 @njit(cache=True, inline="always")
-def _record(row, t, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, T, Qr, Ur, TAU, D, BR, EU, scratch, w):
+def _record(row, t, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, jacobi, ctl, T, Qr, Ur, TAU, D, BR, EU, scratch,
+            w):
     """Row ``row`` at time t: the states, the inputs held over the step that ended here, and
-    each edge's distance (returns False if a distance is not finite)."""
+    each edge's distance (returns False if a distance is not finite). Jacobi: the forces
+    of the next step come with the distances (the same states), into ``tau`` (FRESH)."""
     t1, t2, c1q, c1u, c2q, c2u, dk, bk, ek, buf, slope = w
     T[row] = t
     for i in range(q.shape[0]):
@@ -200,7 +208,11 @@ def _record(row, t, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, T, Qr, Ur, TAU
             TAU[row, i, c] = tau[i, c]
     if not need_d:
         return True
-    network_forces(laws, geo, Kp, Kd, E2, W2, q, u, scratch, t1, t2, c1q, c1u, c2q, c2u, True, dk, bk, ek)
+    if jacobi:
+        network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, True, dk, bk, ek)
+        ctl[FRESH] = 1
+    else:
+        network_forces(laws, geo, Kp, Kd, E2, W2, q, u, scratch, t1, t2, c1q, c1u, c2q, c2u, True, dk, bk, ek)
     ok = True
     for e_ in range(E2.shape[0]):
         D[row, e_] = dk[e_]
@@ -212,14 +224,16 @@ def _record(row, t, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, T, Qr, Ur, TAU
 
 
 @njit(cache=True)
-def exchange_chunk(fn, comp, vr_out, vr_tau, vr_imp, order, laws, geo, Kp, Kd, E2, W2, flags, H, k0, k1, q, u,
+def exchange_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, H, k0, k1, q, u,
                    tau, hist_tau, hist, imp, ctl, saved, keep, T, Qr, Ur, TAU, D, BR, EU, w, FAIL, fail_t):
     """Communication steps ``k0 .. k1 - 1`` (time ``k H``); ``k0 = -1`` first reads the start
     states and impact counters and records row 0.
 
-    ``fn`` (N, len(CALLS)) function addresses, ``comp`` (N,) component handles; ``vr_out``
-    (2n,) the references of q, u; ``vr_tau`` (n,) of tau; ``vr_imp`` (1,) of the impact
-    counter; ``order`` (n,) int32 ones. ``flags`` (:data:`GAUSS_SEIDEL` ...); ``q, u, tau``
+    ``ptr`` (:data:`P_VR_OUT` ...) the addresses of the arrays the FMI calls read or write:
+    the value references of q, u (2n,), of tau (n,) and of the impact counter (1,), the
+    derivative orders (n,) int32 ones, ``tau``, ``w[9]`` (2n,) and ``w[10]`` (n,) (outputs
+    and slopes), ``keep[6]`` (1,) int32, ``saved``; ``fn`` (N, len(CALLS)) function
+    addresses, ``comp`` (N,) component handles. ``flags`` (:data:`GAUSS_SEIDEL` ...); ``q, u, tau``
     (N, n) the current states and inputs; ``hist_tau``, ``hist`` (time) the first-order
     hold's history; ``imp`` (N,); ``ctl`` (row, retakes, history valid); ``saved`` (N,) FMU
     state handles; ``keep``: copies for the retake (q, u, hist_tau, hist, ctl). The record
@@ -227,18 +241,20 @@ def exchange_chunk(fn, comp, vr_out, vr_tau, vr_imp, order, laws, geo, Kp, Kd, E
     and the last step done."""
     N = q.shape[0]
     need_d = flags[NEED_D] != 0
+    jacobi = flags[GAUSS_SEIDEL] == 0
     qs, us, hts, hs, scratch, imp_new, ibuf = keep
     FAIL[0] = DONE
     if k0 < 0:
         for i in range(N):
-            if _read(fn, comp, i, vr_out, w[9], q, u, FAIL, fail_t, 0.0):
+            if _read(ptr, fn, comp, i, w[9], q, u, FAIL, fail_t, 0.0):
                 return FAIL[0], 0
-        if _impacts(fn, comp, vr_imp, ibuf, imp, FAIL, fail_t, 0.0):
+        if _impacts(ptr, fn, comp, ibuf, imp, FAIL, fail_t, 0.0):
             return FAIL[0], 0
         if flags[COUPLED]:
             network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, w[0], w[1], w[2], w[3], w[4], w[5], False,
                            w[6], w[7], w[8])
-        _record(0, 0.0, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, T, Qr, Ur, TAU, D, BR, EU, scratch, w)
+        _record(0, 0.0, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, jacobi, ctl, T, Qr, Ur, TAU, D, BR, EU, scratch,
+                w)
         ctl[ROW] = 1
         k0 = 0
     pieces = flags[PIECES]
@@ -248,7 +264,7 @@ def exchange_chunk(fn, comp, vr_out, vr_tau, vr_imp, order, laws, geo, Kp, Kd, E
         if flags[EVENT_AWARE]:
             for i in range(N):
                 saved[i] = 0
-                st = fmi_call(fn[i, GET_STATE], (comp[i], saved.ctypes.data + np.uint64(8 * i)))
+                st = fmi_call(fn[i, GET_STATE], (comp[i], ptr[P_SAVED] + 8 * i))
                 if st > WARNING:
                     _failed(FAIL, fail_t, SLAVE_FAILED, i, GET_STATE, st, t)
                     return FAIL[0], k
@@ -257,10 +273,10 @@ def exchange_chunk(fn, comp, vr_out, vr_tau, vr_imp, order, laws, geo, Kp, Kd, E
             _copy(hist_tau, hts)
             hs[0] = hist[0]
             hs[1] = ctl[HIST_VALID]
-        if _exchange(fn, comp, vr_out, vr_tau, order, laws, geo, Kp, Kd, E2, W2, flags, t, H, q, u, tau,
+        if _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, H, q, u, tau,
                      hist_tau, hist, ctl, w, FAIL, fail_t):
             return FAIL[0], k
-        if _impacts(fn, comp, vr_imp, ibuf, imp_new, FAIL, fail_t, t + H):
+        if _impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + H):
             return FAIL[0], k
         if flags[EVENT_AWARE]:
             moved = False
@@ -282,13 +298,13 @@ def exchange_chunk(fn, comp, vr_out, vr_tau, vr_imp, order, laws, geo, Kp, Kd, E
                 for p in range(pieces):
                     tp = t + p * (H / pieces)
                     hp = (t + H) - tp if p == pieces - 1 else H / pieces
-                    if _exchange(fn, comp, vr_out, vr_tau, order, laws, geo, Kp, Kd, E2, W2, flags, tp, hp, q,
+                    if _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, tp, hp, q,
                                  u, tau, hist_tau, hist, ctl, w, FAIL, fail_t):
                         return FAIL[0], k
-                if _impacts(fn, comp, vr_imp, ibuf, imp_new, FAIL, fail_t, t + H):
+                if _impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + H):
                     return FAIL[0], k
             for i in range(N):
-                st = fmi_call(fn[i, FREE_STATE], (comp[i], saved.ctypes.data + np.uint64(8 * i)))
+                st = fmi_call(fn[i, FREE_STATE], (comp[i], ptr[P_SAVED] + 8 * i))
                 if st > WARNING:
                     _failed(FAIL, fail_t, SLAVE_FAILED, i, FREE_STATE, st, t + H)
                     return FAIL[0], k
@@ -302,8 +318,8 @@ def exchange_chunk(fn, comp, vr_out, vr_tau, vr_imp, order, laws, geo, Kp, Kd, E
                     return FAIL[0], k
         if (k + 1) % every == 0:
             row = ctl[ROW]
-            if not _record(row, t_end, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, T, Qr, Ur, TAU, D, BR, EU,
-                           scratch, w):
+            if not _record(row, t_end, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, jacobi, ctl, T, Qr, Ur, TAU, D,
+                           BR, EU, scratch, w):
                 _failed(FAIL, fail_t, DISTANCE_DIVERGED, -1, -1, 0, t_end)
                 return FAIL[0], k
             ctl[ROW] = row + 1

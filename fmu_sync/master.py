@@ -9,12 +9,14 @@ the core's compiled :func:`fmu_sync.core.pair.coupling_step` — the same functi
 the monolithic :func:`fmu_sync.core.simulate_pair` calls every step. With ``H``
 equal to the slaves' internal step the two runs agree to round-off.
 
-Structure (after fmpy's ``simulate_fmu``): :class:`FmuInstance` is a thin,
-status-checked wrapper of one instance; :class:`NetworkMaster` holds one run,
-with one method per exchange strategy (``step_jacobi``, ``step_gauss_seidel``;
-a new strategy is one more ``step_<name>`` method), the event-aware retake and
-the recording as methods; :func:`cosimulate_network` and :func:`cosimulate`
-are the plain functional entry points.
+Structure: :class:`FmuInstance` is a thin, status-checked wrapper of one
+instance (fmpy loads, initialises and frees it); :class:`NetworkMaster` holds one
+run: it checks the arguments, sets the instances up and hands their FMI C function
+pointers and component handles to the compiled exchange loop
+(:mod:`fmu_sync.cosim_loop`), which runs the communication steps in chunks
+(Jacobi or Gauss–Seidel, zero- or first-order hold, the event-aware retake, the
+record); :func:`cosimulate_network` and :func:`cosimulate` are the plain
+functional entry points.
 
 Failure convention (docs/design.md §5.1): bad arguments or a foreign FMU raise
 a ValueError before any instance is created; an exchange known to be unstable
@@ -27,6 +29,7 @@ recorded up to the failure (finite rows only).
 """
 from __future__ import annotations
 
+import functools
 import math
 import shutil
 from pathlib import Path
@@ -129,6 +132,20 @@ class FmuInstance:
         self.host.close()
 
 
+@functools.lru_cache(maxsize=16)
+def _read_description(path: str, stamp: tuple):
+    from fmpy import read_model_description
+    return read_model_description(path)
+
+
+def model_description(fmu: str):
+    """fmpy's model description of an .fmu or an unpacked FMU folder, parsed once per process
+    for a file that has not changed (many runs of one FMU in a sweep worker)."""
+    f = Path(fmu) / "modelDescription.xml" if Path(fmu).is_dir() else Path(fmu)
+    st = f.stat()
+    return _read_description(str(fmu), (st.st_mtime_ns, st.st_size))
+
+
 def fmu_model(md):
     """The contract's model of an FMU (from its model description); a foreign FMU
     raises :class:`fmu_sync.fmus.contract.ContractError` naming the missing variables."""
@@ -184,10 +201,11 @@ class NetworkMaster:
                 raise ValueError(f"start_values must be one dict or a sequence of N = {N} dicts (one "
                                  f"per instance), got {len(self.start_values)}")
         self.fmu = str(fmu)
-        if not Path(self.fmu).is_file():
-            raise FileNotFoundError(f"FMU not found: {self.fmu}")
-        from fmpy import read_model_description
-        self.md = read_model_description(self.fmu)
+        self.unpacked = Path(self.fmu).is_dir()   # an unpacked FMU: used in place, kept
+        if not (Path(self.fmu).is_file() or (self.unpacked and (Path(self.fmu) / "modelDescription.xml").is_file())):
+            raise FileNotFoundError(f"FMU not found: {self.fmu} (an .fmu file or an unpacked FMU folder "
+                                    f"with its modelDescription.xml)")
+        self.md = model_description(self.fmu)
         self.model = fmu_model(self.md)  # a foreign FMU fails here, naming what it lacks
         self.hold = check_hold(hold, self.md, self.fmu)
         self.H, self.n_steps, self.record_every = H, n_steps, record_every
@@ -299,18 +317,22 @@ class NetworkMaster:
         flags[loop.PIECES] = max(1, int(math.ceil(self.H / self.H_min - 1e-9))) if self.event_aware else 1
         z = (lambda: np.zeros((N, n)))
         self.q, self.u, self.tau = z(), z(), z()
-        self.imp, self.ctl = np.zeros(N, dtype=np.int64), np.zeros(3, dtype=np.int64)
+        self.imp, self.ctl = np.zeros(N, dtype=np.int64), np.zeros(4, dtype=np.int64)
         E = len(self.edges)
         work = chain_work(n)
         w = (np.zeros(n), np.zeros(n), *work, np.zeros(E), np.zeros(E, dtype=np.int64), np.zeros(E),
              np.zeros(2 * n), np.zeros(n))
         keep = (z(), z(), z(), np.zeros(2), z(), np.zeros(N, dtype=np.int64), np.zeros(1, dtype=np.int32))
         self.FAIL, self.fail_t = np.zeros(4, dtype=np.int64), np.zeros(1)
-        self.loop_args = (self.fn, self.comp, self.vr_out, self.vr_tau, self.vr_imp, np.ones(n, dtype=np.int32),
-                          self.laws, self.geo, self.Kp_m, self.Kd_m, E2, W2, flags, float(self.H))
-        self.loop_state = (self.q, self.u, self.tau, z(), np.zeros(1), self.imp, self.ctl,
-                           np.zeros(N, dtype=np.int64), keep, self.T, self.Qr, self.Ur, self.TAU, self.D, self.BR,
-                           self.EU, w, self.FAIL, self.fail_t)
+        saved = np.zeros(N, dtype=np.int64)
+        # the arrays the FMI calls read or write, by address (cosim_loop.P_*); they live as long as the run
+        self.held = (self.vr_out, self.vr_tau, self.vr_imp, np.ones(n, dtype=np.int32), self.tau, w[9], w[10],
+                     keep[6], saved)
+        ptr = np.array([a.ctypes.data for a in self.held], dtype=np.int64)
+        self.loop_args = (ptr, self.fn, self.comp, self.laws, self.geo, self.Kp_m, self.Kd_m, E2, W2, flags,
+                          float(self.H))
+        self.loop_state = (self.q, self.u, self.tau, z(), np.zeros(1), self.imp, self.ctl, saved, keep, self.T,
+                           self.Qr, self.Ur, self.TAU, self.D, self.BR, self.EU, w, self.FAIL, self.fail_t)
 
     def _chunk(self, k0: int, k1: int) -> int:
         """Steps k0 .. k1 - 1 in the compiled loop; returns its outcome code."""
@@ -342,7 +364,8 @@ class NetworkMaster:
         (``partial``: the finite record so far). The compiled loop runs in chunks
         of steps, so ``progress(fraction)`` is called and Ctrl-C is honoured between them."""
         from fmpy import extract
-        unzipdir = extract(self.fmu)  # one unpacked copy shared by all instances, removed at the end
+        # one unpacked copy shared by all instances, removed at the end (an unpacked folder is kept)
+        unzipdir = self.fmu if self.unpacked else extract(self.fmu)
         failure = None
         try:
             self._start(unzipdir)
@@ -364,7 +387,8 @@ class NetworkMaster:
         finally:
             for s in self.slaves:
                 s.close()
-            shutil.rmtree(unzipdir, ignore_errors=True)
+            if not self.unpacked:
+                shutil.rmtree(unzipdir, ignore_errors=True)
         self.retakes = int(self.ctl[loop.RETAKES])
         res = self.result(int(self.ctl[loop.ROW]), [int(v) for v in self.imp], None if failure is None else str(failure))
         if failure is not None:
@@ -419,7 +443,8 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
 
     Parameters
     ----------
-    fmu : path to the .fmu (an fmu-sync mechanical model, see ``fmu-sync export``).
+    fmu : path to the .fmu (an fmu-sync mechanical model, see ``fmu-sync export``), or to an
+        unpacked FMU folder (used in place and kept: a sweep worker unpacks once for all its runs).
     x1, x2 : start states (q, u) of the two instances (set as ``q_start``/``u_start``).
     t_end, H : stop time and communication step; the run makes ``floor(t_end/H)`` steps.
     coupling : None, ``"switching"`` (quotient coupling) or ``"euclidean"`` (PD baseline).
