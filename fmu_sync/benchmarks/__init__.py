@@ -26,7 +26,7 @@ from pathlib import Path
 __all__ = ["main", "EXTRA_SECTIONS"]
 
 #: optional sibling benchmark modules, included when they provide ``run(quick) -> markdown``
-EXTRA_SECTIONS = ("fmu_cost", "sweep_speed")  # distance_cost is part of core_speed
+EXTRA_SECTIONS = ("fmu_cost", "sweep_speed", "cosim_speed")  # distance_cost is part of core_speed
 
 
 def _versions() -> str:
