@@ -67,13 +67,11 @@ def _libcosim_runner(fmu):
 
 def pair_costs(fmu, n1: int, n2: int, repeat: int) -> dict:
     """µs per communication step: co-simulated pair, simulate_pair, libcosimpy (two instances)."""
+    from fmu_sync import cosimulate
     from fmu_sync.core import simulate_pair
-    from fmu_sync.master import cosimulate
-    from fmu_sync.scenes.running import fmu_start_values
     v = _variant()
-    sv = fmu_start_values(fmu, v)
     kw = dict(coupling=VARIANT, Kp=v.Kp, Kd=v.Kd)
-    cos = (lambda n: cosimulate(fmu, v.x1, v.x2, n * DT, DT, start_values=sv, **kw))
+    cos = (lambda n: cosimulate(fmu, v.x1, v.x2, n * DT, DT, **kw))
     core = (lambda n: simulate_pair(v.system, v.x1, v.x2, n * DT, DT, **kw))
     cos(10)
     core(10)
@@ -86,11 +84,10 @@ def pair_costs(fmu, n1: int, n2: int, repeat: int) -> dict:
 
 def ring_costs(fmu, n1: int, n2: int, repeat: int) -> dict:
     """µs per communication step of a ring of 8, co-simulated and in the core (H = dt = 10 ms)."""
-    from fmu_sync.core.network import ring, simulate_network
-    from fmu_sync.master import cosimulate_network
-    from fmu_sync.scenes.running import fmu_start_values
+    from fmu_sync import cosimulate_network
+    from fmu_sync.core import ring, simulate_network
     v = _variant()
-    sv = {**fmu_start_values(fmu, v), "solver.dt": 1e-2}
+    sv = {"solver.dt": 1e-2}
     xs = [(0.2 + 0.9 * (i % 3) / 2, 0.5 * ((i * 7) % 5 - 2) / 2) for i in range(8)]
     kw = dict(coupling="switching", Kp=4.0, Kd=2.0)
     cos = (lambda n: cosimulate_network(fmu, xs, ring(8), n * 1e-2, 1e-2, start_values=sv, **kw))
@@ -121,8 +118,10 @@ def gain_map_times(side: int, t_end: float) -> dict:
 
 def measure(quick: bool = False) -> dict:
     with tempfile.TemporaryDirectory(prefix="fmu-sync-cosim-bench-") as tmp:
-        from fmu_sync.scenes.running import export_for
-        fmu = export_for(_variant(), tmp)
+        from fmu_sync import export_fmu
+        from fmu_sync.fmus.contract import model as contract_model
+        model = contract_model("impact-oscillator")
+        fmu = export_fmu(model.key, f"{tmp}/osc.fmu", {**model.values(_variant().system), "solver.dt": DT})
         n1, n2, rep = (2000, 20000, 3) if quick else (5000, 100000, 5)
         pair = pair_costs(fmu, n1, n2, rep)
         ring = ring_costs(fmu, n1 // 5, n2 // 5, rep)
