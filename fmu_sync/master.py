@@ -165,12 +165,14 @@ class NetworkMaster:
 
     The constructor checks every argument (ValueError) and identifies the FMU
     through the contract; :meth:`run` creates the instances, runs and frees them.
-    Exchange strategies are the methods ``step_<method>`` (``method`` with ``-``
-    read as ``_``): each takes one communication step ``[t, t + h]`` from the
-    states ``x`` and returns the new states.
+    Exchange strategies are branches of the compiled loop's ``_exchange``
+    (:mod:`fmu_sync.cosim_loop`), named in ``METHODS``; ``DELAY`` maps the name of
+    a delayed order to its ``flags[DELAY]`` code (none here:
+    :class:`fmu_sync.ssp_master.SspMaster` names the other masters' orders).
     """
 
     METHODS = ("jacobi", "gauss-seidel")
+    DELAY: dict = {}
 
     def __init__(self, fmu, states, A, t_end: float, H: float, coupling: str | None = "switching",
                  Kp=0.0, Kd=0.0, Q=None, method: str = "jacobi", record_every: int = 1,
@@ -310,14 +312,15 @@ class NetworkMaster:
         ref = (lambda names: np.array([self.slaves[0].vr[v].valueReference for v in names], dtype=np.uint32))
         self.vr_out, self.vr_tau, self.vr_imp = ref(model.q + model.u), ref(model.tau), ref([contract.IMPACTS])
         E2, W2 = edge_arrays(self.A, self.edges)
-        flags = np.zeros(7, dtype=np.int64)
+        flags = np.zeros(loop.FLAGS, dtype=np.int64)
         flags[[loop.GAUSS_SEIDEL, loop.FOH, loop.EVENT_AWARE, loop.NEED_D, loop.COUPLED]] = [
             self.method == "gauss-seidel", self.hold == "foh", self.event_aware, self.need_d, self.coupled]
         flags[loop.RECORD_EVERY] = self.record_every
+        flags[loop.DELAY] = self.DELAY.get(self.method, loop.NOT_DELAYED)
         flags[loop.PIECES] = max(1, int(math.ceil(self.H / self.H_min - 1e-9))) if self.event_aware else 1
         z = (lambda: np.zeros((N, n)))
         self.q, self.u, self.tau = z(), z(), z()
-        self.imp, self.ctl = np.zeros(N, dtype=np.int64), np.zeros(4, dtype=np.int64)
+        self.imp, self.ctl = np.zeros(N, dtype=np.int64), np.zeros(loop.CTL, dtype=np.int64)
         E = len(self.edges)
         work = chain_work(n)
         w = (np.zeros(n), np.zeros(n), *work, np.zeros(E), np.zeros(E, dtype=np.int64), np.zeros(E),
@@ -331,7 +334,7 @@ class NetworkMaster:
         ptr = np.array([a.ctypes.data for a in self.held], dtype=np.int64)
         self.loop_args = (ptr, self.fn, self.comp, self.laws, self.geo, self.Kp_m, self.Kd_m, E2, W2, flags,
                           float(self.H))
-        self.loop_state = (self.q, self.u, self.tau, z(), np.zeros(1), self.imp, self.ctl, saved, keep, self.T,
+        self.loop_state = (self.q, self.u, self.tau, z(), z(), np.zeros(1), self.imp, self.ctl, saved, keep, self.T,
                            self.Qr, self.Ur, self.TAU, self.D, self.BR, self.EU, w, self.FAIL, self.fail_t)
 
     def _chunk(self, k0: int, k1: int) -> int:
