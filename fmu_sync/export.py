@@ -48,7 +48,7 @@ __all__ = ["MODELS", "export_fmu", "main_export", "model_class", "carried_files"
 
 #: The export keys: the FMU contract's model registry.
 MODELS = contract.MODELS
-#: most internal steps one fmi2DoStep may take (larger steps are refused with fmi2Discard)
+#: most internal steps one fmi2DoStep may take (larger steps are refused with fmi2Error)
 MAX_SUBSTEPS = 10_000_000
 
 _ZIP_DATE = (2020, 1, 1, 0, 0, 0)
@@ -220,6 +220,9 @@ def export_fmu(model: str = "impact-oscillator", path=None, start_values: dict |
                 info.compress_type = zipfile.ZIP_DEFLATED
                 info.external_attr = (0o755 if name.endswith(".so") else 0o644) << 16
                 zf.writestr(info, data)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)      # as any other output file (mkstemp made it 0600)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

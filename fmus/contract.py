@@ -27,7 +27,8 @@ import numpy as np
 
 from ..core.model import MechanicalSystem
 
-__all__ = ["Var", "FmuModel", "ContractError", "MODELS", "POSITIVE_MIN", "INPUT_BOUND", "SCHEME_TYPE", "SCHEME_ITEMS",
+__all__ = ["Var", "FmuModel", "ContractError", "MODELS", "POSITIVE_MIN", "INPUT_BOUND", "STATE_BOUND",
+           "SCHEME_TYPE", "SCHEME_ITEMS",
            "SOLVER_DT", "SOLVER_SCHEME", "SOLVER_THETA", "GAP", "IMPACTS", "PERCUSSION", "ENERGY",
            "model", "model_for", "identify", "indexed", "scheme_value", "scheme_name"]
 
@@ -42,6 +43,10 @@ POSITIVE_MIN = 2.2250738585072014e-308
 #: modelDescription.xml; the FMU's binary refuses other values at fmi2SetReal).
 #: Larger forces are far outside any mechanical model and overflow the energy.
 INPUT_BOUND = 1e12
+#: Positions and velocities must lie in [-STATE_BOUND, STATE_BOUND]: the bounds of
+#: q_start and u_start, of q and u in an FMU state (fmi2SetFMUstate,
+#: fmi2DeSerializeFMUstate) and of the state a doStep reaches (else rolled back).
+STATE_BOUND = 1e12
 
 SCHEME_TYPE = "fmu_sync.Scheme"
 #: FMI enumeration items of solver.scheme: (name, value, description); the
@@ -309,8 +314,9 @@ def _io_declare() -> list[Var]:
         _param("Omega", "rad/s", "Angular frequency of the harmonic force", 2.5, min=0.0),
         _param("phi", "rad", "Phase of the harmonic force", 0.0),
         _param("e", "1", "Newton restitution coefficient at the wall", 0.9, min=0.0, max=1.0),
-        _param("q_start", "m", "Initial position (the wall is q = 0: q_start >= 0)", 1.0, min=0.0),
-        _param("u_start", "m/s", "Initial velocity", 0.0),
+        _param("q_start", "m", "Initial position (the wall is q = 0: q_start >= 0)", 1.0, min=0.0,
+               max=STATE_BOUND),
+        _param("u_start", "m/s", "Initial velocity", 0.0, min=-STATE_BOUND, max=STATE_BOUND),
     ]
     return _inputs(1) + outputs + params + _solver_variables()
 
@@ -327,8 +333,8 @@ def _matrix_params(sym, unit, what, values, diag_min, n=_N2):
                    values[i][j], min=diag_min if i == j else None) for i in range(n) for j in range(n)]
 
 
-def _vector_params(sym, unit, what, values, min=None, n=_N2):
-    return [_param(f"{sym}[{i + 1}]", unit, f"{what}, component {i + 1}", values[i], min=min)
+def _vector_params(sym, unit, what, values, min=None, n=_N2, max=None):
+    return [_param(f"{sym}[{i + 1}]", unit, f"{what}, component {i + 1}", values[i], min=min, max=max)
             for i in range(n)]
 
 
@@ -352,8 +358,9 @@ def _ms2_declare() -> list[Var]:
         + _vector_params("w", "1", "Wall normal w in g(q) = w^T q + g0 (not zero)", (1.0, 0.5))
         + [_param("g0", "m", "Wall offset g0 in g(q) = w^T q + g0", 0.0),
            _param("e", "1", "Newton restitution coefficient at the wall", 0.7, min=0.0, max=1.0)]
-        + _vector_params("q_start", "m", "Initial position (g(q_start) >= 0)", (0.6, 0.2))
-        + _vector_params("u_start", "m/s", "Initial velocity", (0.0, 0.0))
+        + _vector_params("q_start", "m", "Initial position (g(q_start) >= 0)", (0.6, 0.2),
+                         min=-STATE_BOUND, max=STATE_BOUND)
+        + _vector_params("u_start", "m/s", "Initial velocity", (0.0, 0.0), min=-STATE_BOUND, max=STATE_BOUND)
     )
     return _inputs(n) + outputs + params + _solver_variables()
 

@@ -41,8 +41,9 @@ def _q_u_names(n):
 class FMUInstance:
     """One instance: variable array, table, work array; validation and state."""
 
-    def __init__(self, slave_cls, start_values: dict):
+    def __init__(self, slave_cls, start_values: dict, max_substeps: float = math.inf):
         self.cls = slave_cls
+        self.max_substeps = max_substeps     # the binary's limit of internal steps per doStep
         self.vars = slave_cls.variables(start_values)
         nv = len(self.vars)
         self.index = {v.name: i for i, v in enumerate(self.vars)}
@@ -174,7 +175,20 @@ class FMUInstance:
         self.x[self.i_perc] = 0.0
         self.work[S.H_VREF] = 0.0               # the exact run's velocity scale: set by its first step
         self._outputs_from_stepper()
-        return ""
+        return self._default_step_warning(cfg)
+
+    def _default_step_warning(self, cfg) -> str:
+        """A notice when the default experiment's step needs more internal steps than a doStep may take
+        (logged as a warning; the call stays OK: an importer may use smaller steps, and some importers,
+        fmusim for one, stop at any status other than OK)."""
+        H = float(self.cls.DEFAULT_EXPERIMENT["stepSize"])
+        count = math.ceil(H / cfg.dt - 1e-9)      # as fsr_step (fmus/c/fmu_sync_runtime.c) counts them
+        if cfg.scheme == S.EXACT or count <= self.max_substeps:
+            return ""
+        return (f"N:fmi2ExitInitializationMode: solver.dt = {cfg.dt:g} makes a doStep of the default "
+                f"experiment's step H = {H:g} (modelDescription.xml) need {count:.6g} internal steps, more "
+                f"than the limit {self.max_substeps:.0f}: every doStep with H > {self.max_substeps * cfg.dt:.6g} "
+                f"will be refused (fmi2Error); use solver.dt >= {H / self.max_substeps:.6g} or smaller steps")
 
     def reset(self) -> str:
         self._reset_values()
@@ -239,8 +253,10 @@ class FMUInstance:
         return "", s
 
 
-def create(slave_cls, resources_dir: str, model: str) -> tuple[str, FMUInstance | None]:
-    """A new instance with the start values of ``resources/fmu_sync_start.json``."""
+def create(slave_cls, resources_dir: str, model: str,
+           max_substeps: float = math.inf) -> tuple[str, FMUInstance | None]:
+    """A new instance with the start values of ``resources/fmu_sync_start.json``;
+    ``max_substeps``: the binary's limit of internal steps per doStep (from the build record)."""
     path = os.path.join(resources_dir, START_FILE)
     try:
         with open(path, encoding="utf-8") as f:
@@ -253,4 +269,4 @@ def create(slave_cls, resources_dir: str, model: str) -> tuple[str, FMUInstance 
         starts = slave_cls.normalize_start_values(data.get("start", {}))
     except ValueError as exc:
         return f"E:fmi2Instantiate: bad start value in {path}: {exc}", None
-    return "", FMUInstance(slave_cls, starts)
+    return "", FMUInstance(slave_cls, starts, max_substeps)

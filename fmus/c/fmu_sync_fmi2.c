@@ -6,10 +6,12 @@
  *
  * In the style of Reference-FMUs' fmi2Functions.c: one table of the states in
  * which each call is allowed (bit masks, FMI 2.0 section 4.2.4), checked in one
- * place (invalid()); every refused call returns fmi2Error (fmi2Discard only for
- * a step computed over a subinterval) and logs its reason. fmi2DoStep,
- * fmi2GetReal/Integer and fmi2SetReal/Integer work on the plain C array of all
- * variables (indexed by value reference) without Python.
+ * place (invalid()); every refused call returns fmi2Error and logs its reason.
+ * A doStep that cannot complete is fmi2Error too, the state rolled back
+ * (fmi2Discard is for a step computed over a subinterval, which this FMU never
+ * does; an importer would retry a discarded step forever): docs/design.md §5.1.
+ * fmi2DoStep, fmi2GetReal/Integer and fmi2SetReal/Integer work on the plain C
+ * array of all variables (indexed by value reference) without Python.
  *
  * Compile-time definitions (from fmu_sync.export): FMU_SYNC_GUID (and, for the
  * runtime, FMU_SYNC_BOOT and FMU_SYNC_MAX_SUBSTEPS).
@@ -308,6 +310,8 @@ EXPORT fmi2Status fmi2SetupExperiment(fmi2Component comp, fmi2Boolean toleranceD
         return refuse(c, fmi2Error, "fmi2SetupExperiment: stopTime = %s must be >= startTime = %s",
                       G(stopTime), G(startTime));
     c->rt.work[FSR_H_TIME] = startTime;
+    c->rt.stop_defined = stopTimeDefined ? 1 : 0;    /* enforced by every doStep (fsr_step) */
+    c->rt.stop_time = stopTime;
     c->last_successful_time = startTime;
     return fmi2OK;
 }
@@ -344,6 +348,7 @@ EXPORT fmi2Status fmi2Reset(fmi2Component comp) {
     fmi2Status s = call_py(c, "reset", NULL);
     if (s >= fmi2Error) return s;
     c->state = ST_INSTANTIATED;
+    c->rt.stop_defined = 0;              /* as after fmi2Instantiate: no experiment set up */
     c->last_successful_time = c->rt.work[FSR_H_TIME];
     return s;
 }

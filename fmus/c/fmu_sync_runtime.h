@@ -14,8 +14,10 @@
  *   fsr_call(inst, method, state)   a reply method of the instance ("exit_initialization",
  *                                   "refresh", "reset", "set_state"), GIL taken inside
  *   fsr_state_get / _set / _free / _serialize / _deserialize   FMU states (Python snapshots)
- *   fsr_step(inst, t, H)            one communication step: argument checks, the numba stepper
- *                                   called through its address, no Python, no GIL
+ *   fsr_step(inst, t, H)            one communication step: argument checks (H, t, stopTime,
+ *                                   a time that advances, the internal-step limit), the numba
+ *                                   stepper called through its address, no Python, no GIL;
+ *                                   a step that cannot complete is FSR_ERROR, rolled back
  *   fsr_free(inst)
  *
  * Every call that can fail returns an fsr status, numerically equal to fmi2Status and
@@ -39,7 +41,10 @@ enum { FSR_C_PARAMETER = 0, FSR_C_INPUT = 1, FSR_C_OUTPUT = 2 };
 
 /* work array header (fmus/stepper.py: H_*) read by the C side */
 enum { FSR_H_LEN = 0, FSR_H_VERSION = 1, FSR_H_TIME = 2, FSR_H_PHASE = 3, FSR_H_DT = 4, FSR_H_CONFIGURED = 5,
-       FSR_H_M = 7, FSR_H_SCHEME = 9, FSR_H_ITAU = 14, FSR_H_ITAUDOT = 20 };
+       FSR_H_M = 7, FSR_H_SCHEME = 9, FSR_H_ITAU = 14, FSR_H_ITAUDOT = 20, FSR_H_MAXEV = 22,
+       FSR_H_BOUND = 23 };
+/* return codes of the stepper (fmus/stepper.py: R_*) */
+enum { FSR_R_OK = 0, FSR_R_ROLLED_BACK = 1, FSR_R_EXACT_TAUDOT = 2, FSR_R_EXACT_EVENTS = 3, FSR_R_EXACT_STALL = 4 };
 #define FSR_WORK_VERSION 2.0
 #define FSR_SCHEME_EXACT 2.0        /* fmus/stepper.py: EXACT */
 
@@ -58,6 +63,8 @@ typedef struct fsr_instance {
     fsr_stepper stepper;
     const char **name_of;           /* per variable: its name */
     const char **hint_of;           /* per variable: its allowed values ("" if a range) */
+    int stop_defined;               /* the experiment's stopTime (doStep must not pass it) */
+    double stop_time;
 } fsr_instance;
 
 typedef struct fsr_state fsr_state;  /* a saved FMU state (opaque) */
