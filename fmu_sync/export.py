@@ -9,9 +9,12 @@ The FMU holds:
   (``fmus/c/fmu_sync_fmi2.c``) and the instance runtime that embeds Python
   (``fmus/c/fmu_sync_runtime.c``), compiled here with gcc (GUID and boot module
   compiled in). It loads libpython itself, so any C host can load the FMU;
-* ``resources/fmu_sync_code/`` — the Python code it runs (the core and the
-  slave), so the importing machine needs Python with numpy and numba, not
-  fmu-sync; ``resources/fmu_sync_boot_<hash>.py`` sets it up;
+* ``resources/fmu_sync_code/`` — the Python code it runs: only the modules its
+  slave and stepper import (:func:`carried_modules`, the import closure with deferred
+  imports), none importing ``fmu_sync``; so the importing machine needs Python with
+  numpy and numba, not fmu-sync, and an edit of a core module the FMU does not run
+  (``core/batch.py``) leaves its GUID unchanged; ``resources/fmu_sync_boot_<hash>.py``
+  sets it up;
 * ``resources/fmu_sync_python.txt`` — the interpreter (``program``) and its
   libpython recorded at export (``FMU_SYNC_PYTHON`` overrides them at run time);
 * ``resources/fmu_sync_build.json`` — model, content hash, the Python / numpy /
@@ -43,8 +46,8 @@ from .fmus import contract
 from . import __version__
 from .fmus.slave import model_guid
 
-__all__ = ["MODELS", "export_fmu", "main_export", "model_class", "carried_files", "build_binary",
-           "MAX_SUBSTEPS"]
+__all__ = ["MODELS", "export_fmu", "main_export", "model_class", "carried_files", "carried_modules",
+           "build_binary", "fmu_guid", "MAX_SUBSTEPS"]
 
 #: The export keys: the FMU contract's model registry.
 MODELS = contract.MODELS
@@ -55,9 +58,13 @@ _ZIP_DATE = (2020, 1, 1, 0, 0, 0)
 #: the FMI 2.0 glue; every binary also compiles the instance runtime (the Python embedding)
 _C_GLUE = "c/fmu_sync_fmi2.c"
 _C_RUNTIME = "c/fmu_sync_runtime.c"
-#: slave modules carried in the FMU (besides the whole core)
-_CARRIED_FMUS = ("__init__.py", "contract.py", "_xml.py", "slave.py", "stepper.py", "runtime.py",
-                 "impact_oscillator.py", "mechanical_system2.py")
+#: the carried package's __init__ files: the real core/__init__.py imports every run API of the core
+_CARRIED_INITS = {
+    "__init__.py": b'"""fmu-sync model code carried by an FMU (the modules its slave and stepper import)."""\n',
+    "core/__init__.py": b'"""The core modules an fmu-sync FMU runs (the import closure of its slave and stepper)."""\n',
+}
+#: the roots of the carried code: the C-facing instance and the hot path (plus every slave module)
+_CARRIED_ROOTS = ("fmus/__init__.py", "fmus/runtime.py", "fmus/stepper.py")
 
 
 def _fmus_dir() -> Path:
@@ -84,15 +91,66 @@ def _carried_slave(model: str) -> str:
     return slave[len("fmu_sync."):]
 
 
+def _read(rel: str) -> bytes:
+    """A source file of the package by its path relative to it: "core/exact.py", "fmus/slave.py"."""
+    top, name = rel.split("/")
+    return ((_core_dir() if top == "core" else _fmus_dir()) / name).read_bytes()
+
+
+def _imported_modules(rel: str) -> list[str]:
+    """The core/fmus modules that module ``rel`` imports, deferred imports included
+    (ValueError for an import of the host package ``fmu_sync`` or of a package)."""
+    import ast
+    out = []
+    pkg = rel.split("/")[0]
+    for node in ast.walk(ast.parse(_read(rel), rel)):
+        if isinstance(node, ast.Import) and any(a.name.split(".")[0] == "fmu_sync" for a in node.names):
+            raise ValueError(f"{rel} imports the host package fmu_sync: an FMU's code imports its own modules "
+                             f"relatively")
+        if not isinstance(node, ast.ImportFrom):
+            continue
+        if node.level == 0:
+            if (node.module or "").split(".")[0] == "fmu_sync":
+                raise ValueError(f"{rel} imports the host package ({node.module}): an FMU's code imports its "
+                                 f"own modules relatively")
+            continue
+        base = [pkg] if node.level == 1 else []
+        target = base + (node.module.split(".") if node.module else [])
+        if len(target) == 2:
+            out.append(f"{target[0]}/{target[1]}.py")
+        elif len(target) == 1 and target[0] in ("core", "fmus"):    # from . import stepper
+            for a in node.names:
+                sub = f"{target[0]}/{a.name}.py"
+                try:
+                    _read(sub)
+                except OSError:
+                    raise ValueError(f"{rel} imports {a.name} from the package {target[0]}: import it from "
+                                     f"its module (the FMU carries only the modules it imports)") from None
+                out.append(sub)
+        else:
+            raise ValueError(f"{rel}: import {'.' * node.level}{node.module or ''} is outside core/ and fmus/")
+    return out
+
+
+def carried_modules() -> list[str]:
+    """Paths ("core/exact.py", "fmus/slave.py") of the modules an FMU carries: the
+    import closure, deferred imports included, of its runtime, stepper and slave modules."""
+    roots = list(_CARRIED_ROOTS)
+    for key in MODELS:
+        module = contract.model(key).slave.split(":")[0]
+        roots.append("/".join(module.split(".")[1:]) + ".py")
+    seen, todo = set(), roots
+    while todo:
+        rel = todo.pop()
+        if rel not in seen and rel not in _CARRIED_INITS:
+            seen.add(rel)
+            todo.extend(_imported_modules(rel))
+    return sorted(seen)
+
+
 def carried_files() -> list[tuple[str, bytes]]:
     """(path relative to the carried package, content) of the code the FMU runs."""
-    files = [("__init__.py", b'"""fmu-sync model code carried by an FMU (core + slave)."""\n')]
-    for f in sorted(_core_dir().glob("*.py")):
-        files.append((f"core/{f.name}", f.read_bytes()))
-    fmus = _fmus_dir()
-    for name in _CARRIED_FMUS:
-        files.append((f"fmus/{name}", (fmus / name).read_bytes()))
-    return files
+    return sorted(_CARRIED_INITS.items()) + [(rel, _read(rel)) for rel in carried_modules()]
 
 
 def _code_hash(files: list[tuple[str, bytes]]) -> str:
@@ -139,7 +197,7 @@ def _runtime_versions() -> dict:
 
 
 def _model_description_xml(cls, starts: dict, guid: str) -> bytes:
-    root = cls.description(starts, guid)
+    root = cls.description(starts, guid, __version__)
     ET.indent(root, space="  ")
     buf = io.BytesIO()
     ET.ElementTree(root).write(buf, encoding="UTF-8", xml_declaration=True)
@@ -164,6 +222,20 @@ def warm_cache(resources: dict[str, bytes], build: dict) -> None:
     stepper.step.address  # compiled (or loaded from the cache) at import
 
 
+def _identity(model: str, starts: dict) -> tuple[list[tuple[str, bytes]], str, str]:
+    """(carried files, their hash, GUID): the GUID changes with the model, the start
+    values, the package version, the carried code and the C source, and nothing else."""
+    code = carried_files()
+    c_source = b"".join(p.read_bytes() for p in sorted((_fmus_dir() / "c").glob("*.[ch]")))
+    digest = _code_hash(code)
+    return code, digest, model_guid(model, starts, digest + hashlib.sha256(c_source).hexdigest(), __version__)
+
+
+def fmu_guid(model: str = "impact-oscillator", start_values: dict | None = None) -> str:
+    """The GUID :func:`export_fmu` gives ``model`` with ``start_values``."""
+    return _identity(model, model_class(model).normalize_start_values(dict(start_values or {})))[2]
+
+
 def export_fmu(model: str = "impact-oscillator", path=None, start_values: dict | None = None,
                warm: bool = True) -> Path:
     """Build the FMU of ``model`` at ``path`` (default ``<ModelIdentifier>.fmu``) and return its path.
@@ -186,12 +258,9 @@ def export_fmu(model: str = "impact-oscillator", path=None, start_values: dict |
         raise ValueError(f"the FMU file name must end in .fmu, got {str(path)!r}")
     path.parent.mkdir(parents=True, exist_ok=True)
 
-    code = carried_files()
-    c_source = b"".join(p.read_bytes() for p in sorted((_fmus_dir() / "c").glob("*.[ch]")))
-    digest = _code_hash(code)
+    code, digest, guid = _identity(model, starts)
     package = f"fmu_sync_m{digest[:16]}"
     boot_module = f"fmu_sync_boot_{digest[:16]}"
-    guid = model_guid(model, starts, digest + hashlib.sha256(c_source).hexdigest())
     build = {"model": model, "model_identifier": cls.MODEL_IDENTIFIER, "package": package, "code_hash": digest,
              "slave": _carried_slave(model), "fmu_sync_version": __version__, "guid": guid,
              "built_with": _runtime_versions(), "max_substeps": MAX_SUBSTEPS}

@@ -130,11 +130,12 @@ class MechanicalSlave:
         return vars_
 
     @classmethod
-    def description(cls, start_values: dict, guid: str):
-        """The complete <fmiModelDescription> element of an FMU with these start values."""
+    def description(cls, start_values: dict, guid: str, version: str):
+        """The complete <fmiModelDescription> element of an FMU with these start values
+        (``version``: the exporting fmu-sync's)."""
         return model_description(
             model_name=cls.MODEL_IDENTIFIER, model_identifier=cls.MODEL_IDENTIFIER, guid=guid,
-            description=cls.DESCRIPTION, generation_tool=generation_tool(),
+            description=cls.DESCRIPTION, generation_tool=generation_tool(version),
             variables=cls.variables(start_values), default_experiment=cls.DEFAULT_EXPERIMENT,
             log_categories=cls.LOG_CATEGORIES)
 

@@ -191,3 +191,43 @@ def test_slave_import_compiles_nothing():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ["0", "0"]
+
+
+def test_fmu_carries_only_what_its_slave_and_stepper_import():
+    """The carried code is the import closure of the runtime, stepper and slaves (deferred imports
+    included); nothing in it imports the host package fmu_sync."""
+    import ast
+
+    from fmu_sync import export
+    files = dict(export.carried_files())
+    for name in ("core/batch.py", "core/network.py", "core/pair.py", "core/exact_nd.py", "core/kernels.py",
+                 "core/single.py", "core/_cache.py"):
+        assert name not in files, name
+    for name in ("core/moreau.py", "core/exact.py", "core/model.py", "fmus/stepper.py", "fmus/runtime.py",
+                 "fmus/slave.py", "fmus/contract.py", "fmus/impact_oscillator.py", "fmus/mechanical_system2.py"):
+        assert name in files, name
+    for rel, data in files.items():
+        pkg = rel.split("/")[0] if "/" in rel else ""
+        for node in ast.walk(ast.parse(data)):
+            if isinstance(node, ast.Import):
+                assert not any(a.name.startswith("fmu_sync") for a in node.names), rel
+            elif isinstance(node, ast.ImportFrom):
+                assert node.level or not (node.module or "").startswith("fmu_sync"), (rel, node.module)
+                if node.level:      # every relative import resolves to a carried module
+                    target = ([pkg] if node.level == 1 else []) + (node.module or "").split(".")
+                    mods = ["/".join(target) + ".py"] if node.module and len(target) == 2 else \
+                        [f"{target[0]}/{a.name}.py" for a in node.names]
+                    assert all(m in files for m in mods), (rel, mods)
+
+
+def test_changing_core_batch_leaves_the_guid_unchanged(monkeypatch):
+    from fmu_sync import export
+    guid = export.fmu_guid("impact-oscillator")
+    read = export._read
+
+    def edited(target):
+        return lambda rel: read(rel) + (b"\n# edited\n" if rel == target else b"")
+    monkeypatch.setattr(export, "_read", edited("core/batch.py"))
+    assert export.fmu_guid("impact-oscillator") == guid
+    monkeypatch.setattr(export, "_read", edited("core/moreau.py"))     # a module the FMU runs: a new GUID
+    assert export.fmu_guid("impact-oscillator") != guid
