@@ -26,9 +26,10 @@ from typing import Callable
 import numpy as np
 
 from ..core.model import MechanicalSystem
+from ..core.moreau import MIDPOINT, THETA
 
 __all__ = ["Var", "FmuModel", "ContractError", "MODELS", "POSITIVE_MIN", "INPUT_BOUND", "STATE_BOUND",
-           "SCHEME_TYPE", "SCHEME_ITEMS",
+           "SCHEME_TYPE", "SCHEME_ITEMS", "SCHEME_EXACT",
            "SOLVER_DT", "SOLVER_SCHEME", "SOLVER_THETA", "GAP", "IMPACTS", "PERCUSSION", "ENERGY",
            "model", "model_for", "identify", "indexed", "scheme_value", "scheme_name"]
 
@@ -49,14 +50,19 @@ INPUT_BOUND = 1e12
 STATE_BOUND = 1e12
 
 SCHEME_TYPE = "fmu_sync.Scheme"
+#: The one numbering of the schemes: the core's Moreau codes (core.moreau: MIDPOINT,
+#: THETA) and the exact communication step after them. The FMU's enumeration values,
+#: the stepper's dispatch and the binary's constants (generated at export) are these.
+SCHEME_EXACT = 2
 #: FMI enumeration items of solver.scheme: (name, value, description); the
 #: name is the core's scheme name (fmu_sync.core.moreau.SCHEMES).
 SCHEME_ITEMS = (
-    ("midpoint", 1, "Moreau midpoint scheme, explicit in the smooth forces (stable for omega_max*dt < 2)"),
-    ("theta", 2, "Moreau-Jean theta scheme, linear part (K, C) implicit"),
-    ("exact", 3, "Exact communication step (1-DOF only): closed-form flow, impacts, completed "
-                 "accumulations and persistent contact, tau constant over the step; solver.dt unused"),
+    ("midpoint", MIDPOINT, "Moreau midpoint scheme, explicit in the smooth forces (stable for omega_max*dt < 2)"),
+    ("theta", THETA, "Moreau-Jean theta scheme, linear part (K, C) implicit"),
+    ("exact", SCHEME_EXACT, "Exact communication step (1-DOF only): closed-form flow, impacts, completed "
+                            "accumulations and persistent contact, tau constant over the step; solver.dt unused"),
 )
+assert sorted(v for _, v, _ in SCHEME_ITEMS) == list(range(len(SCHEME_ITEMS))), "one numbering, 0..n-1"
 
 
 def indexed(base: str, n: int) -> list[str]:
@@ -148,7 +154,7 @@ def _solver_variables(dt: float = 1e-3) -> list[Var]:
         Var(SOLVER_SCHEME, "Enumeration", "parameter", "fixed",
             "Solver of a communication step: Moreau midpoint or theta with internal step solver.dt, "
             "or exact (1-DOF model only)",
-            initial="exact", start=1, declared_type=SCHEME_TYPE),
+            initial="exact", start=MIDPOINT, declared_type=SCHEME_TYPE),
         _param(SOLVER_THETA, "1", "Theta of the Moreau-Jean scheme (used when solver.scheme = theta)",
                0.5, min=0.5, max=1.0),
     ]

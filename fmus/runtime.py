@@ -24,11 +24,13 @@ from . import stepper as S
 from ._xml import POSITIVE_MIN, SCHEME_ITEMS
 from .slave import PHASES, START_FILE, STATE_FORMAT
 
-__all__ = ["FMUInstance", "create", "LAYOUT_VERSION"]
+__all__ = ["FMUInstance", "create", "LAYOUT", "TYPES", "CAUSALITIES"]
 
-LAYOUT_VERSION = 1
-TYPE_REAL, TYPE_INTEGER, TYPE_ENUM = 0, 1, 2
-CAUS_PARAMETER, CAUS_INPUT, CAUS_OUTPUT = 0, 1, 2
+#: what layout() hands over, in order (one uint64 each; the binary's FSR_L_* indices)
+LAYOUT = ("version", "nvars", "x", "type", "caus", "min", "max", "work", "stepper", "names", "hints")
+#: codes of the per-variable table (the binary's FSR_T_* and FSR_C_*)
+TYPES = {"Real": 0, "Integer": 1, "Enumeration": 2}
+CAUSALITIES = {"parameter": 0, "input": 1, "output": 2}
 _PHASE_NAMES = {code: name for name, code in PHASES.items()}
 
 
@@ -52,10 +54,8 @@ class FMUInstance:
         self.starts = np.array([float(v.start) if v.start is not None else math.nan for v in self.vars])
 
         self.x = self.starts.copy()
-        self.vtype = np.array([{"Real": TYPE_REAL, "Integer": TYPE_INTEGER, "Enumeration": TYPE_ENUM}[v.type]
-                               for v in self.vars], dtype=np.int32)
-        self.vcaus = np.array([{"parameter": CAUS_PARAMETER, "input": CAUS_INPUT, "output": CAUS_OUTPUT}[v.causality]
-                               for v in self.vars], dtype=np.int32)
+        self.vtype = np.array([TYPES[v.type] for v in self.vars], dtype=np.int32)
+        self.vcaus = np.array([CAUSALITIES[v.causality] for v in self.vars], dtype=np.int32)
         self.vmin = np.full(nv, -math.inf)
         self.vmax = np.full(nv, math.inf)
         hints = []
@@ -104,10 +104,11 @@ class FMUInstance:
 
     # ------------------------------------------------------------ for the binary
     def layout(self) -> bytes:
-        return struct.pack("<11Q", LAYOUT_VERSION, len(self.vars), self.x.ctypes.data, self.vtype.ctypes.data,
-                           self.vcaus.ctypes.data, self.vmin.ctypes.data, self.vmax.ctypes.data,
-                           self.work.ctypes.data, S.step.address, self._names.ctypes.data,
-                           self._hints.ctypes.data)
+        fields = {"version": S.WORK_VERSION, "nvars": len(self.vars), "x": self.x.ctypes.data,
+                  "type": self.vtype.ctypes.data, "caus": self.vcaus.ctypes.data, "min": self.vmin.ctypes.data,
+                  "max": self.vmax.ctypes.data, "work": self.work.ctypes.data, "stepper": S.step.address,
+                  "names": self._names.ctypes.data, "hints": self._hints.ctypes.data}
+        return struct.pack(f"<{len(LAYOUT)}Q", *(fields[k] for k in LAYOUT))
 
     def free(self) -> None:
         self.cfg = None

@@ -44,6 +44,7 @@ from ..core.exact import NT as _EXACT_NT
 from ..core.exact import STEP_OK, STEP_TOO_MANY_EVENTS, exact_step
 from ..core.model import SystemArrays
 from ..core.moreau import MIDPOINT, OK, THETA, advance_in
+from .contract import SCHEME_EXACT as EXACT
 from .contract import STATE_BOUND
 
 __all__ = ["step", "pack", "work_size", "H_LEN", "H_VERSION", "H_TIME", "H_PHASE", "H_DT",
@@ -51,16 +52,16 @@ __all__ = ["step", "pack", "work_size", "H_LEN", "H_VERSION", "H_TIME", "H_PHASE
            "exact_size",
            "EXACT_MAX_EVENTS", "R_OK", "R_ROLLED_BACK", "R_EXACT_TAUDOT", "R_EXACT_EVENTS", "R_EXACT_STALL"]
 
-# --- header slots (the first six are read by the C binary: keep in sync with c/fmu_sync_runtime.h)
+# --- header slots (those the C binary reads are written into fmu_sync_constants.h at export)
 H_LEN, H_VERSION, H_TIME, H_PHASE, H_DT, H_CONFIGURED = 0, 1, 2, 3, 4, 5
 H_N, H_M, H_NF, H_SCHEME, H_THETA, H_NX = 6, 7, 8, 9, 10, 11
 H_IQ, H_IU, H_ITAU, H_IGAP, H_IENERGY, H_IIMPACTS, H_IPERC = 12, 13, 14, 15, 16, 17, 18
 # (read by the C binary too: H_M, H_SCHEME, H_ITAU, H_ITAUDOT, H_MAXEV, H_BOUND)
 H_VREF, H_ITAUDOT, H_IEXACT, H_MAXEV, H_BOUND = 19, 20, 21, 22, 23
 H_DATA = 24
-WORK_VERSION = 2.0
-#: the FMU's code of solver.scheme = exact (the core's Moreau codes are MIDPOINT, THETA)
-EXACT = 2
+#: the one version of what the binary and the Python side share (work array header,
+#: layout, codes): fmu_sync_constants.h, generated at export, carries it
+WORK_VERSION = 3
 #: work guard of the exact scheme: most events (impacts, contact changes, flow
 #: pieces) in one doStep; more makes the step fail (rolled back, fmi2Error) in
 #: well under a second instead of running for minutes (H = 1e9)

@@ -13,8 +13,8 @@
  * fmi2DoStep, fmi2GetReal/Integer and fmi2SetReal/Integer work on the plain C
  * array of all variables (indexed by value reference) without Python.
  *
- * Compile-time definitions (from fmu_sync.export): FMU_SYNC_GUID (and, for the
- * runtime, FMU_SYNC_BOOT and FMU_SYNC_MAX_SUBSTEPS).
+ * FMU_SYNC_GUID and every shared number come from fmu_sync_constants.h (generated
+ * at export, included by fmu_sync_runtime.h).
  */
 #define _GNU_SOURCE
 #include <math.h>
@@ -24,20 +24,20 @@
 #include <stdlib.h>
 #include <string.h>
 
-#ifndef FMU_SYNC_GUID
-#error "FMU_SYNC_GUID must be defined"
-#endif
 #define EXPORT __attribute__((visibility("default")))
 
 /* ------------------------------------------------------------ FMI 2.0 ABI */
 #include "fmi2_abi.h"
 #include "fmu_sync_runtime.h"
+#ifndef FMU_SYNC_GUID
+#error "FMU_SYNC_GUID must be defined (fmu_sync_constants.h)"
+#endif
 #define G fsr_g
 
 /* ------------------------------------------------------------ instance */
 enum {                               /* states of the FMI 2.0 co-simulation state machine */
     ST_INSTANTIATED = FSR_INSTANTIATED,
-    ST_INIT = FSR_INIT,
+    ST_INIT = FSR_INITIALIZATION,
     ST_STEP = FSR_STEP,              /* slaveInitialized: stepComplete */
     ST_TERMINATED = FSR_TERMINATED,
     ST_FATAL = 1 << 4,
@@ -203,7 +203,7 @@ static int check_vr(Instance *c, int call, fmi2ValueReference vr, int want_int) 
     int is_int = rt->vtype[vr] != FSR_T_REAL;
     if (is_int != want_int) {
         refuse(c, fmi2Error, "%s: value reference %u is %s, of type %s%s", CALLS[call].name, vr,
-               rt->name_of[vr], rt->vtype[vr] == FSR_T_REAL ? "Real" : rt->vtype[vr] == FSR_T_ENUM ? "Enumeration" : "Integer",
+               rt->name_of[vr], rt->vtype[vr] == FSR_T_REAL ? "Real" : rt->vtype[vr] == FSR_T_ENUMERATION ? "Enumeration" : "Integer",
                want_int ? " (use fmi2GetReal/fmi2SetReal)" : " (use fmi2GetInteger/fmi2SetInteger)");
         return 0;
     }

@@ -11,8 +11,8 @@
  * address, without the GIL, on the arrays the Python instance handed over
  * (they live as long as the instance).
  *
- * Compile-time definitions (from fmu_sync.export): FMU_SYNC_BOOT (module name
- * of the boot script in resources/), FMU_SYNC_MAX_SUBSTEPS.
+ * Constants (fmu_sync_constants.h, generated at export): FMU_SYNC_BOOT (module
+ * name of the boot script in resources/), FSR_MAX_SUBSTEPS and the shared codes.
  */
 #define _GNU_SOURCE
 #include <dlfcn.h>
@@ -35,10 +35,7 @@
 #include "fmu_sync_runtime.h"
 
 #ifndef FMU_SYNC_BOOT
-#error "FMU_SYNC_BOOT must be defined"
-#endif
-#ifndef FMU_SYNC_MAX_SUBSTEPS
-#define FMU_SYNC_MAX_SUBSTEPS 10000000.0
+#error "FMU_SYNC_BOOT must be defined (fmu_sync_constants.h)"
 #endif
 
 /* ------------------------------------------------------------ Python C API (dlsym) */
@@ -458,47 +455,41 @@ void fsr_bound_text(const fsr_instance *inst, unsigned vr, char *out, size_t n) 
 }
 
 /* ------------------------------------------------------------ instance */
-/* layout handed over by FMUInstance.layout() (fmus/runtime.py) */
-enum {
-    L_VERSION, L_NVARS, L_X, L_TYPE, L_CAUS, L_MIN, L_MAX, L_WORK, L_STEPPER, L_NAMES, L_HINTS,
-    L_N
-};
-#define LAYOUT_VERSION 1
-
+/* layout handed over by FMUInstance.layout() (fmus/runtime.py: LAYOUT -> FSR_L_*) */
 static int take_layout(fsr_instance *inst, char *err, size_t n) {
     /* called with the GIL held */
     PyObject *r = py.CallMethod(inst->obj, "layout", NULL);
     if (!r) { py_error_text(err, n); return 0; }
     char *buf = NULL;
     Py_ssize_t len = 0;
-    uint64_t L[L_N];
+    uint64_t L[FSR_L_N];
     int ok = py.BytesAsStringAndSize(r, &buf, &len) == 0 && len == (Py_ssize_t)sizeof L;
     if (ok) memcpy(L, buf, sizeof L);
     py.DecRef(r);
     if (!ok) { snprintf(err, n, "bad layout from the Python slave"); return 0; }
-    if (L[L_VERSION] != LAYOUT_VERSION) {
-        snprintf(err, n, "layout version %llu, this binary expects %d", (unsigned long long)L[L_VERSION],
-                 LAYOUT_VERSION);
+    if (L[FSR_L_VERSION] != FSR_VERSION) {
+        snprintf(err, n, "layout version %llu, this binary expects %d", (unsigned long long)L[FSR_L_VERSION],
+                 FSR_VERSION);
         return 0;
     }
-    inst->nvars = (unsigned)L[L_NVARS];
-    inst->x = (double *)(uintptr_t)L[L_X];
-    inst->vtype = (const int32_t *)(uintptr_t)L[L_TYPE];
-    inst->vcaus = (const int32_t *)(uintptr_t)L[L_CAUS];
-    inst->vmin = (const double *)(uintptr_t)L[L_MIN];
-    inst->vmax = (const double *)(uintptr_t)L[L_MAX];
-    inst->work = (double *)(uintptr_t)L[L_WORK];
-    inst->stepper = (fsr_stepper)(uintptr_t)L[L_STEPPER];
-    if (inst->work[FSR_H_VERSION] != FSR_WORK_VERSION) {
-        snprintf(err, n, "work array version %g, this binary expects %g", inst->work[FSR_H_VERSION],
-                 FSR_WORK_VERSION);
+    inst->nvars = (unsigned)L[FSR_L_NVARS];
+    inst->x = (double *)(uintptr_t)L[FSR_L_X];
+    inst->vtype = (const int32_t *)(uintptr_t)L[FSR_L_TYPE];
+    inst->vcaus = (const int32_t *)(uintptr_t)L[FSR_L_CAUS];
+    inst->vmin = (const double *)(uintptr_t)L[FSR_L_MIN];
+    inst->vmax = (const double *)(uintptr_t)L[FSR_L_MAX];
+    inst->work = (double *)(uintptr_t)L[FSR_L_WORK];
+    inst->stepper = (fsr_stepper)(uintptr_t)L[FSR_L_STEPPER];
+    if (inst->work[FSR_H_VERSION] != FSR_VERSION) {
+        snprintf(err, n, "work array version %g, this binary expects %d", inst->work[FSR_H_VERSION],
+                 FSR_VERSION);
         return 0;
     }
     inst->name_of = calloc(inst->nvars, sizeof(char *));
     inst->hint_of = calloc(inst->nvars, sizeof(char *));
     if (!inst->name_of || !inst->hint_of) { snprintf(err, n, "out of memory"); return 0; }
-    const char *p = (const char *)(uintptr_t)L[L_NAMES];
-    const char *h = (const char *)(uintptr_t)L[L_HINTS];
+    const char *p = (const char *)(uintptr_t)L[FSR_L_NAMES];
+    const char *h = (const char *)(uintptr_t)L[FSR_L_HINTS];
     for (unsigned i = 0; i < inst->nvars; ++i) {
         inst->name_of[i] = p;
         p += strlen(p) + 1;
@@ -687,11 +678,11 @@ int fsr_step(fsr_instance *inst, double t, double H) {
     double dt = w[FSR_H_DT];
     int exact = w[FSR_H_SCHEME] == FSR_SCHEME_EXACT;
     double count = ceil(H / dt - 1e-9);       /* computed in double: cannot overflow */
-    if (!exact && !(count <= FMU_SYNC_MAX_SUBSTEPS))   /* exact: no internal steps */
+    if (!exact && !(count <= FSR_MAX_SUBSTEPS))   /* exact: no internal steps */
         return fsr_logf(inst, FSR_ERROR, REFUSED "it needs ceil(H/dt) = %.6g internal steps of solver.dt = %s, "
-                        "more than the limit %.0f (FMU_SYNC_MAX_SUBSTEPS); this step can never complete: use "
+                        "more than the limit %.0f (FSR_MAX_SUBSTEPS); this step can never complete: use "
                         "a smaller H or a larger solver.dt", G(t), G(H), G(now), count, G(dt),
-                        (double)FMU_SYNC_MAX_SUBSTEPS);
+                        (double)FSR_MAX_SUBSTEPS);
     int32_t rc = inst->stepper(inst->x, w, now, H);
     switch (rc) {
     case FSR_R_OK:

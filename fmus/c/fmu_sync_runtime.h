@@ -30,23 +30,14 @@
 #include <stddef.h>
 #include <stdint.h>
 
+/* Every number shared with the Python side (work-array slots FSR_H_*, stepper codes
+ * FSR_R_*, phases FSR_INSTANTIATED.., table codes FSR_T_* / FSR_C_*, layout FSR_L_*,
+ * schemes FSR_SCHEME_*, FSR_MAX_SUBSTEPS, the one version FSR_VERSION) and this export's
+ * FMU_SYNC_GUID and FMU_SYNC_BOOT: generated at export from the Python definitions
+ * (fmu_sync.export.constants_header); never written by hand. */
+#include "fmu_sync_constants.h"
+
 enum { FSR_OK = 0, FSR_WARNING = 1, FSR_DISCARD = 2, FSR_ERROR = 3, FSR_FATAL = 4 };
-
-/* phases of an instance as saved in an FMU state (fmus/slave.py: PHASES) */
-enum { FSR_INSTANTIATED = 1 << 0, FSR_INIT = 1 << 1, FSR_STEP = 1 << 2, FSR_TERMINATED = 1 << 3 };
-
-/* variable table codes (fmus/runtime.py: TYPE_*, CAUS_*) */
-enum { FSR_T_REAL = 0, FSR_T_INTEGER = 1, FSR_T_ENUM = 2 };
-enum { FSR_C_PARAMETER = 0, FSR_C_INPUT = 1, FSR_C_OUTPUT = 2 };
-
-/* work array header (fmus/stepper.py: H_*) read by the C side */
-enum { FSR_H_LEN = 0, FSR_H_VERSION = 1, FSR_H_TIME = 2, FSR_H_PHASE = 3, FSR_H_DT = 4, FSR_H_CONFIGURED = 5,
-       FSR_H_M = 7, FSR_H_SCHEME = 9, FSR_H_ITAU = 14, FSR_H_ITAUDOT = 20, FSR_H_MAXEV = 22,
-       FSR_H_BOUND = 23 };
-/* return codes of the stepper (fmus/stepper.py: R_*) */
-enum { FSR_R_OK = 0, FSR_R_ROLLED_BACK = 1, FSR_R_EXACT_TAUDOT = 2, FSR_R_EXACT_EVENTS = 3, FSR_R_EXACT_STALL = 4 };
-#define FSR_WORK_VERSION 2.0
-#define FSR_SCHEME_EXACT 2.0        /* fmus/stepper.py: EXACT */
 
 typedef void (*fsr_log)(void *ctx, int status, const char *text);
 typedef int32_t (*fsr_stepper)(double *x, double *work, double t, double H);
