@@ -680,7 +680,7 @@ int fsr_step(fsr_instance *inst, double t, double H) {
     double count = ceil(H / dt - 1e-9);       /* computed in double: cannot overflow */
     if (!exact && !(count <= FSR_MAX_SUBSTEPS))   /* exact: no internal steps */
         return fsr_logf(inst, FSR_ERROR, REFUSED "it needs ceil(H/dt) = %.6g internal steps of solver.dt = %s, "
-                        "more than the limit %.0f (FSR_MAX_SUBSTEPS); this step can never complete: use "
+                        "more than the limit %.0f (fmu_sync.export.MAX_SUBSTEPS); this step can never complete: use "
                         "a smaller H or a larger solver.dt", G(t), G(H), G(now), count, G(dt),
                         (double)FSR_MAX_SUBSTEPS);
     int32_t rc = inst->stepper(inst->x, w, now, H);
