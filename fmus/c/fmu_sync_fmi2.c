@@ -203,7 +203,8 @@ static int check_vr(Instance *c, int call, fmi2ValueReference vr, int want_int) 
     int is_int = rt->vtype[vr] != FSR_T_REAL;
     if (is_int != want_int) {
         refuse(c, fmi2Error, "%s: value reference %u is %s, of type %s%s", CALLS[call].name, vr,
-               rt->name_of[vr], rt->vtype[vr] == FSR_T_REAL ? "Real" : rt->vtype[vr] == FSR_T_ENUMERATION ? "Enumeration" : "Integer",
+               rt->name_of[vr],
+               rt->vtype[vr] == FSR_T_REAL ? "Real" : rt->vtype[vr] == FSR_T_ENUMERATION ? "Enumeration" : "Integer",
                want_int ? " (use fmi2GetReal/fmi2SetReal)" : " (use fmi2GetInteger/fmi2SetInteger)");
         return 0;
     }
