@@ -48,17 +48,20 @@ from .contract import SCHEME_EXACT as EXACT
 from .contract import STATE_BOUND
 
 __all__ = ["step", "pack", "work_size", "H_LEN", "H_VERSION", "H_TIME", "H_PHASE", "H_DT",
-           "H_CONFIGURED", "WORK_VERSION", "H_VREF", "H_ITAUDOT", "H_IEXACT", "H_MAXEV", "H_BOUND", "EXACT",
-           "exact_size",
+           "H_CONFIGURED", "WORK_VERSION", "H_FEEDTHROUGH", "H_VREF", "H_ITAUDOT", "H_IEXACT", "H_MAXEV", "H_BOUND",
+           "EXACT", "exact_size",
            "EXACT_MAX_EVENTS", "R_OK", "R_ROLLED_BACK", "R_EXACT_TAUDOT", "R_EXACT_EVENTS", "R_EXACT_STALL"]
 
 # --- header slots (those the C binary reads are written into fmu_sync_constants.h at export)
 H_LEN, H_VERSION, H_TIME, H_PHASE, H_DT, H_CONFIGURED = 0, 1, 2, 3, 4, 5
 H_N, H_M, H_NF, H_SCHEME, H_THETA, H_NX = 6, 7, 8, 9, 10, 11
 H_IQ, H_IU, H_ITAU, H_IGAP, H_IENERGY, H_IIMPACTS, H_IPERC = 12, 13, 14, 15, 16, 17, 18
-# (read by the C binary too: H_M, H_SCHEME, H_ITAU, H_ITAUDOT, H_MAXEV, H_BOUND)
-H_VREF, H_ITAUDOT, H_IEXACT, H_MAXEV, H_BOUND = 19, 20, 21, 22, 23
-H_DATA = 24
+# (read by the C binary too: H_M, H_SCHEME, H_ITAU, H_ITAUDOT, H_FEEDTHROUGH, H_MAXEV, H_BOUND)
+H_VREF, H_ITAUDOT, H_IEXACT = 19, 20, 21
+#: read by the C binary: != 0 when the outputs depend directly on the inputs (0 here; the coupling FMU)
+H_FEEDTHROUGH = 22
+H_MAXEV, H_BOUND = 23, 24
+H_DATA = 25
 #: the one version of what the binary and the Python side share (work array header,
 #: layout, codes): fmu_sync_constants.h, generated at export, carries it
 WORK_VERSION = 3

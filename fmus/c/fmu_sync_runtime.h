@@ -18,6 +18,8 @@
  *                                   a time that advances, the internal-step limit), the numba
  *                                   stepper called through its address, no Python, no GIL;
  *                                   a step that cannot complete is FSR_ERROR, rolled back
+ *   fsr_outputs(inst, call)         outputs of a direct-feedthrough FMU from its current inputs
+ *                                   (the stepper with H = 0), no Python, no GIL
  *   fsr_free(inst)
  *
  * Every call that can fail returns an fsr status, numerically equal to fmi2Status and
@@ -78,6 +80,10 @@ int fsr_state_deserialize(fsr_instance *inst, const char *call, const char *data
 
 /* one communication step from t by H; on a refusal nothing changed */
 int fsr_step(fsr_instance *inst, double t, double H);
+/* direct feedthrough (work[FSR_H_FEEDTHROUGH] != 0): the outputs recomputed from the current
+ * inputs by the stepper (H = 0, no Python, no GIL); FSR_ERROR if they are not finite */
+int fsr_feedthrough(const fsr_instance *inst);
+int fsr_outputs(fsr_instance *inst, const char *call);
 
 /* helpers for messages */
 const char *fsr_g(double v);                  /* shortest round-trip text of a double */
