@@ -391,6 +391,8 @@ def law_metric(Q, K, Kp, A=None, coupled: bool = True) -> LawMetric:
             note = (f"Q = K + {lam:.4g} Kp (mean nonzero Laplacian eigenvalue): on this graph L^2 is not "
                     "proportional to L, so V = d^2/2 is not exactly the energy of the relative motion "
                     "and may grow between impacts (docs/design.md §2.5.1)")
+        elif not coupled:
+            note = "Q = K (no coupling): V = d^2/2 is the energy of the relative motion of the free systems"
         else:
             note = (f"Q = K + {lam:.4g} Kp: V = d^2/2 is the energy of the relative motion, a Lyapunov "
                     "function of the law")

@@ -255,11 +255,8 @@ def oscillator_fmu(tmp_path_factory):
        x2=st.tuples(st.floats(0.0, 1.0), st.floats(-1.0, 1.0)))
 def test_V_is_a_lyapunov_function_in_cosimulation_at_H_dt(oscillator_fmu, k, c, e, g, x1, x2):
     from fmu_sync.master import cosimulate
-    Kp, Kd = g
+    Kp, Kd = min(g[0], 1e3), g[1]      # Kp <= 1e3: few communication steps (co-simulation is slower)
     s, dt = _pair_case(k, c, e, 0.0, Kp, Kd)
-    dt = max(dt, 1e-4)                 # few communication steps: co-simulation is slower
-    Kp = min(Kp, 0.01 / dt ** 2)
-    s, _ = _pair_case(k, c, e, 0.0, Kp, Kd)
     start = dict(k=k, c=c, e=e, **{"solver.dt": dt})
     res = cosimulate(oscillator_fmu, x1, x2, 0.3, dt, coupling="switching", Kp=Kp, Kd=Kd, start_values=start)
     assert res.error is None and res.metric == "energy"
