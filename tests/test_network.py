@@ -64,8 +64,9 @@ def test_ring_without_impacts_decays_at_the_slowest_laplacian_mode():
     # (the energy metric weighs them by k + lam_bar Kp: measured 0.1574 +- 0.00075 vs 0.15645)
     m = r.sync(1e-9)
     assert abs(m.rate - sigma) < 2 * m.rate_err < 0.02 * sigma
-    # a window from 1e-3 max d on sees the slowest mode alone (measured: 0.1563 vs 0.15645)
-    assert r.sync(1e-9, hi=1e-3).rate == pytest.approx(sigma, rel=2e-3)
+    # a window from 1e-3 max d on sees the slowest mode almost alone (measured: 0.15686 vs 0.15645
+    # with the energy metric, which weighs the faster modes more than Q = I did: 0.1563)
+    assert r.sync(1e-9, hi=1e-3).rate == pytest.approx(sigma, rel=4e-3)
 
 
 def test_ring_of_8_synchronizes_under_the_switching_law(paper):
