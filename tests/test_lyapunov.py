@@ -95,7 +95,7 @@ def V_violations(res, system, h, kp_max, kd_max=0.0):
     out = [(int(k), float(growth[k]), float(allow[k]), "E, away from the wall" if far[k] else "impact/jump")
            for k in bad]
     V = np.asarray(res.V)
-    if V.max() > 1.02 * V[0] + 0.5 * (h * lq * speed.max()) ** 2:     # (an O(h) blip when d0 = 0)
+    if d.max() > math.sqrt(1.02) * d[0] + h * lq * speed.max():     # (plus an O(h) impact blip)
         out.append((int(np.argmax(V)), float(V.max() / V[0]), 1.02, "V/V0"))
     return out
 
