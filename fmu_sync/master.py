@@ -1,13 +1,12 @@
 """Co-simulation master (docs/design.md §4.4): two (or N) FMU instances coupled
 through the coupling law of the core, driven by fmpy's ``FMU2Slave``.
 
-The master holds no model data of its own: the FMU contract
-(:mod:`fmu_sync.fmus.contract`) names the variables, and the mass matrix, the
-wall (w, g0) and the restitution e it needs for the quotient distance are read
-from the FMU's parameters. The coupling forces and the distance are computed by
-the core's compiled :func:`fmu_sync.core.pair.coupling_step` — the same function
-the monolithic :func:`fmu_sync.core.simulate_pair` calls every step. With ``H``
-equal to the slaves' internal step the two runs agree to round-off.
+The master holds no model data of its own: the FMU contract (:mod:`fmu_sync.fmus.contract`) names
+the variables, and the mass matrix, the wall (w, g0), the restitution e and the stiffness (for the
+default position weight, §2.5.1) are read from the FMU's parameters. The coupling forces and the
+distance are computed by the core's compiled :func:`fmu_sync.core.pair.coupling_step` — the same
+function the monolithic :func:`fmu_sync.core.simulate_pair` calls every step. With ``H`` equal to
+the slaves' internal step the two runs agree to round-off.
 
 Structure: :class:`FmuInstance` is a thin, status-checked wrapper of one
 instance (fmpy loads, initialises and frees it); :class:`NetworkMaster` holds one
@@ -18,14 +17,13 @@ pointers and component handles to the compiled exchange loop
 record); :func:`cosimulate_network` and :func:`cosimulate` are the plain
 functional entry points.
 
-Failure convention (docs/design.md §5.1): bad arguments or a foreign FMU raise
-a ValueError before any instance is created; an exchange known to be unstable
-(:func:`fmu_sync.core.exchange.check_exchange`) or instances with different
-impact geometries (M, w, g0, e) raise a ValueError before the first step; a
-slave that fails mid-run raises :class:`SlaveError` and a run whose states or
-distances become non-finite raises :class:`fmu_sync.core.SimulationDiverged`
-(both :class:`fmu_sync.core.RunFailed`) whose ``partial`` holds everything
-recorded up to the failure (finite rows only).
+Failure convention (docs/design.md §5.1): bad arguments or a foreign FMU raise a ValueError before
+any instance is created; an exchange known to be unstable
+(:func:`fmu_sync.core.exchange.check_exchange`) or instances with different impact geometries (M, w,
+g0, e) raise a ValueError before the first step; a slave that fails mid-run raises
+:class:`SlaveError` and a run whose states or distances become non-finite raises
+:class:`fmu_sync.core.SimulationDiverged` (both :class:`fmu_sync.core.RunFailed`) whose ``partial``
+holds everything recorded up to the failure (finite rows only).
 """
 from __future__ import annotations
 
@@ -37,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from .core.checks import check_run, check_start, check_step
-from .core.coupling import chain_work, gain_matrix
+from .core.coupling import chain_work, gain_matrix, law_metric, metric_info
 from .core.distance import geometry
 from .core.errors import RunFailed, SimulationDiverged
 from .core.exchange import check_exchange, exchange_limit
@@ -241,9 +239,12 @@ class NetworkMaster:
             check_start(system, q0, label)
             s.exit_initialization(model.state_values(q0, u0))
         n = model.n
-        self.geo = geometry(system, self.Q)
         self.Kp_m, self.Kd_m = gain_matrix(self.Kp, n, "Kp"), gain_matrix(self.Kd, n, "Kd")
         self.A_coupled = coupled_weights(self.A, self.edges, self.laws)
+        names = [v.name for v in model.declare() if v.causality == "parameter" and v.type == "Real"]
+        self.metric = law_metric(self.Q, [model.system(dict(zip(names, s.get(names)))).K for s in self.slaves],
+                                 self.Kp_m, self.A_coupled if self.coupled else None, coupled=self.coupled)
+        self.geo = geometry(system, self.metric.Q)
         if self.coupled:  # before the first step: the held exchange must be stable at H
             self.limit = check_exchange(system.M, self.Kp_m, self.Kd_m, self.H, A=self.A_coupled,
                                         allow_unstable=self.allow_unstable, hold=self.hold)
@@ -281,9 +282,9 @@ class NetworkMaster:
             self.T[sl], self.Qr[sl], self.Ur[sl], self.TAU[sl], self.edges,
             self.D[sl] if need_d else None, self.BR[sl] if need_d else None,
             self.EU[sl] if need_d else None, V, impacts=impacts,
-            info=dict(mode="cosim", H=self.H, method=self.method, event_aware=self.event_aware,
+            info=dict(mode="cosim", H=self.H, method=self.method, event_aware=self.event_aware, fmu=self.fmu,
                       H_min=self.H_min if self.event_aware else None, retaken_steps=self.retakes,
-                      fmu=self.fmu, steps=self.n_steps, coupling=self.coupling, hold=self.hold,
+                      steps=self.n_steps, coupling=self.coupling, hold=self.hold, **metric_info(self.metric, self.geo),
                       **({} if self.limit is None else dict(
                           omega_c_H=self.limit.h, exchange_bound=self.limit.bound,
                           zeta=self.limit.zeta, H_max=self.limit.H_max))),
@@ -451,7 +452,7 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
     x1, x2 : start states (q, u) of the two instances (set as ``q_start``/``u_start``).
     t_end, H : stop time and communication step; the run makes ``floor(t_end/H)`` steps.
     coupling : None, ``"switching"`` (quotient coupling) or ``"euclidean"`` (PD baseline).
-    Kp, Kd : gains (scalars or n×n).  Q : position weight of the norm (default identity).
+    Kp, Kd : gains (scalars or n×n).  Q : position weight of the norm (default: ``energy_metric``).
     method : ``"jacobi"`` (both slaves get inputs computed from the same states) or
         ``"gauss-seidel"`` (slave 2's input uses slave 1's updated state).
     record_every : keep every k-th communication point.
