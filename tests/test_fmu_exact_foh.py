@@ -243,7 +243,7 @@ def test_master_hold_argument_is_checked(fmus):
 def test_master_with_exact_slaves_has_only_the_coupling_error(fmus):
     """Two exact slaves under the Jacobi exchange are the core's exact step chained with the
     core's coupling law (the same forces held over H): equal to 1e-12, no internal step."""
-    from fmu_sync.core.coupling import chain_work, gain_matrix
+    from fmu_sync.core.coupling import chain_work, energy_metric, gain_matrix
     from fmu_sync.core.distance import geometry
     from fmu_sync.core.exact import exact_model, exact_step
     from fmu_sync.core.pair import LAWS, coupling_step
@@ -252,8 +252,8 @@ def test_master_with_exact_slaves_has_only_the_coupling_error(fmus):
     x1, x2, H, n, gains = (0.0, 0.0), (0.05, 0.0), 0.01, 500, dict(Kp=1.0, Kd=0.5)
     r = cosimulate(fmus["exact"], x1, x2, n * H, H, coupling="switching", start_values=p, **gains)
     md = exact_model(system)
-    geo = geometry(system)
     Kp, Kd = gain_matrix(gains["Kp"], 1), gain_matrix(gains["Kd"], 1)
+    geo = geometry(system, energy_metric(system.K, Kp))   # the master's default metric, Q = K + 2 Kp
     t1, t2, work = np.zeros(1), np.zeros(1), chain_work(1)
     (q1, u1), (q2, u2), v1, v2 = x1, x2, 0.0, 0.0
     Q = [(q1, q2)]
