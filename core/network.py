@@ -24,7 +24,8 @@ from .coupling import BRANCH_NONE, UNCOUPLED, gain_matrix
 from .distance import geometry
 from .exchange import check_exchange
 from .model import MechanicalSystem, SystemArrays, as_state
-from .checks import check_run, check_stable, check_start, divergence_message, scheme_code
+from .checks import (check_record_size, check_run, check_stable, check_start, divergence_message, record_rows,
+                     scheme_code)
 from .errors import SimulationDiverged
 from .moreau import DIVERGED, OK, THETA, finish_step, midpoint_step, theta_matrices, theta_step
 from .pair import LAWS, as_systems, check_common_geometry, coupling_step
@@ -147,8 +148,10 @@ def _node(base, K, C, f0, F, Omega, phi, i):
 
 @njit(cache=True)
 def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, q, u, t0, k0, dt,
-                      n_steps, scheme, theta, record_every, record_d, T, Qr, Ur, TAU, D, BR, EU):
-    """The monolithic loop over steps ``k0 .. k0 + n_steps`` (time ``t0 + k dt``).
+                      n_steps, scheme, theta, record_every, record_d, T, Qr, Ur, TAU, D, BR, EU, dt_last=0.0):
+    """The monolithic loop over steps ``k0 .. k0 + n_steps`` (time ``t0 + k dt``), then,
+    if ``dt_last > 0``, the shortened last step of the run; the final state is always
+    recorded (as :func:`fmu_sync.core.pair.integrate_pair`).
 
     ``base``: SystemArrays with the common M, w, g0, e (and B = I); ``K, C``
     (N, n, n), ``f0`` (N, n), ``F`` (N, nf, n), ``Omega, phi`` (N, nf): the
@@ -184,8 +187,9 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
             coupled = True
     row = 0
     countdown = 1  # row 0 is the initial state
-    for k in range(n_steps + 1):
-        is_row = False
+    total = n_steps + 1 if dt_last > 0.0 else n_steps
+    for k in range(total + 1):
+        is_row = k == total   # the final state is always a row
         countdown -= 1
         if countdown == 0:
             countdown = record_every
@@ -216,7 +220,7 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
                 for c in range(n):
                     TAU[0, i, c] = tau[i, c]
         if is_row:
-            T[row] = t0 + (k0 + k) * dt
+            T[row] = t0 + (k0 + k) * dt if k <= n_steps else t0 + (k0 + n_steps) * dt + dt_last
             ok = True
             for i in range(N):
                 for c in range(n):
@@ -234,23 +238,30 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
             if not ok:
                 return DIVERGED, k, row, imp
             row += 1
-        if k == n_steps:
+        if k == total:
             break
-        if countdown == 1:
+        if countdown == 1 or k == total - 1:
             for i in range(N):
                 for c in range(n):
                     TAU[row, i, c] = tau[i, c]
         t = t0 + (k0 + k) * dt
+        hk = dt
+        if k == n_steps:   # the shortened last step
+            hk = dt_last
+            if scheme == THETA:
+                for i in range(N):
+                    WS[i] = theta_matrices(_node(base, K, C, f0, F, Omega, phi, i), hk, theta, Sinv[i],
+                                           Sinv_w[i])
         for i in range(N):
             sa = _node(base, K, C, f0, F, Omega, phi, i)
             if scheme == THETA:
-                P = theta_step(sa, q[i], u[i], tau[i], t, dt, theta, Sinv[i], Sinv_w[i], WS[i], qM, h, uf)
+                P = theta_step(sa, q[i], u[i], tau[i], t, hk, theta, Sinv[i], Sinv_w[i], WS[i], qM, h, uf)
             else:
-                P = midpoint_step(sa, q[i], u[i], tau[i], t, dt, qM, h, uf)
+                P = midpoint_step(sa, q[i], u[i], tau[i], t, hk, qM, h, uf)
             finish_step(q[i], u[i])
             if P > 0.0:
                 imp[i] += 1
-    return OK, n_steps, row, imp
+    return OK, total, row, imp
 
 
 # ------------------------------------------------------------------ Python API
@@ -299,7 +310,10 @@ def simulate_network(system, states, A, t_end: float, dt: float, coupling="switc
     laws = edge_laws(coupling, edges)
     s0 = systems[0]
     n = s0.n
-    dt, n_steps, record_every = check_run(t_end, dt, record_every, t0)
+    grid, record_every = check_run(t_end, dt, record_every, t0)
+    dt = grid.dt
+    n_steps = grid.steps - 1 if grid.short else grid.steps   # whole steps; then the shortened one
+    dt_last = grid.dt_last if grid.short else 0.0
     code, theta = scheme_code(scheme, theta)
     if not allow_unstable:
         seen = []
@@ -324,8 +338,9 @@ def simulate_network(system, states, A, t_end: float, dt: float, coupling="switc
                                allow_unstable=allow_unstable, step_name="dt")
     record_d = bool(record_distance) or bool(np.any(laws == LAWS["switching"]))
     geo = geometry(s0, Q)
-    rows = n_steps // record_every + 1
+    rows = record_rows(grid.steps, record_every)
     E = len(edges)
+    check_record_size(rows, 1 + 3 * N * n + (3 * E + 1 if record_d else 0), "the record of simulate_network")
     T = np.full(rows, np.nan)
     Qr, Ur, TAU = (np.full((rows, N, n), np.nan) for _ in range(3))
     D, EU = np.full((rows, E), np.nan), np.full((rows, E), np.nan)
@@ -339,6 +354,8 @@ def simulate_network(system, states, A, t_end: float, dt: float, coupling="switc
     else:
         per = max(1, (n_steps // record_every) // 100) * record_every
         chunks = [per] * (n_steps // per) + ([n_steps % per] if n_steps % per else [])
+        if not chunks:
+            chunks = [0]
     row0, k0 = 0, 0
     imp = np.zeros(N, dtype=np.int64)
     status = OK
@@ -347,7 +364,8 @@ def simulate_network(system, states, A, t_end: float, dt: float, coupling="switc
         sl = slice(row0, rows)
         status, done, written, i_ = integrate_network(
             base, K, C, f0, F, Om, ph, geo, laws, E2, W2, Kp_m, Kd_m, q, u, float(t0), k0, dt, steps,
-            code, theta, record_every, record_d, T[sl], Qr[sl], Ur[sl], TAU[sl], D[sl], BR[sl], EU[sl])
+            code, theta, record_every, record_d, T[sl], Qr[sl], Ur[sl], TAU[sl], D[sl], BR[sl], EU[sl],
+            dt_last if last else 0.0)
         imp += i_
         if status != OK:
             row0 += written
@@ -356,14 +374,14 @@ def simulate_network(system, states, A, t_end: float, dt: float, coupling="switc
         k0 += steps
         row0 += written - (0 if last else 1)
         if progress is not None:
-            progress(k0 / max(n_steps, 1))
+            progress(min(k0 / max(n_steps, 1), 1.0))
     sl = slice(0, row0 if status != OK else rows)
     V = None
     if record_d:
         a_sym = np.array([0.5 * (A[i, j] + A[j, i]) for i, j in edges])
         with np.errstate(over="ignore"):  # a failed run may end on huge (finite) d
             V = 0.5 * (D[sl] ** 2) @ a_sym
-    info = dict(mode="core", dt=dt, scheme=scheme, steps=n_steps, N=N,
+    info = dict(mode="core", dt=dt, scheme=scheme, steps=grid.steps, N=N,
                 coupling=coupling if isinstance(coupling, str) or coupling is None else list(coupling))
     if limit is not None:
         info.update(omega_c_dt=limit.h, exchange_bound=limit.bound, zeta=limit.zeta,
@@ -372,7 +390,7 @@ def simulate_network(system, states, A, t_end: float, dt: float, coupling="switc
                         BR[sl] if record_d else None, EU[sl] if record_d else None, V,
                         impacts=[int(v) for v in imp], info=info)
     if status != OK:
-        msg = divergence_message(s0, scheme, dt, t0 + k0 * dt, what="a network state or distance",
+        msg = divergence_message(s0, scheme, dt, min(t0 + k0 * dt, grid.t_end), what="a network state or distance",
                                  Kp=Kp_m if coupled else None)
         if limit is not None:
             msg += f" ({limit.message()})"

@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .core.checks import check_run, check_start, check_step
+from .core.checks import check_record_size, check_run, check_start, check_step, record_rows
 from .core.coupling import chain_work, gain_matrix
 from .core.distance import geometry
 from .core.errors import RunFailed, SimulationDiverged
@@ -155,7 +155,8 @@ class NetworkMaster:
                  Kp=0.0, Kd=0.0, Q=None, method: str = "jacobi", record_every: int = 1,
                  event_aware: bool = False, H_min: float | None = None, start_values=None,
                  record_distance: bool = True, allow_unstable: bool = False, hold: str = "zoh"):
-        H, n_steps, record_every = check_run(t_end, H, record_every, dt_name="H")
+        grid, record_every = check_run(t_end, H, record_every, dt_name="H")
+        H, n_steps = grid.dt, grid.steps   # the last step shortened to land on t_end (grid.dt_last)
         if method not in self.METHODS:
             raise ValueError(f"method must be {' or '.join(repr(m) for m in self.METHODS)}, got {method!r}")
         if event_aware:
@@ -163,7 +164,7 @@ class NetworkMaster:
             if H_min > H:
                 raise ValueError(f"H_min must not exceed H = {H}, got {H_min}")
         if n_steps < 1:
-            raise ValueError(f"t_end = {t_end} is shorter than one communication step H = {H}")
+            raise ValueError(f"t_end must be > 0 (at least one communication step), got {t_end}")
         self.states = list(states)
         self.N = N = len(self.states)
         if N < 2:
@@ -186,7 +187,10 @@ class NetworkMaster:
         self.md = read_model_description(self.fmu)
         self.model = fmu_model(self.md)  # a foreign FMU fails here, naming what it lacks
         self.hold = check_hold(hold, self.md, self.fmu)
-        self.H, self.n_steps, self.record_every = H, n_steps, record_every
+        E, n = len(self.edges), self.model.n
+        check_record_size(record_rows(n_steps, record_every), 1 + 3 * N * n + 3 * E,
+                          "the record of the co-simulation")   # before any instance or array exists
+        self.H, self.n_steps, self.record_every, self.grid = H, n_steps, record_every, grid
         self.coupling = coupling
         self.allow_unstable = bool(allow_unstable)
         self.limit = None
@@ -223,7 +227,7 @@ class NetworkMaster:
         if self.coupled:  # before the first step: the held exchange must be stable at H
             self.limit = check_exchange(system.M, self.Kp_m, self.Kd_m, self.H, A=self.A_coupled,
                                         allow_unstable=self.allow_unstable, hold=self.hold)
-        E, rows = len(self.edges), self.n_steps // self.record_every + 1
+        E, rows = len(self.edges), record_rows(self.n_steps, self.record_every)
         self.T = np.full(rows, np.nan)
         self.Qr, self.Ur, self.TAU = (np.full((rows, N, n), np.nan) for _ in range(3))
         self.D, self.EU = np.full((rows, E), np.nan), np.full((rows, E), np.nan)
@@ -323,25 +327,27 @@ class NetworkMaster:
         self.history.remember(self.tau, t)
         return x
 
-    def communication_step(self, t: float, x, impacts: list) -> tuple[list, list]:
-        """One step of length H from t; event-aware: retaken in pieces of H_min if an
-        impact counter moved. Returns (new states, impact counters)."""
+    def communication_step(self, t: float, x, impacts: list, h: float | None = None) -> tuple[list, list]:
+        """One step of length h (default H; the run's last step may be shorter) from t;
+        event-aware: retaken in pieces of H_min if an impact counter moved. Returns
+        (new states, impact counters)."""
+        h = self.H if h is None else h
         if not self.event_aware:
-            new = self.exchange(t, self.H, x)
+            new = self.exchange(t, h, x)
             return new, [s.get_integer(contract.IMPACTS) for s in self.slaves]
         saved, history = [s.save() for s in self.slaves], self.history.save()
-        new = self.exchange(t, self.H, x)
+        new = self.exchange(t, h, x)
         now = [s.get_integer(contract.IMPACTS) for s in self.slaves]
         if now != impacts:
             self.history.restore(history)
-            new, now = self.retake(t, x, saved)
+            new, now = self.retake(t, x, saved, h)
         for s, st in zip(self.slaves, saved):
             s.free_state(st)
         return new, now
 
-    def retake(self, t: float, x, saved) -> tuple[list, list]:
-        """Restore every instance to t and retake [t, t + H] in pieces of about H_min."""
-        H = self.H
+    def retake(self, t: float, x, saved, h: float | None = None) -> tuple[list, list]:
+        """Restore every instance to t and retake [t, t + h] (default H) in pieces of about H_min."""
+        H = self.H if h is None else h
         self.retakes += 1
         for s, st in zip(self.slaves, saved):
             s.restore(st, t)
@@ -406,19 +412,23 @@ class NetworkMaster:
             imp = [s.get_integer(contract.IMPACTS) for s in self.slaves]
             n_steps, H = self.n_steps, self.H
             report_every = max(1, n_steps // 200)
+            grid = self.grid
             for k in range(n_steps):
+                final = k == n_steps - 1
+                h = grid.dt_last if final else H        # the last step lands on t_end
+                t_next = grid.t_end if final and grid.short else (k + 1) * H
                 try:
-                    x, imp = self.communication_step(k * H, x, imp)
+                    x, imp = self.communication_step(k * H, x, imp, h)
                 except SlaveError as ex:
                     failure = ex
                     break
                 if not all(np.all(np.isfinite(xi[0])) and np.all(np.isfinite(xi[1])) for xi in x):
-                    failure = self.diverged((k + 1) * H, "a state")
+                    failure = self.diverged(t_next, "a state")
                     break
-                if (k + 1) % self.record_every == 0:
-                    self.record(row, (k + 1) * H, x, self.tau.copy())
+                if (k + 1) % self.record_every == 0 or final:   # the final state is always a row
+                    self.record(row, t_next, x, self.tau.copy())
                     if self.need_d and not np.all(np.isfinite(self.D[row])):
-                        failure = self.diverged((k + 1) * H, "a distance")
+                        failure = self.diverged(t_next, "a distance")
                         break
                     row += 1
                 if progress is not None and (k + 1) % report_every == 0:
@@ -484,7 +494,8 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
     ----------
     fmu : path to the .fmu (an fmu-sync mechanical model, see ``fmu-sync export``).
     x1, x2 : start states (q, u) of the two instances (set as ``q_start``/``u_start``).
-    t_end, H : stop time and communication step; the run makes ``floor(t_end/H)`` steps.
+    t_end, H : stop time and communication step; the run ends exactly at ``t_end`` (the
+        last communication step shortened when ``t_end`` is not a multiple of ``H``).
     coupling : None, ``"switching"`` (quotient coupling) or ``"euclidean"`` (PD baseline).
     Kp, Kd : gains (scalars or n×n).  Q : position weight of the norm (default identity).
     method : ``"jacobi"`` (both slaves get inputs computed from the same states) or

@@ -27,6 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .core.checks import record_rows, run_steps
+
 __all__ = ["FORMATS", "DEFAULT_MAX_MEMORY", "DEFAULT_MAX_DISK", "OutputTooLarge", "OutputPathError",
            "Estimate", "parse_size", "format_size", "parse_formats", "estimate", "check_budget",
            "check_out_dir", "RecordWriter", "pair_columns", "network_columns", "single_columns", "WRITE_ROWS"]
@@ -163,10 +165,10 @@ class Estimate:
 
 
 def _steps(cfg) -> tuple[int, float, str]:
+    """Steps of a variant's run (the last one shortened to land on run.t_end), its step and the step's key."""
     step, name = (cfg["run.H"], "run.H") if cfg["run.mode"] == "cosim" and cfg.get("initial.x2") is not None \
         else (cfg["solver.dt"], "solver.dt")
-    r = cfg["run.t_end"] / step
-    return int(math.floor(r + 1e-9)), step, name
+    return run_steps(cfg["run.t_end"], step).steps, step, name
 
 
 def estimate(variant, formats=FORMATS) -> Estimate:
@@ -183,7 +185,7 @@ def estimate(variant, formats=FORMATS) -> Estimate:
         cols = pair_columns(n, variant.has_distance)
     else:
         cols = single_columns(n)
-    return Estimate(variant.name, steps, every, steps // every + 1, sum(w for _, w in cols),
+    return Estimate(variant.name, steps, every, record_rows(steps, every), sum(w for _, w in cols),
                     tuple(formats))
 
 
