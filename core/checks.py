@@ -12,7 +12,8 @@ from .errors import SimulationDiverged
 from .model import MechanicalSystem
 
 __all__ = ["check_step", "check_run", "n_steps", "RunSteps", "run_steps", "record_rows", "record_times",
-           "check_record_size", "RecordTooLarge", "record_budget", "scheme_code", "check_stable", "coupling_omega",
+           "check_record_size", "RecordTooLarge", "record_budget", "GAP_TOL", "InadmissibleState",
+           "check_admissible", "scheme_code", "check_stable", "coupling_omega",
            "divergence_message", "check_start"]
 
 
@@ -129,6 +130,30 @@ def check_start(system: MechanicalSystem, q, name: str = "x0") -> None:
     g = system.gap(q)
     if g < 0.0:
         raise ValueError(f"{name} violates the constraint: g(q) = {g:.6g} < 0 (need g >= 0)")
+
+
+#: Relative tolerance of :func:`check_admissible`: a state is inside the wall when
+#: g(q) < -GAP_TOL * max(1, |g0|, |w|^T |q|) (round-off of a state on the wall passes).
+GAP_TOL = 1e-9
+
+
+class InadmissibleState(ValueError):
+    """A state inside the wall (g(q) < 0 beyond :data:`GAP_TOL`)."""
+
+
+def check_admissible(w, g0: float, q, name: str = "x") -> None:
+    """Refuse (:class:`InadmissibleState`) a position inside the wall: the quotient
+    distance is defined on the admissible set g(q) = w^T q + g0 >= 0 only."""
+    w = np.asarray(w, dtype=np.float64).reshape(-1)
+    q = np.asarray(q, dtype=np.float64).reshape(-1)
+    g = float(w @ q + g0)
+    tol = GAP_TOL * max(1.0, abs(float(g0)), float(np.abs(w) @ np.abs(q)))
+    if not g >= -tol:
+        raise InadmissibleState(
+            f"{name} is not an admissible state: g(q) = w^T q + g0 = {g:.6g} < 0 (inside the wall; the "
+            f"quotient distance is defined for g(q) >= 0, tolerance {tol:.3g}). A time-stepping record may "
+            f"end a contact step slightly inside the wall: compare its states through the run's own "
+            f"distance record (result.d), or move q onto the wall first")
 
 
 def scheme_code(scheme: str, theta: float) -> tuple[int, float]:

@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .core.checks import check_record_size, check_run, check_start, check_step, record_rows
+from .core.checks import check_record_size, check_run, check_stable, check_start, check_step, record_rows
 from .core.coupling import chain_work, gain_matrix
 from .core.distance import geometry
 from .core.errors import RunFailed, SimulationDiverged
@@ -155,16 +155,14 @@ class NetworkMaster:
                  Kp=0.0, Kd=0.0, Q=None, method: str = "jacobi", record_every: int = 1,
                  event_aware: bool = False, H_min: float | None = None, start_values=None,
                  record_distance: bool = True, allow_unstable: bool = False, hold: str = "zoh"):
-        grid, record_every = check_run(t_end, H, record_every, dt_name="H")
-        H, n_steps = grid.dt, grid.steps   # the last step shortened to land on t_end (grid.dt_last)
+        grid, record_every = check_run(t_end, H, record_every, dt_name="H")   # ends at t_end (grid.dt_last)
+        H, n_steps = grid.dt, grid.steps
         if method not in self.METHODS:
             raise ValueError(f"method must be {' or '.join(repr(m) for m in self.METHODS)}, got {method!r}")
         if event_aware:
             H_min = H / 16 if H_min is None else check_step(H_min, "H_min")
             if H_min > H:
                 raise ValueError(f"H_min must not exceed H = {H}, got {H_min}")
-        if n_steps < 1:
-            raise ValueError(f"t_end must be > 0 (at least one communication step), got {t_end}")
         self.states = list(states)
         self.N = N = len(self.states)
         if N < 2:
@@ -187,8 +185,7 @@ class NetworkMaster:
         self.md = read_model_description(self.fmu)
         self.model = fmu_model(self.md)  # a foreign FMU fails here, naming what it lacks
         self.hold = check_hold(hold, self.md, self.fmu)
-        E, n = len(self.edges), self.model.n
-        check_record_size(record_rows(n_steps, record_every), 1 + 3 * N * n + 3 * E,
+        check_record_size(record_rows(n_steps, record_every), 1 + 3 * N * self.model.n + 3 * len(self.edges),
                           "the record of the co-simulation")   # before any instance or array exists
         self.H, self.n_steps, self.record_every, self.grid = H, n_steps, record_every, grid
         self.coupling = coupling
@@ -238,10 +235,8 @@ class NetworkMaster:
         self.work = chain_work(n)
 
     def _check_internal_steps(self) -> None:
-        """Before the first step: each instance's own scheme limit (the explicit midpoint
-        needs omega_max*dt < 2 for its internal step dt), from its parameter values, with
-        the core's check; the slave would refuse its first doStep otherwise."""
-        from .core.checks import check_stable
+        """Before the first step: each instance's own scheme limit (the explicit midpoint needs
+        omega_max*dt < 2 for its internal step dt), from its parameter values, with the core's check."""
         names = [v.name for v in self.model.declare() if v.causality == "parameter" and v.type == "Real"]
         for i, s in enumerate(self.slaves):
             values = dict(zip(names, s.get(names)))
@@ -327,11 +322,9 @@ class NetworkMaster:
         self.history.remember(self.tau, t)
         return x
 
-    def communication_step(self, t: float, x, impacts: list, h: float | None = None) -> tuple[list, list]:
-        """One step of length h (default H; the run's last step may be shorter) from t;
-        event-aware: retaken in pieces of H_min if an impact counter moved. Returns
-        (new states, impact counters)."""
-        h = self.H if h is None else h
+    def communication_step(self, t: float, x, impacts: list, h: float) -> tuple[list, list]:
+        """One step of length h (H, or the shortened last one) from t; event-aware: retaken in
+        pieces of H_min if an impact counter moved. Returns (new states, impact counters)."""
         if not self.event_aware:
             new = self.exchange(t, h, x)
             return new, [s.get_integer(contract.IMPACTS) for s in self.slaves]
@@ -345,9 +338,8 @@ class NetworkMaster:
             s.free_state(st)
         return new, now
 
-    def retake(self, t: float, x, saved, h: float | None = None) -> tuple[list, list]:
-        """Restore every instance to t and retake [t, t + h] (default H) in pieces of about H_min."""
-        H = self.H if h is None else h
+    def retake(self, t: float, x, saved, H: float) -> tuple[list, list]:
+        """Restore every instance to t and retake [t, t + H] in pieces of about H_min."""
         self.retakes += 1
         for s, st in zip(self.slaves, saved):
             s.restore(st, t)
@@ -412,11 +404,9 @@ class NetworkMaster:
             imp = [s.get_integer(contract.IMPACTS) for s in self.slaves]
             n_steps, H = self.n_steps, self.H
             report_every = max(1, n_steps // 200)
-            grid = self.grid
-            for k in range(n_steps):
-                final = k == n_steps - 1
-                h = grid.dt_last if final else H        # the last step lands on t_end
-                t_next = grid.t_end if final and grid.short else (k + 1) * H
+            for k in range(n_steps):   # the last step lands on t_end: the final state is always a row
+                final, h, t_next = (True, self.grid.dt_last, self.grid.t_end) if k == n_steps - 1 else \
+                    (False, H, (k + 1) * H)
                 try:
                     x, imp = self.communication_step(k * H, x, imp, h)
                 except SlaveError as ex:
@@ -425,7 +415,7 @@ class NetworkMaster:
                 if not all(np.all(np.isfinite(xi[0])) and np.all(np.isfinite(xi[1])) for xi in x):
                     failure = self.diverged(t_next, "a state")
                     break
-                if (k + 1) % self.record_every == 0 or final:   # the final state is always a row
+                if (k + 1) % self.record_every == 0 or final:
                     self.record(row, t_next, x, self.tau.copy())
                     if self.need_d and not np.all(np.isfinite(self.D[row])):
                         failure = self.diverged(t_next, "a distance")
@@ -494,8 +484,7 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
     ----------
     fmu : path to the .fmu (an fmu-sync mechanical model, see ``fmu-sync export``).
     x1, x2 : start states (q, u) of the two instances (set as ``q_start``/``u_start``).
-    t_end, H : stop time and communication step; the run ends exactly at ``t_end`` (the
-        last communication step shortened when ``t_end`` is not a multiple of ``H``).
+    t_end, H : stop time (reached exactly: the last step shortened) and communication step.
     coupling : None, ``"switching"`` (quotient coupling) or ``"euclidean"`` (PD baseline).
     Kp, Kd : gains (scalars or n×n).  Q : position weight of the norm (default identity).
     method : ``"jacobi"`` (both slaves get inputs computed from the same states) or

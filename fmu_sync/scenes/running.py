@@ -14,7 +14,7 @@ from ..progress import scaled
 from .loading import Scene, as_scene
 from .schema import DEFAULT_OUT, TABLES, SceneError, Variant
 
-__all__ = ["RunRecord", "SceneRun", "RunRefused", "preflight", "run_scene", "run_variant", "fmu_start_values", "export_for",
+__all__ = ["RunRecord", "SceneRun", "RunRefused", "RunInterrupted", "preflight", "run_scene", "run_variant", "fmu_start_values", "export_for",
            "write_run", "error_notes", "settings_table"]
 
 
@@ -262,7 +262,7 @@ def _stream_run(v: Variant, out_dir: Path, fmu_path, progress, scene_name, forma
 
 def run_scene(scene, out_dir=None, overrides: dict | None = None, progress: Callable | None = None,
               variants=None, plots: bool = True, formats=None, max_memory: float | None = None,
-              max_disk: float | None = None) -> SceneRun:
+              max_disk: float | None = None, overwrite: bool = False) -> SceneRun:
     """Run every (or the named) variant(s) of a scene and write data, plots and ``summary.md``.
 
     ``scene`` is a :class:`Scene` or a name/path for :func:`load_scene`. ``out_dir``
@@ -276,10 +276,14 @@ def run_scene(scene, out_dir=None, overrides: dict | None = None, progress: Call
     stability of each variant's step (:func:`preflight`) and its record size
     (:func:`fmu_sync.output.check_budget`). A variant that fails mid-way keeps
     its record, marked partial, without plots (``SceneRun.failed``); if nothing
-    was recorded, nothing is left behind. Returns a :class:`SceneRun`.
+    was recorded, nothing is left behind. A folder holding another scene's results
+    (its ``summary.md``) is refused unless ``overwrite`` (which removes them).
+    Interrupted (Ctrl-C, SIGTERM through the CLI): the finished variants are kept with
+    a ``summary.md``, the interrupted one is removed, and :class:`RunInterrupted` says so.
+    Returns a :class:`SceneRun`.
     """
     from .. import report
-    from ..output import DEFAULT_MAX_DISK, DEFAULT_MAX_MEMORY, check_budget, check_out_dir
+    from ..output import DEFAULT_MAX_DISK, DEFAULT_MAX_MEMORY, check_budget, check_out_dir, make_out_dir, results_in
 
     scene = as_scene(scene, overrides, variants)
     chosen = list(scene.variants)
@@ -295,12 +299,15 @@ def run_scene(scene, out_dir=None, overrides: dict | None = None, progress: Call
                                    label=_label(v, scene.name))
         plan.append((v, fmts, est, stream))
 
-    created = not out_dir.exists()
-    out_dir.mkdir(parents=True, exist_ok=True)
+    old = results_in(out_dir, f"Scene `{scene.name}`", overwrite)
+    _clean(out_dir, False, old)   # --overwrite: another scene's results go, after every check passed
+    created = make_out_dir(out_dir)
     fmus = {}
     runs = []
+    current = None
     try:
         for i, (v, fmts, est, stream) in enumerate(plan):
+            current = v.name
             fmu_path = None
             if v.pair and v.mode == "cosim":
                 model = (v.cfg["system.model"], v.system.n)
@@ -323,14 +330,42 @@ def run_scene(scene, out_dir=None, overrides: dict | None = None, progress: Call
                 run = RunRecord(v.name, v, result, report.metrics(result, v.system))
             if run.result is not None and getattr(run.result, "error", None):
                 run.metrics["error"] = run.result.error
-            write_run(run, out_dir, scene.plots if plots else (), scene.name, fmts, scaled(progress, mid, b))
+            try:
+                write_run(run, out_dir, scene.plots if plots else (), scene.name, fmts, scaled(progress, mid, b))
+            except BaseException:
+                _clean(out_dir, False, run.files)   # never half a variant's files
+                raise
             if progress is not None:
                 progress(b)
             runs.append(run)
+            current = None
+    except KeyboardInterrupt:
+        raise _interrupted(scene, out_dir, created, runs, fmus, current, plots, chosen) from None
     except BaseException:
         _clean(out_dir, created, [f for r in runs for f in r.files] + list(fmus.values()))
         raise
+    return _summarize(scene, out_dir, created, runs, fmus, plots, chosen)
 
+
+class RunInterrupted(KeyboardInterrupt):
+    """A scene run interrupted: the message says what was kept and how to run the rest."""
+
+
+def _interrupted(scene, out_dir, created, runs, fmus, current, plots, chosen) -> RunInterrupted:
+    done = [r for r in runs if r.result is not None]
+    rest = [v.name for v in chosen if v.name not in {r.name for r in runs}]
+    if not done:
+        _clean(out_dir, created, list(fmus.values()))
+        return RunInterrupted(f"interrupted during variant {current!r}: nothing kept (no variant had finished)")
+    sr = _summarize(scene, out_dir, created, runs, fmus, plots, chosen)
+    again = " ".join(f"--variant {n}" for n in rest)
+    return RunInterrupted(
+        f"interrupted during variant {current!r}: kept {', '.join(r.name for r in done)} in {sr.out_dir}/ "
+        f"(data, plots, summary.md); to run the rest, repeat the command with {again} and another -o")
+
+
+def _summarize(scene, out_dir, created, runs, fmus, plots, chosen) -> SceneRun:
+    from .. import report
     written = [r for r in runs if r.result is not None]
     if not written:   # every run failed without a record: leave nothing behind
         _clean(out_dir, created, list(fmus.values()))
