@@ -23,7 +23,7 @@ from .spec import SweepSpecError
 __all__ = ["SweepTooLarge", "SweepEstimate", "grid_size", "estimate_sweep", "check_sweep_budget",
            "RUN_BYTES", "DEFAULT_MAX_TIME", "DEFAULT_MAX_RUNS"]
 
-#: bytes held per run while a sweep runs and is stored (upper estimate; measured ~1.2 KiB)
+#: bytes held per run while a sweep runs and is stored (upper estimate; measured 1.1-1.3 KiB)
 RUN_BYTES = 2048
 #: steps per second of one thread of the compiled 1-DOF pair engine (lower estimate)
 COMPILED_STEPS_PER_S = 1.0e7
