@@ -8,7 +8,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .errors import SimulationDiverged
+from .errors import UnstableScheme
 from .model import MechanicalSystem
 
 __all__ = ["check_step", "check_run", "n_steps", "RunSteps", "run_steps", "record_rows", "record_times",
@@ -173,12 +173,12 @@ def check_stable(system: MechanicalSystem, scheme: str, dt: float) -> None:
     Störmer–Verlet scheme, stable only for omega_max*dt < 2. Beyond that it
     returns growing garbage long before the state overflows (measured: 5e73 on
     the stiff wall at omega_max*dt = 100), so the run is refused up front with
-    :class:`SimulationDiverged` (the theta scheme has no such limit).
+    :class:`UnstableScheme`, a ValueError (the theta scheme has no such limit).
     """
     if scheme == "midpoint":
         wdt = system.omega_max() * dt
         if wdt >= 2.0:
-            raise SimulationDiverged(
+            raise UnstableScheme(
                 f"the explicit midpoint scheme diverges for omega_max*dt >= 2: scheme='midpoint', "
                 f"dt = {dt:.3g}, omega_max*dt = {wdt:.3g}. Use scheme='theta' or "
                 f"dt < {2.0 / system.omega_max():.3g}.")

@@ -32,7 +32,7 @@ from .pair import LAWS, as_systems, check_common_geometry, coupling_step
 from .result import NetworkResult
 
 __all__ = ["simulate_network", "ring", "path", "star", "all_to_all", "GRAPHS", "graph", "weights",
-           "edges_of", "edge_laws", "coupled_weights"]
+           "edges_of", "edge_laws", "coupled_weights", "held_exchange"]
 
 
 # ------------------------------------------------------------------ graphs
@@ -136,6 +136,27 @@ def coupled_weights(A, edges, laws) -> np.ndarray:
         if law == LAWS[None]:
             Ac[i, j] = Ac[j, i] = 0.0
     return Ac
+
+
+def held_exchange(M, Kp, Kd, step: float, A=None, laws=None, hold: str = "zoh", allow_unstable: bool = False,
+                  step_name: str = "H"):
+    """The one check of the held coupling exchange of a run (docs/design.md §2.6), as
+    :func:`simulate_pair`, :func:`simulate_network`, the co-simulation master and the
+    scene preflight make it: gains as n x n matrices, the weights of the edges whose law
+    carries a force (``laws``: one code per edge of ``A``, default all coupled; ``A``
+    default the pair), the hold in use (``"zoh"``; the master's ``"foh"``). Returns
+    ``(Kp, Kd, A_coupled, limit)``; ``limit`` is None when no edge is coupled; refused
+    with ``UnstableExchange`` (a ValueError) unless ``allow_unstable``."""
+    n = np.atleast_2d(np.asarray(M, dtype=np.float64)).shape[0]
+    Kp_m, Kd_m = gain_matrix(Kp, n, "Kp"), gain_matrix(Kd, n, "Kd")
+    A = weights([[0.0, 1.0], [1.0, 0.0]] if A is None else A)
+    edges = edges_of(A)
+    laws = np.full(len(edges), LAWS["switching"], dtype=np.int64) if laws is None else np.asarray(laws)
+    Ac = coupled_weights(A, edges, laws)
+    if not np.any(laws != LAWS[None]):
+        return Kp_m, Kd_m, Ac, None
+    return Kp_m, Kd_m, Ac, check_exchange(M, Kp_m, Kd_m, step, A=Ac, allow_unstable=allow_unstable,
+                                          step_name=step_name, hold=hold)
 
 
 # ------------------------------------------------------------------ kernel
@@ -330,12 +351,8 @@ def simulate_network(system, states, A, t_end: float, dt: float, coupling="switc
     for i, x in enumerate(states):
         q[i], u[i] = as_state(s0, x, f"x{i + 1}")
         check_start(s0, q[i], f"x{i + 1}")
-    Kp_m, Kd_m = gain_matrix(Kp, n, "Kp"), gain_matrix(Kd, n, "Kd")
     coupled = bool(np.any(laws != LAWS[None]))
-    limit = None
-    if coupled:
-        limit = check_exchange(s0.M, Kp_m, Kd_m, dt, A=coupled_weights(A, edges, laws),
-                               allow_unstable=allow_unstable, step_name="dt")
+    Kp_m, Kd_m, _, limit = held_exchange(s0.M, Kp, Kd, dt, A, laws, allow_unstable=allow_unstable, step_name="dt")
     record_d = bool(record_distance) or bool(np.any(laws == LAWS["switching"]))
     geo = geometry(s0, Q)
     rows = record_rows(grid.steps, record_every)

@@ -197,14 +197,6 @@ def _cmd_validate(path: Path) -> int:
     return 0
 
 
-def _refused_up_front(exc) -> bool:
-    """The midpoint stability check raises SimulationDiverged before the first step (no
-    record): that is a refusal of the input (status 2), not a failed run."""
-    from .core import SimulationDiverged
-    return (isinstance(exc, SimulationDiverged) and exc.partial is None
-            and "diverges for omega_max*dt >= 2" in str(exc))
-
-
 def _one_line(exc: BaseException) -> str:
     if isinstance(exc, OSError) and exc.strerror:   # plain words, not "[Errno 13] ..."
         from .output import plain_os_error
@@ -234,7 +226,7 @@ def _main(argv) -> int:
     import signal
 
     from .core import RunFailed
-    from .scenes.schema import SceneError
+    from .scenes.schema import SceneError   # refusals are ValueErrors (exit 2) by type, never by message
     try:
         signal.signal(signal.SIGTERM, _terminate)
     except ValueError:   # not the main thread (an embedding host): leave the handler alone
@@ -262,7 +254,7 @@ def _main(argv) -> int:
         raise AssertionError(args.command)
     except RunFailed as exc:   # a run that failed mid-way (or a diverging single system)
         print(f"{PROG}: error: {_one_line(exc)}", file=sys.stderr)
-        return EXIT_BAD_INPUT if _refused_up_front(exc) else EXIT_FAILED
+        return EXIT_FAILED
     except (SceneError, FileNotFoundError, FileExistsError, ValueError, ImportError) as exc:
         prefix = "missing component: " if isinstance(exc, ImportError) else ""
         print(f"{PROG}: error: {prefix}{_one_line(exc)}", file=sys.stderr)

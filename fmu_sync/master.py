@@ -34,12 +34,12 @@ from pathlib import Path
 import numpy as np
 
 from .core.checks import check_record_size, check_run, check_stable, check_start, check_step, record_rows
-from .core.coupling import chain_work, gain_matrix
+from .core.coupling import chain_work
 from .core.distance import geometry
-from .core.errors import RunFailed, SimulationDiverged
-from .core.exchange import check_exchange, exchange_limit
+from .core.errors import RunFailed, SimulationDiverged, UnstableScheme
+from .core.exchange import exchange_limit
 from .core.model import MechanicalSystem, as_state
-from .core.network import coupled_weights, edge_laws, edges_of, weights
+from .core.network import edge_laws, edges_of, held_exchange, weights
 from .core.pair import LAWS, check_common_geometry, coupling_step
 from .core.result import NetworkResult, PairResult
 from .fmus import contract
@@ -219,11 +219,7 @@ class NetworkMaster:
             s.exit_initialization(model.state_values(q0, u0))
         n = model.n
         self.geo = geometry(system, self.Q)
-        self.Kp_m, self.Kd_m = gain_matrix(self.Kp, n, "Kp"), gain_matrix(self.Kd, n, "Kd")
-        self.A_coupled = coupled_weights(self.A, self.edges, self.laws)
-        if self.coupled:  # before the first step: the held exchange must be stable at H
-            self.limit = check_exchange(system.M, self.Kp_m, self.Kd_m, self.H, A=self.A_coupled,
-                                        allow_unstable=self.allow_unstable, hold=self.hold)
+        self.check_held_exchange(system)
         E, rows = len(self.edges), record_rows(self.n_steps, self.record_every)
         self.T = np.full(rows, np.nan)
         self.Qr, self.Ur, self.TAU = (np.full((rows, N, n), np.nan) for _ in range(3))
@@ -233,6 +229,11 @@ class NetworkMaster:
         self.history = InputHistory(N, n)
         self.t1, self.t2 = np.zeros(n), np.zeros(n)
         self.work = chain_work(n)
+
+    def check_held_exchange(self, system: MechanicalSystem) -> None:
+        """Before the first step: the held exchange is stable at H for the hold in use (the core's one check)."""
+        self.Kp_m, self.Kd_m, self.A_coupled, self.limit = held_exchange(
+            system.M, self.Kp, self.Kd, self.H, self.A, self.laws, self.hold, self.allow_unstable)
 
     def _check_internal_steps(self) -> None:
         """Before the first step: each instance's own scheme limit (the explicit midpoint needs
@@ -245,8 +246,8 @@ class NetworkMaster:
                 continue
             try:
                 check_stable(self.model.system(values), scheme, values[contract.SOLVER_DT])
-            except SimulationDiverged as exc:
-                raise SimulationDiverged(f"refused before the first step: instance {i + 1}: {exc} "
+            except UnstableScheme as exc:
+                raise UnstableScheme(f"refused before the first step: instance {i + 1}: {exc} "
                                          f"(allow_unstable=True runs anyway)") from None
 
     def read(self, s: FmuInstance) -> list:
@@ -456,11 +457,9 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
     ``start_values``: one dict of parameter start values for every instance, or
     a sequence of N dicts (or None), one per instance (non-identical systems:
     K, C, f0, forcing may differ; M, w, g0 and e must not).
-    The stability of the held exchange over ``H`` is checked before the first
-    step by :func:`fmu_sync.core.exchange.check_exchange` (refused with
-    ``UnstableExchange``, a ValueError, unless ``allow_unstable``), and so is
-    each instance's internal midpoint step (omega_max*dt < 2, refused with
-    ``SimulationDiverged`` whose ``partial`` is None).
+    Before the first step, the held exchange over ``H`` (:func:`fmu_sync.core.network.held_exchange`,
+    ``UnstableExchange``) and each instance's internal midpoint step (omega_max*dt < 2,
+    ``UnstableScheme``) are checked; both are ValueErrors, skipped with ``allow_unstable``.
     """
     return NetworkMaster(fmu, states, A, t_end, H, coupling, Kp, Kd, Q, method, record_every, event_aware,
                          H_min, start_values, record_distance, allow_unstable, hold).run(progress)

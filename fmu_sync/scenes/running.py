@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-from ..core import RunFailed, SimulationDiverged, simulate
+from ..core import RunFailed, SimulationDiverged, UnstableScheme, simulate
 from ..fmus import contract
 from ..progress import scaled
 from .loading import Scene, as_scene
@@ -90,35 +90,34 @@ def _label(variant: Variant, scene_name: str = "") -> str:
 
 def preflight(variant: Variant, scene_name: str = "") -> None:
     """Refuse, before anything runs or is written, a variant whose step is known to be
-    unstable: the midpoint scheme at omega_max*dt >= 2, and the held coupling exchange
-    beyond its zero-order-hold limit (unless ``run.allow_unstable``). Raises :class:`RunRefused`."""
+    unstable: the midpoint scheme at omega_max*dt >= 2 (``UnstableScheme``), and the held
+    coupling exchange beyond its limit for the hold in use (``UnstableExchange``; in
+    co-simulation at run.H with run.hold, in the core at solver.dt with the zero-order
+    hold), unless ``run.allow_unstable``. Both are the very checks the core and the master
+    make (:func:`fmu_sync.core.checks.check_stable`, :func:`fmu_sync.core.network.held_exchange`).
+    Raises :class:`RunRefused`."""
     from ..core.checks import check_stable
+    from ..core.exchange import UnstableExchange
+    from ..core.network import edge_laws, edges_of, held_exchange
     cfg = variant.cfg
     label = _label(variant, scene_name)
     try:
         check_stable(variant.system, cfg["solver.scheme"], cfg["solver.dt"])
-    except SimulationDiverged as exc:
+    except UnstableScheme as exc:
         raise RunRefused(f"{label}: refused before the first step: {exc}") from None
-    coupled = variant.law != "none" or (variant.is_network and variant.network.laws is not None
-                                         and any(x != "none" for x in variant.network.laws))
-    if variant.pair and coupled and not cfg["run.allow_unstable"]:
-        try:
-            from ..core.exchange import check_exchange
-        except ImportError:   # the exchange check arrives with the core of issue 10
-            return
-        cosim = variant.mode == "cosim"
-        A = None
-        if variant.is_network:
-            from ..core.network import coupled_weights, edge_laws, edges_of
-            spec = variant.network
-            edges = edges_of(spec.A)
-            A = coupled_weights(spec.A, edges, edge_laws(_laws_arg(variant), edges))
-        try:
-            check_exchange(variant.system.M, variant.Kp, variant.Kd, cfg["run.H"] if cosim else cfg["solver.dt"],
-                           A=A, step_name="H" if cosim else "dt")
-        except ValueError as exc:
-            raise RunRefused(f"{label}: {exc} From the command line: --allow-unstable (or --set "
-                             f"run.allow_unstable=true).") from None
+    if not variant.pair or cfg["run.allow_unstable"]:
+        return
+    cosim = variant.mode == "cosim"
+    A, laws = None, edge_laws(_coupling_arg(variant.law), [(0, 1)])
+    if variant.is_network:
+        A = variant.network.A
+        laws = edge_laws(_laws_arg(variant), edges_of(A))
+    try:
+        held_exchange(variant.system.M, variant.Kp, variant.Kd, cfg["run.H"] if cosim else cfg["solver.dt"], A,
+                      laws, hold=cfg["run.hold"] if cosim else "zoh", step_name="H" if cosim else "dt")
+    except UnstableExchange as exc:
+        raise RunRefused(f"{label}: {exc} From the command line: --allow-unstable (or --set "
+                         f"run.allow_unstable=true).") from None
 
 
 def run_variant(variant: Variant, fmu_path=None, progress: Callable | None = None, scene_name: str = "",

@@ -257,12 +257,13 @@ def _refusal(v, system2, q1, q2, dt) -> str:
         g = s.gap([q])
         if g < 0.0:
             return f"{name} violates the constraint: g(q) = {g:.6g} < 0 (need g >= 0)"
-    if v.cfg["solver.scheme"] == "midpoint":
-        for s in (v.system, system2):
-            wdt = s.omega_max() * dt
-            if wdt >= 2.0:
-                return (f"the explicit midpoint scheme diverges for omega_max*dt >= 2: dt = {dt:.3g}, "
-                        f"omega_max*dt = {wdt:.3g}")
+    from ..core.checks import check_stable
+    from ..core.errors import UnstableScheme
+    for s in (v.system, system2):   # the core's one check of the scheme's limit
+        try:
+            check_stable(s, v.cfg["solver.scheme"], dt)
+        except UnstableScheme as exc:
+            return str(exc)
     return ""
 
 
