@@ -23,7 +23,7 @@ def _tree(path):
 def test_grid_size_reads_the_specs_without_building_them():
     assert grid_size({"a.b": "logspace(-1,1,1e9)", "c.d": "[1, 2, 3]"}) == 3_000_000_000
     assert grid_size({"a.b": "linspace(0, 1, 41)", "c.d": np.arange(5), "e.f": 2.0}) == 41 * 5
-    with pytest.raises(ValueError, match="n must be an integer"):
+    with pytest.raises(ValueError, match="n = 2.5 must be an integer"):
         grid_size({"a.b": "linspace(0, 1, 2.5)"})
 
 

@@ -56,7 +56,7 @@ class SweepInterrupted(KeyboardInterrupt):
     """Ctrl-C or SIGTERM during a sweep: the message says what was kept and how to resume."""
 
 
-class SweepExists(SweepSpecError):
+class SweepExists(FileExistsError):
     """The output folder holds a different sweep (finished or unfinished)."""
 
 

@@ -45,16 +45,14 @@ def _axis_length(key: str, spec) -> int:
     """Values of one grid axis, without building them."""
     if isinstance(spec, str):
         m = _SPACE.match(spec)
-        if m:
-            parts = [p.strip() for p in m.group(2).split(",")]
-            try:
-                n = float(parts[2]) if len(parts) == 3 else float("nan")
-            except ValueError:
-                n = float("nan")
-            if not (math.isfinite(n) and n >= 1 and n == int(n)):
-                raise SweepSpecError(f"{key}={spec}: n must be an integer >= 1")
+        parts = [p.strip() for p in m.group(2).split(",")] if m else []
+        try:
+            n = float(parts[2]) if len(parts) == 3 else math.nan
+        except ValueError:
+            n = math.nan
+        if math.isfinite(n) and n >= 1 and n == int(n):
             return int(n)
-        return -1   # a list or a single value: small, parsed by spec.parse_values
+        return -1   # a list, a single value or a malformed spec: spec.parse_values reads (or refuses) it
     try:
         return len(spec) if not isinstance(spec, (str, bytes)) else 1
     except TypeError:
