@@ -253,17 +253,14 @@ def prepare(scene, runs: list[dict], variant_name: str | None) -> Prepared:
 
 def _refusal(v, system2, q1, q2, dt) -> str:
     """Why a run cannot start (the checks of simulate_pair), or ''."""
-    for name, q, s in (("x1", q1, v.system), ("x2", q2, system2)):
-        g = s.gap([q])
-        if g < 0.0:
-            return f"{name} violates the constraint: g(q) = {g:.6g} < 0 (need g >= 0)"
-    from ..core.checks import check_stable
-    from ..core.errors import UnstableScheme
-    for s in (v.system, system2):   # the core's one check of the scheme's limit
-        try:
+    from ..core.checks import check_stable, check_start
+    try:   # the core's own checks (start states, the scheme's limit), as simulate_pair makes them
+        for name, q, s in (("x1", q1, v.system), ("x2", q2, system2)):
+            check_start(s, [q], name)
+        for s in (v.system, system2):
             check_stable(s, v.cfg["solver.scheme"], dt)
-        except UnstableScheme as exc:
-            return str(exc)
+    except ValueError as exc:
+        return str(exc)
     return ""
 
 
