@@ -9,7 +9,9 @@
 * :mod:`.runtime` — the Python object behind one FMU instance (called by the binary),
 * :mod:`.stepper` — the hot path: a numba cfunc the binary calls per doStep,
 * :mod:`.boot` — the FMU's boot script (environment check, code unpacking),
-* ``c/fmu_sync_fmi2.c`` — the FMI 2.0 binary, compiled at export.
+* ``c/fmu_sync_fmi2.c`` — the FMI 2.0 glue (state table, statuses), and
+  ``c/fmu_sync_runtime.c`` — the instance runtime (Python embedding, the
+  communication step; API in ``c/fmu_sync_runtime.h``): the binary, compiled at export.
 
 Build the FMUs with :func:`fmu_sync.export.export_fmu`. This package and its
 modules import each other relatively: the FMU carries them (with the core) under

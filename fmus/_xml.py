@@ -10,7 +10,7 @@ import json
 import uuid
 from xml.etree.ElementTree import Element, SubElement
 
-from .contract import POSITIVE_MIN, SCHEME_ITEMS, SCHEME_TYPE, Var
+from .contract import ENUM_TYPES, POSITIVE_MIN, SCHEME_ITEMS, SCHEME_TYPE, Var
 
 __all__ = ["Var", "UNITS", "SCHEME_TYPE", "SCHEME_ITEMS", "model_description", "fmt_real",
            "POSITIVE_MIN", "generation_tool", "model_guid"]
@@ -61,13 +61,15 @@ def _unit_definitions(root: Element, used: set[str]) -> None:
         SubElement(u, "BaseUnit", {k: str(v) for k, v in exps.items()})
 
 
-def _type_definitions(root: Element) -> None:
+def _type_definitions(root: Element, used: set[str]) -> None:
     defs = SubElement(root, "TypeDefinitions")
-    st = SubElement(defs, "SimpleType", name=SCHEME_TYPE,
-                    description="Solver of a communication step (Moreau schemes or the exact 1-DOF step)")
-    en = SubElement(st, "Enumeration")
-    for name, value, desc in SCHEME_ITEMS:
-        SubElement(en, "Item", name=name, value=str(value), description=desc)
+    for type_name, (description, items) in ENUM_TYPES.items():
+        if type_name not in used:
+            continue
+        st = SubElement(defs, "SimpleType", name=type_name, description=description)
+        en = SubElement(st, "Enumeration")
+        for name, value, desc in items:
+            SubElement(en, "Item", name=name, value=str(value), description=desc)
 
 
 def model_description(*, model_name: str, model_identifier: str, guid: str, description: str,
@@ -96,7 +98,7 @@ def model_description(*, model_name: str, model_identifier: str, guid: str, desc
         "providesDirectionalDerivative": "false",
     })
     _unit_definitions(root, {v.unit for v in variables if v.unit})
-    _type_definitions(root)
+    _type_definitions(root, {v.declared_type for v in variables if v.declared_type})
     cats = SubElement(root, "LogCategories")
     for name, desc in log_categories.items():
         SubElement(cats, "Category", name=name, description=desc)
@@ -130,9 +132,11 @@ def model_description(*, model_name: str, model_identifier: str, guid: str, desc
     if outputs:
         out = SubElement(ms, "Outputs")
         for v in outputs:
-            # No output depends directly on an input at the same communication
-            # point (tau only acts through the next step): empty dependencies.
-            SubElement(out, "Unknown", index=str(index[v.name]), dependencies="")
+            # A mechanical model's outputs do not depend directly on an input at the
+            # same communication point (tau only acts through the next step): empty
+            # dependencies. The coupling's outputs are functions of its inputs.
+            deps = sorted(index[d] for d in v.depends)
+            SubElement(out, "Unknown", index=str(index[v.name]), dependencies=" ".join(map(str, deps)))
         init = SubElement(ms, "InitialUnknowns")
         for v in outputs:
             if v.initial in ("approx", "calculated"):

@@ -1,6 +1,7 @@
 """FMI 2.0 co-simulation slave over the core (SPEC §7): the Python half of the FMU.
 
-The FMU's binary (``fmus/c/fmu_sync_fmi2.c``) is the FMI ABI; this module is
+The FMU's binary (``fmus/c/fmu_sync_fmi2.c``, the FMI glue, over
+``fmus/c/fmu_sync_runtime.c``, the Python embedding) is the FMI ABI; this module is
 what it runs in Python, carried inside the FMU (``resources/fmu_sync_code``):
 
 * :class:`MechanicalSlave` — what both models share: the interface (one
@@ -34,7 +35,7 @@ __all__ = ["MechanicalSlave", "STATE_FORMAT", "START_FILE", "Configuration", "PH
 START_FILE = "fmu_sync_start.json"
 #: Tag of the serialised FMU state (JSON).
 STATE_FORMAT = "fmu-sync-state/3"
-#: FMU phases as saved in a state (names) and their C state codes (fmu_sync_fmi2.c)
+#: FMU phases as saved in a state (names) and their C codes (c/fmu_sync_runtime.h: FSR_INSTANTIATED ...)
 PHASES = {"instantiated": 1, "initialization": 2, "step": 4, "terminated": 8}
 _SCHEME_BY_VALUE = {value: name for name, value, _ in SCHEME_ITEMS}
 
@@ -139,7 +140,7 @@ class MechanicalSlave:
                 raise ValueError(f"{name} is an {v.causality} (initial={v.initial}): it has no start value")
             if v.type == "Enumeration":
                 if isinstance(value, str):
-                    items = {n: val for n, val, _ in SCHEME_ITEMS}
+                    items = {n: val for n, val, _ in v.items}
                     if value.strip() in items:
                         value = items[value.strip()]
                     else:

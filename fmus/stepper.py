@@ -4,7 +4,7 @@
 
 ``x`` is the FMU's variable array (indexed by value reference), ``work`` the
 instance's work array: a header (the H_* slots, shared with
-``fmus/c/fmu_sync_fmi2.c``) followed by the system's arrays as the core's
+``fmus/c/fmu_sync_runtime.h``: FSR_H_*) followed by the system's arrays as the core's
 kernels take them (:class:`fmu_sync.core.model.SystemArrays`, packed by
 :func:`pack`). The cfunc rebuilds the ``SystemArrays`` as views of ``work``,
 makes exactly one call to the core's :func:`fmu_sync.core.moreau.advance_in`
@@ -44,14 +44,16 @@ from ..core.model import SystemArrays
 from ..core.moreau import MIDPOINT, OK, THETA, advance_in
 
 __all__ = ["step", "pack", "work_size", "H_LEN", "H_VERSION", "H_TIME", "H_PHASE", "H_DT",
-           "H_CONFIGURED", "WORK_VERSION", "H_VREF", "H_ITAUDOT", "H_IEXACT", "EXACT", "exact_size"]
+           "H_CONFIGURED", "WORK_VERSION", "H_FEEDTHROUGH", "H_VREF", "H_ITAUDOT", "H_IEXACT", "EXACT", "exact_size"]
 
-# --- header slots (the first six are read by the C binary: keep in sync with fmu_sync_fmi2.c)
+# --- header slots (the first six are read by the C binary: keep in sync with c/fmu_sync_runtime.h)
 H_LEN, H_VERSION, H_TIME, H_PHASE, H_DT, H_CONFIGURED = 0, 1, 2, 3, 4, 5
 H_N, H_M, H_NF, H_SCHEME, H_THETA, H_NX = 6, 7, 8, 9, 10, 11
 H_IQ, H_IU, H_ITAU, H_IGAP, H_IENERGY, H_IIMPACTS, H_IPERC = 12, 13, 14, 15, 16, 17, 18
 # (read by the C binary too: H_M, H_SCHEME, H_ITAU, H_ITAUDOT)
 H_VREF, H_ITAUDOT, H_IEXACT = 19, 20, 21
+#: read by the C binary: != 0 when the outputs depend directly on the inputs (0 here; the coupling FMU)
+H_FEEDTHROUGH = 22
 H_DATA = 24
 WORK_VERSION = 2.0
 #: the FMU's code of solver.scheme = exact (the core's Moreau codes are MIDPOINT, THETA)

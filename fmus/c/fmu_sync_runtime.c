@@ -1,0 +1,705 @@
+/* fmu-sync instance runtime: the Python embedding under the FMI glue
+ * (API and its contract: fmu_sync_runtime.h).
+ *
+ * Written for fmu-sync (MIT). No Python headers are needed: every Python C-API
+ * function is looked up with dlsym (no link to libpython, so a plain C host can
+ * load the FMU). Python (the FMU's carried code, resources/fmu_sync_code) runs
+ * only to set up an instance, to validate the parameters at the end of
+ * initialization, to compute outputs in initialization mode and to save /
+ * restore / (de)serialise FMU states; those calls take the GIL. The
+ * communication step (fsr_step) calls the numba stepper (a cfunc) through its
+ * address, without the GIL, on the arrays the Python instance handed over
+ * (they live as long as the instance).
+ *
+ * Compile-time definitions (from fmu_sync.export): FMU_SYNC_BOOT (module name
+ * of the boot script in resources/), FMU_SYNC_MAX_SUBSTEPS.
+ */
+#define _GNU_SOURCE
+#include <dlfcn.h>
+#include <errno.h>
+#include <float.h>
+#include <limits.h>
+#include <math.h>
+#include <pthread.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <strings.h>
+#include <sys/stat.h>
+#include <unistd.h>
+#include <wchar.h>
+
+#include "fmu_sync_runtime.h"
+
+#ifndef FMU_SYNC_BOOT
+#error "FMU_SYNC_BOOT must be defined"
+#endif
+#ifndef FMU_SYNC_MAX_SUBSTEPS
+#define FMU_SYNC_MAX_SUBSTEPS 10000000.0
+#endif
+
+/* ------------------------------------------------------------ Python C API (dlsym) */
+typedef struct _object PyObject;
+typedef ptrdiff_t Py_ssize_t;
+static struct {
+    int (*IsInitialized)(void);
+    void (*InitializeEx)(int);
+    void (*SetProgramName)(const wchar_t *);
+    wchar_t *(*DecodeLocale)(const char *, size_t *);
+    void *(*EvalSaveThread)(void);
+    int (*GILEnsure)(void);
+    void (*GILRelease)(int);
+    PyObject *(*ImportModule)(const char *);
+    PyObject *(*GetAttrString)(PyObject *, const char *);
+    PyObject *(*CallMethod)(PyObject *, const char *, const char *, ...);
+    const char *(*UnicodeAsUTF8)(PyObject *);
+    PyObject *(*UnicodeDecodeFSDefault)(const char *);
+    int (*BytesAsStringAndSize)(PyObject *, char **, Py_ssize_t *);
+    PyObject *(*BytesFromStringAndSize)(const char *, Py_ssize_t);
+    PyObject *(*TupleGetItem)(PyObject *, Py_ssize_t);
+    PyObject *(*ErrOccurred)(void);
+    void (*ErrFetch)(PyObject **, PyObject **, PyObject **);
+    PyObject *(*ObjectStr)(PyObject *);
+    void (*DecRef)(PyObject *);
+    void (*IncRef)(PyObject *);
+    PyObject *None;
+} py;
+
+static pthread_mutex_t g_lock = PTHREAD_MUTEX_INITIALIZER;
+static int g_py_ready = 0;          /* 1 once the API and the boot module are loaded */
+static PyObject *g_boot = NULL;     /* the boot module (one per process) */
+
+static int load_api(void *h, char *err, size_t n) {
+#define SYM(field, name)                                                          \
+    do {                                                                          \
+        *(void **)&py.field = dlsym(h, name);                                     \
+        if (!py.field) {                                                          \
+            snprintf(err, n, "the Python library lacks the symbol %s", name);     \
+            return 0;                                                             \
+        }                                                                         \
+    } while (0)
+    SYM(IsInitialized, "Py_IsInitialized");
+    SYM(InitializeEx, "Py_InitializeEx");
+    SYM(SetProgramName, "Py_SetProgramName");
+    SYM(DecodeLocale, "Py_DecodeLocale");
+    SYM(EvalSaveThread, "PyEval_SaveThread");
+    SYM(GILEnsure, "PyGILState_Ensure");
+    SYM(GILRelease, "PyGILState_Release");
+    SYM(ImportModule, "PyImport_ImportModule");
+    SYM(GetAttrString, "PyObject_GetAttrString");
+    SYM(CallMethod, "PyObject_CallMethod");
+    SYM(UnicodeAsUTF8, "PyUnicode_AsUTF8");
+    SYM(UnicodeDecodeFSDefault, "PyUnicode_DecodeFSDefault");
+    SYM(BytesAsStringAndSize, "PyBytes_AsStringAndSize");
+    SYM(BytesFromStringAndSize, "PyBytes_FromStringAndSize");
+    SYM(TupleGetItem, "PyTuple_GetItem");
+    SYM(ErrOccurred, "PyErr_Occurred");
+    SYM(ErrFetch, "PyErr_Fetch");
+    SYM(ObjectStr, "PyObject_Str");
+    SYM(DecRef, "Py_DecRef");
+    SYM(IncRef, "Py_IncRef");
+    SYM(None, "_Py_NoneStruct");
+#undef SYM
+    return 1;
+}
+
+/* The pending Python exception as text (clears it). */
+static void py_error_text(char *out, size_t n) {
+    PyObject *t = NULL, *v = NULL, *tb = NULL;
+    py.ErrFetch(&t, &v, &tb);
+    const char *s = NULL;
+    PyObject *str = v ? py.ObjectStr(v) : (t ? py.ObjectStr(t) : NULL);
+    if (str) s = py.UnicodeAsUTF8(str);
+    snprintf(out, n, "%s", s ? s : "unknown Python error");
+    if (str) py.DecRef(str);
+    if (t) py.DecRef(t);
+    if (v) py.DecRef(v);
+    if (tb) py.DecRef(tb);
+}
+
+static void trim(char *s) {
+    size_t k = strlen(s);
+    while (k && (s[k - 1] == '\n' || s[k - 1] == '\r' || s[k - 1] == ' ')) s[--k] = '\0';
+}
+
+/* Read "key=value" (spaces around '=' allowed) from a text file: the FMU's
+ * resources/fmu_sync_python.txt (written at export) or a venv's pyvenv.cfg. */
+static int read_key(const char *path, const char *key, char *out, size_t n) {
+    FILE *f = fopen(path, "r");
+    if (!f) return 0;
+    char line[4096];
+    size_t kl = strlen(key);
+    int found = 0;
+    while (!found && fgets(line, sizeof line, f)) {
+        if (strncmp(line, key, kl) != 0) continue;
+        const char *p = line + kl;
+        while (*p == ' ' || *p == '\t') ++p;
+        if (*p != '=') continue;
+        ++p;
+        while (*p == ' ' || *p == '\t') ++p;
+        snprintf(out, n, "%s", p);
+        trim(out);
+        found = 1;
+    }
+    fclose(f);
+    return found;
+}
+
+static int read_manifest_value(const char *resdir, const char *key, char *out, size_t n) {
+    char path[4096];
+    snprintf(path, sizeof path, "%s/fmu_sync_python.txt", resdir);
+    return read_key(path, key, out, n);
+}
+
+/* FMU_SYNC_PYTHON=/path/to/python: that interpreter's libpython, found from
+ * files, without running anything. A venv's pyvenv.cfg (beside bin/ or in it)
+ * names the base interpreter's folder ("home") and its version; otherwise the
+ * interpreter's real path gives both (.../bin/python3.11). The library is
+ * <prefix>/lib/libpythonX.Y.so.1.0 (or .so, lib64/, lib/<multiarch>/). */
+static int python_from_override(const char *exe, char *lib, size_t nl, char *err, size_t n) {
+    if (exe[0] != '/') {
+        snprintf(err, n, "FMU_SYNC_PYTHON = %s: give the interpreter's absolute path", exe);
+        return 0;
+    }
+    if (access(exe, X_OK) != 0) {
+        snprintf(err, n, "FMU_SYNC_PYTHON = %s: cannot run it (%s)", exe, strerror(errno));
+        return 0;
+    }
+    char bin[4096], cfg[4200], home[4096] = "", ver[64] = "";
+    snprintf(bin, sizeof bin, "%s", exe);
+    *strrchr(bin, '/') = '\0';
+    snprintf(cfg, sizeof cfg, "%s/../pyvenv.cfg", bin);
+    if (access(cfg, R_OK) != 0) snprintf(cfg, sizeof cfg, "%s/pyvenv.cfg", bin);
+    if (read_key(cfg, "home", home, sizeof home)) {
+        if (!read_key(cfg, "version", ver, sizeof ver)) read_key(cfg, "version_info", ver, sizeof ver);
+    } else {
+        char real[PATH_MAX];
+        if (!realpath(exe, real)) {
+            snprintf(err, n, "FMU_SYNC_PYTHON = %s: cannot resolve it (%s)", exe, strerror(errno));
+            return 0;
+        }
+        char *base = strrchr(real, '/');
+        *base++ = '\0';
+        snprintf(home, sizeof home, "%s", real);
+        if (strncmp(base, "python", 6) == 0) snprintf(ver, sizeof ver, "%s", base + 6);
+    }
+    /* "3.11.7" or "3.11.7.final.0" -> "3.11" */
+    char *dot = strchr(ver, '.');
+    if (dot && (dot = strchr(dot + 1, '.'))) *dot = '\0';
+    if (!ver[0] || !strchr(ver, '.')) {
+        snprintf(err, n, "FMU_SYNC_PYTHON = %s: cannot tell its Python version (no pyvenv.cfg with 'version', "
+                 "and its real name is not pythonX.Y); name the interpreter as .../bin/python3.11", exe);
+        return 0;
+    }
+    size_t hl = strlen(home);
+    while (hl > 1 && home[hl - 1] == '/') home[--hl] = '\0';
+    char *up = strrchr(home, '/');
+    if (up && up != home) *up = '\0';           /* <prefix>/bin -> <prefix> */
+    static const char *const forms[] = {"%s/lib/libpython%s.so.1.0", "%s/lib/libpython%s.so",
+                                        "%s/lib64/libpython%s.so.1.0", "%s/lib/x86_64-linux-gnu/libpython%s.so.1.0",
+                                        "%s/lib/aarch64-linux-gnu/libpython%s.so.1.0"};
+    for (size_t i = 0; i < sizeof forms / sizeof *forms; ++i) {
+        snprintf(lib, nl, forms[i], home, ver);
+        if (access(lib, R_OK) == 0) return 1;
+    }
+    snprintf(err, n, "FMU_SYNC_PYTHON = %s: no shared Python library found for Python %s under %s/lib "
+             "(tried libpython%s.so.1.0 and .so; the interpreter must be built with --enable-shared)",
+             exe, ver, home, ver);
+    return 0;
+}
+
+/* Load the Python C API: the host's interpreter if it runs one, else the
+ * libpython recorded at export (or FMU_SYNC_PYTHON), initialised once with
+ * that interpreter's environment. Then import the boot module. Holds g_lock. */
+static int ensure_python(const char *resdir, char *err, size_t n) {
+    if (g_py_ready) return 1;
+    int (*is_init)(void) = (int (*)(void))dlsym(RTLD_DEFAULT, "Py_IsInitialized");
+    int own = 0;
+    if (is_init && is_init()) {
+        if (!load_api(RTLD_DEFAULT, err, n)) return 0;
+    } else {
+        char lib[4096], program[4096];
+        const char *env = getenv("FMU_SYNC_PYTHON");
+        if (env && *env) {
+            if (!python_from_override(env, lib, sizeof lib, err, n)) return 0;
+            snprintf(program, sizeof program, "%s", env);
+        } else {
+            if (!read_manifest_value(resdir, "libpython", lib, sizeof lib) ||
+                !read_manifest_value(resdir, "program", program, sizeof program)) {
+                snprintf(err, n, "cannot read %s/fmu_sync_python.txt (libpython, program): is the FMU complete?",
+                         resdir);
+                return 0;
+            }
+        }
+        void *h = dlopen(lib, RTLD_NOW | RTLD_GLOBAL);
+        if (!h) {
+            snprintf(err, n, "cannot load the Python library %s (%s); set FMU_SYNC_PYTHON to a Python "
+                     "interpreter whose environment has numpy and numba", lib, dlerror());
+            return 0;
+        }
+        if (!load_api(h, err, n)) return 0;
+        if (!py.IsInitialized()) {
+            wchar_t *w = py.DecodeLocale(program, NULL);
+            if (w) py.SetProgramName(w);    /* finds that interpreter's (venv's) site-packages */
+            py.InitializeEx(0);             /* no signal handlers: the host owns them */
+            own = 1;
+        }
+    }
+    int gil = own ? 0 : py.GILEnsure();
+    int ok = 0;
+    PyObject *sys = py.ImportModule("sys");
+    PyObject *path = sys ? py.GetAttrString(sys, "path") : NULL;
+    PyObject *dir = py.UnicodeDecodeFSDefault(resdir);
+    if (path && dir) {
+        PyObject *r = py.CallMethod(path, "insert", "iO", 0, dir);
+        if (r) py.DecRef(r);
+        g_boot = py.ImportModule(FMU_SYNC_BOOT);
+        if (!g_boot) py_error_text(err, n);
+        r = py.CallMethod(path, "remove", "O", dir);   /* leave sys.path as it was */
+        if (r) py.DecRef(r);
+        ok = g_boot != NULL;
+    } else {
+        py_error_text(err, n);
+    }
+    if (dir) py.DecRef(dir);
+    if (path) py.DecRef(path);
+    if (sys) py.DecRef(sys);
+    if (own)
+        py.EvalSaveThread();   /* release the GIL: later calls take it with PyGILState_Ensure */
+    else
+        py.GILRelease(gil);
+    if (ok) g_py_ready = 1;
+    else if (!err[0]) snprintf(err, n, "cannot import the FMU's boot module %s", FMU_SYNC_BOOT);
+    return ok;
+}
+
+int fsr_start(const char *resdir, char *err, size_t n) {
+    pthread_mutex_lock(&g_lock);
+    int ok = ensure_python(resdir, err, n);
+    pthread_mutex_unlock(&g_lock);
+    return ok;
+}
+
+int fsr_logf(fsr_instance *inst, int status, const char *fmt, ...) {
+    if (inst && inst->log) {
+        char msg[3000];
+        va_list ap;
+        va_start(ap, fmt);
+        vsnprintf(msg, sizeof msg, fmt, ap);
+        va_end(ap);
+        inst->log(inst->log_ctx, status, msg);
+    }
+    return status;
+}
+
+/* Log the messages of a Python reply: records separated by '\x1e', each
+ * starting with I:, W:, D:, E: or F:. Returns the worst status. */
+static int log_reply(fsr_instance *inst, const char *text) {
+    int worst = FSR_OK;
+    if (!text) return worst;
+    const char *p = text;
+    while (*p) {
+        const char *end = strchr(p, '\x1e');
+        size_t len = end ? (size_t)(end - p) : strlen(p);
+        int s = FSR_OK;
+        if (len >= 2 && p[1] == ':') {
+            switch (p[0]) {
+            case 'W': s = FSR_WARNING; break;
+            case 'D': s = FSR_DISCARD; break;
+            case 'E': s = FSR_ERROR; break;
+            case 'F': s = FSR_FATAL; break;
+            default: s = FSR_OK;
+            }
+            p += 2;
+            len -= 2;
+        }
+        if (s > worst) worst = s;
+        fsr_logf(inst, s, "%.*s", (int)len, p);
+        p += len;
+        if (*p == '\x1e') ++p;
+    }
+    return worst;
+}
+
+struct fsr_state {
+    uint32_t magic;
+    PyObject *obj;                  /* the Python state snapshot */
+};
+#define STATE_MAGIC 0x66737353u
+
+/* Call a method of the Python instance that returns a reply string (no
+ * argument, or a saved state); log it; return its worst status (FSR_FATAL if
+ * Python itself failed). */
+int fsr_call(fsr_instance *inst, const char *method, fsr_state *arg) {
+    int gil = py.GILEnsure();
+    PyObject *r = arg ? py.CallMethod(inst->obj, method, "O", arg->obj) : py.CallMethod(inst->obj, method, NULL);
+    int s;
+    if (!r) {
+        char err[2000];
+        py_error_text(err, sizeof err);
+        s = fsr_logf(inst, FSR_FATAL, "internal error in the Python slave (%s): %s", method, err);
+    } else {
+        s = log_reply(inst, py.UnicodeAsUTF8(r));
+        py.DecRef(r);
+    }
+    py.GILRelease(gil);
+    return s;
+}
+
+/* ------------------------------------------------------------ URI (RFC 3986) */
+static int hexval(int ch) {
+    if (ch >= '0' && ch <= '9') return ch - '0';
+    if (ch >= 'a' && ch <= 'f') return ch - 'a' + 10;
+    if (ch >= 'A' && ch <= 'F') return ch - 'A' + 10;
+    return -1;
+}
+
+/* file URI -> local path: file:/p, file:///p, file://localhost/p; %XX decoded
+ * (UTF-8 bytes pass through); '+' is a plain '+' (RFC 3986, not a form). */
+int fsr_resources_path(const char *uri, char *out, size_t n, char *err, size_t en) {
+    if (!uri || !*uri) {
+        snprintf(err, en, "fmuResourceLocation is %s: this FMU needs its resources folder", uri ? "empty" : "NULL");
+        return 0;
+    }
+    if (strncasecmp(uri, "file:", 5) != 0) {
+        snprintf(err, en, "fmuResourceLocation '%s' is not a file: URI", uri);
+        return 0;
+    }
+    const char *p = uri + 5;
+    if (p[0] == '/' && p[1] == '/') {        /* authority */
+        p += 2;
+        const char *slash = strchr(p, '/');
+        size_t alen = slash ? (size_t)(slash - p) : strlen(p);
+        if (!(alen == 0 || (alen == 9 && strncasecmp(p, "localhost", 9) == 0))) {
+            snprintf(err, en, "fmuResourceLocation '%s' names host '%.*s': only local files are supported",
+                     uri, (int)alen, p);
+            return 0;
+        }
+        p += alen;
+    }
+    if (*p != '/') {
+        snprintf(err, en, "fmuResourceLocation '%s' has no absolute path", uri);
+        return 0;
+    }
+    size_t j = 0;
+    for (; *p && *p != '?' && *p != '#'; ++p) {
+        int ch = (unsigned char)*p;
+        if (ch == '%') {
+            int a = hexval(p[1]), b = a >= 0 ? hexval(p[2]) : -1;
+            if (a < 0 || b < 0) {
+                snprintf(err, en, "fmuResourceLocation '%s': bad percent-encoding at '%.3s'", uri, p);
+                return 0;
+            }
+            ch = a * 16 + b;
+            if (ch == 0) {
+                snprintf(err, en, "fmuResourceLocation '%s': encoded NUL byte", uri);
+                return 0;
+            }
+            p += 2;
+        }
+        if (j + 1 >= n) {
+            snprintf(err, en, "fmuResourceLocation '%s' is too long", uri);
+            return 0;
+        }
+        out[j++] = (char)ch;
+    }
+    while (j > 1 && out[j - 1] == '/') --j;
+    out[j] = '\0';
+    struct stat sb;
+    if (stat(out, &sb) != 0 || !S_ISDIR(sb.st_mode)) {
+        snprintf(err, en, "fmuResourceLocation '%s' -> '%s' is not a folder (%s)", uri, out,
+                 strerror(errno ? errno : ENOTDIR));
+        return 0;
+    }
+    return 1;
+}
+
+/* shortest text that reads back as the same double (like Python's repr) */
+const char *fsr_g(double v) {
+    static __thread char pool[8][40];
+    static __thread int k;
+    char *b = pool[k++ & 7];
+    for (int prec = 1; prec <= 17; ++prec) {
+        snprintf(b, 40, "%.*g", prec, v);
+        if (strtod(b, NULL) == v || v != v) break;
+    }
+    return b;
+}
+
+
+const char *fsr_caus_name(int c) {
+    return c == FSR_C_PARAMETER ? "parameter" : c == FSR_C_INPUT ? "input" : "output";
+}
+
+/* what a variable accepts, for a refusal message */
+void fsr_bound_text(const fsr_instance *inst, unsigned vr, char *out, size_t n) {
+    double lo = inst->vmin[vr], hi = inst->vmax[vr];
+    if (inst->hint_of[vr] && inst->hint_of[vr][0])
+        snprintf(out, n, "one of %s", inst->hint_of[vr]);
+    else if (lo == DBL_MIN && isinf(hi))
+        snprintf(out, n, "finite and > 0");
+    else if (isinf(lo) && isinf(hi))
+        snprintf(out, n, "finite");
+    else if (isinf(hi))
+        snprintf(out, n, "finite and >= %s", fsr_g(lo));
+    else if (isinf(lo))
+        snprintf(out, n, "finite and <= %s", fsr_g(hi));
+    else
+        snprintf(out, n, "finite, >= %s and <= %s", fsr_g(lo), fsr_g(hi));
+}
+
+/* ------------------------------------------------------------ instance */
+/* layout handed over by FMUInstance.layout() (fmus/runtime.py) */
+enum {
+    L_VERSION, L_NVARS, L_X, L_TYPE, L_CAUS, L_MIN, L_MAX, L_WORK, L_STEPPER, L_NAMES, L_HINTS,
+    L_N
+};
+#define LAYOUT_VERSION 1
+
+static int take_layout(fsr_instance *inst, char *err, size_t n) {
+    /* called with the GIL held */
+    PyObject *r = py.CallMethod(inst->obj, "layout", NULL);
+    if (!r) { py_error_text(err, n); return 0; }
+    char *buf = NULL;
+    Py_ssize_t len = 0;
+    uint64_t L[L_N];
+    int ok = py.BytesAsStringAndSize(r, &buf, &len) == 0 && len == (Py_ssize_t)sizeof L;
+    if (ok) memcpy(L, buf, sizeof L);
+    py.DecRef(r);
+    if (!ok) { snprintf(err, n, "bad layout from the Python slave"); return 0; }
+    if (L[L_VERSION] != LAYOUT_VERSION) {
+        snprintf(err, n, "layout version %llu, this binary expects %d", (unsigned long long)L[L_VERSION],
+                 LAYOUT_VERSION);
+        return 0;
+    }
+    inst->nvars = (unsigned)L[L_NVARS];
+    inst->x = (double *)(uintptr_t)L[L_X];
+    inst->vtype = (const int32_t *)(uintptr_t)L[L_TYPE];
+    inst->vcaus = (const int32_t *)(uintptr_t)L[L_CAUS];
+    inst->vmin = (const double *)(uintptr_t)L[L_MIN];
+    inst->vmax = (const double *)(uintptr_t)L[L_MAX];
+    inst->work = (double *)(uintptr_t)L[L_WORK];
+    inst->stepper = (fsr_stepper)(uintptr_t)L[L_STEPPER];
+    if (inst->work[FSR_H_VERSION] != FSR_WORK_VERSION) {
+        snprintf(err, n, "work array version %g, this binary expects %g", inst->work[FSR_H_VERSION],
+                 FSR_WORK_VERSION);
+        return 0;
+    }
+    inst->name_of = calloc(inst->nvars, sizeof(char *));
+    inst->hint_of = calloc(inst->nvars, sizeof(char *));
+    if (!inst->name_of || !inst->hint_of) { snprintf(err, n, "out of memory"); return 0; }
+    const char *p = (const char *)(uintptr_t)L[L_NAMES];
+    const char *h = (const char *)(uintptr_t)L[L_HINTS];
+    for (unsigned i = 0; i < inst->nvars; ++i) {
+        inst->name_of[i] = p;
+        p += strlen(p) + 1;
+        inst->hint_of[i] = h;
+        h += strlen(h) + 1;
+    }
+    return 1;
+}
+
+/* A new Python instance (boot.instantiate) and its layout. inst->log must be
+ * set; the boot's messages are logged; err holds a reason not logged (a Python
+ * exception or a bad layout). Returns the worst status (inst->obj NULL on error). */
+int fsr_new(fsr_instance *inst, const char *resdir, const char *name, const char *guid, char *err, size_t n) {
+    int gil = py.GILEnsure();
+    PyObject *dir = py.UnicodeDecodeFSDefault(resdir);
+    PyObject *r = dir ? py.CallMethod(g_boot, "instantiate", "Oss", dir, name, guid) : NULL;
+    if (dir) py.DecRef(dir);
+    int s = FSR_OK;
+    if (!r) {
+        py_error_text(err, n);
+        s = FSR_ERROR;
+    } else {
+        PyObject *msg = py.TupleGetItem(r, 0), *obj = py.TupleGetItem(r, 1);
+        s = log_reply(inst, msg ? py.UnicodeAsUTF8(msg) : "E:bad reply from the boot module");
+        if (obj && obj != py.None && s < FSR_ERROR) {
+            py.IncRef(obj);
+            inst->obj = obj;
+            if (!take_layout(inst, err, n)) s = FSR_ERROR;
+        }
+        py.DecRef(r);
+    }
+    py.GILRelease(gil);
+    if (!inst->obj && s < FSR_ERROR) s = FSR_ERROR;
+    return s;
+}
+
+void fsr_free(fsr_instance *inst) {
+    /* a host freeing after its own interpreter shut down: leave the Python object alone */
+    if (inst->obj && py.IsInitialized && py.IsInitialized()) {
+        int gil = py.GILEnsure();
+        PyObject *r = py.CallMethod(inst->obj, "free", NULL);
+        if (r) py.DecRef(r);
+        else { char e[200]; py_error_text(e, sizeof e); }
+        py.DecRef(inst->obj);
+        py.GILRelease(gil);
+    }
+    inst->obj = NULL;
+    free(inst->name_of);
+    free(inst->hint_of);
+    inst->name_of = inst->hint_of = NULL;
+}
+
+/* ------------------------------------------------------------ FMU states */
+fsr_state *fsr_state_check(void *handle) {
+    fsr_state *st = (fsr_state *)handle;
+    return st && st->magic == STATE_MAGIC ? st : NULL;
+}
+
+static fsr_state *new_state(PyObject *obj) {
+    fsr_state *st = calloc(1, sizeof *st);
+    if (!st) return NULL;
+    st->magic = STATE_MAGIC;
+    st->obj = obj;
+    return st;
+}
+
+int fsr_state_get(fsr_instance *inst, const char *call, fsr_state **state) {
+    int gil = py.GILEnsure();
+    PyObject *r = py.CallMethod(inst->obj, "get_state", NULL);
+    int s = FSR_OK;
+    fsr_state *old = fsr_state_check(*state);
+    if (!r) {
+        char err[2000];
+        py_error_text(err, sizeof err);
+        s = fsr_logf(inst, FSR_ERROR, "%s: %s", call, err);
+    } else if (old) {
+        /* FMI: a non-NULL state is overwritten in place */
+        py.DecRef(old->obj);
+        old->obj = r;
+    } else {
+        fsr_state *st = new_state(r);
+        if (!st) { py.DecRef(r); s = fsr_logf(inst, FSR_ERROR, "%s: out of memory", call); }
+        else *state = st;
+    }
+    py.GILRelease(gil);
+    return s;
+}
+
+int fsr_state_set(fsr_instance *inst, fsr_state *st) {
+    return fsr_call(inst, "set_state", st);
+}
+
+void fsr_state_free(fsr_state *st) {
+    if (!st) return;
+    if (py.IsInitialized && py.IsInitialized()) {
+        int gil = py.GILEnsure();
+        py.DecRef(st->obj);
+        py.GILRelease(gil);
+    }
+    st->magic = 0;
+    free(st);
+}
+
+int fsr_state_serialize(fsr_instance *inst, const char *call, fsr_state *st, char *out, size_t cap,
+                        size_t *size) {
+    int gil = py.GILEnsure();
+    PyObject *r = py.CallMethod(inst->obj, "serialize", "O", st->obj);
+    int s = FSR_ERROR;
+    char *buf;
+    Py_ssize_t len;
+    if (!r) {
+        char err[2000];
+        py_error_text(err, sizeof err);
+        fsr_logf(inst, FSR_ERROR, "%s: %s", call, err);
+    } else if (py.BytesAsStringAndSize(r, &buf, &len) == 0) {
+        if (size) *size = (size_t)len;
+        if (!out) {
+            s = FSR_OK;
+        } else if ((size_t)len != cap) {
+            fsr_logf(inst, FSR_ERROR, "%s: buffer of %zu bytes, the state needs %zu (the serialized state size)",
+                     call, cap, (size_t)len);
+        } else {
+            memcpy(out, buf, cap);
+            s = FSR_OK;
+        }
+    }
+    if (r) py.DecRef(r);
+    py.GILRelease(gil);
+    return s;
+}
+
+int fsr_state_deserialize(fsr_instance *inst, const char *call, const char *data, size_t size, fsr_state **out) {
+    int gil = py.GILEnsure();
+    int s = FSR_ERROR;
+    PyObject *b = py.BytesFromStringAndSize(data, (Py_ssize_t)size);
+    PyObject *r = b ? py.CallMethod(inst->obj, "deserialize", "O", b) : NULL;
+    if (b) py.DecRef(b);
+    if (!r) {
+        char err[2000];
+        py_error_text(err, sizeof err);
+        fsr_logf(inst, FSR_ERROR, "%s: internal error: %s", call, err);
+    } else {
+        PyObject *msg = py.TupleGetItem(r, 0), *obj = py.TupleGetItem(r, 1);
+        s = log_reply(inst, msg ? py.UnicodeAsUTF8(msg) : "E:bad reply");
+        if (s < FSR_ERROR && obj && obj != py.None) {
+            py.IncRef(obj);
+            fsr_state *st = new_state(obj);
+            if (!st) { py.DecRef(obj); s = fsr_logf(inst, FSR_ERROR, "%s: out of memory", call); }
+            else *out = st;
+        } else if (s < FSR_ERROR) {
+            s = fsr_logf(inst, FSR_ERROR, "%s: no state", call);
+        }
+        py.DecRef(r);
+    }
+    py.GILRelease(gil);
+    return s;
+}
+
+/* ------------------------------------------------------------ the communication step (no Python) */
+int fsr_step(fsr_instance *inst, double t, double H) {
+    double *w = inst->work;
+    double now = w[FSR_H_TIME];
+#define G fsr_g
+    if (!(H > 0.0 && isfinite(H)))
+        return fsr_logf(inst, FSR_DISCARD, "doStep(t = %s, H = %s) refused, state unchanged at t = %s: "
+                        "communication step size %s rejected: must be finite and > 0", G(t), G(H), G(now), G(H));
+    double tol = 1e-9 * (fabs(now) < 1.0 ? 1.0 : fabs(now));
+    if (!(fabs(t - now) <= tol))
+        return fsr_logf(inst, FSR_DISCARD, "doStep(t = %s, H = %s) refused, state unchanged at t = %s: "
+                        "currentCommunicationPoint = %s is not the slave's time %s (restore a saved FMU "
+                        "state to go back in time)", G(t), G(H), G(now), G(t), G(now));
+    double dt = w[FSR_H_DT];
+    int exact = w[FSR_H_SCHEME] == FSR_SCHEME_EXACT;
+    double count = ceil(H / dt - 1e-9);       /* computed in double: cannot overflow */
+    if (!exact && !(count <= FMU_SYNC_MAX_SUBSTEPS))   /* exact: no internal steps */
+        return fsr_logf(inst, FSR_DISCARD, "doStep(t = %s, H = %s) refused, state unchanged: it needs "
+                        "ceil(H/dt) = %.6g internal steps of solver.dt = %s, more than the limit %.0f "
+                        "(FMU_SYNC_MAX_SUBSTEPS); use a smaller H or a larger solver.dt", G(t), G(H), count,
+                        G(dt), (double)FMU_SYNC_MAX_SUBSTEPS);
+    int32_t rc = inst->stepper(inst->x, w, now, H);
+    if (rc == 2)
+        return fsr_logf(inst, FSR_ERROR, "doStep(t = %s, H = %s) refused, state unchanged: solver.scheme = exact "
+                        "holds the input constant over a communication step, but a non-zero input derivative "
+                        "was set (fmi2SetRealInputDerivatives before fmi2ExitInitializationMode); set it to 0 "
+                        "or use solver.scheme = midpoint or theta", G(t), G(H));
+    if (rc != 0 && exact)
+        return fsr_logf(inst, FSR_DISCARD, "doStep(t = %s, H = %s): the exact solver could not complete the step "
+                        "(more than its event limit in one step, or an undecidable contact). The step was "
+                        "rolled back: state unchanged at t = %s.", G(t), G(H), G(now));
+    if (rc != 0)
+        return fsr_logf(inst, FSR_DISCARD, "doStep(t = %s, H = %s): the state became non-finite with "
+                        "solver.dt = %s (a diverging scheme or an overflowing force, e.g. an input or "
+                        "forcing amplitude near the float range). The step was rolled back: state "
+                        "unchanged at t = %s.", G(t), G(H), G(dt), G(now));
+#undef G
+    w[FSR_H_TIME] = now + H;
+    return FSR_OK;
+}
+
+int fsr_feedthrough(const fsr_instance *inst) {
+    return inst->work[FSR_H_FEEDTHROUGH] != 0.0;
+}
+
+int fsr_outputs(fsr_instance *inst, const char *call) {
+    double *w = inst->work;
+    if (inst->stepper(inst->x, w, w[FSR_H_TIME], 0.0) != 0)
+        return fsr_logf(inst, FSR_ERROR, "%s: the outputs computed from the current inputs are not finite "
+                        "(or the parameters are not a valid set)", call);
+    return FSR_OK;
+}

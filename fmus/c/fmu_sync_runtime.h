@@ -1,0 +1,97 @@
+/* fmu-sync instance runtime: the Python embedding under the FMI glue.
+ *
+ * Embedding API (fmu_sync_runtime.c). An FMI glue (fmu_sync_fmi2.c; an FMI 3.0
+ * glue calls the same functions) owns the FMI state machine and the logger;
+ * everything Python, and the communication step, is here:
+ *
+ *   fsr_resources_path(uri, path)   file: URI of the resources folder -> local path
+ *   fsr_start(resdir)               once per process (thread-safe): the host's interpreter if it
+ *                                   runs one, else the libpython recorded at export (or the one of
+ *                                   the interpreter named by FMU_SYNC_PYTHON, found without
+ *                                   running it), initialised; then the FMU's boot module imported
+ *   fsr_new(inst, resdir, name, guid)  a Python FMUInstance (fmus/runtime.py) and its layout
+ *                                   (variable array x, per-variable table, work array, stepper)
+ *   fsr_call(inst, method, state)   a reply method of the instance ("exit_initialization",
+ *                                   "refresh", "reset", "set_state"), GIL taken inside
+ *   fsr_state_get / _set / _free / _serialize / _deserialize   FMU states (Python snapshots)
+ *   fsr_step(inst, t, H)            one communication step: argument checks, the numba stepper
+ *                                   called through its address, no Python, no GIL
+ *   fsr_outputs(inst, call)         outputs of a direct-feedthrough FMU from its current inputs
+ *                                   (the stepper with H = 0), no Python, no GIL
+ *   fsr_free(inst)
+ *
+ * Every call that can fail returns an fsr status, numerically equal to fmi2Status and
+ * fmi3Status (OK, Warning, Discard, Error, Fatal), and passes each message to the
+ * instance's log callback (status, text); the glue decides which reach its importer.
+ * FSR_FATAL means the Python slave raised: the instance is unusable.
+ */
+#ifndef FMU_SYNC_RUNTIME_H
+#define FMU_SYNC_RUNTIME_H
+#include <stddef.h>
+#include <stdint.h>
+
+enum { FSR_OK = 0, FSR_WARNING = 1, FSR_DISCARD = 2, FSR_ERROR = 3, FSR_FATAL = 4 };
+
+/* phases of an instance as saved in an FMU state (fmus/slave.py: PHASES) */
+enum { FSR_INSTANTIATED = 1 << 0, FSR_INIT = 1 << 1, FSR_STEP = 1 << 2, FSR_TERMINATED = 1 << 3 };
+
+/* variable table codes (fmus/runtime.py: TYPE_*, CAUS_*) */
+enum { FSR_T_REAL = 0, FSR_T_INTEGER = 1, FSR_T_ENUM = 2 };
+enum { FSR_C_PARAMETER = 0, FSR_C_INPUT = 1, FSR_C_OUTPUT = 2 };
+
+/* work array header (fmus/stepper.py: H_*) read by the C side */
+enum { FSR_H_LEN = 0, FSR_H_VERSION = 1, FSR_H_TIME = 2, FSR_H_PHASE = 3, FSR_H_DT = 4, FSR_H_CONFIGURED = 5,
+       FSR_H_M = 7, FSR_H_SCHEME = 9, FSR_H_ITAU = 14, FSR_H_ITAUDOT = 20,
+       FSR_H_FEEDTHROUGH = 22 /* != 0: outputs depend directly on inputs (the coupling FMU) */ };
+#define FSR_WORK_VERSION 2.0
+#define FSR_SCHEME_EXACT 2.0        /* fmus/stepper.py: EXACT */
+
+typedef void (*fsr_log)(void *ctx, int status, const char *text);
+typedef int32_t (*fsr_stepper)(double *x, double *work, double t, double H);
+
+typedef struct fsr_instance {
+    void *obj;                      /* the Python FMUInstance (a PyObject *) */
+    fsr_log log;
+    void *log_ctx;
+    unsigned nvars;
+    double *x;                      /* all variables, indexed by value reference */
+    const int32_t *vtype, *vcaus;
+    const double *vmin, *vmax;
+    double *work;
+    fsr_stepper stepper;
+    const char **name_of;           /* per variable: its name */
+    const char **hint_of;           /* per variable: its allowed values ("" if a range) */
+} fsr_instance;
+
+typedef struct fsr_state fsr_state;  /* a saved FMU state (opaque) */
+
+int fsr_resources_path(const char *uri, char *out, size_t n, char *err, size_t en);
+int fsr_start(const char *resdir, char *err, size_t n);
+int fsr_new(fsr_instance *inst, const char *resdir, const char *name, const char *guid, char *err, size_t n);
+void fsr_free(fsr_instance *inst);
+int fsr_call(fsr_instance *inst, const char *method, fsr_state *arg);
+
+/* a valid state handle, or NULL (NULL or freed) */
+fsr_state *fsr_state_check(void *handle);
+/* save the instance's state into *st (overwritten in place if *st is a valid state) */
+int fsr_state_get(fsr_instance *inst, const char *call, fsr_state **st);
+int fsr_state_set(fsr_instance *inst, fsr_state *st);
+void fsr_state_free(fsr_state *st);
+/* out == NULL: only *size; else copy exactly cap bytes (cap must be the size) */
+int fsr_state_serialize(fsr_instance *inst, const char *call, fsr_state *st, char *out, size_t cap, size_t *size);
+int fsr_state_deserialize(fsr_instance *inst, const char *call, const char *data, size_t size, fsr_state **out);
+
+/* one communication step from t by H; on a refusal nothing changed */
+int fsr_step(fsr_instance *inst, double t, double H);
+/* direct feedthrough (work[FSR_H_FEEDTHROUGH] != 0): the outputs recomputed from the current
+ * inputs by the stepper (H = 0, no Python, no GIL); FSR_ERROR if they are not finite */
+int fsr_feedthrough(const fsr_instance *inst);
+int fsr_outputs(fsr_instance *inst, const char *call);
+
+/* helpers for messages */
+const char *fsr_g(double v);                  /* shortest round-trip text of a double */
+const char *fsr_caus_name(int causality);
+void fsr_bound_text(const fsr_instance *inst, unsigned vr, char *out, size_t n);
+int fsr_logf(fsr_instance *inst, int status, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+
+#endif
