@@ -166,8 +166,9 @@ def _theta1(p, M, theta, dt):
 
 @njit(cache=True)
 def _pair1(law, scheme, theta, p1, M1, F1, Omega1, phi1, p2, M2, F2, Omega2, phi2, sg, kp, kd,
-           q1, u1, q2, u2, dt, n_steps, every, threshold, res):
-    """One run of the ``integrate_pair`` 1-DOF loop (t0 = 0), metrics into ``res``.
+           q1, u1, q2, u2, dt, n_steps, dt_last, every, threshold, res):
+    """One run of the ``integrate_pair`` 1-DOF loop (t0 = 0), metrics into ``res``:
+    ``n_steps`` steps of ``dt``, then (``dt_last > 0``) the shortened last step.
     System 1 and 2 (``p*, M*, F*, Omega*, phi*``) may differ in K, C, f0 and forcing."""
     Si1 = 0.0
     Si_w1 = 0.0
@@ -190,24 +191,26 @@ def _pair1(law, scheme, theta, p1, M1, F1, Omega1, phi1, p2, M2, F2, Omega2, phi
     tau_max = 0.0
     v_imp = 0.0  # largest impact speed (for the window's floor, metrics.resolution_floor)
     acc = np.zeros(3)
-    bt, bd, st = decimator_init(RECORDER_SIZE, threshold, (1.0 - TAIL) * (n_steps * dt))
+    total = n_steps + 1 if dt_last > 0.0 else n_steps
+    t_stop = n_steps * dt + dt_last if dt_last > 0.0 else n_steps * dt
+    bt, bd, st = decimator_init(RECORDER_SIZE, threshold, (1.0 - TAIL) * t_stop)
     status = OK
-    steps = n_steps
+    steps = total
     countdown = 1
-    for k in range(n_steps + 1):
+    for k in range(total + 1):
         is_row = False
         countdown -= 1
         if countdown == 0:
             countdown = every
             is_row = True
-        if k == n_steps:
+        if k == total:
             is_row = True
         need_d = is_row
         if law != UNCOUPLED or need_d:
             tau1, tau2, d_, br, E = coupling_step1(law, sg, kp, kd, q1, u1, q2, u2, need_d)
             if need_d or law == SWITCHING:
                 d = d_
-        t = 0.0 + k * dt
+        t = 0.0 + k * dt if k <= n_steps else t_stop
         if is_row:
             if not (math.isfinite(q1) and math.isfinite(u1) and math.isfinite(q2) and math.isfinite(u2)
                     and math.isfinite(d)):
@@ -215,7 +218,7 @@ def _pair1(law, scheme, theta, p1, M1, F1, Omega1, phi1, p2, M2, F2, Omega2, phi
                 steps = k
                 break
             _sample(acc, bt, bd, st, t, d)
-        if k == n_steps:
+        if k == total:
             break
         a1 = abs(tau1)
         if a1 > tau_max:
@@ -225,12 +228,18 @@ def _pair1(law, scheme, theta, p1, M1, F1, Omega1, phi1, p2, M2, F2, Omega2, phi
             tau_max = a2
         ua = abs(u1)
         ub = abs(u2)
+        hk = dt
+        if k == n_steps:   # the shortened last step
+            hk = dt_last
+            if scheme == THETA:
+                Si1, Si_w1, WS1 = _theta1(p1, M1, theta, hk)
+                Si2, Si_w2, WS2 = _theta1(p2, M2, theta, hk)
         if scheme == THETA:
-            q1, u1, P1 = theta_step1(p1, F1, Omega1, phi1, Si1, Si_w1, WS1, theta, q1, u1, tau1, t, dt)
-            q2, u2, P2 = theta_step1(p2, F2, Omega2, phi2, Si2, Si_w2, WS2, theta, q2, u2, tau2, t, dt)
+            q1, u1, P1 = theta_step1(p1, F1, Omega1, phi1, Si1, Si_w1, WS1, theta, q1, u1, tau1, t, hk)
+            q2, u2, P2 = theta_step1(p2, F2, Omega2, phi2, Si2, Si_w2, WS2, theta, q2, u2, tau2, t, hk)
         else:
-            q1, u1, P1 = midpoint_step1(p1, F1, Omega1, phi1, q1, u1, tau1, t, dt)
-            q2, u2, P2 = midpoint_step1(p2, F2, Omega2, phi2, q2, u2, tau2, t, dt)
+            q1, u1, P1 = midpoint_step1(p1, F1, Omega1, phi1, q1, u1, tau1, t, hk)
+            q2, u2, P2 = midpoint_step1(p2, F2, Omega2, phi2, q2, u2, tau2, t, hk)
         if P1 > 0.0 and ua > v_imp:
             v_imp = ua
         if P2 > 0.0 and ub > v_imp:
@@ -251,7 +260,7 @@ def _pair1(law, scheme, theta, p1, M1, F1, Omega1, phi1, p2, M2, F2, Omega2, phi
             in2 = False
     res[0] = status
     res[1] = steps
-    res[2] = steps * dt
+    res[2] = t if status != OK else t_stop
     res[3] = q1
     res[4] = u1
     res[5] = q2
@@ -267,14 +276,15 @@ def _pair1(law, scheme, theta, p1, M1, F1, Omega1, phi1, p2, M2, F2, Omega2, phi
 
 @njit(cache=True, parallel=True)
 def run_pairs1(law, scheme, theta, sys_rows, geo_rows, F, Omega, phi, nf, group1, group2, kp, kd,
-               q1, u1, q2, u2, dt, n_steps, every, threshold, out, qw):
+               q1, u1, q2, u2, dt, n_steps, dt_last, every, threshold, out, qw):
     """Run ``R = group1.shape[0]`` pairs in parallel; metrics of run r into ``out[r]``.
 
     Per run (arrays of length R): ``law`` (coupling code), ``scheme`` (MIDPOINT
     or THETA), ``theta``, ``group1``, ``group2`` (rows of the system tables for
     system 1 and 2: the same row for identical systems; different rows must
     share M, w, g0, e, the distance geometry being that of system 1), gains
-    ``kp, kd``, start states ``q1, u1, q2, u2``, step ``dt``, ``n_steps``,
+    ``kp, kd``, start states ``q1, u1, q2, u2``, step ``dt``, ``n_steps`` whole
+    steps and ``dt_last`` (> 0: the shortened last step that lands on t_end),
     sample interval ``every``, position weight ``qw`` of the run's distance (the law's own metric
     k + 2 kp by default, chosen by the caller: :func:`.coupling.law_metric`; NaN: the
     group row's Q). System tables (G rows): ``sys_rows`` (G, 11)
@@ -296,5 +306,6 @@ def run_pairs1(law, scheme, theta, sys_rows, geo_rows, F, Omega, phi, nf, group1
         m2 = nf[g2]
         _pair1(law[r], scheme[r], theta[r], p1, s1[0], F[g1, :m1].reshape((m1, 1)), Omega[g1, :m1],
                phi[g1, :m1], p2, s2[0], F[g2, :m2].reshape((m2, 1)), Omega[g2, :m2], phi[g2, :m2],
-               _geo(geo_rows[g1], qw[r]), kp[r], kd[r], q1[r], u1[r], q2[r], u2[r], dt[r], n_steps[r], every[r],
+               _geo(geo_rows[g1], qw[r]), kp[r], kd[r], q1[r], u1[r], q2[r], u2[r], dt[r], n_steps[r], dt_last[r],
+               every[r],
                threshold, out[r])

@@ -3,13 +3,17 @@ driver (single system, exact solver, pair, co-simulation master, FMU slave)."""
 from __future__ import annotations
 
 import math
+import os
+from typing import NamedTuple
 
 import numpy as np
 
-from .errors import SimulationDiverged
+from .errors import UnstableScheme
 from .model import MechanicalSystem
 
-__all__ = ["check_step", "check_run", "n_steps", "scheme_code", "check_stable", "coupling_omega",
+__all__ = ["check_step", "check_run", "n_steps", "RunSteps", "run_steps", "record_rows", "record_times",
+           "check_record_size", "RecordTooLarge", "record_budget", "GAP_TOL", "InadmissibleState",
+           "check_admissible", "scheme_code", "check_stable", "coupling_omega",
            "divergence_message", "check_start"]
 
 
@@ -25,26 +29,100 @@ def check_step(dt, name: str = "dt") -> float:
 
 
 def n_steps(t_end: float, dt: float, t0: float = 0.0) -> int:
-    """floor((t_end - t0)/dt) (up to 1e-9 of a step): the number of steps of a run."""
+    """The number of steps of a run: ceil((t_end - t0)/dt), up to 1e-9 of a step
+    (a run ends exactly at t_end, its last step shortened: :func:`run_steps`)."""
+    return run_steps(t_end, dt, t0)[0]
+
+
+class RunSteps(NamedTuple):
+    """The step grid of a run (docs/design.md §5.1): ``steps`` steps, all of length
+    ``dt`` but the last, of length ``dt_last``, so that the run ends exactly at
+    ``t_end``. ``dt_last == dt`` (bit for bit) when ``t_end - t0`` is a multiple of
+    ``dt`` (up to 1e-9 of a step); the grid is then the plain ``t0 + k dt``."""
+
+    dt: float
+    steps: int
+    dt_last: float
+    t_end: float
+
+    @property
+    def short(self) -> bool:
+        """The last step is shortened to land on t_end."""
+        return self.dt_last != self.dt
+
+
+def run_steps(t_end, dt: float, t0: float = 0.0) -> RunSteps:
+    """``RunSteps`` of a run over ``[t0, t_end]`` with step ``dt`` (checked positive)."""
     t_end = float(t_end)
+    t0 = float(t0)
     if not (math.isfinite(t_end) and t_end >= t0):
         raise ValueError(f"t_end must be finite and >= {t0}, got {t_end}")
     r = (t_end - t0) / dt
-    k = math.floor(r + 1e-9)
-    return int(k)
+    k = int(math.floor(r + 1e-9))
+    if r - k > 1e-9:
+        base = t0 + k * dt         # the kernels' time of step k
+        return RunSteps(dt, k + 1, t_end - base, t_end)
+    return RunSteps(dt, k, dt, t0 + k * dt)
 
 
-def check_run(t_end, dt, record_every=1, t0: float = 0.0, dt_name: str = "dt") -> tuple[float, int, int]:
-    """The run arguments of every driver: returns ``(dt, steps, record_every)``.
+def record_rows(steps: int, record_every: int) -> int:
+    """Rows of a record: row 0 (the start), one every ``record_every`` steps, and the
+    final state (also when ``record_every`` does not divide ``steps``)."""
+    return -(-int(steps) // int(record_every)) + 1
+
+
+def record_times(grid: RunSteps, record_every: int, t0: float = 0.0) -> np.ndarray:
+    """The times of the record rows of :func:`record_rows` (the kernels' ``t0 + k dt``,
+    the last row at the end of the run)."""
+    rows = record_rows(grid.steps, record_every)
+    T = t0 + (np.arange(rows, dtype=np.float64) * record_every) * grid.dt
+    if grid.short:
+        T[-1] = grid.t_end
+    else:
+        T[-1] = t0 + grid.steps * grid.dt
+    return T
+
+
+class RecordTooLarge(ValueError):
+    """A record that cannot be held in memory, refused before anything is allocated."""
+
+
+def record_budget() -> int:
+    """Bytes a record may take in the Python API: the machine's physical memory
+    (``os.sysconf``), or 8 GiB where that is unknown."""
+    try:
+        return int(os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+    except (ValueError, OSError, AttributeError):
+        return 8 * 1024**3
+
+
+def check_record_size(rows: int, values_per_row: int, what: str = "the record", hint: str = "") -> None:
+    """Refuse (:class:`RecordTooLarge`) a record of ``rows`` x ``values_per_row`` float64
+    above :func:`record_budget`, naming its size, before anything is allocated."""
+    size = 8.0 * float(rows) * float(values_per_row)
+    budget = record_budget()
+    if size > budget:
+        raise RecordTooLarge(
+            f"{what} would need {rows:.4g} rows x {values_per_row} values = {size / 1024**3:.4g} GiB, more "
+            f"than this machine's memory ({budget / 1024**3:.3g} GiB); raise record_every (rows = "
+            f"ceil(steps / record_every) + 1), shorten t_end or enlarge the step{hint}")
+
+
+def check_run(t_end, dt, record_every=1, t0: float = 0.0, dt_name: str = "dt") -> tuple[RunSteps, int]:
+    """The run arguments of every driver: returns ``(grid, record_every)``.
 
     ``dt`` (the step, or the communication step ``H`` with ``dt_name="H"``) must
     be positive and finite, ``t_end`` finite and >= ``t0``, ``record_every`` >= 1.
+    ``grid`` (:class:`RunSteps`) ends exactly at ``t_end``.
     """
     dt = check_step(dt, dt_name)
-    record_every = int(record_every)
+    try:
+        record_every = int(record_every)
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(f"record_every must be an integer >= 1, got {record_every!r}") from None
     if record_every < 1:
         raise ValueError(f"record_every must be >= 1, got {record_every}")
-    return dt, n_steps(t_end, dt, t0), record_every
+    return run_steps(t_end, dt, t0), record_every
 
 
 def check_start(system: MechanicalSystem, q, name: str = "x0") -> None:
@@ -52,6 +130,30 @@ def check_start(system: MechanicalSystem, q, name: str = "x0") -> None:
     g = system.gap(q)
     if g < 0.0:
         raise ValueError(f"{name} violates the constraint: g(q) = {g:.6g} < 0 (need g >= 0)")
+
+
+#: Relative tolerance of :func:`check_admissible`: a state is inside the wall when
+#: g(q) < -GAP_TOL * max(1, |g0|, |w|^T |q|) (round-off of a state on the wall passes).
+GAP_TOL = 1e-9
+
+
+class InadmissibleState(ValueError):
+    """A state inside the wall (g(q) < 0 beyond :data:`GAP_TOL`)."""
+
+
+def check_admissible(w, g0: float, q, name: str = "x") -> None:
+    """Refuse (:class:`InadmissibleState`) a position inside the wall: the quotient
+    distance is defined on the admissible set g(q) = w^T q + g0 >= 0 only."""
+    w = np.asarray(w, dtype=np.float64).reshape(-1)
+    q = np.asarray(q, dtype=np.float64).reshape(-1)
+    g = float(w @ q + g0)
+    tol = GAP_TOL * max(1.0, abs(float(g0)), float(np.abs(w) @ np.abs(q)))
+    if not g >= -tol:
+        raise InadmissibleState(
+            f"{name} is not an admissible state: g(q) = w^T q + g0 = {g:.6g} < 0 (inside the wall; the "
+            f"quotient distance is defined for g(q) >= 0, tolerance {tol:.3g}). A time-stepping record may "
+            f"end a contact step slightly inside the wall: compare its states through the run's own "
+            f"distance record (result.d), or move q onto the wall first")
 
 
 def scheme_code(scheme: str, theta: float) -> tuple[int, float]:
@@ -71,12 +173,12 @@ def check_stable(system: MechanicalSystem, scheme: str, dt: float) -> None:
     Störmer–Verlet scheme, stable only for omega_max*dt < 2. Beyond that it
     returns growing garbage long before the state overflows (measured: 5e73 on
     the stiff wall at omega_max*dt = 100), so the run is refused up front with
-    :class:`SimulationDiverged` (the theta scheme has no such limit).
+    :class:`UnstableScheme`, a ValueError (the theta scheme has no such limit).
     """
     if scheme == "midpoint":
         wdt = system.omega_max() * dt
         if wdt >= 2.0:
-            raise SimulationDiverged(
+            raise UnstableScheme(
                 f"the explicit midpoint scheme diverges for omega_max*dt >= 2: scheme='midpoint', "
                 f"dt = {dt:.3g}, omega_max*dt = {wdt:.3g}. Use scheme='theta' or "
                 f"dt < {2.0 / system.omega_max():.3g}.")

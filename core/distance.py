@@ -75,6 +75,7 @@ import numpy as np
 from numba import njit
 
 from .model import MechanicalSystem, SystemArrays, as_state
+from .checks import check_admissible
 
 __all__ = [
     "BRANCH_E", "BRANCH_J12", "BRANCH_J21", "BRANCH_J2", "BRANCH_NAMES",
@@ -713,10 +714,16 @@ def quotient_distance(system, x1, x2, Q=None, full=False):
     full : bool
         If True return a :class:`DistanceResult` ``(d, branch, c1, c2)`` with the
         branch name ("E", "J12", "J21", "J2") and the chain ends as (q, u) pairs.
+
+    A state inside the wall (g(q) < 0 beyond the round-off tolerance
+    :data:`fmu_sync.core.checks.GAP_TOL`) raises
+    :class:`fmu_sync.core.checks.InadmissibleState` (a ValueError).
     """
     geo = resolve_geometry(system, Q)
     q1, u1 = geometry_state(geo, x1, "x1")
     q2, u2 = geometry_state(geo, x2, "x2")
+    check_admissible(geo.w, geo.g0, q1, "x1")
+    check_admissible(geo.w, geo.g0, q2, "x2")
     n = q1.shape[0]
     c = np.empty((4, n))
     d, branch = distance_kernel(geo, q1, u1, q2, u2, c[0], c[1], c[2], c[3])

@@ -1,10 +1,10 @@
 """The errors of a run (docs/design.md §5.1, the failure convention).
 
 * Bad input (a value out of its domain, an inconsistent system, a scheme known
-  to diverge for this step) raises a :class:`ValueError` (or a subclass) before
-  anything runs, naming the argument, its value and what is allowed.
-  (:class:`SimulationDiverged` raised up front by the midpoint stability check
-  is the one run-time error known in advance; it is raised before the run too.)
+  to diverge for this step) raises a :class:`ValueError` (or a subclass with its
+  own type: :class:`UnstableScheme`, ``UnstableExchange``, ``RecordTooLarge``,
+  ``InadmissibleState``) before anything runs, naming the argument, its value and
+  what is allowed. Callers tell refusals apart by type, never by message text.
 * A run that fails mid-way raises a :class:`RunFailed`; its ``partial``
   attribute holds the result recorded up to the failure (``partial.success``
   is False, ``partial.message`` says what happened), or None where no record
@@ -12,7 +12,7 @@
 """
 from __future__ import annotations
 
-__all__ = ["RunFailed", "SimulationDiverged"]
+__all__ = ["RunFailed", "SimulationDiverged", "UnstableScheme"]
 
 
 class RunFailed(RuntimeError):
@@ -25,3 +25,8 @@ class RunFailed(RuntimeError):
 
 class SimulationDiverged(RunFailed):
     """The state became non-finite: the scheme is unstable for this step size."""
+
+
+class UnstableScheme(ValueError):
+    """Refused before the first step: the explicit midpoint scheme diverges for
+    omega_max*dt >= 2 (:func:`fmu_sync.core.checks.check_stable`)."""

@@ -125,7 +125,7 @@ from numba import njit
 
 from .roots import taylor_start
 from .model import MechanicalSystem, as_state
-from .checks import check_run
+from .checks import check_record_size, check_run, record_rows, record_times
 from .result import SimulationResult
 
 __all__ = ["simulate_exact", "exact_events", "ExactEvents"]
@@ -1032,7 +1032,7 @@ def simulate_exact(system: MechanicalSystem, x0, t_end: float, dt: float, tau=No
                    record_every: int = 1, t0: float = 0.0,
                    max_events: int = 10_000_000, zeno_ttol: float = 1e-12,
                    zeno_vtol: float = 1e-10, cutoff_vtol: float = 1e-6):
-    """Exact solution sampled on ``t0 + i dt``, ``i = 0..floor((t_end - t0)/dt)``,
+    """Exact solution sampled on ``t0 + i dt`` and at ``t_end`` (the last row),
     keeping every ``record_every``-th sample (row 0 = initial state).
 
     Returns a :class:`SimulationResult` with ``scheme="exact"`` and the
@@ -1043,9 +1043,11 @@ def simulate_exact(system: MechanicalSystem, x0, t_end: float, dt: float, tau=No
     t0 = float(t0)
     if not math.isfinite(t0):
         raise ValueError(f"t0 must be finite, got {t0}")
-    dt, n_steps, record_every = check_run(t_end, dt, record_every, t0)
-    rows = n_steps // record_every + 1
-    T = t0 + (np.arange(rows, dtype=np.float64) * record_every) * dt
+    grid, record_every = check_run(t_end, dt, record_every, float(t0))
+    dt = grid.dt
+    rows = record_rows(grid.steps, record_every)
+    check_record_size(rows, 4, "the record of simulate_exact")
+    T = record_times(grid, record_every, float(t0))
     horizon = max(float(t_end), float(T[-1]))
     ev = _run_events(system, x0, horizon, tau, t0, max_events, zeno_ttol, zeno_vtol, cutoff_vtol)
     md = ev._model

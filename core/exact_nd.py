@@ -592,11 +592,13 @@ def simulate_exact_nd(system: MechanicalSystem, x0, t_end: float, dt: float, tau
     """Exact n-DOF solution sampled on ``t0 + i dt`` (every ``record_every``-th
     sample), as a :class:`~fmu_sync.core.result.SimulationResult` with
     ``scheme="exact"`` and the :class:`ExactEventsND` in ``result.events``."""
-    from .checks import check_run
+    from .checks import check_record_size, check_run, record_rows, record_times
     from .result import SimulationResult
-    dt, n_steps, record_every = check_run(t_end, dt, record_every, float(t0))
-    rows = n_steps // record_every + 1
-    T = float(t0) + (np.arange(rows, dtype=np.float64) * record_every) * dt
+    grid, record_every = check_run(t_end, dt, record_every, float(t0))
+    dt = grid.dt
+    rows = record_rows(grid.steps, record_every)
+    check_record_size(rows, 2 * system.n + 2, "the record of simulate_exact")
+    T = record_times(grid, record_every, float(t0))
     horizon = max(float(t_end), float(T[-1]))
     ev = exact_events_nd(system, x0, horizon, tau=tau, t0=t0, taudot=taudot, t_c=t_c,
                                  max_events=max_events, zeno_ttol=zeno_ttol, zeno_vtol=zeno_vtol)

@@ -404,12 +404,15 @@ def _finite(q, u):
 
 @njit(cache=True)
 def integrate(sa, q, u, t0, dt, n_steps, tau, scheme, theta, record_every, T, Qr, Ur, Pr,
-              phasor=False):
-    """Run ``n_steps`` steps of ``scheme`` from ``(q, u)`` at ``t0`` (in place).
+              phasor=False, dt_last=0.0):
+    """Run ``n_steps`` steps of ``scheme`` from ``(q, u)`` at ``t0`` (in place),
+    then, if ``dt_last > 0``, one more step of length ``dt_last`` (the shortened
+    last step that lands a run on its end, :func:`fmu_sync.core.checks.run_steps`).
 
     Row 0 of the records is the initial state; row r >= 1 is the state after
     ``r * record_every`` steps with, in ``Pr[r]``, the percussion summed over
-    those ``record_every`` steps. ``phasor``: harmonic forcing by the phasor
+    those ``record_every`` steps; the final state is always the last row (also
+    when ``record_every`` does not divide the step count: :func:`.checks.record_rows`). ``phasor``: harmonic forcing by the phasor
     recurrence (within 1e-13 of the cos path, see above) instead of a cos per
     step. Returns ``(status, steps_done, rows_written)``; ``status`` is DIVERGED
     if the state became non-finite (checked at the end of each block of steps,
@@ -475,7 +478,29 @@ def integrate(sa, q, u, t0, dt, n_steps, tau, scheme, theta, record_every, T, Qr
             Pr[row] = Psum
             Psum = 0.0
             row += 1
-    return OK, n_steps, row
+    if dt_last > 0.0:
+        t = t0 + n_steps * dt
+        if scheme == THETA:
+            WS = theta_matrices(sa, dt_last, theta, Sinv, Sinv_w)
+            X, iw, WX, a = Sinv, Sinv_w, WS, theta * dt_last
+        else:
+            a = 0.5 * dt_last
+        _hsum_cos(F, Omega, phi, t + a, hf)
+        for j in range(n):
+            hc[j] = hb[j] + hf[j]
+        P, g = step_h(sa, X, iw, WX, a, q, u, hc, dt_last, y, uf)
+        Psum += P
+        _flush(q, u)
+        if not _finite(q, u):
+            return DIVERGED, n_steps, row
+    if dt_last > 0.0 or to_rec != record_every:
+        T[row] = t0 + n_steps * dt + dt_last if dt_last > 0.0 else t0 + n_steps * dt
+        for i in range(n):
+            Qr[row, i] = q[i]
+            Ur[row, i] = u[i]
+        Pr[row] = Psum
+        row += 1
+    return OK, n_steps + (1 if dt_last > 0.0 else 0), row
 
 
 @njit(cache=True)
@@ -675,7 +700,7 @@ def theta_step1(p, F, Omega, phi, Si, Si_w, WS, theta, q, u, tau, t, dt):
 
 @njit(cache=True)
 def integrate1(sa, q_, u_, t0, dt, n_steps, tau_, scheme, theta, record_every, T, Qr, Ur, Pr,
-               phasor=False):
+               phasor=False, dt_last=0.0):
     """:func:`integrate` for n = m = 1 on scalars (bitwise identical results).
 
     One loop per forcing path with nothing but the step in it: the record, the
@@ -764,9 +789,32 @@ def integrate1(sa, q_, u_, t0, dt, n_steps, tau_, scheme, theta, record_every, T
             Pr[row] = Psum
             Psum = 0.0
             row += 1
+    if dt_last > 0.0:
+        t = t0 + n_steps * dt
+        if scheme == THETA:
+            _, _, _, Sinv, Sinv_w, WS = step_workspace(sa, dt_last, scheme, theta)
+            a = theta * dt_last
+            c = step_coeffs1(p, Sinv[0, 0], Sinv_w[0], WS, a, dt_last)
+        else:
+            a = 0.5 * dt_last
+            c = step_coeffs1(p, p[0], p[8], p[9], a, dt_last)
+        q, u, P = step1_h(c, q, u, hb + _hsum1_cos(F, Omega, phi, t + a), dt_last)
+        Psum += P
+        q = _flush1(q)
+        u = _flush1(u)
+        q_[0] = q
+        u_[0] = u
+        if not (math.isfinite(q) and math.isfinite(u)):
+            return DIVERGED, n_steps, row
+    if dt_last > 0.0 or to_rec != record_every:
+        T[row] = t0 + n_steps * dt + dt_last if dt_last > 0.0 else t0 + n_steps * dt
+        Qr[row, 0] = q
+        Ur[row, 0] = u
+        Pr[row] = Psum
+        row += 1
     q_[0] = q
     u_[0] = u
-    return OK, n_steps, row
+    return OK, n_steps + (1 if dt_last > 0.0 else 0), row
 
 
 def kernels_for(sa):

@@ -24,14 +24,16 @@ from .coupling import BRANCH_NONE, UNCOUPLED, gain_matrix, law_metric, metric_in
 from .distance import geometry
 from .exchange import check_exchange
 from .model import MechanicalSystem, SystemArrays, as_state
-from .checks import check_run, check_stable, check_start, divergence_message, scheme_code
+from .checks import (check_record_size, check_run, check_stable, check_start, divergence_message, record_rows,
+                     scheme_code)
 from .errors import SimulationDiverged
 from .moreau import DIVERGED, OK, THETA, finish_step, midpoint_step, theta_matrices, theta_step
 from .pair import LAWS, as_systems, check_common_geometry, coupling_step, coupling_step1
 from .result import NetworkResult
 
 __all__ = ["simulate_network", "ring", "path", "star", "all_to_all", "GRAPHS", "graph", "weights",
-           "edges_of", "edge_laws", "coupled_weights", "edge_arrays", "network_forces", "node_force"]
+           "edges_of", "edge_laws", "coupled_weights", "edge_arrays", "network_forces", "node_force",
+           "held_exchange"]
 
 
 # ------------------------------------------------------------------ graphs
@@ -146,6 +148,27 @@ def coupled_weights(A, edges, laws) -> np.ndarray:
     return Ac
 
 
+def held_exchange(M, Kp, Kd, step: float, A=None, laws=None, hold: str = "zoh", allow_unstable: bool = False,
+                  step_name: str = "H"):
+    """The one check of the held coupling exchange of a run (docs/design.md §2.6), as
+    :func:`simulate_pair`, :func:`simulate_network`, the co-simulation master and the
+    scene preflight make it: gains as n x n matrices, the weights of the edges whose law
+    carries a force (``laws``: one code per edge of ``A``, default all coupled; ``A``
+    default the pair), the hold in use (``"zoh"``; the master's ``"foh"``). Returns
+    ``(Kp, Kd, A_coupled, limit)``; ``limit`` is None when no edge is coupled; refused
+    with ``UnstableExchange`` (a ValueError) unless ``allow_unstable``."""
+    n = np.atleast_2d(np.asarray(M, dtype=np.float64)).shape[0]
+    Kp_m, Kd_m = gain_matrix(Kp, n, "Kp"), gain_matrix(Kd, n, "Kd")
+    A = weights([[0.0, 1.0], [1.0, 0.0]] if A is None else A)
+    edges = edges_of(A)
+    laws = np.full(len(edges), LAWS["switching"], dtype=np.int64) if laws is None else np.asarray(laws)
+    Ac = coupled_weights(A, edges, laws)
+    if not np.any(laws != LAWS[None]):
+        return Kp_m, Kd_m, Ac, None
+    return Kp_m, Kd_m, Ac, check_exchange(M, Kp_m, Kd_m, step, A=Ac, allow_unstable=allow_unstable,
+                                          step_name=step_name, hold=hold)
+
+
 # ------------------------------------------------------------------ kernel
 @njit(cache=True, inline="always")
 def _node(base, K, C, f0, F, Omega, phi, i):
@@ -214,8 +237,10 @@ def node_force(i, laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c
 
 @njit(cache=True)
 def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, q, u, t0, k0, dt,
-                      n_steps, scheme, theta, record_every, record_d, T, Qr, Ur, TAU, D, BR, EU):
-    """The monolithic loop over steps ``k0 .. k0 + n_steps`` (time ``t0 + k dt``).
+                      n_steps, scheme, theta, record_every, record_d, T, Qr, Ur, TAU, D, BR, EU, dt_last=0.0):
+    """The monolithic loop over steps ``k0 .. k0 + n_steps`` (time ``t0 + k dt``), then,
+    if ``dt_last > 0``, the shortened last step of the run; the final state is always
+    recorded (as :func:`fmu_sync.core.pair.integrate_pair`).
 
     ``base``: SystemArrays with the common M, w, g0, e (and B = I); ``K, C``
     (N, n, n), ``f0`` (N, n), ``F`` (N, nf, n), ``Omega, phi`` (N, nf): the
@@ -251,8 +276,9 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
             coupled = True
     row = 0
     countdown = 1  # row 0 is the initial state
-    for k in range(n_steps + 1):
-        is_row = False
+    total = n_steps + 1 if dt_last > 0.0 else n_steps
+    for k in range(total + 1):
+        is_row = k == total   # the final state is always a row
         countdown -= 1
         if countdown == 0:
             countdown = record_every
@@ -266,7 +292,7 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
                 for c in range(n):
                     TAU[0, i, c] = tau[i, c]
         if is_row:
-            T[row] = t0 + (k0 + k) * dt
+            T[row] = t0 + (k0 + k) * dt if k <= n_steps else t0 + (k0 + n_steps) * dt + dt_last
             ok = True
             for i in range(N):
                 for c in range(n):
@@ -284,23 +310,30 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
             if not ok:
                 return DIVERGED, k, row, imp
             row += 1
-        if k == n_steps:
+        if k == total:
             break
-        if countdown == 1:
+        if countdown == 1 or k == total - 1:
             for i in range(N):
                 for c in range(n):
                     TAU[row, i, c] = tau[i, c]
         t = t0 + (k0 + k) * dt
+        hk = dt
+        if k == n_steps:   # the shortened last step
+            hk = dt_last
+            if scheme == THETA:
+                for i in range(N):
+                    WS[i] = theta_matrices(_node(base, K, C, f0, F, Omega, phi, i), hk, theta, Sinv[i],
+                                           Sinv_w[i])
         for i in range(N):
             sa = _node(base, K, C, f0, F, Omega, phi, i)
             if scheme == THETA:
-                P = theta_step(sa, q[i], u[i], tau[i], t, dt, theta, Sinv[i], Sinv_w[i], WS[i], qM, h, uf)
+                P = theta_step(sa, q[i], u[i], tau[i], t, hk, theta, Sinv[i], Sinv_w[i], WS[i], qM, h, uf)
             else:
-                P = midpoint_step(sa, q[i], u[i], tau[i], t, dt, qM, h, uf)
+                P = midpoint_step(sa, q[i], u[i], tau[i], t, hk, qM, h, uf)
             finish_step(q[i], u[i])
             if P > 0.0:
                 imp[i] += 1
-    return OK, n_steps, row, imp
+    return OK, total, row, imp
 
 
 # ------------------------------------------------------------------ Python API
@@ -351,7 +384,10 @@ def simulate_network(system, states, A, t_end: float, dt: float, coupling="switc
     laws = edge_laws(coupling, edges)
     s0 = systems[0]
     n = s0.n
-    dt, n_steps, record_every = check_run(t_end, dt, record_every, t0)
+    grid, record_every = check_run(t_end, dt, record_every, t0)
+    dt = grid.dt
+    n_steps = grid.steps - 1 if grid.short else grid.steps   # whole steps; then the shortened one
+    dt_last = grid.dt_last if grid.short else 0.0
     code, theta = scheme_code(scheme, theta)
     if not allow_unstable:
         seen = []
@@ -368,18 +404,15 @@ def simulate_network(system, states, A, t_end: float, dt: float, coupling="switc
     for i, x in enumerate(states):
         q[i], u[i] = as_state(s0, x, f"x{i + 1}")
         check_start(s0, q[i], f"x{i + 1}")
-    Kp_m, Kd_m = gain_matrix(Kp, n, "Kp"), gain_matrix(Kd, n, "Kd")
     coupled = bool(np.any(laws != LAWS[None]))
-    limit = None
-    if coupled:
-        limit = check_exchange(s0.M, Kp_m, Kd_m, dt, A=coupled_weights(A, edges, laws),
-                               allow_unstable=allow_unstable, step_name="dt")
+    Kp_m, Kd_m, _, limit = held_exchange(s0.M, Kp, Kd, dt, A, laws, allow_unstable=allow_unstable, step_name="dt")
     record_d = bool(record_distance) or bool(np.any(laws == LAWS["switching"]))
     lm = law_metric(Q, [s.K for s in systems], Kp_m, coupled_weights(A, edges, laws) if coupled else None,
                     coupled=coupled)
     geo = geometry(s0, lm.Q)
-    rows = n_steps // record_every + 1
+    rows = record_rows(grid.steps, record_every)
     E = len(edges)
+    check_record_size(rows, 1 + 3 * N * n + (3 * E + 1 if record_d else 0), "the record of simulate_network")
     T = np.full(rows, np.nan)
     Qr, Ur, TAU = (np.full((rows, N, n), np.nan) for _ in range(3))
     D, EU = np.full((rows, E), np.nan), np.full((rows, E), np.nan)
@@ -392,6 +425,8 @@ def simulate_network(system, states, A, t_end: float, dt: float, coupling="switc
     else:
         per = max(1, (n_steps // record_every) // 100) * record_every
         chunks = [per] * (n_steps // per) + ([n_steps % per] if n_steps % per else [])
+        if not chunks:
+            chunks = [0]
     row0, k0 = 0, 0
     imp = np.zeros(N, dtype=np.int64)
     status = OK
@@ -400,7 +435,8 @@ def simulate_network(system, states, A, t_end: float, dt: float, coupling="switc
         sl = slice(row0, rows)
         status, done, written, i_ = integrate_network(
             base, K, C, f0, F, Om, ph, geo, laws, E2, W2, Kp_m, Kd_m, q, u, float(t0), k0, dt, steps,
-            code, theta, record_every, record_d, T[sl], Qr[sl], Ur[sl], TAU[sl], D[sl], BR[sl], EU[sl])
+            code, theta, record_every, record_d, T[sl], Qr[sl], Ur[sl], TAU[sl], D[sl], BR[sl], EU[sl],
+            dt_last if last else 0.0)
         imp += i_
         if status != OK:
             row0 += written
@@ -409,14 +445,14 @@ def simulate_network(system, states, A, t_end: float, dt: float, coupling="switc
         k0 += steps
         row0 += written - (0 if last else 1)
         if progress is not None:
-            progress(k0 / max(n_steps, 1))
+            progress(min(k0 / max(n_steps, 1), 1.0))
     sl = slice(0, row0 if status != OK else rows)
     V = None
     if record_d:
         a_sym = np.array([0.5 * (A[i, j] + A[j, i]) for i, j in edges])
         with np.errstate(over="ignore"):  # a failed run may end on huge (finite) d
             V = 0.5 * (D[sl] ** 2) @ a_sym
-    info = dict(mode="core", dt=dt, scheme=scheme, steps=n_steps, N=N,
+    info = dict(mode="core", dt=dt, scheme=scheme, steps=grid.steps, N=N,
                 coupling=coupling if isinstance(coupling, str) or coupling is None else list(coupling),
                 **metric_info(lm, geo))
     if limit is not None:
@@ -426,7 +462,7 @@ def simulate_network(system, states, A, t_end: float, dt: float, coupling="switc
                         BR[sl] if record_d else None, EU[sl] if record_d else None, V,
                         impacts=[int(v) for v in imp], info=info)
     if status != OK:
-        msg = divergence_message(s0, scheme, dt, t0 + k0 * dt, what="a network state or distance",
+        msg = divergence_message(s0, scheme, dt, min(t0 + k0 * dt, grid.t_end), what="a network state or distance",
                                  Kp=Kp_m if coupled else None)
         if limit is not None:
             msg += f" ({limit.message()})"

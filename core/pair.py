@@ -20,9 +20,10 @@ from .distance import distance1, distance_value, geometry
 from .exchange import check_exchange
 from .model import MechanicalSystem, as_state
 from .moreau import (DIVERGED, OK, THETA, finish_step, midpoint_step, midpoint_step1, scalar_params,
-                     step_workspace, theta_step, theta_step1)
+                     step_workspace, theta_matrices, theta_step, theta_step1)
 from .result import PairResult
-from .checks import check_run, check_stable, check_start, divergence_message, scheme_code
+from .checks import (check_record_size, check_run, check_stable, check_start, divergence_message, record_rows,
+                     scheme_code)
 from .errors import SimulationDiverged
 
 __all__ = ["simulate_pair", "coupling_step", "LAWS", "gain_matrix", "check_common_geometry", "as_systems"]
@@ -68,8 +69,11 @@ def coupling_step1(law, sg, kp, kd, q1, u1, q2, u2, need_d):
 
 @njit(cache=True)
 def integrate_pair(sa1, sa2, geo, law, Kp, Kd, q1, u1, q2, u2, t0, k0, dt, n_steps, scheme, theta,
-                   record_every, record_d, T, Q1, U1, Q2, U2, TAU1, TAU2, D, BR, EU):
-    """The monolithic loop over steps ``k0 .. k0 + n_steps`` (time ``t0 + k dt``).
+                   record_every, record_d, T, Q1, U1, Q2, U2, TAU1, TAU2, D, BR, EU, dt_last=0.0):
+    """The monolithic loop over steps ``k0 .. k0 + n_steps`` (time ``t0 + k dt``),
+    then, if ``dt_last > 0``, one more step of length ``dt_last`` (the shortened
+    last step of a run, :func:`.checks.run_steps`). The final state is always
+    recorded (also when ``record_every`` does not divide the step count).
 
     ``sa1``, ``sa2``: the two systems (the same object for identical systems).
     Returns ``(status, steps_done, rows_written, impacts1, impacts2, v_impact)``: ``v_impact`` the
@@ -107,8 +111,9 @@ def integrate_pair(sa1, sa2, geo, law, Kp, Kd, q1, u1, q2, u2, t0, k0, dt, n_ste
     v_imp = 0.0
     row = 0
     countdown = 1  # row 0 is the initial state
-    for k in range(n_steps + 1):
-        is_row = False
+    total = n_steps + 1 if dt_last > 0.0 else n_steps
+    for k in range(total + 1):
+        is_row = k == total   # the final state is always a row
         countdown -= 1
         if countdown == 0:
             countdown = record_every
@@ -128,7 +133,7 @@ def integrate_pair(sa1, sa2, geo, law, Kp, Kd, q1, u1, q2, u2, t0, k0, dt, n_ste
                 TAU1[0, i] = tau1[i]
                 TAU2[0, i] = tau2[i]
         if is_row:
-            T[row] = t0 + (k0 + k) * dt
+            T[row] = t0 + (k0 + k) * dt if k <= n_steps else t0 + (k0 + n_steps) * dt + dt_last
             for i in range(n):
                 Q1[row, i] = q1[i]
                 U1[row, i] = u1[i]
@@ -141,34 +146,44 @@ def integrate_pair(sa1, sa2, geo, law, Kp, Kd, q1, u1, q2, u2, t0, k0, dt, n_ste
             if not (finish_step(q1, u1) and finish_step(q2, u2)) or (record_d and not math.isfinite(d)):
                 return DIVERGED, k, row, imp1, imp2, v_imp
             row += 1
-        if k == n_steps:
+        if k == total:
             break
         # the forces held over this step belong to the row that ends it
-        if countdown == 1:
+        if countdown == 1 or k == total - 1:
             for i in range(n):
                 TAU1[row, i] = tau1[i]
                 TAU2[row, i] = tau2[i]
         t = t0 + (k0 + k) * dt
+        hk = dt
+        if k == n_steps:   # the shortened last step
+            hk = dt_last
+            if scheme == THETA:
+                WS1 = theta_matrices(sa1, hk, theta, Sinv1, Sinv_w1)
+                WS2 = theta_matrices(sa2, hk, theta, Sinv2, Sinv_w2)
+                Si1 = Sinv1[0, 0]
+                Si_w1 = Sinv_w1[0]
+                Si2 = Sinv2[0, 0]
+                Si_w2 = Sinv_w2[0]
         if scalar:  # the 1-DOF fast path (bitwise identical to the general step)
             va = abs(u1[0]) * math.sqrt(sg.Q11)
             vb = abs(u2[0]) * math.sqrt(sg.Q11)
             if scheme == THETA:
                 q1[0], u1[0], P1 = theta_step1(p1, F1, Omega1, phi1, Si1, Si_w1, WS1, theta, q1[0],
-                                               u1[0], tau1[0], t, dt)
+                                               u1[0], tau1[0], t, hk)
                 q2[0], u2[0], P2 = theta_step1(p2, F2, Omega2, phi2, Si2, Si_w2, WS2, theta, q2[0],
-                                               u2[0], tau2[0], t, dt)
+                                               u2[0], tau2[0], t, hk)
             else:
-                q1[0], u1[0], P1 = midpoint_step1(p1, F1, Omega1, phi1, q1[0], u1[0], tau1[0], t, dt)
-                q2[0], u2[0], P2 = midpoint_step1(p2, F2, Omega2, phi2, q2[0], u2[0], tau2[0], t, dt)
+                q1[0], u1[0], P1 = midpoint_step1(p1, F1, Omega1, phi1, q1[0], u1[0], tau1[0], t, hk)
+                q2[0], u2[0], P2 = midpoint_step1(p2, F2, Omega2, phi2, q2[0], u2[0], tau2[0], t, hk)
         else:
             va = p_norm_diff(geo.Q, geo.Q, zero1, u1, zero1, zero2)
             vb = p_norm_diff(geo.Q, geo.Q, zero1, u2, zero1, zero2)
             if scheme == THETA:
-                P1 = theta_step(sa1, q1, u1, tau1, t, dt, theta, Sinv1, Sinv_w1, WS1, qM, h, uf)
-                P2 = theta_step(sa2, q2, u2, tau2, t, dt, theta, Sinv2, Sinv_w2, WS2, qM, h, uf)
+                P1 = theta_step(sa1, q1, u1, tau1, t, hk, theta, Sinv1, Sinv_w1, WS1, qM, h, uf)
+                P2 = theta_step(sa2, q2, u2, tau2, t, hk, theta, Sinv2, Sinv_w2, WS2, qM, h, uf)
             else:
-                P1 = midpoint_step(sa1, q1, u1, tau1, t, dt, qM, h, uf)
-                P2 = midpoint_step(sa2, q2, u2, tau2, t, dt, qM, h, uf)
+                P1 = midpoint_step(sa1, q1, u1, tau1, t, hk, qM, h, uf)
+                P2 = midpoint_step(sa2, q2, u2, tau2, t, hk, qM, h, uf)
             finish_step(q1, u1)
             finish_step(q2, u2)
         if P1 > 0.0:
@@ -177,7 +192,7 @@ def integrate_pair(sa1, sa2, geo, law, Kp, Kd, q1, u1, q2, u2, t0, k0, dt, n_ste
         if P2 > 0.0:
             imp2 += 1
             v_imp = max(v_imp, vb)
-    return OK, n_steps, row, imp1, imp2, v_imp
+    return OK, total, row, imp1, imp2, v_imp
 
 
 def check_common_geometry(systems, names=None) -> None:
@@ -261,7 +276,10 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
     systems = as_systems(system, 2)
     check_common_geometry(systems)
     s1, s2 = systems
-    dt, n_steps, record_every = check_run(t_end, dt, record_every, t0)
+    grid, record_every = check_run(t_end, dt, record_every, t0)
+    dt = grid.dt
+    n_steps = grid.steps - 1 if grid.short else grid.steps   # whole steps; then the shortened one
+    dt_last = grid.dt_last if grid.short else 0.0
     code, theta = scheme_code(scheme, theta)
     if not allow_unstable:
         for s in systems if s1 is not s2 else systems[:1]:
@@ -282,7 +300,10 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
     limit = None
     if law != UNCOUPLED:
         limit = check_exchange(s1.M, Kp_m, Kd_m, dt, allow_unstable=allow_unstable, step_name="dt")
-    rows = n_steps // record_every + 1
+    rows = record_rows(grid.steps, record_every)
+    if sink is None:   # before anything is allocated
+        check_record_size(rows, 4 * n + 2 * n + (4 if record_d else 1), "the record of simulate_pair",
+                          ", or pass sink= to stream it in chunks")
     if sink is not None:
         chunk_rows = int(chunk_rows)
         if chunk_rows < 1:
@@ -290,8 +311,8 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
         cap = min(rows, chunk_rows + 1)   # a chunk re-records its start row (dropped)
         per = chunk_rows * record_every
         chunks = [per] * (n_steps // per) + ([n_steps % per] if n_steps % per else [])
-        if not chunks:
-            chunks = [0]
+        if not chunks or (grid.short and n_steps % per == 0):
+            chunks.append(0)   # the chunk that takes the shortened last step
     else:
         cap = rows
         # chunks of whole record intervals, so that chunking changes no number
@@ -300,14 +321,18 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
         else:
             per = max(1, (n_steps // record_every) // 100) * record_every
             chunks = [per] * (n_steps // per) + ([n_steps % per] if n_steps % per else [])
+            if not chunks:
+                chunks = [0]
     T = np.full(cap, np.nan)
     Q1, U1, Q2, U2, TAU1, TAU2 = (np.full((cap, n), np.nan) for _ in range(6))
     D, EU = np.full(cap, np.nan), np.full(cap, np.nan)
     BR = np.full(cap, BRANCH_NONE, dtype=np.int64)
     sa1 = s1.arrays()
     sa2 = s2.arrays()
-    info = dict(mode="core", dt=dt, scheme=scheme, steps=n_steps, identical=s1 is s2, **metric_info(lm, geo),
+    info = dict(mode="core", dt=dt, scheme=scheme, steps=grid.steps, identical=s1 is s2, **metric_info(lm, geo),
                 v_impact=0.0)
+    if grid.short:
+        info["dt_last"] = dt_last
     if limit is not None:
         info.update(omega_c_dt=limit.h, exchange_bound=limit.bound, zeta=limit.zeta,
                     dt_max=limit.H_max)
@@ -331,7 +356,7 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
         status, done, written, i1, i2, v = integrate_pair(
             sa1, sa2, geo, law, Kp_m, Kd_m, q1, u1, q2, u2, t0, k0, dt, steps, code, theta,
             record_every, record_d, T[sl], Q1[sl], U1[sl], Q2[sl], U2[sl], TAU1[sl], TAU2[sl],
-            D[sl], BR[sl], EU[sl])
+            D[sl], BR[sl], EU[sl], dt_last if last else 0.0)
         imp1 += i1
         imp2 += i2
         info["v_impact"] = max(info["v_impact"], v)
@@ -347,7 +372,7 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
         k0 += steps
         row0 += written - (0 if last else 1)
         if progress is not None:
-            progress(k0 / max(n_steps, 1))
+            progress(min(k0 / max(n_steps, 1), 1.0))
     if sink is not None:
         info["rows"] = sent
         last_row = max(written - 1, 0)
@@ -355,7 +380,7 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
     else:
         res = result(slice(0, row0 if status != OK else rows))
     if status != OK:
-        err = SimulationDiverged(divergence_message(s1, scheme, dt, t0 + k0 * dt,
+        err = SimulationDiverged(divergence_message(s1, scheme, dt, min(t0 + k0 * dt, grid.t_end),
                                                     what="a coupled state",
                                                     Kp=Kp_m if law != UNCOUPLED else None))
         res.error = str(err)

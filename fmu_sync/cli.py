@@ -77,6 +77,8 @@ def _parser() -> argparse.ArgumentParser:
                         "is written in chunks while it runs, other runs are refused")
     r.add_argument("--max-disk", default=None, metavar="SIZE",
                    help="disk budget of a run's data files, e.g. 50GB (default 20GB)")
+    r.add_argument("--overwrite", action="store_true",
+                   help="replace another scene's results found in the output folder (refused otherwise)")
     r.add_argument("--convergence", action="store_true",
                    help="rerun each variant at its step, /2 and /4 (solver.dt in core mode, run.H in cosim) "
                         "and write only the metrics (decay rate, t_sync, bound) to convergence.md/.csv")
@@ -205,7 +207,7 @@ def _cmd_run(args) -> int:
         return _cmd_convergence(scene, args, max_memory, max_disk)
     with _progress(scene.name, args.quiet) as bar:
         sr = run_scene(scene, args.out, progress=bar, plots=not args.no_plots, formats=formats,
-                       max_memory=max_memory, max_disk=max_disk)
+                       max_memory=max_memory, max_disk=max_disk, overwrite=args.overwrite)
     _print_summary(sr, f"scene {scene.name}")
     return EXIT_FAILED if sr.failed else 0
 
@@ -280,15 +282,10 @@ def _cmd_report(argv) -> int:
     return int(bench_main(["--only", argv[0], *argv[1:]]) or 0)
 
 
-def _refused_up_front(exc) -> bool:
-    """The midpoint stability check raises SimulationDiverged before the first step (no
-    record): that is a refusal of the input (status 2), not a failed run."""
-    from .core import SimulationDiverged
-    return (isinstance(exc, SimulationDiverged) and exc.partial is None
-            and "diverges for omega_max*dt >= 2" in str(exc))
-
-
 def _one_line(exc: BaseException) -> str:
+    if isinstance(exc, OSError) and exc.strerror:   # plain words, not "[Errno 13] ..."
+        from .output import plain_os_error
+        return plain_os_error(exc)
     msg = str(exc).strip() or type(exc).__name__
     return " ".join(line.strip() for line in msg.splitlines() if line.strip())
 
@@ -305,9 +302,20 @@ def main(argv=None) -> int:
         return _main(argv)
 
 
+def _terminate(signum, frame):
+    """SIGTERM ends a run as Ctrl-C does: what is finished is kept, nothing half-written stays."""
+    raise KeyboardInterrupt
+
+
 def _main(argv) -> int:
-    from .core import RunFailed, SimulationDiverged
-    from .scenes.schema import SceneError
+    import signal
+
+    from .core import RunFailed
+    from .scenes.schema import SceneError   # refusals are ValueErrors (exit 2) by type, never by message
+    try:
+        signal.signal(signal.SIGTERM, _terminate)
+    except ValueError:   # not the main thread (an embedding host): leave the handler alone
+        pass
     try:
         # export and bench keep their own option parsers: hand them the rest of the line
         if argv and argv[0] == "export":
@@ -337,7 +345,7 @@ def _main(argv) -> int:
         raise AssertionError(args.command)
     except RunFailed as exc:   # a run that failed mid-way (or a diverging single system)
         print(f"{PROG}: error: {_one_line(exc)}", file=sys.stderr)
-        return EXIT_BAD_INPUT if _refused_up_front(exc) else EXIT_FAILED
+        return EXIT_FAILED
     except (SceneError, FileNotFoundError, FileExistsError, ValueError, ImportError) as exc:
         prefix = "missing component: " if isinstance(exc, ImportError) else ""
         print(f"{PROG}: error: {prefix}{_one_line(exc)}", file=sys.stderr)
@@ -345,8 +353,8 @@ def _main(argv) -> int:
     except OSError as exc:   # the disk filled up, a folder vanished, ...: while writing
         print(f"{PROG}: error: {_one_line(exc)}", file=sys.stderr)
         return EXIT_FAILED
-    except KeyboardInterrupt:
-        print(f"{PROG}: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as exc:   # the run or sweep says what it kept and how to go on
+        print(f"{PROG}: {_one_line(exc) if str(exc) else 'interrupted'}", file=sys.stderr)
         return 130
 
 

@@ -52,9 +52,10 @@ ROW, RETAKES, HIST_VALID, FRESH, ZERO_STEPS = range(5)
 CTL = 5
 # ptr: addresses of the arrays the FMI calls read or write (taken once, in Python)
 P_VR_OUT, P_VR_TAU, P_VR_IMP, P_ORDER, P_TAU, P_BUF, P_SLOPE, P_IBUF, P_SAVED = range(9)
-# flags: the run's settings
-GAUSS_SEIDEL, FOH, EVENT_AWARE, NEED_D, COUPLED, RECORD_EVERY, PIECES, DELAY = range(8)
-FLAGS = 8
+# flags: the run's settings (STEPS: the run's communication steps; PIECES, PIECES_LAST: the
+# event-aware retake's pieces of a step of length H and of the last step)
+GAUSS_SEIDEL, FOH, EVENT_AWARE, NEED_D, COUPLED, RECORD_EVERY, PIECES, DELAY, STEPS, PIECES_LAST = range(10)
+FLAGS = 10
 # flags[DELAY]: the exchange order of another master (docs/ssp.md), zero-order hold only.
 # DELAYED (libcosim): step k is held at the forces of the states x_{k-1} (step 0 at x_0's);
 # DELAYED_ZERO (fmpy's simulate_ssp): every connection starts at 0, steps 0 and 1 run
@@ -242,10 +243,15 @@ def _record(row, t, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, jacobi, ctl, T
 
 
 @njit(cache=True)
-def exchange_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, H, k0, k1, q, u,
+def exchange_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, H, H_last, t_last, k0, k1, q, u,
                    tau, tau_next, hist_tau, hist, imp, ctl, saved, keep, T, Qr, Ur, TAU, D, BR, EU, w, FAIL, fail_t):
     """Communication steps ``k0 .. k1 - 1`` (time ``k H``); ``k0 = -1`` first reads the start
     states and impact counters and records row 0.
+
+    The run ends exactly at ``t_last`` (docs/design.md §2.3): its last step
+    ``k = flags[STEPS] - 1`` has the length ``H_last`` (``t_end - k H``; ``H`` itself, bit for
+    bit, when t_end is a multiple of H) and ends at ``t_last``; the final state is always
+    recorded (also when ``flags[RECORD_EVERY]`` does not divide the steps).
 
     ``ptr`` (:data:`P_VR_OUT` ...) the addresses of the arrays the FMI calls read or write:
     the value references of q, u (2n,), of tau (n,) and of the impact counter (1,), the
@@ -283,10 +289,17 @@ def exchange_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, H, k0, k1, q
                 w)
         ctl[ROW] = 1
         k0 = 0
-    pieces = flags[PIECES]
     every = flags[RECORD_EVERY]
+    last = flags[STEPS] - 1
     for k in range(k0, k1):
         t = k * H
+        h = H
+        t_next = (k + 1) * H
+        pieces = flags[PIECES]
+        if k == last:   # the last step lands on t_end
+            h = H_last
+            t_next = t_last
+            pieces = flags[PIECES_LAST]
         if flags[EVENT_AWARE]:
             for i in range(N):
                 saved[i] = 0
@@ -299,17 +312,17 @@ def exchange_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, H, k0, k1, q
             _copy(hist_tau, hts)
             hs[0] = hist[0]
             hs[1] = ctl[HIST_VALID]
-        if _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, H, q, u, tau,
+        if _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau,
                      tau_next, hist_tau, hist, ctl, w, FAIL, fail_t):
             return FAIL[0], k
-        if _impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + H):
+        if _impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + h):
             return FAIL[0], k
         if flags[EVENT_AWARE]:
             moved = False
             for i in range(N):
                 if imp_new[i] != imp[i]:
                     moved = True
-            if moved:  # restore every instance to t and retake [t, t + H] in pieces of about H_min
+            if moved:  # restore every instance to t and retake [t, t + h] in pieces of about H_min
                 _copy(hts, hist_tau)
                 hist[0] = hs[0]
                 ctl[HIST_VALID] = np.int64(hs[1])
@@ -322,31 +335,30 @@ def exchange_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, H, k0, k1, q
                 _copy(qs, q)
                 _copy(us, u)
                 for p in range(pieces):
-                    tp = t + p * (H / pieces)
-                    hp = (t + H) - tp if p == pieces - 1 else H / pieces
+                    tp = t + p * (h / pieces)
+                    hp = (t + h) - tp if p == pieces - 1 else h / pieces
                     if _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, tp, hp, q,
                                  u, tau, tau_next, hist_tau, hist, ctl, w, FAIL, fail_t):
                         return FAIL[0], k
-                if _impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + H):
+                if _impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + h):
                     return FAIL[0], k
             for i in range(N):
                 st = fmi_call(fn[i, FREE_STATE], (comp[i], ptr[P_SAVED] + 8 * i))
                 if st > WARNING:
-                    _failed(FAIL, fail_t, SLAVE_FAILED, i, FREE_STATE, st, t + H)
+                    _failed(FAIL, fail_t, SLAVE_FAILED, i, FREE_STATE, st, t + h)
                     return FAIL[0], k
         for i in range(N):
             imp[i] = imp_new[i]
-        t_end = (k + 1) * H
         for i in range(N):
             for c in range(q.shape[1]):
                 if not (math.isfinite(q[i, c]) and math.isfinite(u[i, c])):
-                    _failed(FAIL, fail_t, STATE_DIVERGED, -1, -1, 0, t_end)
+                    _failed(FAIL, fail_t, STATE_DIVERGED, -1, -1, 0, t_next)
                     return FAIL[0], k
-        if (k + 1) % every == 0:
+        if (k + 1) % every == 0 or k == last:   # the final state is always a row
             row = ctl[ROW]
-            if not _record(row, t_end, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, jacobi, ctl, T, Qr, Ur, TAU, D,
+            if not _record(row, t_next, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, jacobi, ctl, T, Qr, Ur, TAU, D,
                            BR, EU, scratch, w):
-                _failed(FAIL, fail_t, DISTANCE_DIVERGED, -1, -1, 0, t_end)
+                _failed(FAIL, fail_t, DISTANCE_DIVERGED, -1, -1, 0, t_next)
                 return FAIL[0], k
             ctl[ROW] = row + 1
     return DONE, k1

@@ -17,13 +17,14 @@ pointers and component handles to the compiled exchange loop
 record); :func:`cosimulate_network` and :func:`cosimulate` are the plain
 functional entry points.
 
-Failure convention (docs/design.md §5.1): bad arguments or a foreign FMU raise a ValueError before
-any instance is created; an exchange known to be unstable
-(:func:`fmu_sync.core.exchange.check_exchange`) or instances with different impact geometries (M, w,
-g0, e) raise a ValueError before the first step; a slave that fails mid-run raises
-:class:`SlaveError` and a run whose states or distances become non-finite raises
-:class:`fmu_sync.core.SimulationDiverged` (both :class:`fmu_sync.core.RunFailed`) whose ``partial``
-holds everything recorded up to the failure (finite rows only).
+Failure convention (docs/design.md §5.1): bad arguments or a foreign FMU raise
+a ValueError before any instance is created; an exchange known to be unstable
+(:func:`fmu_sync.core.network.held_exchange`) or instances with different
+impact geometries (M, w, g0, e) raise a ValueError before the first step; a
+slave that fails mid-run raises :class:`SlaveError` and a run whose states or
+distances become non-finite raises :class:`fmu_sync.core.SimulationDiverged`
+(both :class:`fmu_sync.core.RunFailed`) whose ``partial`` holds everything
+recorded up to the failure (finite rows only).
 """
 from __future__ import annotations
 
@@ -34,13 +35,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .core.checks import check_run, check_start, check_step
-from .core.coupling import chain_work, gain_matrix, law_metric, metric_info
+from .core.checks import check_record_size, check_run, check_stable, check_start, check_step, record_rows
+from .core.coupling import chain_work, law_metric, metric_info
 from .core.distance import geometry
-from .core.errors import RunFailed, SimulationDiverged
-from .core.exchange import check_exchange, exchange_limit
+from .core.errors import RunFailed, SimulationDiverged, UnstableScheme
+from .core.exchange import exchange_limit
 from .core.model import MechanicalSystem, as_state
-from .core.network import coupled_weights, edge_arrays, edge_laws, edges_of, weights
+from .core.network import edge_arrays, edge_laws, edges_of, held_exchange, weights
 from .core.pair import LAWS, check_common_geometry
 from .core.result import NetworkResult, PairResult
 from .fmus import contract
@@ -176,15 +177,14 @@ class NetworkMaster:
                  Kp=0.0, Kd=0.0, Q=None, method: str = "jacobi", record_every: int = 1,
                  event_aware: bool = False, H_min: float | None = None, start_values=None,
                  record_distance: bool = True, allow_unstable: bool = False, hold: str = "zoh"):
-        H, n_steps, record_every = check_run(t_end, H, record_every, dt_name="H")
+        grid, record_every = check_run(t_end, H, record_every, dt_name="H")   # ends at t_end (grid.dt_last)
+        H, n_steps = grid.dt, grid.steps
         if method not in self.METHODS:
             raise ValueError(f"method must be {' or '.join(repr(m) for m in self.METHODS)}, got {method!r}")
         if event_aware:
             H_min = H / 16 if H_min is None else check_step(H_min, "H_min")
             if H_min > H:
                 raise ValueError(f"H_min must not exceed H = {H}, got {H_min}")
-        if n_steps < 1:
-            raise ValueError(f"t_end = {t_end} is shorter than one communication step H = {H}")
         self.states = list(states)
         self.N = N = len(self.states)
         if N < 2:
@@ -208,7 +208,9 @@ class NetworkMaster:
         self.md = model_description(self.fmu)
         self.model = fmu_model(self.md)  # a foreign FMU fails here, naming what it lacks
         self.hold = check_hold(hold, self.md, self.fmu)
-        self.H, self.n_steps, self.record_every = H, n_steps, record_every
+        check_record_size(record_rows(n_steps, record_every), 1 + 3 * N * self.model.n + 3 * len(self.edges),
+                          "the record of the co-simulation")   # before any instance or array exists
+        self.H, self.n_steps, self.record_every, self.grid = H, n_steps, record_every, grid
         self.coupling = coupling
         self.allow_unstable = bool(allow_unstable)
         self.limit = None
@@ -239,26 +241,25 @@ class NetworkMaster:
             check_start(system, q0, label)
             s.exit_initialization(model.state_values(q0, u0))
         n = model.n
-        self.Kp_m, self.Kd_m = gain_matrix(self.Kp, n, "Kp"), gain_matrix(self.Kd, n, "Kd")
-        self.A_coupled = coupled_weights(self.A, self.edges, self.laws)
+        self.check_held_exchange(system)   # Kp_m, Kd_m, A_coupled, limit (the core's one check)
         names = [v.name for v in model.declare() if v.causality == "parameter" and v.type == "Real"]
         self.metric = law_metric(self.Q, [model.system(dict(zip(names, s.get(names)))).K for s in self.slaves],
                                  self.Kp_m, self.A_coupled if self.coupled else None, coupled=self.coupled)
         self.geo = geometry(system, self.metric.Q)
-        if self.coupled:  # before the first step: the held exchange must be stable at H
-            self.limit = check_exchange(system.M, self.Kp_m, self.Kd_m, self.H, A=self.A_coupled,
-                                        allow_unstable=self.allow_unstable, hold=self.hold)
-        E, rows = len(self.edges), self.n_steps // self.record_every + 1
+        E, rows = len(self.edges), record_rows(self.n_steps, self.record_every)
         self.T = np.full(rows, np.nan)
         self.Qr, self.Ur, self.TAU = (np.full((rows, N, n), np.nan) for _ in range(3))
         self.D, self.EU = np.full((rows, E), np.nan), np.full((rows, E), np.nan)
         self.BR = np.full((rows, E), -1, dtype=np.int64)
 
+    def check_held_exchange(self, system: MechanicalSystem) -> None:
+        """Before the first step: the held exchange is stable at H for the hold in use (the core's one check)."""
+        self.Kp_m, self.Kd_m, self.A_coupled, self.limit = held_exchange(
+            system.M, self.Kp, self.Kd, self.H, self.A, self.laws, self.hold, self.allow_unstable)
+
     def _check_internal_steps(self) -> None:
-        """Before the first step: each instance's own scheme limit (the explicit midpoint
-        needs omega_max*dt < 2 for its internal step dt), from its parameter values, with
-        the core's check; the slave would refuse its first doStep otherwise."""
-        from .core.checks import check_stable
+        """Before the first step: each instance's own scheme limit (the explicit midpoint needs
+        omega_max*dt < 2 for its internal step dt), from its parameter values, with the core's check."""
         names = [v.name for v in self.model.declare() if v.causality == "parameter" and v.type == "Real"]
         for i, s in enumerate(self.slaves):
             values = dict(zip(names, s.get(names)))
@@ -267,8 +268,8 @@ class NetworkMaster:
                 continue
             try:
                 check_stable(self.model.system(values), scheme, values[contract.SOLVER_DT])
-            except SimulationDiverged as exc:
-                raise SimulationDiverged(f"refused before the first step: instance {i + 1}: {exc} "
+            except UnstableScheme as exc:
+                raise UnstableScheme(f"refused before the first step: instance {i + 1}: {exc} "
                                          f"(allow_unstable=True runs anyway)") from None
 
     def result(self, rows: int, impacts: list, error: str | None) -> NetworkResult:
@@ -318,7 +319,9 @@ class NetworkMaster:
             self.method == "gauss-seidel", self.hold == "foh", self.event_aware, self.need_d, self.coupled]
         flags[loop.RECORD_EVERY] = self.record_every
         flags[loop.DELAY] = self.DELAY.get(self.method, loop.NOT_DELAYED)
-        flags[loop.PIECES] = max(1, int(math.ceil(self.H / self.H_min - 1e-9))) if self.event_aware else 1
+        flags[loop.STEPS] = self.n_steps   # the last one of length grid.dt_last, ending at grid.t_end
+        pieces = (lambda h: max(1, int(math.ceil(h / self.H_min - 1e-9))) if self.event_aware else 1)
+        flags[loop.PIECES], flags[loop.PIECES_LAST] = pieces(self.H), pieces(self.grid.dt_last)
         z = (lambda: np.zeros((N, n)))
         self.q, self.u, self.tau = z(), z(), z()
         self.imp, self.ctl = np.zeros(N, dtype=np.int64), np.zeros(loop.CTL, dtype=np.int64)
@@ -334,7 +337,7 @@ class NetworkMaster:
                      keep[6], saved)
         ptr = np.array([a.ctypes.data for a in self.held], dtype=np.int64)
         self.loop_args = (ptr, self.fn, self.comp, self.laws, self.geo, self.Kp_m, self.Kd_m, E2, W2, flags,
-                          float(self.H))
+                          float(self.H), float(self.grid.dt_last), float(self.grid.t_end))
         self.loop_state = (self.q, self.u, self.tau, z(), z(), np.zeros(1), self.imp, self.ctl, saved, keep, self.T,
                            self.Qr, self.Ur, self.TAU, self.D, self.BR, self.EU, w, self.FAIL, self.fail_t)
 
@@ -421,11 +424,9 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
     ``start_values``: one dict of parameter start values for every instance, or
     a sequence of N dicts (or None), one per instance (non-identical systems:
     K, C, f0, forcing may differ; M, w, g0 and e must not).
-    The stability of the held exchange over ``H`` is checked before the first
-    step by :func:`fmu_sync.core.exchange.check_exchange` (refused with
-    ``UnstableExchange``, a ValueError, unless ``allow_unstable``), and so is
-    each instance's internal midpoint step (omega_max*dt < 2, refused with
-    ``SimulationDiverged`` whose ``partial`` is None).
+    Before the first step, the held exchange over ``H`` (:func:`fmu_sync.core.network.held_exchange`,
+    ``UnstableExchange``) and each instance's internal midpoint step (omega_max*dt < 2,
+    ``UnstableScheme``) are checked; both are ValueErrors, skipped with ``allow_unstable``.
     """
     return NetworkMaster(fmu, states, A, t_end, H, coupling, Kp, Kd, Q, method, record_every, event_aware,
                          H_min, start_values, record_distance, allow_unstable, hold).run(progress)
@@ -450,7 +451,7 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
     fmu : path to the .fmu (an fmu-sync mechanical model, see ``fmu-sync export``), or to an
         unpacked FMU folder (used in place and kept: a sweep worker unpacks once for all its runs).
     x1, x2 : start states (q, u) of the two instances (set as ``q_start``/``u_start``).
-    t_end, H : stop time and communication step; the run makes ``floor(t_end/H)`` steps.
+    t_end, H : stop time (reached exactly: the last step shortened) and communication step.
     coupling : None, ``"switching"`` (quotient coupling) or ``"euclidean"`` (PD baseline).
     Kp, Kd : gains (scalars or n×n).  Q : position weight of the norm (default: ``energy_metric``).
     method : ``"jacobi"`` (both slaves get inputs computed from the same states) or

@@ -27,9 +27,11 @@ from pathlib import Path
 
 import numpy as np
 
+from .core.checks import record_rows, run_steps
+
 __all__ = ["FORMATS", "DEFAULT_MAX_MEMORY", "DEFAULT_MAX_DISK", "OutputTooLarge", "OutputPathError",
            "Estimate", "parse_size", "format_size", "parse_formats", "estimate", "check_budget",
-           "check_out_dir", "RecordWriter", "pair_columns", "network_columns", "single_columns", "WRITE_ROWS"]
+           "check_out_dir", "make_out_dir", "plain_os_error", "results_in", "RecordWriter", "pair_columns", "network_columns", "single_columns", "WRITE_ROWS"]
 
 #: data files of a run: CSV (one row per record), NPZ (numpy arrays and the layout), NetCDF
 #: (the result's xarray Dataset; needs the whole record in memory)
@@ -170,10 +172,10 @@ class Estimate:
 
 
 def _steps(cfg) -> tuple[int, float, str]:
+    """Steps of a variant's run (the last one shortened to land on run.t_end), its step and the step's key."""
     step, name = (cfg["run.H"], "run.H") if cfg["run.mode"] == "cosim" and cfg.get("initial.x2") is not None \
         else (cfg["solver.dt"], "solver.dt")
-    r = cfg["run.t_end"] / step
-    return int(math.floor(r + 1e-9)), step, name
+    return run_steps(cfg["run.t_end"], step).steps, step, name
 
 
 def estimate(variant, formats=("csv", "npz")) -> Estimate:
@@ -190,7 +192,7 @@ def estimate(variant, formats=("csv", "npz")) -> Estimate:
         cols = pair_columns(n, variant.has_distance)
     else:
         cols = single_columns(n)
-    return Estimate(variant.name, steps, every, steps // every + 1, sum(w for _, w in cols),
+    return Estimate(variant.name, steps, every, record_rows(steps, every), sum(w for _, w in cols),
                     tuple(formats))
 
 
@@ -242,6 +244,49 @@ def check_out_dir(path) -> Path:
         raise OutputPathError(f"the output folder {path} is not writable ({probe} does not allow writing); "
                               "choose another -o")
     return path
+
+
+def make_out_dir(path) -> bool:
+    """Create the output folder (after every check passed); returns whether it was created.
+    A folder that cannot be made is an :class:`OutputPathError` in plain words."""
+    path = Path(path)
+    created = not path.exists()
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputPathError(f"cannot create the output folder {path}: {plain_os_error(exc)}; "
+                              "choose another -o") from None
+    return created
+
+
+def plain_os_error(exc: OSError) -> str:
+    """An OSError in words, without the ``[Errno N]`` prefix."""
+    what = (exc.strerror or type(exc).__name__).lower()
+    return f"{what} ({exc.filename})" if exc.filename else what
+
+
+def results_in(path, title: str, overwrite: bool = False) -> list[Path]:
+    """Refuse a folder holding the results (``summary.md``) of something other than ``title``
+    (e.g. ``Scene `forced-pair```) unless ``overwrite``; returns the files of those old
+    results (the summary and the files it lists) for the caller to remove once every
+    check has passed."""
+    path = Path(path)
+    summary = path / "summary.md"
+    if not summary.is_file():
+        return []
+    lines = summary.read_text(encoding="utf-8", errors="replace").splitlines()
+    head = lines[0][2:].strip() if lines and lines[0].startswith("# ") else "unknown results"
+    if head == title:
+        return []
+    if not overwrite:
+        raise OutputPathError(f"the output folder {path} holds the results of {head} (summary.md): "
+                              f"choose another -o, or --overwrite to replace them")
+    old = [summary]
+    for line in lines:
+        m = re.match(r"- \[`([^`]+)`\]", line)
+        if m and not Path(m.group(1)).is_absolute() and ".." not in Path(m.group(1)).parts:
+            old.append(path / m.group(1))
+    return old
 
 
 # ---------------------------------------------------------------- writing

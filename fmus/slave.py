@@ -25,7 +25,7 @@ import math
 import numpy as np
 
 from ..core.checks import check_stable, check_step, scheme_code
-from ..core.errors import SimulationDiverged
+from ..core.errors import UnstableScheme
 from ._xml import generation_tool, model_description, model_guid
 from .contract import INPUT_BOUND, SCHEME_ITEMS, STATE_BOUND, Var
 
@@ -210,7 +210,7 @@ class MechanicalSlave:
             code, theta = scheme_code(scheme_name, p["solver.theta"])
             try:
                 check_stable(system, scheme_name, dt)
-            except SimulationDiverged as exc:  # known before the run: a configuration error
+            except UnstableScheme as exc:  # known before the run: a configuration error
                 raise ValueError(str(exc)) from None
         q0, u0 = cls.start_state(p)
         g = system.gap(q0)

@@ -1,8 +1,10 @@
 """The master's exchange loop as it was in Python, before the compiled loop (issue 18),
 kept as the test reference: :class:`PythonMaster` is :class:`fmu_sync.master.NetworkMaster`
 (same set-up, same checks) with the old per-step Python methods, calling the FMU through
-fmpy's ``FMU2Slave`` one variable at a time. tests/test_cosim_loop.py compares the compiled
-loop against it bit for bit. Not part of the library."""
+fmpy's ``FMU2Slave`` one variable at a time, with issue 16's end rule (the last step
+shortened to land on t_end, the final state always recorded) as that issue wrote it into this
+loop. tests/test_cosim_loop.py compares the compiled loop against it bit for bit. Not part of
+the library."""
 from __future__ import annotations
 
 import math
@@ -128,25 +130,24 @@ class PythonMaster(NetworkMaster):
         self.history.remember(self.tau, t)
         return x
 
-    def communication_step(self, t: float, x, impacts: list) -> tuple[list, list]:
-        """One step of length H from t; event-aware: retaken in pieces of H_min if an
-        impact counter moved. Returns (new states, impact counters)."""
+    def communication_step(self, t: float, x, impacts: list, h: float) -> tuple[list, list]:
+        """One step of length h (H, or the shortened last one) from t; event-aware: retaken in
+        pieces of H_min if an impact counter moved. Returns (new states, impact counters)."""
         if not self.event_aware:
-            new = self.exchange(t, self.H, x)
+            new = self.exchange(t, h, x)
             return new, [s.get_integer(contract.IMPACTS) for s in self.slaves]
         saved, history = [s.save() for s in self.slaves], self.history.save()
-        new = self.exchange(t, self.H, x)
+        new = self.exchange(t, h, x)
         now = [s.get_integer(contract.IMPACTS) for s in self.slaves]
         if now != impacts:
             self.history.restore(history)
-            new, now = self.retake(t, x, saved)
+            new, now = self.retake(t, x, saved, h)
         for s, st in zip(self.slaves, saved):
             s.free_state(st)
         return new, now
 
-    def retake(self, t: float, x, saved) -> tuple[list, list]:
+    def retake(self, t: float, x, saved, H: float) -> tuple[list, list]:
         """Restore every instance to t and retake [t, t + H] in pieces of about H_min."""
-        H = self.H
         self.retakes += 1
         for s, st in zip(self.slaves, saved):
             s.restore(st, t)
@@ -185,19 +186,21 @@ class PythonMaster(NetworkMaster):
             imp = [s.get_integer(contract.IMPACTS) for s in self.slaves]
             n_steps, H = self.n_steps, self.H
             report_every = max(1, n_steps // 200)
-            for k in range(n_steps):
+            for k in range(n_steps):   # the last step lands on t_end: the final state is always a row
+                final, h, t_next = (True, self.grid.dt_last, self.grid.t_end) if k == n_steps - 1 else \
+                    (False, H, (k + 1) * H)
                 try:
-                    x, imp = self.communication_step(k * H, x, imp)
+                    x, imp = self.communication_step(k * H, x, imp, h)
                 except SlaveError as ex:
                     failure = ex
                     break
                 if not all(np.all(np.isfinite(xi[0])) and np.all(np.isfinite(xi[1])) for xi in x):
-                    failure = self.diverged((k + 1) * H, "a state")
+                    failure = self.diverged(t_next, "a state")
                     break
-                if (k + 1) % self.record_every == 0:
-                    self.record(row, (k + 1) * H, x, self.tau.copy())
+                if (k + 1) % self.record_every == 0 or final:
+                    self.record(row, t_next, x, self.tau.copy())
                     if self.need_d and not np.all(np.isfinite(self.D[row])):
-                        failure = self.diverged((k + 1) * H, "a distance")
+                        failure = self.diverged(t_next, "a distance")
                         break
                     row += 1
                 if progress is not None and (k + 1) % report_every == 0:

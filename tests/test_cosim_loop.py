@@ -86,6 +86,27 @@ def test_pair_is_bitwise_the_python_loop(fmu, monkeypatch, kw):
         assert new.info["retaken_steps"] > 0
 
 
+@pytest.mark.parametrize("kw", [
+    dict(record_every=7),
+    dict(method="gauss-seidel", hold="foh", record_every=3),
+    dict(coupling="euclidean", event_aware=True, H_min=1e-3, record_every=4),
+])
+def test_a_run_ending_between_communication_points_is_bitwise_the_python_loop(fmu, monkeypatch, kw):
+    """t_end not a multiple of H (issue 16): the last step shortened to t_end - k H, the final
+    state recorded though record_every does not divide the steps, as the Python loop does it."""
+    args = dict(coupling="switching", **GAINS)
+    args.update(kw)
+    t_end, H = 4.0037, 1e-2   # 401 steps, the last one 0.0037 long
+    new, ref = both(monkeypatch, lambda: cosimulate(fmu, X1, X2, t_end, H, **args))
+    same(new, ref)
+    every = kw["record_every"]
+    assert new.success and len(new.t) == -(-401 // every) + 1
+    assert new.t[-1] == t_end and new.t[-2] == (400 // every) * every * H
+    assert np.all(np.isfinite(new.q1[-1])) and np.all(np.isfinite(new.d))
+    if kw.get("event_aware"):
+        assert new.info["retaken_steps"] > 0
+
+
 def test_network_with_mixed_laws_and_directed_weights_is_bitwise_the_python_loop(fmu, monkeypatch):
     from fmu_sync.core.network import star
     A = star(4)

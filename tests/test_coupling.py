@@ -16,7 +16,7 @@ from fmu_sync.core.coupling import (
     switching_coupling1)
 from fmu_sync.core.distance import (
     BRANCH_E, BRANCH_J12, BRANCH_J21, BRANCH_J2, branch_values_2d, distance1, distance_kernel,
-    make_geometry, quotient_distance)
+    make_geometry)
 from fmu_sync.core.model import ImpactOscillator, MechanicalSystem
 
 M2 = [[2.0, 0.5], [0.5, 1.0]]
@@ -63,6 +63,13 @@ def scene(draw):
     return name, e, gain_matrix(kp, n, "Kp"), gain_matrix(kd, n, "Kd"), state(), state()
 
 
+def kernel_d(geo, x1, x2):
+    """The distance kernel itself: the coupling laws see states slightly inside the wall
+    (a Moreau contact step), which quotient_distance refuses as a public entry point."""
+    n = x1[0].size
+    return distance_kernel(geo, *x1, *x2, *chain_work(n))[0]
+
+
 def run_switching(geo, Kp, Kd, x1, x2):
     n = x1[0].size
     t1, t2 = np.zeros(n), np.zeros(n)
@@ -94,7 +101,7 @@ def test_switching_law_definition(sc):
     geo = geo_of(name, e)
     t1, t2, d, b, c = run_switching(geo, Kp, Kd, x1, x2)
     scale = 1.0 + sum(np.abs(v).sum() for v in (*x1, *x2))
-    assert d == pytest.approx(quotient_distance(geo, x1, x2), abs=1e-15 * scale)
+    assert d == pytest.approx(kernel_d(geo, x1, x2), abs=1e-15 * scale)
     for (q, u), cq, cu, tau in ((x1, c[0], c[1], t1), (x2, c[2], c[3], t2)):
         nrm = p_norm(geo, q - cq, u - cu)
         if b == BRANCH_E or nrm == 0.0:
@@ -189,7 +196,7 @@ def test_law_dispatch_n_dof():
         v, b = coupling_kernel(law, geo, Kp, Kd, *x1, *x2, t1, t2, *chain_work(2))
         if law == SWITCHING:
             assert b in (BRANCH_E, BRANCH_J12, BRANCH_J21, BRANCH_J2)
-            assert v == pytest.approx(quotient_distance(geo, x1, x2), rel=1e-14)
+            assert v == pytest.approx(kernel_d(geo, x1, x2), rel=1e-14)
         else:
             assert b == BRANCH_NONE and v == pytest.approx(p_norm(geo, x1[0] - x2[0], x1[1] - x2[1]))
         if law == UNCOUPLED:

@@ -21,7 +21,8 @@ def test_estimate_matches_the_record_written(tmp_path):
     est = estimate(v, ("csv", "npz"))
     sr = run_scene(scene, tmp_path, plots=False)
     r = sr.runs[0].result
-    assert est.rows == len(r.t) == 3000 // 7 + 1
+    assert est.rows == len(r.t) == 3000 // 7 + 2      # the final state (t = 3) is the last row
+    assert r.t[-1] == 3.0 and r.t[-2] == pytest.approx(7 * (3000 // 7) * 1e-3)
     assert est.values_per_row == 11          # t, q1, u1, q2, u2, tau1, tau2, d, V, euclidean, branch
     sizes = sum(p.stat().st_size for p in tmp_path.glob("switching.*"))
     assert 0.3 * est.disk < sizes <= est.disk

@@ -63,7 +63,7 @@ def stiff_wall(dts=STIFF_DTS, t_end: float = 0.2, schemes=(("midpoint", "midpoin
                                                               ("theta1", "theta", 1.0))) -> list[Row]:
     from fmu_sync.core import simulate
     from fmu_sync.core import exact_events
-    from fmu_sync.core import SimulationDiverged
+    from fmu_sync.core import SimulationDiverged, UnstableScheme
     s = osc(**STIFF)
     wmax = s.omega_max()
     q_b, u_b = _stiff_bounds()
@@ -78,7 +78,7 @@ def stiff_wall(dts=STIFF_DTS, t_end: float = 0.2, schemes=(("midpoint", "midpoin
             try:
                 r = simulate(s, STIFF_X0, t_end, dt, scheme=scheme, theta=theta,
                              record_every=max(1, int(round(1e-5 / dt))))
-            except SimulationDiverged as ex:
+            except (SimulationDiverged, UnstableScheme) as ex:   # diverged, or refused up front
                 ok = div_ok(str(ex))
                 rows.append(Row("stiff-wall", "k=1e8, f0=-1, e=0.5, x0=(1e-6,0)", label, setting,
                                 "SimulationDiverged", str(ex).split(" The ")[0], crit, ok,
@@ -378,7 +378,7 @@ def large_step(dts=(1.0, 3.0, 7.0), t_end: float = 2000.0) -> list[Row]:
     """dt larger than the forcing period: bounded (no secular growth) or SimulationDiverged."""
     from fmu_sync.core import simulate
     from fmu_sync.core import exact_events
-    from fmu_sync.core import SimulationDiverged
+    from fmu_sync.core import SimulationDiverged, UnstableScheme
     rows = []
     for name, p, x0 in (("forced-pair (period 2.51 s, omega_max = 1)",
                          dict(m=1.0, k=1.0, c=0.0, f0=0.2, F=0.5, Omega=2.5, e=0.9), (1.0, 0.0)),
@@ -397,7 +397,7 @@ def large_step(dts=(1.0, 3.0, 7.0), t_end: float = 2000.0) -> list[Row]:
                 t0 = time.perf_counter()
                 try:
                     r = simulate(s, x0, t_end, dt, scheme=scheme, theta=theta)
-                except SimulationDiverged as ex:
+                except (SimulationDiverged, UnstableScheme) as ex:
                     rows.append(Row("large-dt", name, label, setting, "SimulationDiverged",
                                     str(ex).split(" The ")[0], crit, div_ok(str(ex)), time.perf_counter() - t0))
                     continue

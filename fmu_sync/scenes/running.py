@@ -8,14 +8,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-from ..core import RunFailed, SimulationDiverged, simulate
+from ..core import RunFailed, SimulationDiverged, UnstableScheme, simulate
 from ..fmus import contract
 from ..progress import scaled
 from .loading import Scene, as_scene
 from .schema import DEFAULT_OUT, TABLES, SceneError, Variant
 
-__all__ = ["RunRecord", "SceneRun", "RunRefused", "preflight", "run_scene", "run_variant", "fmu_start_values", "export_for",
-           "write_run", "run_extra", "error_notes", "skipped_notes", "settings_table"]
+__all__ = ["RunRecord", "SceneRun", "RunRefused", "RunInterrupted", "preflight", "run_scene", "run_variant",
+           "fmu_start_values", "export_for", "write_run", "run_extra", "error_notes", "skipped_notes", "settings_table"]
 
 
 @dataclass
@@ -91,35 +91,34 @@ def _label(variant: Variant, scene_name: str = "") -> str:
 
 def preflight(variant: Variant, scene_name: str = "") -> None:
     """Refuse, before anything runs or is written, a variant whose step is known to be
-    unstable: the midpoint scheme at omega_max*dt >= 2, and the held coupling exchange
-    beyond its zero-order-hold limit (unless ``run.allow_unstable``). Raises :class:`RunRefused`."""
+    unstable: the midpoint scheme at omega_max*dt >= 2 (``UnstableScheme``), and the held
+    coupling exchange beyond its limit for the hold in use (``UnstableExchange``; in
+    co-simulation at run.H with run.hold, in the core at solver.dt with the zero-order
+    hold), unless ``run.allow_unstable``. Both are the very checks the core and the master
+    make (:func:`fmu_sync.core.checks.check_stable`, :func:`fmu_sync.core.network.held_exchange`).
+    Raises :class:`RunRefused`."""
     from ..core.checks import check_stable
+    from ..core.exchange import UnstableExchange
+    from ..core.network import edge_laws, edges_of, held_exchange
     cfg = variant.cfg
     label = _label(variant, scene_name)
     try:
         check_stable(variant.system, cfg["solver.scheme"], cfg["solver.dt"])
-    except SimulationDiverged as exc:
+    except UnstableScheme as exc:
         raise RunRefused(f"{label}: refused before the first step: {exc}") from None
-    coupled = variant.law != "none" or (variant.is_network and variant.network.laws is not None
-                                         and any(x != "none" for x in variant.network.laws))
-    if variant.pair and coupled and not cfg["run.allow_unstable"]:
-        try:
-            from ..core.exchange import check_exchange
-        except ImportError:   # the exchange check arrives with the core of issue 10
-            return
-        cosim = variant.mode == "cosim"
-        A = None
-        if variant.is_network:
-            from ..core.network import coupled_weights, edge_laws, edges_of
-            spec = variant.network
-            edges = edges_of(spec.A)
-            A = coupled_weights(spec.A, edges, edge_laws(_laws_arg(variant), edges))
-        try:
-            check_exchange(variant.system.M, variant.Kp, variant.Kd, cfg["run.H"] if cosim else cfg["solver.dt"],
-                           A=A, step_name="H" if cosim else "dt")
-        except ValueError as exc:
-            raise RunRefused(f"{label}: {exc} From the command line: --allow-unstable (or --set "
-                             f"run.allow_unstable=true).") from None
+    if not variant.pair or cfg["run.allow_unstable"]:
+        return
+    cosim = variant.mode == "cosim"
+    A, laws = None, edge_laws(_coupling_arg(variant.law), [(0, 1)])
+    if variant.is_network:
+        A = variant.network.A
+        laws = edge_laws(_laws_arg(variant), edges_of(A))
+    try:
+        held_exchange(variant.system.M, variant.Kp, variant.Kd, cfg["run.H"] if cosim else cfg["solver.dt"], A,
+                      laws, hold=cfg["run.hold"] if cosim else "zoh", step_name="H" if cosim else "dt")
+    except UnstableExchange as exc:
+        raise RunRefused(f"{label}: {exc} From the command line: --allow-unstable (or --set "
+                         f"run.allow_unstable=true).") from None
 
 
 def run_variant(variant: Variant, fmu_path=None, progress: Callable | None = None, scene_name: str = "",
@@ -293,7 +292,7 @@ def _title(scene_name: str, name: str) -> str:
 
 def run_scene(scene, out_dir=None, overrides: dict | None = None, progress: Callable | None = None,
               variants=None, plots: bool = True, formats=None, max_memory: float | None = None,
-              max_disk: float | None = None) -> SceneRun:
+              max_disk: float | None = None, overwrite: bool = False) -> SceneRun:
     """Run every (or the named) variant(s) of a scene and write data, plots and ``summary.md``.
 
     ``scene`` is a :class:`Scene` or a name/path for :func:`load_scene`. ``out_dir``
@@ -307,10 +306,14 @@ def run_scene(scene, out_dir=None, overrides: dict | None = None, progress: Call
     stability of each variant's step (:func:`preflight`) and its record size
     (:func:`fmu_sync.output.check_budget`). A variant that fails mid-way keeps
     its record, marked partial, without plots (``SceneRun.failed``); if nothing
-    was recorded, nothing is left behind. Returns a :class:`SceneRun`.
+    was recorded, nothing is left behind. A folder holding another scene's results
+    (its ``summary.md``) is refused unless ``overwrite`` (which removes them).
+    Interrupted (Ctrl-C, SIGTERM through the CLI): the finished variants are kept with
+    a ``summary.md``, the interrupted one is removed, and :class:`RunInterrupted` says so.
+    Returns a :class:`SceneRun`.
     """
     from .. import report
-    from ..output import DEFAULT_MAX_DISK, DEFAULT_MAX_MEMORY, check_budget, check_out_dir
+    from ..output import DEFAULT_MAX_DISK, DEFAULT_MAX_MEMORY, check_budget, check_out_dir, make_out_dir, results_in
 
     scene = as_scene(scene, overrides, variants)
     chosen = list(scene.variants)
@@ -332,12 +335,15 @@ def run_scene(scene, out_dir=None, overrides: dict | None = None, progress: Call
                                  "--max-memory.")
         plan.append((v, fmts, est, stream))
 
-    created = not out_dir.exists()
-    out_dir.mkdir(parents=True, exist_ok=True)
+    old = results_in(out_dir, f"Scene `{scene.name}`", overwrite)
+    _clean(out_dir, False, old)   # --overwrite: another scene's results go, after every check passed
+    created = make_out_dir(out_dir)
     fmus = {}
     runs = []
+    current = None
     try:
         for i, (v, fmts, est, stream) in enumerate(plan):
+            current = v.name
             fmu_path = None
             if v.pair and v.mode == "cosim":
                 model = (v.cfg["system.model"], v.system.n)
@@ -361,14 +367,42 @@ def run_scene(scene, out_dir=None, overrides: dict | None = None, progress: Call
                 run = RunRecord(v.name, v, result, report.metrics(result, v.system))
             if run.result is not None and getattr(run.result, "error", None):
                 run.metrics["error"] = run.result.error
-            write_run(run, out_dir, scene.plots, scene.name, fmts, scaled(progress, mid, b), draw=plots)
+            try:
+                write_run(run, out_dir, scene.plots, scene.name, fmts, scaled(progress, mid, b), draw=plots)
+            except BaseException:
+                _clean(out_dir, False, run.files)   # never half a variant's files
+                raise
             if progress is not None:
                 progress(b)
             runs.append(run)
+            current = None
+    except KeyboardInterrupt:
+        raise _interrupted(scene, out_dir, created, runs, fmus, current, plots, chosen) from None
     except BaseException:
         _clean(out_dir, created, [f for r in runs for f in r.files] + list(fmus.values()))
         raise
+    return _summarize(scene, out_dir, created, runs, fmus, plots, chosen)
 
+
+class RunInterrupted(KeyboardInterrupt):
+    """A scene run interrupted: the message says what was kept and how to run the rest."""
+
+
+def _interrupted(scene, out_dir, created, runs, fmus, current, plots, chosen) -> RunInterrupted:
+    done = [r for r in runs if r.result is not None]
+    rest = [v.name for v in chosen if v.name not in {r.name for r in runs}]
+    if not done:
+        _clean(out_dir, created, list(fmus.values()))
+        return RunInterrupted(f"interrupted during variant {current!r}: nothing kept (no variant had finished)")
+    sr = _summarize(scene, out_dir, created, runs, fmus, plots, chosen)
+    again = " ".join(f"--variant {n}" for n in rest)
+    return RunInterrupted(
+        f"interrupted during variant {current!r}: kept {', '.join(r.name for r in done)} in {sr.out_dir}/ "
+        f"(data, plots, summary.md); to run the rest, repeat the command with {again} and another -o")
+
+
+def _summarize(scene, out_dir, created, runs, fmus, plots, chosen) -> SceneRun:
+    from .. import report
     written = [r for r in runs if r.result is not None]
     if not written:   # every run failed without a record: leave nothing behind
         _clean(out_dir, created, list(fmus.values()))

@@ -39,9 +39,10 @@ from pathlib import Path
 
 import numpy as np
 
+from .budget import DEFAULT_MAX_RUNS, DEFAULT_MAX_TIME, SweepEstimate, check_sweep_budget, estimate_sweep, grid_size
 from .spec import SweepSpecError, grid_runs, sample_runs
 
-__all__ = ["sweep", "SweepSpecError", "SweepTaskError", "SweepProgress", "load_sweep_scene", "list_sweep_scenes",
+__all__ = ["sweep", "SweepSpecError", "SweepTaskError", "SweepExists", "SweepInterrupted", "SweepProgress", "load_sweep_scene", "list_sweep_scenes",
            "SWEEP_SCENE_DIR"]
 
 SWEEP_SCENE_DIR = Path(__file__).resolve().parent / "scenes"
@@ -49,6 +50,30 @@ SWEEP_SCENE_DIR = Path(__file__).resolve().parent / "scenes"
 
 class SweepTaskError(RuntimeError):
     """A task could not run at all (not a failed run: those are rows). Finished chunks are kept."""
+
+
+class SweepInterrupted(KeyboardInterrupt):
+    """Ctrl-C or SIGTERM during a sweep: the message says what was kept and how to resume."""
+
+
+class SweepExists(FileExistsError):
+    """The output folder holds a different sweep (finished or unfinished)."""
+
+
+def _remove_if_empty(path, created: bool) -> None:
+    """Remove a folder this sweep created if nothing is in it (nothing left behind)."""
+    if created and path is not None and path.is_dir() and not any(path.iterdir()):
+        path.rmdir()
+
+
+def _check_time(scene, variant, keys, runs, max_memory, max_time, max_runs, threads, workers) -> None:
+    """The time estimate of the sweep (the scene variant's steps per run), refused above max_time."""
+    v = next((x for x in scene.variants if x.name == variant), scene.variants[0])
+    swept = {k: [r[k] for r in runs] for k in ("run.t_end", "solver.dt", "run.H") if k in keys}
+    compiled = v.mode == "core" and v.system.n == 1
+    est = estimate_sweep(len(runs), v.cfg, swept, compiled, threads or _default_threads(),
+                         workers or os.cpu_count() or 1)
+    check_sweep_budget(est, max_memory, max_time, max_runs)
 
 
 # ------------------------------------------------------------------ progress
@@ -196,7 +221,9 @@ def sweep(scene, grid: dict | None = None, *, sample: dict | None = None, n: int
           method: str | None = None, seed: int = 0, variant: str | None = None, overrides: dict | None = None,
           out=None, client=None, scheduler: str | None = None, workers: int | None = None,
           threads: int | None = None, chunk_size: int | None = None, threshold: float | None = None,
-          progress=None, plots: bool = True, overwrite: bool = False, quiet: bool = False):
+          progress=None, plots: bool = True, overwrite: bool = False, quiet: bool = False,
+          max_memory: float | None = None, max_time: float | None = DEFAULT_MAX_TIME,
+          max_runs: int = DEFAULT_MAX_RUNS):
     """Run a family of coupled-pair runs; return an ``xarray.Dataset`` of per-run metrics.
 
     Parameters
@@ -217,6 +244,12 @@ def sweep(scene, grid: dict | None = None, *, sample: dict | None = None, n: int
     threshold : d below it counts as synchronized (default ``fmu_sync.report.SYNC_THRESHOLD``).
     progress : callable ``progress(done, total, failed)`` (default: a :class:`SweepProgress` bar
         unless ``quiet``).
+    max_memory, max_time, max_runs : the budget (bytes, default ``fmu_sync.output.DEFAULT_MAX_MEMORY``;
+        seconds, None for no limit; runs): a sweep estimated above it is refused before anything is
+        built, run or written (:class:`fmu_sync.sweeps.budget.SweepTooLarge`, a ValueError).
+
+    Nothing is written before the sweep is known to be valid; a refused sweep leaves no folder
+    behind. An interrupted sweep keeps its finished chunks in ``out/.partial`` for resuming.
     """
     from ..core.batch import COL, DIVERGED, OK
     from ..report import SYNC_THRESHOLD
@@ -247,9 +280,13 @@ def sweep(scene, grid: dict | None = None, *, sample: dict | None = None, n: int
         scene = load_scene(scene, overrides)
     threshold = SYNC_THRESHOLD if threshold is None else float(threshold)
     method = method or ("grid" if grid else "lhs")
+    from ..output import DEFAULT_MAX_MEMORY
+    max_memory = DEFAULT_MAX_MEMORY if max_memory is None else float(max_memory)
     if method == "grid":
         if not grid or sample:
             raise SweepSpecError("a grid sweep needs grid={parameter: values} (and no sample)")
+        # the run count and memory before any value is built (logspace(-1, 1, 1e9) allocates nothing)
+        check_sweep_budget(SweepEstimate(grid_size(grid)), max_memory, None, max_runs)
         keys, axes, runs = grid_runs(grid)
     else:
         if not sample or grid:
@@ -257,6 +294,8 @@ def sweep(scene, grid: dict | None = None, *, sample: dict | None = None, n: int
                                  "(and no grid)")
         if n is None:
             raise SweepSpecError(f"a {method} sweep needs the number of runs n")
+        if isinstance(n, (int, float)) and not isinstance(n, bool) and n >= 1:
+            check_sweep_budget(SweepEstimate(int(n)), max_memory, None, max_runs)
         keys, runs = sample_runs(sample, n, method, seed)
         axes = None
     if variant is None and "variant" not in keys and len(scene.variants) > 1:
@@ -264,6 +303,13 @@ def sweep(scene, grid: dict | None = None, *, sample: dict | None = None, n: int
                              "choose one (variant=NAME, --variant NAME) or sweep over variant")
     if variant is None and "variant" not in keys:
         variant = scene.variants[0].name
+    if plot_axes and not all(plot_axes.get(a) in keys for a in ("x", "y")):
+        plot_axes = {}   # the sweep scene's grid was replaced: the maps follow the swept keys
+    _check_time(scene, variant, keys, runs, max_memory, max_time, max_runs, threads, workers)
+    out_dir = Path(out) if out is not None else None
+    if out_dir is not None:
+        from ..output import check_out_dir
+        check_out_dir(out_dir)
 
     own_client = client is None and scheduler is not None
     if own_client:
@@ -284,20 +330,26 @@ def sweep(scene, grid: dict | None = None, *, sample: dict | None = None, n: int
                  threshold=threshold, fingerprint=fp,
                  versions=json.dumps(_versions()), created=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
 
-    out_dir = Path(out) if out is not None else None
     if out_dir is not None:
-        out_dir.mkdir(parents=True, exist_ok=True)
         final = out_dir / store.RESULT_FILE
         if final.exists() and not overwrite:
             old = store.read_dataset(final)
             if old.attrs.get("fingerprint") == fp:
                 old.attrs["computed_runs"] = 0
+                old.attrs["already_complete"] = 1
                 return old
-            raise FileExistsError(f"{final} holds a different sweep: use another output folder or "
-                                  "overwrite=True (--overwrite)")
+            raise SweepExists(f"{final} holds a different sweep: use another output folder or "
+                              "overwrite=True (--overwrite)")
 
-    prep = prepare(scene, runs, variant)
-    st = store.ChunkStore(out_dir, fp, overwrite=overwrite)
+    prep = prepare(scene, runs, variant)   # every run checked: nothing is written before this
+    created = out_dir is not None and not out_dir.exists()
+    try:
+        if out_dir is not None:
+            out_dir.mkdir(parents=True, exist_ok=True)
+        st = store.ChunkStore(out_dir, fp, overwrite=overwrite)
+    except FileExistsError as exc:
+        _remove_if_empty(out_dir, created)
+        raise SweepExists(str(exc)) from None
     tasks = _tasks(prep, threshold, chunk, threads, 1 if client is not None else 2)
     done_ids = st.done()
     table = prep.out.copy()
@@ -345,6 +397,22 @@ def sweep(scene, grid: dict | None = None, *, sample: dict | None = None, n: int
             computed = _run_dask(client, todo, threshold, fp, finished)
         else:
             computed = _run_local(todo, threshold, threads, workers, finished)
+    except KeyboardInterrupt:
+        kept = counted["done"]
+        if out_dir is None:
+            raise SweepInterrupted(f"sweep interrupted: {kept} of {R} runs had finished; nothing was "
+                                   "written (no output folder)") from None
+        if kept == 0:
+            st.clear()
+            _remove_if_empty(out_dir, created)
+            raise SweepInterrupted("sweep interrupted before any chunk finished: nothing kept") from None
+        raise SweepInterrupted(f"sweep interrupted: {kept} of {R} runs kept in {out_dir / '.partial'}; "
+                               f"rerun the same command to resume from them") from None
+    except BaseException:
+        if out_dir is not None and counted["done"] == 0:
+            st.clear()
+            _remove_if_empty(out_dir, created)
+        raise
     finally:
         if own_bar:
             bar.close()

@@ -45,6 +45,10 @@ def add_parser(sub):
     s.add_argument("--threads", type=int, default=None, help="threads of the compiled engine (default: cores)")
     s.add_argument("--chunk", type=int, default=None, help="runs per compiled call / Dask task")
     s.add_argument("--overwrite", action="store_true", help="discard a different sweep found in the output")
+    s.add_argument("--max-memory", default=None, metavar="SIZE",
+                   help="memory budget of the sweep, e.g. 4GB (default 2GB); a larger sweep is refused before it runs")
+    s.add_argument("--max-time", type=float, default=None, metavar="SECONDS",
+                   help="estimated run-time budget (default 86400 s); a sweep estimated longer is refused")
     s.add_argument("--no-plots", action="store_true", help="write sweep.nc only")
     s.add_argument("--quiet", action="store_true", help="no progress display")
     s.add_argument("--list", action="store_true", help="list the built-in sweep scenes")
@@ -52,20 +56,34 @@ def add_parser(sub):
 
 
 def _pairs(items, what):
+    from .spec import SweepSpecError
     out = {}
     for text in items:
         if "=" not in text:
-            from .spec import SweepSpecError
             raise SweepSpecError(f"{what} {text!r}: expected KEY=VALUES, e.g. coupling.Kp=logspace(-2,2,41)")
         k, v = text.split("=", 1)
-        out[k.strip()] = v.strip()
+        k = k.strip()
+        if k in out:
+            raise SweepSpecError(f"{what} {k} is given twice ({out[k]!r} and {v.strip()!r}): give each key once")
+        out[k] = v.strip()
     return out
+
+
+def _short(reason: str, width: int = 90) -> str:
+    """The first clause of a reason, cut at a word boundary (never mid-word)."""
+    head = reason.split(": ")[0].strip()
+    if len(head) <= width:
+        return head
+    cut = head[:width].rsplit(" ", 1)[0]
+    return cut.rstrip(",;") + " ..."
 
 
 def run(args) -> int:
     import numpy as np
 
+    from ..output import parse_size
     from ..scenes.loading import parse_override
+    from .budget import DEFAULT_MAX_TIME
     from . import SweepTaskError, list_sweep_scenes, load_sweep_scene, sweep
     if args.list or not args.scene:
         rows = list_sweep_scenes()
@@ -79,12 +97,17 @@ def run(args) -> int:
     out = args.out or Path("fmu-sync-out") / f"sweep-{name}"
     grid = _pairs(args.grid, "--grid") or None
     sample = _pairs(args.sample, "--sample") or None
+    max_memory = parse_size(args.max_memory) if args.max_memory is not None else None
+    max_time = DEFAULT_MAX_TIME if args.max_time is None else args.max_time
+    if not max_time > 0:
+        raise ValueError(f"--max-time must be a positive number of seconds, got {args.max_time}")
     t0 = time.perf_counter()
     try:
         ds = sweep(args.scene, grid=grid, sample=sample, n=args.n, method=args.method, seed=args.seed,
                    variant=args.variant, overrides=dict(parse_override(s) for s in args.overrides) or None,
                    out=out, scheduler=args.scheduler, workers=args.workers, threads=args.threads,
-                   chunk_size=args.chunk, plots=not args.no_plots, overwrite=args.overwrite, quiet=args.quiet)
+                   chunk_size=args.chunk, plots=not args.no_plots, overwrite=args.overwrite, quiet=args.quiet,
+                   max_memory=max_memory, max_time=max_time)
     except SweepTaskError as exc:
         import sys
         print(f"fmu-sync: error: {exc}", file=sys.stderr)
@@ -98,11 +121,15 @@ def run(args) -> int:
     print(f"  synchronized: {int(ds['synchronized'].values.sum())}, not synchronized: "
           f"{int(((st == 0) & ~ds['synchronized'].values.ravel()).sum())}, diverged: {int((st == 1).sum())}, "
           f"refused: {int((st == 2).sum())}")
-    reasons = [r.split(":")[0][:90] for r, s in zip(ds["reason"].values.ravel(), st) if s != 0]
+    reasons = [_short(str(r)) for r, s in zip(ds["reason"].values.ravel(), st) if s != 0]
     if reasons:
         u, c = np.unique(reasons, return_counts=True)
         for k in np.argsort(-c)[:3]:
             print(f"  {c[k]} x {u[k]}")
+    if ds.attrs.get("already_complete"):
+        print(f"already complete in {out}/sweep.nc: nothing recomputed, nothing written "
+              "(--overwrite to run it again)")
+        return 0
     plots = ds.attrs.get("plots", "[]")
     print(f"written to {out}/ (sweep.nc{', ' + plots.strip('[]').replace(chr(34), '') if plots != '[]' else ''})")
     return 0

@@ -121,7 +121,7 @@ def _validate_values(scene, variant_name, key, values):
 def prepare(scene, runs: list[dict], variant_name: str | None) -> Prepared:
     """Resolve every run against the scene: system groups, per-run inputs, refusals."""
     from ..core.distance import geometry
-    from ..core.checks import n_steps as _n_steps
+    from ..core.checks import run_steps
     from ..scenes.loading import load_scene
     from ..scenes.schema import SceneError
 
@@ -214,7 +214,7 @@ def prepare(scene, runs: list[dict], variant_name: str | None) -> Prepared:
 
     arrays = {name: np.zeros(R, dtype=np.int64 if name in INT_ARRAYS else np.float64)
               for name in ("law", "scheme", "theta", "group1", "group2", "kp", "kd", "q1", "u1", "q2", "u2",
-                           "dt", "n_steps", "every", "qw")}
+                           "dt", "n_steps", "dt_last", "every", "qw")}
     python_items = {}
     cache = {}
     for i, r in enumerate(runs):
@@ -238,7 +238,9 @@ def prepare(scene, runs: list[dict], variant_name: str | None) -> Prepared:
         a["law"][i], a["scheme"][i], a["theta"][i] = _law(v.law), _scheme(cfg["solver.scheme"]), theta
         a["group1"][i], a["group2"][i], a["kp"][i], a["kd"][i] = group[i], group2[i], kp, kd
         a["q1"][i], a["u1"][i], a["q2"][i], a["u2"][i], a["dt"][i] = q1, u1, q2, u2, dt
-        a["n_steps"][i] = _n_steps(t_end, dt)
+        grid = run_steps(t_end, dt)   # whole steps, then the shortened last one (ends at t_end)
+        a["n_steps"][i] = grid.steps - 1 if grid.short else grid.steps
+        a["dt_last"][i] = grid.dt_last if grid.short else 0.0
         a["qw"][i] = _run_metric(v, rows[group2[i]], kp)
         a["every"][i] = cfg["run.record_every"]
         out[i, COL["exchange_stable"]] = _exchange_stable(v, kp, kd, dt, cache)
@@ -267,16 +269,14 @@ def _run_metric(v, system2, kp) -> float:
 
 def _refusal(v, system2, q1, q2, dt) -> str:
     """Why a run cannot start (the checks of simulate_pair), or ''."""
-    for name, q, s in (("x1", q1, v.system), ("x2", q2, system2)):
-        g = s.gap([q])
-        if g < 0.0:
-            return f"{name} violates the constraint: g(q) = {g:.6g} < 0 (need g >= 0)"
-    if v.cfg["solver.scheme"] == "midpoint":
+    from ..core.checks import check_stable, check_start
+    try:   # the core's own checks (start states, the scheme's limit), as simulate_pair makes them
+        for name, q, s in (("x1", q1, v.system), ("x2", q2, system2)):
+            check_start(s, [q], name)
         for s in (v.system, system2):
-            wdt = s.omega_max() * dt
-            if wdt >= 2.0:
-                return (f"the explicit midpoint scheme diverges for omega_max*dt >= 2: dt = {dt:.3g}, "
-                        f"omega_max*dt = {wdt:.3g}")
+            check_stable(s, v.cfg["solver.scheme"], dt)
+    except ValueError as exc:
+        return str(exc)
     return ""
 
 
@@ -375,7 +375,7 @@ def run_compiled_chunk(payload: dict, threads: int | None = None):
     batch.run_pairs1(r["law"], r["scheme"], r["theta"], t["sys_rows"], t["geo_rows"], t["F"], t["Omega"],
                      t["phi"], t["nf"], payload["group1"], payload["group2"], r["kp"], r["kd"], r["q1"], r["u1"],
                      r["q2"], r["u2"],
-                     r["dt"], r["n_steps"], r["every"], payload["threshold"], out, r["qw"])
+                     r["dt"], r["n_steps"], r["dt_last"], r["every"], payload["threshold"], out, r["qw"])
     return payload["idx"], out
 
 
