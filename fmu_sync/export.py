@@ -1,7 +1,13 @@
-"""Export the fmu-sync slaves as FMI 2.0 co-simulation FMUs (SPEC §7).
+"""Export the fmu-sync slaves as FMI 2.0 (default) or FMI 3.0 co-simulation FMUs (SPEC §7).
 
     export_fmu("impact-oscillator", "io.fmu", {"e": 0.8, "solver.scheme": "theta"})
     fmu-sync export impact-oscillator -o io.fmu --set e=0.8 --set solver.scheme=theta
+    fmu-sync export impact-oscillator -o io3.fmu --fmi-version 3
+
+An FMI 3.0 FMU (``fmus/c/fmu_sync_fmi3.c`` over the same runtime, slave, contract
+and stepper; docs/fmi3.md) declares event mode, early return at impacts, variable
+communication steps and FMU states; q, u, tau (and other whole indexed families)
+are FMI 3.0 arrays.
 
 The FMU holds:
 
@@ -44,7 +50,7 @@ from . import __version__
 from .fmus.slave import model_guid
 
 __all__ = ["MODELS", "export_fmu", "main_export", "model_class", "carried_files", "build_binary",
-           "MAX_SUBSTEPS"]
+           "MAX_SUBSTEPS", "FMI_VERSIONS"]
 
 #: The export keys: the FMU contract's model registry.
 MODELS = contract.MODELS
@@ -52,8 +58,10 @@ MODELS = contract.MODELS
 MAX_SUBSTEPS = 10_000_000
 
 _ZIP_DATE = (2020, 1, 1, 0, 0, 0)
-#: the FMI 2.0 glue; every binary also compiles the instance runtime (the Python embedding)
-_C_GLUE = "c/fmu_sync_fmi2.c"
+#: the FMI versions an FMU can be exported for and their glue; every binary also compiles
+#: the instance runtime (the Python embedding)
+FMI_VERSIONS = (2, 3)
+_C_GLUE = {2: "c/fmu_sync_fmi2.c", 3: "c/fmu_sync_fmi3.c"}
 _C_RUNTIME = "c/fmu_sync_runtime.c"
 #: slave modules carried in the FMU (besides the whole core)
 _CARRIED_FMUS = ("__init__.py", "contract.py", "_xml.py", "slave.py", "stepper.py", "runtime.py",
@@ -107,9 +115,10 @@ def _code_hash(files: list[tuple[str, bytes]]) -> str:
 
 
 def build_binary(out: Path, guid: str, boot_module: str, max_substeps: int = MAX_SUBSTEPS,
-                 glue: str = _C_GLUE) -> Path:
-    """Compile the FMI binary (``glue`` and the runtime) with gcc (``$CC`` overrides) into ``out``."""
-    srcs = [str(_fmus_dir() / glue), str(_fmus_dir() / _C_RUNTIME)]
+                 glue: str | None = None, fmi_version: int = 2) -> Path:
+    """Compile the FMI binary (``glue``, by default the FMI version's, and the runtime) with gcc
+    (``$CC`` overrides) into ``out``."""
+    srcs = [str(_fmus_dir() / (glue or _C_GLUE[fmi_version])), str(_fmus_dir() / _C_RUNTIME)]
     cc = os.environ.get("CC", "gcc")
     if shutil.which(cc) is None:
         raise RuntimeError(f"cannot build the FMU binary: C compiler {cc!r} not found (install gcc or set CC)")
@@ -138,8 +147,8 @@ def _runtime_versions() -> dict:
             "numba": numba.__version__}
 
 
-def _model_description_xml(cls, starts: dict, guid: str) -> bytes:
-    root = cls.description(starts, guid)
+def _model_description_xml(cls, starts: dict, guid: str, fmi_version: int = 2) -> bytes:
+    root = cls.description(starts, guid, fmi_version)
     ET.indent(root, space="  ")
     buf = io.BytesIO()
     ET.ElementTree(root).write(buf, encoding="UTF-8", xml_declaration=True)
@@ -165,14 +174,17 @@ def warm_cache(resources: dict[str, bytes], build: dict) -> None:
 
 
 def export_fmu(model: str = "impact-oscillator", path=None, start_values: dict | None = None,
-               warm: bool = True) -> Path:
+               warm: bool = True, fmi_version: int = 2) -> Path:
     """Build the FMU of ``model`` at ``path`` (default ``<ModelIdentifier>.fmu``) and return its path.
 
     ``start_values`` maps variable names (``"e"``, ``"solver.dt"``, ``"M[1,2]"``,
     ``"solver.scheme": "theta"`` ...) to start values of parameters or inputs; they
     are checked like the slave checks them at run time (bounds, a valid
     ``MechanicalSystem``, g(q_start) >= 0) and a ValueError names what is wrong.
+    ``fmi_version``: 2 (FMI 2.0) or 3 (FMI 3.0 with early return and event mode).
     """
+    if fmi_version not in FMI_VERSIONS or isinstance(fmi_version, bool):
+        raise ValueError(f"fmi_version must be one of {', '.join(map(str, FMI_VERSIONS))}, got {fmi_version!r}")
     cls = model_class(model)
     starts = cls.normalize_start_values(dict(start_values or {}))
     all_starts = cls.start_parameters(starts)
@@ -191,7 +203,8 @@ def export_fmu(model: str = "impact-oscillator", path=None, start_values: dict |
     digest = _code_hash(code)
     package = f"fmu_sync_m{digest[:16]}"
     boot_module = f"fmu_sync_boot_{digest[:16]}"
-    guid = model_guid(model, starts, digest + hashlib.sha256(c_source).hexdigest())
+    guid = model_guid(model, starts, digest + hashlib.sha256(c_source).hexdigest()
+                      + ("" if fmi_version == 2 else f"/fmi{fmi_version}"))
     build = {"model": model, "model_identifier": cls.MODEL_IDENTIFIER, "package": package, "code_hash": digest,
              "slave": _carried_slave(model), "fmu_sync_version": __version__, "guid": guid,
              "built_with": _runtime_versions(), "max_substeps": MAX_SUBSTEPS}
@@ -206,10 +219,12 @@ def export_fmu(model: str = "impact-oscillator", path=None, start_values: dict |
                                 indent=2, sort_keys=True) + "\n").encode(),
     })
     with tempfile.TemporaryDirectory(prefix="fmu-sync-build-") as tmp:
-        binary = build_binary(Path(tmp) / f"{cls.MODEL_IDENTIFIER}.so", guid, boot_module).read_bytes()
+        binary = build_binary(Path(tmp) / f"{cls.MODEL_IDENTIFIER}.so", guid, boot_module,
+                              fmi_version=fmi_version).read_bytes()
+    platform = "linux64" if fmi_version == 2 else "x86_64-linux"
     files: list[tuple[str, bytes]] = [
-        ("modelDescription.xml", _model_description_xml(cls, starts, guid)),
-        (f"binaries/linux64/{cls.MODEL_IDENTIFIER}.so", binary),
+        ("modelDescription.xml", _model_description_xml(cls, starts, guid, fmi_version)),
+        (f"binaries/{platform}/{cls.MODEL_IDENTIFIER}.so", binary),
     ] + [(f"resources/{name}", data) for name, data in sorted(resources.items())]
 
     fd, tmp = tempfile.mkstemp(prefix=".export-", suffix=".fmu", dir=path.parent)
@@ -244,7 +259,7 @@ def main_export(argv=None) -> int:
     """``fmu-sync export MODEL -o PATH.fmu [--set name=value ...]``; returns the exit code."""
     parser = argparse.ArgumentParser(
         prog="fmu-sync export",
-        description="Export an FMI 2.0 co-simulation FMU of an fmu-sync model (the importing "
+        description="Export an FMI 2.0 (or FMI 3.0: --fmi-version 3) co-simulation FMU of an fmu-sync model (the importing "
                     "machine needs Python with numpy and numba; see the README).")
     parser.add_argument("model", choices=sorted(MODELS), help="model to export")
     parser.add_argument("-o", "--output", default=None,
@@ -252,6 +267,9 @@ def main_export(argv=None) -> int:
     parser.add_argument("--set", dest="sets", action="append", default=[], metavar="NAME=VALUE",
                         help="start value of a parameter or input, e.g. --set e=0.8 "
                              "--set solver.scheme=theta --set 'M[1,2]=0.3' (repeatable)")
+    parser.add_argument("--fmi-version", type=int, choices=FMI_VERSIONS, default=2,
+                        help="FMI version of the FMU: 2 (default) or 3 (FMI 3.0: event mode, early return "
+                             "at impacts, arrays; see docs/fmi3.md)")
     parser.add_argument("--list", action="store_true", help="list the model's variables and exit")
     args = parser.parse_args(argv)
     try:
@@ -262,7 +280,7 @@ def main_export(argv=None) -> int:
                 start = f" = {v.start}" if v.start is not None else ""
                 print(f"{v.name:<14} {v.causality:<9} {v.type:<11}{unit}{start}  {v.description}")
             return 0
-        path = export_fmu(args.model, args.output, _parse_set(args.sets))
+        path = export_fmu(args.model, args.output, _parse_set(args.sets), fmi_version=args.fmi_version)
     except ValueError as exc:
         print(f"fmu-sync export: error: {exc}", file=sys.stderr)
         return 2

@@ -21,6 +21,16 @@ exact scheme is given a non-zero input derivative. ``H == 0`` only recomputes
 gap and energy (used after a restore, so that the outputs are the very same
 numbers).
 
+FMI 3.0 early return (the header's ``H_MODE``, set by ``fmu_sync_fmi3.c``): with
+MODE_EARLY the step stops at the first impact inside ``(t, t + H)`` -- the exact
+scheme at the impact instant (``core.exact.exact_step_early``), a Moreau scheme at
+the end of the first internal step with a positive percussion (the step is redone
+internal step by internal step with ``advance_in``'s own time and last-step
+rules) -- and writes the time reached into ``H_REACHED``. MODE_EARLY_EVENT stops
+the exact scheme just before the impact (the left limit) and keeps the impact
+pending (``H_PEND_U``, ``H_PEND_P``) until a call in MODE_APPLY_EVENT
+(fmi3UpdateDiscreteStates) applies it.
+
 Work array: the header (H_* slots), the system (:func:`pack`), a save area of
 2n slots, the exact model (``core.exact.exact_model``, 1-DOF only, at
 ``H_IEXACT``) and, last, the m input derivatives (at ``H_ITAUDOT``: set by the
@@ -39,12 +49,14 @@ import numpy as np
 from numba import carray, cfunc, njit, types
 
 from ..core.exact import NT as _EXACT_NT
-from ..core.exact import STEP_OK, exact_step
+from ..core.exact import STEP_OK, exact_step_early
 from ..core.model import SystemArrays
-from ..core.moreau import MIDPOINT, OK, THETA, advance_in
+from ..core.moreau import MIDPOINT, OK, THETA, advance_in, substeps
 
 __all__ = ["step", "pack", "work_size", "H_LEN", "H_VERSION", "H_TIME", "H_PHASE", "H_DT",
-           "H_CONFIGURED", "WORK_VERSION", "H_VREF", "H_ITAUDOT", "H_IEXACT", "EXACT", "exact_size"]
+           "H_CONFIGURED", "WORK_VERSION", "H_VREF", "H_ITAUDOT", "H_IEXACT", "EXACT", "exact_size",
+           "H_MODE", "H_REACHED", "H_PEND_U", "H_PEND_P", "H_ICOUNT", "MODE_FULL", "MODE_EARLY",
+           "MODE_EARLY_EVENT", "MODE_APPLY_EVENT"]
 
 # --- header slots (the first six are read by the C binary: keep in sync with c/fmu_sync_runtime.h)
 H_LEN, H_VERSION, H_TIME, H_PHASE, H_DT, H_CONFIGURED = 0, 1, 2, 3, 4, 5
@@ -52,10 +64,20 @@ H_N, H_M, H_NF, H_SCHEME, H_THETA, H_NX = 6, 7, 8, 9, 10, 11
 H_IQ, H_IU, H_ITAU, H_IGAP, H_IENERGY, H_IIMPACTS, H_IPERC = 12, 13, 14, 15, 16, 17, 18
 # (read by the C binary too: H_M, H_SCHEME, H_ITAU, H_ITAUDOT)
 H_VREF, H_ITAUDOT, H_IEXACT = 19, 20, 21
-H_DATA = 24
+# FMI 3.0 (read and written by fmu_sync_fmi3.c): the step mode (MODE_*), the time a
+# step reached (t + H or an early return), the pending impact of an early return in
+# event mode (post-impact velocity, its percussion; H_PEND_P > 0 while pending), and
+# the offset of the per-slot FMI 3.0 variable sizes (runtime.FMUInstance)
+H_MODE, H_REACHED, H_PEND_U, H_PEND_P, H_ICOUNT = 22, 23, 24, 25, 26
+H_DATA = 28
 WORK_VERSION = 2.0
 #: the FMU's code of solver.scheme = exact (the core's Moreau codes are MIDPOINT, THETA)
 EXACT = 2
+#: step modes (H_MODE): to the end of the step (FMI 2.0; FMI 3.0 without early return);
+#: stop at the first impact with the impact handled (early return, no event mode); stop
+#: at the first impact before it (early return in event mode: the exact scheme keeps the
+#: impact pending for fmi3UpdateDiscreteStates); apply the pending impact (H ignored)
+MODE_FULL, MODE_EARLY, MODE_EARLY_EVENT, MODE_APPLY_EVENT = 0, 1, 2, 3
 
 
 def exact_size(n: int, m: int, nf: int) -> int:
@@ -69,10 +91,11 @@ def _scratch(n, m, nf):
     return 6 * n + n * n + 4 * nf + m
 
 
-def work_size(n: int, m: int, nf: int) -> int:
-    """Length of the work array for n DOF, m inputs, nf harmonic forces."""
+def work_size(n: int, m: int, nf: int, nx: int = 0) -> int:
+    """Length of the work array for n DOF, m inputs, nf harmonic forces (and the nx
+    FMI 3.0 variable sizes, placed just before the m input derivatives)."""
     system = H_DATA + 4 * n * n + n + nf * n + 2 * nf + n * m + n + 2 + n + 1
-    return system + 2 * n + _scratch(n, m, nf) + exact_size(n, m, nf) + m
+    return system + 2 * n + _scratch(n, m, nf) + exact_size(n, m, nf) + nx + m
 
 
 def pack(work: np.ndarray, sa: SystemArrays, dt: float, scheme: int, theta: float, exact=None) -> None:
@@ -98,9 +121,9 @@ def pack(work: np.ndarray, sa: SystemArrays, dt: float, scheme: int, theta: floa
     k += n + 1 + 2 * n + _scratch(n, m, nf)   # the save area and the scratch
     work[H_IEXACT] = 0.0
     if exact is not None:
-        if k + exact.size > int(work[H_ITAUDOT]):
+        if k + exact.size > int(work[H_ICOUNT]):
             raise ValueError(f"the exact model needs {exact.size} slots, the work array has "
-                             f"{int(work[H_ITAUDOT]) - k}")
+                             f"{int(work[H_ICOUNT]) - k}")
         work[k:k + exact.size] = exact
         work[H_IEXACT] = k
 
@@ -205,7 +228,13 @@ def step(x_ptr, w_ptr, t, H):
     q = x[iq:iq + n]
     u = x[iu:iu + n]
     tau = x[it:it + m]
-    if H == 0.0:
+    mode = int(w[H_MODE])
+    if mode == MODE_APPLY_EVENT and w[H_PEND_P] > 0.0:    # the pending impact of an early return
+        u[0] = w[H_PEND_U]
+        x[int(w[H_IPERC])] = w[H_PEND_P]
+        x[int(w[H_IIMPACTS])] += 1
+        w[H_PEND_P] = 0.0
+    if H == 0.0 or mode == MODE_APPLY_EVENT:
         g, E = _outputs(sa, q, u)
         x[int(w[H_IGAP])] = g
         x[int(w[H_IENERGY])] = E
@@ -217,20 +246,49 @@ def step(x_ptr, w_ptr, t, H):
         save[i] = q[i]
         save[n + i] = u[i]
     scheme = int(w[H_SCHEME])
+    early = mode == MODE_EARLY or mode == MODE_EARLY_EVENT
+    t_stop = t + H
+    pend_u = 0.0
+    pend_p = 0.0
     if scheme == EXACT:
         for j in range(m):
             if taudot[j] != 0.0:
                 return 2
         ie = int(w[H_IEXACT])
-        st, q1, u1, P, hits, vref = exact_step(w[ie:], q[0], u[0], t, H, tau, w[H_VREF])
+        st, t_stop, q1, u1, um, P, Pi, hits, vref = exact_step_early(w[ie:], q[0], u[0], t, H, tau,
+                                                                     w[H_VREF], early)
         if st != STEP_OK:
             return 1
         q[0] = q1
         u[0] = u1
+        if Pi > 0.0 and mode == MODE_EARLY_EVENT:   # stop before the impact: left limit
+            u[0] = um
+            pend_u = u1
+            pend_p = Pi
+            P = P - Pi
+            hits -= 1
         status = OK
     else:
-        status, P, hits = _advance(sa, q, u, t, H, w[H_DT], tau, taudot, scheme, w[H_THETA],
-                                   w[k + 2 * n:k + 2 * n + _scratch(n, m, int(w[H_NF]))])
+        sc = w[k + 2 * n:k + 2 * n + _scratch(n, m, int(w[H_NF]))]
+        status, P, hits = _advance(sa, q, u, t, H, w[H_DT], tau, taudot, scheme, w[H_THETA], sc)
+        if early and hits > 0 and status == OK:
+            # redo it internal step by internal step (the same arithmetic: advance_in's t and
+            # last-step rules) up to the end of the first internal step with a percussion
+            for i in range(n):
+                q[i] = save[i]
+                u[i] = save[n + i]
+            dt = w[H_DT]
+            ks = substeps(H, dt)
+            for kk in range(ks):
+                tk = t + kk * dt
+                hk = dt
+                if kk == ks - 1:
+                    hk = (t + H) - tk if kk > 0 else H
+                status, P, hits = _advance(sa, q, u, tk, hk, dt, tau, taudot, scheme, w[H_THETA], sc)
+                if status != OK or P > 0.0:
+                    if kk < ks - 1:
+                        t_stop = tk + hk
+                    break
         vref = w[H_VREF]
     g, E = _outputs(sa, q, u)
     if status != OK or not (math.isfinite(g) and math.isfinite(E)):
@@ -239,6 +297,9 @@ def step(x_ptr, w_ptr, t, H):
             u[i] = save[n + i]
         return 1
     w[H_VREF] = vref
+    w[H_REACHED] = t_stop
+    w[H_PEND_U] = pend_u
+    w[H_PEND_P] = pend_p
     for j in range(m):
         taudot[j] = 0.0                       # consumed: it applied to this step only
     x[int(w[H_IPERC])] = P
