@@ -238,7 +238,7 @@ def model_description3(*, model_name: str, model_identifier: str, token: str, de
         v = scalars[0]
         for s in scalars:
             vr_of[s.name] = v.value_reference
-        desc = v.description.split(", component")[0] if dims else v.description
+        desc = re.sub(r"\b1\b", "i", v.description) + f" (i = 1..{dims[0]})" if len(dims) == 1 else v.description
         attrs = {"name": name, "valueReference": str(v.value_reference), "description": desc,
                  "causality": v.causality, "variability": v.variability}
         if v.declared_type:
