@@ -46,7 +46,7 @@ from .fmus import contract
 from .hold import InputHistory, check_hold, check_schemes
 
 __all__ = ["cosimulate", "cosimulate_network", "NetworkMaster", "NetworkResult", "SlaveError", "FmuInstance",
-           "fmu_model", "system_from_fmu"]
+           "fmu_model", "system_from_fmu", "pair_result"]
 
 STATUS = ("OK", "Warning", "Discard", "Error", "Fatal", "Pending")
 
@@ -67,11 +67,16 @@ class FmuInstance:
     fmi2Warning turned into a :class:`SlaveError` naming the instance, the time
     and the FMU's logged reason."""
 
-    def __init__(self, unzipdir: str, md, name: str):
+    def __init__(self, unzipdir: str, md, name: str, early_return: bool = False):
         from .fmi_bridge import FMUHost
         self.name = name
         self.t = 0.0
-        self.host = FMUHost(unzipdir, instance_name=name, model_description=md)
+        if md.fmiVersion == "3.0":   # FMI 3.0 (fmu_sync.fmi3_bridge): early return and event mode on request
+            from .fmi3_bridge import FMU3Host
+            self.host = FMU3Host(unzipdir, instance_name=name, model_description=md,
+                                 early_return=early_return, event_mode=early_return)
+        else:
+            self.host = FMUHost(unzipdir, instance_name=name, model_description=md)
         self.vr = self.host.variables
 
     def _check(self, call: str, status: int):
@@ -128,7 +133,11 @@ class FmuInstance:
 def fmu_model(md):
     """The contract's model of an FMU (from its model description); a foreign FMU
     raises :class:`fmu_sync.fmus.contract.ContractError` naming the missing variables."""
-    return contract.identify([v.name for v in md.modelVariables], md.modelName)
+    names = []
+    for v in md.modelVariables:   # an FMI 3.0 array stands for its elements' FMI 2.0 names
+        size = int(v.dimensions[0].start) if getattr(v, "dimensions", None) else 0
+        names += [f"{v.name}[{i + 1}]" for i in range(size)] if size else [v.name]
+    return contract.identify(names, md.modelName)
 
 
 def system_from_fmu(instance: FmuInstance, model=None) -> MechanicalSystem:
@@ -150,6 +159,8 @@ class NetworkMaster:
     """
 
     METHODS = ("jacobi", "gauss-seidel")
+    #: create FMI 3.0 instances with early return and event mode (fmu_sync.early_return)
+    EARLY_RETURN = False
 
     def __init__(self, fmu, states, A, t_end: float, H: float, coupling: str | None = "switching",
                  Kp=0.0, Kd=0.0, Q=None, method: str = "jacobi", record_every: int = 1,
@@ -201,7 +212,7 @@ class NetworkMaster:
     def _start(self, unzipdir: str) -> None:
         model, N = self.model, self.N
         for i in range(N):
-            self.slaves.append(FmuInstance(unzipdir, self.md, f"system{i + 1}"))
+            self.slaves.append(FmuInstance(unzipdir, self.md, f"system{i + 1}", self.EARLY_RETURN))
         for s, sv in zip(self.slaves, self.start_values):
             s.enter_initialization(0.0)   # FMI 2.0: variables are readable from initialization mode on
             s.set(sv)
@@ -466,7 +477,8 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
                          H_min, start_values, record_distance, allow_unstable, hold).run(progress)
 
 
-def _pair_result(r: NetworkResult, coupling) -> PairResult:
+def pair_result(r: NetworkResult, coupling) -> PairResult:
+    """The :class:`PairResult` of a two-node network run."""
     d = r.d is not None
     return PairResult(r.t, r.q[:, 0], r.u[:, 0], r.q[:, 1], r.u[:, 1], r.tau[:, 0], r.tau[:, 1],
                       r.d[:, 0] if d else None, r.branch[:, 0] if d else None,
@@ -515,6 +527,6 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
                                record_distance, allow_unstable, hold)
     except RunFailed as exc:
         if exc.partial is not None:  # None: refused before the first step
-            exc.partial = _pair_result(exc.partial, coupling)
+            exc.partial = pair_result(exc.partial, coupling)
         raise
-    return _pair_result(r, coupling)
+    return pair_result(r, coupling)

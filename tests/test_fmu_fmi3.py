@@ -170,3 +170,25 @@ def test_two_dof_arrays_match_the_fmi2_scalars(fmus):
         assert h.get(["q", "u"]) == [g.get(["q[1]", "q[2]"]), g.get(["u[1]", "u[2]"])]
         assert h.get(["q[2]"]) == g.get(["q[2]"])
         assert h.set({"tau": [1.0, 2.0, 3.0]}) == ERROR and "nValues = 3" in h.errors()[-1]
+
+
+# ------------------------------------------------------------ the master
+def test_master_drives_fmi3_like_fmi2_and_early_return_exchanges_at_impacts(fmus):
+    from fmu_sync.early_return import cosimulate_early_return
+    from fmu_sync.master import cosimulate
+    x1, x2, T, H = (1.0, 0.0), (0.2, 0.5), 3.0, 0.01
+    kw = dict(coupling="switching", Kp=1.0, Kd=0.5)
+    r2 = cosimulate(fmus["osc", 2], x1, x2, T, H, event_aware=True, **kw)
+    r3 = cosimulate(fmus["osc", 3], x1, x2, T, H, event_aware=True, **kw)
+    assert np.array_equal(r3.q1, r2.q1) and np.array_equal(r3.q2, r2.q2) and r3.info["retaken_steps"] >= 1
+    # without coupling the stops change nothing: the plain exchange's numbers (the FMU's own round-off)
+    u2 = cosimulate(fmus["osc", 2], x1, x2, T, H)
+    u3 = cosimulate_early_return(fmus["osc", 3], x1, x2, T, H)
+    assert np.max(np.abs(u3.q1 - u2.q1)) < 1e-12 and np.max(np.abs(u3.q2 - u2.q2)) < 1e-12
+    # coupled: one stop per impact instant (the two systems hit the wall at different times here)
+    e3 = cosimulate_early_return(fmus["osc", 3], x1, x2, T, H, **kw)
+    assert e3.impacts1 >= 1 and e3.impacts2 >= 1
+    assert e3.info["early_stops"] == e3.impacts1 + e3.impacts2 and e3.info["method"] == "early-return"
+    assert np.max(np.abs(e3.q1 - r2.q1)) < 0.01          # the same motion, forces exchanged elsewhere
+    with pytest.raises(ValueError, match="FMI 3.0"):
+        cosimulate_early_return(fmus["osc", 2], x1, x2, T, H, **kw)
