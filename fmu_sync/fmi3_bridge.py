@@ -19,9 +19,26 @@ import re
 
 from .fmi_bridge import DISCARD, ERROR, FATAL, OK, WARNING, FMUHost
 
-__all__ = ["FMU3Host", "OK", "WARNING", "DISCARD", "ERROR", "FATAL"]
+__all__ = ["FMU3Host", "open_host", "element_names", "OK", "WARNING", "DISCARD", "ERROR", "FATAL"]
 
 _ELEMENT = re.compile(r"^(?P<base>.+)\[(?P<i>\d+)\]$")
+
+
+def open_host(unzipdir, md, name: str, early_return: bool = False):
+    """An :class:`FMUHost` (FMI 2.0) or :class:`FMU3Host` (FMI 3.0: early return and
+    event mode if ``early_return``) on an unpacked FMU with model description ``md``."""
+    if md.fmiVersion == "3.0":
+        return FMU3Host(unzipdir, name, True, md, early_return=early_return, event_mode=early_return)
+    return FMUHost(unzipdir, instance_name=name, model_description=md)
+
+
+def element_names(md) -> list[str]:
+    """The variable names of an FMU, an FMI 3.0 array (1-D) as its elements' FMI 2.0 names."""
+    names = []
+    for v in md.modelVariables:
+        size = int(v.dimensions[0].start) if getattr(v, "dimensions", None) else 0
+        names += [f"{v.name}[{i + 1}]" for i in range(size)] if size else [v.name]
+    return names
 
 
 class FMU3Host(FMUHost):

@@ -42,6 +42,7 @@ from .core.model import MechanicalSystem, as_state
 from .core.network import coupled_weights, edge_laws, edges_of, weights
 from .core.pair import LAWS, check_common_geometry, coupling_step
 from .core.result import NetworkResult, PairResult
+from .fmi3_bridge import element_names, open_host
 from .fmus import contract
 from .hold import InputHistory, check_hold, check_schemes
 
@@ -68,15 +69,8 @@ class FmuInstance:
     and the FMU's logged reason."""
 
     def __init__(self, unzipdir: str, md, name: str, early_return: bool = False):
-        from .fmi_bridge import FMUHost
-        self.name = name
-        self.t = 0.0
-        if md.fmiVersion == "3.0":   # FMI 3.0 (fmu_sync.fmi3_bridge): early return and event mode on request
-            from .fmi3_bridge import FMU3Host
-            self.host = FMU3Host(unzipdir, instance_name=name, model_description=md,
-                                 early_return=early_return, event_mode=early_return)
-        else:
-            self.host = FMUHost(unzipdir, instance_name=name, model_description=md)
+        self.name, self.t = name, 0.0
+        self.host = open_host(unzipdir, md, name, early_return)   # FMI 2.0 or FMI 3.0
         self.vr = self.host.variables
 
     def _check(self, call: str, status: int):
@@ -133,11 +127,7 @@ class FmuInstance:
 def fmu_model(md):
     """The contract's model of an FMU (from its model description); a foreign FMU
     raises :class:`fmu_sync.fmus.contract.ContractError` naming the missing variables."""
-    names = []
-    for v in md.modelVariables:   # an FMI 3.0 array stands for its elements' FMI 2.0 names
-        size = int(v.dimensions[0].start) if getattr(v, "dimensions", None) else 0
-        names += [f"{v.name}[{i + 1}]" for i in range(size)] if size else [v.name]
-    return contract.identify(names, md.modelName)
+    return contract.identify(element_names(md), md.modelName)
 
 
 def system_from_fmu(instance: FmuInstance, model=None) -> MechanicalSystem:
@@ -159,8 +149,7 @@ class NetworkMaster:
     """
 
     METHODS = ("jacobi", "gauss-seidel")
-    #: create FMI 3.0 instances with early return and event mode (fmu_sync.early_return)
-    EARLY_RETURN = False
+    EARLY_RETURN = False   # FMI 3.0 instances with early return and event mode (fmu_sync.early_return)
 
     def __init__(self, fmu, states, A, t_end: float, H: float, coupling: str | None = "switching",
                  Kp=0.0, Kd=0.0, Q=None, method: str = "jacobi", record_every: int = 1,
@@ -478,7 +467,6 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
 
 
 def pair_result(r: NetworkResult, coupling) -> PairResult:
-    """The :class:`PairResult` of a two-node network run."""
     d = r.d is not None
     return PairResult(r.t, r.q[:, 0], r.u[:, 0], r.q[:, 1], r.u[:, 1], r.tau[:, 0], r.tau[:, 1],
                       r.d[:, 0] if d else None, r.branch[:, 0] if d else None,
