@@ -30,6 +30,7 @@
 #include <sys/stat.h>
 
 #include "fmi3_abi.h"
+#include "fmu_sync_glue.h"
 #include "fmu_sync_runtime.h"
 
 #ifndef FMU_SYNC_GUID
@@ -86,7 +87,7 @@ static const struct { const char *name; int mask; } CALLS[F_N] = {
 typedef struct Instance {
     uint32_t magic;
     int state;
-    int logging_on, log_all, log_warning;
+    fsg_logging log;                 /* logging on, enabled optional categories */
     int event_mode_used, early_return_allowed;
     int init_dirty;                  /* outputs must be recomputed (initialization mode) */
     char *name;
@@ -96,29 +97,15 @@ typedef struct Instance {
 } Instance;
 #define MAGIC 0x66737933u            /* "fsy3" */
 
-/* ------------------------------------------------------------ logging */
-static const char *category_of(int s) {
-    switch (s) {
-    case fmi3Warning: return "logStatusWarning";
-    case fmi3Discard: return "logStatusDiscard";
-    case fmi3Error: return "logStatusError";
-    case fmi3Fatal: return "logStatusFatal";
-    default: return "logAll";
-    }
-}
-
-/* Discard, Error and Fatal always reach the logger (they carry the reason of a
- * status); Warning and logAll only with logging on. */
+/* ------------------------------------------------------------ logging (categories: fmu_sync_glue.h) */
 static void on_log(void *ctx, int s, const char *text) {
     Instance *c = (Instance *)ctx;
-    if (!c || !c->logger) return;
-    if (s < fmi3Discard && (!c->logging_on || !(s == fmi3Warning ? c->log_warning || c->log_all : c->log_all)))
-        return;
+    if (!c || !c->logger || !fsg_wants(&c->log, s)) return;
     char msg[3200];
     /* the runtime's Python replies name the FMI 2.0 call they answer: say fmi3 here */
     if (strncmp(text, "fmi2", 4) == 0) snprintf(msg, sizeof msg, "fmi3%s", text + 4);
     else snprintf(msg, sizeof msg, "%s", text);
-    c->logger(c->env, (fmi3Status)s, category_of(s), msg);
+    c->logger(c->env, (fmi3Status)s, fsg_category(s), msg);
 }
 
 static fmi3Status refuse(Instance *c, fmi3Status s, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
@@ -132,17 +119,10 @@ static fmi3Status refuse(Instance *c, fmi3Status s, const char *fmt, ...) {
     return s;
 }
 
-static const char *state_name(int st) {
-    switch (st) {
-    case ST_INSTANTIATED: return "instantiated";
-    case ST_INIT: return "initialization mode";
-    case ST_STEP: return "step mode";
-    case ST_EVENT: return "event mode";
-    case ST_TERMINATED: return "terminated";
-    case ST_FATAL: return "fatal error";
-    default: return "?";
-    }
-}
+static const fsg_state STATES[] = {{ST_INSTANTIATED, "instantiated"}, {ST_INIT, "initialization mode"},
+                                    {ST_EVENT, "event mode"}, {ST_STEP, "step mode"}, {ST_TERMINATED, "terminated"},
+                                    {ST_FATAL, "fatal error"}};
+#define state_name(st) fsg_state_name(STATES, 6, (st))
 
 /* The one check of every call: a valid instance in an allowed state. */
 static int invalid(fmi3Instance inst, int call, const char *name, Instance **out) {
@@ -158,13 +138,8 @@ static int invalid(fmi3Instance inst, int call, const char *name, Instance **out
         refuse(c, fmi3Error, "%s: not provided by this FMU (an FMI 3.0 co-simulation FMU without clocks, "
                "structural parameters, directional derivatives or Model Exchange)", fn);
     } else {
-        static const int all[] = {ST_INSTANTIATED, ST_INIT, ST_EVENT, ST_STEP, ST_TERMINATED};
-        char allowed[200] = "";
-        for (size_t i = 0; i < sizeof all / sizeof all[0]; ++i)
-            if (CALLS[call].mask & all[i]) {
-                if (allowed[0]) strncat(allowed, ", ", sizeof allowed - strlen(allowed) - 1);
-                strncat(allowed, state_name(all[i]), sizeof allowed - strlen(allowed) - 1);
-            }
+        char allowed[200];
+        fsg_allowed(STATES, 5, CALLS[call].mask, allowed, sizeof allowed);
         refuse(c, fmi3Error, "%s refused in state '%s' (allowed in: %s)", fn, state_name(c->state), allowed);
     }
     return 1;
@@ -192,7 +167,7 @@ EXPORT fmi3Instance fmi3InstantiateCoSimulation(
     const fmi3ValueReference requiredIntermediateVariables[], size_t nRequiredIntermediateVariables,
     fmi3InstanceEnvironment env, fmi3LogMessageCallback logMessage, fmi3IntermediateUpdateCallback intermediateUpdate) {
     (void)visible; (void)requiredIntermediateVariables; (void)intermediateUpdate;
-    Instance tmp = {.logger = logMessage, .env = env, .logging_on = 1, .log_all = 1, .log_warning = 1};
+    Instance tmp = {.logger = logMessage, .env = env, .log = {1, 1, 1}};
     char err[3000] = "", resdir[4096];
 #define FAIL(...)                                              \
     do {                                                       \
@@ -221,7 +196,7 @@ EXPORT fmi3Instance fmi3InstantiateCoSimulation(
     *c = tmp;
     c->magic = MAGIC;
     c->name = strdup(instanceName);
-    c->logging_on = loggingOn ? 1 : 0;
+    c->log.on = loggingOn ? 1 : 0;
     c->event_mode_used = eventModeUsed ? 1 : 0;
     c->early_return_allowed = earlyReturnAllowed ? 1 : 0;
     c->state = ST_INSTANTIATED;
@@ -272,18 +247,9 @@ EXPORT void fmi3FreeInstance(fmi3Instance inst) {
 EXPORT fmi3Status fmi3SetDebugLogging(fmi3Instance inst, fmi3Boolean loggingOn, size_t n, const fmi3String cats[]) {
     Instance *c;
     if (invalid(inst, F_SetDebugLogging, NULL, &c)) return fmi3Error;
-    c->logging_on = loggingOn ? 1 : 0;
-    c->log_all = c->log_warning = n == 0;
-    if (n && !cats) return refuse(c, fmi3Error, "fmi3SetDebugLogging: %zu categories but categories is NULL", n);
-    for (size_t i = 0; i < n; ++i) {
-        const char *k = cats[i];
-        if (!k) return refuse(c, fmi3Error, "fmi3SetDebugLogging: category %zu is NULL", i);
-        if (!strcmp(k, "logAll")) c->log_all = 1;
-        else if (!strcmp(k, "logStatusWarning")) c->log_warning = 1;
-        else if (strcmp(k, "logStatusDiscard") && strcmp(k, "logStatusError") && strcmp(k, "logStatusFatal"))
-            return refuse(c, fmi3Error, "fmi3SetDebugLogging: unknown log category '%s' (known: logStatusWarning, "
-                          "logStatusDiscard, logStatusError, logStatusFatal, logAll)", k);
-    }
+    char err[300];
+    if (fsg_set_logging(&c->log, loggingOn, n, cats, err, sizeof err))
+        return refuse(c, fmi3Error, "fmi3SetDebugLogging: %s; logging unchanged", err);
     return fmi3OK;
 }
 
