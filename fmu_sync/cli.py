@@ -6,7 +6,8 @@
     fmu-sync scenes                            list the built-in scenes
     fmu-sync export ...                        export an FMU (see `fmu-sync export --help`)
     fmu-sync validate FILE.fmu                 check an FMU with fmpy (exit 1 on problems)
-    fmu-sync bench [--quick] [-o DIR]          benchmarks (see `fmu-sync bench --help`)
+    fmu-sync bench [--quick] [-o DIR]          the benchmark report DIR/benchmarks.md (see `fmu-sync bench --help`)
+    fmu-sync report work-precision|stability   one of the mission's reports alone (options of `fmu-sync bench`)
     fmu-sync sweep SCENE --grid K=V.. [-o DIR] gain maps, basins, samples (see `fmu-sync sweep --help`)
 
 Exit status:
@@ -81,7 +82,10 @@ def _parser() -> argparse.ArgumentParser:
     sub.add_parser("export", help="export an FMU (options: see `fmu-sync export --help`)", add_help=False)
     v = sub.add_parser("validate", help="validate an FMU with fmpy; exit 1 if it has problems")
     v.add_argument("fmu", type=Path, help="path of the .fmu file")
-    sub.add_parser("bench", help="benchmarks (options: see `fmu-sync bench --help`)", add_help=False)
+    sub.add_parser("bench", help="the benchmark report DIR/benchmarks.md (options: see `fmu-sync bench --help`)",
+                   add_help=False)
+    sub.add_parser("report", help="one of the mission's reports: work-precision (error against run time) or "
+                   "stability (stiff and extreme cases); options as `fmu-sync bench`", add_help=False)
     from .sweeps.cli import add_parser as add_sweep
     add_sweep(sub)
     return p
@@ -195,6 +199,22 @@ def _cmd_validate(path: Path) -> int:
     return 0
 
 
+def _cmd_report(argv) -> int:
+    """``fmu-sync report NAME [bench options]``: the bench run with that one report section."""
+    from .benchmarks import REPORTS, main as bench_main
+    names = " | ".join(REPORTS)
+    if argv and argv[0] in ("-h", "--help"):
+        print(f"usage: {PROG} report {{{names}}} [--quick] [-o DIR] [--no-cosim]\n\n"
+              "work-precision: error against run time of every solver on the built-in scenes; "
+              "stability: stiff and extreme cases, each row with its criterion. Writes DIR/benchmarks.md "
+              f"(and the report's CSV), as `{PROG} bench --only NAME` does.")
+        return 0
+    if not argv or argv[0] not in REPORTS:
+        got = repr(argv[0]) if argv else "nothing"
+        raise ValueError(f"{PROG} report needs a report name, one of {names}; got {got}")
+    return int(bench_main(["--only", argv[0], *argv[1:]]) or 0)
+
+
 def _refused_up_front(exc) -> bool:
     """The midpoint stability check raises SimulationDiverged before the first step (no
     record): that is a refusal of the input (status 2), not a failed run."""
@@ -231,6 +251,8 @@ def _main(argv) -> int:
         if argv and argv[0] == "bench":
             from .benchmarks import main as bench_main
             return int(bench_main(argv[1:]) or 0)
+        if argv and argv[0] == "report":
+            return _cmd_report(argv[1:])
         args = _parser().parse_args(argv)
         if args.command == "scenes":
             return _cmd_scenes()

@@ -92,6 +92,24 @@ def test_bench_is_delegated(monkeypatch):
     assert seen == [["--quick", "-o", "somewhere"]]
 
 
+def test_report_is_the_bench_section_of_that_name(monkeypatch, capsys):
+    from fmu_sync.benchmarks import REPORTS, SECTIONS
+    assert REPORTS == ("work-precision", "stability") and set(REPORTS) <= set(SECTIONS)
+    seen = []
+    monkeypatch.setitem(sys.modules, "fmu_sync.benchmarks",
+                        types.SimpleNamespace(main=lambda argv: seen.append(argv) or 0, REPORTS=REPORTS))
+    assert main(["report", "stability", "--quick", "-o", "somewhere"]) == 0
+    assert main(["report", "work-precision"]) == 0
+    assert seen == [["--only", "stability", "--quick", "-o", "somewhere"], ["--only", "work-precision"]]
+    for bad in (["report"], ["report", "speed"], ["report", "--quick"]):
+        assert main(bad) == 2, bad
+        err = capsys.readouterr().err
+        assert "work-precision | stability" in err and err.startswith("fmu-sync: error:"), err
+    assert main(["report", "--help"]) == 0
+    assert "work-precision" in capsys.readouterr().out
+    assert len(seen) == 2         # nothing ran for the refused or help calls
+
+
 def test_run_with_set_in_process(tmp_path, capsys):
     assert main(["run", "bouncing-ball", "-o", str(tmp_path), "--quiet", "--no-plots",
                  "--set", "run.t_end=0.5", "--set", "solver.dt=2e-4"]) == 0

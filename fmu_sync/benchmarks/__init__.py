@@ -1,13 +1,25 @@
-"""``fmu-sync bench [--quick] [-o DIR]``: core speed, work–precision and stability reports.
+"""``fmu-sync bench [--quick] [-o DIR]``: the benchmark report, DIR/benchmarks.md.
+
+Two kinds of section (``--only`` picks among them):
+
+* the mission's **reports**, also run alone by ``fmu-sync report NAME`` (:data:`REPORTS`):
+  ``work-precision`` (error against run time, every solver on the built-in scenes:
+  :mod:`.work_precision`, its cases and analysis in ``work_precision_*``) and ``stability``
+  (stiff and extreme cases, each row with its criterion: :mod:`.stability`, ``stability_*``);
+* **timings** (developer benchmarks, ratios against a baseline measured in the same run):
+  ``speed`` (core kernels vs a C loop, the quotient distance, the FMU per step and at start-up,
+  :mod:`.core_speed`, :mod:`.distance_cost`, :mod:`.fmu_cost`), ``sweep`` (sweep throughput,
+  :mod:`.sweep_speed`) and ``hold`` (co-simulation hold order, :mod:`.hold_order`).
 
 Writes into DIR (default ``./fmu-sync-bench/``):
 
+* ``benchmarks.md`` — all sections run (tables and one-line interpretations), with the machine,
+  its load and the versions; copy it to the repository's ``docs/benchmarks.md`` to publish it
+  (docs/benchmarks.md says how);
 * ``work_precision.csv`` — method, scene, metric, step, error, seconds, repeats, spread,
   reference, note (one row per run; see :mod:`.work_precision`);
 * ``work_precision_<scene>_<metric>.png`` — log–log error vs run time;
-* ``stability.csv`` — one row per stability case with its criterion and pass/FAIL;
-* ``bench.md`` — the reports (tables and one-line interpretations); the speed section includes
-  the sweep throughput (:mod:`.sweep_speed`, also alone with ``--only sweep``).
+* ``stability.csv`` — one row per stability case with its criterion and pass/FAIL.
 
 ``--quick`` shrinks ladders, horizons and repeats (a few minutes on 2 cores);
 ``--smoke`` (for the test suite) shrinks everything further and skips the core speed
@@ -23,7 +35,18 @@ import tempfile
 import time
 from pathlib import Path
 
-__all__ = ["main", "EXTRA_SECTIONS"]
+__all__ = ["main", "EXTRA_SECTIONS", "REPORTS", "SECTIONS", "PAGE", "publish"]
+
+#: the mission's reports (``fmu-sync report NAME``): error against run time, stability on stiff
+#: and extreme cases
+REPORTS = ("work-precision", "stability")
+#: every section of ``fmu-sync bench`` (``--only``); the default runs all but ``sweep``
+SECTIONS = ("speed", "sweep", "hold") + REPORTS
+#: the markdown page ``fmu-sync bench`` writes into its output folder (docs/benchmarks.md when published)
+PAGE = "benchmarks.md"
+#: the lines between which ``--publish`` replaces a page's generated part (the rest of the page stays)
+BEGIN = "<!-- fmu-sync bench: begin"
+END = "<!-- fmu-sync bench: end -->"
 
 #: optional sibling benchmark modules, included when they provide ``run(quick) -> markdown``
 EXTRA_SECTIONS = ("fmu_cost", "sweep_speed")  # distance_cost is part of core_speed
@@ -54,21 +77,60 @@ def _export(tmp: Path):
         return None, f"{type(ex).__name__}: {ex}"
 
 
+def _generated_span(text: str, page: Path) -> tuple[int, int]:
+    """Where the generated part of ``page`` lies: from the end of the begin-marker line to the
+    start of the end-marker line. A page without one pair of markers, in order, is refused."""
+    b, e = text.find(BEGIN), text.find(END)
+    if b < 0 or e < 0 or text.count(BEGIN) != 1 or text.count(END) != 1 or e < b:
+        raise ValueError(f"--publish {page}: the page must hold one line starting {BEGIN!r} and, after it, one "
+                         f"line {END!r} (the part between them is replaced); found begin at {b}, end at {e}")
+    start = text.find("\n", b)
+    return (len(text) if start < 0 else start + 1), e
+
+
+def publish(report: str, page) -> Path:
+    """Write ``report`` into ``page`` between its markers (a new page: the markers around it)."""
+    page = Path(page)
+    if not page.exists():
+        page.write_text(f"{BEGIN} (replaced by `fmu-sync bench --publish`) -->\n{report.rstrip()}\n{END}\n")
+        return page
+    text = page.read_text()
+    a, b = _generated_span(text, page)
+    page.write_text(text[:a] + report.rstrip() + "\n" + text[b:])
+    return page
+
+
+def _check_publish(page) -> None:
+    """Refuse a --publish target before anything runs."""
+    page = Path(page)
+    if page.is_dir() or not page.parent.is_dir():
+        raise ValueError(f"--publish {page}: not a file in an existing folder")
+    if page.exists():
+        _generated_span(page.read_text(), page)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(
         prog="fmu-sync bench",
-        description="Core speed, work-precision (error vs run time) and stability reports.")
+        description=f"The benchmark report DIR/{PAGE}: timings (speed, sweep, hold) and the reports "
+                    "work-precision (error vs run time) and stability (stiff and extreme cases).")
     parser.add_argument("--quick", action="store_true", help="smaller ladders and fewer repeats (minutes)")
     parser.add_argument("-o", "--output", default="fmu-sync-bench", metavar="DIR",
                         help="output folder (default: ./fmu-sync-bench/)")
+    parser.add_argument("--publish", metavar="PAGE", default=None,
+                        help=f"also write the report into PAGE (e.g. docs/benchmarks.md) between its lines "
+                             f"'{BEGIN} ...' and '{END}'; the rest of the page stays")
     parser.add_argument("--smoke", action="store_true",
                         help="tiny ladders, no core speed section: checks the pipeline only (for tests)")
     parser.add_argument("--no-cosim", action="store_true", help="leave out the FMU co-simulation runs")
-    parser.add_argument("--only", choices=("speed", "work-precision", "stability", "sweep", "hold"), action="append",
-                        help="run only these sections (repeatable)")
+    parser.add_argument("--only", choices=SECTIONS, action="append",
+                        help="run only these sections (repeatable); the reports alone: fmu-sync report NAME")
     args = parser.parse_args(argv)
+    argv_shown = list(sys.argv[1:] if argv is None else argv)
+    if args.publish is not None:
+        _check_publish(args.publish)
     quick = args.quick or args.smoke
-    sections = set(args.only or ("speed", "work-precision", "stability", "hold"))
+    sections = set(args.only or (s for s in SECTIONS if s != "sweep"))
     if args.smoke:
         sections.discard("speed")
 
@@ -163,6 +225,8 @@ def main(argv=None) -> int:
     total = time.perf_counter() - t_start
     head = [
         "# fmu-sync benchmarks", "",
+        f"Written by `fmu-sync bench{' ' + ' '.join(argv_shown) if argv_shown else ''}`; every number below "
+        "was measured in this run.", "",
         f"- mode: **{mode}**; wall time {total:.0f} s ("
         + ", ".join(f"{k} {v:.0f} s" for k, v in timings.items()) + ")",
         f"- machine: {platform.machine()}, {os.cpu_count()} CPUs, load average (1/5/15 min) {load0} at the "
@@ -172,8 +236,11 @@ def main(argv=None) -> int:
         f"- co-simulation: {'FMU exported by fmu_sync.export, run by fmu_sync.master (fmpy)' if fmu else 'skipped (' + str(why) + ')'}",
         "",
     ]
-    (out / "bench.md").write_text("\n".join(head) + "\n" + "\n".join(parts))
-    written = [out / "bench.md"]
+    report = "\n".join(head) + "\n" + "\n".join(parts)
+    (out / PAGE).write_text(report)
+    written = [out / PAGE]
+    if args.publish is not None:
+        written.append(publish(report, args.publish))
     if "work-precision" in sections:
         written += [out / "work_precision.csv", out / "work_precision_*.png"]
     if "stability" in sections:

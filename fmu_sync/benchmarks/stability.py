@@ -1,4 +1,4 @@
-"""Stability report: stiff and extreme cases, each row with a stated pass/fail criterion.
+"""Stability report (`fmu-sync report stability`): stiff and extreme cases, each row with a stated pass/fail criterion.
 
 Groups (each a function returning :class:`Row` objects, so that the tests can run the cheap
 ones directly):

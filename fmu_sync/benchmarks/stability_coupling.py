@@ -26,9 +26,10 @@ def zoh_rho(h: float, zeta: float) -> float:
 
 def zoh_limit(zeta: float) -> float:
     """Exact stability limit h* = ω_c H* of the ZOH exchange (Jury test): min(4ζ, 1/ζ); 0 for ζ = 0.
-    (The theory this benchmark measures; the core refuses runs beyond it with
-    :func:`fmu_sync.core.exchange_limit`.)"""
-    return min(4.0 * zeta, 1.0 / zeta) if zeta > 0 else 0.0
+    The core's own bound (:func:`fmu_sync.core.hold_bound`, the one its up-front check enforces):
+    this report measures it."""
+    from fmu_sync.core import hold_bound
+    return hold_bound(zeta)
 
 
 def gauss_seidel_matrix(h: float, zeta: float, Kp: float = 0.5) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""Work–precision: error against run time for every solver on the built-in scenes (docs/design.md §4.6).
+"""Work–precision: error against run time for every solver on the built-in scenes (docs/design.md §4.7; `fmu-sync report work-precision`).
 
 Methods (``method`` column of ``work_precision.csv``; ``step`` is the method's own knob):
 
