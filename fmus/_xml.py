@@ -64,13 +64,25 @@ def _unit_definitions(root: Element, used: set[str]) -> None:
         SubElement(u, "BaseUnit", {k: str(v) for k, v in exps.items()})
 
 
-def _type_definitions(root: Element) -> None:
-    defs = SubElement(root, "TypeDefinitions")
-    st = SubElement(defs, "SimpleType", name=SCHEME_TYPE,
-                    description="Solver of a communication step (Moreau schemes or the exact 1-DOF step)")
-    en = SubElement(st, "Enumeration")
+_SCHEME_DESCRIPTION = "Solver of a communication step (Moreau schemes or the exact 1-DOF step)"
+
+
+def _scheme_items(en: Element) -> None:
     for name, value, desc in SCHEME_ITEMS:
         SubElement(en, "Item", name=name, value=str(value), description=desc)
+
+
+def _type_definitions(root: Element) -> None:
+    defs = SubElement(root, "TypeDefinitions")
+    st = SubElement(defs, "SimpleType", name=SCHEME_TYPE, description=_SCHEME_DESCRIPTION)
+    _scheme_items(SubElement(st, "Enumeration"))
+
+
+def _categories_and_experiment(root: Element, log_categories: dict[str, str], default_experiment: dict) -> None:
+    cats = SubElement(root, "LogCategories")
+    for name, desc in log_categories.items():
+        SubElement(cats, "Category", name=name, description=desc)
+    SubElement(root, "DefaultExperiment", {k: fmt_real(v) for k, v in default_experiment.items()})
 
 
 def model_description(*, model_name: str, model_identifier: str, guid: str, description: str,
@@ -100,10 +112,7 @@ def model_description(*, model_name: str, model_identifier: str, guid: str, desc
     })
     _unit_definitions(root, {v.unit for v in variables if v.unit})
     _type_definitions(root)
-    cats = SubElement(root, "LogCategories")
-    for name, desc in log_categories.items():
-        SubElement(cats, "Category", name=name, description=desc)
-    SubElement(root, "DefaultExperiment", {k: fmt_real(v) for k, v in default_experiment.items()})
+    _categories_and_experiment(root, log_categories, default_experiment)
 
     mv = SubElement(root, "ModelVariables")
     index = {}
@@ -220,14 +229,8 @@ def model_description3(*, model_name: str, model_identifier: str, token: str, de
     })
     _unit_definitions(root, {v.unit for v in variables if v.unit})
     defs = SubElement(root, "TypeDefinitions")
-    en = SubElement(defs, "EnumerationType", name=SCHEME_TYPE,
-                    description="Solver of a communication step (Moreau schemes or the exact 1-DOF step)")
-    for name, value, desc in SCHEME_ITEMS:
-        SubElement(en, "Item", name=name, value=str(value), description=desc)
-    cats = SubElement(root, "LogCategories")
-    for name, desc in log_categories.items():
-        SubElement(cats, "Category", name=name, description=desc)
-    SubElement(root, "DefaultExperiment", {k: fmt_real(v) for k, v in default_experiment.items()})
+    _scheme_items(SubElement(defs, "EnumerationType", name=SCHEME_TYPE, description=_SCHEME_DESCRIPTION))
+    _categories_and_experiment(root, log_categories, default_experiment)
 
     mv = SubElement(root, "ModelVariables")
     SubElement(mv, "Float64", name="time", valueReference=str(time_vr), causality="independent",

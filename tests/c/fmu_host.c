@@ -126,6 +126,13 @@ static void uri_of(const char *dir, char *out, size_t n) {
     snprintf(out + j, n - j, "/resources");
 }
 
+static void write_row(FILE *csv, double t, const double *vals, int n) {
+    if (!csv) return;
+    fprintf(csv, "%.17g", t);
+    for (int i = 0; i < n; ++i) fprintf(csv, ",%.17g", vals[i]);
+    fprintf(csv, "\n");
+}
+
 /* FMI 3.0: instantiate, initialize (the --set values), step 0..stop by H with early
  * returns and event mode as asked, write time and the --var values; the exit code
  * as for FMI 2.0. */
@@ -178,11 +185,7 @@ static int run_fmi3(const char *dir, double stop, double H, const char *out, con
     double t = 0.0;
     while (worst < fmi2Error) {
         if (nvars) check("fmi3GetFloat64", (fmi2Status)getr(c, vars, (size_t)nvars, vals, (size_t)nvars));
-        if (csv) {
-            fprintf(csv, "%.17g", t);
-            for (int i = 0; i < nvars; ++i) fprintf(csv, ",%.17g", vals[i]);
-            fprintf(csv, "\n");
-        }
+        write_row(csv, t, vals, nvars);
         if (k == nsteps) break;
         bool need = false, stopit = false, er = false;
         double next = (k + 1) * H, last = t;
@@ -193,11 +196,7 @@ static int run_fmi3(const char *dir, double stop, double H, const char *out, con
         if (!er) ++k;
         if (need && event) {
             if (nvars) check("fmi3GetFloat64", (fmi2Status)getr(c, vars, (size_t)nvars, vals, (size_t)nvars));
-            if (csv) {
-                fprintf(csv, "%.17g", t);
-                for (int i = 0; i < nvars; ++i) fprintf(csv, ",%.17g", vals[i]);
-                fprintf(csv, "\n");
-            }
+            write_row(csv, t, vals, nvars);
             check("fmi3EnterEventMode", (fmi2Status)enter_event(c));
             bool more = true, b1, b2, b3;
             double te;
@@ -312,11 +311,7 @@ int main(int argc, char **argv) {
             if (s > fmi2Warning) break;
         }
         if (nvars) check("fmi2GetReal", getr(c, vars, (size_t)nvars, vals));
-        if (csv) {
-            fprintf(csv, "%.17g", t);
-            for (int i = 0; i < nvars; ++i) fprintf(csv, ",%.17g", vals[i]);
-            fprintf(csv, "\n");
-        }
+        write_row(csv, t, vals, nvars);
     }
     if (csv) fclose(csv);
     check("fmi2Terminate", term(c));
