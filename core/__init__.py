@@ -10,8 +10,9 @@ The public API of the core (everything a user of the standalone engine needs):
 * synchronization metrics :func:`sync_metrics` (decay rate with uncertainty,
   t_sync, ultimate bound; :class:`SyncMetrics`) and the stability limit of the
   held coupling :func:`exchange_limit` (:class:`UnstableExchange` when refused);
-* the quotient distance :func:`quotient_distance` and the coupling laws
-  :func:`coupling_forces`;
+* the quotient distance :func:`quotient_distance`, the coupling laws
+  :func:`coupling_forces` and the laws' own position weight :func:`energy_metric`
+  (Q = K + 2 Kp for a pair: V = d^2/2 is then the energy of the relative motion);
 * the exact event-driven solvers :func:`simulate_exact` / :func:`exact_events` (1-DOF)
   and :func:`simulate_exact_nd` / :func:`exact_events_nd` (n-DOF, linear input);
 * results :class:`SimulationResult`, :class:`PairResult`, :class:`NetworkResult`, and the errors
@@ -27,7 +28,7 @@ from .errors import RunFailed, SimulationDiverged
 from .result import NetworkResult, PairResult, SimulationResult
 from .single import simulate
 from .distance import quotient_distance
-from .coupling import coupling_forces
+from .coupling import coupling_forces, energy_metric
 from .pair import simulate_pair
 from .metrics import SyncMetrics, sync_metrics
 from .exchange import UnstableExchange, exchange_limit, hold_bound
@@ -36,7 +37,7 @@ from .exact import ExactEvents, exact_events, simulate_exact
 from .exact_nd import ExactEventsND, exact_events_nd, simulate_exact_nd
 
 __all__ = ["ImpactOscillator", "MechanicalSystem", "SystemArrays", "impact_map", "simulate", "simulate_pair",
-           "quotient_distance", "coupling_forces", "simulate_exact", "exact_events", "ExactEvents",
+           "quotient_distance", "coupling_forces", "energy_metric", "simulate_exact", "exact_events", "ExactEvents",
            "simulate_exact_nd", "exact_events_nd", "ExactEventsND", "SimulationResult", "PairResult", "RunFailed",
            "SimulationDiverged", "NetworkResult", "simulate_network", "ring", "path", "star", "all_to_all",
            "sync_metrics", "SyncMetrics", "exchange_limit", "hold_bound", "UnstableExchange"]

@@ -41,7 +41,8 @@ from .distance import BRANCH_E, resolve_geometry, geometry_state, distance1, dis
 __all__ = ["SWITCHING", "EUCLIDEAN", "UNCOUPLED", "LAWS", "BRANCH_NONE",
            "switching_coupling", "euclidean_coupling", "coupling_kernel",
            "switching_coupling1", "euclidean_coupling1", "coupling_kernel1",
-           "gain_matrix", "chain_work", "law_code", "coupling_forces"]
+           "gain_matrix", "chain_work", "law_code", "coupling_forces", "energy_metric", "laplacian_factor",
+           "METRICS"]
 
 SWITCHING = 0
 EUCLIDEAN = 1
@@ -274,3 +275,71 @@ def coupling_forces(system, x1, x2, law, Kp, Kd, Q=None):
     c1q, c1u, c2q, c2u = chain_work(n)
     _coupling_call(code, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u)
     return tau1, tau2
+
+
+# ------------------------------------------------- the law's own metric (§2.5.1)
+#: How the position weight Q of a coupled run's quotient distance was chosen (the ``metric``
+#: of every result): "energy" -- :func:`energy_metric`, V = d^2/2 is the energy of the relative
+#: motion (a Lyapunov function of the law); "user" -- an explicit Q (V is then not a
+#: Lyapunov function of the law unless Q happens to equal the energy metric); "identity" -- the
+#: fallback Q = I of a run with no coupling whose K + 2 Kp is not positive definite.
+METRICS = ("energy", "user", "identity")
+
+
+def laplacian_factor(A=None):
+    """``(lam, exact)`` for the weights ``A`` (N x N, a_ij >= 0; None: a pair with weight 1).
+
+    ``lam``: the mean of the nonzero eigenvalues of the Laplacian L of the symmetrised weights
+    (trace(L) / rank(L)); ``exact``: all nonzero eigenvalues equal ``lam`` (L^2 = lam L: a pair,
+    all-to-all with equal weights), the case in which the common per-edge weight
+    ``Q = K + lam Kp`` makes V the exact energy of the relative motion (docs/design.md §2.5.1)."""
+    if A is None:
+        return 2.0, True
+    a = np.array(A, dtype=np.float64)
+    a = 0.5 * (a + a.T)
+    L = np.diag(a.sum(axis=1)) - a
+    ev = np.linalg.eigvalsh(L)
+    tol = 1e-9 * max(float(np.max(np.abs(ev))), 1e-300)
+    nz = ev[ev > tol]
+    if nz.size == 0:
+        raise ValueError("the coupling graph has no weighted edge (all weights are zero): "
+                         "no energy metric to take")
+    lam = float(np.mean(nz))
+    return lam, bool(np.all(np.abs(nz - lam) <= 1e-9 * lam))
+
+
+def energy_metric(K, Kp, A=None) -> np.ndarray:
+    """The law's own position weight Q (docs/design.md §2.5.1): (n, n), symmetric positive definite.
+
+    ``K``: the systems' stiffness, (n, n) or a scalar, or a sequence of them (non-identical
+    systems: their mean is used); ``Kp``: the position gain, scalar >= 0 or (n, n); ``A``: the
+    graph's weights (None: a pair of weight 1). Returns ``Q = sym(K) + lam sym(Kp)`` with ``lam``
+    from :func:`laplacian_factor` (2 for a pair: ``Q = K + 2 Kp``, so that V = d^2/2 is the
+    energy of the relative motion: V' = -du^T (C + 2 Kd) du between impacts).
+    Raises ValueError (naming the smallest eigenvalue) when Q is not positive definite
+    (e.g. K = 0 and Kp = 0, or a negative stiffness that the gain does not outweigh)."""
+    Ks = K if isinstance(K, (list, tuple)) else [K]
+    try:
+        Kp_a = np.array(Kp, dtype=np.float64)
+        Ks_a = [np.array(k, dtype=np.float64) for k in Ks]
+    except (TypeError, ValueError):
+        raise ValueError(f"energy_metric needs numeric K and Kp, got K={K!r}, Kp={Kp!r}") from None
+    n = next((a.shape[0] for a in [*Ks_a, Kp_a] if a.ndim == 2), 1)
+    mats = []
+    for name, a in [*(("K", k) for k in Ks_a), ("Kp", Kp_a)]:
+        if a.ndim == 0:
+            a = np.eye(n) * float(a)
+        if a.shape != (n, n) or not np.all(np.isfinite(a)):
+            raise ValueError(f"energy_metric: {name} must be a finite scalar or an {n}x{n} matrix, "
+                             f"got {a.tolist()}")
+        mats.append(0.5 * (a + a.T))
+    lam, _ = laplacian_factor(A)
+    Kbar = sum(mats[:-1]) / (len(mats) - 1)
+    Q = Kbar + lam * mats[-1]
+    ev = np.linalg.eigvalsh(Q)
+    if not ev[0] > 1e-12 * max(1.0, float(np.max(np.abs(Q)))):
+        raise ValueError(f"the energy metric Q = K + {lam:g} Kp = {Q.tolist()} is not positive definite "
+                         f"(smallest eigenvalue {ev[0]:.6g}): the relative motion has no energy norm "
+                         f"(K = 0 with Kp = 0, or a negative stiffness the gain does not outweigh); "
+                         f"pass an explicit SPD Q")
+    return np.ascontiguousarray(Q)

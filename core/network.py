@@ -30,7 +30,7 @@ from .moreau import DIVERGED, OK, THETA, finish_step, midpoint_step, theta_matri
 from .pair import LAWS, as_systems, check_common_geometry, coupling_step
 from .result import NetworkResult
 
-__all__ = ["simulate_network", "ring", "path", "star", "all_to_all", "GRAPHS", "graph", "weights",
+__all__ = ["simulate_network", "network_coupling", "ring", "path", "star", "all_to_all", "GRAPHS", "graph", "weights",
            "edges_of", "edge_laws", "coupled_weights"]
 
 
@@ -145,6 +145,37 @@ def _node(base, K, C, f0, F, Omega, phi, i):
                         base.g0, base.e, base.Minv_w, base.W)
 
 
+@njit(cache=True, inline="always")
+def network_coupling(laws, geo, Kp, Kd, E2, W2, q, u, tau, d, branch, euclidean, t1, t2, c1q, c1u, c2q, c2u,
+                     need_d):
+    """All forces of the network at the states ``q, u`` (N, n): ``tau_i = sum_j a_ij tau_i^(j)``
+    into ``tau`` (N, n), and per edge e = (E2[e, 0], E2[e, 1]) with weights W2[e] = (a_ij, a_ji)
+    the record ``d[e], branch[e], euclidean[e]`` of :func:`fmu_sync.core.pair.coupling_step`
+    (d is NaN for a non-switching edge unless ``need_d``). ``t1, t2, c1q..c2u``: (n,) scratch.
+    The one assembly of the network's forces: the monolithic loop and the coupling FMU's
+    stepper (``fmus/coupling_stepper.py``) call it."""
+    N = q.shape[0]
+    n = q.shape[1]
+    for i in range(N):
+        for c in range(n):
+            tau[i, c] = 0.0
+    for e_ in range(E2.shape[0]):
+        a = E2[e_, 0]
+        b = E2[e_, 1]
+        dv, br, eu = coupling_step(laws[e_], geo, Kp, Kd, q[a], u[a], q[b], u[b], t1, t2,
+                                   c1q, c1u, c2q, c2u, need_d)
+        if laws[e_] != UNCOUPLED:
+            if W2[e_, 0] > 0.0:
+                for c in range(n):
+                    tau[a, c] += W2[e_, 0] * t1[c]
+            if W2[e_, 1] > 0.0:
+                for c in range(n):
+                    tau[b, c] += W2[e_, 1] * t2[c]
+        d[e_] = dv
+        branch[e_] = br
+        euclidean[e_] = eu
+
+
 @njit(cache=True)
 def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, q, u, t0, k0, dt,
                       n_steps, scheme, theta, record_every, record_d, T, Qr, Ur, TAU, D, BR, EU):
@@ -193,24 +224,8 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
         need_d = is_row and record_d
         # forces from the states at the start of the step (Jacobi, zero-order hold)
         if coupled or need_d:
-            for i in range(N):
-                for c in range(n):
-                    tau[i, c] = 0.0
-            for e_ in range(E):
-                a = E2[e_, 0]
-                b = E2[e_, 1]
-                d, br, eu = coupling_step(laws[e_], geo, Kp, Kd, q[a], u[a], q[b], u[b], t1, t2,
-                                          c1q, c1u, c2q, c2u, need_d)
-                if laws[e_] != UNCOUPLED:
-                    if W2[e_, 0] > 0.0:
-                        for c in range(n):
-                            tau[a, c] += W2[e_, 0] * t1[c]
-                    if W2[e_, 1] > 0.0:
-                        for c in range(n):
-                            tau[b, c] += W2[e_, 1] * t2[c]
-                dk[e_] = d
-                bk[e_] = br
-                ek[e_] = eu
+            network_coupling(laws, geo, Kp, Kd, E2, W2, q, u, tau, dk, bk, ek, t1, t2, c1q, c1u, c2q, c2u,
+                             need_d)
         if k == 0 and k0 == 0:
             for i in range(N):
                 for c in range(n):

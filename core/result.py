@@ -20,9 +20,32 @@ __all__ = ["RunStatus", "SimulationResult", "PairResult", "NetworkResult", "BRAN
 
 
 class RunStatus:
-    """``success`` / ``message`` of a result from its ``error`` field (None: it ran to the end)."""
+    """``success`` / ``message`` of a result from its ``error`` field (None: it ran to the end),
+    and the views every result has (:mod:`fmu_sync.core.views`): a short repr,
+    :meth:`to_xarray`, :meth:`to_dataframe` and :meth:`plot`."""
 
     error: str | None
+
+    def __repr__(self) -> str:
+        from .views import short_repr
+        return short_repr(self)
+
+    def to_xarray(self, settings: dict | None = None):
+        """An xarray Dataset: coordinate ``t``, dimensions ``node``/``dof``/``edge``, ``units`` and
+        ``long_name`` on every variable, the run's settings as attributes (needs xarray)."""
+        from .views import to_xarray
+        return to_xarray(self, settings)
+
+    def to_dataframe(self):
+        """A pandas DataFrame with the CSV's columns (``t [s]``, ``q1 [m]``, ``d[1-2]``, ...)."""
+        from .views import to_dataframe
+        return to_dataframe(self)
+
+    def plot(self):
+        """A quick-look matplotlib Figure (positions; d and the Euclidean error when recorded).
+        The files' plots: ``fmu-sync plot DIR`` (:mod:`fmu_sync.plots`)."""
+        from .views import figure
+        return figure(self)
 
     @property
     def success(self) -> bool:
@@ -33,7 +56,7 @@ class RunStatus:
         return "the run reached its end" if self.error is None else self.error
 
 
-@dataclass
+@dataclass(repr=False)
 class SimulationResult(RunStatus):
     """Sampled trajectory. ``percussion[i]`` is the impulse (N s) applied over the
     steps that end at ``t[i]`` (one step for ``record_every=1``). The exact
@@ -54,7 +77,7 @@ class SimulationResult(RunStatus):
         return int(np.count_nonzero(self.percussion > 0.0))
 
 
-@dataclass
+@dataclass(repr=False)
 class PairResult(RunStatus):
     """Sampled run of two coupled systems.
 
@@ -91,7 +114,8 @@ class PairResult(RunStatus):
 
     @property
     def branch_names(self) -> list[str] | None:
-        return None if self.branch is None else [BRANCH_NAMES[b] for b in self.branch]
+        from .views import branch_label
+        return None if self.branch is None else [branch_label(b) for b in self.branch]
 
     def sync(self, threshold: float = 1e-6, **window) -> SyncMetrics:
         """Synchronization metrics of d (:mod:`fmu_sync.core.metrics`): decay rate of its
@@ -140,21 +164,19 @@ class PairResult(RunStatus):
         np.savez_compressed(path, **data)
 
     def to_csv(self, path) -> None:
-        """Tidy CSV: one row per record, one column per scalar component."""
-        cols, names = [self.t], ["t"]
-        for name in ("q1", "u1", "q2", "u2", "tau1", "tau2"):
-            a = getattr(self, name)
-            for j in range(a.shape[1]):
-                cols.append(a[:, j])
-                names.append(name if a.shape[1] == 1 else f"{name}[{j + 1}]")
-        if self.d is not None:
-            cols += [self.d, self.V, self.euclidean, self.branch.astype(float)]
-            names += ["d", "V", "euclidean", "branch"]
-        np.savetxt(path, np.column_stack(cols), delimiter=",", header=",".join(names),
-                   comments="", fmt="%.17g")
+        """Tidy CSV as ``fmu-sync run`` writes it: one row per record, one column per scalar
+        component, names with units, branches by name, shortest round-trip numbers."""
+        from .views import column_headers, csv_lines, layout, record_arrays
+        lay, arrays = layout(self), record_arrays(self)
+        names = [h for k, a in arrays for h in column_headers(k, a.shape[1], lay)]
+        block = np.column_stack([a.astype(np.float64) for _, a in arrays])
+        branch = [i for i, h in enumerate(names) if h.startswith("branch")]
+        with open(path, "w", encoding="ascii", newline="\n") as fh:
+            fh.write(",".join(names) + "\n")
+            fh.writelines(csv_lines(block, branch))
 
 
-@dataclass
+@dataclass(repr=False)
 class NetworkResult(RunStatus):
     """Sampled run of N coupled systems on a weighted graph: the co-simulated network
     (:func:`fmu_sync.master.cosimulate_network`) and its monolithic reference

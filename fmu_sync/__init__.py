@@ -9,7 +9,11 @@ The component-level API (the core's own API is :mod:`fmu_sync.core`):
   (:class:`SceneError` for a bad scene);
 * :func:`sweep` — families of pair runs (gain maps, basins, samples) as an xarray Dataset,
   on all cores or a Dask cluster (:mod:`fmu_sync.sweeps`);
-* ``__version__`` (from the installed package metadata; single source: pyproject.toml).
+* :func:`load` — a saved run (``.npz``, ``.csv``, ``.nc``) back into its result object, a
+  sweep's ``.nc`` into its Dataset; :func:`redraw` — a finished run's plots again
+  (``fmu-sync plot DIR``; docs/results.md);
+* ``__version__`` (single source: pyproject.toml; read from it in a source tree, else from
+  the installed package metadata).
 
 The names load on first use (PEP 562), so ``import fmu_sync`` imports neither
 fmpy nor the FMU export, and a core-only run never loads the master.
@@ -18,10 +22,27 @@ from importlib import import_module
 from importlib.metadata import PackageNotFoundError
 from importlib.metadata import version as _metadata_version
 
-try:
-    __version__ = _metadata_version("fmu-sync")
-except PackageNotFoundError:  # pragma: no cover - a source tree that was never installed
-    __version__ = "0+unknown"
+
+def _version() -> str:
+    """The version in pyproject.toml: read from it in a source tree (an editable install's
+    metadata keeps the version it was installed with), else from the installed metadata."""
+    import tomllib
+    from pathlib import Path
+    src = Path(__file__).resolve().parent.parent / "pyproject.toml"
+    try:
+        with open(src, "rb") as fh:
+            project = tomllib.load(fh).get("project", {})
+        if project.get("name") == "fmu-sync" and isinstance(project.get("version"), str):
+            return project["version"]
+    except (OSError, tomllib.TOMLDecodeError):
+        pass
+    try:
+        return _metadata_version("fmu-sync")
+    except PackageNotFoundError:  # pragma: no cover - a source tree that was never installed
+        return "0+unknown"
+
+
+__version__ = _version()
 
 #: public name -> module that defines it
 _API = {
@@ -31,6 +52,7 @@ _API = {
     "SceneError": "scenes.schema", "run_scene": "scenes.running",
     "convergence": "scenes.convergence", "run_demo": "scenes.demo",
     "sweep": "sweeps",
+    "load": "results", "redraw": "results",
 }
 
 __all__ = ["__version__", *_API]

@@ -4,6 +4,8 @@
     fmu-sync run SCENE [-o DIR] [--set k=v]..  run a built-in scene (name) or a scene file (path)
     fmu-sync run SCENE --convergence           rerun at the step, /2, /4: decay rate and t_sync
     fmu-sync scenes                            list the built-in scenes
+    fmu-sync scenes --show NAME                print a scene as TOML (every key, defaults filled)
+    fmu-sync plot DIR [--only KIND]..          draw a finished run's (or sweep's) plots again from its data
     fmu-sync export ...                        export an FMU (see `fmu-sync export --help`)
     fmu-sync validate FILE.fmu                 check an FMU with fmpy (exit 1 on problems)
     fmu-sync bench [--quick] [-o DIR]          the benchmark report DIR/benchmarks.md (see `fmu-sync bench --help`)
@@ -54,8 +56,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="simulated time (default 100 s, 40 s with --quick)")
     d.add_argument("--quiet", action="store_true", help="no progress display")
 
-    r = sub.add_parser("run", help="run a scene (built-in name or .toml path)")
-    r.add_argument("scene", help="built-in scene name (see `fmu-sync scenes`) or path to a .toml file")
+    r = sub.add_parser("run", help="run a scene (built-in name or .toml path) or an SSP package (.ssp)")
+    r.add_argument("scene", help="built-in scene name (see `fmu-sync scenes`), path to a .toml file, or an "
+                   "SSP package written by `fmu-sync ssp` (run in our master)")
     r.add_argument("-o", "--out", type=Path, default=None, help="output folder (default ./fmu-sync-out/<scene>)")
     r.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scene key, e.g. --set coupling.Kp=2 --set run.t_end=50 (TOML values)")
@@ -64,8 +67,8 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--no-plots", action="store_true", help="write data and summary only")
     r.add_argument("--quiet", action="store_true", help="no progress display")
     r.add_argument("--format", dest="formats", default=None, metavar="LIST",
-                   help="data files to write: csv, npz, both (npz,csv) or none "
-                        "(default: the scene's record.formats, csv and npz)")
+                   help="data files to write, comma separated: csv, npz, nc (NetCDF, the result's "
+                        "xarray Dataset) or none (default: the scene's record.formats, csv and npz)")
     r.add_argument("--allow-unstable", action="store_true",
                    help="run even if the coupling exchange is unstable at this step (same as "
                         "--set run.allow_unstable=true); a run that then diverges exits with status 3")
@@ -78,7 +81,27 @@ def _parser() -> argparse.ArgumentParser:
                    help="rerun each variant at its step, /2 and /4 (solver.dt in core mode, run.H in cosim) "
                         "and write only the metrics (decay rate, t_sync, bound) to convergence.md/.csv")
 
-    sub.add_parser("scenes", help="list the built-in scenes")
+    r.add_argument("--method", default="jacobi", metavar="ORDER",
+                   help="SSP package only: the exchange order, jacobi (default), gauss-seidel, delayed "
+                        "(libcosim's) or delayed-zero (fmpy's SSP runner); see docs/ssp.md")
+
+    sp = sub.add_parser("ssp", help="write a coupled scene as an SSP 1.0 package (systems + coupling FMU)")
+    sp.add_argument("scene", help="built-in scene name or path to a .toml file (a pair or a network)")
+    sp.add_argument("--variant", default=None, metavar="NAME", help="the variant (required if the scene has several)")
+    sp.add_argument("-o", "--output", type=Path, required=True, help="package to write (FILE.ssp)")
+    sp.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                    help="override a scene key, e.g. --set run.t_end=60 (TOML values)")
+
+    sc = sub.add_parser("scenes", help="list the built-in scenes, or print one as TOML (--show)")
+    sc.add_argument("--show", metavar="NAME", default=None,
+                    help="print the scene (built-in name or .toml path) as TOML with every key, defaults "
+                         "filled; it loads back to the same scene")
+    pl = sub.add_parser("plot", help="draw a finished run's plots again from its data files (or a sweep's "
+                        "maps from its sweep.nc)")
+    pl.add_argument("dir", type=Path, help="the output folder of `fmu-sync run`, `demo` or `sweep`")
+    pl.add_argument("--only", action="append", default=[], metavar="KIND",
+                    help="draw only this plot (repeatable): positions, distance, impact-zoom, lyapunov, "
+                         "forces, phase")
     sub.add_parser("export", help="export an FMU (options: see `fmu-sync export --help`)", add_help=False)
     v = sub.add_parser("validate", help="validate an FMU with fmpy; exit 1 if it has problems")
     v.add_argument("fmu", type=Path, help="path of the .fmu file")
@@ -113,7 +136,20 @@ def _print_summary(sr, title: str) -> None:
         print("\nnothing written")
 
 
-def _cmd_scenes() -> int:
+def _cmd_plot(args) -> int:
+    from .results import redraw
+    files = redraw(args.dir, [k for x in args.only for k in x.split(",") if k])
+    for f in files:
+        print(f)
+    print(f"\n{len(files)} plot file(s) written to {args.dir}/")
+    return 0
+
+
+def _cmd_scenes(show=None) -> int:
+    if show is not None:
+        from .scenes.reference import scene_toml
+        print(scene_toml(show), end="")
+        return 0
     from .scenes.loading import list_scenes
     from .scenes import SCENE_DIR
     rows = list_scenes()
@@ -124,7 +160,34 @@ def _cmd_scenes() -> int:
     return 0
 
 
+def _cmd_ssp(args) -> int:
+    from .scenes.loading import parse_override
+    from .ssp import write_ssp
+    overrides = dict(parse_override(s) for s in args.overrides)
+    path = write_ssp(args.scene, args.output, args.variant, overrides)
+    print(f"wrote {path}")
+    return 0
+
+
+def _cmd_run_ssp(args) -> int:
+    from .ssp import run_ssp, save_result
+    if args.overrides or args.variant or args.convergence:
+        raise ValueError("an SSP package takes --method, -o, --allow-unstable and --quiet only "
+                         "(its values are the package's: edit its .ssv files, or the scene and write it again)")
+    with _progress(Path(args.scene).name, args.quiet) as bar:
+        res = run_ssp(args.scene, method=args.method, progress=bar, allow_unstable=args.allow_unstable)
+    out = args.out or Path("fmu-sync-out") / Path(args.scene).stem
+    path = save_result(res, out)
+    m = res.sync()
+    print(f"{args.scene}: {len(res.info['components'])} systems, method {args.method}, H = {res.info['H']:g}, "
+          f"t_end = {res.t[-1]:g} s; max d at the end {res.d_max[-1]:.3g}, t_sync(1e-6) = {m.t_sync:.4g} s")
+    print(f"written to {path}")
+    return 0
+
+
 def _cmd_run(args) -> int:
+    if str(args.scene).endswith(".ssp"):
+        return _cmd_run_ssp(args)
     from .scenes.loading import load_scene, parse_override
     from .scenes.running import run_scene
     from .output import parse_formats, parse_size
@@ -255,9 +318,13 @@ def _main(argv) -> int:
             return _cmd_report(argv[1:])
         args = _parser().parse_args(argv)
         if args.command == "scenes":
-            return _cmd_scenes()
+            return _cmd_scenes(args.show)
+        if args.command == "plot":
+            return _cmd_plot(args)
         if args.command == "run":
             return _cmd_run(args)
+        if args.command == "ssp":
+            return _cmd_ssp(args)
         if args.command == "demo":
             return _cmd_demo(args)
         if args.command == "validate":

@@ -45,12 +45,14 @@ import zipfile
 from pathlib import Path
 from xml.etree import ElementTree as ET
 
+import numpy as np
+
 from .fmus import contract
 from . import __version__
 from .fmus.slave import model_guid
 
-__all__ = ["MODELS", "export_fmu", "main_export", "model_class", "carried_files", "build_binary",
-           "MAX_SUBSTEPS", "FMI_VERSIONS"]
+__all__ = ["MODELS", "export_fmu", "export_coupling", "main_export", "model_class", "carried_files",
+           "build_binary", "write_archive", "MAX_SUBSTEPS", "COUPLING", "FMI_VERSIONS"]
 
 #: The export keys: the FMU contract's model registry.
 MODELS = contract.MODELS
@@ -65,7 +67,12 @@ _C_GLUE = {2: "c/fmu_sync_fmi2.c", 3: "c/fmu_sync_fmi3.c"}
 _C_RUNTIME = "c/fmu_sync_runtime.c"
 #: slave modules carried in the FMU (besides the whole core)
 _CARRIED_FMUS = ("__init__.py", "contract.py", "_xml.py", "slave.py", "stepper.py", "runtime.py",
-                 "impact_oscillator.py", "mechanical_system2.py")
+                 "impact_oscillator.py", "mechanical_system2.py", "coupling.py", "coupling_runtime.py",
+                 "coupling_stepper.py")
+#: the coupling FMU's export key (fmu_sync.fmus.coupling; not a mechanical model of the registry)
+COUPLING = "coupling"
+_COUPLING_BUILD = {"slave": "fmus.coupling:CouplingSlave", "runtime": "fmus.coupling_runtime",
+                   "stepper": "fmus.coupling_stepper"}
 
 
 def _fmus_dir() -> Path:
@@ -169,7 +176,7 @@ def warm_cache(resources: dict[str, bytes], build: dict) -> None:
         path = boot.unpack(tmp, build)
     if path not in sys.path:
         sys.path.insert(0, path)
-    stepper = importlib.import_module(f"{build['package']}.fmus.stepper")
+    stepper = importlib.import_module(f"{build['package']}.{build.get('stepper', 'fmus.stepper')}")
     stepper.step.address  # compiled (or loaded from the cache) at import
 
 
@@ -181,11 +188,47 @@ def export_fmu(model: str = "impact-oscillator", path=None, start_values: dict |
     ``"solver.scheme": "theta"`` ...) to start values of parameters or inputs; they
     are checked like the slave checks them at run time (bounds, a valid
     ``MechanicalSystem``, g(q_start) >= 0) and a ValueError names what is wrong.
-    ``fmi_version``: 2 (FMI 2.0) or 3 (FMI 3.0 with early return and event mode).
+    ``model = "coupling"`` is the coupling FMU of a pair (:func:`export_coupling`, FMI 2.0).
+    ``fmi_version``: 2 (FMI 2.0) or 3 (FMI 3.0 with early return and event mode, docs/fmi3.md).
     """
     if fmi_version not in FMI_VERSIONS or isinstance(fmi_version, bool):
         raise ValueError(f"fmi_version must be one of {', '.join(map(str, FMI_VERSIONS))}, got {fmi_version!r}")
+    if model == COUPLING:
+        if fmi_version != 2:
+            raise ValueError(f"the coupling FMU is exported for FMI 2.0 only, got fmi_version={fmi_version!r}")
+        return export_coupling(path, start_values=start_values, warm=warm)
     cls = model_class(model)
+    return _export(cls, model, path, start_values, {"slave": _carried_slave(model)}, {}, warm, fmi_version)
+
+
+def export_coupling(path=None, A=None, n: int = 1, start_values: dict | None = None, warm: bool = True,
+                    K=1.0) -> Path:
+    """Build the coupling FMU (:mod:`fmu_sync.fmus.coupling`) of the graph ``A``
+    (N x N weights; default the pair ``[[0, 1], [1, 0]]``) for systems with ``n``
+    degrees of freedom. The weights of ``A`` are the start values of ``a[i,j]``;
+    ``start_values`` sets any parameter (``"law[1]": "euclidean"``, ``"Kp": 2`` ...).
+    Without a start value for Q, Q is the law's own metric
+    :func:`fmu_sync.core.coupling.energy_metric` of the systems' stiffness ``K``
+    (default 1.0, the impact-oscillator FMU's k), Kp and the graph."""
+    from .core.coupling import energy_metric
+    from .core.network import weights
+    from .fmus.contract import matrix
+    from .fmus.coupling import CouplingSpec, coupling_slave
+    A = weights([[0.0, 1.0], [1.0, 0.0]] if A is None else A)
+    spec = CouplingSpec.from_weights(A, n)
+    cls = coupling_slave(spec)
+    starts = {f"a[{a + 1},{b + 1}]": float(A[a, b]) for i, j in spec.edges for a, b in ((i, j), (j, i))}
+    starts.update(cls.normalize_start_values(dict(start_values or {})))
+    q_names, kp_names = (["Q"], ["Kp"]) if n == 1 else (matrix("Q", n), matrix("Kp", n))
+    if not any(k in starts for k in q_names):
+        p = cls.start_parameters(starts)
+        Kp = np.array([p[k] for k in kp_names]).reshape(n, n)
+        starts.update(zip(q_names, (float(x) for x in energy_metric(K, Kp, A).reshape(-1))))
+    return _export(cls, COUPLING, path, starts, _COUPLING_BUILD, {"structure": spec.as_dict()}, warm)
+
+
+def _export(cls, model: str, path, start_values, build_extra: dict, start_extra: dict, warm: bool,
+            fmi_version: int = 2) -> Path:
     starts = cls.normalize_start_values(dict(start_values or {}))
     all_starts = cls.start_parameters(starts)
     try:
@@ -203,11 +246,11 @@ def export_fmu(model: str = "impact-oscillator", path=None, start_values: dict |
     digest = _code_hash(code)
     package = f"fmu_sync_m{digest[:16]}"
     boot_module = f"fmu_sync_boot_{digest[:16]}"
-    guid = model_guid(model, starts, digest + hashlib.sha256(c_source).hexdigest()
+    guid = model_guid(model, {**starts, **start_extra}, digest + hashlib.sha256(c_source).hexdigest()
                       + ("" if fmi_version == 2 else f"/fmi{fmi_version}"))
     build = {"model": model, "model_identifier": cls.MODEL_IDENTIFIER, "package": package, "code_hash": digest,
-             "slave": _carried_slave(model), "fmu_sync_version": __version__, "guid": guid,
-             "built_with": _runtime_versions(), "max_substeps": MAX_SUBSTEPS}
+             "fmu_sync_version": __version__, "guid": guid,
+             "built_with": _runtime_versions(), "max_substeps": MAX_SUBSTEPS, **build_extra}
     from fmu_sync.fmus import boot as _boot
     from fmu_sync.fmus.slave import START_FILE
     resources = {f"fmu_sync_code/{rel}": data for rel, data in code}
@@ -215,8 +258,8 @@ def export_fmu(model: str = "impact-oscillator", path=None, start_values: dict |
         f"{boot_module}.py": Path(_boot.__file__).read_bytes(),
         "fmu_sync_build.json": (json.dumps(build, indent=2, sort_keys=True) + "\n").encode(),
         "fmu_sync_python.txt": python_record().encode(),
-        START_FILE: (json.dumps({"model": model, "fmu_sync_version": __version__, "start": all_starts},
-                                indent=2, sort_keys=True) + "\n").encode(),
+        START_FILE: (json.dumps({"model": model, "fmu_sync_version": __version__, "start": all_starts,
+                                 **start_extra}, indent=2, sort_keys=True) + "\n").encode(),
     })
     with tempfile.TemporaryDirectory(prefix="fmu-sync-build-") as tmp:
         binary = build_binary(Path(tmp) / f"{cls.MODEL_IDENTIFIER}.so", guid, boot_module,
@@ -226,8 +269,15 @@ def export_fmu(model: str = "impact-oscillator", path=None, start_values: dict |
         ("modelDescription.xml", _model_description_xml(cls, starts, guid, fmi_version)),
         (f"binaries/{platform}/{cls.MODEL_IDENTIFIER}.so", binary),
     ] + [(f"resources/{name}", data) for name, data in sorted(resources.items())]
+    write_archive(path, files)
+    if warm:
+        warm_cache(resources, build)
+    return path
 
-    fd, tmp = tempfile.mkstemp(prefix=".export-", suffix=".fmu", dir=path.parent)
+
+def write_archive(path: Path, files) -> None:
+    """Write (name, bytes) pairs as a reproducible zip archive (fixed dates), atomically."""
+    fd, tmp = tempfile.mkstemp(prefix=".export-", suffix=path.suffix, dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as fh, zipfile.ZipFile(fh, "w", zipfile.ZIP_DEFLATED) as zf:
             for name, data in files:
@@ -240,9 +290,6 @@ def export_fmu(model: str = "impact-oscillator", path=None, start_values: dict |
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
-    if warm:
-        warm_cache(resources, build)
-    return path
 
 
 def _parse_set(items: list[str]) -> dict:
@@ -259,9 +306,10 @@ def main_export(argv=None) -> int:
     """``fmu-sync export MODEL -o PATH.fmu [--set name=value ...]``; returns the exit code."""
     parser = argparse.ArgumentParser(
         prog="fmu-sync export",
-        description="Export an FMI 2.0 (or FMI 3.0: --fmi-version 3) co-simulation FMU of an fmu-sync model (the importing "
-                    "machine needs Python with numpy and numba; see the README).")
-    parser.add_argument("model", choices=sorted(MODELS), help="model to export")
+        description="Export an FMI 2.0 (or FMI 3.0: --fmi-version 3) co-simulation FMU of an fmu-sync model, "
+                    "or the coupling FMU of a pair or network (the importing machine needs Python with numpy "
+                    "and numba; see the README).")
+    parser.add_argument("model", choices=sorted([*MODELS, COUPLING]), help="model to export")
     parser.add_argument("-o", "--output", default=None,
                         help="FMU file to write (default: <ModelIdentifier>.fmu in the current folder)")
     parser.add_argument("--set", dest="sets", action="append", default=[], metavar="NAME=VALUE",
@@ -269,24 +317,42 @@ def main_export(argv=None) -> int:
                              "--set solver.scheme=theta --set 'M[1,2]=0.3' (repeatable)")
     parser.add_argument("--fmi-version", type=int, choices=FMI_VERSIONS, default=2,
                         help="FMI version of the FMU: 2 (default) or 3 (FMI 3.0: event mode, early return "
-                             "at impacts, arrays; see docs/fmi3.md)")
+                             "at impacts, arrays; see docs/fmi3.md; not for the coupling FMU)")
+    parser.add_argument("--nodes", type=int, default=None,
+                        help="coupling only: number of coupled systems N (default 2, the pair)")
+    parser.add_argument("--graph", default="ring",
+                        help="coupling only, with --nodes: ring, path, star or all-to-all (default ring)")
+    parser.add_argument("--dof", type=int, default=1,
+                        help="coupling only: degrees of freedom n of each system (default 1)")
     parser.add_argument("--list", action="store_true", help="list the model's variables and exit")
     args = parser.parse_args(argv)
     try:
-        if args.list:
+        if args.model != COUPLING and (args.nodes is not None or args.dof != 1):
+            raise ValueError(f"--nodes and --dof are options of the coupling FMU, not of {args.model}")
+        if args.model == COUPLING:
+            from .core.network import graph
+            from .fmus.coupling import CouplingSpec, coupling_slave
+            A = graph(args.graph, 2 if args.nodes is None else args.nodes)
+            cls = coupling_slave(CouplingSpec.from_weights(A, args.dof))
+        else:
             cls = model_class(args.model)
+        if args.list:
             for v in cls.declare():
                 unit = f" [{v.unit}]" if v.unit else ""
                 start = f" = {v.start}" if v.start is not None else ""
                 print(f"{v.name:<14} {v.causality:<9} {v.type:<11}{unit}{start}  {v.description}")
             return 0
-        path = export_fmu(args.model, args.output, _parse_set(args.sets), fmi_version=args.fmi_version)
+        if args.model == COUPLING:
+            if args.fmi_version != 2:
+                raise ValueError("the coupling FMU is exported for FMI 2.0 only (--fmi-version 2)")
+            path = export_coupling(args.output, A, args.dof, _parse_set(args.sets))
+        else:
+            path = export_fmu(args.model, args.output, _parse_set(args.sets), fmi_version=args.fmi_version)
     except ValueError as exc:
         print(f"fmu-sync export: error: {exc}", file=sys.stderr)
         return 2
     print(f"wrote {path}")
     return 0
-
 
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main_export())

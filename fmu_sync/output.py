@@ -31,14 +31,16 @@ __all__ = ["FORMATS", "DEFAULT_MAX_MEMORY", "DEFAULT_MAX_DISK", "OutputTooLarge"
            "Estimate", "parse_size", "format_size", "parse_formats", "estimate", "check_budget",
            "check_out_dir", "RecordWriter", "pair_columns", "network_columns", "single_columns", "WRITE_ROWS"]
 
-FORMATS = ("csv", "npz")
+#: data files of a run: CSV (one row per record), NPZ (numpy arrays and the layout), NetCDF
+#: (the result's xarray Dataset; needs the whole record in memory)
+FORMATS = ("csv", "npz", "nc")
 #: memory a run may use for its record unless the user raises it (``--max-memory``)
 DEFAULT_MAX_MEMORY = 2 * 1024**3
 #: disk a run may write unless the user raises it (``--max-disk``)
 DEFAULT_MAX_DISK = 20 * 1024**3
 #: rows per chunk when writing a record held in memory
 WRITE_ROWS = 65536
-#: bytes of one value in the CSV (``%.17g`` and a separator, upper bound)
+#: bytes of one value in the CSV (at most 17 significant digits, sign, exponent and a separator)
 CSV_BYTES = 25
 #: a whole-record run holds the record about this many times (the core's arrays,
 #: the arrays derived for metrics and plots)
@@ -117,7 +119,12 @@ def single_columns(n: int) -> list[tuple[str, int]]:
     return [("t", 1), ("q", n), ("u", n), ("percussion", 1)]
 
 
-def csv_names(columns) -> list[str]:
+def csv_names(columns, layout: dict | None = None) -> list[str]:
+    """CSV header of a record: with its ``layout`` (:func:`fmu_sync.core.views.layout`) the names
+    with units and edges by their nodes (:func:`fmu_sync.core.views.column_headers`)."""
+    if layout is not None:
+        from .core.views import column_headers
+        return [h for name, width in columns for h in column_headers(name, width, layout)]
     names = []
     for name, width in columns:
         if width == 1:
@@ -152,7 +159,7 @@ class Estimate:
     @property
     def disk(self) -> float:
         """Bytes written for the chosen formats (CSV: 25 B per value; NPZ: 8 B per value, an upper bound)."""
-        per = (CSV_BYTES if "csv" in self.formats else 0) + (8 if "npz" in self.formats else 0)
+        per = (CSV_BYTES if "csv" in self.formats else 0) + 8 * sum(f in self.formats for f in ("npz", "nc"))
         return float(self.rows * self.values_per_row * per)
 
     def describe(self) -> str:
@@ -169,7 +176,7 @@ def _steps(cfg) -> tuple[int, float, str]:
     return int(math.floor(r + 1e-9)), step, name
 
 
-def estimate(variant, formats=FORMATS) -> Estimate:
+def estimate(variant, formats=("csv", "npz")) -> Estimate:
     """The record size of a :class:`~fmu_sync.scenes.schema.Variant` (nothing runs)."""
     cfg = variant.cfg
     steps, _, _ = _steps(cfg)
@@ -242,15 +249,20 @@ class RecordWriter:
     """Writes a record chunk by chunk: ``<stem>.csv`` and/or ``<stem>.npz``.
 
     ``columns``: ``[(name, width), ...]`` (:func:`pair_columns`); ``append``
-    takes a dict ``name -> array`` of equal row counts. ``close(partial=...)``
+    takes a dict ``name -> array`` of equal row counts. ``layout`` names the CSV
+    columns (:func:`csv_names`); ``meta`` (a JSON-able dict: the layout, counts and
+    settings) is stored in the ``.npz`` as the member ``meta`` (a JSON string), so
+    :func:`fmu_sync.load` can rebuild the result. CSV numbers carry the digits they
+    need (shortest repr), branches their names. ``close(partial=...)``
     finishes the files (a partial record is named ``<stem>.partial.csv`` /
     ``.partial.npz``) and returns their paths. ``abort()`` removes everything.
     """
 
-    def __init__(self, stem, columns, formats=FORMATS):
+    def __init__(self, stem, columns, formats=FORMATS, layout: dict | None = None, meta: dict | None = None):
         self.stem = Path(stem)
         self.columns = list(columns)
-        self.formats = tuple(formats)
+        self.formats = tuple(f for f in formats if f in ("csv", "npz"))
+        self.meta = meta
         self.rows = 0
         self._csv = None
         self._raw = {}
@@ -259,7 +271,9 @@ class RecordWriter:
         if "csv" in self.formats:
             self._csv_path = self.stem.with_name(self.stem.name + ".csv.tmp")
             self._csv = open(self._csv_path, "w", encoding="ascii", newline="\n")
-            self._csv.write(",".join(csv_names(self.columns)) + "\n")
+            names = csv_names(self.columns, layout)
+            self._csv.write(",".join(names) + "\n")
+            self._branch = tuple(i for i, h in enumerate(names) if h.startswith("branch"))
         if "npz" in self.formats:
             self._tmpdir = Path(tempfile.mkdtemp(prefix=".record-", dir=self.stem.parent))
             for name, _ in self.columns:
@@ -280,11 +294,9 @@ class RecordWriter:
         if not rows:
             return
         if self._csv is not None:
+            from .core.views import csv_lines
             block = np.column_stack([a.reshape(rows, -1).astype(np.float64, copy=False) for _, a in arrays])
-            row = ",".join(["%.17g"] * block.shape[1]) + "\n"
-            for a in range(0, rows, 1024):   # one format call per 1024 rows (faster than savetxt)
-                part = block[a:a + 1024]
-                self._csv.write((row * len(part)) % tuple(part.ravel().tolist()))
+            self._csv.writelines(csv_lines(block, self._branch))
         for name, a in arrays:
             if name in self._raw:
                 self._dtypes.setdefault(name, a.dtype)
@@ -304,6 +316,12 @@ class RecordWriter:
             path = self.stem.with_name(self.stem.name + tag + ".npz")
             tmp = path.with_name(path.name + ".tmp")
             with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED, allowZip64=True) as zf:
+                if self.meta is not None:
+                    import io
+                    import json
+                    buf = io.BytesIO()
+                    np.lib.format.write_array(buf, np.array(json.dumps(self.meta)), allow_pickle=False)
+                    zf.writestr("meta.npy", buf.getvalue())
                 for name, width in self.columns:
                     fh = self._raw.pop(name)
                     fh.close()

@@ -20,8 +20,8 @@ from matplotlib.figure import Figure
 from .report import SYNC_THRESHOLD, contact_starts, decay_resolved, impact_records, is_network, is_pair, wall
 
 __all__ = ["plot_positions", "plot_distance", "plot_lyapunov", "plot_forces", "plot_phase",
-           "plot_impact_zoom", "impact_window",
-           "compare_plot", "PLOTTERS"]
+           "plot_impact_zoom", "impact_window", "tail_start", "PHASE_TURNS",
+           "compare_plot", "skip_reason", "PLOTTERS"]
 
 STYLE = {
     "font.size": 11, "axes.titlesize": 12, "axes.labelsize": 11, "legend.fontsize": 9.5,
@@ -171,8 +171,9 @@ def _zero_note(ax, t, y, color, name="d"):
         return
     t = np.asarray(t)
     stays = bool(np.all(y[zero[0]:] == 0.0))
-    text = (f"{name} = 0 exactly from t = {t[zero[0]]:.4g} s (off the log axis)" if stays else
-            f"{name} = 0 exactly at {zero.size} records from t = {t[zero[0]]:.4g} s (gaps)")
+    text = (f"{name} is exactly 0 from t = {t[zero[0]]:.4g} s on: a log axis cannot show it" if stays else
+            f"{name} is exactly 0 in {zero.size} of the {len(t)} records (first at t = {t[zero[0]]:.4g} s): "
+            "a log axis cannot show 0, so the curve has gaps there")
     trans = matplotlib.transforms.blended_transform_factory(ax.transData, ax.transAxes)
     ax.plot([t[zero[0]]], [0.02], transform=trans, ls="none", marker="v", ms=8, color=color, mec="k",
             clip_on=False, label=text)
@@ -298,9 +299,9 @@ def plot_impact_zoom(result, path, system=None, title=None) -> Path:
 
 
 def plot_lyapunov(result, path, system=None, title=None) -> Path:
-    """V(t) = d²/2 on a log axis."""
+    """V(t) on a log axis: d²/2 for a pair, ½ Σ_edges a_ij d_ij² for a network."""
     fig, (ax,) = _figure()
-    ax.semilogy(np.asarray(result.t), _positive(result.V), color="#9467bd", lw=1.5, label="V = d²/2")
+    ax.semilogy(np.asarray(result.t), _positive(result.V), color="#9467bd", lw=1.5, label=_V_LABEL[is_network(result)])
     _zero_note(ax, result.t, result.V, "#9467bd", "V")
     ax.set_xlabel("time t [s]")
     ax.set_ylabel("Lyapunov function V")
@@ -341,30 +342,60 @@ def plot_forces(result, path, system=None, title=None) -> Path:
     return _save(fig, path)
 
 
+#: a phase portrait with more turns than this draws the earlier motion faint and only the
+#: last PHASE_TURNS turns in full (a long run's orbits otherwise pile up into a tangle)
+PHASE_TURNS = 8
+
+
+def tail_start(y, turns: int = PHASE_TURNS) -> int:
+    """First record of the last ``turns`` turns of an oscillation ``y`` (a velocity): counted
+    by its sign changes (two per turn), ignoring values below 1e-3 of its largest (the
+    chatter of a resting contact); 0 when the record has no more turns than that."""
+    y = np.asarray(y, dtype=float)
+    big = np.nonzero(np.abs(y) > 1e-3 * (np.nanmax(np.abs(y)) if y.size else 0.0))[0]
+    if big.size < 2:
+        return 0
+    flips = big[1:][np.signbit(y[big[1:]]) != np.signbit(y[big[:-1]])]
+    return 0 if flips.size <= 2 * turns else int(flips[-2 * turns - 1])
+
+
 def plot_phase(result, path, system=None, title=None) -> Path:
-    """Phase portrait (q, u) of each system with the wall (n > 1: normal coordinates (g, w·u))."""
+    """Phase portrait (q, u) of each system with the wall (n > 1: normal coordinates (g, w·u)).
+    A long run: the last :data:`PHASE_TURNS` turns in full, the motion before them faint."""
     parts = _systems(result, system)
     n = parts[0][1].shape[1]
     w, g0 = wall(system, n)
+    t = np.asarray(result.t)
     fig, (ax,) = _figure(height=5.6, width=6.8, sharex=False)
+    start = min(tail_start(u @ w) for _, _, u, _ in parts)
     for k, (label, q, u, _) in enumerate(parts):
         x, y = q @ w + g0, u @ w
-        ax.plot(x, y, color=COLORS[k], lw=0.8, alpha=0.85, label=label)
+        if start > 0:
+            ax.plot(x[:start + 1], y[:start + 1], color=COLORS[k], lw=0.5, alpha=0.18)
+        # system 2 dashed: synchronized systems draw one curve, both stay visible
+        ax.plot(x[start:], y[start:], color=COLORS[k], lw=0.9, alpha=0.9, ls="-" if k == 0 else (0, (4, 3)),
+                label=label)
         ax.plot(x[:1], y[:1], ls="none", marker="o", ms=7, color=COLORS[k], mec="k")
         ax.plot(x[-1:], y[-1:], ls="none", marker="s", ms=6, color=COLORS[k], mec="k")
     ax.plot([], [], ls="none", marker="o", ms=7, color="w", mec="k", label="start")
     ax.plot([], [], ls="none", marker="s", ms=6, color="w", mec="k", label="end")
+    if start > 0:
+        ax.plot([], [], color="0.6", lw=0.5, label=f"before t = {t[start]:.4g} s (faint)")
     _wall_band(ax, horizontal=False)
     ax.set_xlabel("gap g = w·q + g0 [m]" if n > 1 else "position q [m]")
     ax.set_ylabel("normal velocity w·u [m/s]" if n > 1 else "velocity u [m/s]")
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=len(parts) + 3, frameon=False)
-    _title(ax, title, "phase portrait")
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=3, frameon=False)
+    what = "phase portrait" if start == 0 else \
+        f"phase portrait, last {PHASE_TURNS} turns (t ≥ {t[start]:.4g} s)"
+    _title(ax, title, what)
     return _save(fig, path)
 
 
+#: the Lyapunov function's formula of a pair (False) and of a network (True)
+_V_LABEL = {False: "V = d²/2", True: "V = ½ Σ_edges a_ij d_ij²"}
 _LABELS = {"d": ("quotient distance d", "distance d (P-norm)"),
            "euclidean": ("Euclidean error ‖x1 − x2‖_P", "Euclidean error (P-norm)"),
-           "V": ("Lyapunov function V = d²/2", "V")}
+           "V": ("Lyapunov function V (pair: d²/2; network: ½ Σ_edges a_ij d_ij²)", "V")}
 
 
 def compare_plot(results: Mapping[str, object], path, quantity: str = "d", title=None, dashed=(),
@@ -394,6 +425,16 @@ def compare_plot(results: Mapping[str, object], path, quantity: str = "d", title
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8.5)
     ax.set_title(title if title else f"{what} of each run")
     return _save(fig, path)
+
+
+def skip_reason(kind: str, result) -> str | None:
+    """Why a plot of ``kind`` would say nothing for ``result`` (then the run writes no file), or None:
+    an uncoupled run's forces are zero throughout."""
+    if kind == "forces" and is_pair(result) and not is_network(result):
+        taus = [np.nan_to_num(np.asarray(x, dtype=float)) for x in (result.tau1, result.tau2)]
+        if not any(np.any(x != 0.0) for x in taus):
+            return "no coupling force (τ1 = τ2 = 0 throughout the run)"
+    return None
 
 
 PLOTTERS = {"positions": plot_positions, "distance": plot_distance, "lyapunov": plot_lyapunov,

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["SYNC_THRESHOLD", "is_pair", "wall", "impact_rows", "impact_records", "contact_starts", "metrics", "record_columns", "write_data", "rows", "write_summary",
+__all__ = ["SYNC_THRESHOLD", "is_pair", "wall", "impact_rows", "impact_records", "contact_starts", "metrics", "record_columns", "record_meta", "write_data", "write_netcdf", "rows", "write_summary",
            "print_table", "max_abs_difference", "format_value"]
 
 #: d below this counts as synchronized (time to sync = first time after which d stays below it).
@@ -211,25 +211,69 @@ def record_columns(result) -> tuple[list, dict]:
     return cols, data
 
 
-def write_data(result, stem, formats=("csv", "npz"), progress=None, partial: bool = False) -> list[Path]:
-    """Write ``<stem>.csv`` (tidy, one row per record) and/or ``<stem>.npz`` in chunks of
-    rows (``progress(fraction)`` after each); a failed run's record is named
-    ``<stem>.partial.csv`` / ``.partial.npz``. Returns the paths written."""
+def record_meta(result, extra: dict | None = None) -> dict:
+    """What a data file keeps besides the arrays (the ``.npz`` member ``meta``): the layout
+    (kind, N, n, edges), counts, coupling, the run's ``info`` and ``extra`` (the scene's
+    settings, plots, title and wall), so :func:`fmu_sync.load` rebuilds the result."""
+    from . import __version__
+    from .core.views import layout, plain_settings
+    meta = {"fmu_sync": __version__, **layout(result), "error": getattr(result, "error", None),
+            "info": plain_settings(getattr(result, "info", None) or {})}
+    if is_network(result):
+        meta["impacts"] = [int(x) for x in result.impacts]
+    elif is_pair(result):
+        meta.update(impacts1=int(result.impacts1), impacts2=int(result.impacts2), coupling=result.coupling)
+    else:
+        meta.update(scheme=result.scheme, dt=float(result.dt))
+    meta.update(extra or {})
+    return meta
+
+
+def write_data(result, stem, formats=("csv", "npz"), progress=None, partial: bool = False,
+               extra: dict | None = None) -> list[Path]:
+    """Write ``<stem>.csv`` (tidy, one row per record), ``<stem>.npz`` (arrays and
+    :func:`record_meta`) in chunks of rows (``progress(fraction)`` after each) and/or
+    ``<stem>.nc`` (the result's xarray Dataset, settings as attributes); a failed run's
+    record is named ``<stem>.partial.*``. Returns the paths written."""
     from .output import WRITE_ROWS, RecordWriter
     if not formats:
         return []
     cols, data = record_columns(result)
-    w = RecordWriter(stem, cols, formats)
+    meta = record_meta(result, extra)
+    files = []
+    if "csv" in formats or "npz" in formats:
+        w = RecordWriter(stem, cols, formats, layout=meta, meta=meta)
+        try:
+            n = len(result.t)
+            for a in range(0, max(n, 1), WRITE_ROWS):
+                w.append({k: np.asarray(v)[a:a + WRITE_ROWS] for k, v in data.items()})
+                if progress is not None:
+                    progress(min(1.0, (a + WRITE_ROWS) / max(n, 1)))
+            files += w.close(partial=partial)
+        except BaseException:
+            w.abort()
+            raise
+    if "nc" in formats:
+        files.append(write_netcdf(result, Path(f"{stem}{'.partial' if partial else ''}.nc"), meta))
+    return files
+
+
+def write_netcdf(result, path, meta: dict | None = None) -> Path:
+    """``result.to_xarray()`` as NetCDF-4 (h5netcdf), atomically; ``meta``'s settings,
+    plots, title and wall become attributes."""
+    import json
+    path = Path(path)
+    keep = {k: v for k, v in (meta or {}).items() if k in ("settings", "plots", "title", "wall", "fmu_sync")}
+    settings = {k: (json.dumps(v) if isinstance(v, (dict, list)) else v) for k, v in keep.items()}
+    ds = result.to_xarray(settings)
+    tmp = path.with_name(path.name + ".tmp")
     try:
-        n = len(result.t)
-        for a in range(0, max(n, 1), WRITE_ROWS):
-            w.append({k: np.asarray(v)[a:a + WRITE_ROWS] for k, v in data.items()})
-            if progress is not None:
-                progress(min(1.0, (a + WRITE_ROWS) / max(n, 1)))
-        return w.close(partial=partial)
-    except BaseException:
-        w.abort()
-        raise
+        ds.to_netcdf(tmp, engine="h5netcdf")
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path
 
 
 # ---------------------------------------------------------------- tables

@@ -12,7 +12,7 @@ import re
 import uuid
 from xml.etree.ElementTree import Element, SubElement
 
-from .contract import POSITIVE_MIN, SCHEME_ITEMS, SCHEME_TYPE, Var
+from .contract import ENUM_TYPES, POSITIVE_MIN, SCHEME_ITEMS, SCHEME_TYPE, Var
 
 __all__ = ["Var", "UNITS", "SCHEME_TYPE", "SCHEME_ITEMS", "model_description", "fmt_real",
            "POSITIVE_MIN", "generation_tool", "model_guid", "model_description3", "fmi3_groups",
@@ -64,19 +64,18 @@ def _unit_definitions(root: Element, used: set[str]) -> None:
         SubElement(u, "BaseUnit", {k: str(v) for k, v in exps.items()})
 
 
-_SCHEME_DESCRIPTION = "Solver of a communication step (Moreau schemes or the exact 1-DOF step)"
-
-
-def _scheme_items(en: Element) -> None:
-    for name, value, desc in SCHEME_ITEMS:
-        SubElement(en, "Item", name=name, value=str(value), description=desc)
-
-
-def _type_definitions(root: Element) -> None:
+def _type_definitions(root: Element, used: set[str], fmi3: bool = False) -> None:
+    """The enumeration types the variables use (FMI 2.0 SimpleType, FMI 3.0 EnumerationType)."""
     defs = SubElement(root, "TypeDefinitions")
-    st = SubElement(defs, "SimpleType", name=SCHEME_TYPE, description=_SCHEME_DESCRIPTION)
-    _scheme_items(SubElement(st, "Enumeration"))
-
+    for type_name, (description, items) in ENUM_TYPES.items():
+        if type_name not in used:
+            continue
+        if fmi3:
+            en = SubElement(defs, "EnumerationType", name=type_name, description=description)
+        else:
+            en = SubElement(SubElement(defs, "SimpleType", name=type_name, description=description), "Enumeration")
+        for name, value, desc in items:
+            SubElement(en, "Item", name=name, value=str(value), description=desc)
 
 def _categories_and_experiment(root: Element, log_categories: dict[str, str], default_experiment: dict) -> None:
     cats = SubElement(root, "LogCategories")
@@ -111,7 +110,7 @@ def model_description(*, model_name: str, model_identifier: str, guid: str, desc
         "providesDirectionalDerivative": "false",
     })
     _unit_definitions(root, {v.unit for v in variables if v.unit})
-    _type_definitions(root)
+    _type_definitions(root, {v.declared_type for v in variables if v.declared_type})
     _categories_and_experiment(root, log_categories, default_experiment)
 
     mv = SubElement(root, "ModelVariables")
@@ -142,9 +141,11 @@ def model_description(*, model_name: str, model_identifier: str, guid: str, desc
     if outputs:
         out = SubElement(ms, "Outputs")
         for v in outputs:
-            # No output depends directly on an input at the same communication
-            # point (tau only acts through the next step): empty dependencies.
-            SubElement(out, "Unknown", index=str(index[v.name]), dependencies="")
+            # A mechanical model's outputs do not depend directly on an input at the
+            # same communication point (tau only acts through the next step): empty
+            # dependencies. The coupling's outputs are functions of its inputs.
+            deps = sorted(index[d] for d in v.depends)
+            SubElement(out, "Unknown", index=str(index[v.name]), dependencies=" ".join(map(str, deps)))
         init = SubElement(ms, "InitialUnknowns")
         for v in outputs:
             if v.initial in ("approx", "calculated"):
@@ -228,8 +229,7 @@ def model_description3(*, model_name: str, model_identifier: str, token: str, de
         "providesEvaluateDiscreteStates": "false",
     })
     _unit_definitions(root, {v.unit for v in variables if v.unit})
-    defs = SubElement(root, "TypeDefinitions")
-    _scheme_items(SubElement(defs, "EnumerationType", name=SCHEME_TYPE, description=_SCHEME_DESCRIPTION))
+    _type_definitions(root, {v.declared_type for v in variables if v.declared_type}, fmi3=True)
     _categories_and_experiment(root, log_categories, default_experiment)
 
     mv = SubElement(root, "ModelVariables")

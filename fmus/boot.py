@@ -13,7 +13,8 @@ with the standard library only. For each fmi2Instantiate, :func:`instantiate`:
    ``$XDG_CACHE_HOME/fmu-sync`` or ``~/.cache/fmu-sync`` (a temp folder if none
    is writable), ``<folder>/<hash>/<package>``: a stable source path, so numba's
    on-disk cache hits across the fresh temp folders an importer unzips to;
-3. imports ``<package>.fmus.runtime`` from there (a package name unique to the
+3. imports ``<package>.fmus.runtime`` (or the build's ``runtime`` module, e.g.
+   ``fmus.coupling_runtime`` for the coupling FMU) from there (a package name unique to the
    content: two FMUs of different code coexist in one process) and returns a
    new instance.
 """
@@ -136,7 +137,7 @@ def instantiate(resources_dir: str, instance_name: str, guid: str):
             if path not in sys.path:
                 sys.path.insert(0, path)
         import importlib
-        runtime = importlib.import_module(f"{package}.fmus.runtime")
+        runtime = importlib.import_module(f"{package}.{build.get('runtime', 'fmus.runtime')}")
         module, cls = build["slave"].split(":")
         slave_cls = getattr(importlib.import_module(f"{package}.{module}"), cls)
         reply, inst = runtime.create(slave_cls, resources_dir, build["model"])

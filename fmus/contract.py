@@ -28,6 +28,7 @@ import numpy as np
 from ..core.model import MechanicalSystem
 
 __all__ = ["Var", "FmuModel", "ContractError", "MODELS", "POSITIVE_MIN", "INPUT_BOUND", "SCHEME_TYPE", "SCHEME_ITEMS",
+           "LAW_TYPE", "LAW_ITEMS", "ENUM_TYPES",
            "SOLVER_DT", "SOLVER_SCHEME", "SOLVER_THETA", "GAP", "IMPACTS", "PERCUSSION", "ENERGY",
            "model", "model_for", "identify", "indexed", "scheme_value", "scheme_name"]
 
@@ -52,6 +53,21 @@ SCHEME_ITEMS = (
     ("exact", 3, "Exact communication step (1-DOF only): closed-form flow, impacts, completed "
                  "accumulations and persistent contact, tau constant over the step; solver.dt unused"),
 )
+
+
+LAW_TYPE = "fmu_sync.Law"
+#: FMI enumeration items of the coupling FMU's law[e]: the core's law names and codes
+#: (fmu_sync.core.coupling.LAWS), so that the value is the code the kernels take.
+LAW_ITEMS = (
+    ("switching", 0, "Switching quotient coupling (forces from the quotient distance and its chain ends)"),
+    ("euclidean", 1, "Euclidean PD coupling tau_i = -Kp (q_i - q_j) - Kd (u_i - u_j)"),
+    ("none", 2, "No force on this edge (d, V and the Euclidean error are still computed)"),
+)
+#: declared enumeration types: name -> (description, items)
+ENUM_TYPES = {
+    SCHEME_TYPE: ("Solver of a communication step (Moreau schemes or the exact 1-DOF step)", SCHEME_ITEMS),
+    LAW_TYPE: ("Coupling law of an edge", LAW_ITEMS),
+}
 
 
 def indexed(base: str, n: int) -> list[str]:
@@ -103,14 +119,21 @@ class Var:
     declared_type: str | None = None
     #: outputs: names of the parameters/inputs their initial value depends on
     initial_depends: tuple = field(default_factory=tuple)
+    #: outputs: names of the inputs they depend on directly (ModelStructure/Outputs)
+    depends: tuple = field(default_factory=tuple)
     value_reference: int = -1
+
+    @property
+    def items(self) -> tuple:
+        """(name, value, description) of an Enumeration's declared type (() otherwise)."""
+        return ENUM_TYPES[self.declared_type][1] if self.type == "Enumeration" else ()
 
     def check(self, value) -> str | None:
         """None if ``value`` is admissible for this variable, else the reason."""
         if self.type == "Enumeration":
-            allowed = [v for _, v, _ in SCHEME_ITEMS]
+            allowed = [v for _, v, _ in self.items]
             if value not in allowed:
-                names = ", ".join(f"{v} ({n})" for n, v, _ in SCHEME_ITEMS)
+                names = ", ".join(f"{v} ({n})" for n, v, _ in self.items)
                 return f"{self.name} must be one of {names}, got {value!r}"
             return None
         if self.type == "Integer":

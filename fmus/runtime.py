@@ -21,10 +21,10 @@ import struct
 import numpy as np
 
 from . import stepper as S
-from ._xml import POSITIVE_MIN, SCHEME_ITEMS, fmi3_groups
+from ._xml import POSITIVE_MIN, fmi3_groups
 from .slave import PHASES, RUNNING_PHASES, START_FILE, STATE_FORMAT
 
-__all__ = ["FMUInstance", "create", "LAYOUT_VERSION"]
+__all__ = ["FMUInstance", "create", "LAYOUT_VERSION", "variable_table", "InstanceBase", "read_start_file"]
 
 LAYOUT_VERSION = 1
 TYPE_REAL, TYPE_INTEGER, TYPE_ENUM = 0, 1, 2
@@ -38,41 +38,112 @@ def _q_u_names(n):
     return [f"q[{i + 1}]" for i in range(n)], [f"u[{i + 1}]" for i in range(n)]
 
 
-class FMUInstance:
-    """One instance: variable array, table, work array; validation and state."""
 
-    def __init__(self, slave_cls, start_values: dict):
+def variable_table(vars_: list) -> tuple:
+    """The arrays the binary reads per variable: (starts, type, causality, min, max,
+    names, hints); names and hints as '\\0'-separated bytes."""
+    nv = len(vars_)
+    starts = np.array([float(v.start) if v.start is not None else math.nan for v in vars_])
+    vtype = np.array([{"Real": TYPE_REAL, "Integer": TYPE_INTEGER, "Enumeration": TYPE_ENUM}[v.type]
+                      for v in vars_], dtype=np.int32)
+    vcaus = np.array([{"parameter": CAUS_PARAMETER, "input": CAUS_INPUT, "output": CAUS_OUTPUT}[v.causality]
+                      for v in vars_], dtype=np.int32)
+    vmin = np.full(nv, -math.inf)
+    vmax = np.full(nv, math.inf)
+    hints = []
+    for i, v in enumerate(vars_):
+        hint = ""
+        if v.type == "Enumeration":
+            values = [val for _, val, _ in v.items]
+            vmin[i], vmax[i] = min(values), max(values)
+            assert sorted(values) == list(range(min(values), max(values) + 1))
+            hint = ", ".join(f"{val} ({name})" for name, val, _ in v.items)
+        if v.min is not None:
+            vmin[i] = v.min
+        if v.max is not None:
+            vmax[i] = v.max
+        hints.append(hint)
+    assert POSITIVE_MIN == 2.2250738585072014e-308  # DBL_MIN: the binary prints "> 0" for it
+    names = np.frombuffer(b"".join(v.name.encode() + b"\0" for v in vars_), dtype=np.uint8).copy()
+    hint_bytes = np.frombuffer(b"".join(h.encode() + b"\0" for h in hints), dtype=np.uint8).copy()
+    return starts, vtype, vcaus, vmin, vmax, names, hint_bytes
+
+
+class InstanceBase:
+    """What every Python instance behind the binary shares: the variables and their
+    table, the layout handed to the binary, the parameter values, state bytes."""
+
+    def _declare(self, slave_cls, start_values: dict) -> None:
         self.cls = slave_cls
         self.vars = slave_cls.variables(start_values)
-        nv = len(self.vars)
         self.index = {v.name: i for i, v in enumerate(self.vars)}
         self.params = [v for v in self.vars if v.causality == "parameter"]
         self.inputs = [v for v in self.vars if v.causality == "input"]
-        self.starts = np.array([float(v.start) if v.start is not None else math.nan for v in self.vars])
-
+        (self.starts, self.vtype, self.vcaus, self.vmin, self.vmax, self._names,
+         self._hints) = variable_table(self.vars)
         self.x = self.starts.copy()
-        self.vtype = np.array([{"Real": TYPE_REAL, "Integer": TYPE_INTEGER, "Enumeration": TYPE_ENUM}[v.type]
-                               for v in self.vars], dtype=np.int32)
-        self.vcaus = np.array([{"parameter": CAUS_PARAMETER, "input": CAUS_INPUT, "output": CAUS_OUTPUT}[v.causality]
-                               for v in self.vars], dtype=np.int32)
-        self.vmin = np.full(nv, -math.inf)
-        self.vmax = np.full(nv, math.inf)
-        hints = []
-        for i, v in enumerate(self.vars):
-            hint = ""
-            if v.type == "Enumeration":
-                values = [val for _, val, _ in SCHEME_ITEMS]
-                self.vmin[i], self.vmax[i] = min(values), max(values)
-                assert sorted(values) == list(range(min(values), max(values) + 1))
-                hint = ", ".join(f"{val} ({name})" for name, val, _ in SCHEME_ITEMS)
-            if v.min is not None:
-                self.vmin[i] = v.min
-            if v.max is not None:
-                self.vmax[i] = v.max
-            hints.append(hint)
-        assert POSITIVE_MIN == 2.2250738585072014e-308  # DBL_MIN: the binary prints "> 0" for it
-        self._names = np.frombuffer(b"".join(v.name.encode() + b"\0" for v in self.vars), dtype=np.uint8).copy()
-        self._hints = np.frombuffer(b"".join(h.encode() + b"\0" for h in hints), dtype=np.uint8).copy()
+
+    def _bind(self, stepper) -> None:
+        """The numba cfunc ``stepper`` (same signature for every model), callable from Python."""
+        import ctypes
+        self._address = stepper.address
+        self._step = ctypes.CFUNCTYPE(ctypes.c_int32, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_double,
+                                      ctypes.c_double)(stepper.address)
+
+    def layout(self) -> bytes:
+        """What the binary reads once (LAYOUT_VERSION): the addresses of the arrays and the stepper."""
+        return struct.pack("<11Q", LAYOUT_VERSION, self.x.shape[0], self.x.ctypes.data, self.vtype.ctypes.data,
+                           self.vcaus.ctypes.data, self.vmin.ctypes.data, self.vmax.ctypes.data,
+                           self.work.ctypes.data, self._address, self._names.ctypes.data, self._hints.ctypes.data)
+
+    def free(self) -> None:
+        self.cfg = None
+
+    def _parameters(self) -> dict:
+        out = {}
+        for v in self.params:
+            x = self.x[self.index[v.name]]
+            out[v.name] = int(x) if v.type in ("Integer", "Enumeration") else float(x)
+        return out
+
+    def _configuration(self) -> tuple[str, object]:
+        """("", configuration) of the current parameters, or (the reply refusing
+        fmi2ExitInitializationMode, None)."""
+        try:
+            return "", self.cls.configure(self._parameters())
+        except ValueError as exc:
+            return (f"E:fmi2ExitInitializationMode: invalid configuration: {exc}; the instance stays in "
+                    f"initialization mode (set valid parameters and call it again, or fmi2Reset)"), None
+
+    def reset(self) -> str:
+        self._reset_values()
+        return ""
+
+    def state_reason(self, s) -> tuple[str | None, object]:
+        """(None, configuration) for a valid saved state of this instance, else (reason, None)."""
+        raise NotImplementedError
+
+    def serialize(self, s) -> bytes:
+        return self.cls.state_to_bytes(s)
+
+    def deserialize(self, data: bytes):
+        try:
+            s = self.cls.state_from_bytes(data)
+        except Exception as exc:
+            return (f"E:fmi2DeSerializeFMUstate: cannot deserialise the FMU state ({len(data)} bytes): {exc}",
+                    None)
+        reason, _ = self.state_reason(s)
+        if reason:
+            return f"E:fmi2DeSerializeFMUstate: {reason}", None
+        return "", s
+
+
+class FMUInstance(InstanceBase):
+    """One instance: variable array, table, work array; validation and state."""
+
+    def __init__(self, slave_cls, start_values: dict):
+        self._declare(slave_cls, start_values)
+        nv = len(self.vars)
 
         n, m = slave_cls.N, len(self.inputs)
         qn, un = _q_u_names(n)
@@ -99,29 +170,10 @@ class FMUInstance:
         self.i_gap, self.i_energy = self.index["gap"], self.index["energy"]
         self.i_impacts, self.i_perc = self.index["impacts"], self.index["percussion"]
         self.cfg = None
-        import ctypes
-        self._step = ctypes.CFUNCTYPE(ctypes.c_int32, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_double,
-                                      ctypes.c_double)(S.step.address)
+        self._bind(S.step)
         self._reset_values()
 
-    # ------------------------------------------------------------ for the binary
-    def layout(self) -> bytes:
-        return struct.pack("<11Q", LAYOUT_VERSION, len(self.vars), self.x.ctypes.data, self.vtype.ctypes.data,
-                           self.vcaus.ctypes.data, self.vmin.ctypes.data, self.vmax.ctypes.data,
-                           self.work.ctypes.data, S.step.address, self._names.ctypes.data,
-                           self._hints.ctypes.data)
-
-    def free(self) -> None:
-        self.cfg = None
-
     # ------------------------------------------------------------ helpers
-    def _parameters(self) -> dict:
-        out = {}
-        for v in self.params:
-            x = self.x[self.index[v.name]]
-            out[v.name] = int(x) if v.type in ("Integer", "Enumeration") else float(x)
-        return out
-
     def _reset_values(self) -> None:
         self.x[:] = self.starts
         self.x[self.i_impacts] = 0.0
@@ -166,11 +218,9 @@ class FMUInstance:
         return ""
 
     def exit_initialization(self) -> str:
-        try:
-            cfg = self.cls.configure(self._parameters())
-        except ValueError as exc:
-            return (f"E:fmi2ExitInitializationMode: invalid configuration: {exc}; the instance stays in "
-                    f"initialization mode (set valid parameters and call it again, or fmi2Reset)")
+        reply, cfg = self._configuration()
+        if cfg is None:
+            return reply
         self._install(cfg)
         self.x[self.i_q:self.i_q + self.n] = cfg.q0
         self.x[self.i_u:self.i_u + self.n] = cfg.u0
@@ -179,10 +229,6 @@ class FMUInstance:
         self.work[S.H_VREF] = 0.0               # the exact run's velocity scale: set by its first step
         self.work[S.H_PEND_P] = 0.0
         self._outputs_from_stepper()
-        return ""
-
-    def reset(self) -> str:
-        self._reset_values()
         return ""
 
     # ------------------------------------------------------------ FMU state
@@ -205,7 +251,7 @@ class FMUInstance:
         }
 
     def set_state(self, s) -> str:
-        reason, cfg = self.cls.check_state(s, self.params, self.inputs)
+        reason, cfg = self.state_reason(s)
         if reason:
             return f"E:fmi2SetFMUstate: {reason}; state unchanged"
         for name, value in s["parameters"].items():
@@ -231,23 +277,12 @@ class FMUInstance:
             self.refresh()
         return ""
 
-    def serialize(self, s) -> bytes:
-        return self.cls.state_to_bytes(s)
-
-    def deserialize(self, data: bytes):
-        try:
-            s = self.cls.state_from_bytes(data)
-        except Exception as exc:
-            return (f"E:fmi2DeSerializeFMUstate: cannot deserialise the FMU state ({len(data)} bytes): {exc}",
-                    None)
-        reason, _ = self.cls.check_state(s, self.params, self.inputs)
-        if reason:
-            return f"E:fmi2DeSerializeFMUstate: {reason}", None
-        return "", s
+    def state_reason(self, s) -> tuple[str | None, object]:
+        return self.cls.check_state(s, self.params, self.inputs)
 
 
-def create(slave_cls, resources_dir: str, model: str) -> tuple[str, FMUInstance | None]:
-    """A new instance with the start values of ``resources/fmu_sync_start.json``."""
+def read_start_file(resources_dir: str, model: str) -> tuple[str, dict | None]:
+    """(reply, contents of resources/fmu_sync_start.json or None)."""
     path = os.path.join(resources_dir, START_FILE)
     try:
         with open(path, encoding="utf-8") as f:
@@ -256,8 +291,16 @@ def create(slave_cls, resources_dir: str, model: str) -> tuple[str, FMUInstance 
         return f"E:fmi2Instantiate: cannot read the start values {path}: {exc}", None
     if data.get("model") != model:
         return f"E:fmi2Instantiate: {path} holds start values of model {data.get('model')!r}, not {model!r}", None
+    return "", data
+
+
+def create(slave_cls, resources_dir: str, model: str) -> tuple[str, FMUInstance | None]:
+    """A new instance with the start values of ``resources/fmu_sync_start.json``."""
+    reply, data = read_start_file(resources_dir, model)
+    if data is None:
+        return reply, None
     try:
         starts = slave_cls.normalize_start_values(data.get("start", {}))
     except ValueError as exc:
-        return f"E:fmi2Instantiate: bad start value in {path}: {exc}", None
+        return f"E:fmi2Instantiate: bad start value in {os.path.join(resources_dir, START_FILE)}: {exc}", None
     return "", FMUInstance(slave_cls, starts)

@@ -146,7 +146,7 @@ class MechanicalSlave:
                 raise ValueError(f"{name} is an {v.causality} (initial={v.initial}): it has no start value")
             if v.type == "Enumeration":
                 if isinstance(value, str):
-                    items = {n: val for n, val, _ in SCHEME_ITEMS}
+                    items = {n: val for n, val, _ in v.items}
                     if value.strip() in items:
                         value = items[value.strip()]
                     else:

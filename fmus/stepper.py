@@ -54,7 +54,7 @@ from ..core.model import SystemArrays
 from ..core.moreau import MIDPOINT, OK, THETA, advance_in, substeps
 
 __all__ = ["step", "pack", "work_size", "H_LEN", "H_VERSION", "H_TIME", "H_PHASE", "H_DT",
-           "H_CONFIGURED", "WORK_VERSION", "H_VREF", "H_ITAUDOT", "H_IEXACT", "EXACT", "exact_size",
+           "H_CONFIGURED", "WORK_VERSION", "H_FEEDTHROUGH", "H_VREF", "H_ITAUDOT", "H_IEXACT", "EXACT", "exact_size",
            "H_MODE", "H_REACHED", "H_PEND_U", "H_PEND_P", "H_ICOUNT", "MODE_FULL", "MODE_EARLY",
            "MODE_EARLY_EVENT", "MODE_APPLY_EVENT"]
 
@@ -64,11 +64,13 @@ H_N, H_M, H_NF, H_SCHEME, H_THETA, H_NX = 6, 7, 8, 9, 10, 11
 H_IQ, H_IU, H_ITAU, H_IGAP, H_IENERGY, H_IIMPACTS, H_IPERC = 12, 13, 14, 15, 16, 17, 18
 # (read by the C binary too: H_M, H_SCHEME, H_ITAU, H_ITAUDOT)
 H_VREF, H_ITAUDOT, H_IEXACT = 19, 20, 21
+#: read by the C binary: != 0 when the outputs depend directly on the inputs (0 here; the coupling FMU)
+H_FEEDTHROUGH = 22
 # FMI 3.0 (read and written by fmu_sync_fmi3.c): the step mode (MODE_*), the time a
 # step reached (t + H or an early return), the pending impact of an early return in
 # event mode (post-impact velocity, its percussion; H_PEND_P > 0 while pending), and
 # the offset of the per-slot FMI 3.0 variable sizes (runtime.FMUInstance)
-H_MODE, H_REACHED, H_PEND_U, H_PEND_P, H_ICOUNT = 22, 23, 24, 25, 26
+H_MODE, H_REACHED, H_PEND_U, H_PEND_P, H_ICOUNT = 23, 24, 25, 26, 27
 H_DATA = 28
 WORK_VERSION = 2.0
 #: the FMU's code of solver.scheme = exact (the core's Moreau codes are MIDPOINT, THETA)

@@ -123,6 +123,37 @@ def test_c_host_two_dof_matches_fmpy(setup):
     assert got[:, 5].min() < 0.05   # it reached the wall
 
 
+def test_c_host_runs_the_coupling_fmu(setup):
+    """The coupling FMU (fmu_sync.fmus.coupling) in the C host: its outputs read right after
+    fmi2SetReal of the inputs (direct feedthrough, before any doStep) and after a doStep equal
+    the core's coupling_forces and quotient_distance."""
+    from fmpy import read_model_description
+    from fmu_sync.core import ImpactOscillator
+    from fmu_sync.core.coupling import coupling_forces
+    from fmu_sync.core.distance import quotient_distance
+    from fmu_sync.export import export_coupling
+    fmu = export_coupling(setup["tmp"] / "coupling.fmu", start_values={"Q": 3.0, "e": 0.9})
+    d = setup["tmp"] / "coupling"
+    with zipfile.ZipFile(fmu) as zf:
+        zf.extractall(d)
+    vr = {v.name: v.valueReference for v in read_model_description(str(fmu)).modelVariables}
+    x1, x2 = (0.02, -0.8), (0.05, 0.6)            # on either side of an impact: not branch E
+    system = ImpactOscillator(m=1.0, k=1.0, c=0.0, f0=0.2, F=0.5, Omega=2.5, e=0.9)
+    names = ["tau[1]", "tau[2]", "d[1]", "euclidean[1]"]
+    inputs = {"q[1]": x1[0], "q[2]": x2[0], "u[1]": x1[1], "u[2]": x2[1]}
+    out = setup["tmp"] / "coupling.csv"
+    p = _run_host(setup, "--stop", 0.02, "--step", 0.01, "--input-first", "--out", out,
+                  *[a for k, v in inputs.items() for a in ("--input", f"{vr[k]}={v!r}")],
+                  *[a for n in names for a in ("--var", vr[n])], dir=d)
+    assert p.returncode == 0, p.stdout + p.stderr
+    got = _read_csv(out)
+    t1, t2 = coupling_forces(system, x1, x2, "switching", 1.0, 0.5, Q=3.0)
+    dist = quotient_distance(system, x1, x2, Q=3.0, full=True)
+    assert dist.branch != "E"
+    for row in got:                                   # row 0: read after setReal, no doStep
+        assert np.max(np.abs(row[1:4] - [t1[0], t2[0], dist.d])) <= 1e-15
+
+
 @pytest.mark.parametrize("form", ["encoded", "raw_utf8", "file_colon_slash", "localhost"])
 def test_resources_folder_with_cafe_and_plus(setup, form):
     """A folder named 'café +dir': percent-encoded, raw UTF-8, file:/ and file://localhost URIs."""

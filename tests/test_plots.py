@@ -139,13 +139,13 @@ def test_tables_and_summary(tmp_path, pair, osc):
 def test_write_data_roundtrip(tmp_path, pair):
     csv, npz = report.write_data(pair, tmp_path / "run")
     head = csv.read_text().splitlines()[0].split(",")
-    assert head[:3] == ["t", "q1", "u1"] and "d" in head and "V" in head
-    data = np.loadtxt(csv, delimiter=",", skiprows=1)
-    assert data.shape == (len(pair.t), len(head))
+    assert head[:3] == ["t [s]", "q1 [m]", "u1 [m/s]"] and "d" in head and "V" in head
+    data = np.loadtxt(csv, delimiter=",", skiprows=1, usecols=range(len(head) - 1))   # branch: names
+    assert data.shape == (len(pair.t), len(head) - 1)
     assert np.allclose(np.load(npz)["d"], pair.d)
     r = simulate(ImpactOscillator(f0=-9.81, e=0.8), (1.0, 0.0), 1.0, 1e-3)
     csv, npz = report.write_data(r, tmp_path / "single")
-    assert csv.read_text().splitlines()[0] == "t,q,u,percussion"
+    assert csv.read_text().splitlines()[0] == "t [s],q [m],u [m/s],percussion [N s]"
     assert np.array_equal(np.load(npz)["percussion"], r.percussion)
 
 
@@ -204,7 +204,7 @@ def test_titles_single_and_zero_noted(tmp_path, pair, osc):
     fig, texts = _texts(plots.plot_distance, pair, tmp_path / "d.png", system=osc, title="scene, run")
     titles = [t for t in texts if t.startswith("TITLE:") and t != "TITLE:"]
     assert titles == ["TITLE:scene, run: Euclidean error vs quotient distance"]
-    assert any("d = 0 exactly from t = " in t for t in texts), texts      # no silent stop
+    assert any("d is exactly 0 from t = " in t for t in texts), texts      # no silent stop
     assert any(t.startswith("t_sync") for t in texts)
     _, texts = _texts(plots.compare_plot, {"a": pair}, tmp_path / "c.png", title="only this")
     assert [t for t in texts if t.startswith("TITLE:")] == ["TITLE:only this"]

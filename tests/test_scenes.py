@@ -272,12 +272,15 @@ def test_forced_pair_core_runs(tmp_path):
     assert [r.name for r in sr.runs] == ["uncoupled", "switching"]
     for r in sr.runs:
         assert r.result.d is not None and np.all(np.isfinite(r.result.d))
-        for p in ("positions", "distance", "lyapunov", "forces", "phase"):
+        for p in ("positions", "distance", "lyapunov", "phase") + (("forces",) if r.name != "uncoupled" else ()):
             assert (tmp_path / f"{r.name}-{p}.png").stat().st_size > 5000
         assert (tmp_path / f"{r.name}.csv").stat().st_size > 0
     assert (tmp_path / "compare-distance.png").exists()
     assert not list(tmp_path.rglob("*.fmu"))
     assert sr.runs[0].metrics["peak_tau"] == 0.0 and sr.runs[1].metrics["peak_tau"] > 0.0
+    # no coupling force: no forces plot, and the summary says why
+    assert not (tmp_path / "uncoupled-forces.png").exists()
+    assert "**uncoupled**: no forces plot: no coupling force" in sr.summary.read_text()
 
 
 def test_two_dof_core_runs(tmp_path):

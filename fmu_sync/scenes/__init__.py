@@ -62,7 +62,7 @@ types and bad values raise :class:`SceneError` naming file, key and value)::
 
     [record]
     distance = true             # compute d, branch, V, Euclidean error (pairs; default true)
-    formats = ["csv", "npz"]    # data files to write: any of "csv", "npz" (CLI: --format npz,csv)
+    formats = ["csv", "npz"]    # data files to write: any of "csv", "npz", "nc" (CLI: --format npz,csv,nc)
 
     [plot]
     plots = ["positions", "distance", "impact-zoom", "lyapunov", "forces", "phase"]

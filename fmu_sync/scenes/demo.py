@@ -7,7 +7,8 @@ from typing import Callable
 
 from ..progress import scaled
 from .loading import load_scene
-from .running import RunRecord, SceneRun, error_notes, export_for, run_variant, settings_table, write_run
+from .running import (RunRecord, SceneRun, error_notes, export_for, run_variant, settings_table, skipped_notes,
+                      write_run)
 
 __all__ = ["run_demo", "DEMO_OUT", "DEMO_VARIANTS", "DEMO_QUICK_T_END"]
 
@@ -83,5 +84,5 @@ def run_demo(out_dir=None, quick: bool = False, progress: Callable | None = None
                                       description=scene.description, rows=report.rows(runs, demo=True),
                                       settings=settings_table(scene, [r.variant for r in runs],
                                                               [r.name for r in runs]), files=files,
-                                      base=out_dir, notes=[note] + error_notes(runs))
+                                      base=out_dir, notes=[note] + error_notes(runs) + skipped_notes(runs))
     return sr

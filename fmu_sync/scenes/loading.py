@@ -14,7 +14,7 @@ from ..fmus import contract
 from . import SCENE_DIR, builtin_names
 from .schema import (DISTANCE_PLOTS, KEYS, MODELS, NAME_RE, NETWORK_PLOTS, PLOTS, REQUIRED, SINGLE_PLOTS,
                      SYSTEM_KEYS, TABLES, VARIANT_TABLES, BadValue, NetworkSpec, SceneError, Variant, choice,
-                     show_value)
+                     plots_for, show_value)
 
 __all__ = ["Scene", "load_scene", "as_scene", "list_scenes", "parse_override"]
 
@@ -223,7 +223,7 @@ def _validate(flat: dict, where: dict, ctx: str) -> dict:
             cfg[key] = schema[key][0](value)
         except BadValue as b:
             fail(key, value, b.problem, b.allowed)
-    for key, (check, default, _) in schema.items():
+    for key, (check, default, *_) in schema.items():
         if key not in cfg:
             if default is REQUIRED:
                 raise SceneError(f"{ctx}: {key} is missing (required)")
@@ -408,8 +408,7 @@ def _resolve_plots(origin: dict, ctx: str, variants: list) -> tuple[list, bool]:
     all_d = all(v.has_distance for v in variants)
     net = any(v.is_network for v in variants)
     if plots is None:
-        plots = [p for p in PLOTS if (pair or p in SINGLE_PLOTS) and (all_d or p not in DISTANCE_PLOTS)
-                 and (not net or p in NETWORK_PLOTS)]
+        plots = plots_for(pair, all_d, net)
     for p in plots:
         for v in variants:
             if v.is_network and p not in NETWORK_PLOTS:

@@ -15,7 +15,7 @@ from .loading import Scene, as_scene
 from .schema import DEFAULT_OUT, TABLES, SceneError, Variant
 
 __all__ = ["RunRecord", "SceneRun", "RunRefused", "preflight", "run_scene", "run_variant", "fmu_start_values", "export_for",
-           "write_run", "error_notes", "settings_table"]
+           "write_run", "run_extra", "error_notes", "skipped_notes", "settings_table"]
 
 
 @dataclass
@@ -26,6 +26,7 @@ class RunRecord:
     metrics: dict
     files: list = field(default_factory=list)
     streamed: bool = False
+    skipped: list = field(default_factory=list)   #: (plot, why it was not drawn)
 
 
 @dataclass
@@ -208,31 +209,44 @@ def _run_network(variant: Variant, fmu_path, progress, label, extra):
 
 
 def write_run(run: RunRecord, out_dir: Path, plots, title: str, formats=("csv", "npz"),
-              progress: Callable | None = None) -> None:
-    """Data (``formats``) and plots of a run; a failed run (``run.result.error``) gets its
-    record marked partial and no plots (its data may be garbage past the failure)."""
+              progress: Callable | None = None, draw: bool = True) -> None:
+    """Data (``formats``) and ``plots`` of a run (``draw=False``: the data only; its files
+    still name the plots for ``fmu-sync plot DIR``); a failed run (``run.result.error``) gets
+    its record marked partial and no plots (its data may be garbage past the failure)."""
     from .. import report
     failed = bool(getattr(run.result, "error", None))
+    title = _title(title, run.name)
     if not run.streamed:
         run.files += report.write_data(run.result, out_dir / run.name, formats, progress=progress,
-                                       partial=failed)
-    if plots and not failed:
+                                       partial=failed, extra=run_extra(run.variant, plots, title))
+    if plots and draw and not failed:
         from .. import plots as P
-        if run.name != title:
-            title = f"{title}, {run.name}"
         for p in plots:
-            run.files.append(P.PLOTTERS[p](run.result, out_dir / f"{run.name}-{p}.png",
-                                           system=run.variant.system, title=title))
+            why = P.skip_reason(p, run.result)
+            if why is not None:
+                run.skipped.append((p, why))
+            else:
+                run.files.append(P.PLOTTERS[p](run.result, out_dir / f"{run.name}-{p}.png",
+                                               system=run.variant.system, title=title))
 
 
-def _stream_run(v: Variant, out_dir: Path, fmu_path, progress, scene_name, formats, est, max_memory):
+def run_extra(variant: Variant, plots, title: str) -> dict:
+    """What a data file keeps of the scene (:func:`fmu_sync.report.record_meta`): the variant's
+    settings, the plots and title of ``fmu-sync plot DIR``, and the wall (w, g0) they draw."""
+    from ..core.views import plain_settings
+    return {"settings": plain_settings(variant.cfg), "plots": list(plots), "title": title,
+            "wall": {"w": [float(x) for x in variant.system.w], "g0": float(variant.system.g0)}}
+
+
+def _stream_run(v: Variant, out_dir: Path, fmu_path, progress, scene_name, formats, est, max_memory, extra):
     """A core pair whose whole record exceeds the memory budget: written in chunks while it runs."""
     from .. import report
     from ..output import RecordWriter, pair_columns
     per_row = 8.0 * est.values_per_row
     chunk_rows = max(16, min(1 << 18, int(max_memory / (per_row * 8))))  # the chunk, its copies, the CSV block
     plot_rows = max(1000, min(20000, int(max_memory / (per_row * 8))))
-    writer = RecordWriter(out_dir / v.name, pair_columns(v.system.n, v.has_distance), formats)
+    lay = dict(kind="pair", N=2, n=v.system.n, edges=[[0, 1]], distance=v.has_distance)
+    writer = RecordWriter(out_dir / v.name, pair_columns(v.system.n, v.has_distance), formats, layout=lay)
     from ..stream import StreamRecord
     sink = StreamRecord(writer, v.system, est.rows, plot_rows)
     try:
@@ -241,23 +255,40 @@ def _stream_run(v: Variant, out_dir: Path, fmu_path, progress, scene_name, forma
         if sink.rows == 0:
             writer.abort()
             raise
-        files = writer.close(partial=True)
         result = sink.thinned()
         result.error = str(exc)
+        writer.meta = report.record_meta(_counted(result, sink), extra)
+        files = writer.close(partial=True)
         run = RunRecord(v.name, v, result, sink.metrics(result), files=files, streamed=True)
         run.metrics["error"] = str(exc)
         return run
     except BaseException:
         writer.abort()
         raise
-    files = writer.close()
     result = sink.thinned()
+    writer.meta = report.record_meta(_counted(result, sink, last), extra)
+    files = writer.close()
     metrics = sink.metrics(last)
     # the fitted decay (envelope of d) and the ultimate bound from the thinned record (sampled
     # every `thinned_every` records); t_sync, the maxima and the jumps above are exact
     metrics.update(report._sync_fields(report._sync(result, report.SYNC_THRESHOLD)))
     run = RunRecord(v.name, v, result, metrics, files=files, streamed=True)
     return run
+
+
+def _counted(result, sink, last=None):
+    """A streamed run for its file's meta: the counts and settings of the whole run (not those of
+    the thinned copy the plots use)."""
+    import copy
+    src = last if last is not None else sink.last
+    out = copy.copy(result)
+    out.impacts1, out.impacts2 = src.impacts1, src.impacts2
+    out.info = {k: v for k, v in src.info.items() if k not in ("rows", "thinned_every")}
+    return out
+
+
+def _title(scene_name: str, name: str) -> str:
+    return scene_name if name == scene_name else f"{scene_name}, {name}"
 
 
 def run_scene(scene, out_dir=None, overrides: dict | None = None, progress: Callable | None = None,
@@ -293,6 +324,12 @@ def run_scene(scene, out_dir=None, overrides: dict | None = None, progress: Call
         est, stream = check_budget(v, fmts, max_memory, max_disk,
                                    can_stream=v.pair and v.mode == "core" and not v.is_network,
                                    label=_label(v, scene.name))
+        if stream and "nc" in fmts:
+            from ..output import OutputTooLarge
+            raise OutputTooLarge(f"{_label(v, scene.name)}: refused before running: the record exceeds the memory "
+                                 f"budget and is written in chunks, which NetCDF (--format nc) cannot be: "
+                                 f"{est.describe()}. Choose csv and/or npz, raise run.record_every, or raise "
+                                 "--max-memory.")
         plan.append((v, fmts, est, stream))
 
     created = not out_dir.exists()
@@ -310,7 +347,8 @@ def run_scene(scene, out_dir=None, overrides: dict | None = None, progress: Call
             a, b = i / len(plan), (i + 1) / len(plan)
             mid = a + 0.8 * (b - a) if not stream else b
             if stream:
-                run = _stream_run(v, out_dir, fmu_path, scaled(progress, a, b), scene.name, fmts, est, max_memory)
+                run = _stream_run(v, out_dir, fmu_path, scaled(progress, a, b), scene.name, fmts, est, max_memory,
+                                  run_extra(v, scene.plots, _title(scene.name, v.name)))
             else:
                 try:
                     result = run_variant(v, fmu_path, scaled(progress, a, mid), scene.name)
@@ -323,7 +361,7 @@ def run_scene(scene, out_dir=None, overrides: dict | None = None, progress: Call
                 run = RunRecord(v.name, v, result, report.metrics(result, v.system))
             if run.result is not None and getattr(run.result, "error", None):
                 run.metrics["error"] = run.result.error
-            write_run(run, out_dir, scene.plots if plots else (), scene.name, fmts, scaled(progress, mid, b))
+            write_run(run, out_dir, scene.plots, scene.name, fmts, scaled(progress, mid, b), draw=plots)
             if progress is not None:
                 progress(b)
             runs.append(run)
@@ -346,7 +384,7 @@ def run_scene(scene, out_dir=None, overrides: dict | None = None, progress: Call
     sr.summary = report.write_summary(out_dir / "summary.md", title=f"Scene `{scene.name}`",
                                       description=scene.description, rows=report.rows(written),
                                       settings=settings_table(scene, chosen), files=files, base=out_dir,
-                                      notes=error_notes(runs) + stream_notes(runs))
+                                      notes=error_notes(runs) + stream_notes(runs) + skipped_notes(runs))
     return sr
 
 
@@ -362,6 +400,10 @@ def _clean(out_dir: Path, created: bool, files) -> None:
             out_dir.rmdir()
         except OSError:
             pass
+
+
+def skipped_notes(runs) -> list[str]:
+    return [f"**{r.name}**: no {p} plot: {why}" for r in runs for p, why in r.skipped]
 
 
 def stream_notes(runs) -> list[str]:

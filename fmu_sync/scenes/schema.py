@@ -10,16 +10,16 @@ import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
 from ..core import MechanicalSystem
 from ..core.coupling import LAWS as COUPLING_LAWS
 
-__all__ = ["SceneError", "Variant", "PLOTS", "DEFAULT_OUT", "KEYS", "SYSTEM_KEYS", "BadValue", "REQUIRED",
+__all__ = ["SceneError", "Key", "Variant", "PLOTS", "DEFAULT_OUT", "KEYS", "SYSTEM_KEYS", "BadValue", "REQUIRED",
            "MODELS", "LAWS", "SCHEMES", "MODES", "METHODS", "TABLES", "VARIANT_TABLES", "SINGLE_PLOTS",
-           "DISTANCE_PLOTS", "NAME_RE", "show_value", "choice", "GRAPHS", "NETWORK_PLOTS", "NetworkSpec"]
+           "DISTANCE_PLOTS", "plots_for", "NAME_RE", "show_value", "choice", "GRAPHS", "NETWORK_PLOTS", "NetworkSpec"]
 
 MODELS = ("impact-oscillator", "mechanical-system")
 #: the scenes' coupling.law values: the core's coupling laws, "none" first
@@ -38,6 +38,13 @@ GRAPHS = ("ring", "path", "star", "all-to-all")
 #: plots of a network run (N systems on a graph)
 NETWORK_PLOTS = ("positions", "distance", "lyapunov")
 DEFAULT_OUT = Path("fmu-sync-out")
+
+
+def plots_for(pair: bool, distance: bool, network: bool) -> list[str]:
+    """The plots drawn for a run: all of :data:`PLOTS` for a pair with d; a single system
+    :data:`SINGLE_PLOTS`; without d no :data:`DISTANCE_PLOTS`; a network :data:`NETWORK_PLOTS`."""
+    return [p for p in PLOTS if (pair or p in SINGLE_PLOTS) and (distance or p not in DISTANCE_PLOTS)
+            and (not network or p in NETWORK_PLOTS)]
 NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 
 
@@ -182,10 +189,10 @@ def _plots(v):
 
 
 def _formats(v):
-    allowed = 'a list of data formats from "csv", "npz" (may be empty)'
+    allowed = 'a list of data formats from "csv", "npz", "nc" (may be empty)'
     if not isinstance(v, list) or not all(isinstance(f, str) for f in v):
         raise BadValue("is not a list of strings", allowed)
-    if any(f not in ("csv", "npz") for f in v) or len(set(v)) != len(v):
+    if any(f not in ("csv", "npz", "nc") for f in v) or len(set(v)) != len(v):
         raise BadValue("has unknown or repeated entries", allowed)
     return list(v)
 
@@ -254,49 +261,74 @@ def _forcing(v):
     return out
 
 
-def _key(check, default=REQUIRED, doc=""):
-    return (check, default, doc)
+class Key(NamedTuple):
+    """One scene key: its checker, default (:data:`REQUIRED`: none), meaning and unit (SI)."""
+
+    check: Callable
+    default: Any
+    doc: str
+    unit: str = ""
+
+
+def _key(check, default=REQUIRED, doc="", unit=""):
+    return Key(check, default, doc, unit)
 
 
 _IO_KEYS = {
-    "model": _key(choice(*MODELS)),
-    "m": _key(_number(gt=0), 1.0, "mass, kg"),
-    "k": _key(_number(ge=0), 0.0, "stiffness, N/m"),
-    "c": _key(_number(ge=0), 0.0, "damping, N s/m"),
-    "f0": _key(_number(), 0.0, "constant force, N"),
-    "F": _key(_number(), 0.0, "forcing amplitude, N"),
-    "Omega": _key(_number(), 0.0, "forcing frequency, rad/s"),
-    "phi": _key(_number(), 0.0, "forcing phase, rad"),
-    "e": _key(_number(ge=0, le=1), doc="restitution"),
+    "model": _key(choice(*MODELS), doc="the system: a 1-DOF impact oscillator, or an n-DOF mechanical system"),
+    "m": _key(_number(gt=0), 1.0, "mass", "kg"),
+    "k": _key(_number(ge=0), 0.0, "stiffness", "N/m"),
+    "c": _key(_number(ge=0), 0.0, "damping", "N s/m"),
+    "f0": _key(_number(), 0.0, "constant force", "N"),
+    "F": _key(_number(), 0.0, "forcing amplitude", "N"),
+    "Omega": _key(_number(), 0.0, "forcing frequency", "rad/s"),
+    "phi": _key(_number(), 0.0, "forcing phase", "rad"),
+    "e": _key(_number(ge=0, le=1), doc="Newton restitution coefficient"),
 }
 _MS_KEYS = {
-    "model": _key(choice(*MODELS)),
-    "M": _key(_matrix, doc="mass matrix, SPD"),
-    "K": _key(_matrix, None, "stiffness matrix"),
-    "C": _key(_matrix, None, "damping matrix"),
-    "f0": _key(_vector, None, "constant force"),
-    "w": _key(_vector, doc="wall normal: g(q) = w.q + g0 >= 0"),
-    "g0": _key(_number(), 0.0, "wall offset"),
-    "e": _key(_number(ge=0, le=1), doc="restitution"),
-    "forcing": _key(_forcing, [], "harmonic forces"),
+    "model": _IO_KEYS["model"],
+    "M": _key(_matrix, doc="mass matrix, symmetric positive definite", unit="kg"),
+    "K": _key(_matrix, None, "stiffness matrix (default zero)", "N/m"),
+    "C": _key(_matrix, None, "damping matrix (default zero)", "N s/m"),
+    "f0": _key(_vector, None, "constant force (default zero)", "N"),
+    "w": _key(_vector, doc="wall normal: g(q) = w.q + g0 >= 0 (non-zero)"),
+    "g0": _key(_number(), 0.0, "wall offset", "m"),
+    "e": _IO_KEYS["e"],
+    "forcing": _key(_forcing, [], "harmonic forces F cos(Omega t + phi) (F in N, Omega in rad/s, phi in rad)"),
 }
 SYSTEM_KEYS = {"impact-oscillator": _IO_KEYS, "mechanical-system": _MS_KEYS}
 KEYS = {
-    "initial": {"x1": _key(_state, None), "x2": _key(_state, None)},
-    "network": {"graph": _key(_graph, None), "N": _key(_integer(2), None), "weight": _key(_number(gt=0), 1.0),
-                "center": _key(_integer(1), 1), "states": _key(_states, None), "nodes": _key(_nodes, None),
-                "laws": _key(_laws, None)},
-    "coupling": {"law": _key(choice(*LAWS), "none"), "Kp": _key(_gain, 0.0), "Kd": _key(_gain, 0.0),
-                 "Q": _key(_weight, None)},
-    "solver": {"scheme": _key(choice(*SCHEMES), "midpoint"), "dt": _key(_number(gt=0), 1e-3),
-               "theta": _key(_number(ge=0.5, le=1), 0.5)},
-    "run": {"t_end": _key(_number(gt=0)), "mode": _key(choice(*MODES), "core"),
-            "H": _key(_number(gt=0), 1e-2), "H_min": _key(_number(gt=0), None),
-            "method": _key(choice(*METHODS), "jacobi"), "event_aware": _key(_boolean, False),
-            "hold": _key(choice(*HOLDS), "zoh"),
-            "record_every": _key(_integer(1), 1), "allow_unstable": _key(_boolean, False)},
-    "record": {"distance": _key(_boolean, None), "formats": _key(_formats, ["csv", "npz"])},
-    "plot": {"plots": _key(_plots, None), "compare": _key(_boolean, None)},
+    "initial": {"x1": _key(_state, None, "start state [q, u] of system 1 (required unless a network)", "m, m/s"),
+                "x2": _key(_state, None, "start state of system 2 (leave out: a single system)", "m, m/s")},
+    "network": {"graph": _key(_graph, None, "the coupling graph (instead of [initial]: a network)"),
+                "N": _key(_integer(2), None, "number of nodes (optional check: = len(states))"),
+                "weight": _key(_number(gt=0), 1.0, "edge weight a_ij of a named graph"),
+                "center": _key(_integer(1), 1, "the hub of a star (node number)"),
+                "states": _key(_states, None, "one start state per node", "m, m/s"),
+                "nodes": _key(_nodes, None, "[system] keys that differ per node"),
+                "laws": _key(_laws, None, "one coupling law per edge, edges in the order (1,2), (1,3), .., (2,3), ..")},
+    "coupling": {"law": _key(choice(*LAWS), "none", "coupling law"),
+                 "Kp": _key(_gain, 0.0, "position gain (a number multiplies the identity)", "N/m"),
+                 "Kd": _key(_gain, 0.0, "velocity gain", "N s/m"),
+                 "Q": _key(_weight, None, "position weight of the state norm (default identity)")},
+    "solver": {"scheme": _key(choice(*SCHEMES), "midpoint", "time-stepping scheme (exact: single 1-DOF systems)"),
+               "dt": _key(_number(gt=0), 1e-3, "internal step (also the FMU's internal step)", "s"),
+               "theta": _key(_number(ge=0.5, le=1), 0.5, "theta of the theta scheme")},
+    "run": {"t_end": _key(_number(gt=0), doc="simulated time", unit="s"),
+            "mode": _key(choice(*MODES), "core", "monolithic core run, or FMUs driven by the master"),
+            "H": _key(_number(gt=0), 1e-2, "communication step of the master (cosim)", "s"),
+            "H_min": _key(_number(gt=0), None, "smallest retaken step with event_aware (cosim)", "s"),
+            "method": _key(choice(*METHODS), "jacobi", "exchange strategy of the master (cosim)"),
+            "event_aware": _key(_boolean, False, "retake a communication step that contains an impact (cosim)"),
+            "hold": _key(choice(*HOLDS), "zoh", "input hold over a communication step (cosim)"),
+            "record_every": _key(_integer(1), 1, "keep every k-th step (core: steps dt; cosim: steps H)"),
+            "allow_unstable": _key(_boolean, False, "run even if the held coupling exchange is unstable at this step")},
+    "record": {"distance": _key(_boolean, None, "compute d, branch, V and the Euclidean error (pairs and "
+                                "networks: default true)"),
+               "formats": _key(_formats, ["csv", "npz"], "data files to write (CLI: --format)")},
+    "plot": {"plots": _key(_plots, None, "plots to draw (default: every plot that fits the runs)"),
+             "compare": _key(_boolean, None, "d(t) of all variants on one plot (default: with 2 or more "
+                             "variants that record d)")},
 }
 
 

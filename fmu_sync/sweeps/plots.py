@@ -7,7 +7,8 @@
   ``zeta = Kd / (m omega_c)`` and ``h`` the exchange step (``run.H`` when
   co-simulated; ``solver.dt`` in the core, whose explicit midpoint step holds
   the forces over dt the same way); the bound is :func:`fmu_sync.core.exchange.zoh_bound`.
-* :func:`basin` -- time to synchronize over a start state (q0, u0).
+* :func:`basin` -- the decay rate of d over a start state (q0, u0), runs that do not
+  synchronize marked.
 * :func:`line_plot` -- one swept parameter: decay rate and t_sync against it.
 * :func:`sweep_plots` -- the maps that fit a Dataset (called by ``sweep(out=...)``).
 """
@@ -158,6 +159,21 @@ def _two_d(ds, x, y):
     return sub, note
 
 
+def _colorbar(fig, mappable, ax, label, norm):
+    """A colour bar; on a log norm, ticks at 1, 2, 5 x 10^k written as plain numbers (0.05, 2, 40),
+    not as powers (4x10^1)."""
+    cb = fig.colorbar(mappable, ax=ax, label=label)
+    if norm is not None:
+        from matplotlib.ticker import FuncFormatter, LogLocator
+        lo, hi = norm.vmin, norm.vmax
+        subs = (1.0,) if hi / lo > 1e4 else (1.0, 2.0, 5.0) if hi / lo > 20 else (1.0, 1.5, 2.0, 3.0, 5.0, 7.0)
+        cb.locator = LogLocator(subs=subs)
+        cb.formatter = FuncFormatter(lambda v, _: f"{v:.3g}")
+        cb.minorticks_off()
+        cb.update_ticks()
+    return cb
+
+
 def heat_map(ds, x: str, y: str, path, title: str | None = None) -> Path:
     """Decay rate and t_sync over (x, y), failures marked, the ZOH limit drawn."""
     plt = _plt()
@@ -170,7 +186,7 @@ def heat_map(ds, x: str, y: str, path, title: str | None = None) -> Path:
     fig, axes = plt.subplots(1, 2, figsize=(13, 5.4), constrained_layout=True)
     rate = np.where(sub["status"].values == 0, sub["decay_rate"].values, np.nan)
     ts = np.where(sub["synchronized"].values, sub["t_sync"].values, np.nan)
-    panels = [(axes[0], rate, "decay rate of d (1/s)", "viridis", None),
+    panels = [(axes[0], rate, "decay rate of d (1/s, log scale)", "viridis", "log"),
               (axes[1], ts, "t_sync: time to d < %.0e (s)" % ds.attrs.get("threshold", 1e-6), "magma_r",
                "log")]
     for ax, Z, clabel, cmap, scale in panels:
@@ -178,16 +194,17 @@ def heat_map(ds, x: str, y: str, path, title: str | None = None) -> Path:
         norm = None
         if scale == "log" and finite.size and finite.min() > 0:
             norm = LogNorm(vmin=finite.min(), vmax=finite.max())
+        elif scale == "log" and finite.size and finite.max() > 0:   # rates <= 0: no decay, shown as such
+            Z = np.where(Z > 0, Z, np.nan)
+            norm = LogNorm(vmin=float(np.nanmin(Z)), vmax=float(np.nanmax(Z)))
         kw = {} if norm else dict(vmin=float(np.nanmin(finite)) if finite.size else 0,
                                   vmax=float(np.nanmax(finite)) if finite.size else 1)
-        if not norm and finite.size and scale is None:
-            kw["vmin"] = min(0.0, kw["vmin"])
         m = ax.pcolormesh(XE, YE, Z.T, cmap=cmap, norm=norm, shading="flat", **kw)
-        fig.colorbar(m, ax=ax, label=clabel)
+        _colorbar(fig, m, ax, clabel, norm)
         if ax is axes[1]:
             _overlay(ax, XE, YE, nosync & ~div & ~ref, "0.82", "not synchronized by t_end")
         else:
-            _overlay(ax, XE, YE, (sub["status"].values == 0) & ~np.isfinite(rate), "0.82",
+            _overlay(ax, XE, YE, (sub["status"].values == 0) & ~(rate > 0), "0.82",
                      "no decay (envelope of d stays above 0.1 max d)")
         _overlay(ax, XE, YE, div, "#b2182b", "diverged (stopped early)")
         _overlay(ax, XE, YE, ref, "black", "refused (invalid start)")
@@ -218,20 +235,28 @@ def heat_map(ds, x: str, y: str, path, title: str | None = None) -> Path:
 
 
 def basin(ds, x: str, y: str, path, title: str | None = None) -> Path:
-    """Basin of synchronization over a start state: t_sync where it synchronizes."""
+    """Basin of synchronization over a start state: the decay rate of d where the run
+    synchronizes (t_sync is ill-conditioned: it moves with every near-threshold crossing;
+    the fitted rate does not), runs that do not synchronize marked."""
     plt = _plt()
     from matplotlib.colors import LogNorm
     sub, note = _two_d(ds, x, y)
     xv, yv = sub[x].values.astype(float), sub[y].values.astype(float)
     XE, YE = _edges(xv, False), _edges(yv, False)
     div, ref, nosync = _masks(sub["status"].values, sub["synchronized"].values)
-    ts = np.where(sub["synchronized"].values, sub["t_sync"].values, np.nan)
+    rate = np.where(sub["synchronized"].values, sub["decay_rate"].values, np.nan)
+    rate = np.where(rate > 0, rate, np.nan)
     fig, ax = plt.subplots(figsize=(7.5, 5.8), constrained_layout=True)
-    finite = ts[np.isfinite(ts) & (ts > 0)]
-    norm = LogNorm(vmin=finite.min(), vmax=finite.max()) if finite.size else None
-    m = ax.pcolormesh(XE, YE, np.where(ts > 0, ts, np.nan).T, cmap="viridis_r", norm=norm, shading="flat")
-    fig.colorbar(m, ax=ax, label="t_sync: time to d < %.0e (s)" % ds.attrs.get("threshold", 1e-6))
+    finite = rate[np.isfinite(rate)]
+    # the whole range of rates (a nearly uniform map says: the rate hardly depends on the start;
+    # clipping to percentiles would paint the fit's scatter as structure)
+    norm = LogNorm(vmin=finite.min(), vmax=max(finite.max(), finite.min() * 1.001)) if finite.size else None
+    m = ax.pcolormesh(XE, YE, rate.T, cmap="viridis", norm=norm, shading="flat")
+    _colorbar(fig, m, ax, "decay rate of d (1/s, log scale)" + (f"; median {np.median(finite):.3g}" if finite.size
+                                                                 else ""), norm)
     _overlay(ax, XE, YE, nosync & ~div & ~ref, "0.82", "not synchronized by t_end")
+    _overlay(ax, XE, YE, ~nosync & ~div & ~ref & ~np.isfinite(rate), "0.6",
+             "synchronized, no decay window resolved")
     _overlay(ax, XE, YE, div, "#b2182b", "diverged")
     _overlay(ax, XE, YE, ref, "black", "refused (start violates the wall)")
     v = _base_variant(ds)

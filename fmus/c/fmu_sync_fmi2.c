@@ -89,6 +89,7 @@ typedef struct Instance {
     fmi2CallbackFunctions cb;
     fsr_instance rt;                /* the runtime: Python instance, variables, work array */
     int init_dirty;                 /* outputs must be recomputed (initialization mode) */
+    int outputs_stale;              /* feedthrough: an input was set since the outputs were computed */
     double last_successful_time;
 } Instance;
 #define MAGIC 0x66737931u           /* "fsy1" */
@@ -297,11 +298,20 @@ EXPORT fmi2Status fmi2Reset(fmi2Component comp) {
     return s;
 }
 
+/* Outputs up to date before they are read: in initialization mode by the Python
+ * slave (parameters may have changed); after an input was set on a direct-feedthrough
+ * FMU (the coupling) by the stepper, without Python. */
 static fmi2Status refresh_if_dirty(Instance *c) {
     if (c->state == ST_INIT && c->init_dirty) {
         fmi2Status s = call_py(c, "refresh", NULL);
         if (s >= fmi2Error) return s;
         c->init_dirty = 0;
+        c->outputs_stale = 0;
+    }
+    if (c->outputs_stale && c->state != ST_INIT) {
+        fmi2Status s = (fmi2Status)fsr_outputs(&c->rt, "fmi2GetReal/fmi2GetInteger");
+        if (s >= fmi2Error) return s;
+        c->outputs_stale = 0;
     }
     return fmi2OK;
 }
@@ -357,6 +367,10 @@ static fmi2Status set_value(Instance *c, int call, fmi2ValueReference vr, double
          * unless fmi2SetRealInputDerivatives sets it again (for the next doStep) */
         double *w = c->rt.work;
         w[(size_t)w[FSR_H_ITAUDOT] + (vr - (size_t)w[FSR_H_ITAU])] = 0.0;
+        if (fsr_feedthrough(&c->rt)) {     /* outputs are functions of the inputs: recompute on read */
+            if (c->state == ST_INIT) c->init_dirty = 1;
+            else c->outputs_stale = 1;
+        }
     }
     return fmi2OK;
 }
@@ -432,6 +446,7 @@ EXPORT fmi2Status fmi2SetFMUstate(fmi2Component comp, fmi2FMUstate state) {
     if (phase == ST_INSTANTIATED || phase == ST_INIT || phase == ST_STEP || phase == ST_TERMINATED)
         c->state = phase;
     c->init_dirty = c->state == ST_INIT;
+    c->outputs_stale = 0;                /* set_state computed the outputs of the restored inputs */
     c->last_successful_time = c->rt.work[FSR_H_TIME];
     return s;
 }
@@ -541,7 +556,10 @@ EXPORT fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real t, fmi2Real H, fmi2Boo
     (void)noSetPrior;
     if (invalid(comp, F_DoStep, &c)) return fmi2Error;
     fmi2Status s = (fmi2Status)fsr_step(&c->rt, t, H);
-    if (s == fmi2OK) c->last_successful_time = c->rt.work[FSR_H_TIME];
+    if (s == fmi2OK) {
+        c->last_successful_time = c->rt.work[FSR_H_TIME];
+        c->outputs_stale = 0;            /* the step computed the outputs from the current inputs */
+    }
     return s;
 }
 

@@ -40,7 +40,7 @@
 #define G fsr_g
 
 /* work array slots of FMI 3.0 (fmus/stepper.py: H_MODE ... H_ICOUNT, MODE_*) */
-enum { H_MODE = 22, H_REACHED = 23, H_PEND_U = 24, H_PEND_P = 25, H_ICOUNT = 26 };
+enum { H_MODE = 23, H_REACHED = 24, H_PEND_U = 25, H_PEND_P = 26, H_ICOUNT = 27 };
 enum { MODE_FULL = 0, MODE_EARLY = 1, MODE_EARLY_EVENT = 2, MODE_APPLY_EVENT = 3 };
 
 /* states of the FMI 3.0 co-simulation state machine (the first four are the

@@ -691,3 +691,15 @@ int fsr_step(fsr_instance *inst, double t, double H) {
     w[FSR_H_TIME] = now + H;
     return FSR_OK;
 }
+
+int fsr_feedthrough(const fsr_instance *inst) {
+    return inst->work[FSR_H_FEEDTHROUGH] != 0.0;
+}
+
+int fsr_outputs(fsr_instance *inst, const char *call) {
+    double *w = inst->work;
+    if (inst->stepper(inst->x, w, w[FSR_H_TIME], 0.0) != 0)
+        return fsr_logf(inst, FSR_ERROR, "%s: the outputs computed from the current inputs are not finite "
+                        "(or the parameters are not a valid set)", call);
+    return FSR_OK;
+}

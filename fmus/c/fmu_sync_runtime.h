@@ -16,6 +16,8 @@
  *   fsr_state_get / _set / _free / _serialize / _deserialize   FMU states (Python snapshots)
  *   fsr_step(inst, t, H)            one communication step: argument checks, the numba stepper
  *                                   called through its address, no Python, no GIL
+ *   fsr_outputs(inst, call)         outputs of a direct-feedthrough FMU from its current inputs
+ *                                   (the stepper with H = 0), no Python, no GIL
  *   fsr_free(inst)
  *
  * Every call that can fail returns an fsr status, numerically equal to fmi2Status and
@@ -39,7 +41,8 @@ enum { FSR_C_PARAMETER = 0, FSR_C_INPUT = 1, FSR_C_OUTPUT = 2 };
 
 /* work array header (fmus/stepper.py: H_*) read by the C side */
 enum { FSR_H_LEN = 0, FSR_H_VERSION = 1, FSR_H_TIME = 2, FSR_H_PHASE = 3, FSR_H_DT = 4, FSR_H_CONFIGURED = 5,
-       FSR_H_M = 7, FSR_H_SCHEME = 9, FSR_H_ITAU = 14, FSR_H_ITAUDOT = 20 };
+       FSR_H_M = 7, FSR_H_SCHEME = 9, FSR_H_ITAU = 14, FSR_H_ITAUDOT = 20,
+       FSR_H_FEEDTHROUGH = 22 /* != 0: outputs depend directly on inputs (the coupling FMU) */ };
 #define FSR_WORK_VERSION 2.0
 #define FSR_SCHEME_EXACT 2.0        /* fmus/stepper.py: EXACT */
 
@@ -80,6 +83,10 @@ int fsr_state_deserialize(fsr_instance *inst, const char *call, const char *data
 
 /* one communication step from t by H; on a refusal nothing changed */
 int fsr_step(fsr_instance *inst, double t, double H);
+/* direct feedthrough (work[FSR_H_FEEDTHROUGH] != 0): the outputs recomputed from the current
+ * inputs by the stepper (H = 0, no Python, no GIL); FSR_ERROR if they are not finite */
+int fsr_feedthrough(const fsr_instance *inst);
+int fsr_outputs(fsr_instance *inst, const char *call);
 
 /* helpers for messages */
 const char *fsr_g(double v);                  /* shortest round-trip text of a double */

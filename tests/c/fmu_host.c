@@ -218,7 +218,7 @@ int main(int argc, char **argv) {
     const char *dir = argv[1];
     double stop = 10.0, H = 0.01;
     const char *out = NULL, *uri_opt = NULL, *guid_opt = NULL;
-    int type = 1, cycles = 0, logging = 1, fmi3 = 0, early = 0, event = 0;
+    int type = 1, cycles = 0, logging = 1, input_first = 0, fmi3 = 0, early = 0, event = 0;
     unsigned vars[64], setv[64], inv[64];
     double setx[64], inx[64];
     int nvars = 0, nset = 0, nin = 0;
@@ -236,6 +236,7 @@ int main(int argc, char **argv) {
         else if (!strcmp(a, "--type")) type = atoi(v), ++i;
         else if (!strcmp(a, "--cycles")) cycles = atoi(v), ++i;
         else if (!strcmp(a, "--nolog")) logging = 0;
+        else if (!strcmp(a, "--input-first")) input_first = 1;   /* set the inputs before the first read too */
         else if (!strcmp(a, "--fmi3")) fmi3 = 1;
         else if (!strcmp(a, "--early-return")) early = 1;
         else if (!strcmp(a, "--event-mode")) event = 1;
@@ -310,6 +311,8 @@ int main(int argc, char **argv) {
             check("fmi2DoStep", s);
             if (s > fmi2Warning) break;
         }
+        if (k == 0 && input_first)
+            for (int i = 0; i < nin; ++i) check("fmi2SetReal", setr(c, &inv[i], 1, &inx[i]));
         if (nvars) check("fmi2GetReal", getr(c, vars, (size_t)nvars, vals));
         write_row(csv, t, vals, nvars);
     }

@@ -1,0 +1,207 @@
+"""The coupling FMU's interface and slave (docs/design.md §4.8, docs/ssp.md).
+
+The coupling of N systems on a graph as an FMI 2.0 co-simulation FMU of its
+own, so that a master that is not ours (libcosim, fmpy's SSP runner) can run
+the coupled system as a package of FMUs (:mod:`fmu_sync.ssp`):
+
+* inputs: the states of the N systems, ``q[i]``, ``u[i]`` (n = 1) or
+  ``q[i,k]``, ``u[i,k]`` (n > 1), i = 1..N;
+* outputs: the force on each system ``tau[i]`` / ``tau[i,k]`` and, per edge
+  e = 1..E (the graph's edges (i, j), i < j, in the order of
+  :func:`fmu_sync.core.network.edges_of`), the quotient distance ``d[e]``,
+  ``V[e] = 1/2 (a_ij + a_ji)/2 d^2``, the branch code ``branch[e]`` (0 E,
+  1 J12, 2 J21, 3 J2) and the Euclidean error ``euclidean[e]``; every output
+  depends directly on every input (ModelStructure) and is computed from the
+  current inputs whenever it is read;
+* parameters: ``law[e]`` (enumeration ``fmu_sync.Law``: switching, euclidean,
+  none), the weights ``a[i,j]`` and ``a[j,i]`` of each edge, the gains ``Kp``,
+  ``Kd`` and the metric ``Q`` (n x n for n > 1), the impact geometry ``M``,
+  ``w``, ``g0``, ``e`` (which must equal the systems').
+
+The structure (N, n and the edges) is fixed at export (:class:`CouplingSpec`,
+stored in the FMU's start file); the values are parameters. The numbers come
+from one compiled call per evaluation of the core's
+:func:`fmu_sync.core.network.network_coupling` (:mod:`.coupling_stepper`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..core.coupling import gain_matrix
+from ..core.distance import make_geometry
+from .contract import INPUT_BOUND, LAW_ITEMS, LAW_TYPE, POSITIVE_MIN, Var, matrix
+from .slave import MechanicalSlave
+
+__all__ = ["CouplingSpec", "CouplingSlave", "coupling_slave", "node_names", "edge_names", "MODEL",
+           "IDENTIFIER", "BRANCH_CODES"]
+
+MODEL = "coupling"
+IDENTIFIER = "SyncCoupling"
+#: values of the branch[e] output (fmu_sync.core.distance's codes; -1: no distance computed)
+BRANCH_CODES = "0 = E, 1 = J12, 2 = J21, 3 = J2"
+
+
+@dataclass(frozen=True)
+class CouplingSpec:
+    """The structure of a coupling FMU: N nodes of n DOF and the coupled edges (0-based i < j)."""
+
+    N: int
+    n: int
+    edges: tuple
+
+    def __post_init__(self):
+        if not (isinstance(self.N, int) and self.N >= 2):
+            raise ValueError(f"a coupling FMU couples N >= 2 systems, got N = {self.N!r}")
+        if not (isinstance(self.n, int) and self.n >= 1):
+            raise ValueError(f"n (degrees of freedom) must be an integer >= 1, got {self.n!r}")
+        if not self.edges:
+            raise ValueError("a coupling FMU needs at least one edge")
+        for e in self.edges:
+            i, j = e
+            if not (0 <= i < j < self.N):
+                raise ValueError(f"edge {e} must be (i, j) with 0 <= i < j < N = {self.N}")
+        if len(set(self.edges)) != len(self.edges):
+            raise ValueError(f"edges must be distinct, got {list(self.edges)}")
+
+    @classmethod
+    def from_weights(cls, A, n: int = 1) -> "CouplingSpec":
+        from ..core.network import edges_of, weights
+        a = weights(A)
+        return cls(a.shape[0], int(n), tuple(tuple(int(x) for x in e) for e in edges_of(a)))
+
+    def as_dict(self) -> dict:
+        return {"N": self.N, "n": self.n, "edges": [list(e) for e in self.edges]}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "CouplingSpec":
+        return cls(int(d["N"]), int(d["n"]), tuple(tuple(int(x) for x in e) for e in d["edges"]))
+
+
+def node_names(base: str, i: int, n: int) -> list[str]:
+    """Names of node i's (0-based) n components of ``base``: ``q[i+1]`` or ``q[i+1,k]``."""
+    return [f"{base}[{i + 1}]"] if n == 1 else [f"{base}[{i + 1},{k + 1}]" for k in range(n)]
+
+
+def edge_names(base: str, E: int) -> list[str]:
+    return [f"{base}[{e + 1}]" for e in range(E)]
+
+
+def _param(name, unit, description, start, min=None, max=None):
+    return Var(name, "Real", "parameter", "fixed", description, initial="exact", unit=unit,
+               min=min, max=max, start=start)
+
+
+def _square(sym, unit, what, n, start_diag, diag_min):
+    if n == 1:
+        return [_param(sym, unit, what, start_diag, min=diag_min)]
+    return [_param(name, unit, f"{what}, row {k // n + 1}, column {k % n + 1}",
+                   start_diag if k // n == k % n else 0.0, min=diag_min if k // n == k % n else None)
+            for k, name in enumerate(matrix(sym, n))]
+
+
+def declare(spec: CouplingSpec) -> list[Var]:
+    """The interface of a coupling FMU, in value-reference order."""
+    N, n, E = spec.N, spec.n, len(spec.edges)
+    inputs = []
+    for base, unit, what in (("q", "m", "Position"), ("u", "m/s", "Velocity")):
+        for i in range(N):
+            inputs += [Var(name, "Real", "input", "continuous", f"{what} of system {i + 1}"
+                           + ("" if n == 1 else f", coordinate {k + 1}"), unit=unit, start=0.0,
+                           min=-INPUT_BOUND, max=INPUT_BOUND) for k, name in enumerate(node_names(base, i, n))]
+    ins = tuple(v.name for v in inputs)
+    params = ([Var(name, "Enumeration", "parameter", "fixed",
+                   f"Coupling law of edge {e + 1} = (system {spec.edges[e][0] + 1}, system {spec.edges[e][1] + 1})",
+                   initial="exact", start=0, declared_type=LAW_TYPE) for e, name in enumerate(edge_names("law", E))])
+    for (i, j) in spec.edges:
+        for a, b in ((i, j), (j, i)):
+            params.append(_param(f"a[{a + 1},{b + 1}]", "1", f"Weight a_ij of the force on system {a + 1} "
+                                 f"from its edge with system {b + 1} (>= 0)", 1.0, min=0.0))
+    params += (_square("Kp", "N/m", "Proportional gain Kp", n, 1.0, 0.0)
+               + _square("Kd", "N.s/m", "Derivative gain Kd", n, 0.5, 0.0)
+               + _square("Q", "N/m", "Position weight Q of the norm ||x||^2 = q^T Q q + u^T M u (SPD)", n, 1.0,
+                         POSITIVE_MIN)
+               + _square("M", "kg", "Mass matrix M of the systems (SPD; must equal theirs)", n, 1.0, POSITIVE_MIN)
+               + ([_param("w", "1", "Wall normal w in g(q) = w^T q + g0 (must equal the systems')", 1.0)]
+                  if n == 1 else [_param(f"w[{k + 1}]", "1", f"Wall normal w, component {k + 1} (must equal "
+                                         f"the systems')", 1.0 if k == 0 else 0.0) for k in range(n)])
+               + [_param("g0", "m", "Wall offset g0 in g(q) = w^T q + g0 (must equal the systems')", 0.0),
+                  _param("e", "1", "Newton restitution coefficient (must equal the systems')", 0.9, min=0.0,
+                         max=1.0)])
+    pnames = tuple(v.name for v in params)
+    outs = []
+    for i in range(N):
+        outs += [Var(name, "Real", "output", "continuous", f"Coupling force on system {i + 1}"
+                     + ("" if n == 1 else f", coordinate {k + 1}") + " (B = I)", initial="calculated", unit="N",
+                     depends=ins, initial_depends=ins + pnames) for k, name in enumerate(node_names("tau", i, n))]
+    for base, typ, unit, what in (
+            ("d", "Real", None, "Quotient distance d of edge {e} (sqrt(J): the norm ||.||_P with Q in N/m)"),
+            ("V", "Real", "J", "V = 1/2 (a_ij + a_ji)/2 d^2 of edge {e} (its share of the Lyapunov function)"),
+            ("euclidean", "Real", None, "Euclidean error ||x_i - x_j||_P of edge {e} (sqrt(J))"),
+            ("branch", "Integer", None, "Branch of the quotient distance of edge {e} (" + BRANCH_CODES + ")")):
+        outs += [Var(name, typ, "output", "continuous" if typ == "Real" else "discrete",
+                     what.format(e=e + 1), initial="calculated", unit=unit, depends=ins,
+                     initial_depends=ins + pnames) for e, name in enumerate(edge_names(base, len(spec.edges)))]
+    return inputs + outs + params
+
+
+class CouplingConfiguration:
+    """A validated parameter set: laws, weights, gains and the distance geometry."""
+
+    def __init__(self, laws, W2, Kp, Kd, geo):
+        self.laws, self.W2, self.Kp, self.Kd, self.geo = laws, W2, Kp, Kd, geo
+
+
+class CouplingSlave(MechanicalSlave):
+    """The coupling FMU of one structure (:func:`coupling_slave` makes the class)."""
+
+    MODEL = MODEL
+    MODEL_IDENTIFIER = IDENTIFIER
+    DESCRIPTION = ""
+    SPEC: CouplingSpec = None
+    DEFAULT_EXPERIMENT = {"startTime": 0.0, "stopTime": 10.0, "stepSize": 1e-2}
+
+    @classmethod
+    def declare(cls) -> list[Var]:
+        return declare(cls.SPEC)
+
+    @classmethod
+    def _square(cls, p: dict, sym: str):
+        n = cls.SPEC.n
+        if n == 1:
+            return np.array([[p[sym]]], dtype=np.float64)
+        return np.array([p[k] for k in matrix(sym, n)], dtype=np.float64).reshape(n, n)
+
+    @classmethod
+    def configure(cls, p: dict) -> CouplingConfiguration:
+        """Validate a complete parameter set; raises ValueError naming what is wrong."""
+        spec = cls.SPEC
+        n, E = spec.n, len(spec.edges)
+        codes = {v for _, v, _ in LAW_ITEMS}
+        laws = np.array([p[k] for k in edge_names("law", E)], dtype=np.int64)
+        for k, c in enumerate(laws):
+            if int(c) not in codes:
+                raise ValueError(f"law[{k + 1}] must be one of {sorted(codes)}, got {c}")
+        W2 = np.array([[p[f"a[{i + 1},{j + 1}]"], p[f"a[{j + 1},{i + 1}]"]] for i, j in spec.edges],
+                      dtype=np.float64).reshape(E, 2)
+        if not (np.all(np.isfinite(W2)) and np.all(W2 >= 0.0)):
+            raise ValueError(f"the weights a[i,j] must be finite and >= 0, got {W2.tolist()}")
+        Kp = gain_matrix(cls._square(p, "Kp"), n, "Kp")
+        Kd = gain_matrix(cls._square(p, "Kd"), n, "Kd")
+        w = [p["w"]] if n == 1 else [p[f"w[{k + 1}]"] for k in range(n)]
+        geo = make_geometry(cls._square(p, "M"), w, p["g0"], p["e"], cls._square(p, "Q"))
+        return CouplingConfiguration(laws, W2, Kp, Kd, geo)
+
+    @classmethod
+    def input_names(cls) -> list[str]:
+        return [v.name for v in cls.declare() if v.causality == "input"]
+
+
+def coupling_slave(spec: CouplingSpec) -> type:
+    """The slave class of a coupling FMU with this structure."""
+    edges = ", ".join(f"({i + 1},{j + 1})" for i, j in spec.edges)
+    desc = (f"Synchronizing coupling of {spec.N} mechanical systems with {spec.n} degree(s) of freedom on "
+            f"the edges {edges}: forces tau_i = sum_j a_ij tau_i^(j) of the switching quotient or "
+            f"Euclidean PD law per edge, quotient distance d and V per edge (fmu-sync core)")
+    return type("CouplingSlave", (CouplingSlave,), {"SPEC": spec, "DESCRIPTION": desc, "N": spec.n})

@@ -1,0 +1,182 @@
+"""The coupling FMU's hot path: one numba ``cfunc`` the C binary calls.
+
+    int32 step(double *x, double *work, double t, double H)
+
+Same signature and header as :mod:`.stepper` (the slots the binary reads:
+H_LEN, H_VERSION, H_TIME, H_PHASE, H_DT, H_CONFIGURED, H_M, H_SCHEME, H_ITAU,
+H_ITAUDOT, H_FEEDTHROUGH). The coupling has no state: every call, at doStep
+(H > 0) and whenever an output is read after an input was set (H = 0), computes
+all outputs from the current inputs with one call of the core's
+:func:`fmu_sync.core.network.network_coupling` (which calls
+:func:`fmu_sync.core.pair.coupling_step` per edge), then V per edge. Returns 0,
+or 1 if an output is not finite.
+
+Work array: the header, then (at H_DATA) the laws, the edges and the weights
+(E, 2E, 2E slots; laws and edges as int64 bit patterns), the symmetric weights
+(E), Kp, Kd (n*n each), the distance geometry (:class:`DistanceGeometry`
+fields and its scalar part), the scratch of the call, and last the m input
+derivative slots the binary writes (unused: the coupling does not interpolate).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import carray, cfunc, njit, types
+
+from ..core.distance import DistanceGeometry, ScalarGeometry
+from ..core.network import network_coupling
+from .stepper import (H_CONFIGURED, H_DATA, H_DT, H_FEEDTHROUGH, H_ITAU, H_ITAUDOT, H_LEN, H_M, H_NX,
+                      H_SCHEME, H_VERSION, WORK_VERSION)
+
+__all__ = ["step", "pack", "work_size", "H_FEEDTHROUGH", "C_NODES", "C_DOF", "C_EDGES", "C_IQ", "C_IU",
+           "C_ITAU", "C_ID", "C_IV", "C_IEU", "C_IBR", "NO_SCHEME"]
+
+#: the coupling's own header slots (free in the mechanical layout's header)
+C_NODES, C_DOF, C_EDGES = 6, 8, 10
+C_IQ, C_IU, C_ITAU, C_ID, C_IV, C_IEU, C_IBR = 12, 13, 15, 16, 17, 18, 19
+#: H_SCHEME of a coupling: no solver (not the binary's exact-scheme code)
+NO_SCHEME = -1.0
+_NSCALAR = 12   # fields of ScalarGeometry
+
+
+def _geo_size(n: int) -> int:
+    return 3 * n * n + 3 * n + 7 + _NSCALAR
+
+
+def work_size(N: int, n: int, E: int, m: int) -> int:
+    """Slots for N nodes of n DOF, E edges, m inputs."""
+    data = 5 * E + E + 2 * n * n + _geo_size(n)
+    scratch = 3 * N * n + 3 * E + 6 * n
+    return H_DATA + data + scratch + m
+
+
+def init_header(work: np.ndarray, N: int, n: int, E: int, m: int, nx: int, index: dict) -> None:
+    """The header of a fresh work array (sizes, indices of the variables in x)."""
+    work[H_LEN] = work.shape[0]
+    work[H_VERSION] = WORK_VERSION
+    work[H_NX] = nx
+    work[H_M] = m
+    work[H_ITAUDOT] = work.shape[0] - m
+    work[H_DT] = math.inf             # no internal steps: the binary's step count is 0
+    work[H_SCHEME] = NO_SCHEME
+    work[H_FEEDTHROUGH] = 1.0
+    work[C_NODES], work[C_DOF], work[C_EDGES] = N, n, E
+    for slot, key in ((C_IQ, "q"), (C_IU, "u"), (C_ITAU, "tau"), (C_ID, "d"), (C_IV, "V"), (C_IEU, "euclidean"),
+                      (C_IBR, "branch")):
+        work[slot] = index[key]
+    work[H_ITAU] = index["q"]         # the first input (the binary resets input derivatives from here)
+
+
+def pack(work: np.ndarray, cfg, edges) -> None:
+    """Write a validated configuration (:class:`fmu_sync.fmus.coupling.CouplingConfiguration`)."""
+    E = len(edges)
+    k = H_DATA
+    ints = np.concatenate([np.asarray(cfg.laws, dtype=np.int64),
+                           np.asarray(edges, dtype=np.int64).reshape(-1)])
+    work[k:k + 3 * E] = ints.view(np.float64)
+    k += 3 * E
+    work[k:k + 2 * E] = cfg.W2.reshape(-1)
+    k += 2 * E
+    work[k:k + E] = 0.5 * (cfg.W2[:, 0] + cfg.W2[:, 1])
+    k += E
+    g = cfg.geo
+    for a in (cfg.Kp, cfg.Kd, g.Q, g.M, g.w):
+        flat = np.ascontiguousarray(a, dtype=np.float64).reshape(-1)
+        work[k:k + flat.size] = flat
+        k += flat.size
+    work[k], work[k + 1] = g.g0, g.e
+    k += 2
+    n = g.w.shape[0]
+    work[k:k + n] = g.Minv_w
+    work[k + n] = g.W
+    k += n + 1
+    work[k:k + n] = g.Qinv_w
+    work[k + n], work[k + n + 1], work[k + n + 2] = g.WQ, g.sqrtW, g.sqrtWQ
+    k += n + 3
+    work[k:k + _NSCALAR] = np.array(tuple(g.scalar), dtype=np.float64)
+    work[H_CONFIGURED] = 1.0
+
+
+@njit(cache=True)
+def _evaluate(x, w):
+    N = int(w[C_NODES])
+    n = int(w[C_DOF])
+    E = int(w[C_EDGES])
+    k = H_DATA
+    ints = w[k:k + 3 * E].view(np.int64)
+    laws = ints[:E]
+    E2 = ints[E:3 * E].reshape((E, 2))
+    k += 3 * E
+    W2 = w[k:k + 2 * E].reshape((E, 2))
+    k += 2 * E
+    asym = w[k:k + E]
+    k += E
+    Kp = w[k:k + n * n].reshape((n, n))
+    k += n * n
+    Kd = w[k:k + n * n].reshape((n, n))
+    k += n * n
+    Q = w[k:k + n * n].reshape((n, n))
+    k += n * n
+    M = w[k:k + n * n].reshape((n, n))
+    k += n * n
+    wv = w[k:k + n]
+    k += n
+    g0 = w[k]
+    e = w[k + 1]
+    k += 2
+    Minv_w = w[k:k + n]
+    W = w[k + n]
+    k += n + 1
+    Qinv_w = w[k:k + n]
+    WQ = w[k + n]
+    sqrtW = w[k + n + 1]
+    sqrtWQ = w[k + n + 2]
+    k += n + 3
+    sg = ScalarGeometry(w[k], w[k + 1], w[k + 2], w[k + 3], w[k + 4], w[k + 5], w[k + 6], w[k + 7], w[k + 8],
+                        w[k + 9], w[k + 10], w[k + 11])
+    k += _NSCALAR
+    geo = DistanceGeometry(Q, M, wv, g0, e, Minv_w, W, Qinv_w, WQ, sqrtW, sqrtWQ, sg)
+    iq = int(w[C_IQ])
+    iu = int(w[C_IU])
+    it = int(w[C_ITAU])
+    q = x[iq:iq + N * n].reshape((N, n))
+    u = x[iu:iu + N * n].reshape((N, n))
+    tau = x[it:it + N * n].reshape((N, n))
+    s = w[k:]
+    dk = s[0:E]
+    ek = s[E:2 * E]
+    bk = s[2 * E:3 * E].view(np.int64)
+    j = 3 * E
+    network_coupling(laws, geo, Kp, Kd, E2, W2, q, u, tau, dk, bk, ek, s[j:j + n], s[j + n:j + 2 * n],
+                     s[j + 2 * n:j + 3 * n], s[j + 3 * n:j + 4 * n], s[j + 4 * n:j + 5 * n],
+                     s[j + 5 * n:j + 6 * n], True)
+    ok = True
+    i_d = int(w[C_ID])
+    i_v = int(w[C_IV])
+    i_e = int(w[C_IEU])
+    i_b = int(w[C_IBR])
+    for a in range(E):
+        x[i_d + a] = dk[a]
+        x[i_v + a] = 0.5 * asym[a] * dk[a] * dk[a]
+        x[i_e + a] = ek[a]
+        x[i_b + a] = bk[a]
+        if not (math.isfinite(dk[a]) and math.isfinite(ek[a])):
+            ok = False
+    for i in range(N):
+        for c in range(n):
+            if not math.isfinite(tau[i, c]):
+                ok = False
+    return 0 if ok else 1
+
+
+_SIG = types.int32(types.CPointer(types.float64), types.CPointer(types.float64), types.float64, types.float64)
+
+
+@cfunc(_SIG, cache=True, nopython=True)
+def step(x_ptr, w_ptr, t, H):
+    w = carray(w_ptr, (int(w_ptr[H_LEN]),))
+    x = carray(x_ptr, (int(w[H_NX]),))
+    if w[H_CONFIGURED] == 0.0:
+        return 1
+    return _evaluate(x, w)
