@@ -27,11 +27,11 @@ from .model import MechanicalSystem, SystemArrays, as_state
 from .checks import check_run, check_stable, check_start, divergence_message, scheme_code
 from .errors import SimulationDiverged
 from .moreau import DIVERGED, OK, THETA, finish_step, midpoint_step, theta_matrices, theta_step
-from .pair import LAWS, as_systems, check_common_geometry, coupling_step
+from .pair import LAWS, as_systems, check_common_geometry, coupling_step, coupling_step1
 from .result import NetworkResult
 
-__all__ = ["simulate_network", "network_coupling", "ring", "path", "star", "all_to_all", "GRAPHS", "graph", "weights",
-           "edges_of", "edge_laws", "coupled_weights"]
+__all__ = ["simulate_network", "ring", "path", "star", "all_to_all", "GRAPHS", "graph", "weights",
+           "edges_of", "edge_laws", "coupled_weights", "edge_arrays", "network_forces", "node_force"]
 
 
 # ------------------------------------------------------------------ graphs
@@ -127,6 +127,15 @@ def edge_laws(coupling, edges) -> np.ndarray:
     return np.array([LAWS[c] for c in names], dtype=np.int64)
 
 
+def edge_arrays(A, edges):
+    """``(E2, W2)``: the edges (i, j) as an (E, 2) int array and their weights (a_ij, a_ji) as
+    an (E, 2) float array, the form the compiled kernels take."""
+    E = len(edges)
+    E2 = np.array(edges, dtype=np.int64).reshape(E, 2)
+    W2 = np.array([[A[i, j], A[j, i]] for i, j in edges], dtype=np.float64).reshape(E, 2)
+    return E2, W2
+
+
 def coupled_weights(A, edges, laws) -> np.ndarray:
     """``A`` without the edges whose law is "none" (they carry no force): the graph whose
     Laplacian sets the stability limit of the exchange."""
@@ -146,24 +155,32 @@ def _node(base, K, C, f0, F, Omega, phi, i):
 
 
 @njit(cache=True, inline="always")
-def network_coupling(laws, geo, Kp, Kd, E2, W2, q, u, tau, d, branch, euclidean, t1, t2, c1q, c1u, c2q, c2u,
-                     need_d):
-    """All forces of the network at the states ``q, u`` (N, n): ``tau_i = sum_j a_ij tau_i^(j)``
-    into ``tau`` (N, n), and per edge e = (E2[e, 0], E2[e, 1]) with weights W2[e] = (a_ij, a_ji)
-    the record ``d[e], branch[e], euclidean[e]`` of :func:`fmu_sync.core.pair.coupling_step`
-    (d is NaN for a non-switching edge unless ``need_d``). ``t1, t2, c1q..c2u``: (n,) scratch.
-    The one assembly of the network's forces: the monolithic loop and the coupling FMU's
-    stepper (``fmus/coupling_stepper.py``) call it."""
-    N = q.shape[0]
+def _edge(law, geo, Kp, Kd, q, u, a, b, t1, t2, c1q, c1u, c2q, c2u, need_d):
+    """:func:`fmu_sync.core.pair.coupling_step` of the edge (a, b) (its 1-DOF float form
+    ``coupling_step1`` for n = 1, the same arithmetic): forces into t1, t2; returns
+    ``(d, branch, euclidean)``."""
+    if q.shape[1] == 1:
+        t1[0], t2[0], d, br, eu = coupling_step1(law, geo.scalar, Kp[0, 0], Kd[0, 0], q[a, 0], u[a, 0], q[b, 0],
+                                                 u[b, 0], need_d)
+        return d, br, eu
+    return coupling_step(law, geo, Kp, Kd, q[a], u[a], q[b], u[b], t1, t2, c1q, c1u, c2q, c2u, need_d)
+
+
+@njit(cache=True)
+def network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, need_d, dk, bk, ek):
+    """Every node's input ``tau_i = sum_j a_ij tau_i^(j)`` at the states ``q, u`` (N, n), each
+    edge's law evaluated once (:func:`fmu_sync.core.pair.coupling_step`), and each edge's
+    distance record into ``dk, bk, ek`` (E,). ``E2`` (E, 2) edges (i, j); ``W2`` (E, 2) weights
+    (a_ij, a_ji); ``t1, t2, c1q, c1u, c2q, c2u``: (n,) scratch. Used by
+    :func:`integrate_network` and, per communication step, by the master's exchange loop."""
     n = q.shape[1]
-    for i in range(N):
+    for i in range(q.shape[0]):
         for c in range(n):
             tau[i, c] = 0.0
     for e_ in range(E2.shape[0]):
         a = E2[e_, 0]
         b = E2[e_, 1]
-        dv, br, eu = coupling_step(laws[e_], geo, Kp, Kd, q[a], u[a], q[b], u[b], t1, t2,
-                                   c1q, c1u, c2q, c2u, need_d)
+        d, br, eu = _edge(laws[e_], geo, Kp, Kd, q, u, a, b, t1, t2, c1q, c1u, c2q, c2u, need_d)
         if laws[e_] != UNCOUPLED:
             if W2[e_, 0] > 0.0:
                 for c in range(n):
@@ -171,9 +188,28 @@ def network_coupling(laws, geo, Kp, Kd, E2, W2, q, u, tau, d, branch, euclidean,
             if W2[e_, 1] > 0.0:
                 for c in range(n):
                     tau[b, c] += W2[e_, 1] * t2[c]
-        d[e_] = dv
-        branch[e_] = br
-        euclidean[e_] = eu
+        dk[e_] = d
+        bk[e_] = br
+        ek[e_] = eu
+
+
+@njit(cache=True)
+def node_force(i, laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u):
+    """Node i's input alone at the states ``q, u`` (the Gauss–Seidel exchange: each node's
+    input from the newest states of the others); arguments as :func:`network_forces`."""
+    n = q.shape[1]
+    for c in range(n):
+        tau[i, c] = 0.0
+    for e_ in range(E2.shape[0]):
+        a = E2[e_, 0]
+        b = E2[e_, 1]
+        if laws[e_] == UNCOUPLED or (i != a and i != b):
+            continue
+        w = W2[e_, 0] if i == a else W2[e_, 1]
+        if w > 0.0:
+            _edge(laws[e_], geo, Kp, Kd, q, u, a, b, t1, t2, c1q, c1u, c2q, c2u, False)
+            for c in range(n):
+                tau[i, c] += w * (t1[c] if i == a else t2[c])
 
 
 @njit(cache=True)
@@ -224,8 +260,7 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
         need_d = is_row and record_d
         # forces from the states at the start of the step (Jacobi, zero-order hold)
         if coupled or need_d:
-            network_coupling(laws, geo, Kp, Kd, E2, W2, q, u, tau, dk, bk, ek, t1, t2, c1q, c1u, c2q, c2u,
-                             need_d)
+            network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, need_d, dk, bk, ek)
         if k == 0 and k0 == 0:
             for i in range(N):
                 for c in range(n):
@@ -345,8 +380,7 @@ def simulate_network(system, states, A, t_end: float, dt: float, coupling="switc
     Qr, Ur, TAU = (np.full((rows, N, n), np.nan) for _ in range(3))
     D, EU = np.full((rows, E), np.nan), np.full((rows, E), np.nan)
     BR = np.full((rows, E), BRANCH_NONE, dtype=np.int64)
-    E2 = np.array(edges, dtype=np.int64).reshape(E, 2)
-    W2 = np.array([[A[i, j], A[j, i]] for i, j in edges], dtype=np.float64).reshape(E, 2)
+    E2, W2 = edge_arrays(A, edges)
     K, C, f0, F, Om, ph = _stack(systems, n)
     base = s0.arrays()
     if progress is None:

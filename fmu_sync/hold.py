@@ -10,11 +10,9 @@ tau). Second order in H away from impacts; its exchange stability range is
 """
 from __future__ import annotations
 
-import numpy as np
-
 from .core.exchange import HOLDS
 
-__all__ = ["HOLDS", "check_hold", "check_schemes", "InputHistory"]
+__all__ = ["HOLDS", "check_hold", "check_schemes"]
 
 
 def check_hold(hold: str, md, fmu: str) -> str:
@@ -35,26 +33,3 @@ def check_schemes(hold: str, schemes) -> None:
             raise ValueError(f"hold='foh': instance {i + 1} has solver.scheme = exact, which holds its input "
                              f"constant over a step (the exact solver needs a constant tau): use hold='zoh' "
                              f"with it, or the midpoint/theta scheme")
-
-
-class InputHistory:
-    """The inputs given at the last communication point (the first-order hold's history)."""
-
-    def __init__(self, N: int, n: int):
-        self.tau, self.t = np.zeros((N, n)), None
-
-    def slope(self, i: int, tau_i: np.ndarray, t: float) -> np.ndarray:
-        """d tau_i/dt at t from the inputs at t and at the last communication point."""
-        if self.t is None or not t > self.t:
-            return np.zeros_like(tau_i)
-        return (tau_i - self.tau[i]) / (t - self.t)
-
-    def remember(self, tau: np.ndarray, t: float) -> None:
-        self.tau[:] = tau
-        self.t = t
-
-    def save(self):
-        return self.tau.copy(), self.t
-
-    def restore(self, saved) -> None:
-        self.tau[:], self.t = saved

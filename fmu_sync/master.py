@@ -9,12 +9,14 @@ the core's compiled :func:`fmu_sync.core.pair.coupling_step` — the same functi
 the monolithic :func:`fmu_sync.core.simulate_pair` calls every step. With ``H``
 equal to the slaves' internal step the two runs agree to round-off.
 
-Structure (after fmpy's ``simulate_fmu``): :class:`FmuInstance` is a thin,
-status-checked wrapper of one instance; :class:`NetworkMaster` holds one run,
-with one method per exchange strategy (``step_jacobi``, ``step_gauss_seidel``;
-a new strategy is one more ``step_<name>`` method), the event-aware retake and
-the recording as methods; :func:`cosimulate_network` and :func:`cosimulate`
-are the plain functional entry points.
+Structure: :class:`FmuInstance` is a thin, status-checked wrapper of one
+instance (fmpy loads, initialises and frees it); :class:`NetworkMaster` holds one
+run: it checks the arguments, sets the instances up and hands their FMI C function
+pointers and component handles to the compiled exchange loop
+(:mod:`fmu_sync.cosim_loop`), which runs the communication steps in chunks
+(Jacobi or Gauss–Seidel, zero- or first-order hold, the event-aware retake, the
+record); :func:`cosimulate_network` and :func:`cosimulate` are the plain
+functional entry points.
 
 Failure convention (docs/design.md §5.1): bad arguments or a foreign FMU raise
 a ValueError before any instance is created; an exchange known to be unstable
@@ -27,6 +29,7 @@ recorded up to the failure (finite rows only).
 """
 from __future__ import annotations
 
+import functools
 import math
 import shutil
 from pathlib import Path
@@ -39,17 +42,21 @@ from .core.distance import geometry
 from .core.errors import RunFailed, SimulationDiverged
 from .core.exchange import check_exchange, exchange_limit
 from .core.model import MechanicalSystem, as_state
-from .core.network import coupled_weights, edge_laws, edges_of, weights
-from .core.pair import LAWS, check_common_geometry, coupling_step
+from .core.network import coupled_weights, edge_arrays, edge_laws, edges_of, weights
+from .core.pair import LAWS, check_common_geometry
 from .core.result import NetworkResult, PairResult
 from .fmi3_bridge import element_names, open_host
 from .fmus import contract
-from .hold import InputHistory, check_hold, check_schemes
+from . import cosim_loop as loop
+from .cosim_loop import CALLS, exchange_chunk, fmi_functions
+from .hold import check_hold, check_schemes
 
 __all__ = ["cosimulate", "cosimulate_network", "NetworkMaster", "NetworkResult", "SlaveError", "FmuInstance",
            "fmu_model", "system_from_fmu", "pair_result"]
 
 STATUS = ("OK", "Warning", "Discard", "Error", "Fatal", "Pending")
+#: Communication steps per compiled chunk when no progress is reported (Ctrl-C is honoured between chunks).
+CHUNK_STEPS = 4096
 
 
 class SlaveError(RunFailed):
@@ -124,6 +131,20 @@ class FmuInstance:
         self.host.close()
 
 
+@functools.lru_cache(maxsize=16)
+def _read_description(path: str, stamp: tuple):
+    from fmpy import read_model_description
+    return read_model_description(path)
+
+
+def model_description(fmu: str):
+    """fmpy's model description of an .fmu or an unpacked FMU folder, parsed once per process
+    for a file that has not changed (many runs of one FMU in a sweep worker)."""
+    f = Path(fmu) / "modelDescription.xml" if Path(fmu).is_dir() else Path(fmu)
+    st = f.stat()
+    return _read_description(str(fmu), (st.st_mtime_ns, st.st_size))
+
+
 def fmu_model(md):
     """The contract's model of an FMU (from its model description); a foreign FMU
     raises :class:`fmu_sync.fmus.contract.ContractError` naming the missing variables."""
@@ -180,10 +201,12 @@ class NetworkMaster:
                 raise ValueError(f"start_values must be one dict or a sequence of N = {N} dicts (one "
                                  f"per instance), got {len(self.start_values)}")
         self.fmu = str(fmu)
-        if not Path(self.fmu).is_file():
-            raise FileNotFoundError(f"FMU not found: {self.fmu}")
-        from fmpy import read_model_description
-        self.md = read_model_description(self.fmu)
+        self.unpacked = Path(self.fmu).is_dir()   # an unpacked FMU: used in place, kept
+        if not (Path(self.fmu).is_file() or (self.unpacked and (Path(self.fmu) / "modelDescription.xml").is_file())):
+            raise FileNotFoundError(f"FMU not found: {self.fmu} (an .fmu file or an unpacked FMU folder "
+                                    f"with its modelDescription.xml)")
+        self.md = model_description(self.fmu)
+        self.check_fmi_version()
         self.model = fmu_model(self.md)  # a foreign FMU fails here, naming what it lacks
         self.hold = check_hold(hold, self.md, self.fmu)
         self.H, self.n_steps, self.record_every = H, n_steps, record_every
@@ -191,11 +214,19 @@ class NetworkMaster:
         self.allow_unstable = bool(allow_unstable)
         self.limit = None
         self.Kp, self.Kd, self.Q = Kp, Kd, Q
-        self.method, self.exchange = method, getattr(self, "step_" + method.replace("-", "_"))
+        self.method = method
         self.event_aware, self.H_min = event_aware, H_min
         self.need_d = bool(record_distance) or self.coupled
         self.slaves: list[FmuInstance] = []
         self.retakes = 0
+
+    def check_fmi_version(self) -> None:
+        """The compiled loop calls FMI 2.0 functions: an FMI 3.0 FMU is refused before
+        anything runs (its driver is :func:`fmu_sync.early_return.cosimulate_early_return`)."""
+        if self.md.fmiVersion != "2.0":
+            raise ValueError(f"{self.fmu} is an FMI {self.md.fmiVersion} FMU; cosimulate and cosimulate_network "
+                             f"drive FMI 2.0 FMUs (export with --fmi-version 2); an FMI 3.0 FMU is driven by "
+                             f"fmu_sync.early_return.cosimulate_early_return (exchange at every impact instant)")
 
     # ------------------------------------------------------------ set-up
     def _start(self, unzipdir: str) -> None:
@@ -228,10 +259,6 @@ class NetworkMaster:
         self.Qr, self.Ur, self.TAU = (np.full((rows, N, n), np.nan) for _ in range(3))
         self.D, self.EU = np.full((rows, E), np.nan), np.full((rows, E), np.nan)
         self.BR = np.full((rows, E), -1, dtype=np.int64)
-        self.tau = np.zeros((N, n))
-        self.history = InputHistory(N, n)
-        self.t1, self.t2 = np.zeros(n), np.zeros(n)
-        self.work = chain_work(n)
 
     def _check_internal_steps(self) -> None:
         """Before the first step: each instance's own scheme limit (the explicit midpoint
@@ -249,119 +276,6 @@ class NetworkMaster:
             except SimulationDiverged as exc:
                 raise SimulationDiverged(f"refused before the first step: instance {i + 1}: {exc} "
                                          f"(allow_unstable=True runs anyway)") from None
-
-    def read(self, s: FmuInstance) -> list:
-        v = s.get(self.model.q + self.model.u)
-        n = self.model.n
-        return [v[:n].copy(), v[n:].copy()]
-
-    # ------------------------------------------------------------ coupling
-    def pair(self, k: int, x, want_d: bool):
-        """The pairwise law of edge k = (i, j) at states x: fills t1 (on i), t2 (on j)."""
-        i, j = self.edges[k]
-        return coupling_step(self.laws[k], self.geo, self.Kp_m, self.Kd_m, x[i][0], x[i][1], x[j][0],
-                             x[j][1], self.t1, self.t2, *self.work, want_d)
-
-    def input_of(self, i: int, x) -> None:
-        """tau_i = sum_j a_ij tau_i^(j) at states x (one node at a time)."""
-        A, tau = self.A, self.tau
-        tau[i] = 0.0
-        for k, (a, b) in enumerate(self.edges):
-            if i == a and A[a, b] > 0.0:
-                self.pair(k, x, False)
-                tau[i] += A[a, b] * self.t1
-            elif i == b and A[b, a] > 0.0:
-                self.pair(k, x, False)
-                tau[i] += A[b, a] * self.t2
-
-    def inputs(self, x) -> None:
-        """tau_i for every i at states x: each edge's law evaluated once."""
-        A, tau = self.A, self.tau
-        tau[:] = 0.0
-        for k, (a, b) in enumerate(self.edges):
-            self.pair(k, x, False)
-            if A[a, b] > 0.0:
-                tau[a] += A[a, b] * self.t1
-            if A[b, a] > 0.0:
-                tau[b] += A[b, a] * self.t2
-
-    def check_forces(self, i: int, t: float, h: float) -> None:
-        if not np.all(np.abs(self.tau[i]) <= contract.INPUT_BOUND):   # also catches NaN
-            lim = exchange_limit(self.system.M, self.Kp_m, self.Kd_m, h, self.A_coupled, hold=self.hold)
-            raise SlaveError(f"system{i + 1}", t, "coupling", 3, [
-                f"its coupling force became non-finite or exceeds the FMU's input bound "
-                f"{contract.INPUT_BOUND:g} ({self.tau[i].tolist()}): the explicit "
-                f"exchange is unstable for these gains and this step ({lim.message()}): lower "
-                f"Kp or H, or add Kd"])
-
-    def _give(self, i: int, s: FmuInstance, t: float, h: float) -> None:
-        s.set(dict(zip(self.model.tau, self.tau[i])))
-        if self.hold == "foh":   # after the value (setting an input resets its derivative); fmu_sync.hold
-            s._check("fmi2SetRealInputDerivatives", s.host.set_input_derivatives(
-                dict(zip(self.model.tau, self.history.slope(i, self.tau[i], t)))))
-        s.do_step(t, h)
-
-    # ------------------------------------------------------------ exchange strategies
-    def step_jacobi(self, t: float, h: float, x) -> list:
-        """Every instance gets its input from the same states x, then all step."""
-        self.inputs(x)
-        for i in range(self.N):
-            self.check_forces(i, t, h)
-        for i, s in enumerate(self.slaves):
-            self._give(i, s, t, h)
-        self.history.remember(self.tau, t)
-        return [self.read(s) for s in self.slaves]
-
-    def step_gauss_seidel(self, t: float, h: float, x) -> list:
-        """Instances step in index order, each input from the newest states of the others."""
-        x = [list(xi) for xi in x]
-        for i, s in enumerate(self.slaves):
-            self.input_of(i, x)
-            self.check_forces(i, t, h)
-            self._give(i, s, t, h)
-            x[i] = self.read(s)
-        self.history.remember(self.tau, t)
-        return x
-
-    def communication_step(self, t: float, x, impacts: list) -> tuple[list, list]:
-        """One step of length H from t; event-aware: retaken in pieces of H_min if an
-        impact counter moved. Returns (new states, impact counters)."""
-        if not self.event_aware:
-            new = self.exchange(t, self.H, x)
-            return new, [s.get_integer(contract.IMPACTS) for s in self.slaves]
-        saved, history = [s.save() for s in self.slaves], self.history.save()
-        new = self.exchange(t, self.H, x)
-        now = [s.get_integer(contract.IMPACTS) for s in self.slaves]
-        if now != impacts:
-            self.history.restore(history)
-            new, now = self.retake(t, x, saved)
-        for s, st in zip(self.slaves, saved):
-            s.free_state(st)
-        return new, now
-
-    def retake(self, t: float, x, saved) -> tuple[list, list]:
-        """Restore every instance to t and retake [t, t + H] in pieces of about H_min."""
-        H = self.H
-        self.retakes += 1
-        for s, st in zip(self.slaves, saved):
-            s.restore(st, t)
-        pieces = max(1, int(math.ceil(H / self.H_min - 1e-9)))
-        new = x
-        for p in range(pieces):
-            tp = t + p * (H / pieces)
-            hp = (t + H) - tp if p == pieces - 1 else H / pieces
-            new = self.exchange(tp, hp, new)
-        return new, [s.get_integer(contract.IMPACTS) for s in self.slaves]
-
-    # ------------------------------------------------------------ recording
-    def record(self, row: int, t: float, x, held) -> None:
-        self.T[row] = t
-        for i in range(self.N):
-            self.Qr[row, i], self.Ur[row, i] = x[i]
-        self.TAU[row] = held
-        if self.need_d:
-            for k in range(len(self.edges)):
-                self.D[row, k], self.BR[row, k], self.EU[row, k] = self.pair(k, x, True)
 
     def result(self, rows: int, impacts: list, error: str | None) -> NetworkResult:
         sl, need_d, A = slice(0, rows), self.need_d, self.A
@@ -389,47 +303,107 @@ class NetworkMaster:
             f"there and the record ends at the last finite row{hint}")
 
     # ------------------------------------------------------------ the run
+    def _loop_arrays(self) -> None:
+        """What the compiled loop (:mod:`fmu_sync.cosim_loop`) takes: every instance's FMI
+        function addresses and component handle, the value references, the settings and
+        the loop's state between chunks."""
+        model, N, n = self.model, self.N, self.model.n
+        self.fn = np.stack([fmi_functions(s.host.fmu.dll) for s in self.slaves])
+        needed = (["fmi2SetRealInputDerivatives"] if self.hold == "foh" else []) + (
+            ["fmi2GetFMUstate", "fmi2SetFMUstate", "fmi2FreeFMUstate"] if self.event_aware else [])
+        for name in needed:
+            if not np.all(self.fn[:, CALLS.index(name)]):
+                why = "hold='foh'" if "Derivatives" in name else "event_aware=True"
+                raise ValueError(f"{self.fmu}: its binary does not export {name}, which {why} needs")
+        self.comp = np.array([s.host.fmu.component or 0 for s in self.slaves], dtype=np.int64)
+        ref = (lambda names: np.array([self.slaves[0].vr[v].valueReference for v in names], dtype=np.uint32))
+        self.vr_out, self.vr_tau, self.vr_imp = ref(model.q + model.u), ref(model.tau), ref([contract.IMPACTS])
+        E2, W2 = edge_arrays(self.A, self.edges)
+        flags = np.zeros(7, dtype=np.int64)
+        flags[[loop.GAUSS_SEIDEL, loop.FOH, loop.EVENT_AWARE, loop.NEED_D, loop.COUPLED]] = [
+            self.method == "gauss-seidel", self.hold == "foh", self.event_aware, self.need_d, self.coupled]
+        flags[loop.RECORD_EVERY] = self.record_every
+        flags[loop.PIECES] = max(1, int(math.ceil(self.H / self.H_min - 1e-9))) if self.event_aware else 1
+        z = (lambda: np.zeros((N, n)))
+        self.q, self.u, self.tau = z(), z(), z()
+        self.imp, self.ctl = np.zeros(N, dtype=np.int64), np.zeros(4, dtype=np.int64)
+        E = len(self.edges)
+        work = chain_work(n)
+        w = (np.zeros(n), np.zeros(n), *work, np.zeros(E), np.zeros(E, dtype=np.int64), np.zeros(E),
+             np.zeros(2 * n), np.zeros(n))
+        keep = (z(), z(), z(), np.zeros(2), z(), np.zeros(N, dtype=np.int64), np.zeros(1, dtype=np.int32))
+        self.FAIL, self.fail_t = np.zeros(4, dtype=np.int64), np.zeros(1)
+        saved = np.zeros(N, dtype=np.int64)
+        # the arrays the FMI calls read or write, by address (cosim_loop.P_*); they live as long as the run
+        self.held = (self.vr_out, self.vr_tau, self.vr_imp, np.ones(n, dtype=np.int32), self.tau, w[9], w[10],
+                     keep[6], saved)
+        ptr = np.array([a.ctypes.data for a in self.held], dtype=np.int64)
+        self.loop_args = (ptr, self.fn, self.comp, self.laws, self.geo, self.Kp_m, self.Kd_m, E2, W2, flags,
+                          float(self.H))
+        self.loop_state = (self.q, self.u, self.tau, z(), np.zeros(1), self.imp, self.ctl, saved, keep, self.T,
+                           self.Qr, self.Ur, self.TAU, self.D, self.BR, self.EU, w, self.FAIL, self.fail_t)
+
+    def _chunk(self, k0: int, k1: int) -> int:
+        """Steps k0 .. k1 - 1 in the compiled loop; returns its outcome code."""
+        code, _ = exchange_chunk(*self.loop_args, k0, k1, *self.loop_state)
+        return int(code)
+
+    def force_bound(self, i: int, t: float) -> SlaveError:
+        """Instance i's coupling force ``self.tau[i]`` is non-finite or above the FMU's input bound."""
+        lim = exchange_limit(self.system.M, self.Kp_m, self.Kd_m, self.H, self.A_coupled, hold=self.hold)
+        return SlaveError(f"system{i + 1}", t, "coupling", 3, [
+            f"its coupling force became non-finite or exceeds the FMU's input bound "
+            f"{contract.INPUT_BOUND:g} ({self.tau[i].tolist()}): the explicit "
+            f"exchange is unstable for these gains and this step ({lim.message()}): lower "
+            f"Kp or H, or add Kd"])
+
+    def _failure(self, code: int) -> RunFailed:
+        """The exception of a chunk that ended early (the loop's FAIL record)."""
+        _, i, call, status = (int(v) for v in self.FAIL)
+        t = float(self.fail_t[0])
+        if code == loop.SLAVE_FAILED:
+            s = self.slaves[i]
+            if status >= 4:   # fmi2Fatal: no call but freeing it any more
+                s.host.dead = True
+            return SlaveError(s.name, t, CALLS[call], status,
+                              s.host.errors(min_status=1) or [m for _, _, m in s.host.messages])
+        if code == loop.FORCE_BOUND:
+            return self.force_bound(i, t)
+        return self.diverged(t, "a state" if code == loop.STATE_DIVERGED else "a distance")
+
     def run(self, progress=None) -> NetworkResult:
         """Run to t_end; raises :class:`SlaveError` if a slave fails and
         :class:`SimulationDiverged` if a state or distance becomes non-finite
-        (``partial``: the finite record so far)."""
+        (``partial``: the finite record so far). The compiled loop runs in chunks
+        of steps, so ``progress(fraction)`` is called and Ctrl-C is honoured between them."""
         from fmpy import extract
-        unzipdir = extract(self.fmu)  # one unpacked copy shared by all instances, removed at the end
+        # one unpacked copy shared by all instances, removed at the end (an unpacked folder is kept)
+        unzipdir = self.fmu if self.unpacked else extract(self.fmu)
         failure = None
         try:
             self._start(unzipdir)
-            x = [self.read(s) for s in self.slaves]
-            if self.coupled:
-                self.inputs(x)
-            self.record(0, 0.0, x, self.tau)
-            row = 1
-            imp = [s.get_integer(contract.IMPACTS) for s in self.slaves]
-            n_steps, H = self.n_steps, self.H
-            report_every = max(1, n_steps // 200)
-            for k in range(n_steps):
-                try:
-                    x, imp = self.communication_step(k * H, x, imp)
-                except SlaveError as ex:
-                    failure = ex
+            self._loop_arrays()
+            code = self._chunk(-1, 0)   # the start: states, impact counters, row 0
+            if code != loop.DONE:
+                raise self._failure(code)
+            n_steps = self.n_steps
+            chunk = max(1, n_steps // 200) if progress is not None else CHUNK_STEPS
+            for k0 in range(0, n_steps, chunk):
+                code = self._chunk(k0, min(n_steps, k0 + chunk))
+                if code != loop.DONE:
+                    failure = self._failure(code)
                     break
-                if not all(np.all(np.isfinite(xi[0])) and np.all(np.isfinite(xi[1])) for xi in x):
-                    failure = self.diverged((k + 1) * H, "a state")
-                    break
-                if (k + 1) % self.record_every == 0:
-                    self.record(row, (k + 1) * H, x, self.tau.copy())
-                    if self.need_d and not np.all(np.isfinite(self.D[row])):
-                        failure = self.diverged((k + 1) * H, "a distance")
-                        break
-                    row += 1
-                if progress is not None and (k + 1) % report_every == 0:
-                    progress((k + 1) / n_steps)
-            if progress is not None:
+                if progress is not None:
+                    progress(min(n_steps, k0 + chunk) / n_steps)
+            if progress is not None and failure is None:
                 progress(1.0)
         finally:
             for s in self.slaves:
                 s.close()
-            shutil.rmtree(unzipdir, ignore_errors=True)
-        res = self.result(row, imp, None if failure is None else str(failure))
+            if not self.unpacked:
+                shutil.rmtree(unzipdir, ignore_errors=True)
+        self.retakes = int(self.ctl[loop.RETAKES])
+        res = self.result(int(self.ctl[loop.ROW]), [int(v) for v in self.imp], None if failure is None else str(failure))
         if failure is not None:
             failure.partial = res
             raise failure
@@ -482,7 +456,8 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
 
     Parameters
     ----------
-    fmu : path to the .fmu (an fmu-sync mechanical model, see ``fmu-sync export``).
+    fmu : path to the .fmu (an fmu-sync mechanical model, see ``fmu-sync export``), or to an
+        unpacked FMU folder (used in place and kept: a sweep worker unpacks once for all its runs).
     x1, x2 : start states (q, u) of the two instances (set as ``q_start``/``u_start``).
     t_end, H : stop time and communication step; the run makes ``floor(t_end/H)`` steps.
     coupling : None, ``"switching"`` (quotient coupling) or ``"euclidean"`` (PD baseline).

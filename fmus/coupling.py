@@ -21,7 +21,7 @@ the coupled system as a package of FMUs (:mod:`fmu_sync.ssp`):
 The structure (N, n and the edges) is fixed at export (:class:`CouplingSpec`,
 stored in the FMU's start file); the values are parameters. The numbers come
 from one compiled call per evaluation of the core's
-:func:`fmu_sync.core.network.network_coupling` (:mod:`.coupling_stepper`).
+:func:`fmu_sync.core.network.network_forces` (:mod:`.coupling_stepper`).
 """
 from __future__ import annotations
 

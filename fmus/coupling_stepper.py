@@ -7,7 +7,7 @@ H_LEN, H_VERSION, H_TIME, H_PHASE, H_DT, H_CONFIGURED, H_M, H_SCHEME, H_ITAU,
 H_ITAUDOT, H_FEEDTHROUGH). The coupling has no state: every call, at doStep
 (H > 0) and whenever an output is read after an input was set (H = 0), computes
 all outputs from the current inputs with one call of the core's
-:func:`fmu_sync.core.network.network_coupling` (which calls
+:func:`fmu_sync.core.network.network_forces` (which calls
 :func:`fmu_sync.core.pair.coupling_step` per edge), then V per edge. Returns 0,
 or 1 if an output is not finite.
 
@@ -25,7 +25,7 @@ import numpy as np
 from numba import carray, cfunc, njit, types
 
 from ..core.distance import DistanceGeometry, ScalarGeometry
-from ..core.network import network_coupling
+from ..core.network import network_forces
 from .stepper import (H_CONFIGURED, H_DATA, H_DT, H_FEEDTHROUGH, H_ITAU, H_ITAUDOT, H_LEN, H_M, H_NX,
                       H_SCHEME, H_VERSION, WORK_VERSION)
 
@@ -148,9 +148,9 @@ def _evaluate(x, w):
     ek = s[E:2 * E]
     bk = s[2 * E:3 * E].view(np.int64)
     j = 3 * E
-    network_coupling(laws, geo, Kp, Kd, E2, W2, q, u, tau, dk, bk, ek, s[j:j + n], s[j + n:j + 2 * n],
-                     s[j + 2 * n:j + 3 * n], s[j + 3 * n:j + 4 * n], s[j + 4 * n:j + 5 * n],
-                     s[j + 5 * n:j + 6 * n], True)
+    network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, s[j:j + n], s[j + n:j + 2 * n],
+                   s[j + 2 * n:j + 3 * n], s[j + 3 * n:j + 4 * n], s[j + 4 * n:j + 5 * n],
+                   s[j + 5 * n:j + 6 * n], True, dk, bk, ek)
     ok = True
     i_d = int(w[C_ID])
     i_v = int(w[C_IV])

@@ -173,22 +173,40 @@ def test_two_dof_arrays_match_the_fmi2_scalars(fmus):
 
 
 # ------------------------------------------------------------ the master
-def test_master_drives_fmi3_like_fmi2_and_early_return_exchanges_at_impacts(fmus):
+def test_master_drives_fmi3_with_early_return_and_exchanges_at_impacts(fmus, tmp_path, monkeypatch):
     from fmu_sync.early_return import cosimulate_early_return
-    from fmu_sync.master import cosimulate
+    from fmu_sync.master import cosimulate, cosimulate_network
     x1, x2, T, H = (1.0, 0.0), (0.2, 0.5), 3.0, 0.01
     kw = dict(coupling="switching", Kp=1.0, Kd=0.5)
     r2 = cosimulate(fmus["osc", 2], x1, x2, T, H, event_aware=True, **kw)
-    r3 = cosimulate(fmus["osc", 3], x1, x2, T, H, event_aware=True, **kw)
-    assert np.array_equal(r3.q1, r2.q1) and np.array_equal(r3.q2, r2.q2) and r3.info["retaken_steps"] >= 1
+    assert r2.info["retaken_steps"] >= 1
+    # the compiled loop calls FMI 2.0 functions: an FMI 3.0 FMU is refused before anything runs
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
+    import tempfile
+    monkeypatch.setattr(tempfile, "tempdir", None)
+    for run in (lambda: cosimulate(fmus["osc", 3], x1, x2, T, H, event_aware=True, **kw),
+                lambda: cosimulate_network(fmus["osc", 3], [x1, x2, x1], np.ones((3, 3)) - np.eye(3), T, H)):
+        with pytest.raises(ValueError, match="FMI 3.0 FMU.*cosimulate_early_return"):
+            run()
+    assert list(tmp_path.iterdir()) == []          # nothing unpacked, nothing left behind
     # without coupling the stops change nothing: the plain exchange's numbers (the FMU's own round-off)
     u2 = cosimulate(fmus["osc", 2], x1, x2, T, H)
     u3 = cosimulate_early_return(fmus["osc", 3], x1, x2, T, H)
+    assert u3.impacts1 >= 1 and u3.info["early_stops"] == u3.impacts1 + u3.impacts2
     assert np.max(np.abs(u3.q1 - u2.q1)) < 1e-12 and np.max(np.abs(u3.q2 - u2.q2)) < 1e-12
-    # coupled: one stop per impact instant (the two systems hit the wall at different times here)
+    assert np.max(np.abs(u3.d - u2.d)) < 1e-12      # the distances of the record: the core's law
+    # coupled, up to the first impact: the compiled loop's Jacobi exchange (the core's network_forces)
+    c2 = cosimulate(fmus["osc", 2], x1, x2, T, H, **kw)
     e3 = cosimulate_early_return(fmus["osc", 3], x1, x2, T, H, **kw)
+    before = e3.t <= e3.info["stop_times"][0]
+    assert 0 < before.sum() < len(e3.t)
+    for a, b in ((e3.q1, c2.q1), (e3.q2, c2.q2), (e3.tau1, c2.tau1), (e3.d, c2.d)):
+        assert np.max(np.abs(a[before] - b[before])) < 1e-10
+    # coupled: one stop per impact instant (the two systems hit the wall at different times here)
+    assert np.all(np.diff(e3.info["stop_times"]) > 0) and np.all(np.fmod(e3.info["stop_times"], H) > 1e-9)
     assert e3.impacts1 >= 1 and e3.impacts2 >= 1
     assert e3.info["early_stops"] == e3.impacts1 + e3.impacts2 and e3.info["method"] == "early-return"
     assert np.max(np.abs(e3.q1 - r2.q1)) < 0.01          # the same motion, forces exchanged elsewhere
+    assert np.max(np.abs(e3.tau1 - c2.tau1)) > 1e-6       # ... and exchanged at other instants
     with pytest.raises(ValueError, match="FMI 3.0"):
         cosimulate_early_return(fmus["osc", 2], x1, x2, T, H, **kw)

@@ -49,7 +49,7 @@ BEGIN = "<!-- fmu-sync bench: begin"
 END = "<!-- fmu-sync bench: end -->"
 
 #: optional sibling benchmark modules, included when they provide ``run(quick) -> markdown``
-EXTRA_SECTIONS = ("fmu_cost", "sweep_speed")  # distance_cost is part of core_speed
+EXTRA_SECTIONS = ("fmu_cost", "sweep_speed", "cosim_speed")  # distance_cost is part of core_speed
 
 
 def _versions() -> str:

@@ -14,8 +14,10 @@ a Dask cluster (both).
 """
 from __future__ import annotations
 
+import atexit
 import math
 import os
+import shutil
 import tempfile
 from dataclasses import dataclass, field
 
@@ -367,12 +369,17 @@ _FMUS: dict = {}
 
 
 def _fmu_for(variant):
-    """The FMU of the variant's model, exported once per process."""
+    """The FMU of the variant's model, exported and unpacked once per process: every
+    co-simulated run of the worker instantiates its FMU instances from that one folder
+    (the master's compiled loop then drives them; nothing is unpacked per run)."""
+    from fmpy import extract
+
     from ..scenes.running import export_for
     key = (variant.cfg["system.model"], variant.system.n)
     if key not in _FMUS:
         d = tempfile.mkdtemp(prefix=f"fmu-sync-sweep-{os.getpid()}-")
-        _FMUS[key] = export_for(variant, d)
+        atexit.register(shutil.rmtree, d, True)
+        _FMUS[key] = extract(str(export_for(variant, d)), unzipdir=os.path.join(d, "unpacked"))
     return _FMUS[key]
 
 

@@ -1,0 +1,326 @@
+"""The master's exchange loop, compiled (docs/design.md §4.4).
+
+fmpy loads the FMU (extract, instantiate, initialise, free, logger); this
+module takes over from there. :func:`fmi_functions` reads the FMI 2.0 C
+function pointers of every instance from fmpy's loaded library and
+:func:`exchange_chunk` (numba nopython, ``cache=True``) runs a chunk of
+communication steps calling them directly: per step the coupling law (the
+core's :func:`fmu_sync.core.network.network_forces` / ``node_force``, which call
+:func:`fmu_sync.core.pair.coupling_step`), the input bound check, fmi2SetReal
+(+ fmi2SetRealInputDerivatives for the first-order hold), fmi2DoStep,
+fmi2GetReal of the outputs, fmi2GetInteger of the impact counters, the
+event-aware retake (fmi2GetFMUstate / SetFMUstate / FreeFMUstate), the
+divergence checks and the record. Jacobi and Gauss–Seidel, ZOH and FOH, pairs
+and networks are one loop.
+
+Every call's status is checked: a status worse than fmi2Warning ends the chunk
+and hands back the failure (``FAIL``: code, instance, call, status; time in
+``fail_t``), from which the master raises its ``SlaveError``.
+
+Function pointers are called through :func:`fmi_call`, a numba intrinsic that
+casts an integer address to a C function of the argument types (pointers as
+int64, ``double`` as float64, ``fmi2Boolean``/``fmi2Status`` as int32).
+"""
+from __future__ import annotations
+
+import ctypes
+import math
+
+import numpy as np
+from llvmlite import ir
+from numba import njit, types
+from numba.extending import intrinsic
+
+from .core.network import network_forces, node_force
+from .fmus.contract import INPUT_BOUND
+
+__all__ = ["CALLS", "fmi_functions", "exchange_chunk", "DONE", "SLAVE_FAILED", "FORCE_BOUND",
+           "STATE_DIVERGED", "DISTANCE_DIVERGED"]
+
+#: The FMI 2.0 functions the loop calls, in the column order of ``fmi_functions``.
+CALLS = ("fmi2SetReal", "fmi2SetRealInputDerivatives", "fmi2DoStep", "fmi2GetReal", "fmi2GetInteger",
+         "fmi2GetFMUstate", "fmi2SetFMUstate", "fmi2FreeFMUstate")
+SET_REAL, SET_DER, DO_STEP, GET_REAL, GET_INT, GET_STATE, SET_STATE, FREE_STATE = range(len(CALLS))
+
+# outcome codes of a chunk (FAIL[0])
+DONE, SLAVE_FAILED, FORCE_BOUND, STATE_DIVERGED, DISTANCE_DIVERGED = range(5)
+# ctl: the loop's integer state between chunks (FRESH: tau already holds the Jacobi
+# forces at the current states, computed with the record's distances)
+ROW, RETAKES, HIST_VALID, FRESH = range(4)
+# ptr: addresses of the arrays the FMI calls read or write (taken once, in Python)
+P_VR_OUT, P_VR_TAU, P_VR_IMP, P_ORDER, P_TAU, P_BUF, P_SLOPE, P_IBUF, P_SAVED = range(9)
+# flags: the run's settings
+GAUSS_SEIDEL, FOH, EVENT_AWARE, NEED_D, COUPLED, RECORD_EVERY, PIECES = range(7)
+WARNING = 1
+
+
+def fmi_functions(dll, optional=("fmi2SetRealInputDerivatives", "fmi2GetFMUstate", "fmi2SetFMUstate",
+                                 "fmi2FreeFMUstate")) -> np.ndarray:
+    """The addresses of :data:`CALLS` in a loaded FMU library (0 for an optional function
+    the library does not export; the master only calls those its run needs)."""
+    out = np.zeros(len(CALLS), dtype=np.int64)
+    for k, name in enumerate(CALLS):
+        try:
+            out[k] = ctypes.cast(getattr(dll, name), ctypes.c_void_p).value or 0
+        except AttributeError:
+            if name not in optional:
+                raise ValueError(f"the FMU's binary does not export {name}, which the master calls") from None
+    return out
+
+
+@intrinsic
+def fmi_call(typingctx, fn, args):
+    """``fn(*args)`` for an integer function address ``fn``; returns the C ``int`` result."""
+    if not isinstance(fn, types.Integer) or not isinstance(args, types.BaseTuple):
+        return None
+    sig = types.int32(fn, args)
+
+    def codegen(context, builder, signature, llargs):
+        address, tup = llargs
+        tys = signature.args[1]
+        values = [builder.extract_value(tup, i) for i in range(len(tys))]
+        fnty = ir.FunctionType(ir.IntType(32), [context.get_value_type(t) for t in tys])
+        return builder.call(builder.inttoptr(address, fnty.as_pointer()), values)
+
+    return sig, codegen
+
+
+@njit(cache=True, inline="always")
+def _copy(a, b):
+    """b[:, :] = a, element by element (no array views: no reference counting in the loop)."""
+    for i in range(a.shape[0]):
+        for c in range(a.shape[1]):
+            b[i, c] = a[i, c]
+
+
+@njit(cache=True, inline="always")
+def _failed(FAIL, fail_t, code, i, call, status, t):
+    FAIL[0] = code
+    FAIL[1] = i
+    FAIL[2] = call
+    FAIL[3] = status
+    fail_t[0] = t
+    return True
+
+
+@njit(cache=True, inline="always")
+def _read(ptr, fn, comp, i, buf, q, u, FAIL, fail_t, t):
+    """fmi2GetReal of q_i, u_i (one call, 2n references) into q[i], u[i]."""
+    n = q.shape[1]
+    st = fmi_call(fn[i, GET_REAL], (comp[i], ptr[P_VR_OUT], np.int64(2 * n), ptr[P_BUF]))
+    if st > WARNING:
+        return _failed(FAIL, fail_t, SLAVE_FAILED, i, GET_REAL, st, t)
+    for c in range(n):
+        q[i, c] = buf[c]
+        u[i, c] = buf[n + c]
+    return False
+
+
+@njit(cache=True, inline="always")
+def _impacts(ptr, fn, comp, ibuf, imp, FAIL, fail_t, t):
+    """fmi2GetInteger of every instance's impact counter into imp."""
+    for i in range(comp.shape[0]):
+        st = fmi_call(fn[i, GET_INT], (comp[i], ptr[P_VR_IMP], np.int64(1), ptr[P_IBUF]))
+        if st > WARNING:
+            return _failed(FAIL, fail_t, SLAVE_FAILED, i, GET_INT, st, t)
+        imp[i] = ibuf[0]
+    return False
+
+
+@njit(cache=True, inline="always")
+def _give(ptr, fn, comp, i, t, h, foh, no_prior, tau, hist_tau, hist_t, hist_valid, slope, FAIL,
+          fail_t):
+    """Instance i: the input bound check, fmi2SetReal(tau_i), for the first-order hold
+    fmi2SetRealInputDerivatives (after the value: setting an input resets its derivative),
+    then fmi2DoStep(t, h)."""
+    n = tau.shape[1]
+    for c in range(n):
+        if not abs(tau[i, c]) <= INPUT_BOUND:   # also catches NaN
+            return _failed(FAIL, fail_t, FORCE_BOUND, i, -1, 3, t)
+    st = fmi_call(fn[i, SET_REAL], (comp[i], ptr[P_VR_TAU], np.int64(n), ptr[P_TAU] + 8 * n * i))
+    if st > WARNING:
+        return _failed(FAIL, fail_t, SLAVE_FAILED, i, SET_REAL, st, t)
+    if foh:  # the slope from the inputs at the last communication point (0 on the first step)
+        for c in range(n):
+            slope[c] = (tau[i, c] - hist_tau[i, c]) / (t - hist_t) if hist_valid and t > hist_t else 0.0
+        st = fmi_call(fn[i, SET_DER], (comp[i], ptr[P_VR_TAU], np.int64(n), ptr[P_ORDER],
+                                       ptr[P_SLOPE]))
+        if st > WARNING:
+            return _failed(FAIL, fail_t, SLAVE_FAILED, i, SET_DER, st, t)
+    st = fmi_call(fn[i, DO_STEP], (comp[i], t, h, np.int32(no_prior)))
+    if st > WARNING:
+        return _failed(FAIL, fail_t, SLAVE_FAILED, i, DO_STEP, st, t)
+    return False
+
+
+@njit(cache=True, inline="always")
+def _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau, hist_tau,
+              hist, ctl, w, FAIL, fail_t):
+    """One exchange over [t, t + h]: Jacobi (every input from the same states, then all
+    step) or Gauss–Seidel (in index order, each input from the newest states); then the
+    inputs become the first-order hold's history. ``w``: the scratch arrays."""
+    t1, t2, c1q, c1u, c2q, c2u, dk, bk, ek, buf, slope = w
+    N = q.shape[0]
+    fresh = ctl[FRESH]
+    ctl[FRESH] = 0
+    foh = flags[FOH] != 0
+    no_prior = 0 if flags[EVENT_AWARE] else 1
+    if flags[GAUSS_SEIDEL]:
+        for i in range(N):
+            node_force(i, laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u)
+            if _give(ptr, fn, comp, i, t, h, foh, no_prior, tau, hist_tau, hist[0], ctl[HIST_VALID],
+                     slope, FAIL, fail_t):
+                return True
+            if _read(ptr, fn, comp, i, buf, q, u, FAIL, fail_t, t + h):
+                return True
+    else:
+        if fresh == 0:
+            network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, False, dk, bk, ek)
+        for i in range(N):
+            for c in range(tau.shape[1]):
+                if not abs(tau[i, c]) <= INPUT_BOUND:
+                    return _failed(FAIL, fail_t, FORCE_BOUND, i, -1, 3, t)
+        for i in range(N):
+            if _give(ptr, fn, comp, i, t, h, foh, no_prior, tau, hist_tau, hist[0], ctl[HIST_VALID],
+                     slope, FAIL, fail_t):
+                return True
+        for i in range(N):
+            if _read(ptr, fn, comp, i, buf, q, u, FAIL, fail_t, t + h):
+                return True
+    _copy(tau, hist_tau)
+    hist[0] = t
+    ctl[HIST_VALID] = 1
+    return False
+
+
+@njit(cache=True, inline="always")
+def _record(row, t, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, jacobi, ctl, T, Qr, Ur, TAU, D, BR, EU, scratch,
+            w):
+    """Row ``row`` at time t: the states, the inputs held over the step that ended here, and
+    each edge's distance (returns False if a distance is not finite). Jacobi: the forces
+    of the next step come with the distances (the same states), into ``tau`` (FRESH)."""
+    t1, t2, c1q, c1u, c2q, c2u, dk, bk, ek, buf, slope = w
+    T[row] = t
+    for i in range(q.shape[0]):
+        for c in range(q.shape[1]):
+            Qr[row, i, c] = q[i, c]
+            Ur[row, i, c] = u[i, c]
+            TAU[row, i, c] = tau[i, c]
+    if not need_d:
+        return True
+    if jacobi:
+        network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, True, dk, bk, ek)
+        ctl[FRESH] = 1
+    else:
+        network_forces(laws, geo, Kp, Kd, E2, W2, q, u, scratch, t1, t2, c1q, c1u, c2q, c2u, True, dk, bk, ek)
+    ok = True
+    for e_ in range(E2.shape[0]):
+        D[row, e_] = dk[e_]
+        BR[row, e_] = bk[e_]
+        EU[row, e_] = ek[e_]
+        if not math.isfinite(dk[e_]):
+            ok = False
+    return ok
+
+
+@njit(cache=True)
+def exchange_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, H, k0, k1, q, u,
+                   tau, hist_tau, hist, imp, ctl, saved, keep, T, Qr, Ur, TAU, D, BR, EU, w, FAIL, fail_t):
+    """Communication steps ``k0 .. k1 - 1`` (time ``k H``); ``k0 = -1`` first reads the start
+    states and impact counters and records row 0.
+
+    ``ptr`` (:data:`P_VR_OUT` ...) the addresses of the arrays the FMI calls read or write:
+    the value references of q, u (2n,), of tau (n,) and of the impact counter (1,), the
+    derivative orders (n,) int32 ones, ``tau``, ``w[9]`` (2n,) and ``w[10]`` (n,) (outputs
+    and slopes), ``keep[6]`` (1,) int32, ``saved``; ``fn`` (N, len(CALLS)) function
+    addresses, ``comp`` (N,) component handles. ``flags`` (:data:`GAUSS_SEIDEL` ...); ``q, u, tau``
+    (N, n) the current states and inputs; ``hist_tau``, ``hist`` (time) the first-order
+    hold's history; ``imp`` (N,); ``ctl`` (row, retakes, history valid); ``saved`` (N,) FMU
+    state handles; ``keep``: copies for the retake (q, u, hist_tau, hist, ctl). The record
+    arrays are preallocated for the whole run. Returns the outcome code (also ``FAIL[0]``)
+    and the last step done."""
+    N = q.shape[0]
+    need_d = flags[NEED_D] != 0
+    jacobi = flags[GAUSS_SEIDEL] == 0
+    qs, us, hts, hs, scratch, imp_new, ibuf = keep
+    FAIL[0] = DONE
+    if k0 < 0:
+        for i in range(N):
+            if _read(ptr, fn, comp, i, w[9], q, u, FAIL, fail_t, 0.0):
+                return FAIL[0], 0
+        if _impacts(ptr, fn, comp, ibuf, imp, FAIL, fail_t, 0.0):
+            return FAIL[0], 0
+        if flags[COUPLED]:
+            network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, w[0], w[1], w[2], w[3], w[4], w[5], False,
+                           w[6], w[7], w[8])
+        _record(0, 0.0, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, jacobi, ctl, T, Qr, Ur, TAU, D, BR, EU, scratch,
+                w)
+        ctl[ROW] = 1
+        k0 = 0
+    pieces = flags[PIECES]
+    every = flags[RECORD_EVERY]
+    for k in range(k0, k1):
+        t = k * H
+        if flags[EVENT_AWARE]:
+            for i in range(N):
+                saved[i] = 0
+                st = fmi_call(fn[i, GET_STATE], (comp[i], ptr[P_SAVED] + 8 * i))
+                if st > WARNING:
+                    _failed(FAIL, fail_t, SLAVE_FAILED, i, GET_STATE, st, t)
+                    return FAIL[0], k
+            _copy(q, qs)
+            _copy(u, us)
+            _copy(hist_tau, hts)
+            hs[0] = hist[0]
+            hs[1] = ctl[HIST_VALID]
+        if _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, H, q, u, tau,
+                     hist_tau, hist, ctl, w, FAIL, fail_t):
+            return FAIL[0], k
+        if _impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + H):
+            return FAIL[0], k
+        if flags[EVENT_AWARE]:
+            moved = False
+            for i in range(N):
+                if imp_new[i] != imp[i]:
+                    moved = True
+            if moved:  # restore every instance to t and retake [t, t + H] in pieces of about H_min
+                _copy(hts, hist_tau)
+                hist[0] = hs[0]
+                ctl[HIST_VALID] = np.int64(hs[1])
+                ctl[RETAKES] += 1
+                for i in range(N):
+                    st = fmi_call(fn[i, SET_STATE], (comp[i], saved[i]))
+                    if st > WARNING:
+                        _failed(FAIL, fail_t, SLAVE_FAILED, i, SET_STATE, st, t)
+                        return FAIL[0], k
+                _copy(qs, q)
+                _copy(us, u)
+                for p in range(pieces):
+                    tp = t + p * (H / pieces)
+                    hp = (t + H) - tp if p == pieces - 1 else H / pieces
+                    if _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, tp, hp, q,
+                                 u, tau, hist_tau, hist, ctl, w, FAIL, fail_t):
+                        return FAIL[0], k
+                if _impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + H):
+                    return FAIL[0], k
+            for i in range(N):
+                st = fmi_call(fn[i, FREE_STATE], (comp[i], ptr[P_SAVED] + 8 * i))
+                if st > WARNING:
+                    _failed(FAIL, fail_t, SLAVE_FAILED, i, FREE_STATE, st, t + H)
+                    return FAIL[0], k
+        for i in range(N):
+            imp[i] = imp_new[i]
+        t_end = (k + 1) * H
+        for i in range(N):
+            for c in range(q.shape[1]):
+                if not (math.isfinite(q[i, c]) and math.isfinite(u[i, c])):
+                    _failed(FAIL, fail_t, STATE_DIVERGED, -1, -1, 0, t_end)
+                    return FAIL[0], k
+        if (k + 1) % every == 0:
+            row = ctl[ROW]
+            if not _record(row, t_end, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, jacobi, ctl, T, Qr, Ur, TAU, D,
+                           BR, EU, scratch, w):
+                _failed(FAIL, fail_t, DISTANCE_DIVERGED, -1, -1, 0, t_end)
+                return FAIL[0], k
+            ctl[ROW] = row + 1
+    return DONE, k1
