@@ -24,8 +24,6 @@ an fmu-sync FMU (``fmu-sync export --fmi-version 3``).
 """
 from __future__ import annotations
 
-import shutil
-
 import numpy as np
 
 from .core.coupling import chain_work
@@ -145,10 +143,8 @@ class EarlyReturnMaster(NetworkMaster):
 
     def run(self, progress=None) -> NetworkResult:
         """Run to t_end (failures as :meth:`NetworkMaster.run`: ``partial`` holds the record so far)."""
-        from fmpy import extract
-        unzipdir = self.fmu if self.unpacked else extract(self.fmu)
         failure, row = None, 0
-        try:
+        with self.instances() as unzipdir:
             self._start(unzipdir)
             self._arrays()
             self.read()
@@ -180,16 +176,7 @@ class EarlyReturnMaster(NetworkMaster):
                     progress((k + 1) / n_steps)
             if progress is not None and failure is None:
                 progress(1.0)
-        finally:
-            for s in self.slaves:
-                s.close()
-            if not self.unpacked:
-                shutil.rmtree(unzipdir, ignore_errors=True)
-        res = self.result(row, list(self.imp), None if failure is None else str(failure))
-        if failure is not None:
-            failure.partial = res
-            raise failure
-        return res
+        return self.finish(row, list(self.imp), failure)
 
     def result(self, rows: int, impacts: list, error: str | None) -> NetworkResult:
         r = super().result(rows, impacts, error)

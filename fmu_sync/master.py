@@ -29,6 +29,7 @@ recorded up to the failure (finite rows only).
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
 import shutil
@@ -376,11 +377,8 @@ class NetworkMaster:
         :class:`SimulationDiverged` if a state or distance becomes non-finite
         (``partial``: the finite record so far). The compiled loop runs in chunks
         of steps, so ``progress(fraction)`` is called and Ctrl-C is honoured between them."""
-        from fmpy import extract
-        # one unpacked copy shared by all instances, removed at the end (an unpacked folder is kept)
-        unzipdir = self.fmu if self.unpacked else extract(self.fmu)
         failure = None
-        try:
+        with self.instances() as unzipdir:
             self._start(unzipdir)
             self._loop_arrays()
             code = self._chunk(-1, 0)   # the start: states, impact counters, row 0
@@ -397,13 +395,26 @@ class NetworkMaster:
                     progress(min(n_steps, k0 + chunk) / n_steps)
             if progress is not None and failure is None:
                 progress(1.0)
+        self.retakes = int(self.ctl[loop.RETAKES])
+        return self.finish(int(self.ctl[loop.ROW]), [int(v) for v in self.imp], failure)
+
+    @contextlib.contextmanager
+    def instances(self):
+        """The unpacked FMU folder for the instances; at the end every instance is freed and
+        the copy removed (one unpacked copy shared by all instances; an unpacked folder is kept)."""
+        from fmpy import extract
+        unzipdir = self.fmu if self.unpacked else extract(self.fmu)
+        try:
+            yield unzipdir
         finally:
             for s in self.slaves:
                 s.close()
             if not self.unpacked:
                 shutil.rmtree(unzipdir, ignore_errors=True)
-        self.retakes = int(self.ctl[loop.RETAKES])
-        res = self.result(int(self.ctl[loop.ROW]), [int(v) for v in self.imp], None if failure is None else str(failure))
+
+    def finish(self, rows: int, impacts: list, failure: RunFailed | None) -> NetworkResult:
+        """The result of ``rows`` recorded rows; a failure is raised with it as ``partial``."""
+        res = self.result(rows, impacts, None if failure is None else str(failure))
         if failure is not None:
             failure.partial = res
             raise failure

@@ -210,3 +210,14 @@ def test_master_drives_fmi3_with_early_return_and_exchanges_at_impacts(fmus, tmp
     assert np.max(np.abs(e3.tau1 - c2.tau1)) > 1e-6       # ... and exchanged at other instants
     with pytest.raises(ValueError, match="FMI 3.0"):
         cosimulate_early_return(fmus["osc", 2], x1, x2, T, H, **kw)
+
+
+def test_early_return_run_that_fails_keeps_the_record_and_frees_everything(fmus):
+    from fmu_sync.early_return import cosimulate_early_return
+    from fmu_sync.master import SlaveError
+    with pytest.raises(SlaveError, match="input bound") as exc:
+        cosimulate_early_return(fmus["osc", 3], (1.0, 0.0), (0.2, 0.5), 1.0, 0.01, coupling="euclidean",
+                                Kp=1e14, allow_unstable=True)
+    p = exc.value.partial
+    assert exc.value.call == "coupling" and "input bound" in p.error and len(p.t) >= 1
+    assert np.all(np.isfinite(p.q1)) and p.info["method"] == "early-return"
