@@ -46,24 +46,15 @@ class FMU3Host(FMUHost):
 
     def __init__(self, path, instance_name: str = "instance", logging: bool = True, model_description=None,
                  early_return: bool = True, event_mode: bool = True):
-        import os
-
-        from fmpy import extract, read_model_description
         from fmpy.fmi3 import FMU3Slave
 
-        path = str(path)
-        self._owns_dir = not os.path.isdir(path)
-        self.unzip_dir = extract(path) if self._owns_dir else path
-        self.md = model_description or read_model_description(self.unzip_dir)
+        self._open(path, model_description)
         if self.md.fmiVersion != "3.0":
+            if self._owns_dir:
+                import shutil
+                shutil.rmtree(self.unzip_dir, ignore_errors=True)
             raise ValueError(f"{path} is an FMI {self.md.fmiVersion} FMU; FMU3Host drives FMI 3.0 FMUs "
                              f"(use fmu_sync.fmi_bridge.FMUHost)")
-        self.variables = {v.name: v for v in self.md.modelVariables}
-        self.messages: list[tuple[int, str, str]] = []
-        self.last_status = OK
-        self.dead = False
-        self._stepping = False
-        self._freed = False
         self.early_return_allowed = bool(early_return)
         self.event_mode = bool(event_mode)
         self.early_return = False
