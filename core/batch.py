@@ -33,7 +33,7 @@ from numba import njit, prange
 
 from .coupling import SWITCHING, UNCOUPLED
 from .distance import ScalarGeometry
-from .metrics import HI, LO, TAIL, decimated_kernel, decimator_init, decimator_push
+from .metrics import HI, LO, TAIL, resolution_floor, decimated_kernel, decimator_init, decimator_push
 from .moreau import THETA, midpoint_step1, theta_step1
 from .pair import coupling_step1
 
@@ -80,9 +80,17 @@ def empty_out(R: int) -> np.ndarray:
 
 
 @njit(cache=True, inline="always")
-def _geo(row):
-    return ScalarGeometry(row[0], row[1], row[2], row[3], row[4], row[5], row[6], row[7], row[8], row[9],
-                          row[10], row[11])
+def _geo(row, Q):
+    """The run's geometry: the group's row with the run's position weight ``Q`` (> 0; NaN: the
+    row's own), computed as :func:`.distance.make_geometry` does for n = 1."""
+    if not Q > 0.0:
+        return ScalarGeometry(row[0], row[1], row[2], row[3], row[4], row[5], row[6], row[7], row[8], row[9],
+                              row[10], row[11])
+    w = row[6]
+    Qinv_w = w / Q
+    WQ = w * Qinv_w
+    return ScalarGeometry(row[0], row[1], row[2], WQ, row[4], math.sqrt(WQ), w, row[7], Qinv_w, Q, row[10],
+                          row[11])
 
 
 # ---------------------------------------------------------------------------
@@ -108,11 +116,11 @@ def _sample(acc, bt, bd, st, t, d):
 
 
 @njit(cache=True)
-def _finish_metrics(acc, bt, bd, st, failed, res):
+def _finish_metrics(acc, bt, bd, st, failed, res, floor=0.0):
     """d0, d_max, t_sync, decay rate and its error, t_fit, bound, sample count into ``res``."""
     res[COL_D0] = acc[1] if acc[0] > 0 else np.nan
     res[COL_DMAX] = acc[2] if acc[0] > 0 else np.nan
-    rate, err, ta, tb, nf, t_sync, t_fit, bound = decimated_kernel(bt, bd, st, HI, LO, 0.0, TAIL)
+    rate, err, ta, tb, nf, t_sync, t_fit, bound, _, _ = decimated_kernel(bt, bd, st, HI, LO, floor, TAIL)
     res[COL_TSYNC] = np.inf if failed or acc[0] == 0 else t_sync
     res[COL_RATE] = rate
     res[COL_RATE_ERR] = err
@@ -180,6 +188,7 @@ def _pair1(law, scheme, theta, p1, M1, F1, Omega1, phi1, p2, M2, F2, Omega2, phi
     in1 = False
     in2 = False
     tau_max = 0.0
+    v_imp = 0.0  # largest impact speed (for the window's floor, metrics.resolution_floor)
     acc = np.zeros(3)
     bt, bd, st = decimator_init(RECORDER_SIZE, threshold, (1.0 - TAIL) * (n_steps * dt))
     status = OK
@@ -214,12 +223,18 @@ def _pair1(law, scheme, theta, p1, M1, F1, Omega1, phi1, p2, M2, F2, Omega2, phi
         a2 = abs(tau2)
         if a2 > tau_max:
             tau_max = a2
+        ua = abs(u1)
+        ub = abs(u2)
         if scheme == THETA:
             q1, u1, P1 = theta_step1(p1, F1, Omega1, phi1, Si1, Si_w1, WS1, theta, q1, u1, tau1, t, dt)
             q2, u2, P2 = theta_step1(p2, F2, Omega2, phi2, Si2, Si_w2, WS2, theta, q2, u2, tau2, t, dt)
         else:
             q1, u1, P1 = midpoint_step1(p1, F1, Omega1, phi1, q1, u1, tau1, t, dt)
             q2, u2, P2 = midpoint_step1(p2, F2, Omega2, phi2, q2, u2, tau2, t, dt)
+        if P1 > 0.0 and ua > v_imp:
+            v_imp = ua
+        if P2 > 0.0 and ub > v_imp:
+            v_imp = ub
         if P1 > 0.0:
             imp1 += 1
             if not in1:
@@ -247,12 +262,12 @@ def _pair1(law, scheme, theta, p1, M1, F1, Omega1, phi1, p2, M2, F2, Omega2, phi
     res[12] = imp2
     res[13] = ep1
     res[14] = ep2
-    _finish_metrics(acc, bt, bd, st, status != OK, res)
+    _finish_metrics(acc, bt, bd, st, status != OK, res, resolution_floor(dt, v_imp * math.sqrt(sg.Q11)))
 
 
 @njit(cache=True, parallel=True)
 def run_pairs1(law, scheme, theta, sys_rows, geo_rows, F, Omega, phi, nf, group1, group2, kp, kd,
-               q1, u1, q2, u2, dt, n_steps, every, threshold, out):
+               q1, u1, q2, u2, dt, n_steps, every, threshold, out, qw):
     """Run ``R = group1.shape[0]`` pairs in parallel; metrics of run r into ``out[r]``.
 
     Per run (arrays of length R): ``law`` (coupling code), ``scheme`` (MIDPOINT
@@ -260,7 +275,9 @@ def run_pairs1(law, scheme, theta, sys_rows, geo_rows, F, Omega, phi, nf, group1
     system 1 and 2: the same row for identical systems; different rows must
     share M, w, g0, e, the distance geometry being that of system 1), gains
     ``kp, kd``, start states ``q1, u1, q2, u2``, step ``dt``, ``n_steps``,
-    sample interval ``every``. System tables (G rows): ``sys_rows`` (G, 11)
+    sample interval ``every``, position weight ``qw`` of the run's distance (the law's own metric
+    k + 2 kp by default, chosen by the caller: :func:`.coupling.law_metric`; NaN: the
+    group row's Q). System tables (G rows): ``sys_rows`` (G, 11)
     (:data:`GROUP_FIELDS`), ``geo_rows`` (G, 12) (:data:`GEO_FIELDS`),
     forcing ``F, Omega, phi`` (G, NF) with ``nf`` (G,) terms used.
     Runs whose ``out[r, 0]`` is already REFUSED are skipped.
@@ -279,5 +296,5 @@ def run_pairs1(law, scheme, theta, sys_rows, geo_rows, F, Omega, phi, nf, group1
         m2 = nf[g2]
         _pair1(law[r], scheme[r], theta[r], p1, s1[0], F[g1, :m1].reshape((m1, 1)), Omega[g1, :m1],
                phi[g1, :m1], p2, s2[0], F[g2, :m2].reshape((m2, 1)), Omega[g2, :m2], phi[g2, :m2],
-               _geo(geo_rows[g1]), kp[r], kd[r], q1[r], u1[r], q2[r], u2[r], dt[r], n_steps[r], every[r],
+               _geo(geo_rows[g1], qw[r]), kp[r], kd[r], q1[r], u1[r], q2[r], u2[r], dt[r], n_steps[r], every[r],
                threshold, out[r])

@@ -32,6 +32,7 @@ The co-simulation master and ``simulate_pair`` call these same kernels.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -42,7 +43,7 @@ __all__ = ["SWITCHING", "EUCLIDEAN", "UNCOUPLED", "LAWS", "BRANCH_NONE",
            "switching_coupling", "euclidean_coupling", "coupling_kernel",
            "switching_coupling1", "euclidean_coupling1", "coupling_kernel1",
            "gain_matrix", "chain_work", "law_code", "coupling_forces", "energy_metric", "laplacian_factor",
-           "METRICS"]
+           "METRICS", "LawMetric", "law_metric", "metric_info"]
 
 SWITCHING = 0
 EUCLIDEAN = 1
@@ -257,9 +258,13 @@ def coupling_forces(system, x1, x2, law, Kp, Kd, Q=None):
     x1, x2 : states (q, u), floats for 1-DOF or arrays
     law : "switching", "euclidean" or "none"
     Kp, Kd : gains, scalars >= 0 or n x n matrices (positive semidefinite)
-    Q : position weight of the distance (positive scalar or n x n SPD), default I
+    Q : position weight of the distance (positive scalar or n x n SPD); default: the law's own
+        metric :func:`energy_metric` (Q = K + 2 Kp) when ``system`` has a stiffness K, else I
     """
     code = law_code(law)
+    if (Q is None or isinstance(Q, str)) and hasattr(system, "K"):
+        n = np.shape(system.K)[0]
+        Q = law_metric(Q, [system.K], gain_matrix(Kp, n, "Kp"), coupled=code != UNCOUPLED).Q
     geo = resolve_geometry(system, Q)
     n = geo.w.shape[0]
     B = getattr(system, "B", None)
@@ -343,3 +348,69 @@ def energy_metric(K, Kp, A=None) -> np.ndarray:
                          f"(K = 0 with Kp = 0, or a negative stiffness the gain does not outweigh); "
                          f"pass an explicit SPD Q")
     return np.ascontiguousarray(Q)
+
+
+class LawMetric(NamedTuple):
+    """The position weight of a run's quotient distance and how it was chosen (:func:`law_metric`)."""
+
+    Q: np.ndarray        # (n, n) SPD
+    metric: str          # one of METRICS
+    lyapunov: bool       # V = d^2/2 is a Lyapunov function of the law (identical systems, exact graph)
+    note: str            # one sentence for summaries
+
+
+def law_metric(Q, K, Kp, A=None, coupled: bool = True) -> LawMetric:
+    """Choose the position weight of a run (docs/design.md §2.5.1).
+
+    ``Q``: None or "energy" (the default: :func:`energy_metric`) or an explicit weight (positive
+    scalar or n x n SPD, kept as given: ``metric = "user"`` unless it equals the energy metric);
+    ``K``: the stiffness of each system (a sequence: equal entries are identical systems);
+    ``Kp``: the position gain; ``A``: the graph (None: a pair); ``coupled``: False when no edge
+    carries a force (then the gain is 0 and a singular energy metric falls back to Q = I
+    instead of raising)."""
+    Ks = [np.asarray(k, dtype=np.float64) for k in K]
+    n = Ks[0].shape[0] if Ks[0].ndim == 2 else 1
+    same = all(np.array_equal(k, Ks[0]) for k in Ks)
+    Kp_eff = Kp if coupled else 0.0
+    lam, exact = laplacian_factor(A) if coupled else (2.0, True)
+    try:
+        Qe = energy_metric(Ks[:1] if same else Ks, Kp_eff, A if coupled else None)
+    except ValueError as err:
+        Qe, why = None, str(err)
+    if Q is None or (isinstance(Q, str) and Q == "energy"):
+        if Qe is None:
+            if coupled:
+                raise ValueError(why)
+            return LawMetric(np.eye(n), "identity", False,
+                             "Q = I: no coupling and K is not positive definite, so the relative motion "
+                             "has no energy norm; V = d^2/2 is a distance only")
+        if not same:
+            note = ("Q = mean(K) + 2 Kp (energy metric of the mean system): the systems differ, so V grows "
+                    "at most as the mismatch allows (docs/design.md §2.5.1)")
+        elif not exact:
+            note = (f"Q = K + {lam:.4g} Kp (mean nonzero Laplacian eigenvalue): on this graph L^2 is not "
+                    "proportional to L, so V = d^2/2 is not exactly the energy of the relative motion "
+                    "and may grow between impacts (docs/design.md §2.5.1)")
+        elif not coupled:
+            note = "Q = K (no coupling): V = d^2/2 is the energy of the relative motion of the free systems"
+        else:
+            note = (f"Q = K + {lam:.4g} Kp: V = d^2/2 is the energy of the relative motion, a Lyapunov "
+                    "function of the law")
+        return LawMetric(Qe, "energy", same and exact, note)
+    if isinstance(Q, str):
+        raise ValueError(f"Q must be None, 'energy', a positive scalar or an SPD matrix, got {Q!r}")
+    Qa = np.array(Q, dtype=np.float64)
+    Qm = np.eye(n) * float(Qa) if Qa.ndim == 0 else Qa
+    if Qe is not None and Qm.shape == Qe.shape and np.allclose(Qm, Qe, rtol=1e-12, atol=0.0):
+        return LawMetric(Qe, "energy", same and exact, "Q given explicitly, equal to the energy metric")
+    return LawMetric(Qm, "user", False,
+                     "Q given explicitly" + (f" (the energy metric would be {np.round(Qe, 6).tolist()})"
+                                             if Qe is not None else "")
+                     + ": V = d^2/2 is then not a Lyapunov function of the law")
+
+
+def metric_info(lm: LawMetric, geo) -> dict:
+    """The ``info`` entries of a result that say which Q was used, and the wall (w, g0) of its
+    distance geometry ``geo`` (for ``result.window_floor``)."""
+    return dict(metric=lm.metric, Q=np.asarray(lm.Q).tolist(), lyapunov=bool(lm.lyapunov), metric_note=lm.note,
+                w=np.asarray(geo.w).tolist(), g0=float(geo.g0))

@@ -48,12 +48,62 @@ import numpy as np
 from numba import njit
 
 __all__ = ["SyncMetrics", "sync_metrics", "metrics_kernel", "decimator", "decimator_push",
-           "decimated_metrics", "decimated_kernel", "HI", "LO", "TAIL", "MIN_PEAKS"]
+           "decimated_metrics", "decimated_kernel", "HI", "LO", "TAIL", "MIN_PEAKS", "rate_verdict",
+           "resolution_floor", "MAX_REL_ERR", "MAX_RESIDUAL", "MIN_RESOLVED_PEAKS", "RESOLUTION_FACTOR"]
 
 HI = 0.1          #: window starts when the envelope falls below HI * max(d)
 LO = 1e-10        #: window ends when the envelope falls below LO * max(d) (or floor_abs)
 TAIL = 0.2        #: the ultimate bound is max d over the last TAIL of the run
 MIN_PEAKS = 8     #: fewer envelope peaks than this: fit all envelope points
+
+
+#: A decay rate is shown only when resolved (:func:`rate_verdict`): its standard uncertainty at
+#: most MAX_REL_ERR of it, the RMS residual of log d about the fit at most MAX_RESIDUAL (a factor
+#: e^0.5 = 1.65), at least MIN_RESOLVED_PEAKS envelope peaks in the window (or 2 MIN_RESOLVED_PEAKS
+#: envelope points of a monotone d), and d above the window's floor when the window starts.
+MAX_REL_ERR = 0.2
+MAX_RESIDUAL = 0.5
+MIN_RESOLVED_PEAKS = 4
+#: The default window ends at the first power of ten at or above RESOLUTION_FACTOR * h * v: h the
+#: step that decides an impact (dt, or H in co-simulation), v the largest impact speed in the
+#: P-norm, sqrt(u^T Q u). Below h * v the step, not the law, decides how d passes an impact
+#: (d moves by up to ~h v there); rounding up to a decade puts runs whose steps differ by a factor
+#: of up to 10 on the same window, so their rates compare (docs/design.md §2.7).
+RESOLUTION_FACTOR = 5.0
+
+
+@njit(cache=True)
+def resolution_floor(h, speed):
+    """The level the default decay window ends at, at least: the first power of ten at or above
+    RESOLUTION_FACTOR * h * speed (``speed``: the largest impact speed in the P-norm; 0 without
+    impacts or with h = 0)."""
+    x = RESOLUTION_FACTOR * h * speed
+    if not (x > 0.0 and x < np.inf):
+        return 0.0
+    return 10.0 ** math.ceil(math.log10(x))
+
+
+def rate_verdict(rate, rate_err, n_fit=None, peaks=None, residual=None, d_top=None, floor=None) -> str:
+    """Why a fitted decay rate means nothing ('' when it is resolved).
+
+    The criteria (constants above): a finite positive rate; ``rate_err <= MAX_REL_ERR * rate``;
+    ``residual <= MAX_RESIDUAL``; enough peaks; d not already at the floor (``d_top`` the largest
+    d, ``floor`` the window's end level). Arguments left None are not checked (a sweep table
+    keeps only the rate and its uncertainty)."""
+    if d_top is not None and floor is not None and floor > 0.0 and not d_top > 10.0 * floor:
+        return (f"d never rises a decade above the level the step resolves (max d = {d_top:.3g}, "
+                f"window floor {floor:.3g})")
+    if rate is None or not math.isfinite(rate):
+        return "no decay window (d never fell to a tenth of its maximum above the floor)"
+    if not rate > 0.0:
+        return f"d does not decay (fitted rate {rate:.3g} 1/s)"
+    if peaks is not None and n_fit is not None and peaks < MIN_RESOLVED_PEAKS and n_fit < 2 * MIN_RESOLVED_PEAKS:
+        return f"d collapsed to the floor within {peaks} peaks ({n_fit} envelope points fitted)"
+    if not (math.isfinite(rate_err) and rate_err <= MAX_REL_ERR * rate):
+        return (f"uncertainty {rate_err:.2g} 1/s exceeds {MAX_REL_ERR:.0%} of the rate {rate:.3g} 1/s")
+    if residual is not None and not residual <= MAX_RESIDUAL:
+        return f"d is not exponential on the window (fit residual {residual:.2g} in log d > {MAX_RESIDUAL})"
+    return ""
 
 
 class SyncMetrics(NamedTuple):
@@ -67,13 +117,37 @@ class SyncMetrics(NamedTuple):
     t_sync: float      #: time after which d stays below ``threshold`` (inf: never)
     t_fit: float       #: time where the fitted envelope crosses ``threshold``
     bound: float       #: ultimate bound: max d over the last ``tail`` of the run
-    threshold: float
+    threshold: float   #: the threshold of t_sync (absolute, or threshold_rel * d0)
+    residual: float = math.nan   #: RMS residual of log d about the fitted line
+    peaks: int = 0               #: envelope peaks in the window
+    floor: float = 0.0           #: the level the window ends at (max(lo * max d, floor_abs))
+    reason: str = ""             #: why the rate means nothing ('' when resolved: :func:`rate_verdict`)
+    d0: float = math.nan         #: d at the first sample
+    threshold_rel: float = math.nan  #: the relative threshold asked for (NaN: absolute only)
+
+    @property
+    def resolved(self) -> bool:
+        """The rate means something (:func:`rate_verdict`); otherwise show "—" and :attr:`reason`."""
+        return self.reason == ""
+
+    @property
+    def starts_below(self) -> bool:
+        """d starts below the threshold: t_sync says nothing about synchronization."""
+        return bool(self.d0 < self.threshold)
+
+    def rate_text(self) -> str:
+        """``rate ± err 1/s`` when resolved, else ``— (reason)``."""
+        if not self.resolved:
+            return f"— ({self.reason})"
+        return f"{self.rate:.4g} ± {self.rate_err:.2g} 1/s"
 
     def summary(self) -> str:
-        r = ("rate n/a" if not math.isfinite(self.rate)
-             else f"rate {self.rate:.4g} ± {self.rate_err:.2g} 1/s (fit on [{self.t_from:.4g}, "
-                  f"{self.t_to:.4g}] s, {self.n_fit} points)")
+        r = ("rate " + self.rate_text()
+             + (f" (fit on [{self.t_from:.4g}, {self.t_to:.4g}] s, {self.n_fit} points, window down to "
+                f"d = {self.floor:.3g})" if self.resolved else ""))
         ts = "never" if math.isinf(self.t_sync) else f"{self.t_sync:.4g} s"
+        if self.starts_below:
+            ts += f" (d0 = {self.d0:.3g} already below the threshold: says nothing)"
         return f"{r}; t_sync(d < {self.threshold:g}) = {ts}; ultimate bound {self.bound:.3g}"
 
 
@@ -124,7 +198,7 @@ def metrics_kernel(t, d, threshold, hi, lo, floor_abs, tail):
     N = t.shape[0]
     nan = np.nan
     if N == 0:
-        return nan, nan, nan, nan, 0, nan, nan, nan
+        return nan, nan, nan, nan, 0, nan, nan, nan, nan, 0
     # t_sync: first sample after the last one with d >= threshold (NaN counts as above)
     last_above = -1
     for i in range(N - 1, -1, -1):
@@ -156,7 +230,7 @@ def metrics_kernel(t, d, threshold, hi, lo, floor_abs, tail):
         if v > bound:
             bound = v
     if M < 3:
-        return nan, nan, nan, nan, 0, t_sync, nan, bound
+        return nan, nan, nan, nan, 0, t_sync, nan, bound, nan, 0
     env = np.empty(M)
     m = -np.inf
     for i in range(M - 1, -1, -1):
@@ -165,7 +239,7 @@ def metrics_kernel(t, d, threshold, hi, lo, floor_abs, tail):
         env[i] = m
     dmax = env[0]
     if not dmax > 0.0:
-        return nan, nan, nan, nan, 0, t_sync, nan, bound
+        return nan, nan, nan, nan, 0, t_sync, nan, bound, nan, 0
     top = hi * dmax
     floor = max(lo * dmax, floor_abs)
     i0 = -1
@@ -174,7 +248,7 @@ def metrics_kernel(t, d, threshold, hi, lo, floor_abs, tail):
             i0 = i
             break
     if i0 < 0:
-        return nan, nan, nan, nan, 0, t_sync, nan, bound
+        return nan, nan, nan, nan, 0, t_sync, nan, bound, nan, 0
     i1 = M
     for i in range(i0, M):
         if env[i] <= floor:
@@ -196,7 +270,7 @@ def metrics_kernel(t, d, threshold, hi, lo, floor_abs, tail):
             sel[i] = d[i] > 0.0 and d[i] == env[i]
     b, a, se, n = _slope(t, y, sel, i0, i1)
     if not math.isfinite(b):
-        return nan, nan, t[i0], t[i1 - 1], n, t_sync, nan, bound
+        return nan, nan, t[i0], t[i1 - 1], n, t_sync, nan, bound, nan, peaks
     # the two halves of the window (by time)
     tm = 0.5 * (t[i0] + t[i1 - 1])
     ih = i0
@@ -209,13 +283,24 @@ def metrics_kernel(t, d, threshold, hi, lo, floor_abs, tail):
         err = max(err, 0.5 * abs(b1 - b2))
     rate = -b
     t_fit = (a - math.log(threshold)) / rate if rate > 0.0 and threshold > 0.0 else nan
-    return rate, err, t[i0], t[i1 - 1], n, t_sync, t_fit, bound
+    rss = 0.0
+    for i in range(i0, i1):
+        if sel[i]:
+            r = y[i] - a - b * t[i]
+            rss += r * r
+    return rate, err, t[i0], t[i1 - 1], n, t_sync, t_fit, bound, math.sqrt(rss / n), peaks
 
 
-def _pack(r, threshold) -> SyncMetrics:
-    rate, err, ta, tb, n, ts, tf, bound = r
+def _pack(r, threshold, d, lo, floor_abs, threshold_rel=math.nan) -> SyncMetrics:
+    rate, err, ta, tb, n, ts, tf, bound, rms, peaks = r
+    fin = d[np.isfinite(d)] if d is not None else np.empty(0)
+    dmax = float(fin.max()) if fin.size else math.nan
+    floor = max(lo * dmax, floor_abs) if math.isfinite(dmax) else floor_abs
+    d0 = float(d[0]) if d is not None and len(d) else math.nan
+    why = rate_verdict(float(rate), float(err), int(n), int(peaks), float(rms), dmax, floor)
     return SyncMetrics(float(rate), float(err), float(ta), float(tb), int(n), float(ts), float(tf),
-                       float(bound), float(threshold))
+                       float(bound), float(threshold), float(rms), int(peaks), float(floor), why, d0,
+                       float(threshold_rel))
 
 
 def _check(threshold, hi, lo, floor_abs, tail):
@@ -232,14 +317,25 @@ def _check(threshold, hi, lo, floor_abs, tail):
 
 
 def sync_metrics(t, d, threshold: float = 1e-6, hi: float = HI, lo: float = LO,
-                 floor_abs: float = 0.0, tail: float = TAIL) -> SyncMetrics:
-    """:class:`SyncMetrics` of a distance record ``d`` sampled at times ``t``."""
-    threshold, hi, lo, floor_abs, tail = _check(threshold, hi, lo, floor_abs, tail)
+                 floor_abs: float = 0.0, tail: float = TAIL, threshold_rel: float | None = None) -> SyncMetrics:
+    """:class:`SyncMetrics` of a distance record ``d`` sampled at times ``t``.
+
+    ``threshold_rel``: a threshold for t_sync relative to d0 = d[0]; when given, ``threshold_rel * d0``
+    replaces the absolute ``threshold``. ``floor_abs``: the level the decay window
+    ends at, at least (:func:`resolution_floor` is what the drivers' results pass)."""
     t = np.ascontiguousarray(t, dtype=np.float64)
     d = np.ascontiguousarray(d, dtype=np.float64)
     if t.ndim != 1 or t.shape != d.shape:
         raise ValueError(f"t and d must be 1-D arrays of equal length, got shapes {t.shape} and {d.shape}")
-    return _pack(metrics_kernel(t, d, threshold, hi, lo, floor_abs, tail), threshold)
+    rel = math.nan
+    if threshold_rel is not None:
+        rel = float(threshold_rel)
+        if not (math.isfinite(rel) and 0.0 < rel < 1.0):
+            raise ValueError(f"threshold_rel must lie in (0, 1) (a fraction of d0), got {threshold_rel}")
+        if d.size and d[0] > 0.0 and math.isfinite(d[0]):
+            threshold = rel * float(d[0])
+    threshold, hi, lo, floor_abs, tail = _check(threshold, hi, lo, floor_abs, tail)
+    return _pack(metrics_kernel(t, d, threshold, hi, lo, floor_abs, tail), threshold, d, lo, floor_abs, rel)
 
 
 # ------------------------------------------------------------ O(1)-memory record
@@ -323,7 +419,7 @@ def decimated_kernel(bt, bd, st, hi, lo, floor_abs, tail):
     if m > n:
         t[n] = st[_BT]
         d[n] = st[_BMAX]
-    rate, err, ta, tb, nf, _, t_fit, bound = metrics_kernel(t, d, st[_THR], hi, lo, floor_abs, tail)
+    rate, err, ta, tb, nf, _, t_fit, bound, rms, peaks = metrics_kernel(t, d, st[_THR], hi, lo, floor_abs, tail)
     if st[_LAST_ABOVE] != st[_LAST_ABOVE]:
         t_sync = st[_T0]
     elif st[_AFTER] != st[_AFTER]:
@@ -332,7 +428,7 @@ def decimated_kernel(bt, bd, st, hi, lo, floor_abs, tail):
         t_sync = st[_AFTER]
     if st[_TAIL_START] > -np.inf and st[_TAIL_MAX] > -np.inf:
         bound = st[_TAIL_MAX]
-    return rate, err, ta, tb, nf, t_sync, t_fit, bound
+    return rate, err, ta, tb, nf, t_sync, t_fit, bound, rms, peaks
 
 
 class decimator:
@@ -361,4 +457,5 @@ def decimated_metrics(bt, bd, state, hi: float = HI, lo: float = LO, floor_abs: 
                       tail: float = TAIL) -> SyncMetrics:
     """:class:`SyncMetrics` from a decimator's buffers (see :class:`decimator`)."""
     thr, hi, lo, floor_abs, tail = _check(state[_THR], hi, lo, floor_abs, tail)
-    return _pack(decimated_kernel(bt, bd, state, hi, lo, floor_abs, tail), thr)
+    n = int(state[_N])
+    return _pack(decimated_kernel(bt, bd, state, hi, lo, floor_abs, tail), thr, bd[:n], lo, floor_abs)

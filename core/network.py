@@ -20,7 +20,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .coupling import BRANCH_NONE, UNCOUPLED, gain_matrix
+from .coupling import BRANCH_NONE, UNCOUPLED, gain_matrix, law_metric, metric_info
 from .distance import geometry
 from .exchange import check_exchange
 from .model import MechanicalSystem, SystemArrays, as_state
@@ -332,7 +332,9 @@ def simulate_network(system, states, A, t_end: float, dt: float, coupling="switc
     (q, u); ``A``: N x N weights (``a_ij``: weight of the force on i from edge
     (i, j); zero diagonal), e.g. :func:`ring`; ``coupling``: a law name for every
     edge or one per edge (order of :func:`edges_of`); gains ``Kp``, ``Kd``; norm
-    weight ``Q``. The same stability checks as :func:`fmu_sync.core.pair.simulate_pair`
+    weight ``Q`` (default: the law's own metric, ``energy_metric(K, Kp, A)``, Q = K + lam Kp with
+    lam the mean nonzero eigenvalue of the graph's Laplacian; ``info["metric"]`` says which,
+    docs/design.md §2.5.1). The same stability checks as :func:`fmu_sync.core.pair.simulate_pair`
     (``allow_unstable`` to skip them). Returns a :class:`NetworkResult`
     (``d_max``: the largest pairwise distance per row); raises
     :class:`SimulationDiverged` with the finite part of the record, marked
@@ -373,7 +375,9 @@ def simulate_network(system, states, A, t_end: float, dt: float, coupling="switc
         limit = check_exchange(s0.M, Kp_m, Kd_m, dt, A=coupled_weights(A, edges, laws),
                                allow_unstable=allow_unstable, step_name="dt")
     record_d = bool(record_distance) or bool(np.any(laws == LAWS["switching"]))
-    geo = geometry(s0, Q)
+    lm = law_metric(Q, [s.K for s in systems], Kp_m, coupled_weights(A, edges, laws) if coupled else None,
+                    coupled=coupled)
+    geo = geometry(s0, lm.Q)
     rows = n_steps // record_every + 1
     E = len(edges)
     T = np.full(rows, np.nan)
@@ -413,7 +417,8 @@ def simulate_network(system, states, A, t_end: float, dt: float, coupling="switc
         with np.errstate(over="ignore"):  # a failed run may end on huge (finite) d
             V = 0.5 * (D[sl] ** 2) @ a_sym
     info = dict(mode="core", dt=dt, scheme=scheme, steps=n_steps, N=N,
-                coupling=coupling if isinstance(coupling, str) or coupling is None else list(coupling))
+                coupling=coupling if isinstance(coupling, str) or coupling is None else list(coupling),
+                **metric_info(lm, geo))
     if limit is not None:
         info.update(omega_c_dt=limit.h, exchange_bound=limit.bound, zeta=limit.zeta,
                     dt_max=limit.H_max)

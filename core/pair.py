@@ -15,7 +15,7 @@ from numba import njit
 
 from .coupling import LAWS as COUPLING_LAWS
 from .coupling import (BRANCH_NONE, SWITCHING, UNCOUPLED, p_norm_diff, coupling_kernel,
-                       coupling_kernel1, euclidean_coupling1, gain_matrix)
+                       coupling_kernel1, euclidean_coupling1, gain_matrix, law_metric, metric_info)
 from .distance import distance1, distance_value, geometry
 from .exchange import check_exchange
 from .model import MechanicalSystem, as_state
@@ -72,7 +72,9 @@ def integrate_pair(sa1, sa2, geo, law, Kp, Kd, q1, u1, q2, u2, t0, k0, dt, n_ste
     """The monolithic loop over steps ``k0 .. k0 + n_steps`` (time ``t0 + k dt``).
 
     ``sa1``, ``sa2``: the two systems (the same object for identical systems).
-    Returns ``(status, steps_done, rows_written, impacts1, impacts2)``."""
+    Returns ``(status, steps_done, rows_written, impacts1, impacts2, v_impact)``: ``v_impact`` the
+    largest speed sqrt(u^T Q u) of a system at the start of a step with a positive percussion
+    (for :meth:`PairResult.window_floor`, as :func:`fmu_sync.core.batch.run_pairs1` keeps it)."""
     n = q1.shape[0]
     qM, h, uf, Sinv1, Sinv_w1, WS1 = step_workspace(sa1, dt, scheme, theta)
     _, _, _, Sinv2, Sinv_w2, WS2 = step_workspace(sa2, dt, scheme, theta)
@@ -102,6 +104,7 @@ def integrate_pair(sa1, sa2, geo, law, Kp, Kd, q1, u1, q2, u2, t0, k0, dt, n_ste
     Si_w2 = Sinv_w2[0]
     imp1 = 0
     imp2 = 0
+    v_imp = 0.0
     row = 0
     countdown = 1  # row 0 is the initial state
     for k in range(n_steps + 1):
@@ -136,7 +139,7 @@ def integrate_pair(sa1, sa2, geo, law, Kp, Kd, q1, u1, q2, u2, t0, k0, dt, n_ste
                 BR[row] = br
                 EU[row] = E
             if not (finish_step(q1, u1) and finish_step(q2, u2)) or (record_d and not math.isfinite(d)):
-                return DIVERGED, k, row, imp1, imp2
+                return DIVERGED, k, row, imp1, imp2, v_imp
             row += 1
         if k == n_steps:
             break
@@ -147,6 +150,8 @@ def integrate_pair(sa1, sa2, geo, law, Kp, Kd, q1, u1, q2, u2, t0, k0, dt, n_ste
                 TAU2[row, i] = tau2[i]
         t = t0 + (k0 + k) * dt
         if scalar:  # the 1-DOF fast path (bitwise identical to the general step)
+            va = abs(u1[0]) * math.sqrt(sg.Q11)
+            vb = abs(u2[0]) * math.sqrt(sg.Q11)
             if scheme == THETA:
                 q1[0], u1[0], P1 = theta_step1(p1, F1, Omega1, phi1, Si1, Si_w1, WS1, theta, q1[0],
                                                u1[0], tau1[0], t, dt)
@@ -156,6 +161,8 @@ def integrate_pair(sa1, sa2, geo, law, Kp, Kd, q1, u1, q2, u2, t0, k0, dt, n_ste
                 q1[0], u1[0], P1 = midpoint_step1(p1, F1, Omega1, phi1, q1[0], u1[0], tau1[0], t, dt)
                 q2[0], u2[0], P2 = midpoint_step1(p2, F2, Omega2, phi2, q2[0], u2[0], tau2[0], t, dt)
         else:
+            va = p_norm_diff(geo.Q, geo.Q, zero1, u1, zero1, zero2)
+            vb = p_norm_diff(geo.Q, geo.Q, zero1, u2, zero1, zero2)
             if scheme == THETA:
                 P1 = theta_step(sa1, q1, u1, tau1, t, dt, theta, Sinv1, Sinv_w1, WS1, qM, h, uf)
                 P2 = theta_step(sa2, q2, u2, tau2, t, dt, theta, Sinv2, Sinv_w2, WS2, qM, h, uf)
@@ -166,9 +173,11 @@ def integrate_pair(sa1, sa2, geo, law, Kp, Kd, q1, u1, q2, u2, t0, k0, dt, n_ste
             finish_step(q2, u2)
         if P1 > 0.0:
             imp1 += 1
+            v_imp = max(v_imp, va)
         if P2 > 0.0:
             imp2 += 1
-    return OK, n_steps, row, imp1, imp2
+            v_imp = max(v_imp, vb)
+    return OK, n_steps, row, imp1, imp2, v_imp
 
 
 def check_common_geometry(systems, names=None) -> None:
@@ -220,7 +229,11 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
     C, f0 and forcing.
     ``coupling``: None (uncoupled), ``"euclidean"`` (PD baseline) or
     ``"switching"`` (the quotient coupling of docs/design.md §2.5), gains ``Kp``, ``Kd``
-    (scalars or n×n), position weight ``Q`` of the norm (default identity).
+    (scalars or n×n), position weight ``Q`` of the norm: by default (None or "energy") the
+    law's own metric ``energy_metric`` (Q = K + 2 Kp: V = d^2/2 is the energy of the relative
+    motion, docs/design.md §2.5.1); an explicit Q is used as given and the result says that V is
+    then not a Lyapunov function of the law (``info["metric"]``, ``info["Q"]``,
+    ``info["metric_note"]``; ``result.metric``).
     The forces act through ``B = I`` (τ has n entries). With
     ``record_distance=False`` and no coupling, no distance is computed.
     ``progress``: callable ``progress(fraction)``; the run is then made in
@@ -263,8 +276,9 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
             raise ValueError(f"coupled systems take the forces through B = I (tau has n = {n} entries); "
                              f"got B of shape {s.B.shape}")
     record_d = bool(record_distance) or law == SWITCHING
-    geo = geometry(s1, Q)
     Kp_m, Kd_m = gain_matrix(Kp, n, "Kp"), gain_matrix(Kd, n, "Kd")
+    lm = law_metric(Q, [s.K for s in systems], Kp_m, coupled=law != UNCOUPLED)
+    geo = geometry(s1, lm.Q)
     limit = None
     if law != UNCOUPLED:
         limit = check_exchange(s1.M, Kp_m, Kd_m, dt, allow_unstable=allow_unstable, step_name="dt")
@@ -292,7 +306,8 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
     BR = np.full(cap, BRANCH_NONE, dtype=np.int64)
     sa1 = s1.arrays()
     sa2 = s2.arrays()
-    info = dict(mode="core", dt=dt, scheme=scheme, steps=n_steps, identical=s1 is s2)
+    info = dict(mode="core", dt=dt, scheme=scheme, steps=n_steps, identical=s1 is s2, **metric_info(lm, geo),
+                v_impact=0.0)
     if limit is not None:
         info.update(omega_c_dt=limit.h, exchange_bound=limit.bound, zeta=limit.zeta,
                     dt_max=limit.H_max)
@@ -313,12 +328,13 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
             row0 = 0
         sl = slice(row0, cap)
         # a chunk records its start row; the next chunk starts on the row it ended on
-        status, done, written, i1, i2 = integrate_pair(
+        status, done, written, i1, i2, v = integrate_pair(
             sa1, sa2, geo, law, Kp_m, Kd_m, q1, u1, q2, u2, t0, k0, dt, steps, code, theta,
             record_every, record_d, T[sl], Q1[sl], U1[sl], Q2[sl], U2[sl], TAU1[sl], TAU2[sl],
             D[sl], BR[sl], EU[sl])
         imp1 += i1
         imp2 += i2
+        info["v_impact"] = max(info["v_impact"], v)
         if sink is not None:
             first = 0 if c == 0 else 1
             if written > first:

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .distance import BRANCH_NAMES
-from .metrics import SyncMetrics, sync_metrics
+from .metrics import SyncMetrics, resolution_floor, sync_metrics
 
 __all__ = ["RunStatus", "SimulationResult", "PairResult", "NetworkResult", "BRANCH_NAMES"]
 
@@ -22,7 +22,8 @@ __all__ = ["RunStatus", "SimulationResult", "PairResult", "NetworkResult", "BRAN
 class RunStatus:
     """``success`` / ``message`` of a result from its ``error`` field (None: it ran to the end),
     and the views every result has (:mod:`fmu_sync.core.views`): a short repr,
-    :meth:`to_xarray`, :meth:`to_dataframe` and :meth:`plot`."""
+    :meth:`to_xarray`, :meth:`to_dataframe` and :meth:`plot`; for coupled runs the position weight
+    of the distance (``info["metric"]``, ``info["Q"]``)."""
 
     error: str | None
 
@@ -46,6 +47,48 @@ class RunStatus:
         The files' plots: ``fmu-sync plot DIR`` (:mod:`fmu_sync.plots`)."""
         from .views import figure
         return figure(self)
+
+    @property
+    def metric(self) -> str | None:
+        """How the distance's position weight Q was chosen: "energy" (the law's own metric,
+        V = d^2/2 the energy of the relative motion), "user" (an explicit Q: V is then not a
+        Lyapunov function of the law) or "identity" (uncoupled, no energy norm); None if no
+        distance was computed (docs/design.md §2.5.1)."""
+        return getattr(self, "info", {}).get("metric")
+
+    @property
+    def Q(self) -> np.ndarray | None:
+        """The position weight of the distance ``||x||_P^2 = q^T Q q + u^T M u`` used by the run."""
+        Q = getattr(self, "info", {}).get("Q")
+        return None if Q is None else np.asarray(Q)
+
+    def window_floor(self) -> float:
+        """Where the default decay window ends, at least: :func:`.metrics.resolution_floor` of the
+        step that decides an impact (max of ``dt`` and ``H``) and the largest impact speed
+        ``sqrt(u^T Q u)`` (kept by the core pair loop at the steps with a percussion; otherwise
+        estimated from the records near the wall) -- 0 without impacts; docs/design.md §2.7."""
+        info = getattr(self, "info", {})
+        if info.get("Q") is None or info.get("w") is None or not self._impact_count():
+            return 0.0
+        h = max(float(info.get("dt") or 0.0), float(info.get("H") or 0.0))
+        if "v_impact" in info:   # kept by the compiled loop (simulate_pair, as the sweeps)
+            return float(resolution_floor(h, float(info["v_impact"])))
+        Q, w, g0 = np.asarray(info["Q"]), np.asarray(info["w"]), float(info.get("g0", 0.0))
+        t = np.asarray(self.t)
+        spacing = float(np.max(np.diff(t))) if t.size > 1 else h
+        v_near, v_all = 0.0, 0.0
+        for q, u in self._states():
+            q, u = np.atleast_2d(np.asarray(q)), np.atleast_2d(np.asarray(u))
+            ok = np.all(np.isfinite(q), axis=1) & np.all(np.isfinite(u), axis=1)
+            if not ok.any():
+                continue
+            q, u = q[ok], u[ok]
+            speed = np.sqrt(np.maximum(np.einsum("ri,ij,rj->r", u, Q, u), 0.0))
+            near = q @ w + g0 <= 2.0 * max(spacing, h) * np.abs(u @ w)
+            v_all = max(v_all, float(speed.max()))
+            if near.any():
+                v_near = max(v_near, float(speed[near].max()))
+        return float(resolution_floor(h, v_near if v_near > 0.0 else v_all))
 
     @property
     def success(self) -> bool:
@@ -109,7 +152,8 @@ class PairResult(RunStatus):
 
     @property
     def V(self) -> np.ndarray | None:
-        """Lyapunov function V = d^2 / 2."""
+        """V = d^2 / 2: a Lyapunov function of the law when :attr:`metric` is "energy"
+        (docs/design.md §2.5.1)."""
         return None if self.d is None else 0.5 * self.d**2
 
     @property
@@ -117,14 +161,23 @@ class PairResult(RunStatus):
         from .views import branch_label
         return None if self.branch is None else [branch_label(b) for b in self.branch]
 
-    def sync(self, threshold: float = 1e-6, **window) -> SyncMetrics:
+    def sync(self, threshold: float = 1e-6, threshold_rel: float | None = None, **window) -> SyncMetrics:
         """Synchronization metrics of d (:mod:`fmu_sync.core.metrics`): decay rate of its
-        envelope with its uncertainty, ``t_sync`` (time after which d < threshold),
-        ``t_fit``, and the ultimate bound (max d over the last 20 % of the run).
-        ``window``: ``hi``, ``lo``, ``floor_abs``, ``tail`` of :func:`sync_metrics`."""
+        envelope with its uncertainty (and whether it is resolved), ``t_sync`` (time after which
+        d < threshold, or < ``threshold_rel * d0``), ``t_fit``, and the ultimate bound (max d
+        over the last 20 % of the run). ``window``: ``hi``, ``lo``, ``floor_abs``, ``tail`` of
+        :func:`sync_metrics`; ``floor_abs`` defaults to :meth:`window_floor` (the level the
+        step can resolve)."""
         if self.d is None:
             raise ValueError("this run did not record the distance d")
-        return sync_metrics(self.t, self.d, threshold, **window)
+        window.setdefault("floor_abs", self.window_floor())
+        return sync_metrics(self.t, self.d, threshold, threshold_rel=threshold_rel, **window)
+
+    def _states(self):
+        return ((self.q1, self.u1), (self.q2, self.u2))
+
+    def _impact_count(self) -> int:
+        return int(self.impacts1) + int(self.impacts2)
 
     @property
     def rate(self) -> float:
@@ -210,9 +263,18 @@ class NetworkResult(RunStatus):
         """max over the edges of the pairwise distances, per row (rows,)."""
         return None if self.d is None else np.max(self.d, axis=1)
 
-    def sync(self, threshold: float = 1e-6, **window) -> SyncMetrics:
+    def sync(self, threshold: float = 1e-6, threshold_rel: float | None = None, **window) -> SyncMetrics:
         """:func:`fmu_sync.core.metrics.sync_metrics` of :attr:`d_max` (the network is
-        synchronized when its largest pairwise distance is)."""
+        synchronized when its largest pairwise distance is); the window as in
+        :meth:`PairResult.sync`."""
         if self.d is None:
             raise ValueError("this run did not record the distances d")
-        return sync_metrics(self.t, self.d_max, threshold, **window)
+        window.setdefault("floor_abs", self.window_floor())
+        return sync_metrics(self.t, self.d_max, threshold, threshold_rel=threshold_rel, **window)
+
+    def _states(self):
+        q, u = np.asarray(self.q), np.asarray(self.u)
+        return [(q[:, i], u[:, i]) for i in range(q.shape[1])] if q.ndim == 3 else []
+
+    def _impact_count(self) -> int:
+        return int(np.sum(self.impacts))

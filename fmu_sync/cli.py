@@ -126,6 +126,8 @@ def _print_summary(sr, title: str) -> None:
     if written:
         header, table = report.rows(written, demo=title.startswith("demo"))
         report.print_table(header, table)
+        for note in report.run_notes(written):
+            print("  " + note.replace("**", ""))
     for r in sr.runs:
         if r.metrics.get("error"):
             kept = "record kept, marked partial, no plots" if r.result is not None else "nothing recorded"

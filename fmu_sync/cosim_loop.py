@@ -11,7 +11,8 @@ core's :func:`fmu_sync.core.network.network_forces` / ``node_force``, which call
 fmi2GetReal of the outputs, fmi2GetInteger of the impact counters, the
 event-aware retake (fmi2GetFMUstate / SetFMUstate / FreeFMUstate), the
 divergence checks and the record. Jacobi and Gauss–Seidel, ZOH and FOH, pairs
-and networks are one loop.
+and networks, and the other masters' delayed orders (``DELAY``: libcosim's and
+fmpy's SSP runner, docs/ssp.md) are one loop.
 
 Every call's status is checked: a status worse than fmi2Warning ends the chunk
 and hands back the failure (``FAIL``: code, instance, call, status; time in
@@ -45,12 +46,20 @@ SET_REAL, SET_DER, DO_STEP, GET_REAL, GET_INT, GET_STATE, SET_STATE, FREE_STATE 
 # outcome codes of a chunk (FAIL[0])
 DONE, SLAVE_FAILED, FORCE_BOUND, STATE_DIVERGED, DISTANCE_DIVERGED = range(5)
 # ctl: the loop's integer state between chunks (FRESH: tau already holds the Jacobi
-# forces at the current states, computed with the record's distances)
-ROW, RETAKES, HIST_VALID, FRESH = range(4)
+# forces at the current states, computed with the record's distances; ZERO_STEPS: delayed
+# orders, the steps still to run before the forces transferred for the next step are computed)
+ROW, RETAKES, HIST_VALID, FRESH, ZERO_STEPS = range(5)
+CTL = 5
 # ptr: addresses of the arrays the FMI calls read or write (taken once, in Python)
 P_VR_OUT, P_VR_TAU, P_VR_IMP, P_ORDER, P_TAU, P_BUF, P_SLOPE, P_IBUF, P_SAVED = range(9)
 # flags: the run's settings
-GAUSS_SEIDEL, FOH, EVENT_AWARE, NEED_D, COUPLED, RECORD_EVERY, PIECES = range(7)
+GAUSS_SEIDEL, FOH, EVENT_AWARE, NEED_D, COUPLED, RECORD_EVERY, PIECES, DELAY = range(8)
+FLAGS = 8
+# flags[DELAY]: the exchange order of another master (docs/ssp.md), zero-order hold only.
+# DELAYED (libcosim): step k is held at the forces of the states x_{k-1} (step 0 at x_0's);
+# DELAYED_ZERO (fmpy's simulate_ssp): every connection starts at 0, steps 0 and 1 run
+# without forces, step k >= 2 at the forces of x_{k-1}
+NOT_DELAYED, DELAYED, DELAYED_ZERO = range(3)
 WARNING = 1
 
 
@@ -154,11 +163,13 @@ def _give(ptr, fn, comp, i, t, h, foh, no_prior, tau, hist_tau, hist_t, hist_val
 
 
 @njit(cache=True, inline="always")
-def _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau, hist_tau,
+def _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau, tau_next, hist_tau,
               hist, ctl, w, FAIL, fail_t):
     """One exchange over [t, t + h]: Jacobi (every input from the same states, then all
-    step) or Gauss–Seidel (in index order, each input from the newest states); then the
-    inputs become the first-order hold's history. ``w``: the scratch arrays."""
+    step), Gauss–Seidel (in index order, each input from the newest states) or delayed
+    (as Jacobi, but every instance steps with the forces transferred after the previous
+    step, ``tau_next``, which then become those of the current states); then the inputs
+    become the first-order hold's history. ``w``: the scratch arrays."""
     t1, t2, c1q, c1u, c2q, c2u, dk, bk, ek, buf, slope = w
     N = q.shape[0]
     fresh = ctl[FRESH]
@@ -174,7 +185,14 @@ def _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau, 
             if _read(ptr, fn, comp, i, buf, q, u, FAIL, fail_t, t + h):
                 return True
     else:
-        if fresh == 0:
+        if flags[DELAY]:
+            _copy(tau_next, tau)
+            if ctl[ZERO_STEPS] > 0:   # fmpy: the connections still hold their start value 0
+                ctl[ZERO_STEPS] -= 1
+            else:
+                network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau_next, t1, t2, c1q, c1u, c2q, c2u, False, dk, bk,
+                               ek)
+        elif fresh == 0:
             network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, False, dk, bk, ek)
         for i in range(N):
             for c in range(tau.shape[1]):
@@ -225,7 +243,7 @@ def _record(row, t, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, jacobi, ctl, T
 
 @njit(cache=True)
 def exchange_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, H, k0, k1, q, u,
-                   tau, hist_tau, hist, imp, ctl, saved, keep, T, Qr, Ur, TAU, D, BR, EU, w, FAIL, fail_t):
+                   tau, tau_next, hist_tau, hist, imp, ctl, saved, keep, T, Qr, Ur, TAU, D, BR, EU, w, FAIL, fail_t):
     """Communication steps ``k0 .. k1 - 1`` (time ``k H``); ``k0 = -1`` first reads the start
     states and impact counters and records row 0.
 
@@ -234,14 +252,15 @@ def exchange_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, H, k0, k1, q
     derivative orders (n,) int32 ones, ``tau``, ``w[9]`` (2n,) and ``w[10]`` (n,) (outputs
     and slopes), ``keep[6]`` (1,) int32, ``saved``; ``fn`` (N, len(CALLS)) function
     addresses, ``comp`` (N,) component handles. ``flags`` (:data:`GAUSS_SEIDEL` ...); ``q, u, tau``
-    (N, n) the current states and inputs; ``hist_tau``, ``hist`` (time) the first-order
+    (N, n) the current states and inputs; ``tau_next`` (N, n) the delayed orders' forces
+    for the next step; ``hist_tau``, ``hist`` (time) the first-order
     hold's history; ``imp`` (N,); ``ctl`` (row, retakes, history valid); ``saved`` (N,) FMU
     state handles; ``keep``: copies for the retake (q, u, hist_tau, hist, ctl). The record
     arrays are preallocated for the whole run. Returns the outcome code (also ``FAIL[0]``)
     and the last step done."""
     N = q.shape[0]
     need_d = flags[NEED_D] != 0
-    jacobi = flags[GAUSS_SEIDEL] == 0
+    jacobi = flags[GAUSS_SEIDEL] == 0 and flags[DELAY] == NOT_DELAYED   # the record may compute tau
     qs, us, hts, hs, scratch, imp_new, ibuf = keep
     FAIL[0] = DONE
     if k0 < 0:
@@ -253,6 +272,13 @@ def exchange_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, H, k0, k1, q
         if flags[COUPLED]:
             network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, w[0], w[1], w[2], w[3], w[4], w[5], False,
                            w[6], w[7], w[8])
+        if flags[DELAY] == DELAYED_ZERO:   # the first two steps are held at 0
+            for i in range(N):
+                for c in range(q.shape[1]):
+                    tau[i, c] = 0.0
+            ctl[ZERO_STEPS] = 1
+        if flags[DELAY]:
+            _copy(tau, tau_next)
         _record(0, 0.0, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, jacobi, ctl, T, Qr, Ur, TAU, D, BR, EU, scratch,
                 w)
         ctl[ROW] = 1
@@ -274,7 +300,7 @@ def exchange_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, H, k0, k1, q
             hs[0] = hist[0]
             hs[1] = ctl[HIST_VALID]
         if _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, H, q, u, tau,
-                     hist_tau, hist, ctl, w, FAIL, fail_t):
+                     tau_next, hist_tau, hist, ctl, w, FAIL, fail_t):
             return FAIL[0], k
         if _impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + H):
             return FAIL[0], k
@@ -299,7 +325,7 @@ def exchange_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, H, k0, k1, q
                     tp = t + p * (H / pieces)
                     hp = (t + H) - tp if p == pieces - 1 else H / pieces
                     if _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, tp, hp, q,
-                                 u, tau, hist_tau, hist, ctl, w, FAIL, fail_t):
+                                 u, tau, tau_next, hist_tau, hist, ctl, w, FAIL, fail_t):
                         return FAIL[0], k
                 if _impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + H):
                     return FAIL[0], k

@@ -15,9 +15,12 @@ The FMU holds:
   (``fmus/c/fmu_sync_fmi2.c``) and the instance runtime that embeds Python
   (``fmus/c/fmu_sync_runtime.c``), compiled here with gcc (GUID and boot module
   compiled in). It loads libpython itself, so any C host can load the FMU;
-* ``resources/fmu_sync_code/`` — the Python code it runs (the core and the
-  slave), so the importing machine needs Python with numpy and numba, not
-  fmu-sync; ``resources/fmu_sync_boot_<hash>.py`` sets it up;
+* ``resources/fmu_sync_code/`` — the Python code it runs: only the modules its
+  slave and stepper import (:func:`carried_modules`, the import closure with deferred
+  imports), none importing ``fmu_sync``; so the importing machine needs Python with
+  numpy and numba, not fmu-sync, and an edit of a core module the FMU does not run
+  (``core/batch.py``) leaves its GUID unchanged; ``resources/fmu_sync_boot_<hash>.py``
+  sets it up;
 * ``resources/fmu_sync_python.txt`` — the interpreter (``program``) and its
   libpython recorded at export (``FMU_SYNC_PYTHON`` overrides them at run time);
 * ``resources/fmu_sync_build.json`` — model, content hash, the Python / numpy /
@@ -52,11 +55,12 @@ from . import __version__
 from .fmus.slave import model_guid
 
 __all__ = ["MODELS", "export_fmu", "export_coupling", "main_export", "model_class", "carried_files",
-           "build_binary", "write_archive", "MAX_SUBSTEPS", "COUPLING", "FMI_VERSIONS"]
+           "carried_modules", "build_binary", "constants_header", "fmu_guid", "write_archive", "MAX_SUBSTEPS",
+           "COUPLING", "FMI_VERSIONS"]
 
 #: The export keys: the FMU contract's model registry.
 MODELS = contract.MODELS
-#: most internal steps one fmi2DoStep may take (larger steps are refused with fmi2Discard)
+#: most internal steps one fmi2DoStep may take (larger steps are refused with fmi2Error)
 MAX_SUBSTEPS = 10_000_000
 
 _ZIP_DATE = (2020, 1, 1, 0, 0, 0)
@@ -65,10 +69,14 @@ _ZIP_DATE = (2020, 1, 1, 0, 0, 0)
 FMI_VERSIONS = (2, 3)
 _C_GLUE = {2: "c/fmu_sync_fmi2.c", 3: "c/fmu_sync_fmi3.c"}
 _C_RUNTIME = "c/fmu_sync_runtime.c"
-#: slave modules carried in the FMU (besides the whole core)
-_CARRIED_FMUS = ("__init__.py", "contract.py", "_xml.py", "slave.py", "stepper.py", "runtime.py",
-                 "impact_oscillator.py", "mechanical_system2.py", "coupling.py", "coupling_runtime.py",
-                 "coupling_stepper.py")
+#: the carried package's __init__ files: the real core/__init__.py imports every run API of the core
+_CARRIED_INITS = {
+    "__init__.py": b'"""fmu-sync model code carried by an FMU (the modules its slave and stepper import)."""\n',
+    "core/__init__.py": b'"""The core modules an fmu-sync FMU runs (the import closure of its slave and stepper)."""\n',
+}
+#: the roots of the carried code: the C-facing instance and the hot path (plus every slave module)
+_CARRIED_ROOTS = ("fmus/__init__.py", "fmus/runtime.py", "fmus/stepper.py", "fmus/coupling.py",
+                  "fmus/coupling_runtime.py", "fmus/coupling_stepper.py")
 #: the coupling FMU's export key (fmu_sync.fmus.coupling; not a mechanical model of the registry)
 COUPLING = "coupling"
 _COUPLING_BUILD = {"slave": "fmus.coupling:CouplingSlave", "runtime": "fmus.coupling_runtime",
@@ -99,15 +107,66 @@ def _carried_slave(model: str) -> str:
     return slave[len("fmu_sync."):]
 
 
+def _read(rel: str) -> bytes:
+    """A source file of the package by its path relative to it: "core/exact.py", "fmus/slave.py"."""
+    top, name = rel.split("/")
+    return ((_core_dir() if top == "core" else _fmus_dir()) / name).read_bytes()
+
+
+def _imported_modules(rel: str) -> list[str]:
+    """The core/fmus modules that module ``rel`` imports, deferred imports included
+    (ValueError for an import of the host package ``fmu_sync`` or of a package)."""
+    import ast
+    out = []
+    pkg = rel.split("/")[0]
+    for node in ast.walk(ast.parse(_read(rel), rel)):
+        if isinstance(node, ast.Import) and any(a.name.split(".")[0] == "fmu_sync" for a in node.names):
+            raise ValueError(f"{rel} imports the host package fmu_sync: an FMU's code imports its own modules "
+                             f"relatively")
+        if not isinstance(node, ast.ImportFrom):
+            continue
+        if node.level == 0:
+            if (node.module or "").split(".")[0] == "fmu_sync":
+                raise ValueError(f"{rel} imports the host package ({node.module}): an FMU's code imports its "
+                                 f"own modules relatively")
+            continue
+        base = [pkg] if node.level == 1 else []
+        target = base + (node.module.split(".") if node.module else [])
+        if len(target) == 2:
+            out.append(f"{target[0]}/{target[1]}.py")
+        elif len(target) == 1 and target[0] in ("core", "fmus"):    # from . import stepper
+            for a in node.names:
+                sub = f"{target[0]}/{a.name}.py"
+                try:
+                    _read(sub)
+                except OSError:
+                    raise ValueError(f"{rel} imports {a.name} from the package {target[0]}: import it from "
+                                     f"its module (the FMU carries only the modules it imports)") from None
+                out.append(sub)
+        else:
+            raise ValueError(f"{rel}: import {'.' * node.level}{node.module or ''} is outside core/ and fmus/")
+    return out
+
+
+def carried_modules() -> list[str]:
+    """Paths ("core/exact.py", "fmus/slave.py") of the modules an FMU carries: the
+    import closure, deferred imports included, of its runtime, stepper and slave modules."""
+    roots = list(_CARRIED_ROOTS)
+    for key in MODELS:
+        module = contract.model(key).slave.split(":")[0]
+        roots.append("/".join(module.split(".")[1:]) + ".py")
+    seen, todo = set(), roots
+    while todo:
+        rel = todo.pop()
+        if rel not in seen and rel not in _CARRIED_INITS:
+            seen.add(rel)
+            todo.extend(_imported_modules(rel))
+    return sorted(seen)
+
+
 def carried_files() -> list[tuple[str, bytes]]:
     """(path relative to the carried package, content) of the code the FMU runs."""
-    files = [("__init__.py", b'"""fmu-sync model code carried by an FMU (core + slave)."""\n')]
-    for f in sorted(_core_dir().glob("*.py")):
-        files.append((f"core/{f.name}", f.read_bytes()))
-    fmus = _fmus_dir()
-    for name in _CARRIED_FMUS:
-        files.append((f"fmus/{name}", (fmus / name).read_bytes()))
-    return files
+    return sorted(_CARRIED_INITS.items()) + [(rel, _read(rel)) for rel in carried_modules()]
 
 
 def _code_hash(files: list[tuple[str, bytes]]) -> str:
@@ -121,18 +180,62 @@ def _code_hash(files: list[tuple[str, bytes]]) -> str:
         return code_hash(tmp)
 
 
+#: the work-array header slots the binary reads (fmus/stepper.py)
+_C_SLOTS = ("H_LEN", "H_VERSION", "H_TIME", "H_PHASE", "H_DT", "H_CONFIGURED", "H_M", "H_SCHEME", "H_ITAU",
+            "H_ITAUDOT", "H_FEEDTHROUGH", "H_MAXEV", "H_BOUND", "H_MODE", "H_REACHED", "H_PEND_U", "H_PEND_P",
+            "H_ICOUNT")
+_C_CODES = ("R_OK", "R_ROLLED_BACK", "R_EXACT_TAUDOT", "R_EXACT_EVENTS", "R_EXACT_STALL",
+            "MODE_FULL", "MODE_EARLY", "MODE_EARLY_EVENT", "MODE_APPLY_EVENT")
+_CONSTANTS_H = "fmu_sync_constants.h"
+
+
+def constants_header(guid: str = "", boot_module: str = "", max_substeps: int = MAX_SUBSTEPS) -> bytes:
+    """``fmu_sync_constants.h``: every number the binary shares with the Python side, written
+    from the Python definitions (stepper slots and return codes, phases, table codes, layout,
+    scheme codes, limits; one version, ``stepper.WORK_VERSION``) and this export's GUID and
+    boot module. The C sources include it; nothing of it is written by hand."""
+    from .fmus import runtime as R
+    from .fmus import slave, stepper as S
+    lines = ["/* Generated by fmu_sync.export.constants_header from the Python definitions: do not edit. */",
+             "#ifndef FMU_SYNC_CONSTANTS_H", "#define FMU_SYNC_CONSTANTS_H"]
+
+    def define(name, value):
+        lines.append(f"#define {name} {value}")
+    define("FSR_VERSION", int(S.WORK_VERSION))
+    for name in _C_SLOTS:
+        define(f"FSR_{name}", getattr(S, name))
+    for name in _C_CODES:
+        define(f"FSR_{name}", getattr(S, name))
+    for name, code in slave.PHASES.items():
+        define(f"FSR_{name.upper()}", code)
+    for name, code in R.TYPES.items():
+        define(f"FSR_T_{name.upper()}", code)
+    for name, code in R.CAUSALITIES.items():
+        define(f"FSR_C_{name.upper()}", code)
+    for i, name in enumerate(R.LAYOUT):
+        define(f"FSR_L_{name.upper()}", i)
+    define("FSR_L_N", len(R.LAYOUT))
+    for name, value, _ in contract.SCHEME_ITEMS:
+        define(f"FSR_SCHEME_{name.upper()}", value)
+    define("FSR_MAX_SUBSTEPS", f"{float(max_substeps)!r}")
+    define("FMU_SYNC_GUID", json.dumps(guid))
+    define("FMU_SYNC_BOOT", json.dumps(boot_module))
+    return ("\n".join(lines + ["#endif", ""])).encode()
+
+
 def build_binary(out: Path, guid: str, boot_module: str, max_substeps: int = MAX_SUBSTEPS,
                  glue: str | None = None, fmi_version: int = 2) -> Path:
-    """Compile the FMI binary (``glue``, by default the FMI version's, and the runtime) with gcc
-    (``$CC`` overrides) into ``out``."""
+    """Compile the FMI binary (``glue``, by default the FMI version's, and the runtime, with the
+    generated constants header) with gcc (``$CC`` overrides) into ``out``."""
     srcs = [str(_fmus_dir() / (glue or _C_GLUE[fmi_version])), str(_fmus_dir() / _C_RUNTIME)]
     cc = os.environ.get("CC", "gcc")
     if shutil.which(cc) is None:
         raise RuntimeError(f"cannot build the FMU binary: C compiler {cc!r} not found (install gcc or set CC)")
-    cmd = [cc, "-std=gnu11", "-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-s",
-           f"-DFMU_SYNC_GUID=\"{guid}\"", f"-DFMU_SYNC_BOOT=\"{boot_module}\"",
-           f"-DFMU_SYNC_MAX_SUBSTEPS={float(max_substeps)!r}", "-o", str(out), *srcs, "-ldl", "-lpthread", "-lm"]
-    p = subprocess.run(cmd, capture_output=True, text=True)
+    with tempfile.TemporaryDirectory(prefix="fmu-sync-h-") as inc:
+        Path(inc, _CONSTANTS_H).write_bytes(constants_header(guid, boot_module, max_substeps))
+        cmd = [cc, "-std=gnu11", "-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-s", f"-I{inc}",
+               "-o", str(out), *srcs, "-ldl", "-lpthread", "-lm"]
+        p = subprocess.run(cmd, capture_output=True, text=True)
     if p.returncode != 0:
         raise RuntimeError(f"cannot build the FMU binary ({' '.join(cmd)}):\n{p.stderr[-3000:]}")
     return out
@@ -155,7 +258,7 @@ def _runtime_versions() -> dict:
 
 
 def _model_description_xml(cls, starts: dict, guid: str, fmi_version: int = 2) -> bytes:
-    root = cls.description(starts, guid, fmi_version)
+    root = cls.description(starts, guid, __version__, fmi_version)
     ET.indent(root, space="  ")
     buf = io.BytesIO()
     ET.ElementTree(root).write(buf, encoding="UTF-8", xml_declaration=True)
@@ -178,6 +281,21 @@ def warm_cache(resources: dict[str, bytes], build: dict) -> None:
         sys.path.insert(0, path)
     stepper = importlib.import_module(f"{build['package']}.{build.get('stepper', 'fmus.stepper')}")
     stepper.step.address  # compiled (or loaded from the cache) at import
+
+
+def _identity(model: str, starts: dict, fmi_version: int = 2) -> tuple[list[tuple[str, bytes]], str, str]:
+    """(carried files, their hash, GUID): the GUID changes with the model, the start
+    values, the package version, the carried code, the C source and the FMI version, and nothing else."""
+    code = carried_files()
+    c_source = b"".join(p.read_bytes() for p in sorted((_fmus_dir() / "c").glob("*.[ch]"))) + constants_header()
+    digest = _code_hash(code)
+    return code, digest, model_guid(model, starts, digest + hashlib.sha256(c_source).hexdigest()
+                                    + ("" if fmi_version == 2 else f"/fmi{fmi_version}"), __version__)
+
+
+def fmu_guid(model: str = "impact-oscillator", start_values: dict | None = None, fmi_version: int = 2) -> str:
+    """The GUID :func:`export_fmu` gives ``model`` with ``start_values``."""
+    return _identity(model, model_class(model).normalize_start_values(dict(start_values or {})), fmi_version)[2]
 
 
 def export_fmu(model: str = "impact-oscillator", path=None, start_values: dict | None = None,
@@ -241,13 +359,9 @@ def _export(cls, model: str, path, start_values, build_extra: dict, start_extra:
         raise ValueError(f"the FMU file name must end in .fmu, got {str(path)!r}")
     path.parent.mkdir(parents=True, exist_ok=True)
 
-    code = carried_files()
-    c_source = b"".join(p.read_bytes() for p in sorted((_fmus_dir() / "c").glob("*.[ch]")))
-    digest = _code_hash(code)
+    code, digest, guid = _identity(model, {**starts, **start_extra}, fmi_version)
     package = f"fmu_sync_m{digest[:16]}"
     boot_module = f"fmu_sync_boot_{digest[:16]}"
-    guid = model_guid(model, {**starts, **start_extra}, digest + hashlib.sha256(c_source).hexdigest()
-                      + ("" if fmi_version == 2 else f"/fmi{fmi_version}"))
     build = {"model": model, "model_identifier": cls.MODEL_IDENTIFIER, "package": package, "code_hash": digest,
              "fmu_sync_version": __version__, "guid": guid,
              "built_with": _runtime_versions(), "max_substeps": MAX_SUBSTEPS, **build_extra}
@@ -285,6 +399,9 @@ def write_archive(path: Path, files) -> None:
                 info.compress_type = zipfile.ZIP_DEFLATED
                 info.external_attr = (0o755 if name.endswith(".so") else 0o644) << 16
                 zf.writestr(info, data)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)      # as any other output file (mkstemp made it 0600)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

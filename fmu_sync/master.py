@@ -1,13 +1,12 @@
 """Co-simulation master (docs/design.md §4.4): two (or N) FMU instances coupled
 through the coupling law of the core, driven by fmpy's ``FMU2Slave``.
 
-The master holds no model data of its own: the FMU contract
-(:mod:`fmu_sync.fmus.contract`) names the variables, and the mass matrix, the
-wall (w, g0) and the restitution e it needs for the quotient distance are read
-from the FMU's parameters. The coupling forces and the distance are computed by
-the core's compiled :func:`fmu_sync.core.pair.coupling_step` — the same function
-the monolithic :func:`fmu_sync.core.simulate_pair` calls every step. With ``H``
-equal to the slaves' internal step the two runs agree to round-off.
+The master holds no model data of its own: the FMU contract (:mod:`fmu_sync.fmus.contract`) names
+the variables, and the mass matrix, the wall (w, g0), the restitution e and the stiffness (for the
+default position weight, §2.5.1) are read from the FMU's parameters. The coupling forces and the
+distance are computed by the core's compiled :func:`fmu_sync.core.pair.coupling_step` — the same
+function the monolithic :func:`fmu_sync.core.simulate_pair` calls every step. With ``H`` equal to
+the slaves' internal step the two runs agree to round-off.
 
 Structure: :class:`FmuInstance` is a thin, status-checked wrapper of one
 instance (fmpy loads, initialises and frees it); :class:`NetworkMaster` holds one
@@ -18,14 +17,13 @@ pointers and component handles to the compiled exchange loop
 record); :func:`cosimulate_network` and :func:`cosimulate` are the plain
 functional entry points.
 
-Failure convention (docs/design.md §5.1): bad arguments or a foreign FMU raise
-a ValueError before any instance is created; an exchange known to be unstable
-(:func:`fmu_sync.core.exchange.check_exchange`) or instances with different
-impact geometries (M, w, g0, e) raise a ValueError before the first step; a
-slave that fails mid-run raises :class:`SlaveError` and a run whose states or
-distances become non-finite raises :class:`fmu_sync.core.SimulationDiverged`
-(both :class:`fmu_sync.core.RunFailed`) whose ``partial`` holds everything
-recorded up to the failure (finite rows only).
+Failure convention (docs/design.md §5.1): bad arguments or a foreign FMU raise a ValueError before
+any instance is created; an exchange known to be unstable
+(:func:`fmu_sync.core.exchange.check_exchange`) or instances with different impact geometries (M, w,
+g0, e) raise a ValueError before the first step; a slave that fails mid-run raises
+:class:`SlaveError` and a run whose states or distances become non-finite raises
+:class:`fmu_sync.core.SimulationDiverged` (both :class:`fmu_sync.core.RunFailed`) whose ``partial``
+holds everything recorded up to the failure (finite rows only).
 """
 from __future__ import annotations
 
@@ -38,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from .core.checks import check_run, check_start, check_step
-from .core.coupling import chain_work, gain_matrix
+from .core.coupling import chain_work, gain_matrix, law_metric, metric_info
 from .core.distance import geometry
 from .core.errors import RunFailed, SimulationDiverged
 from .core.exchange import check_exchange, exchange_limit
@@ -165,13 +163,15 @@ class NetworkMaster:
 
     The constructor checks every argument (ValueError) and identifies the FMU
     through the contract; :meth:`run` creates the instances, runs and frees them.
-    Exchange strategies are the methods ``step_<method>`` (``method`` with ``-``
-    read as ``_``): each takes one communication step ``[t, t + h]`` from the
-    states ``x`` and returns the new states.
+    Exchange strategies are branches of the compiled loop's ``_exchange``
+    (:mod:`fmu_sync.cosim_loop`), named in ``METHODS``; ``DELAY`` maps the name of
+    a delayed order to its ``flags[DELAY]`` code (none here:
+    :class:`fmu_sync.ssp_master.SspMaster` names the other masters' orders).
     """
 
     METHODS = ("jacobi", "gauss-seidel")
     EARLY_RETURN = False   # FMI 3.0 instances with early return and event mode (fmu_sync.early_return)
+    DELAY: dict = {}
 
     def __init__(self, fmu, states, A, t_end: float, H: float, coupling: str | None = "switching",
                  Kp=0.0, Kd=0.0, Q=None, method: str = "jacobi", record_every: int = 1,
@@ -249,9 +249,12 @@ class NetworkMaster:
             check_start(system, q0, label)
             s.exit_initialization(model.state_values(q0, u0))
         n = model.n
-        self.geo = geometry(system, self.Q)
         self.Kp_m, self.Kd_m = gain_matrix(self.Kp, n, "Kp"), gain_matrix(self.Kd, n, "Kd")
         self.A_coupled = coupled_weights(self.A, self.edges, self.laws)
+        names = [v.name for v in model.declare() if v.causality == "parameter" and v.type == "Real"]
+        self.metric = law_metric(self.Q, [model.system(dict(zip(names, s.get(names)))).K for s in self.slaves],
+                                 self.Kp_m, self.A_coupled if self.coupled else None, coupled=self.coupled)
+        self.geo = geometry(system, self.metric.Q)
         if self.coupled:  # before the first step: the held exchange must be stable at H
             self.limit = check_exchange(system.M, self.Kp_m, self.Kd_m, self.H, A=self.A_coupled,
                                         allow_unstable=self.allow_unstable, hold=self.hold)
@@ -289,9 +292,9 @@ class NetworkMaster:
             self.T[sl], self.Qr[sl], self.Ur[sl], self.TAU[sl], self.edges,
             self.D[sl] if need_d else None, self.BR[sl] if need_d else None,
             self.EU[sl] if need_d else None, V, impacts=impacts,
-            info=dict(mode="cosim", H=self.H, method=self.method, event_aware=self.event_aware,
+            info=dict(mode="cosim", H=self.H, method=self.method, event_aware=self.event_aware, fmu=self.fmu,
                       H_min=self.H_min if self.event_aware else None, retaken_steps=self.retakes,
-                      fmu=self.fmu, steps=self.n_steps, coupling=self.coupling, hold=self.hold,
+                      steps=self.n_steps, coupling=self.coupling, hold=self.hold, **metric_info(self.metric, self.geo),
                       **({} if self.limit is None else dict(
                           omega_c_H=self.limit.h, exchange_bound=self.limit.bound,
                           zeta=self.limit.zeta, H_max=self.limit.H_max))),
@@ -320,14 +323,15 @@ class NetworkMaster:
         ref = (lambda names: np.array([self.slaves[0].vr[v].valueReference for v in names], dtype=np.uint32))
         self.vr_out, self.vr_tau, self.vr_imp = ref(model.q + model.u), ref(model.tau), ref([contract.IMPACTS])
         E2, W2 = edge_arrays(self.A, self.edges)
-        flags = np.zeros(7, dtype=np.int64)
+        flags = np.zeros(loop.FLAGS, dtype=np.int64)
         flags[[loop.GAUSS_SEIDEL, loop.FOH, loop.EVENT_AWARE, loop.NEED_D, loop.COUPLED]] = [
             self.method == "gauss-seidel", self.hold == "foh", self.event_aware, self.need_d, self.coupled]
         flags[loop.RECORD_EVERY] = self.record_every
+        flags[loop.DELAY] = self.DELAY.get(self.method, loop.NOT_DELAYED)
         flags[loop.PIECES] = max(1, int(math.ceil(self.H / self.H_min - 1e-9))) if self.event_aware else 1
         z = (lambda: np.zeros((N, n)))
         self.q, self.u, self.tau = z(), z(), z()
-        self.imp, self.ctl = np.zeros(N, dtype=np.int64), np.zeros(4, dtype=np.int64)
+        self.imp, self.ctl = np.zeros(N, dtype=np.int64), np.zeros(loop.CTL, dtype=np.int64)
         E = len(self.edges)
         work = chain_work(n)
         w = (np.zeros(n), np.zeros(n), *work, np.zeros(E), np.zeros(E, dtype=np.int64), np.zeros(E),
@@ -341,7 +345,7 @@ class NetworkMaster:
         ptr = np.array([a.ctypes.data for a in self.held], dtype=np.int64)
         self.loop_args = (ptr, self.fn, self.comp, self.laws, self.geo, self.Kp_m, self.Kd_m, E2, W2, flags,
                           float(self.H))
-        self.loop_state = (self.q, self.u, self.tau, z(), np.zeros(1), self.imp, self.ctl, saved, keep, self.T,
+        self.loop_state = (self.q, self.u, self.tau, z(), z(), np.zeros(1), self.imp, self.ctl, saved, keep, self.T,
                            self.Qr, self.Ur, self.TAU, self.D, self.BR, self.EU, w, self.FAIL, self.fail_t)
 
     def _chunk(self, k0: int, k1: int) -> int:
@@ -472,7 +476,7 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
     x1, x2 : start states (q, u) of the two instances (set as ``q_start``/``u_start``).
     t_end, H : stop time and communication step; the run makes ``floor(t_end/H)`` steps.
     coupling : None, ``"switching"`` (quotient coupling) or ``"euclidean"`` (PD baseline).
-    Kp, Kd : gains (scalars or n×n).  Q : position weight of the norm (default identity).
+    Kp, Kd : gains (scalars or n×n).  Q : position weight of the norm (default: ``energy_metric``).
     method : ``"jacobi"`` (both slaves get inputs computed from the same states) or
         ``"gauss-seidel"`` (slave 2's input uses slave 1's updated state).
     record_every : keep every k-th communication point.

@@ -17,7 +17,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from .report import SYNC_THRESHOLD, contact_starts, decay_resolved, impact_records, is_network, is_pair, wall
+from .report import SYNC_THRESHOLD, contact_starts, impact_records, is_network, is_pair, wall
 
 __all__ = ["plot_positions", "plot_distance", "plot_lyapunov", "plot_forces", "plot_phase",
            "plot_impact_zoom", "impact_window", "tail_start", "PHASE_TURNS",
@@ -193,16 +193,20 @@ def _sync_marks(ax, result, t):
         t_sync = result.time_to_sync(SYNC_THRESHOLD)
     else:
         return
-    if np.isfinite(t_sync) and t_sync > t[0]:
+    if m is not None and m.starts_below:
+        ax.plot([], [], ls="none", label=f"d0 = {m.d0:.3g} already below {SYNC_THRESHOLD:g}: no t_sync")
+    elif np.isfinite(t_sync) and t_sync > t[0]:
         ax.axvline(t_sync, color="k", ls="--", lw=0.9, label=f"t_sync = {t_sync:.4g} s (d < {SYNC_THRESHOLD:g} after)")
     elif not np.isfinite(t_sync):
         ax.plot([], [], ls="none", label=f"t_sync: d not below {SYNC_THRESHOLD:g} within t_end")
     if m is None:
         return
-    if decay_resolved(m.rate, m.rate_err, m.t_sync) and np.isfinite(m.t_fit):
+    if m.resolved and np.isfinite(m.t_fit):   # the fit line only for a rate that means something
         tt = np.linspace(m.t_from, m.t_to, 50)
         ax.semilogy(tt, SYNC_THRESHOLD * np.exp(-m.rate * (tt - m.t_fit)), color="k", ls="-.", lw=1.2,
                     label=f"fitted decay rate {m.rate:.3g} ± {m.rate_err:.1g} 1/s")
+    elif np.isfinite(m.rate):
+        ax.plot([], [], ls="none", label=f"decay rate — ({m.reason})")
     if not np.isfinite(m.t_sync) and np.isfinite(m.bound) and m.bound >= SYNC_THRESHOLD:
         # not synchronized within t_end: the level d stays at (practical synchronization)
         t_tail = t[-1] - 0.2 * (t[-1] - t[0])

@@ -12,8 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
+from .core.metrics import rate_verdict
+
 __all__ = ["SYNC_THRESHOLD", "is_pair", "wall", "impact_rows", "impact_records", "contact_starts", "metrics", "record_columns", "record_meta", "write_data", "write_netcdf", "rows", "write_summary",
-           "print_table", "max_abs_difference", "format_value"]
+           "print_table", "max_abs_difference", "format_value", "run_notes", "decay_resolved"]
 
 #: d below this counts as synchronized (time to sync = first time after which d stays below it).
 SYNC_THRESHOLD = 1e-6
@@ -44,7 +46,16 @@ def _sync_fields(m) -> dict:
     if m is None:
         return {}
     return dict(rate=m.rate, rate_err=m.rate_err, t_fit=m.t_fit, bound=m.bound, fit_from=m.t_from,
-                fit_to=m.t_to)
+                fit_to=m.t_to, fit_floor=m.floor, rate_reason=m.reason, d0=m.d0,
+                starts_below=m.starts_below)
+
+
+def _metric_fields(result) -> dict:
+    """Which position weight Q the run's distance used (docs/design.md §2.5.1)."""
+    info = getattr(result, "info", {}) or {}
+    if info.get("metric") is None:
+        return {}
+    return dict(metric=info["metric"], Q=info.get("Q"), metric_note=info.get("metric_note", ""))
 
 
 def network_metrics(result, threshold: float = SYNC_THRESHOLD) -> dict:
@@ -62,7 +73,8 @@ def network_metrics(result, threshold: float = SYNC_THRESHOLD) -> dict:
     dmax = result.d_max
     above = np.nonzero(~(dmax < threshold))[0]
     t_sync = float(t[0]) if above.size == 0 else (math.inf if above[-1] == len(t) - 1 else float(t[above[-1] + 1]))
-    out.update(t_sync=t_sync, final_d=float(dmax[-1]), **_sync_fields(_sync(result, threshold)))
+    out.update(t_sync=t_sync, final_d=float(dmax[-1]), **_sync_fields(_sync(result, threshold)),
+               **_metric_fields(result))
     return out
 
 
@@ -162,7 +174,7 @@ def metrics(result, system=None, threshold: float = SYNC_THRESHOLD) -> dict:
     d, E, V = np.asarray(result.d), np.asarray(result.euclidean), np.asarray(result.V)
     hits = np.union1d(e1, e2)
     hits = hits[hits > 0]
-    out.update(_sync_fields(_sync(result, threshold)))
+    out.update(_sync_fields(_sync(result, threshold)), **_metric_fields(result))
     out.update(t_sync=result.time_to_sync(threshold), final_d=float(d[-1]), euclid_max=float(E.max()),
                peaking=float(np.max(E - d)),
                dV_impact=float(np.max(np.abs(V[hits] - V[hits - 1]))) if hits.size else None,
@@ -307,28 +319,59 @@ def _episodes(m):
 
 
 def _rate(m):
-    """``rate ± err`` of the fitted decay of d's envelope (— without a decay window)."""
+    """``rate ± err`` of the fitted decay of d's envelope when it is resolved, else — (the reason
+    goes to the notes: :func:`run_notes`)."""
     r, e = m.get("rate"), m.get("rate_err")
-    if not decay_resolved(r, e, m.get("t_sync")):
-        return None   # no exponential decay resolved (e.g. a bounded d of non-identical systems)
+    if not decay_resolved(m):
+        return None
     return f"{r:.4g} ± {e:.2g}"
 
 
-def decay_resolved(rate, rate_err, t_sync) -> bool:
-    """A fitted decay worth showing: a positive rate that is either above twice its
-    uncertainty or belongs to a run that synchronized (t_sync finite)."""
-    if rate is None or not math.isfinite(rate) or not rate > 0.0:
-        return False
-    synced = isinstance(t_sync, (int, float)) and math.isfinite(t_sync)
-    return rate > 2.0 * rate_err or synced
+def decay_resolved(m) -> bool:
+    """A fitted decay worth showing (:func:`fmu_sync.core.metrics.rate_verdict`): the metrics'
+    own verdict when they carry one, else the verdict on the rate and its uncertainty alone."""
+    if "rate_reason" in m:
+        return m["rate_reason"] == "" and m.get("rate") is not None
+    return rate_verdict(m.get("rate"), m.get("rate_err")) == ""
+
+
+def _t_sync(m):
+    t = m.get("t_sync")
+    if t == math.inf:
+        return "not within t_end"
+    if m.get("starts_below") and isinstance(t, (int, float)):
+        return f"{format_value(t)} (d0 below)"
+    return t
+
+
+def run_notes(runs) -> list[str]:
+    """Per run: why a decay rate is not shown, a start below the threshold, the fit window's end,
+    and which Q the distance used (a user Q: V is then not a Lyapunov function of the law)."""
+    out = []
+    for r in runs:
+        m = r.metrics
+        if m.get("error") or m.get("kind") == "single":
+            continue
+        bits = []
+        if m.get("rate_reason"):
+            bits.append(f"decay rate — : {m['rate_reason']}")
+        elif m.get("rate") is not None and m.get("fit_to") is not None:
+            bits.append(f"decay rate fitted on [{m['fit_from']:.4g}, {m['fit_to']:.4g}] s, down to "
+                        f"d = {m.get('fit_floor', 0.0):.3g}")
+        if m.get("starts_below"):
+            bits.append(f"d0 = {m['d0']:.3g} starts below the t_sync threshold: its t_sync says nothing")
+        if m.get("metric"):
+            bits.append(f"Q = {m['Q']} ({m['metric']}): {m.get('metric_note', '')}")
+        if bits:
+            out.append(f"**{m.get('name', r.name)}**: " + "; ".join(bits))
+    return out
 
 
 #: (column header, function of the metrics dict)
 PAIR_COLUMNS = [
     ("variant", lambda m: m["name"]),
     ("coupling", lambda m: m.get("coupling", "—")),
-    (f"t_sync [s] (d<{SYNC_THRESHOLD:g})", lambda m: "not within t_end" if m.get("t_sync") == math.inf
-     else m.get("t_sync")),
+    (f"t_sync [s] (d<{SYNC_THRESHOLD:g})", _t_sync),
     ("decay rate [1/s]", lambda m: _rate(m)),
     ("ultimate bound", lambda m: m.get("bound")),
     ("max|tau| [N]", lambda m: m.get("peak_tau")),
@@ -344,8 +387,7 @@ NETWORK_COLUMNS = [
     ("variant", lambda m: m["name"]),
     ("N", lambda m: m.get("N")),
     ("coupling", lambda m: m.get("coupling", "—")),
-    (f"t_sync [s] (max d<{SYNC_THRESHOLD:g})", lambda m: "not within t_end" if m.get("t_sync") == math.inf
-     else m.get("t_sync")),
+    (f"t_sync [s] (max d<{SYNC_THRESHOLD:g})", _t_sync),
     ("decay rate [1/s]", lambda m: _rate(m)),
     ("ultimate bound", lambda m: m.get("bound")),
     ("final max d", lambda m: m.get("final_d")),
@@ -434,8 +476,10 @@ def write_summary(path, title: str, description: str, rows, settings=(), files=(
     lines += ["## Results", ""] + _md_table(header, table) + [""]
     lines += ["- decay rate: exponential decay rate of the envelope of d (of max d for a network), fitted "
               "on its decay window, ± its standard uncertainty (well-conditioned: compare runs with this, "
-              "not with t_sync differences; — where no decay is resolved: a run that does not synchronize and "
-              "whose rate is not above twice its uncertainty). "
+              "not with t_sync differences; — where it means nothing: not resolved by the criteria of "
+              "fmu_sync.core.metrics.rate_verdict, uncertainty above 20 % of the rate, fit residual above 0.5 "
+              "in log d, fewer than 4 peaks, d at the floor; the reason is in the notes; the window ends at "
+              "the level the step resolves, docs/design.md §2.7). "
               "ultimate bound: max d over the last 20 % of the run "
               "(practical synchronization of non-identical systems)."]
     lines += [f"- t_sync: first time after which the quotient distance d stays below {SYNC_THRESHOLD:g} "

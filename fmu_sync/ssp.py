@@ -113,16 +113,24 @@ def _real_values(decl, values: dict) -> dict:
     return {k: float(values[k]) for k in real if k in values}
 
 
-def _coupling_values(variant, system, A, edges, laws, n: int) -> tuple[dict, dict]:
-    """(Real parameter values, enumeration start values) of the variant's coupling FMU."""
-    from .core.coupling import gain_matrix
+def _coupling_values(variant, systems, A, edges, laws, n: int) -> tuple[dict, dict]:
+    """(Real parameter values, enumeration start values) of the variant's coupling FMU. Its Q
+    is the one our master uses for the same run (the law's metric, core.coupling.law_metric)."""
+    from .core.coupling import gain_matrix, law_metric
     from .core.distance import geometry
     from .fmus.coupling import edge_names
     real = {}
     for i, j in edges:
         for a, b in ((i, j), (j, i)):
             real[f"a[{a + 1},{b + 1}]"] = float(A[a, b])
-    geo = geometry(system, variant.Q)
+    coupled = any(law not in (None, "none") for law in laws)
+    Ac = np.array(A, dtype=np.float64)
+    for (i, j), law in zip(edges, laws):
+        if law in (None, "none"):
+            Ac[i, j] = Ac[j, i] = 0.0
+    metric = law_metric(variant.Q, [s.K for s in systems], gain_matrix(variant.Kp, n, "Kp"),
+                        Ac if coupled else None, coupled=coupled)
+    geo = geometry(systems[0], metric.Q)
     for sym, mat in (("Kp", gain_matrix(variant.Kp, n, "Kp")), ("Kd", gain_matrix(variant.Kd, n, "Kd")),
                      ("Q", geo.Q), ("M", geo.M)):
         names = [sym] if n == 1 else contract.matrix(sym, n)
@@ -180,7 +188,7 @@ def write_ssp(scene, path, variant: str | None = None, overrides: dict | None = 
         from .core.model import as_state
         q0, u0 = as_state(s, x, "x")
         comp_values.append(_real_values(decl, {**model.values(s), **model.state_values(q0, u0), **solver}))
-    coupling_real, coupling_enum = _coupling_values(v, system, A, edges, laws, n)
+    coupling_real, coupling_enum = _coupling_values(v, systems, A, edges, laws, n)
     osc_name = f"resources/{model.key.replace('-', '_')}.fmu"
     path.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="fmu-sync-ssp-") as tmp:

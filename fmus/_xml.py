@@ -36,16 +36,15 @@ UNITS: dict[str, dict[str, int]] = {
 }
 
 
-def generation_tool(fmi_version: int = 2) -> str:
-    from fmu_sync import __version__
-    return f"fmu-sync {__version__} (own FMI {fmi_version}.0 binary, Python slave)"
+def generation_tool(version: str, fmi_version: int = 2) -> str:
+    """generationTool of an FMU exported by fmu-sync ``version`` (the FMU's code never imports fmu_sync)."""
+    return f"fmu-sync {version} (own FMI {fmi_version}.0 binary, Python slave)"
 
 
-def model_guid(model: str, start_values: dict, code: str = "") -> str:
+def model_guid(model: str, start_values: dict, code: str = "", version: str = "") -> str:
     """Deterministic GUID: changes with the model, the package version, the start
     values and the FMU's code (hash of the carried Python code and the C source)."""
-    from fmu_sync import __version__
-    key = json.dumps({"model": model, "version": __version__, "start": start_values, "code": code},
+    key = json.dumps({"model": model, "version": version, "start": start_values, "code": code},
                      sort_keys=True)
     return "{" + str(uuid.uuid5(uuid.NAMESPACE_URL, "https://fmu-sync/" + key)) + "}"
 

@@ -10,8 +10,9 @@ with the standard library only. For each fmi2Instantiate, :func:`instantiate`:
    warnings;
 2. copies the carried code (``resources/fmu_sync_code``) once to a per-user
    cache folder keyed on its content, ``$FMU_SYNC_CACHE`` or
-   ``$XDG_CACHE_HOME/fmu-sync`` or ``~/.cache/fmu-sync`` (a temp folder if none
-   is writable), ``<folder>/<hash>/<package>``: a stable source path, so numba's
+   ``$XDG_CACHE_HOME/fmu-sync`` or ``~/.cache/fmu-sync`` (else ``$TMPDIR``,
+   ``/tmp`` or ``/var/tmp``/fmu-sync-<uid>; none writable: an error that names
+   them and says to set FMU_SYNC_CACHE), ``<folder>/<hash>/<package>``: a stable source path, so numba's
    on-disk cache hits across the fresh temp folders an importer unzips to;
 3. imports ``<package>.fmus.runtime`` (or the build's ``runtime`` module, e.g.
    ``fmus.coupling_runtime`` for the coupling FMU) from there (a package name unique to the
@@ -29,6 +30,8 @@ import tempfile
 
 BUILD_FILE = "fmu_sync_build.json"
 CODE_DIR = "fmu_sync_code"
+#: the temporary folders tried after $TMPDIR (when the user's cache folder is not writable)
+TMP_DIRS = ("/tmp", "/var/tmp")
 _checked: dict[str, list[str]] = {}
 
 
@@ -55,8 +58,22 @@ def _version(dist: str) -> str | None:
         return "unknown" if importlib.util.find_spec(dist) is not None else None
 
 
-def check_runtime(built: dict) -> list[str]:
-    """Messages about the running environment versus the build (E: missing, W: different)."""
+class SetupError(RuntimeError):
+    """The FMU cannot be set up in this process; the message says what to do."""
+
+
+def _advice(embedded: bool) -> str:
+    """Where the environment of the FMU's Python is chosen, in the host at hand."""
+    if embedded:
+        return ("this importer is a plain C program: the FMU started the Python recorded at export, or "
+                "the one FMU_SYNC_PYTHON names in the importer's environment")
+    return (f"this importer is itself a Python process ({sys.executable}) and the FMU runs in its "
+            f"interpreter (FMU_SYNC_PYTHON is ignored in a Python host)")
+
+
+def check_runtime(built: dict, embedded: bool = False) -> list[str]:
+    """Messages about the running environment versus the build (E: missing, W: different);
+    ``embedded``: the binary started this interpreter (a C host), else the host's own."""
     out = []
     where = f"the Python environment {sys.prefix} (Python {sys.version.split()[0]}, {sys.executable})"
     py_now = ".".join(map(str, sys.version_info[:3]))
@@ -67,40 +84,62 @@ def check_runtime(built: dict) -> list[str]:
         have = _version(dist)
         want = built.get(dist)
         if have is None:
+            todo = ("install numpy and numba there, or set FMU_SYNC_PYTHON to an interpreter that has them"
+                    if embedded else
+                    f"install them into that environment ({sys.executable} -m pip install numpy numba), or "
+                    f"run the importer from an environment that has them")
             out.append(f"E:fmi2Instantiate: {where} lacks {dist} (the FMU was built with {dist} {want}); "
-                       f"install numpy and numba there, or set FMU_SYNC_PYTHON to an interpreter that has them")
+                       f"{_advice(embedded)}: {todo}")
         elif have != want:
             out.append(f"W:fmi2Instantiate: {dist} {have} in {where}; the FMU was built with {dist} {want}")
     return out
 
 
-def cache_root() -> str:
-    for base in (os.environ.get("FMU_SYNC_CACHE"),
-                 os.path.join(os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "fmu-sync"),
-                 os.path.join(tempfile.gettempdir(), f"fmu-sync-{os.getuid() if hasattr(os, 'getuid') else 0}")):
-        if not base:
-            continue
+def _cache_candidates() -> list[tuple[str, str]]:
+    """(where it comes from, folder) in the order tried."""
+    uid = os.getuid() if hasattr(os, "getuid") else 0
+    xdg = os.environ.get("XDG_CACHE_HOME")
+    out = []
+    if os.environ.get("FMU_SYNC_CACHE"):
+        out.append(("FMU_SYNC_CACHE", os.environ["FMU_SYNC_CACHE"]))
+    out.append(("XDG_CACHE_HOME" if xdg else "HOME", os.path.join(xdg or os.path.expanduser("~/.cache"),
+                                                                   "fmu-sync")))
+    for label, tmp in (("TMPDIR", os.environ.get("TMPDIR")),) + tuple((d, d) for d in TMP_DIRS):
+        if tmp:
+            out.append((label, os.path.join(tmp, f"fmu-sync-{uid}")))
+    return out
+
+
+def cache_root(embedded: bool = False) -> str:
+    """The first writable cache folder; SetupError naming every folder tried and what to do."""
+    tried = []
+    for label, base in _cache_candidates():
         try:
             os.makedirs(base, exist_ok=True)
             if os.access(base, os.W_OK):
                 return base
-        except OSError:
-            continue
-    raise RuntimeError("no writable cache folder for the FMU's code (set FMU_SYNC_CACHE)")
+            tried.append(f"{base} ({label}): not writable")
+        except OSError as exc:
+            tried.append(f"{base} ({label}): {exc.strerror or exc}")
+    where = ("in the environment of the program that loads the FMU" if embedded else
+             f"in this Python process (os.environ['FMU_SYNC_CACHE'] before loading the FMU, or in the "
+             f"shell that starts {sys.executable})")
+    raise SetupError(f"no writable folder for the FMU's code and its compiled cache; tried "
+                     f"{'; '.join(tried)}. Set FMU_SYNC_CACHE to a writable folder {where}")
 
 
-def unpack(resources_dir: str, build: dict) -> str:
+def unpack(resources_dir: str, build: dict, embedded: bool = False) -> str:
     """The folder to put on sys.path (holds ``<package>/``), unpacking if needed."""
     digest, package = build["code_hash"], build["package"]
-    root = cache_root()
+    root = cache_root(embedded)
     dest = os.path.join(root, digest)
     marker = os.path.join(dest, ".complete")
     if os.path.isfile(marker) and code_hash(os.path.join(dest, package)) == digest:
         return dest
     src = os.path.join(resources_dir, CODE_DIR)
     if code_hash(src) != digest:
-        raise RuntimeError(f"the FMU's code in {src} does not match its recorded hash {digest[:12]}: "
-                           f"the FMU is damaged")
+        raise SetupError(f"the FMU's code in {src} does not match its recorded hash {digest[:12]}: "
+                         f"the FMU is damaged (export it again)")
     tmp = tempfile.mkdtemp(prefix=f".{digest[:12]}.", dir=root)
     try:
         shutil.copytree(src, os.path.join(tmp, package))
@@ -119,31 +158,36 @@ def unpack(resources_dir: str, build: dict) -> str:
     return dest
 
 
-def instantiate(resources_dir: str, instance_name: str, guid: str):
-    """(reply, instance or None) for the binary; never raises."""
+def instantiate(resources_dir: str, instance_name: str, guid: str, embedded: int = 0):
+    """(reply, instance or None) for the binary; never raises. ``embedded``: the
+    binary started this interpreter (a plain C host), else it is the host's own."""
     msgs: list[str] = []
     try:
         with open(os.path.join(resources_dir, BUILD_FILE), encoding="utf-8") as f:
             build = json.load(f)
         key = build["code_hash"]
         if key not in _checked:
-            _checked[key] = check_runtime(build["built_with"])
+            _checked[key] = check_runtime(build["built_with"], bool(embedded))
         msgs += _checked[key]
         if any(m.startswith("E:") for m in msgs):
             return "\x1e".join(msgs), None
         package = build["package"]
         if package not in sys.modules:
-            path = unpack(resources_dir, build)
+            path = unpack(resources_dir, build, bool(embedded))
             if path not in sys.path:
                 sys.path.insert(0, path)
         import importlib
         runtime = importlib.import_module(f"{package}.{build.get('runtime', 'fmus.runtime')}")
         module, cls = build["slave"].split(":")
         slave_cls = getattr(importlib.import_module(f"{package}.{module}"), cls)
-        reply, inst = runtime.create(slave_cls, resources_dir, build["model"])
+        reply, inst = runtime.create(slave_cls, resources_dir, build["model"],
+                                     float(build.get("max_substeps", "inf")))
         if reply:
             msgs.append(reply)
         return "\x1e".join(msgs), inst
+    except SetupError as exc:
+        msgs.append(f"E:fmi2Instantiate: {exc}")
+        return "\x1e".join(msgs), None
     except Exception as exc:
         import traceback
         tb = traceback.format_exc(limit=4).replace("\x1e", " ")

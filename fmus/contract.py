@@ -26,9 +26,10 @@ from typing import Callable
 import numpy as np
 
 from ..core.model import MechanicalSystem
+from ..core.moreau import MIDPOINT, THETA
 
-__all__ = ["Var", "FmuModel", "ContractError", "MODELS", "POSITIVE_MIN", "INPUT_BOUND", "SCHEME_TYPE", "SCHEME_ITEMS",
-           "LAW_TYPE", "LAW_ITEMS", "ENUM_TYPES",
+__all__ = ["Var", "FmuModel", "ContractError", "MODELS", "POSITIVE_MIN", "INPUT_BOUND", "STATE_BOUND",
+           "SCHEME_TYPE", "SCHEME_ITEMS", "SCHEME_EXACT", "LAW_TYPE", "LAW_ITEMS", "ENUM_TYPES",
            "SOLVER_DT", "SOLVER_SCHEME", "SOLVER_THETA", "GAP", "IMPACTS", "PERCUSSION", "ENERGY",
            "model", "model_for", "identify", "indexed", "scheme_value", "scheme_name"]
 
@@ -43,16 +44,25 @@ POSITIVE_MIN = 2.2250738585072014e-308
 #: modelDescription.xml; the FMU's binary refuses other values at fmi2SetReal).
 #: Larger forces are far outside any mechanical model and overflow the energy.
 INPUT_BOUND = 1e12
+#: Positions and velocities must lie in [-STATE_BOUND, STATE_BOUND]: the bounds of
+#: q_start and u_start, of q and u in an FMU state (fmi2SetFMUstate,
+#: fmi2DeSerializeFMUstate) and of the state a doStep reaches (else rolled back).
+STATE_BOUND = 1e12
 
 SCHEME_TYPE = "fmu_sync.Scheme"
+#: The one numbering of the schemes: the core's Moreau codes (core.moreau: MIDPOINT,
+#: THETA) and the exact communication step after them. The FMU's enumeration values,
+#: the stepper's dispatch and the binary's constants (generated at export) are these.
+SCHEME_EXACT = 2
 #: FMI enumeration items of solver.scheme: (name, value, description); the
 #: name is the core's scheme name (fmu_sync.core.moreau.SCHEMES).
 SCHEME_ITEMS = (
-    ("midpoint", 1, "Moreau midpoint scheme, explicit in the smooth forces (stable for omega_max*dt < 2)"),
-    ("theta", 2, "Moreau-Jean theta scheme, linear part (K, C) implicit"),
-    ("exact", 3, "Exact communication step (1-DOF only): closed-form flow, impacts, completed "
-                 "accumulations and persistent contact, tau constant over the step; solver.dt unused"),
+    ("midpoint", MIDPOINT, "Moreau midpoint scheme, explicit in the smooth forces (stable for omega_max*dt < 2)"),
+    ("theta", THETA, "Moreau-Jean theta scheme, linear part (K, C) implicit"),
+    ("exact", SCHEME_EXACT, "Exact communication step (1-DOF only): closed-form flow, impacts, completed "
+                            "accumulations and persistent contact, tau constant over the step; solver.dt unused"),
 )
+assert sorted(v for _, v, _ in SCHEME_ITEMS) == list(range(len(SCHEME_ITEMS))), "one numbering, 0..n-1"
 
 
 LAW_TYPE = "fmu_sync.Law"
@@ -166,7 +176,7 @@ def _solver_variables(dt: float = 1e-3) -> list[Var]:
         Var(SOLVER_SCHEME, "Enumeration", "parameter", "fixed",
             "Solver of a communication step: Moreau midpoint or theta with internal step solver.dt, "
             "or exact (1-DOF model only)",
-            initial="exact", start=1, declared_type=SCHEME_TYPE),
+            initial="exact", start=MIDPOINT, declared_type=SCHEME_TYPE),
         _param(SOLVER_THETA, "1", "Theta of the Moreau-Jean scheme (used when solver.scheme = theta)",
                0.5, min=0.5, max=1.0),
     ]
@@ -332,8 +342,9 @@ def _io_declare() -> list[Var]:
         _param("Omega", "rad/s", "Angular frequency of the harmonic force", 2.5, min=0.0),
         _param("phi", "rad", "Phase of the harmonic force", 0.0),
         _param("e", "1", "Newton restitution coefficient at the wall", 0.9, min=0.0, max=1.0),
-        _param("q_start", "m", "Initial position (the wall is q = 0: q_start >= 0)", 1.0, min=0.0),
-        _param("u_start", "m/s", "Initial velocity", 0.0),
+        _param("q_start", "m", "Initial position (the wall is q = 0: q_start >= 0)", 1.0, min=0.0,
+               max=STATE_BOUND),
+        _param("u_start", "m/s", "Initial velocity", 0.0, min=-STATE_BOUND, max=STATE_BOUND),
     ]
     return _inputs(1) + outputs + params + _solver_variables()
 
@@ -350,8 +361,8 @@ def _matrix_params(sym, unit, what, values, diag_min, n=_N2):
                    values[i][j], min=diag_min if i == j else None) for i in range(n) for j in range(n)]
 
 
-def _vector_params(sym, unit, what, values, min=None, n=_N2):
-    return [_param(f"{sym}[{i + 1}]", unit, f"{what}, component {i + 1}", values[i], min=min)
+def _vector_params(sym, unit, what, values, min=None, n=_N2, max=None):
+    return [_param(f"{sym}[{i + 1}]", unit, f"{what}, component {i + 1}", values[i], min=min, max=max)
             for i in range(n)]
 
 
@@ -375,8 +386,9 @@ def _ms2_declare() -> list[Var]:
         + _vector_params("w", "1", "Wall normal w in g(q) = w^T q + g0 (not zero)", (1.0, 0.5))
         + [_param("g0", "m", "Wall offset g0 in g(q) = w^T q + g0", 0.0),
            _param("e", "1", "Newton restitution coefficient at the wall", 0.7, min=0.0, max=1.0)]
-        + _vector_params("q_start", "m", "Initial position (g(q_start) >= 0)", (0.6, 0.2))
-        + _vector_params("u_start", "m/s", "Initial velocity", (0.0, 0.0))
+        + _vector_params("q_start", "m", "Initial position (g(q_start) >= 0)", (0.6, 0.2),
+                         min=-STATE_BOUND, max=STATE_BOUND)
+        + _vector_params("u_start", "m/s", "Initial velocity", (0.0, 0.0), min=-STATE_BOUND, max=STATE_BOUND)
     )
     return _inputs(n) + outputs + params + _solver_variables()
 

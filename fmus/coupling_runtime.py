@@ -130,8 +130,10 @@ class CouplingInstance(InstanceBase):
         return ""
 
 
-def create(slave_base, resources_dir: str, model: str) -> tuple[str, CouplingInstance | None]:
-    """A new instance: the structure and start values of ``resources/fmu_sync_start.json``."""
+def create(slave_base, resources_dir: str, model: str,
+           max_substeps: float = math.inf) -> tuple[str, CouplingInstance | None]:
+    """A new instance: the structure and start values of ``resources/fmu_sync_start.json``
+    (``max_substeps``: unused, the coupling has no internal steps)."""
     reply, data = read_start_file(resources_dir, model)
     if data is None:
         return reply, None

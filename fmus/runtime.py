@@ -8,8 +8,8 @@ work array and of the stepper cfunc. Those arrays are owned here and never
 reallocated, so the addresses stay valid for the instance's life.
 
 Every method the binary calls returns a *reply*: messages separated by
-``\\x1e``, each prefixed ``I:``/``W:``/``D:``/``E:`` (status of the call); the
-empty string is OK. No method raises on bad input: a refused call changes nothing.
+``\\x1e``, each prefixed ``I:``/``W:``/``D:``/``E:`` (status of the call) or
+``N:`` (a notice, logged as a warning; the call stays OK); the empty string is OK. No method raises on bad input: a refused call changes nothing.
 """
 from __future__ import annotations
 
@@ -24,11 +24,14 @@ from . import stepper as S
 from ._xml import POSITIVE_MIN, fmi3_groups
 from .slave import PHASES, RUNNING_PHASES, START_FILE, STATE_FORMAT
 
-__all__ = ["FMUInstance", "create", "LAYOUT_VERSION", "variable_table", "InstanceBase", "read_start_file"]
+__all__ = ["FMUInstance", "create", "LAYOUT", "TYPES", "CAUSALITIES", "variable_table", "InstanceBase",
+           "read_start_file"]
 
-LAYOUT_VERSION = 1
-TYPE_REAL, TYPE_INTEGER, TYPE_ENUM = 0, 1, 2
-CAUS_PARAMETER, CAUS_INPUT, CAUS_OUTPUT = 0, 1, 2
+#: what layout() hands over, in order (one uint64 each; the binary's FSR_L_* indices)
+LAYOUT = ("version", "nvars", "x", "type", "caus", "min", "max", "work", "stepper", "names", "hints")
+#: codes of the per-variable table (the binary's FSR_T_* and FSR_C_*)
+TYPES = {"Real": 0, "Integer": 1, "Enumeration": 2}
+CAUSALITIES = {"parameter": 0, "input": 1, "output": 2}
 _PHASE_NAMES = {code: name for name, code in PHASES.items()}
 
 
@@ -44,10 +47,8 @@ def variable_table(vars_: list) -> tuple:
     names, hints); names and hints as '\\0'-separated bytes."""
     nv = len(vars_)
     starts = np.array([float(v.start) if v.start is not None else math.nan for v in vars_])
-    vtype = np.array([{"Real": TYPE_REAL, "Integer": TYPE_INTEGER, "Enumeration": TYPE_ENUM}[v.type]
-                      for v in vars_], dtype=np.int32)
-    vcaus = np.array([{"parameter": CAUS_PARAMETER, "input": CAUS_INPUT, "output": CAUS_OUTPUT}[v.causality]
-                      for v in vars_], dtype=np.int32)
+    vtype = np.array([TYPES[v.type] for v in vars_], dtype=np.int32)
+    vcaus = np.array([CAUSALITIES[v.causality] for v in vars_], dtype=np.int32)
     vmin = np.full(nv, -math.inf)
     vmax = np.full(nv, math.inf)
     hints = []
@@ -91,10 +92,12 @@ class InstanceBase:
                                       ctypes.c_double)(stepper.address)
 
     def layout(self) -> bytes:
-        """What the binary reads once (LAYOUT_VERSION): the addresses of the arrays and the stepper."""
-        return struct.pack("<11Q", LAYOUT_VERSION, self.x.shape[0], self.x.ctypes.data, self.vtype.ctypes.data,
-                           self.vcaus.ctypes.data, self.vmin.ctypes.data, self.vmax.ctypes.data,
-                           self.work.ctypes.data, self._address, self._names.ctypes.data, self._hints.ctypes.data)
+        """What the binary reads once (LAYOUT, version stepper.WORK_VERSION): the arrays and the stepper."""
+        fields = {"version": S.WORK_VERSION, "nvars": self.x.shape[0], "x": self.x.ctypes.data,
+                  "type": self.vtype.ctypes.data, "caus": self.vcaus.ctypes.data, "min": self.vmin.ctypes.data,
+                  "max": self.vmax.ctypes.data, "work": self.work.ctypes.data, "stepper": self._address,
+                  "names": self._names.ctypes.data, "hints": self._hints.ctypes.data}
+        return struct.pack(f"<{len(LAYOUT)}Q", *(fields[k] for k in LAYOUT))
 
     def free(self) -> None:
         self.cfg = None
@@ -141,8 +144,9 @@ class InstanceBase:
 class FMUInstance(InstanceBase):
     """One instance: variable array, table, work array; validation and state."""
 
-    def __init__(self, slave_cls, start_values: dict):
+    def __init__(self, slave_cls, start_values: dict, max_substeps: float = math.inf):
         self._declare(slave_cls, start_values)
+        self.max_substeps = max_substeps     # the binary's limit of internal steps per doStep
         nv = len(self.vars)
 
         n, m = slave_cls.N, len(self.inputs)
@@ -229,7 +233,20 @@ class FMUInstance(InstanceBase):
         self.work[S.H_VREF] = 0.0               # the exact run's velocity scale: set by its first step
         self.work[S.H_PEND_P] = 0.0
         self._outputs_from_stepper()
-        return ""
+        return self._default_step_warning(cfg)
+
+    def _default_step_warning(self, cfg) -> str:
+        """A notice when the default experiment's step needs more internal steps than a doStep may take
+        (logged as a warning; the call stays OK: an importer may use smaller steps, and some importers,
+        fmusim for one, stop at any status other than OK)."""
+        H = float(self.cls.DEFAULT_EXPERIMENT["stepSize"])
+        count = math.ceil(H / cfg.dt - 1e-9)      # as fsr_step (fmus/c/fmu_sync_runtime.c) counts them
+        if cfg.scheme == S.EXACT or count <= self.max_substeps:
+            return ""
+        return (f"N:fmi2ExitInitializationMode: solver.dt = {cfg.dt:g} makes a doStep of the default "
+                f"experiment's step H = {H:g} (modelDescription.xml) need {count:.6g} internal steps, more "
+                f"than the limit {self.max_substeps:.0f}: every doStep with H > {self.max_substeps * cfg.dt:.6g} "
+                f"will be refused (fmi2Error); use solver.dt >= {H / self.max_substeps:.6g} or smaller steps")
 
     # ------------------------------------------------------------ FMU state
     def get_state(self) -> dict:
@@ -294,8 +311,10 @@ def read_start_file(resources_dir: str, model: str) -> tuple[str, dict | None]:
     return "", data
 
 
-def create(slave_cls, resources_dir: str, model: str) -> tuple[str, FMUInstance | None]:
-    """A new instance with the start values of ``resources/fmu_sync_start.json``."""
+def create(slave_cls, resources_dir: str, model: str,
+           max_substeps: float = math.inf) -> tuple[str, FMUInstance | None]:
+    """A new instance with the start values of ``resources/fmu_sync_start.json``;
+    ``max_substeps``: the binary's limit of internal steps per doStep (from the build record)."""
     reply, data = read_start_file(resources_dir, model)
     if data is None:
         return reply, None
@@ -303,4 +322,4 @@ def create(slave_cls, resources_dir: str, model: str) -> tuple[str, FMUInstance 
         starts = slave_cls.normalize_start_values(data.get("start", {}))
     except ValueError as exc:
         return f"E:fmi2Instantiate: bad start value in {os.path.join(resources_dir, START_FILE)}: {exc}", None
-    return "", FMUInstance(slave_cls, starts)
+    return "", FMUInstance(slave_cls, starts, max_substeps)

@@ -18,6 +18,7 @@ Numerics: none here.
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 
@@ -26,21 +27,40 @@ import numpy as np
 from ..core.checks import check_stable, check_step, scheme_code
 from ..core.errors import SimulationDiverged
 from ._xml import generation_tool, model_description, model_description3, model_guid
-from .contract import INPUT_BOUND, SCHEME_ITEMS, Var
+from .contract import INPUT_BOUND, SCHEME_ITEMS, STATE_BOUND, Var
 
 __all__ = ["MechanicalSlave", "STATE_FORMAT", "START_FILE", "Configuration", "PHASES", "RUNNING_PHASES",
-           "INPUT_BOUND", "generation_tool", "model_guid"]
+           "INPUT_BOUND", "generation_tool", "model_guid", "seal", "unseal"]
 
 #: Name of the start-value file in the FMU's resources/ (written by fmu_sync.export).
 START_FILE = "fmu_sync_start.json"
-#: Tag of the serialised FMU state (JSON).
-STATE_FORMAT = "fmu-sync-state/3"
-#: FMU phases as saved in a state (names) and their C codes (c/fmu_sync_runtime.h: FSR_INSTANTIATED ...;
-#: event mode: fmu_sync_fmi3.c's ST_EVENT)
+#: Tag of the serialised FMU state: the first line of the bytes is the tag and
+#: the sha256 of the rest (JSON), so a damaged or altered state is refused
+#: instead of being read as another valid state (:func:`seal`, :func:`unseal`).
+STATE_FORMAT = "fmu-sync-state/4"
+#: FMU phases as saved in a state (names) and their C codes (fmu_sync_constants.h: FSR_INSTANTIATED ...;
+#: event mode: fmu_sync_fmi3.c's ST_EVENT = FSR_EVENT)
 PHASES = {"instantiated": 1, "initialization": 2, "step": 4, "terminated": 8, "event": 16}
 #: phases in which the instance runs a validated configuration (FMI 3.0 adds event mode)
 RUNNING_PHASES = ("step", "terminated", "event")
 _SCHEME_BY_VALUE = {value: name for name, value, _ in SCHEME_ITEMS}
+
+
+def seal(payload: bytes) -> bytes:
+    """Serialised state: ``<STATE_FORMAT> <sha256 of payload>\n<payload>``."""
+    return f"{STATE_FORMAT} {hashlib.sha256(payload).hexdigest()}\n".encode() + payload
+
+
+def unseal(data: bytes) -> bytes:
+    """The payload of :func:`seal`'s bytes; ValueError if the header or checksum does not match."""
+    head, sep, payload = bytes(data).partition(b"\n")
+    tag, _, digest = head.partition(b" ")
+    if not sep or tag != STATE_FORMAT.encode():
+        raise ValueError(f"not an fmu-sync FMU state of format {STATE_FORMAT!r} (header {head[:40]!r})")
+    if digest != hashlib.sha256(payload).hexdigest().encode():
+        raise ValueError("checksum mismatch: the serialized state was damaged or altered (sha256 of its "
+                         "content differs from the one in its header)")
+    return payload
 
 
 def _is_real(x) -> bool:
@@ -113,13 +133,15 @@ class MechanicalSlave:
         return vars_
 
     @classmethod
-    def description(cls, start_values: dict, guid: str, fmi_version: int = 2):
+    def description(cls, start_values: dict, guid: str, version: str, fmi_version: int = 2):
         """The complete <fmiModelDescription> element of an FMU with these start values
-        (FMI 2.0, or FMI 3.0 with ``time`` after the last scalar's value reference)."""
+        (``version``: the exporting fmu-sync's; FMI 2.0, or FMI 3.0 with ``time`` after the
+        last scalar's value reference)."""
         variables = cls.variables(start_values)
         common = dict(model_name=cls.MODEL_IDENTIFIER, model_identifier=cls.MODEL_IDENTIFIER,
-                      description=cls.DESCRIPTION, generation_tool=generation_tool(fmi_version), variables=variables,
-                      default_experiment=cls.DEFAULT_EXPERIMENT, log_categories=cls.LOG_CATEGORIES)
+                      description=cls.DESCRIPTION, generation_tool=generation_tool(version, fmi_version),
+                      variables=variables, default_experiment=cls.DEFAULT_EXPERIMENT,
+                      log_categories=cls.LOG_CATEGORIES)
         if fmi_version == 3:
             return model_description3(token=guid, time_vr=len(variables), **common)
         return model_description(guid=guid, **common)
@@ -241,6 +263,10 @@ class MechanicalSlave:
                 if (not isinstance(x, list) or len(x) != size
                         or not all(_is_real(a) and math.isfinite(a) for a in x)):
                     return f"{key} must be a list of {size} finite numbers, got {x!r}", None
+            for key in ("q", "u"):
+                if not all(abs(a) <= STATE_BOUND for a in s[key]):
+                    return (f"{key} = {s[key]!r} out of range: |q| and |u| must be <= {STATE_BOUND:g} "
+                            f"(the bound of q_start and u_start, contract.STATE_BOUND)"), None
             for key in ("time", "percussion", "vref"):
                 if not (_is_real(s[key]) and math.isfinite(s[key])):
                     return f"{key} must be a finite number, got {s[key]!r}", None
@@ -282,13 +308,13 @@ class MechanicalSlave:
 
     @staticmethod
     def state_to_bytes(state: dict) -> bytes:
-        # Plain JSON: floats are written with repr (shortest round-trip text),
-        # so a deserialised state reproduces the run bit for bit.
-        return json.dumps(state, sort_keys=True, separators=(",", ":"), allow_nan=False).encode("utf-8")
+        # JSON under a checksummed header: floats are written with repr (shortest
+        # round-trip text), so a deserialised state reproduces the run bit for bit.
+        return seal(json.dumps(state, sort_keys=True, separators=(",", ":"), allow_nan=False).encode("utf-8"))
 
     @staticmethod
     def state_from_bytes(data: bytes):
-        state = json.loads(bytes(data).decode("utf-8"))
+        state = json.loads(unseal(data).decode("utf-8"))
         if not isinstance(state, dict):
             raise ValueError(f"a JSON {type(state).__name__}, not an object")
         return state

@@ -14,10 +14,12 @@ makes exactly one call to the core's :func:`fmu_sync.core.moreau.advance_in`
 ``solver.scheme = exact`` (1-DOF), one call to the core's exact communication
 step :func:`fmu_sync.core.exact.exact_step` (closed-form flow, impacts,
 completed accumulations and persistent contact; tau constant over the step) --
-and writes q, u, gap, energy, impacts and percussion into ``x``. It returns 0,
-1 after rolling the step back when the state (or an output) became non-finite
-or the exact solver could not complete the step, or 2 (nothing done) when the
-exact scheme is given a non-zero input derivative. ``H == 0`` only recomputes
+and writes q, u, gap, energy, impacts and percussion into ``x``. It returns
+one of the ``R_*`` codes: 0 done; after rolling the step back, 1 when the state
+(or an output) became non-finite or left the state bound (``|q|, |u| <=
+contract.STATE_BOUND``), 3 when the exact solver met more than its work guard
+``EXACT_MAX_EVENTS`` events in the step, 4 when it could not decide a contact;
+or 2 (nothing done) when the exact scheme is given a non-zero input derivative. ``H == 0`` only recomputes
 gap and energy (used after a restore, so that the outputs are the very same
 numbers).
 
@@ -49,32 +51,43 @@ import numpy as np
 from numba import carray, cfunc, njit, types
 
 from ..core.exact import NT as _EXACT_NT
-from ..core.exact import STEP_OK, exact_step_early
+from ..core.exact import STEP_OK, STEP_TOO_MANY_EVENTS, exact_step_early
 from ..core.model import SystemArrays
 from ..core.moreau import MIDPOINT, OK, THETA, advance_in, substeps
+from .contract import SCHEME_EXACT as EXACT
+from .contract import STATE_BOUND
 
 __all__ = ["step", "pack", "work_size", "H_LEN", "H_VERSION", "H_TIME", "H_PHASE", "H_DT",
-           "H_CONFIGURED", "WORK_VERSION", "H_FEEDTHROUGH", "H_VREF", "H_ITAUDOT", "H_IEXACT", "EXACT", "exact_size",
+           "H_CONFIGURED", "WORK_VERSION", "H_FEEDTHROUGH", "H_VREF", "H_ITAUDOT", "H_IEXACT", "H_MAXEV", "H_BOUND",
+           "EXACT", "exact_size",
+           "EXACT_MAX_EVENTS", "R_OK", "R_ROLLED_BACK", "R_EXACT_TAUDOT", "R_EXACT_EVENTS", "R_EXACT_STALL",
            "H_MODE", "H_REACHED", "H_PEND_U", "H_PEND_P", "H_ICOUNT", "MODE_FULL", "MODE_EARLY",
            "MODE_EARLY_EVENT", "MODE_APPLY_EVENT"]
 
-# --- header slots (the first six are read by the C binary: keep in sync with c/fmu_sync_runtime.h)
+# --- header slots (those the C binary reads are written into fmu_sync_constants.h at export)
 H_LEN, H_VERSION, H_TIME, H_PHASE, H_DT, H_CONFIGURED = 0, 1, 2, 3, 4, 5
 H_N, H_M, H_NF, H_SCHEME, H_THETA, H_NX = 6, 7, 8, 9, 10, 11
 H_IQ, H_IU, H_ITAU, H_IGAP, H_IENERGY, H_IIMPACTS, H_IPERC = 12, 13, 14, 15, 16, 17, 18
-# (read by the C binary too: H_M, H_SCHEME, H_ITAU, H_ITAUDOT)
+# (read by the C binary too: H_M, H_SCHEME, H_ITAU, H_ITAUDOT, H_FEEDTHROUGH, H_MAXEV, H_BOUND)
 H_VREF, H_ITAUDOT, H_IEXACT = 19, 20, 21
 #: read by the C binary: != 0 when the outputs depend directly on the inputs (0 here; the coupling FMU)
 H_FEEDTHROUGH = 22
+H_MAXEV, H_BOUND = 23, 24
 # FMI 3.0 (read and written by fmu_sync_fmi3.c): the step mode (MODE_*), the time a
 # step reached (t + H or an early return), the pending impact of an early return in
 # event mode (post-impact velocity, its percussion; H_PEND_P > 0 while pending), and
 # the offset of the per-slot FMI 3.0 variable sizes (runtime.FMUInstance)
-H_MODE, H_REACHED, H_PEND_U, H_PEND_P, H_ICOUNT = 23, 24, 25, 26, 27
-H_DATA = 28
-WORK_VERSION = 2.0
-#: the FMU's code of solver.scheme = exact (the core's Moreau codes are MIDPOINT, THETA)
-EXACT = 2
+H_MODE, H_REACHED, H_PEND_U, H_PEND_P, H_ICOUNT = 25, 26, 27, 28, 29
+H_DATA = 30
+#: the one version of what the binary and the Python side share (work array header,
+#: layout, codes): fmu_sync_constants.h, generated at export, carries it
+WORK_VERSION = 4
+#: work guard of the exact scheme: most events (impacts, contact changes, flow
+#: pieces) in one doStep; more makes the step fail (rolled back, fmi2Error) in
+#: well under a second instead of running for minutes (H = 1e9)
+EXACT_MAX_EVENTS = 100_000
+#: return codes of :func:`step` (read by fmus/c/fmu_sync_runtime.c)
+R_OK, R_ROLLED_BACK, R_EXACT_TAUDOT, R_EXACT_EVENTS, R_EXACT_STALL = 0, 1, 2, 3, 4
 #: step modes (H_MODE): to the end of the step (FMI 2.0; FMI 3.0 without early return);
 #: stop at the first impact with the impact handled (early return, no event mode); stop
 #: at the first impact before it (early return in event mode: the exact scheme keeps the
@@ -111,6 +124,8 @@ def pack(work: np.ndarray, sa: SystemArrays, dt: float, scheme: int, theta: floa
         raise ValueError(f"work array of {work.shape[0]} slots, the system needs {need}")
     work[H_N], work[H_M], work[H_NF] = n, m, nf
     work[H_SCHEME], work[H_THETA], work[H_DT] = scheme, theta, dt
+    work[H_MAXEV] = EXACT_MAX_EVENTS
+    work[H_BOUND] = STATE_BOUND
     k = H_DATA
     for a in (sa.M, sa.Minv, sa.K, sa.C, sa.f0, sa.F, sa.Omega, sa.phi, sa.B, sa.w):
         flat = np.ascontiguousarray(a, dtype=np.float64).reshape(-1)
@@ -240,7 +255,7 @@ def step(x_ptr, w_ptr, t, H):
         g, E = _outputs(sa, q, u)
         x[int(w[H_IGAP])] = g
         x[int(w[H_IENERGY])] = E
-        return 0
+        return R_OK
     save = w[k:k + 2 * n]
     itd = int(w[H_ITAUDOT])
     taudot = w[itd:itd + m]
@@ -255,12 +270,14 @@ def step(x_ptr, w_ptr, t, H):
     if scheme == EXACT:
         for j in range(m):
             if taudot[j] != 0.0:
-                return 2
+                return R_EXACT_TAUDOT
         ie = int(w[H_IEXACT])
         st, t_stop, q1, u1, um, P, Pi, hits, vref = exact_step_early(w[ie:], q[0], u[0], t, H, tau,
-                                                                     w[H_VREF], early)
+                                                                     w[H_VREF], early, int(w[H_MAXEV]))
+        if st == STEP_TOO_MANY_EVENTS:
+            return R_EXACT_EVENTS
         if st != STEP_OK:
-            return 1
+            return R_EXACT_STALL
         q[0] = q1
         u[0] = u1
         if Pi > 0.0 and mode == MODE_EARLY_EVENT:   # stop before the impact: left limit
@@ -293,11 +310,16 @@ def step(x_ptr, w_ptr, t, H):
                     break
         vref = w[H_VREF]
     g, E = _outputs(sa, q, u)
-    if status != OK or not (math.isfinite(g) and math.isfinite(E)):
+    bad = status != OK or not (math.isfinite(g) and math.isfinite(E))
+    bound = w[H_BOUND]
+    for i in range(n):
+        if not (abs(q[i]) <= bound and abs(u[i]) <= bound):
+            bad = True
+    if bad:
         for i in range(n):
             q[i] = save[i]
             u[i] = save[n + i]
-        return 1
+        return R_ROLLED_BACK
     w[H_VREF] = vref
     w[H_REACHED] = t_stop
     w[H_PEND_U] = pend_u
@@ -308,4 +330,4 @@ def step(x_ptr, w_ptr, t, H):
     x[int(w[H_IIMPACTS])] += hits
     x[int(w[H_IGAP])] = g
     x[int(w[H_IENERGY])] = E
-    return 0
+    return R_OK

@@ -215,3 +215,37 @@ class PythonMaster(NetworkMaster):
         return res
 
 
+
+
+class PythonSspMaster(PythonMaster):
+    """:class:`PythonMaster` with the other masters' delayed orders as issue 19 wrote them
+    (Python step methods; ``fmu_sync.ssp_master.SspMaster`` runs them in the compiled loop)."""
+
+    METHODS = PythonMaster.METHODS + ("delayed", "delayed-zero")
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._next = None   # the forces transferred for the next step
+
+    def step_delayed(self, t: float, h: float, x) -> list:
+        fresh = self.tau.copy() if self._next is None else self._next
+        self.inputs(x)
+        self._next, self.tau = self.tau, fresh
+        return self._step_all(t, h)
+
+    def step_delayed_zero(self, t: float, h: float, x) -> list:
+        if self._next is None:
+            self._next, self.tau = np.zeros_like(self.tau), np.zeros_like(self.tau)
+            return self._step_all(t, h)
+        return self.step_delayed(t, h, x)
+
+    def _step_all(self, t: float, h: float) -> list:
+        for i, s in enumerate(self.slaves):
+            self.check_forces(i, t, h)
+            self._give(i, s, t, h)
+        return [self.read(s) for s in self.slaves]
+
+    def record(self, row: int, t: float, x, held) -> None:
+        if row == 0 and self.method == "delayed-zero":   # the force held over the first step: 0
+            held = np.zeros_like(held)
+        super().record(row, t, x, held)

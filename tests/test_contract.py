@@ -96,8 +96,8 @@ def test_values_refuse_what_the_fmu_cannot_represent():
         io.values(two)
     with pytest.raises(ValueError, match="no scheme 'rk4'"):
         io.solver_values(1e-3, "rk4")
-    assert io.solver_values(1e-3, "exact") == {"solver.dt": 1e-3, "solver.scheme": 3}
-    assert io.solver_values(1e-3, "theta", 0.7) == {"solver.dt": 1e-3, "solver.scheme": 2, "solver.theta": 0.7}
+    assert io.solver_values(1e-3, "exact") == {"solver.dt": 1e-3, "solver.scheme": 2}
+    assert io.solver_values(1e-3, "theta", 0.7) == {"solver.dt": 1e-3, "solver.scheme": 1, "solver.theta": 0.7}
 
 
 def test_contract_imports_only_the_core_numpy_and_the_standard_library():

@@ -13,6 +13,8 @@ from test_cli import run_cli
 # f0 = 10 k keeps both oscillators far from the wall (q ~ 10 +- 1.5): no impacts, the
 # switching law stays on branch E, where it is the PD law. The relative mode x = q1 - q2:
 #   m x'' + (c + 2 Kd) x' + (k + 2 Kp) x = 0  ->  d ~ exp(-(c + 2 Kd)/(2 m) t)  (tests/test_metrics.py)
+# Q = 1 (explicit): d oscillates under its envelope and the fit takes its peaks (with the default,
+# the energy metric, d is monotone here and the rate's uncertainty grows: tests/test_lyapunov.py)
 M, K, C, KP, KD = 2.0, 3.0, 0.1, 1.5, 0.6
 SIGMA = (C + 2 * KD) / (2 * M)
 LINEAR = f"""description = "linear coupled pair, no impacts (closed-form decay rate)"
@@ -30,6 +32,7 @@ x2 = [11.0, 0.5]
 law = "switching"
 Kp = {KP}
 Kd = {KD}
+Q = 1.0
 [solver]
 dt = 1e-4
 [run]

@@ -6,6 +6,7 @@ give the same numbers bit for bit, for our FMU on the scenes and for a C FMU wit
 contract's variables (tests/contract_fmu/oscillator.c), and must end with ``SlaveError``
 (instance, time, call, the FMU's reason, the partial record) on every failing status.
 """
+import re
 import shutil
 import subprocess
 import zipfile
@@ -95,6 +96,45 @@ def test_network_with_mixed_laws_and_directed_weights_is_bitwise_the_python_loop
             fmu, xs, A, 6.0, 1e-2, coupling=["switching", "euclidean", None], Kp=2.0, Kd=1.0, method=method,
             start_values=[{"solver.dt": 1e-2, "k": k} for k in (1.0, 1.05, 0.95, 1.02)]))
         same(new, ref)
+
+
+@pytest.mark.parametrize("method", ["delayed", "delayed-zero"])
+def test_the_other_masters_orders_are_bitwise_the_python_loop(fmu, method):
+    """SspMaster's delayed orders (libcosim's, fmpy's: flags[DELAY]) against issue 19's Python
+    step methods, on a pair and on a network with mixed laws; and what they hold: step k at
+    the forces of x_{k-1} (delayed: step 0 at x_0's), delayed-zero 0 over steps 0 and 1."""
+    from fmu_sync.core.network import network_forces, star
+    from fmu_sync.ssp_master import SspMaster
+    from _master_reference import PythonSspMaster
+    A = star(3)
+    A[0, 1] = 0.5
+    runs = [([X1, X2], [[0.0, 1.0], [1.0, 0.0]], "switching", {}),
+            ([(0.2 + 0.3 * i, 0.1 * i) for i in range(3)], A, ["switching", "euclidean"],
+             dict(start_values=[{"k": k} for k in (1.0, 1.05, 0.95)], record_every=3))]
+    for states, W, law, kw in runs:
+        args = (fmu, states, W, 6.0, 1e-2, law, GAINS["Kp"], GAINS["Kd"])
+        m = SspMaster(*args, method=method, **kw)
+        new = m.run()
+        same(new, PythonSspMaster(*args, method=method, **kw).run())
+        assert new.success and new.impacts[0] > 0
+        if kw:   # record_every = 3: the rows skip the steps
+            continue
+        laws, geo, Kp, Kd, E2, W2 = m.loop_args[3:9]
+        w = m.loop_state[-3]
+        F = np.zeros_like(m.Qr[0])
+        for k in range(len(m.T) - 1):   # row k + 1 holds the force over step k
+            network_forces(laws, geo, Kp, Kd, E2, W2, m.Qr[max(k - 1, 0)], m.Ur[max(k - 1, 0)], F, *w[:6], False,
+                           *w[6:9])
+            want = 0.0 * F if method == "delayed-zero" and k < 2 else F
+            assert np.array_equal(m.TAU[k + 1], want), k
+        assert np.array_equal(m.TAU[0], 0.0 * F if method == "delayed-zero" else m.TAU[1])
+
+
+@pytest.mark.parametrize("kw, words", [(dict(hold="foh"), "hold='foh'"), (dict(event_aware=True), "event_aware=True")])
+def test_the_other_masters_orders_refuse_what_they_do_not_have(fmu, kw, words):
+    from fmu_sync.ssp_master import SspMaster
+    with pytest.raises(ValueError, match=f"libcosim's exchange order.*{re.escape(words)}"):
+        SspMaster(fmu, [X1, X2], [[0.0, 1.0], [1.0, 0.0]], 1.0, 1e-2, method="delayed", **kw)
 
 
 SCENES = [("forced-pair", {}), ("mismatched-pair", {}), ("ring-8", {}), ("two-dof", {}),

@@ -92,7 +92,7 @@ def test_impact_oscillator_interface(fmus):
     assert float(v["q_start"].min) == 0.0          # the wall: g(q) = q >= 0
     assert v["solver.scheme"].type == "Enumeration"
     items = {i.name: int(i.value) for i in v["solver.scheme"].declaredType.items}
-    assert items == {"midpoint": 1, "theta": 2, "exact": 3}
+    assert items == {"midpoint": 0, "theta": 1, "exact": 2}     # the core's scheme codes
 
 
 def test_model_structure_dependencies(fmus):
@@ -127,7 +127,7 @@ def test_start_values_reach_the_model_description(tmp_path):
                       {"e": 0.5, "solver.scheme": "theta", "solver.dt": 1e-4, "q_start": 0.25, "tau": 0.1})
     v = _vars(path)
     assert float(v["e"].start) == 0.5
-    assert int(v["solver.scheme"].start) == 2
+    assert int(v["solver.scheme"].start) == 1
     assert float(v["solver.dt"].start) == 1e-4
     assert float(v["q_start"].start) == 0.25
     assert float(v["tau"].start) == 0.1
@@ -173,7 +173,7 @@ def test_main_export(tmp_path, capsys):
     assert main_export(["impact-oscillator", "-o", str(out), "--set", "e=0.3",
                         "--set", "solver.scheme=theta"]) == 0
     v = _vars(out)
-    assert float(v["e"].start) == 0.3 and int(v["solver.scheme"].start) == 2
+    assert float(v["e"].start) == 0.3 and int(v["solver.scheme"].start) == 1
     assert main_export(["mechanical-system-2", "-o", str(tmp_path / "m.fmu"), "--set", "M[1,2]=9"]) == 2
     assert "symmetric" in capsys.readouterr().err
     assert main_export(["impact-oscillator", "--set", "e"]) == 2
@@ -191,3 +191,64 @@ def test_slave_import_compiles_nothing():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ["0", "0"]
+
+
+def test_fmu_carries_only_what_its_slave_and_stepper_import():
+    """The carried code is the import closure of the runtime, stepper and slaves (deferred imports
+    included); nothing in it imports the host package fmu_sync."""
+    import ast
+
+    from fmu_sync import export
+    files = dict(export.carried_files())
+    # (core/network.py and core/pair.py come with the coupling FMU's stepper: network_forces)
+    for name in ("core/batch.py", "core/exact_nd.py", "core/kernels.py", "core/single.py", "core/_cache.py"):
+        assert name not in files, name
+    for name in ("core/moreau.py", "core/exact.py", "core/model.py", "fmus/stepper.py", "fmus/runtime.py",
+                 "fmus/slave.py", "fmus/contract.py", "fmus/impact_oscillator.py", "fmus/mechanical_system2.py"):
+        assert name in files, name
+    for rel, data in files.items():
+        pkg = rel.split("/")[0] if "/" in rel else ""
+        for node in ast.walk(ast.parse(data)):
+            if isinstance(node, ast.Import):
+                assert not any(a.name.startswith("fmu_sync") for a in node.names), rel
+            elif isinstance(node, ast.ImportFrom):
+                assert node.level or not (node.module or "").startswith("fmu_sync"), (rel, node.module)
+                if node.level:      # every relative import resolves to a carried module
+                    target = ([pkg] if node.level == 1 else []) + (node.module or "").split(".")
+                    mods = ["/".join(target) + ".py"] if node.module and len(target) == 2 else \
+                        [f"{target[0]}/{a.name}.py" for a in node.names]
+                    assert all(m in files for m in mods), (rel, mods)
+
+
+def test_changing_core_batch_leaves_the_guid_unchanged(monkeypatch):
+    from fmu_sync import export
+    guid = export.fmu_guid("impact-oscillator")
+    read = export._read
+
+    def edited(target):
+        return lambda rel: read(rel) + (b"\n# edited\n" if rel == target else b"")
+    monkeypatch.setattr(export, "_read", edited("core/batch.py"))
+    assert export.fmu_guid("impact-oscillator") == guid
+    monkeypatch.setattr(export, "_read", edited("core/moreau.py"))     # a module the FMU runs: a new GUID
+    assert export.fmu_guid("impact-oscillator") != guid
+
+
+def test_one_scheme_numbering_and_generated_constants():
+    """The FMU's enumeration values are the core's scheme codes (exact after them), and the
+    binary's constants are generated from the Python definitions, not written in the C files."""
+    import re
+    from pathlib import Path
+
+    from fmu_sync.core.moreau import SCHEMES
+    from fmu_sync.export import constants_header
+    from fmu_sync.fmus import contract, runtime, slave, stepper
+    items = {name: value for name, value, _ in contract.SCHEME_ITEMS}
+    assert {k: items[k] for k in SCHEMES} == SCHEMES and items["exact"] == stepper.EXACT
+    h = dict(re.findall(r"#define (\w+) (.+)", constants_header("{x}", "boot").decode()))
+    assert h["FSR_SCHEME_EXACT"] == str(stepper.EXACT) and h["FSR_SCHEME_THETA"] == str(SCHEMES["theta"])
+    assert h["FSR_H_TIME"] == str(stepper.H_TIME) and h["FSR_H_ITAUDOT"] == str(stepper.H_ITAUDOT)
+    assert h["FSR_VERSION"] == str(int(stepper.WORK_VERSION)) and h["FSR_STEP"] == str(slave.PHASES["step"])
+    assert h["FSR_L_STEPPER"] == str(runtime.LAYOUT.index("stepper")) and h["FMU_SYNC_GUID"] == '"{x}"'
+    c_dir = Path(slave.__file__).parent / "c"
+    hand = "".join(p.read_text() for p in c_dir.glob("*.[ch]"))
+    assert not re.search(r"#define (FSR_H_|FSR_SCHEME_|FSR_VERSION|FSR_L_)|FSR_H_\w+ = \d", hand)

@@ -221,3 +221,17 @@ def test_early_return_run_that_fails_keeps_the_record_and_frees_everything(fmus)
     p = exc.value.partial
     assert exc.value.call == "coupling" and "input bound" in p.error and len(p.t) >= 1
     assert np.all(np.isfinite(p.q1)) and p.info["method"] == "early-return"
+
+
+def test_do_step_goes_through_the_runtime_checks(fmus):
+    """fmi3DoStep shares the runtime's doStep checks (fsr_step): an invalid step size or
+    time, a step past stopTime are fmi3Error with the reason logged, nothing changed."""
+    with FMU3Host(fmus["ball", 3], "c", event_mode=False) as h:
+        assert h.call("enterInitializationMode", None, 0.0, 0.3)[0] == OK
+        assert h.exit_initialization() == OK
+        assert h.do_step(0.0, 0.0) == ERROR and "must be finite and > 0" in h.errors()[-1]
+        assert h.do_step(0.5, 0.1) == ERROR and "is not the slave's time" in h.errors()[-1]
+        assert h.do_step(0.0, 0.2) == OK
+        assert h.do_step(0.2, 0.2) == ERROR and "past the experiment's stopTime = 0.3" in h.errors()[-1]
+        assert h.get(["time"]) == [0.2]
+        assert h.do_step(0.2, 0.1) == OK and h.get(["time"]) == [0.30000000000000004]

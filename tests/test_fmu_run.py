@@ -256,7 +256,7 @@ def scenario_errors(a):
         h.close()
     R["model"] = out
 
-    # --- bad steps: each refused with fmi2Discard; afterwards the run continues exactly
+    # --- bad steps: each refused with fmi2Error; afterwards the run continues exactly
     # like a run that never saw them.
     h, _ = fresh()
     clean, _ = fresh(name="clean")
@@ -288,7 +288,7 @@ def scenario_errors(a):
         h, st = fresh(starts={"solver.dt": dt})
         q0 = h.get(["q", "u"])
         out[repr(dt)] = {"init": st, "step": h.do_step(0.0, 0.01), "q_u": h.get(["q", "u"]), "q0": q0,
-                         "errors": h.errors(2)}
+                         "errors": h.errors(2), "notices": h.errors(1)}
         h.close()
     R["guards"] = out
 
@@ -332,7 +332,7 @@ def scenario_errors(a):
     h.close()
 
     # --- a step that overflows (a forcing amplitude near the float range): rolled back,
-    # fmi2Discard, the state stays the last valid one
+    # fmi2Error, the state stays the last valid one
     h, _ = fresh(starts={"solver.dt": 1e-3, "q_start": 0.5, "F": 1.7e308})
     q0 = h.get(["q", "u"])
     R["diverge"] = {"step": h.do_step(0.0, 2.0), "q_u": h.get(["q", "u"]), "q0": q0,
@@ -346,8 +346,9 @@ def scenario_errors(a):
     h.do_step(0.0, 0.01)
     st, s_other = g.get_state()
     other_blob = g.serialize_state(s_other)
+    from fmu_sync.fmus.slave import seal, unseal
     st, s_good = h.get_state()
-    good = json.loads(h.serialize_state(s_good))
+    good = json.loads(unseal(h.serialize_state(s_good)))
     q_before = h.get(["q", "u"])
     r = {"deserialize_garbage": h.deserialize_state(b"\x00not json")[0],
          "set_null": h.set_state(None)}
@@ -356,11 +357,12 @@ def scenario_errors(a):
     for label, change in (("q_nan_text", {"q": "nan"}), ("q_size", {"q": [0.5, 0.5]}),
                           ("q_inf", {"q": [1e400]}), ("impacts_float", {"impacts": 1.5}),
                           ("tau_big", {"tau": [1e300]}), ("param_bad", {"parameters": {**good["parameters"], "e": 2.0}}),
-                          ("inside_wall", {"q": [-0.5]}), ("time_missing", {"time": None})):
+                          ("inside_wall", {"q": [-0.5]}), ("time_missing", {"time": None}),
+                          ("q_huge", {"q": [1e300]}), ("u_huge", {"u": [-2e12]})):
         bad = {**good, **change}
         if change.get("time", 0) is None:
             del bad["time"]
-        blob = json.dumps(bad).encode()
+        blob = seal(json.dumps(bad).encode())    # a valid checksum: the content is what is refused
         corrupt[label] = h.deserialize_state(blob)[0]
     r["corrupt"] = corrupt
     r["unchanged"] = q_before == h.get(["q", "u"])
@@ -588,8 +590,11 @@ def test_fmu_state_round_trips_reproduce_the_run(runs, key):
     assert r["identical_from_bytes"], "restoring the serialised state did not reproduce the run bit for bit"
     assert r["t_end"] == pytest.approx(r["t_expected"], abs=1e-12)   # variable steps accepted
     assert r["errors"] == []
-    state = json.loads(r["blob"])   # plain JSON, everything that determines the future
-    assert state["format"] == "fmu-sync-state/3"
+    from fmu_sync.fmus.slave import unseal
+    head = r["blob"].split("\n", 1)[0]         # the format and the sha256 of the JSON body
+    assert head.startswith("fmu-sync-state/4 ") and len(head.split()[1]) == 64
+    state = json.loads(unseal(r["blob"].encode()))   # JSON, everything that determines the future
+    assert state["format"] == "fmu-sync-state/4"
     for k in ("time", "q", "u", "tau", "taudot", "vref", "impacts", "percussion", "parameters", "phase"):
         assert k in state
     assert state["parameters"]["solver.dt"] == DT
@@ -602,7 +607,7 @@ def test_several_instances_in_one_process(runs):
     assert len({tuple(x) for x in r["last"]}) == 4
 
 
-ERROR, DISCARD = 3, 2
+ERROR = 3
 
 
 def test_nan_inf_and_huge_input_are_refused(runs):
@@ -654,8 +659,10 @@ def test_invalid_model_is_refused(runs, case, words):
 
 
 def test_bad_communication_steps(runs):
+    """Invalid doStep arguments are fmi2Error (FMI 2.0: fmi2Discard only for a step computed over a
+    subinterval), with the reason logged; nothing changes."""
     r = _ok(runs, "errors")["steps"]
-    assert set(r["statuses"].values()) == {DISCARD}, r["statuses"]
+    assert set(r["statuses"].values()) == {ERROR}, r["statuses"]
     assert r["continue"] == [0, 0]
     assert r["last_successful_time"] == pytest.approx(0.05)
     assert r["same_as_clean"], "refused steps changed the state"
@@ -667,10 +674,13 @@ def test_bad_communication_steps(runs):
 @pytest.mark.parametrize("dt, count", [("1e-12", "1e+10"), ("1e-300", "1e+298")])
 def test_too_many_internal_steps_are_refused(runs, dt, count):
     r = _ok(runs, "errors")["guards"][dt]
-    assert r["init"] == 0 and r["step"] == DISCARD and r["q_u"] == r["q0"]
+    assert r["init"] == 0 and r["step"] == ERROR and r["q_u"] == r["q0"]
     msg = r["errors"][0]
     assert f"{count} internal steps" in msg and f"solver.dt = {dt}" in msg and "H = 0.01" in msg
-    assert "10000000" in msg      # the documented limit
+    assert "10000000" in msg and "can never complete" in msg     # the documented limit
+    # known from the parameters alone: said at fmi2ExitInitializationMode already (logged, status OK)
+    notice = [m for m in r["notices"] if "fmi2ExitInitializationMode" in m]
+    assert notice and f"{count} internal steps" in notice[0] and "default experiment" in notice[0], r["notices"]
 
 
 def test_calls_in_the_wrong_state(runs):
@@ -702,7 +712,7 @@ def test_scheme_known_to_diverge_is_refused(runs):
 
 def test_divergence_is_rolled_back(runs):
     r = _ok(runs, "errors")["diverge"]
-    assert r["step"] == DISCARD
+    assert r["step"] == ERROR
     assert r["q_u"] == r["q0"] and all(math.isfinite(x) for x in r["q_u"]) and r["energy_finite"]
     assert r["last_successful_time"] == 0.0
     assert any("non-finite" in m and "rolled back" in m for m in r["errors"])
@@ -716,7 +726,8 @@ def test_bad_fmu_state_is_refused(runs):
     text = " ".join(r["errors"])
     for words in ("cannot deserialise the FMU state", "state of model 'mechanical-system-2'",
                   "q must be a list of 1 finite numbers", "impacts must be a non-negative integer",
-                  "input tau", "parameter e", "inside the wall", "penetration bound", "missing entry 'time'"):
+                  "input tau", "parameter e", "inside the wall", "penetration bound", "missing entry 'time'",
+                  "q = [1e+300] out of range", "u = [-2000000000000.0] out of range", "<= 1e+12"):
         assert words in text, words
 
 

@@ -108,14 +108,13 @@ def test_contact_episodes_equal_those_of_single_runs():
 
 
 def test_decay_rate_bound_and_t_fit_are_the_metrics_of_the_recorded_distance():
-    from fmu_sync.core.metrics import sync_metrics
     # 8 s: 801 samples, kept whole by the 1024-sample recorder -> the same numbers as the metrics
     # of the full record; 40 s: 4001 samples, decimated -> the same rate within its uncertainty
     for t_end, exact in ((8.0, True), (40.0, False)):
         ds = sweep(SCENE, variant="switching", grid={"coupling.Kp": [1.0, 10.0]},
                    overrides={"run.t_end": t_end, "coupling.Kd": 2.0}, quiet=True)
         for i, kp in enumerate([1.0, 10.0]):
-            m = sync_metrics(*(lambda r: (r.t, r.d))(_single(kp, 2.0, t_end=t_end)))
+            m = _single(kp, 2.0, t_end=t_end).sync()     # the same window floor (impact speeds, dt)
             rate = float(ds["decay_rate"][i])
             assert rate > 0.1 and float(ds["t_sync"][i]) == m.t_sync
             if exact:

@@ -42,7 +42,8 @@ types and bad values raise :class:`SceneError` naming file, key and value)::
     law = "switching"           # "none" | "switching" | "euclidean"   (default "none")
     Kp = 1.0                    # >= 0, number or n x n matrix         (default 0)
     Kd = 0.5                    # >= 0, number or n x n matrix         (default 0)
-    Q = 1.0                     # position weight of the norm: number > 0 or SPD n x n (default identity)
+    Q = "energy"                # position weight of the norm: "energy" (default: K + 2 Kp, the law's own
+                                # metric, V = d^2/2 a Lyapunov function) or a number > 0 / SPD n x n
 
     [solver]
     scheme = "midpoint"         # "midpoint" | "theta" | "exact" (exact: single 1-DOF systems)

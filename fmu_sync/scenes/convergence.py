@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
+from ..core.metrics import rate_verdict
 from ..progress import scaled
 from .loading import Scene, as_scene, load_scene
 from .schema import DEFAULT_OUT, SceneError, Variant
@@ -87,6 +88,9 @@ def _step_name(v: Variant) -> str:
 def _verdict(rows) -> tuple[str, bool]:
     if any(not math.isfinite(r.rate) for r in rows):
         return "not converged: no decay of d fitted at every step (rate undefined)", False
+    why = [rate_verdict(r.rate, r.rate_err) for r in rows]
+    if any(why):
+        return f"no verdict: the rate means nothing at some step ({next(w for w in why if w)})", False
     changes = [abs(r.change) for r in rows[1:]]
     worst = max(changes)
     if all(r.within for r in rows[1:]):
@@ -216,7 +220,7 @@ def table_rows(results) -> list[list[str]]:
     for vc in results:
         for r in vc.rows:
             out.append([vc.name, f"{vc.step_name} = {r.step:g}", f"{r.dt:g}", str(r.record_every),
-                        _g(r.rate), _g(r.rate_err, ".2g"), _g(r.t_sync, ".4g"), _g(r.t_fit, ".4g"),
+                        _g(r.rate) if not rate_verdict(r.rate, r.rate_err) else "—", _g(r.rate_err, ".2g"), _g(r.t_sync, ".4g"), _g(r.t_fit, ".4g"),
                         _g(r.bound, ".3g"), _g(r.final_d, ".3g"),
                         "-" if math.isnan(r.change) else f"{100 * r.change:+.3g} %",
                         "-" if r.within is None else ("yes" if r.within else "no")])

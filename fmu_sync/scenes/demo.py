@@ -84,5 +84,5 @@ def run_demo(out_dir=None, quick: bool = False, progress: Callable | None = None
                                       description=scene.description, rows=report.rows(runs, demo=True),
                                       settings=settings_table(scene, [r.variant for r in runs],
                                                               [r.name for r in runs]), files=files,
-                                      base=out_dir, notes=[note] + error_notes(runs) + skipped_notes(runs))
+                                      base=out_dir, notes=[note] + error_notes(runs) + skipped_notes(runs) + report.run_notes(runs))
     return sr

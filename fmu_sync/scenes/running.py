@@ -384,7 +384,7 @@ def run_scene(scene, out_dir=None, overrides: dict | None = None, progress: Call
     sr.summary = report.write_summary(out_dir / "summary.md", title=f"Scene `{scene.name}`",
                                       description=scene.description, rows=report.rows(written),
                                       settings=settings_table(scene, chosen), files=files, base=out_dir,
-                                      notes=error_notes(runs) + stream_notes(runs) + skipped_notes(runs))
+                                      notes=error_notes(runs) + stream_notes(runs) + skipped_notes(runs) + report.run_notes(written))
     return sr
 
 

@@ -154,13 +154,15 @@ def _gain(v):
 
 
 def _weight(v):
+    if v == "energy":   # the default, said explicitly (docs/design.md §2.5.1)
+        return None
     if _is_num(v):
         return _number(gt=0)(v)
     try:
         return _matrix(v)
     except BadValue:
-        raise BadValue("is neither a number nor a matrix",
-                   "a number > 0 or a symmetric positive definite n x n matrix") from None
+        raise BadValue("is neither \"energy\", a number nor a matrix",
+                   "\"energy\" (the default), a number > 0 or a symmetric positive definite n x n matrix") from None
 
 
 def _state(v):

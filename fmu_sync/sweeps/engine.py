@@ -25,6 +25,7 @@ import numpy as np
 
 from ..core import batch
 from ..core.batch import COL, COLUMNS, DIVERGED, OK, REFUSED
+from ..core.coupling import law_metric
 from .spec import STATE_ALIASES, SweepSpecError
 
 __all__ = ["Prepared", "prepare", "compiled_payload", "run_compiled_chunk", "run_python_chunk",
@@ -213,7 +214,7 @@ def prepare(scene, runs: list[dict], variant_name: str | None) -> Prepared:
 
     arrays = {name: np.zeros(R, dtype=np.int64 if name in INT_ARRAYS else np.float64)
               for name in ("law", "scheme", "theta", "group1", "group2", "kp", "kd", "q1", "u1", "q2", "u2",
-                           "dt", "n_steps", "every")}
+                           "dt", "n_steps", "every", "qw")}
     python_items = {}
     cache = {}
     for i, r in enumerate(runs):
@@ -238,9 +239,12 @@ def prepare(scene, runs: list[dict], variant_name: str | None) -> Prepared:
         a["group1"][i], a["group2"][i], a["kp"][i], a["kd"][i] = group[i], group2[i], kp, kd
         a["q1"][i], a["u1"][i], a["q2"][i], a["u2"][i], a["dt"][i] = q1, u1, q2, u2, dt
         a["n_steps"][i] = _n_steps(t_end, dt)
+        a["qw"][i] = _run_metric(v, rows[group2[i]], kp)
         a["every"][i] = cfg["run.record_every"]
         out[i, COL["exchange_stable"]] = _exchange_stable(v, kp, kd, dt, cache)
         why = _refusal(v, rows[group2[i]], q1, q2, dt)
+        if not why and not math.isfinite(a["qw"][i]) and v.law not in (None, "none"):
+            why = f"no energy metric: k + 2 Kp = {v.system.K[0, 0] + 2 * kp:.6g} is not > 0 (set coupling.Q)"
         if why:
             out[i, COL["status"]] = REFUSED
             out[i, COL["steps"]] = 0
@@ -249,6 +253,16 @@ def prepare(scene, runs: list[dict], variant_name: str | None) -> Prepared:
     return Prepared(R, np.nonzero(comp)[0], np.nonzero(~comp)[0], arrays,
                     dict(sys_rows=sys_rows, geo_rows=geo_rows, F=F, Omega=Om, phi=ph, nf=nf), python_items,
                     out, reasons, systems, group)
+
+
+def _run_metric(v, system2, kp) -> float:
+    """Q of a compiled run's distance: the variant's explicit Q, else the law's own metric
+    (docs/design.md §2.5.1); NaN when the run cannot have one (it is then refused or uncoupled)."""
+    coupled = v.law not in (None, "none")
+    try:
+        return float(law_metric(v.Q, [v.system.K, system2.K], kp, coupled=coupled).Q[0, 0])
+    except ValueError:
+        return float("nan")
 
 
 def _refusal(v, system2, q1, q2, dt) -> str:
@@ -361,7 +375,7 @@ def run_compiled_chunk(payload: dict, threads: int | None = None):
     batch.run_pairs1(r["law"], r["scheme"], r["theta"], t["sys_rows"], t["geo_rows"], t["F"], t["Omega"],
                      t["phi"], t["nf"], payload["group1"], payload["group2"], r["kp"], r["kd"], r["q1"], r["u1"],
                      r["q2"], r["u2"],
-                     r["dt"], r["n_steps"], r["every"], payload["threshold"], out)
+                     r["dt"], r["n_steps"], r["every"], payload["threshold"], out, r["qw"])
     return payload["idx"], out
 
 

@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.metrics import rate_verdict
+
 __all__ = ["heat_map", "basin", "scatter", "line_plot", "sweep_plots", "zoh_margin", "LABELS"]
 
 LABELS = {"coupling.Kp": "$K_p$ (N/m)", "coupling.Kd": "$K_d$ (N s/m)", "solver.dt": "dt (s)",
@@ -159,6 +161,16 @@ def _two_d(ds, x, y):
     return sub, note
 
 
+def resolved_rate(sub) -> np.ndarray:
+    """The decay rate where the run succeeded and the rate is resolved (:func:`rate_verdict` on the
+    rate and its uncertainty: the two numbers a sweep keeps), NaN elsewhere."""
+    rate = np.asarray(sub["decay_rate"].values, dtype=float)
+    err = np.asarray(sub["decay_rate_err"].values, dtype=float)
+    ok = (np.asarray(sub["status"].values) == 0) & np.vectorize(
+        lambda r, e: rate_verdict(r, e) == "", otypes=[bool])(rate, err)
+    return np.where(ok, rate, np.nan)
+
+
 def _colorbar(fig, mappable, ax, label, norm):
     """A colour bar; on a log norm, ticks at 1, 2, 5 x 10^k written as plain numbers (0.05, 2, 40),
     not as powers (4x10^1)."""
@@ -184,7 +196,7 @@ def heat_map(ds, x: str, y: str, path, title: str | None = None) -> Path:
     XE, YE = _edges(xv, xlog), _edges(yv, ylog)
     div, ref, nosync = _masks(sub["status"].values, sub["synchronized"].values)
     fig, axes = plt.subplots(1, 2, figsize=(13, 5.4), constrained_layout=True)
-    rate = np.where(sub["status"].values == 0, sub["decay_rate"].values, np.nan)
+    rate = resolved_rate(sub)
     ts = np.where(sub["synchronized"].values, sub["t_sync"].values, np.nan)
     panels = [(axes[0], rate, "decay rate of d (1/s, log scale)", "viridis", "log"),
               (axes[1], ts, "t_sync: time to d < %.0e (s)" % ds.attrs.get("threshold", 1e-6), "magma_r",
@@ -204,8 +216,8 @@ def heat_map(ds, x: str, y: str, path, title: str | None = None) -> Path:
         if ax is axes[1]:
             _overlay(ax, XE, YE, nosync & ~div & ~ref, "0.82", "not synchronized by t_end")
         else:
-            _overlay(ax, XE, YE, (sub["status"].values == 0) & ~(rate > 0), "0.82",
-                     "no decay (envelope of d stays above 0.1 max d)")
+            _overlay(ax, XE, YE, (sub["status"].values == 0) & ~np.isfinite(rate), "0.82",
+                     "no resolved decay rate (no window, or uncertainty > 20 % of it)")
         _overlay(ax, XE, YE, div, "#b2182b", "diverged (stopped early)")
         _overlay(ax, XE, YE, ref, "black", "refused (invalid start)")
         drawn = _zoh_line(ax, ds, x, y, xlog, ylog)
@@ -244,7 +256,7 @@ def basin(ds, x: str, y: str, path, title: str | None = None) -> Path:
     xv, yv = sub[x].values.astype(float), sub[y].values.astype(float)
     XE, YE = _edges(xv, False), _edges(yv, False)
     div, ref, nosync = _masks(sub["status"].values, sub["synchronized"].values)
-    rate = np.where(sub["synchronized"].values, sub["decay_rate"].values, np.nan)
+    rate = np.where(sub["synchronized"].values, resolved_rate(sub), np.nan)
     rate = np.where(rate > 0, rate, np.nan)
     fig, ax = plt.subplots(figsize=(7.5, 5.8), constrained_layout=True)
     finite = rate[np.isfinite(rate)]
@@ -291,6 +303,7 @@ def scatter(ds, x: str, y: str, path) -> Path:
     xv, yv = ds[x].values.astype(float), ds[y].values.astype(float)
     st = ds["status"].values
     ok = st == 0
+    ok = ok & np.isfinite(resolved_rate(ds))
     m = ax.scatter(xv[ok], yv[ok], c=ds["decay_rate"].values[ok], cmap="viridis", s=18)
     fig.colorbar(m, ax=ax, label="decay rate of d (1/s)")
     for code, color, label in ((1, "#b2182b", "diverged"), (2, "black", "refused")):
@@ -326,8 +339,8 @@ def line_plot(ds, x: str, path) -> Path:
         sub = ds.isel(dict(zip(others, combo))) if others else ds
         label = ", ".join(f"{d} = {ds[d].values[i]}" for d, i in zip(others, combo)) or None
         ok = sub["status"].values == 0
-        rate = np.where(ok, sub["decay_rate"].values, np.nan)
-        err = np.where(ok, sub["decay_rate_err"].values, np.nan)
+        rate = resolved_rate(sub)
+        err = np.where(np.isfinite(rate), sub["decay_rate_err"].values, np.nan)
         ts = np.where(sub["synchronized"].values, sub["t_sync"].values, np.nan)
         c = f"C{n}"
         axes[0].errorbar(xv, rate, yerr=err, color=c, marker="o", ms=3, capsize=2, label=label)

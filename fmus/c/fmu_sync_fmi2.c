@@ -6,13 +6,15 @@
  *
  * In the style of Reference-FMUs' fmi2Functions.c: one table of the states in
  * which each call is allowed (bit masks, FMI 2.0 section 4.2.4), checked in one
- * place (invalid()); every refused call returns fmi2Error (fmi2Discard only for
- * a step computed over a subinterval) and logs its reason. fmi2DoStep,
- * fmi2GetReal/Integer and fmi2SetReal/Integer work on the plain C array of all
- * variables (indexed by value reference) without Python.
+ * place (invalid()); every refused call returns fmi2Error and logs its reason.
+ * A doStep that cannot complete is fmi2Error too, the state rolled back
+ * (fmi2Discard is for a step computed over a subinterval, which this FMU never
+ * does; an importer would retry a discarded step forever): docs/design.md §5.1.
+ * fmi2DoStep, fmi2GetReal/Integer and fmi2SetReal/Integer work on the plain C
+ * array of all variables (indexed by value reference) without Python.
  *
- * Compile-time definitions (from fmu_sync.export): FMU_SYNC_GUID (and, for the
- * runtime, FMU_SYNC_BOOT and FMU_SYNC_MAX_SUBSTEPS).
+ * FMU_SYNC_GUID and every shared number come from fmu_sync_constants.h (generated
+ * at export, included by fmu_sync_runtime.h).
  */
 #define _GNU_SOURCE
 #include <math.h>
@@ -22,21 +24,21 @@
 #include <stdlib.h>
 #include <string.h>
 
-#ifndef FMU_SYNC_GUID
-#error "FMU_SYNC_GUID must be defined"
-#endif
 #define EXPORT __attribute__((visibility("default")))
 
 /* ------------------------------------------------------------ FMI 2.0 ABI */
 #include "fmi2_abi.h"
 #include "fmu_sync_glue.h"
 #include "fmu_sync_runtime.h"
+#ifndef FMU_SYNC_GUID
+#error "FMU_SYNC_GUID must be defined (fmu_sync_constants.h)"
+#endif
 #define G fsr_g
 
 /* ------------------------------------------------------------ instance */
 enum {                               /* states of the FMI 2.0 co-simulation state machine */
     ST_INSTANTIATED = FSR_INSTANTIATED,
-    ST_INIT = FSR_INIT,
+    ST_INIT = FSR_INITIALIZATION,
     ST_STEP = FSR_STEP,              /* slaveInitialized: stepComplete */
     ST_TERMINATED = FSR_TERMINATED,
     ST_FATAL = 1 << 4,
@@ -165,7 +167,8 @@ static int check_vr(Instance *c, int call, fmi2ValueReference vr, int want_int) 
     int is_int = rt->vtype[vr] != FSR_T_REAL;
     if (is_int != want_int) {
         refuse(c, fmi2Error, "%s: value reference %u is %s, of type %s%s", CALLS[call].name, vr,
-               rt->name_of[vr], rt->vtype[vr] == FSR_T_REAL ? "Real" : rt->vtype[vr] == FSR_T_ENUM ? "Enumeration" : "Integer",
+               rt->name_of[vr],
+               rt->vtype[vr] == FSR_T_REAL ? "Real" : rt->vtype[vr] == FSR_T_ENUMERATION ? "Enumeration" : "Integer",
                want_int ? " (use fmi2GetReal/fmi2SetReal)" : " (use fmi2GetInteger/fmi2SetInteger)");
         return 0;
     }
@@ -258,6 +261,8 @@ EXPORT fmi2Status fmi2SetupExperiment(fmi2Component comp, fmi2Boolean toleranceD
         return refuse(c, fmi2Error, "fmi2SetupExperiment: stopTime = %s must be >= startTime = %s",
                       G(stopTime), G(startTime));
     c->rt.work[FSR_H_TIME] = startTime;
+    c->rt.stop_defined = stopTimeDefined ? 1 : 0;    /* enforced by every doStep (fsr_step) */
+    c->rt.stop_time = stopTime;
     c->last_successful_time = startTime;
     return fmi2OK;
 }
@@ -294,6 +299,7 @@ EXPORT fmi2Status fmi2Reset(fmi2Component comp) {
     fmi2Status s = call_py(c, "reset", NULL);
     if (s >= fmi2Error) return s;
     c->state = ST_INSTANTIATED;
+    c->rt.stop_defined = 0;              /* as after fmi2Instantiate: no experiment set up */
     c->last_successful_time = c->rt.work[FSR_H_TIME];
     return s;
 }

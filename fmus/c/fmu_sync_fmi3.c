@@ -10,16 +10,17 @@
  * (fmu_sync_runtime.h). What FMI 3.0 adds here:
  *   - Float64 / Int64 / Enumeration variables, arrays (an array's value reference
  *     is its first scalar's slot; the runtime's work array holds each slot's size,
- *     H_ICOUNT), the independent variable time (value reference = number of slots);
+ *     FSR_H_ICOUNT), the independent variable time (value reference = number of slots);
  *   - early return (earlyReturnAllowed): doStep stops at the first impact of the
- *     step (the stepper's H_MODE, fmus/stepper.py) and reports earlyReturn and
+ *     step (the stepper's FSR_H_MODE, fmus/stepper.py) and reports earlyReturn and
  *     lastSuccessfulTime; with eventModeUsed also eventHandlingNeeded, and the
  *     exact scheme stops just before the impact, which fmi3UpdateDiscreteStates
  *     applies in event mode. Without early return the impacts are handled inside
  *     the step: the numbers of the FMI 2.0 FMU.
  *
- * Compile-time definitions (from fmu_sync.export): FMU_SYNC_GUID (the
- * instantiation token), FMU_SYNC_BOOT, FMU_SYNC_MAX_SUBSTEPS (runtime).
+ * FMU_SYNC_GUID (the instantiation token) and every shared number (the FMI 3.0
+ * slots FSR_H_MODE .. FSR_H_ICOUNT and step modes FSR_MODE_* included) come from
+ * fmu_sync_constants.h (generated at export, included by fmu_sync_runtime.h).
  */
 #define _GNU_SOURCE
 #include <math.h>
@@ -34,23 +35,19 @@
 #include "fmu_sync_runtime.h"
 
 #ifndef FMU_SYNC_GUID
-#error "FMU_SYNC_GUID must be defined"
+#error "FMU_SYNC_GUID must be defined (fmu_sync_constants.h)"
 #endif
 #define EXPORT __attribute__((visibility("default")))
 #define G fsr_g
-
-/* work array slots of FMI 3.0 (fmus/stepper.py: H_MODE ... H_ICOUNT, MODE_*) */
-enum { H_MODE = 23, H_REACHED = 24, H_PEND_U = 25, H_PEND_P = 26, H_ICOUNT = 27 };
-enum { MODE_FULL = 0, MODE_EARLY = 1, MODE_EARLY_EVENT = 2, MODE_APPLY_EVENT = 3 };
 
 /* states of the FMI 3.0 co-simulation state machine (the first four are the
  * runtime's phases, saved with an FMU state; event mode is fmus/slave.py's "event") */
 enum {
     ST_INSTANTIATED = FSR_INSTANTIATED,
-    ST_INIT = FSR_INIT,
+    ST_INIT = FSR_INITIALIZATION,
     ST_STEP = FSR_STEP,
     ST_TERMINATED = FSR_TERMINATED,
-    ST_EVENT = 1 << 4,
+    ST_EVENT = FSR_EVENT,
     ST_FATAL = 1 << 5,
 };
 #define ST_ALIVE (ST_INSTANTIATED | ST_INIT | ST_STEP | ST_TERMINATED | ST_EVENT)
@@ -208,7 +205,7 @@ EXPORT fmi3Instance fmi3InstantiateCoSimulation(
         free_instance(c);
         return NULL;
     }
-    c->rt.work[H_MODE] = !c->early_return_allowed ? MODE_FULL : c->event_mode_used ? MODE_EARLY_EVENT : MODE_EARLY;
+    c->rt.work[FSR_H_MODE] = !c->early_return_allowed ? FSR_MODE_FULL : c->event_mode_used ? FSR_MODE_EARLY_EVENT : FSR_MODE_EARLY;
     fsr_logf(&c->rt, fmi3OK, "fmi3InstantiateCoSimulation: %s ready (eventModeUsed = %d, earlyReturnAllowed = %d)",
              instanceName, c->event_mode_used, c->early_return_allowed);
     return c;
@@ -265,6 +262,8 @@ EXPORT fmi3Status fmi3EnterInitializationMode(fmi3Instance inst, fmi3Boolean tol
         return refuse(c, fmi3Error, "fmi3EnterInitializationMode: stopTime = %s must be >= startTime = %s",
                       G(stopTime), G(startTime));
     c->rt.work[FSR_H_TIME] = startTime;
+    c->rt.stop_defined = stopTimeDefined ? 1 : 0;    /* enforced by every doStep (fsr_step) */
+    c->rt.stop_time = stopTime;
     c->state = ST_INIT;
     c->init_dirty = 1;
     return fmi3OK;
@@ -310,6 +309,7 @@ EXPORT fmi3Status fmi3Reset(fmi3Instance inst) {
     int s = fsr_call(&c->rt, "reset", NULL);
     if (s >= fmi3Error) return checked(c, s);
     c->state = ST_INSTANTIATED;
+    c->rt.stop_defined = 0;              /* as after fmi3Instantiate: no experiment set up */
     return (fmi3Status)s;
 }
 
@@ -325,7 +325,7 @@ static fmi3Status refresh_if_dirty(Instance *c) {
 
 /* scalars of the FMI 3.0 variable at vr (0: no variable starts there) */
 static unsigned count_of(const Instance *c, fmi3ValueReference vr) {
-    return vr < c->rt.nvars ? (unsigned)c->rt.work[(size_t)c->rt.work[H_ICOUNT] + vr] : 0;
+    return vr < c->rt.nvars ? (unsigned)c->rt.work[(size_t)c->rt.work[FSR_H_ICOUNT] + vr] : 0;
 }
 
 /* Check the value references of a get/set of type Float64 (is_int 0) or
@@ -345,7 +345,7 @@ static int check_refs(Instance *c, const char *fn, const fmi3ValueReference vr[]
         int t = c->rt.vtype[vr[i]];
         if ((t != FSR_T_REAL) != is_int) {
             refuse(c, fmi3Error, "%s: value reference %u is %s, of type %s (use fmi3%s)", fn, vr[i],
-                   c->rt.name_of[vr[i]], t == FSR_T_REAL ? "Float64" : t == FSR_T_ENUM ? "Enumeration" : "Int64",
+                   c->rt.name_of[vr[i]], t == FSR_T_REAL ? "Float64" : t == FSR_T_ENUMERATION ? "Enumeration" : "Int64",
                    t == FSR_T_REAL ? "GetFloat64/fmi3SetFloat64" : "GetInt64/fmi3SetInt64");
             return 0;
         }
@@ -540,11 +540,11 @@ EXPORT fmi3Status fmi3DeserializeFMUState(fmi3Instance inst, const fmi3Byte data
 /* the impact an early return in event mode stopped before: applied by the stepper (no Python) */
 static int apply_pending(Instance *c) {
     double *w = c->rt.work;
-    if (!(w[H_PEND_P] > 0.0)) return 0;
-    double mode = w[H_MODE];
-    w[H_MODE] = MODE_APPLY_EVENT;
+    if (!(w[FSR_H_PEND_P] > 0.0)) return 0;
+    double mode = w[FSR_H_MODE];
+    w[FSR_H_MODE] = FSR_MODE_APPLY_EVENT;
     c->rt.stepper(c->rt.x, w, w[FSR_H_TIME], 0.0);
-    w[H_MODE] = mode;
+    w[FSR_H_MODE] = mode;
     return 1;
 }
 
@@ -586,7 +586,7 @@ EXPORT fmi3Status fmi3DoStep(fmi3Instance inst, fmi3Float64 t, fmi3Float64 H, fm
     double now = w[FSR_H_TIME];
     int s = fsr_step(&c->rt, t, H);
     if (s >= fmi3Discard) return checked(c, s);   /* nothing changed: still at lastSuccessfulTime */
-    double reached = w[H_REACHED];
+    double reached = w[FSR_H_REACHED];
     if (reached < now + H) {
         w[FSR_H_TIME] = reached;
         *earlyReturn = true;

@@ -11,8 +11,8 @@
  * address, without the GIL, on the arrays the Python instance handed over
  * (they live as long as the instance).
  *
- * Compile-time definitions (from fmu_sync.export): FMU_SYNC_BOOT (module name
- * of the boot script in resources/), FMU_SYNC_MAX_SUBSTEPS.
+ * Constants (fmu_sync_constants.h, generated at export): FMU_SYNC_BOOT (module
+ * name of the boot script in resources/), FSR_MAX_SUBSTEPS and the shared codes.
  */
 #define _GNU_SOURCE
 #include <dlfcn.h>
@@ -35,10 +35,7 @@
 #include "fmu_sync_runtime.h"
 
 #ifndef FMU_SYNC_BOOT
-#error "FMU_SYNC_BOOT must be defined"
-#endif
-#ifndef FMU_SYNC_MAX_SUBSTEPS
-#define FMU_SYNC_MAX_SUBSTEPS 10000000.0
+#error "FMU_SYNC_BOOT must be defined (fmu_sync_constants.h)"
 #endif
 
 /* ------------------------------------------------------------ Python C API (dlsym) */
@@ -71,6 +68,7 @@ static struct {
 static pthread_mutex_t g_lock = PTHREAD_MUTEX_INITIALIZER;
 static int g_py_ready = 0;          /* 1 once the API and the boot module are loaded */
 static PyObject *g_boot = NULL;     /* the boot module (one per process) */
+static int g_embedded = 0;          /* 1 if this binary started the interpreter (a plain C host) */
 
 static int load_api(void *h, char *err, size_t n) {
 #define SYM(field, name)                                                          \
@@ -271,7 +269,10 @@ static int ensure_python(const char *resdir, char *err, size_t n) {
         py.EvalSaveThread();   /* release the GIL: later calls take it with PyGILState_Ensure */
     else
         py.GILRelease(gil);
-    if (ok) g_py_ready = 1;
+    if (ok) {
+        g_py_ready = 1;
+        g_embedded = own;
+    }
     else if (!err[0]) snprintf(err, n, "cannot import the FMU's boot module %s", FMU_SYNC_BOOT);
     return ok;
 }
@@ -296,7 +297,8 @@ int fsr_logf(fsr_instance *inst, int status, const char *fmt, ...) {
 }
 
 /* Log the messages of a Python reply: records separated by '\x1e', each
- * starting with I:, W:, D:, E: or F:. Returns the worst status. */
+ * starting with I:, W:, D:, E: or F: (the status of the call), or N: (a
+ * notice: logged as a warning, the call's status stays OK). Returns the worst status. */
 static int log_reply(fsr_instance *inst, const char *text) {
     int worst = FSR_OK;
     if (!text) return worst;
@@ -304,9 +306,10 @@ static int log_reply(fsr_instance *inst, const char *text) {
     while (*p) {
         const char *end = strchr(p, '\x1e');
         size_t len = end ? (size_t)(end - p) : strlen(p);
-        int s = FSR_OK;
+        int s = FSR_OK, notice = 0;
         if (len >= 2 && p[1] == ':') {
             switch (p[0]) {
+            case 'N': s = FSR_WARNING; notice = 1; break;
             case 'W': s = FSR_WARNING; break;
             case 'D': s = FSR_DISCARD; break;
             case 'E': s = FSR_ERROR; break;
@@ -316,7 +319,7 @@ static int log_reply(fsr_instance *inst, const char *text) {
             p += 2;
             len -= 2;
         }
-        if (s > worst) worst = s;
+        if (s > worst && !notice) worst = s;
         fsr_logf(inst, s, "%.*s", (int)len, p);
         p += len;
         if (*p == '\x1e') ++p;
@@ -452,47 +455,41 @@ void fsr_bound_text(const fsr_instance *inst, unsigned vr, char *out, size_t n) 
 }
 
 /* ------------------------------------------------------------ instance */
-/* layout handed over by FMUInstance.layout() (fmus/runtime.py) */
-enum {
-    L_VERSION, L_NVARS, L_X, L_TYPE, L_CAUS, L_MIN, L_MAX, L_WORK, L_STEPPER, L_NAMES, L_HINTS,
-    L_N
-};
-#define LAYOUT_VERSION 1
-
+/* layout handed over by FMUInstance.layout() (fmus/runtime.py: LAYOUT -> FSR_L_*) */
 static int take_layout(fsr_instance *inst, char *err, size_t n) {
     /* called with the GIL held */
     PyObject *r = py.CallMethod(inst->obj, "layout", NULL);
     if (!r) { py_error_text(err, n); return 0; }
     char *buf = NULL;
     Py_ssize_t len = 0;
-    uint64_t L[L_N];
+    uint64_t L[FSR_L_N];
     int ok = py.BytesAsStringAndSize(r, &buf, &len) == 0 && len == (Py_ssize_t)sizeof L;
     if (ok) memcpy(L, buf, sizeof L);
     py.DecRef(r);
     if (!ok) { snprintf(err, n, "bad layout from the Python slave"); return 0; }
-    if (L[L_VERSION] != LAYOUT_VERSION) {
-        snprintf(err, n, "layout version %llu, this binary expects %d", (unsigned long long)L[L_VERSION],
-                 LAYOUT_VERSION);
+    if (L[FSR_L_VERSION] != FSR_VERSION) {
+        snprintf(err, n, "layout version %llu, this binary expects %d", (unsigned long long)L[FSR_L_VERSION],
+                 FSR_VERSION);
         return 0;
     }
-    inst->nvars = (unsigned)L[L_NVARS];
-    inst->x = (double *)(uintptr_t)L[L_X];
-    inst->vtype = (const int32_t *)(uintptr_t)L[L_TYPE];
-    inst->vcaus = (const int32_t *)(uintptr_t)L[L_CAUS];
-    inst->vmin = (const double *)(uintptr_t)L[L_MIN];
-    inst->vmax = (const double *)(uintptr_t)L[L_MAX];
-    inst->work = (double *)(uintptr_t)L[L_WORK];
-    inst->stepper = (fsr_stepper)(uintptr_t)L[L_STEPPER];
-    if (inst->work[FSR_H_VERSION] != FSR_WORK_VERSION) {
-        snprintf(err, n, "work array version %g, this binary expects %g", inst->work[FSR_H_VERSION],
-                 FSR_WORK_VERSION);
+    inst->nvars = (unsigned)L[FSR_L_NVARS];
+    inst->x = (double *)(uintptr_t)L[FSR_L_X];
+    inst->vtype = (const int32_t *)(uintptr_t)L[FSR_L_TYPE];
+    inst->vcaus = (const int32_t *)(uintptr_t)L[FSR_L_CAUS];
+    inst->vmin = (const double *)(uintptr_t)L[FSR_L_MIN];
+    inst->vmax = (const double *)(uintptr_t)L[FSR_L_MAX];
+    inst->work = (double *)(uintptr_t)L[FSR_L_WORK];
+    inst->stepper = (fsr_stepper)(uintptr_t)L[FSR_L_STEPPER];
+    if (inst->work[FSR_H_VERSION] != FSR_VERSION) {
+        snprintf(err, n, "work array version %g, this binary expects %d", inst->work[FSR_H_VERSION],
+                 FSR_VERSION);
         return 0;
     }
     inst->name_of = calloc(inst->nvars, sizeof(char *));
     inst->hint_of = calloc(inst->nvars, sizeof(char *));
     if (!inst->name_of || !inst->hint_of) { snprintf(err, n, "out of memory"); return 0; }
-    const char *p = (const char *)(uintptr_t)L[L_NAMES];
-    const char *h = (const char *)(uintptr_t)L[L_HINTS];
+    const char *p = (const char *)(uintptr_t)L[FSR_L_NAMES];
+    const char *h = (const char *)(uintptr_t)L[FSR_L_HINTS];
     for (unsigned i = 0; i < inst->nvars; ++i) {
         inst->name_of[i] = p;
         p += strlen(p) + 1;
@@ -508,7 +505,7 @@ static int take_layout(fsr_instance *inst, char *err, size_t n) {
 int fsr_new(fsr_instance *inst, const char *resdir, const char *name, const char *guid, char *err, size_t n) {
     int gil = py.GILEnsure();
     PyObject *dir = py.UnicodeDecodeFSDefault(resdir);
-    PyObject *r = dir ? py.CallMethod(g_boot, "instantiate", "Oss", dir, name, guid) : NULL;
+    PyObject *r = dir ? py.CallMethod(g_boot, "instantiate", "Ossi", dir, name, guid, g_embedded) : NULL;
     if (dir) py.DecRef(dir);
     int s = FSR_OK;
     if (!r) {
@@ -652,43 +649,67 @@ int fsr_state_deserialize(fsr_instance *inst, const char *call, const char *data
 }
 
 /* ------------------------------------------------------------ the communication step (no Python) */
+/* Every step that is refused or cannot complete returns FSR_ERROR with the
+ * state unchanged (docs/design.md §5.1): an invalid argument, a step past
+ * stopTime, a time that cannot advance, too much work, a state that turned
+ * non-finite. Never FSR_DISCARD: nothing is computed over a subinterval, and an
+ * importer retrying a discarded step would retry it forever. */
 int fsr_step(fsr_instance *inst, double t, double H) {
     double *w = inst->work;
     double now = w[FSR_H_TIME];
 #define G fsr_g
+#define REFUSED "doStep(t = %s, H = %s) refused, state unchanged at t = %s: "
     if (!(H > 0.0 && isfinite(H)))
-        return fsr_logf(inst, FSR_DISCARD, "doStep(t = %s, H = %s) refused, state unchanged at t = %s: "
-                        "communication step size %s rejected: must be finite and > 0", G(t), G(H), G(now), G(H));
+        return fsr_logf(inst, FSR_ERROR, REFUSED "communication step size %s rejected: must be finite and > 0",
+                        G(t), G(H), G(now), G(H));
     double tol = 1e-9 * (fabs(now) < 1.0 ? 1.0 : fabs(now));
     if (!(fabs(t - now) <= tol))
-        return fsr_logf(inst, FSR_DISCARD, "doStep(t = %s, H = %s) refused, state unchanged at t = %s: "
-                        "currentCommunicationPoint = %s is not the slave's time %s (restore a saved FMU "
-                        "state to go back in time)", G(t), G(H), G(now), G(t), G(now));
+        return fsr_logf(inst, FSR_ERROR, REFUSED "currentCommunicationPoint = %s is not the slave's time %s "
+                        "(restore a saved FMU state to go back in time)", G(t), G(H), G(now), G(t), G(now));
+    double t1 = now + H;
+    if (!(t1 > now) || !(fabs((t1 - now) - H) <= 1e-6 * H))
+        return fsr_logf(inst, FSR_ERROR, REFUSED "the time cannot advance by H at t = %s in double precision "
+                        "(t + H - t = %s): the state would move while the time stays; use a larger H or a "
+                        "start time nearer 0", G(t), G(H), G(now), G(now), G(t1 - now));
+    if (inst->stop_defined && t1 > inst->stop_time + 1e-9 * (fabs(inst->stop_time) < 1.0 ? 1.0 : fabs(inst->stop_time)))
+        return fsr_logf(inst, FSR_ERROR, REFUSED "t + H = %s is past the experiment's stopTime = %s "
+                        "(fmi2SetupExperiment, fmi3EnterInitializationMode); the last step may end at stopTime", G(t), G(H), G(now), G(t1),
+                        G(inst->stop_time));
     double dt = w[FSR_H_DT];
     int exact = w[FSR_H_SCHEME] == FSR_SCHEME_EXACT;
     double count = ceil(H / dt - 1e-9);       /* computed in double: cannot overflow */
-    if (!exact && !(count <= FMU_SYNC_MAX_SUBSTEPS))   /* exact: no internal steps */
-        return fsr_logf(inst, FSR_DISCARD, "doStep(t = %s, H = %s) refused, state unchanged: it needs "
-                        "ceil(H/dt) = %.6g internal steps of solver.dt = %s, more than the limit %.0f "
-                        "(FMU_SYNC_MAX_SUBSTEPS); use a smaller H or a larger solver.dt", G(t), G(H), count,
-                        G(dt), (double)FMU_SYNC_MAX_SUBSTEPS);
+    if (!exact && !(count <= FSR_MAX_SUBSTEPS))   /* exact: no internal steps */
+        return fsr_logf(inst, FSR_ERROR, REFUSED "it needs ceil(H/dt) = %.6g internal steps of solver.dt = %s, "
+                        "more than the limit %.0f (fmu_sync.export.MAX_SUBSTEPS); this step can never complete: use "
+                        "a smaller H or a larger solver.dt", G(t), G(H), G(now), count, G(dt),
+                        (double)FSR_MAX_SUBSTEPS);
     int32_t rc = inst->stepper(inst->x, w, now, H);
-    if (rc == 2)
-        return fsr_logf(inst, FSR_ERROR, "doStep(t = %s, H = %s) refused, state unchanged: solver.scheme = exact "
-                        "holds the input constant over a communication step, but a non-zero input derivative "
-                        "was set (fmi2SetRealInputDerivatives before fmi2ExitInitializationMode); set it to 0 "
-                        "or use solver.scheme = midpoint or theta", G(t), G(H));
-    if (rc != 0 && exact)
-        return fsr_logf(inst, FSR_DISCARD, "doStep(t = %s, H = %s): the exact solver could not complete the step "
-                        "(more than its event limit in one step, or an undecidable contact). The step was "
-                        "rolled back: state unchanged at t = %s.", G(t), G(H), G(now));
-    if (rc != 0)
-        return fsr_logf(inst, FSR_DISCARD, "doStep(t = %s, H = %s): the state became non-finite with "
-                        "solver.dt = %s (a diverging scheme or an overflowing force, e.g. an input or "
-                        "forcing amplitude near the float range). The step was rolled back: state "
-                        "unchanged at t = %s.", G(t), G(H), G(dt), G(now));
+    switch (rc) {
+    case FSR_R_OK:
+        break;
+    case FSR_R_EXACT_TAUDOT:
+        return fsr_logf(inst, FSR_ERROR, REFUSED "solver.scheme = exact holds the input constant over a "
+                        "communication step, but a non-zero input derivative was set "
+                        "(fmi2SetRealInputDerivatives before fmi2ExitInitializationMode); set it to 0 or use "
+                        "solver.scheme = midpoint or theta", G(t), G(H), G(now));
+    case FSR_R_EXACT_EVENTS:
+        return fsr_logf(inst, FSR_ERROR, "doStep(t = %s, H = %s) failed and was rolled back, state unchanged "
+                        "at t = %s: the exact solver met more than %.0f events in this one step (its work "
+                        "guard); use a smaller H", G(t), G(H), G(now), w[FSR_H_MAXEV]);
+    case FSR_R_EXACT_STALL:
+        return fsr_logf(inst, FSR_ERROR, "doStep(t = %s, H = %s) failed and was rolled back, state unchanged "
+                        "at t = %s: the exact solver could not decide a contact (no progress in time)",
+                        G(t), G(H), G(now));
+    default:
+        return fsr_logf(inst, FSR_ERROR, "doStep(t = %s, H = %s) failed and was rolled back, state unchanged "
+                        "at t = %s: the state became non-finite or left |q|, |u| <= %s with solver.dt = %s "
+                        "(a diverging scheme or an overflowing force, e.g. an input or forcing amplitude near "
+                        "the float range); this step can never complete with these parameters",
+                        G(t), G(H), G(now), G(w[FSR_H_BOUND]), G(dt));
+    }
+#undef REFUSED
 #undef G
-    w[FSR_H_TIME] = now + H;
+    w[FSR_H_TIME] = t1;
     return FSR_OK;
 }
 

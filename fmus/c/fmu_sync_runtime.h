@@ -14,8 +14,10 @@
  *   fsr_call(inst, method, state)   a reply method of the instance ("exit_initialization",
  *                                   "refresh", "reset", "set_state"), GIL taken inside
  *   fsr_state_get / _set / _free / _serialize / _deserialize   FMU states (Python snapshots)
- *   fsr_step(inst, t, H)            one communication step: argument checks, the numba stepper
- *                                   called through its address, no Python, no GIL
+ *   fsr_step(inst, t, H)            one communication step: argument checks (H, t, stopTime,
+ *                                   a time that advances, the internal-step limit), the numba
+ *                                   stepper called through its address, no Python, no GIL;
+ *                                   a step that cannot complete is FSR_ERROR, rolled back
  *   fsr_outputs(inst, call)         outputs of a direct-feedthrough FMU from its current inputs
  *                                   (the stepper with H = 0), no Python, no GIL
  *   fsr_free(inst)
@@ -30,21 +32,14 @@
 #include <stddef.h>
 #include <stdint.h>
 
+/* Every number shared with the Python side (work-array slots FSR_H_*, stepper codes
+ * FSR_R_*, phases FSR_INSTANTIATED.., table codes FSR_T_* / FSR_C_*, layout FSR_L_*,
+ * schemes FSR_SCHEME_*, FSR_MAX_SUBSTEPS, the one version FSR_VERSION) and this export's
+ * FMU_SYNC_GUID and FMU_SYNC_BOOT: generated at export from the Python definitions
+ * (fmu_sync.export.constants_header); never written by hand. */
+#include "fmu_sync_constants.h"
+
 enum { FSR_OK = 0, FSR_WARNING = 1, FSR_DISCARD = 2, FSR_ERROR = 3, FSR_FATAL = 4 };
-
-/* phases of an instance as saved in an FMU state (fmus/slave.py: PHASES) */
-enum { FSR_INSTANTIATED = 1 << 0, FSR_INIT = 1 << 1, FSR_STEP = 1 << 2, FSR_TERMINATED = 1 << 3 };
-
-/* variable table codes (fmus/runtime.py: TYPE_*, CAUS_*) */
-enum { FSR_T_REAL = 0, FSR_T_INTEGER = 1, FSR_T_ENUM = 2 };
-enum { FSR_C_PARAMETER = 0, FSR_C_INPUT = 1, FSR_C_OUTPUT = 2 };
-
-/* work array header (fmus/stepper.py: H_*) read by the C side */
-enum { FSR_H_LEN = 0, FSR_H_VERSION = 1, FSR_H_TIME = 2, FSR_H_PHASE = 3, FSR_H_DT = 4, FSR_H_CONFIGURED = 5,
-       FSR_H_M = 7, FSR_H_SCHEME = 9, FSR_H_ITAU = 14, FSR_H_ITAUDOT = 20,
-       FSR_H_FEEDTHROUGH = 22 /* != 0: outputs depend directly on inputs (the coupling FMU) */ };
-#define FSR_WORK_VERSION 2.0
-#define FSR_SCHEME_EXACT 2.0        /* fmus/stepper.py: EXACT */
 
 typedef void (*fsr_log)(void *ctx, int status, const char *text);
 typedef int32_t (*fsr_stepper)(double *x, double *work, double t, double H);
@@ -61,6 +56,8 @@ typedef struct fsr_instance {
     fsr_stepper stepper;
     const char **name_of;           /* per variable: its name */
     const char **hint_of;           /* per variable: its allowed values ("" if a range) */
+    int stop_defined;               /* the experiment's stopTime (doStep must not pass it) */
+    double stop_time;
 } fsr_instance;
 
 typedef struct fsr_state fsr_state;  /* a saved FMU state (opaque) */
