@@ -545,6 +545,20 @@ def _grow1(x):
 
 
 @njit(cache=True)
+def _vref_start(prm, g, v, vref0):
+    """The run's velocity scale at its start: initial speed, free-fall speed from
+    the initial gap, forcing amplitude over the fastest time scale (``vref0 > 0``:
+    carried over from an earlier part of the run). Impacts raise it (:func:`_run`)."""
+    smax = prm[_S]
+    vref = max(abs(v), math.sqrt(2.0 * prm[_F0] * max(g, 0.0)))
+    if smax > 0.0:
+        vref = max(vref, prm[_F0] / smax)
+    if vref0 > 0.0:
+        vref = vref0
+    return vref
+
+
+@njit(cache=True)
 def _run(prm, rc, roots, hs, hO, hph, hcc, hcs, t0, g_init, v_init, t_hor, max_events,
          zeno_ttol, zeno_vtol, cutoff_vtol, vref0=0.0):
     """Event loop. Returns (status, segs, nseg, evs, nev, grz, ngr, vref).
@@ -582,11 +596,7 @@ def _run(prm, rc, roots, hs, hO, hph, hcc, hcs, t0, g_init, v_init, t_hor, max_e
     stall = 0
     # velocity scale of the run: initial speed, free-fall speed from the initial gap,
     # forcing amplitude over the fastest time scale; raised by every impact speed
-    vref = max(abs(v), math.sqrt(2.0 * prm[_F0] * max(g, 0.0)))
-    if smax > 0.0:
-        vref = max(vref, prm[_F0] / smax)
-    if vref0 > 0.0:
-        vref = vref0
+    vref = _vref_start(prm, g, v, vref0)
     count = 0
     status = 0
     while t <= t_hor:
@@ -1149,6 +1159,26 @@ def exact_step(model, q, u, t, H, tau, vref, max_events=1_000_000, zeno_ttol=1e-
     status STEP_OK, STEP_TOO_MANY_EVENTS (more than ``max_events`` events in the
     step) or STEP_NO_PROGRESS (undecidable contact; the state is unchanged then).
     """
+    st, _, q1, u1, _, P, _, hits, vref = exact_step_early(
+        model, q, u, t, H, tau, vref, False, max_events, zeno_ttol, zeno_vtol, cutoff_vtol)
+    return st, q1, u1, P, hits, vref
+
+
+@njit(cache=True)
+def exact_step_early(model, q, u, t, H, tau, vref, early, max_events=1_000_000, zeno_ttol=1e-12,
+                     zeno_vtol=1e-10, cutoff_vtol=1e-6):
+    """:func:`exact_step` that, with ``early``, stops at the first impact inside
+    ``(t, t + H)`` (an FMI 3.0 early return).
+
+    Returns ``(status, t_stop, q, u, u_minus, percussion, p_impact, impacts, vref)``:
+    ``t_stop`` is ``t + H`` or the impact instant; ``q, u`` the state there
+    (post-impact), ``u_minus`` the velocity just before the stop (the pre-impact
+    velocity of an early stop, else ``u``), ``percussion`` the wall impulse over
+    ``(t, t_stop]`` including the impact's ``p_impact``, ``vref`` the run's
+    velocity scale at ``t_stop``. Continuing from ``(t_stop, q, u, vref)`` runs
+    the same closed-form segments as one step over the whole interval (an
+    impact that completes an accumulation is then resolved from the post-impact
+    state instead)."""
     prm, rc, roots, hs, hO, hph, hcc, hcs, w, g0w = _unpack(model, tau)
     g = w * q + g0w
     if g != 0.0 and abs(g) <= 4.0 * EPS * (abs(w * q) + abs(g0w)):
@@ -1156,20 +1186,37 @@ def exact_step(model, q, u, t, H, tau, vref, max_events=1_000_000, zeno_ttol=1e-
     if g < 0.0:
         g = 0.0
     v = w * u
+    vref_in = vref
     status, segs, nseg, evs, nev, grz, ngr, vref = _run(
         prm, rc, roots, hs, hO, hph, hcc, hcs, t, g, v, t + H, max_events, zeno_ttol,
         zeno_vtol, cutoff_vtol, vref)
     if status != 0:
-        return status, q, u, 0.0, 0, vref
+        return status, t, q, u, u, 0.0, 0.0, 0, vref
+    t_stop = t + H
+    first = -1
+    if early:
+        for i in range(nev):
+            if evs[i, 1] == IMPACT_EV and t < evs[i, 0]:
+                if evs[i, 0] < t_stop:
+                    first = i
+                break
+    if first >= 0:
+        t_stop = evs[first, 0]
+        vref = _vref_start(prm, g, v, vref_in)
+        for i in range(first + 1):
+            if evs[i, 1] == IMPACT_EV:
+                vref = max(vref, -evs[i, 2])
     T = np.empty(2)
     T[0] = t
-    T[1] = t + H
+    T[1] = t_stop
     Q = np.empty(2)
     U = np.empty(2)
     P = np.zeros(2)
     _sample(T, segs, nseg, evs, nev, prm, rc, roots, hs, hO, hph, hcc, hcs, w, g0w, Q, U, P, True)
     impacts = 0
     for i in range(nev):
-        if evs[i, 1] == IMPACT_EV and t < evs[i, 0] <= t + H:
+        if evs[i, 1] == IMPACT_EV and t < evs[i, 0] <= t_stop:
             impacts += 1
-    return STEP_OK, Q[1], U[1], P[1], impacts, vref
+    if first >= 0:
+        return STEP_OK, t_stop, Q[1], U[1], evs[first, 2] / w, P[1], evs[first, 3], impacts, vref
+    return STEP_OK, t_stop, Q[1], U[1], U[1], P[1], 0.0, impacts, vref

@@ -1,7 +1,13 @@
-"""Export the fmu-sync slaves as FMI 2.0 co-simulation FMUs (SPEC §7).
+"""Export the fmu-sync slaves as FMI 2.0 (default) or FMI 3.0 co-simulation FMUs (SPEC §7).
 
     export_fmu("impact-oscillator", "io.fmu", {"e": 0.8, "solver.scheme": "theta"})
     fmu-sync export impact-oscillator -o io.fmu --set e=0.8 --set solver.scheme=theta
+    fmu-sync export impact-oscillator -o io3.fmu --fmi-version 3
+
+An FMI 3.0 FMU (``fmus/c/fmu_sync_fmi3.c`` over the same runtime, slave, contract
+and stepper; docs/fmi3.md) declares event mode, early return at impacts, variable
+communication steps and FMU states; q, u, tau (and other whole indexed families)
+are FMI 3.0 arrays.
 
 The FMU holds:
 
@@ -50,7 +56,7 @@ from .fmus.slave import model_guid
 
 __all__ = ["MODELS", "export_fmu", "export_coupling", "main_export", "model_class", "carried_files",
            "carried_modules", "build_binary", "constants_header", "fmu_guid", "write_archive", "MAX_SUBSTEPS",
-           "COUPLING"]
+           "COUPLING", "FMI_VERSIONS"]
 
 #: The export keys: the FMU contract's model registry.
 MODELS = contract.MODELS
@@ -58,8 +64,10 @@ MODELS = contract.MODELS
 MAX_SUBSTEPS = 10_000_000
 
 _ZIP_DATE = (2020, 1, 1, 0, 0, 0)
-#: the FMI 2.0 glue; every binary also compiles the instance runtime (the Python embedding)
-_C_GLUE = "c/fmu_sync_fmi2.c"
+#: the FMI versions an FMU can be exported for and their glue; every binary also compiles
+#: the instance runtime (the Python embedding)
+FMI_VERSIONS = (2, 3)
+_C_GLUE = {2: "c/fmu_sync_fmi2.c", 3: "c/fmu_sync_fmi3.c"}
 _C_RUNTIME = "c/fmu_sync_runtime.c"
 #: the carried package's __init__ files: the real core/__init__.py imports every run API of the core
 _CARRIED_INITS = {
@@ -174,8 +182,10 @@ def _code_hash(files: list[tuple[str, bytes]]) -> str:
 
 #: the work-array header slots the binary reads (fmus/stepper.py)
 _C_SLOTS = ("H_LEN", "H_VERSION", "H_TIME", "H_PHASE", "H_DT", "H_CONFIGURED", "H_M", "H_SCHEME", "H_ITAU",
-            "H_ITAUDOT", "H_FEEDTHROUGH", "H_MAXEV", "H_BOUND")
-_C_CODES = ("R_OK", "R_ROLLED_BACK", "R_EXACT_TAUDOT", "R_EXACT_EVENTS", "R_EXACT_STALL")
+            "H_ITAUDOT", "H_FEEDTHROUGH", "H_MAXEV", "H_BOUND", "H_MODE", "H_REACHED", "H_PEND_U", "H_PEND_P",
+            "H_ICOUNT")
+_C_CODES = ("R_OK", "R_ROLLED_BACK", "R_EXACT_TAUDOT", "R_EXACT_EVENTS", "R_EXACT_STALL",
+            "MODE_FULL", "MODE_EARLY", "MODE_EARLY_EVENT", "MODE_APPLY_EVENT")
 _CONSTANTS_H = "fmu_sync_constants.h"
 
 
@@ -214,10 +224,10 @@ def constants_header(guid: str = "", boot_module: str = "", max_substeps: int = 
 
 
 def build_binary(out: Path, guid: str, boot_module: str, max_substeps: int = MAX_SUBSTEPS,
-                 glue: str = _C_GLUE) -> Path:
-    """Compile the FMI binary (``glue`` and the runtime, with the generated constants header)
-    with gcc (``$CC`` overrides) into ``out``."""
-    srcs = [str(_fmus_dir() / glue), str(_fmus_dir() / _C_RUNTIME)]
+                 glue: str | None = None, fmi_version: int = 2) -> Path:
+    """Compile the FMI binary (``glue``, by default the FMI version's, and the runtime, with the
+    generated constants header) with gcc (``$CC`` overrides) into ``out``."""
+    srcs = [str(_fmus_dir() / (glue or _C_GLUE[fmi_version])), str(_fmus_dir() / _C_RUNTIME)]
     cc = os.environ.get("CC", "gcc")
     if shutil.which(cc) is None:
         raise RuntimeError(f"cannot build the FMU binary: C compiler {cc!r} not found (install gcc or set CC)")
@@ -247,8 +257,8 @@ def _runtime_versions() -> dict:
             "numba": numba.__version__}
 
 
-def _model_description_xml(cls, starts: dict, guid: str) -> bytes:
-    root = cls.description(starts, guid, __version__)
+def _model_description_xml(cls, starts: dict, guid: str, fmi_version: int = 2) -> bytes:
+    root = cls.description(starts, guid, __version__, fmi_version)
     ET.indent(root, space="  ")
     buf = io.BytesIO()
     ET.ElementTree(root).write(buf, encoding="UTF-8", xml_declaration=True)
@@ -273,34 +283,40 @@ def warm_cache(resources: dict[str, bytes], build: dict) -> None:
     stepper.step.address  # compiled (or loaded from the cache) at import
 
 
-def _identity(model: str, starts: dict) -> tuple[list[tuple[str, bytes]], str, str]:
+def _identity(model: str, starts: dict, fmi_version: int = 2) -> tuple[list[tuple[str, bytes]], str, str]:
     """(carried files, their hash, GUID): the GUID changes with the model, the start
-    values, the package version, the carried code and the C source, and nothing else."""
+    values, the package version, the carried code, the C source and the FMI version, and nothing else."""
     code = carried_files()
     c_source = b"".join(p.read_bytes() for p in sorted((_fmus_dir() / "c").glob("*.[ch]"))) + constants_header()
     digest = _code_hash(code)
-    return code, digest, model_guid(model, starts, digest + hashlib.sha256(c_source).hexdigest(), __version__)
+    return code, digest, model_guid(model, starts, digest + hashlib.sha256(c_source).hexdigest()
+                                    + ("" if fmi_version == 2 else f"/fmi{fmi_version}"), __version__)
 
 
-def fmu_guid(model: str = "impact-oscillator", start_values: dict | None = None) -> str:
+def fmu_guid(model: str = "impact-oscillator", start_values: dict | None = None, fmi_version: int = 2) -> str:
     """The GUID :func:`export_fmu` gives ``model`` with ``start_values``."""
-    return _identity(model, model_class(model).normalize_start_values(dict(start_values or {})))[2]
+    return _identity(model, model_class(model).normalize_start_values(dict(start_values or {})), fmi_version)[2]
 
 
 def export_fmu(model: str = "impact-oscillator", path=None, start_values: dict | None = None,
-               warm: bool = True) -> Path:
+               warm: bool = True, fmi_version: int = 2) -> Path:
     """Build the FMU of ``model`` at ``path`` (default ``<ModelIdentifier>.fmu``) and return its path.
 
     ``start_values`` maps variable names (``"e"``, ``"solver.dt"``, ``"M[1,2]"``,
     ``"solver.scheme": "theta"`` ...) to start values of parameters or inputs; they
     are checked like the slave checks them at run time (bounds, a valid
     ``MechanicalSystem``, g(q_start) >= 0) and a ValueError names what is wrong.
-    ``model = "coupling"`` is the coupling FMU of a pair (:func:`export_coupling`).
+    ``model = "coupling"`` is the coupling FMU of a pair (:func:`export_coupling`, FMI 2.0).
+    ``fmi_version``: 2 (FMI 2.0) or 3 (FMI 3.0 with early return and event mode, docs/fmi3.md).
     """
+    if fmi_version not in FMI_VERSIONS or isinstance(fmi_version, bool):
+        raise ValueError(f"fmi_version must be one of {', '.join(map(str, FMI_VERSIONS))}, got {fmi_version!r}")
     if model == COUPLING:
+        if fmi_version != 2:
+            raise ValueError(f"the coupling FMU is exported for FMI 2.0 only, got fmi_version={fmi_version!r}")
         return export_coupling(path, start_values=start_values, warm=warm)
     cls = model_class(model)
-    return _export(cls, model, path, start_values, {"slave": _carried_slave(model)}, {}, warm)
+    return _export(cls, model, path, start_values, {"slave": _carried_slave(model)}, {}, warm, fmi_version)
 
 
 def export_coupling(path=None, A=None, n: int = 1, start_values: dict | None = None, warm: bool = True,
@@ -329,7 +345,8 @@ def export_coupling(path=None, A=None, n: int = 1, start_values: dict | None = N
     return _export(cls, COUPLING, path, starts, _COUPLING_BUILD, {"structure": spec.as_dict()}, warm)
 
 
-def _export(cls, model: str, path, start_values, build_extra: dict, start_extra: dict, warm: bool) -> Path:
+def _export(cls, model: str, path, start_values, build_extra: dict, start_extra: dict, warm: bool,
+            fmi_version: int = 2) -> Path:
     starts = cls.normalize_start_values(dict(start_values or {}))
     all_starts = cls.start_parameters(starts)
     try:
@@ -342,7 +359,7 @@ def _export(cls, model: str, path, start_values, build_extra: dict, start_extra:
         raise ValueError(f"the FMU file name must end in .fmu, got {str(path)!r}")
     path.parent.mkdir(parents=True, exist_ok=True)
 
-    code, digest, guid = _identity(model, {**starts, **start_extra})
+    code, digest, guid = _identity(model, {**starts, **start_extra}, fmi_version)
     package = f"fmu_sync_m{digest[:16]}"
     boot_module = f"fmu_sync_boot_{digest[:16]}"
     build = {"model": model, "model_identifier": cls.MODEL_IDENTIFIER, "package": package, "code_hash": digest,
@@ -359,10 +376,12 @@ def _export(cls, model: str, path, start_values, build_extra: dict, start_extra:
                                  **start_extra}, indent=2, sort_keys=True) + "\n").encode(),
     })
     with tempfile.TemporaryDirectory(prefix="fmu-sync-build-") as tmp:
-        binary = build_binary(Path(tmp) / f"{cls.MODEL_IDENTIFIER}.so", guid, boot_module).read_bytes()
+        binary = build_binary(Path(tmp) / f"{cls.MODEL_IDENTIFIER}.so", guid, boot_module,
+                              fmi_version=fmi_version).read_bytes()
+    platform = "linux64" if fmi_version == 2 else "x86_64-linux"
     files: list[tuple[str, bytes]] = [
-        ("modelDescription.xml", _model_description_xml(cls, starts, guid)),
-        (f"binaries/linux64/{cls.MODEL_IDENTIFIER}.so", binary),
+        ("modelDescription.xml", _model_description_xml(cls, starts, guid, fmi_version)),
+        (f"binaries/{platform}/{cls.MODEL_IDENTIFIER}.so", binary),
     ] + [(f"resources/{name}", data) for name, data in sorted(resources.items())]
     write_archive(path, files)
     if warm:
@@ -404,14 +423,18 @@ def main_export(argv=None) -> int:
     """``fmu-sync export MODEL -o PATH.fmu [--set name=value ...]``; returns the exit code."""
     parser = argparse.ArgumentParser(
         prog="fmu-sync export",
-        description="Export an FMI 2.0 co-simulation FMU of an fmu-sync model, or the coupling FMU of a "
-                    "pair or network (the importing machine needs Python with numpy and numba; see the README).")
+        description="Export an FMI 2.0 (or FMI 3.0: --fmi-version 3) co-simulation FMU of an fmu-sync model, "
+                    "or the coupling FMU of a pair or network (the importing machine needs Python with numpy "
+                    "and numba; see the README).")
     parser.add_argument("model", choices=sorted([*MODELS, COUPLING]), help="model to export")
     parser.add_argument("-o", "--output", default=None,
                         help="FMU file to write (default: <ModelIdentifier>.fmu in the current folder)")
     parser.add_argument("--set", dest="sets", action="append", default=[], metavar="NAME=VALUE",
                         help="start value of a parameter or input, e.g. --set e=0.8 "
                              "--set solver.scheme=theta --set 'M[1,2]=0.3' (repeatable)")
+    parser.add_argument("--fmi-version", type=int, choices=FMI_VERSIONS, default=2,
+                        help="FMI version of the FMU: 2 (default) or 3 (FMI 3.0: event mode, early return "
+                             "at impacts, arrays; see docs/fmi3.md; not for the coupling FMU)")
     parser.add_argument("--nodes", type=int, default=None,
                         help="coupling only: number of coupled systems N (default 2, the pair)")
     parser.add_argument("--graph", default="ring",
@@ -437,9 +460,11 @@ def main_export(argv=None) -> int:
                 print(f"{v.name:<14} {v.causality:<9} {v.type:<11}{unit}{start}  {v.description}")
             return 0
         if args.model == COUPLING:
+            if args.fmi_version != 2:
+                raise ValueError("the coupling FMU is exported for FMI 2.0 only (--fmi-version 2)")
             path = export_coupling(args.output, A, args.dof, _parse_set(args.sets))
         else:
-            path = export_fmu(args.model, args.output, _parse_set(args.sets))
+            path = export_fmu(args.model, args.output, _parse_set(args.sets), fmi_version=args.fmi_version)
     except ValueError as exc:
         print(f"fmu-sync export: error: {exc}", file=sys.stderr)
         return 2

@@ -32,15 +32,12 @@ class FMUHost:
     share it). ``logging=True`` switches the FMU's logging on.
     """
 
-    def __init__(self, path, instance_name: str = "instance", logging: bool = True,
-                 model_description=None):
+    def _open(self, path, model_description=None) -> None:
+        """The unpacked folder (an .fmu is unpacked, and removed by :meth:`close`), the model
+        description, the variables by name and the host's bookkeeping (FMI 2.0 and 3.0)."""
         import os
 
         from fmpy import extract, read_model_description
-        from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
-                               fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
-        from fmpy import calloc, free
-
         path = str(path)
         self._owns_dir = not os.path.isdir(path)
         self.unzip_dir = extract(path) if self._owns_dir else path
@@ -51,6 +48,14 @@ class FMUHost:
         self.dead = False
         self._stepping = False
         self._freed = False
+
+    def __init__(self, path, instance_name: str = "instance", logging: bool = True,
+                 model_description=None):
+        from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
+                               fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
+        from fmpy import calloc, free
+
+        self._open(path, model_description)
 
         def _logger(env, instance, status, category, message):
             # Our FMUs escape '%' (the message is a printf format): undo it.

@@ -28,6 +28,7 @@ recorded up to the failure (finite rows only).
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
 import shutil
@@ -44,13 +45,14 @@ from .core.model import MechanicalSystem, as_state
 from .core.network import edge_arrays, edge_laws, edges_of, held_exchange, weights
 from .core.pair import LAWS, check_common_geometry
 from .core.result import NetworkResult, PairResult
+from .fmi3_bridge import element_names, open_host
 from .fmus import contract
 from . import cosim_loop as loop
 from .cosim_loop import CALLS, exchange_chunk, fmi_functions
 from .hold import check_hold, check_schemes
 
 __all__ = ["cosimulate", "cosimulate_network", "NetworkMaster", "NetworkResult", "SlaveError", "FmuInstance",
-           "fmu_model", "system_from_fmu"]
+           "fmu_model", "system_from_fmu", "pair_result"]
 
 STATUS = ("OK", "Warning", "Discard", "Error", "Fatal", "Pending")
 #: Communication steps per compiled chunk when no progress is reported (Ctrl-C is honoured between chunks).
@@ -73,11 +75,9 @@ class FmuInstance:
     fmi2Warning turned into a :class:`SlaveError` naming the instance, the time
     and the FMU's logged reason."""
 
-    def __init__(self, unzipdir: str, md, name: str):
-        from .fmi_bridge import FMUHost
-        self.name = name
-        self.t = 0.0
-        self.host = FMUHost(unzipdir, instance_name=name, model_description=md)
+    def __init__(self, unzipdir: str, md, name: str, early_return: bool = False):
+        self.name, self.t = name, 0.0
+        self.host = open_host(unzipdir, md, name, early_return)   # FMI 2.0 or FMI 3.0
         self.vr = self.host.variables
 
     def _check(self, call: str, status: int):
@@ -148,7 +148,7 @@ def model_description(fmu: str):
 def fmu_model(md):
     """The contract's model of an FMU (from its model description); a foreign FMU
     raises :class:`fmu_sync.fmus.contract.ContractError` naming the missing variables."""
-    return contract.identify([v.name for v in md.modelVariables], md.modelName)
+    return contract.identify(element_names(md), md.modelName)
 
 
 def system_from_fmu(instance: FmuInstance, model=None) -> MechanicalSystem:
@@ -171,6 +171,7 @@ class NetworkMaster:
     """
 
     METHODS = ("jacobi", "gauss-seidel")
+    EARLY_RETURN = False   # FMI 3.0 instances with early return and event mode (fmu_sync.early_return)
     DELAY: dict = {}
 
     def __init__(self, fmu, states, A, t_end: float, H: float, coupling: str | None = "switching",
@@ -206,6 +207,7 @@ class NetworkMaster:
             raise FileNotFoundError(f"FMU not found: {self.fmu} (an .fmu file or an unpacked FMU folder "
                                     f"with its modelDescription.xml)")
         self.md = model_description(self.fmu)
+        self.check_fmi_version()
         self.model = fmu_model(self.md)  # a foreign FMU fails here, naming what it lacks
         self.hold = check_hold(hold, self.md, self.fmu)
         check_record_size(record_rows(n_steps, record_every), 1 + 3 * N * self.model.n + 3 * len(self.edges),
@@ -221,11 +223,19 @@ class NetworkMaster:
         self.slaves: list[FmuInstance] = []
         self.retakes = 0
 
+    def check_fmi_version(self) -> None:
+        """The compiled loop calls FMI 2.0 functions: an FMI 3.0 FMU is refused before
+        anything runs (its driver is :func:`fmu_sync.early_return.cosimulate_early_return`)."""
+        if self.md.fmiVersion != "2.0":
+            raise ValueError(f"{self.fmu} is an FMI {self.md.fmiVersion} FMU; cosimulate and cosimulate_network "
+                             f"drive FMI 2.0 FMUs (export with --fmi-version 2); an FMI 3.0 FMU is driven by "
+                             f"fmu_sync.early_return.cosimulate_early_return (exchange at every impact instant)")
+
     # ------------------------------------------------------------ set-up
     def _start(self, unzipdir: str) -> None:
         model, N = self.model, self.N
         for i in range(N):
-            self.slaves.append(FmuInstance(unzipdir, self.md, f"system{i + 1}"))
+            self.slaves.append(FmuInstance(unzipdir, self.md, f"system{i + 1}", self.EARLY_RETURN))
         for s, sv in zip(self.slaves, self.start_values):
             s.enter_initialization(0.0)   # FMI 2.0: variables are readable from initialization mode on
             s.set(sv)
@@ -346,6 +356,15 @@ class NetworkMaster:
         code, _ = exchange_chunk(*self.loop_args, k0, k1, *self.loop_state)
         return int(code)
 
+    def force_bound(self, i: int, t: float) -> SlaveError:
+        """Instance i's coupling force ``self.tau[i]`` is non-finite or above the FMU's input bound."""
+        lim = exchange_limit(self.system.M, self.Kp_m, self.Kd_m, self.H, self.A_coupled, hold=self.hold)
+        return SlaveError(f"system{i + 1}", t, "coupling", 3, [
+            f"its coupling force became non-finite or exceeds the FMU's input bound "
+            f"{contract.INPUT_BOUND:g} ({self.tau[i].tolist()}): the explicit "
+            f"exchange is unstable for these gains and this step ({lim.message()}): lower "
+            f"Kp or H, or add Kd"])
+
     def _failure(self, code: int) -> RunFailed:
         """The exception of a chunk that ended early (the loop's FAIL record)."""
         _, i, call, status = (int(v) for v in self.FAIL)
@@ -357,12 +376,7 @@ class NetworkMaster:
             return SlaveError(s.name, t, CALLS[call], status,
                               s.host.errors(min_status=1) or [m for _, _, m in s.host.messages])
         if code == loop.FORCE_BOUND:
-            lim = exchange_limit(self.system.M, self.Kp_m, self.Kd_m, self.H, self.A_coupled, hold=self.hold)
-            return SlaveError(f"system{i + 1}", t, "coupling", 3, [
-                f"its coupling force became non-finite or exceeds the FMU's input bound "
-                f"{contract.INPUT_BOUND:g} ({self.tau[i].tolist()}): the explicit "
-                f"exchange is unstable for these gains and this step ({lim.message()}): lower "
-                f"Kp or H, or add Kd"])
+            return self.force_bound(i, t)
         return self.diverged(t, "a state" if code == loop.STATE_DIVERGED else "a distance")
 
     def run(self, progress=None) -> NetworkResult:
@@ -370,11 +384,8 @@ class NetworkMaster:
         :class:`SimulationDiverged` if a state or distance becomes non-finite
         (``partial``: the finite record so far). The compiled loop runs in chunks
         of steps, so ``progress(fraction)`` is called and Ctrl-C is honoured between them."""
-        from fmpy import extract
-        # one unpacked copy shared by all instances, removed at the end (an unpacked folder is kept)
-        unzipdir = self.fmu if self.unpacked else extract(self.fmu)
         failure = None
-        try:
+        with self.instances() as unzipdir:
             self._start(unzipdir)
             self._loop_arrays()
             code = self._chunk(-1, 0)   # the start: states, impact counters, row 0
@@ -391,13 +402,26 @@ class NetworkMaster:
                     progress(min(n_steps, k0 + chunk) / n_steps)
             if progress is not None and failure is None:
                 progress(1.0)
+        self.retakes = int(self.ctl[loop.RETAKES])
+        return self.finish(int(self.ctl[loop.ROW]), [int(v) for v in self.imp], failure)
+
+    @contextlib.contextmanager
+    def instances(self):
+        """The unpacked FMU folder for the instances; at the end every instance is freed and
+        the copy removed (one unpacked copy shared by all instances; an unpacked folder is kept)."""
+        from fmpy import extract
+        unzipdir = self.fmu if self.unpacked else extract(self.fmu)
+        try:
+            yield unzipdir
         finally:
             for s in self.slaves:
                 s.close()
             if not self.unpacked:
                 shutil.rmtree(unzipdir, ignore_errors=True)
-        self.retakes = int(self.ctl[loop.RETAKES])
-        res = self.result(int(self.ctl[loop.ROW]), [int(v) for v in self.imp], None if failure is None else str(failure))
+
+    def finish(self, rows: int, impacts: list, failure: RunFailed | None) -> NetworkResult:
+        """The result of ``rows`` recorded rows; a failure is raised with it as ``partial``."""
+        res = self.result(rows, impacts, None if failure is None else str(failure))
         if failure is not None:
             failure.partial = res
             raise failure
@@ -432,7 +456,7 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
                          H_min, start_values, record_distance, allow_unstable, hold).run(progress)
 
 
-def _pair_result(r: NetworkResult, coupling) -> PairResult:
+def pair_result(r: NetworkResult, coupling) -> PairResult:
     d = r.d is not None
     return PairResult(r.t, r.q[:, 0], r.u[:, 0], r.q[:, 1], r.u[:, 1], r.tau[:, 0], r.tau[:, 1],
                       r.d[:, 0] if d else None, r.branch[:, 0] if d else None,
@@ -482,6 +506,6 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
                                record_distance, allow_unstable, hold)
     except RunFailed as exc:
         if exc.partial is not None:  # None: refused before the first step
-            exc.partial = _pair_result(exc.partial, coupling)
+            exc.partial = pair_result(exc.partial, coupling)
         raise
-    return _pair_result(r, coupling)
+    return pair_result(r, coupling)

@@ -1,4 +1,4 @@
-"""Variable declarations and the FMI 2.0 modelDescription.xml of our slaves.
+"""Variable declarations and the FMI 2.0 / FMI 3.0 modelDescription.xml of our slaves.
 
 The FMU binary knows nothing of the interface: the whole model description is
 built here from the interface declared in :mod:`.contract` (one :class:`Var`
@@ -6,14 +6,17 @@ per scalar).
 """
 from __future__ import annotations
 
+import itertools
 import json
+import re
 import uuid
 from xml.etree.ElementTree import Element, SubElement
 
 from .contract import ENUM_TYPES, POSITIVE_MIN, SCHEME_ITEMS, SCHEME_TYPE, Var
 
 __all__ = ["Var", "UNITS", "SCHEME_TYPE", "SCHEME_ITEMS", "model_description", "fmt_real",
-           "POSITIVE_MIN", "generation_tool", "model_guid"]
+           "POSITIVE_MIN", "generation_tool", "model_guid", "model_description3", "fmi3_groups",
+           "FMI3_TYPES"]
 
 #: SI units used by the slaves: name -> exponents of the SI base units
 #: (plus rad), as written in <UnitDefinitions>.
@@ -33,9 +36,9 @@ UNITS: dict[str, dict[str, int]] = {
 }
 
 
-def generation_tool(version: str) -> str:
+def generation_tool(version: str, fmi_version: int = 2) -> str:
     """generationTool of an FMU exported by fmu-sync ``version`` (the FMU's code never imports fmu_sync)."""
-    return f"fmu-sync {version} (own FMI 2.0 binary, Python slave)"
+    return f"fmu-sync {version} (own FMI {fmi_version}.0 binary, Python slave)"
 
 
 def model_guid(model: str, start_values: dict, code: str = "", version: str = "") -> str:
@@ -60,15 +63,24 @@ def _unit_definitions(root: Element, used: set[str]) -> None:
         SubElement(u, "BaseUnit", {k: str(v) for k, v in exps.items()})
 
 
-def _type_definitions(root: Element, used: set[str]) -> None:
+def _type_definitions(root: Element, used: set[str], fmi3: bool = False) -> None:
+    """The enumeration types the variables use (FMI 2.0 SimpleType, FMI 3.0 EnumerationType)."""
     defs = SubElement(root, "TypeDefinitions")
     for type_name, (description, items) in ENUM_TYPES.items():
         if type_name not in used:
             continue
-        st = SubElement(defs, "SimpleType", name=type_name, description=description)
-        en = SubElement(st, "Enumeration")
+        if fmi3:
+            en = SubElement(defs, "EnumerationType", name=type_name, description=description)
+        else:
+            en = SubElement(SubElement(defs, "SimpleType", name=type_name, description=description), "Enumeration")
         for name, value, desc in items:
             SubElement(en, "Item", name=name, value=str(value), description=desc)
+
+def _categories_and_experiment(root: Element, log_categories: dict[str, str], default_experiment: dict) -> None:
+    cats = SubElement(root, "LogCategories")
+    for name, desc in log_categories.items():
+        SubElement(cats, "Category", name=name, description=desc)
+    SubElement(root, "DefaultExperiment", {k: fmt_real(v) for k, v in default_experiment.items()})
 
 
 def model_description(*, model_name: str, model_identifier: str, guid: str, description: str,
@@ -98,10 +110,7 @@ def model_description(*, model_name: str, model_identifier: str, guid: str, desc
     })
     _unit_definitions(root, {v.unit for v in variables if v.unit})
     _type_definitions(root, {v.declared_type for v in variables if v.declared_type})
-    cats = SubElement(root, "LogCategories")
-    for name, desc in log_categories.items():
-        SubElement(cats, "Category", name=name, description=desc)
-    SubElement(root, "DefaultExperiment", {k: fmt_real(v) for k, v in default_experiment.items()})
+    _categories_and_experiment(root, log_categories, default_experiment)
 
     mv = SubElement(root, "ModelVariables")
     index = {}
@@ -142,4 +151,123 @@ def model_description(*, model_name: str, model_identifier: str, guid: str, desc
                 deps = sorted(index[d] for d in v.initial_depends)
                 SubElement(init, "Unknown", index=str(index[v.name]),
                            dependencies=" ".join(map(str, deps)))
+    return root
+
+
+# ----------------------------------------------------------------------------- FMI 3.0
+#: FMI 2.0 type of a Var -> FMI 3.0 element (Integer and Enumeration values are int64 in FMI 3.0)
+FMI3_TYPES = {"Real": "Float64", "Integer": "Int64", "Enumeration": "Enumeration"}
+_INDEXED = re.compile(r"^(?P<base>[A-Za-z_][\w.]*)\[(?P<idx>\d+(?:,\d+)*)\]$")
+_SAME = ("type", "causality", "variability", "initial", "unit", "min", "max", "declared_type")
+
+
+def fmi3_groups(variables: list[Var]) -> list[tuple[str, list[Var], tuple]]:
+    """The FMI 3.0 variables: (name, scalars, dimensions), in value-reference order.
+
+    One rule: a run of consecutive scalars ``base[i]`` (or ``base[i,j]``) with the
+    same base that fills a whole array in row-major order and agrees in type,
+    causality, variability, initial, unit and bounds is one FMI 3.0 array (its value
+    reference is its first scalar's); anything else stays a scalar."""
+    out = []
+    i = 0
+    while i < len(variables):
+        m = _INDEXED.match(variables[i].name)
+        j = i + 1
+        if m:
+            while j < len(variables):
+                mj = _INDEXED.match(variables[j].name)
+                if not mj or mj["base"] != m["base"] or any(
+                        getattr(variables[j], a) != getattr(variables[i], a) for a in _SAME):
+                    break
+                j += 1
+            idx = [tuple(int(k) for k in _INDEXED.match(v.name)["idx"].split(",")) for v in variables[i:j]]
+            dims = tuple(max(ix[d] for ix in idx) for d in range(len(idx[0])))
+            full = list(itertools.product(*(range(d) for d in dims)))
+            if [tuple(a - 1 for a in ix) for ix in idx] == full and j - i > 1:
+                out.append((m["base"], variables[i:j], dims))
+                i = j
+                continue
+            j = i + 1
+        out.append((variables[i].name, [variables[i]], ()))
+        i = j
+    return out
+
+
+def _fmt_value(v: Var, x) -> str:
+    return fmt_real(x) if v.type == "Real" else str(int(x))
+
+
+def model_description3(*, model_name: str, model_identifier: str, token: str, description: str,
+                       generation_tool: str, variables: list[Var], default_experiment: dict,
+                       log_categories: dict[str, str], time_vr: int) -> Element:
+    """The complete <fmiModelDescription> element (FMI 3.0, co-simulation with
+    early return and event mode); ``time_vr``: value reference of the independent
+    variable ``time``."""
+    root = Element("fmiModelDescription", {
+        "fmiVersion": "3.0",
+        "modelName": model_name,
+        "instantiationToken": token,
+        "description": description,
+        "generationTool": generation_tool,
+        "variableNamingConvention": "structured",
+    })
+    SubElement(root, "CoSimulation", {
+        "modelIdentifier": model_identifier,
+        "needsExecutionTool": "false",
+        "canBeInstantiatedOnlyOncePerProcess": "false",
+        "canGetAndSetFMUState": "true",
+        "canSerializeFMUState": "true",
+        "providesDirectionalDerivatives": "false",
+        "providesAdjointDerivatives": "false",
+        "canHandleVariableCommunicationStepSize": "true",
+        "maxOutputDerivativeOrder": "0",
+        "providesIntermediateUpdate": "false",
+        "mightReturnEarlyFromDoStep": "true",
+        "canReturnEarlyAfterIntermediateUpdate": "false",
+        "hasEventMode": "true",
+        "providesEvaluateDiscreteStates": "false",
+    })
+    _unit_definitions(root, {v.unit for v in variables if v.unit})
+    _type_definitions(root, {v.declared_type for v in variables if v.declared_type}, fmi3=True)
+    _categories_and_experiment(root, log_categories, default_experiment)
+
+    mv = SubElement(root, "ModelVariables")
+    SubElement(mv, "Float64", name="time", valueReference=str(time_vr), causality="independent",
+               variability="continuous", description="Simulation time")
+    groups = fmi3_groups(variables)
+    vr_of = {}
+    for name, scalars, dims in groups:
+        v = scalars[0]
+        for s in scalars:
+            vr_of[s.name] = v.value_reference
+        desc = re.sub(r"\b1\b", "i", v.description) + f" (i = 1..{dims[0]})" if len(dims) == 1 else v.description
+        attrs = {"name": name, "valueReference": str(v.value_reference), "description": desc,
+                 "causality": v.causality, "variability": v.variability}
+        if v.declared_type:
+            attrs["declaredType"] = v.declared_type
+        if v.initial is not None:
+            attrs["initial"] = v.initial
+        if v.unit and v.type == "Real":
+            attrs["unit"] = v.unit
+        if v.min is not None:
+            attrs["min"] = _fmt_value(v, v.min)
+        if v.max is not None:
+            attrs["max"] = _fmt_value(v, v.max)
+        if v.start is not None:
+            attrs["start"] = " ".join(_fmt_value(s, s.start) for s in scalars)
+        el = SubElement(mv, FMI3_TYPES[v.type], attrs)
+        for d in dims:
+            SubElement(el, "Dimension", start=str(d))
+
+    ms = SubElement(root, "ModelStructure")
+    heads = [scalars[0] for _, scalars, _ in groups]
+    outputs = [v for v in heads if v.causality == "output"]
+    for v in outputs:
+        # no output depends directly on an input at the same communication point
+        SubElement(ms, "Output", valueReference=str(v.value_reference), dependencies="")
+    for v in outputs:
+        if v.initial in ("approx", "calculated"):
+            deps = sorted({vr_of[d] for d in v.initial_depends})
+            SubElement(ms, "InitialUnknown", valueReference=str(v.value_reference),
+                       dependencies=" ".join(map(str, deps)))
     return root

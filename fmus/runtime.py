@@ -21,8 +21,8 @@ import struct
 import numpy as np
 
 from . import stepper as S
-from ._xml import POSITIVE_MIN
-from .slave import PHASES, START_FILE, STATE_FORMAT
+from ._xml import POSITIVE_MIN, fmi3_groups
+from .slave import PHASES, RUNNING_PHASES, START_FILE, STATE_FORMAT
 
 __all__ = ["FMUInstance", "create", "LAYOUT", "TYPES", "CAUSALITIES", "variable_table", "InstanceBase",
            "read_start_file"]
@@ -152,14 +152,17 @@ class FMUInstance(InstanceBase):
         n, m = slave_cls.N, len(self.inputs)
         qn, un = _q_u_names(n)
         self.n, self.m = n, m
-        self.work = np.zeros(S.work_size(n, m, slave_cls.NF_MAX))
+        self.work = np.zeros(S.work_size(n, m, slave_cls.NF_MAX, nv))
         w = self.work
         w[S.H_LEN] = w.shape[0]
         w[S.H_VERSION] = S.WORK_VERSION
         w[S.H_NX] = nv
         w[S.H_M] = m
         w[S.H_ITAUDOT] = w.shape[0] - m          # the input derivatives: the last m slots
+        w[S.H_ICOUNT] = w.shape[0] - m - nv      # before them: the FMI 3.0 variable sizes per slot
         self.i_taudot = int(w[S.H_ITAUDOT])
+        for _, scalars, _ in fmi3_groups(self.vars):   # slot of an FMI 3.0 variable: its size; inner: 0
+            w[int(w[S.H_ICOUNT]) + scalars[0].value_reference] = len(scalars)
         w[S.H_IQ], w[S.H_IU] = self.index[qn[0]], self.index[un[0]]
         w[S.H_ITAU] = self.index[self.inputs[0].name]
         assert [self.index[a] for a in qn] == list(range(int(w[S.H_IQ]), int(w[S.H_IQ]) + n))
@@ -182,6 +185,7 @@ class FMUInstance(InstanceBase):
         self.work[S.H_TIME] = 0.0
         self.work[S.H_CONFIGURED] = 0.0
         self.work[S.H_VREF] = 0.0
+        self.work[S.H_PEND_P] = 0.0
         self.work[self.i_taudot:self.i_taudot + self.m] = 0.0
         self.cfg = None
         self.refresh()
@@ -227,6 +231,7 @@ class FMUInstance(InstanceBase):
         self.x[self.i_impacts] = 0.0
         self.x[self.i_perc] = 0.0
         self.work[S.H_VREF] = 0.0               # the exact run's velocity scale: set by its first step
+        self.work[S.H_PEND_P] = 0.0
         self._outputs_from_stepper()
         return self._default_step_warning(cfg)
 
@@ -256,6 +261,7 @@ class FMUInstance(InstanceBase):
             "tau": x[self.i_tau:self.i_tau + self.m].tolist(),
             "taudot": self.work[self.i_taudot:self.i_taudot + self.m].tolist(),
             "vref": float(self.work[S.H_VREF]),
+            "pending": [float(self.work[S.H_PEND_U]), float(self.work[S.H_PEND_P])],
             "impacts": int(x[self.i_impacts]),
             "percussion": float(x[self.i_perc]),
             "parameters": self._parameters(),
@@ -276,7 +282,8 @@ class FMUInstance(InstanceBase):
         self.work[S.H_TIME] = s["time"]
         self.work[S.H_PHASE] = PHASES[s["phase"]]
         self.work[self.i_taudot:self.i_taudot + self.m] = s["taudot"]
-        if s["phase"] in ("step", "terminated"):
+        self.work[S.H_PEND_U], self.work[S.H_PEND_P] = s["pending"]
+        if s["phase"] in RUNNING_PHASES:
             self._install(cfg)
             self.work[S.H_VREF] = s["vref"]
             self._outputs_from_stepper()

@@ -26,10 +26,10 @@ import numpy as np
 
 from ..core.checks import check_stable, check_step, scheme_code
 from ..core.errors import UnstableScheme
-from ._xml import generation_tool, model_description, model_guid
+from ._xml import generation_tool, model_description, model_description3, model_guid
 from .contract import INPUT_BOUND, SCHEME_ITEMS, STATE_BOUND, Var
 
-__all__ = ["MechanicalSlave", "STATE_FORMAT", "START_FILE", "Configuration", "PHASES",
+__all__ = ["MechanicalSlave", "STATE_FORMAT", "START_FILE", "Configuration", "PHASES", "RUNNING_PHASES",
            "INPUT_BOUND", "generation_tool", "model_guid", "seal", "unseal"]
 
 #: Name of the start-value file in the FMU's resources/ (written by fmu_sync.export).
@@ -38,8 +38,11 @@ START_FILE = "fmu_sync_start.json"
 #: the sha256 of the rest (JSON), so a damaged or altered state is refused
 #: instead of being read as another valid state (:func:`seal`, :func:`unseal`).
 STATE_FORMAT = "fmu-sync-state/4"
-#: FMU phases as saved in a state (names) and their C codes (c/fmu_sync_runtime.h: FSR_INSTANTIATED ...)
-PHASES = {"instantiated": 1, "initialization": 2, "step": 4, "terminated": 8}
+#: FMU phases as saved in a state (names) and their C codes (fmu_sync_constants.h: FSR_INSTANTIATED ...;
+#: event mode: fmu_sync_fmi3.c's ST_EVENT = FSR_EVENT)
+PHASES = {"instantiated": 1, "initialization": 2, "step": 4, "terminated": 8, "event": 16}
+#: phases in which the instance runs a validated configuration (FMI 3.0 adds event mode)
+RUNNING_PHASES = ("step", "terminated", "event")
 _SCHEME_BY_VALUE = {value: name for name, value, _ in SCHEME_ITEMS}
 
 
@@ -130,14 +133,18 @@ class MechanicalSlave:
         return vars_
 
     @classmethod
-    def description(cls, start_values: dict, guid: str, version: str):
+    def description(cls, start_values: dict, guid: str, version: str, fmi_version: int = 2):
         """The complete <fmiModelDescription> element of an FMU with these start values
-        (``version``: the exporting fmu-sync's)."""
-        return model_description(
-            model_name=cls.MODEL_IDENTIFIER, model_identifier=cls.MODEL_IDENTIFIER, guid=guid,
-            description=cls.DESCRIPTION, generation_tool=generation_tool(version),
-            variables=cls.variables(start_values), default_experiment=cls.DEFAULT_EXPERIMENT,
-            log_categories=cls.LOG_CATEGORIES)
+        (``version``: the exporting fmu-sync's; FMI 2.0, or FMI 3.0 with ``time`` after the
+        last scalar's value reference)."""
+        variables = cls.variables(start_values)
+        common = dict(model_name=cls.MODEL_IDENTIFIER, model_identifier=cls.MODEL_IDENTIFIER,
+                      description=cls.DESCRIPTION, generation_tool=generation_tool(version, fmi_version),
+                      variables=variables, default_experiment=cls.DEFAULT_EXPERIMENT,
+                      log_categories=cls.LOG_CATEGORIES)
+        if fmi_version == 3:
+            return model_description3(token=guid, time_vr=len(variables), **common)
+        return model_description(guid=guid, **common)
 
     @classmethod
     def variable_names(cls) -> list[str]:
@@ -263,6 +270,11 @@ class MechanicalSlave:
             for key in ("time", "percussion", "vref"):
                 if not (_is_real(s[key]) and math.isfinite(s[key])):
                     return f"{key} must be a finite number, got {s[key]!r}", None
+            pend = s["pending"]
+            if (not isinstance(pend, list) or len(pend) != 2 or not all(_is_real(a) and math.isfinite(a)
+                                                                        for a in pend) or pend[1] < 0.0):
+                return (f"pending must be [u after, percussion >= 0] of an impact held for event mode, "
+                        f"got {pend!r}"), None
             for key in ("percussion", "vref"):
                 if s[key] < 0.0:
                     return f"{key} must be >= 0, got {s[key]!r}", None

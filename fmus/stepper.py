@@ -23,6 +23,16 @@ or 2 (nothing done) when the exact scheme is given a non-zero input derivative. 
 gap and energy (used after a restore, so that the outputs are the very same
 numbers).
 
+FMI 3.0 early return (the header's ``H_MODE``, set by ``fmu_sync_fmi3.c``): with
+MODE_EARLY the step stops at the first impact inside ``(t, t + H)`` -- the exact
+scheme at the impact instant (``core.exact.exact_step_early``), a Moreau scheme at
+the end of the first internal step with a positive percussion (the step is redone
+internal step by internal step with ``advance_in``'s own time and last-step
+rules) -- and writes the time reached into ``H_REACHED``. MODE_EARLY_EVENT stops
+the exact scheme just before the impact (the left limit) and keeps the impact
+pending (``H_PEND_U``, ``H_PEND_P``) until a call in MODE_APPLY_EVENT
+(fmi3UpdateDiscreteStates) applies it.
+
 Work array: the header (H_* slots), the system (:func:`pack`), a save area of
 2n slots, the exact model (``core.exact.exact_model``, 1-DOF only, at
 ``H_IEXACT``) and, last, the m input derivatives (at ``H_ITAUDOT``: set by the
@@ -41,16 +51,18 @@ import numpy as np
 from numba import carray, cfunc, njit, types
 
 from ..core.exact import NT as _EXACT_NT
-from ..core.exact import STEP_OK, STEP_TOO_MANY_EVENTS, exact_step
+from ..core.exact import STEP_OK, STEP_TOO_MANY_EVENTS, exact_step_early
 from ..core.model import SystemArrays
-from ..core.moreau import MIDPOINT, OK, THETA, advance_in
+from ..core.moreau import MIDPOINT, OK, THETA, advance_in, substeps
 from .contract import SCHEME_EXACT as EXACT
 from .contract import STATE_BOUND
 
 __all__ = ["step", "pack", "work_size", "H_LEN", "H_VERSION", "H_TIME", "H_PHASE", "H_DT",
            "H_CONFIGURED", "WORK_VERSION", "H_FEEDTHROUGH", "H_VREF", "H_ITAUDOT", "H_IEXACT", "H_MAXEV", "H_BOUND",
            "EXACT", "exact_size",
-           "EXACT_MAX_EVENTS", "R_OK", "R_ROLLED_BACK", "R_EXACT_TAUDOT", "R_EXACT_EVENTS", "R_EXACT_STALL"]
+           "EXACT_MAX_EVENTS", "R_OK", "R_ROLLED_BACK", "R_EXACT_TAUDOT", "R_EXACT_EVENTS", "R_EXACT_STALL",
+           "H_MODE", "H_REACHED", "H_PEND_U", "H_PEND_P", "H_ICOUNT", "MODE_FULL", "MODE_EARLY",
+           "MODE_EARLY_EVENT", "MODE_APPLY_EVENT"]
 
 # --- header slots (those the C binary reads are written into fmu_sync_constants.h at export)
 H_LEN, H_VERSION, H_TIME, H_PHASE, H_DT, H_CONFIGURED = 0, 1, 2, 3, 4, 5
@@ -61,16 +73,26 @@ H_VREF, H_ITAUDOT, H_IEXACT = 19, 20, 21
 #: read by the C binary: != 0 when the outputs depend directly on the inputs (0 here; the coupling FMU)
 H_FEEDTHROUGH = 22
 H_MAXEV, H_BOUND = 23, 24
-H_DATA = 25
+# FMI 3.0 (read and written by fmu_sync_fmi3.c): the step mode (MODE_*), the time a
+# step reached (t + H or an early return), the pending impact of an early return in
+# event mode (post-impact velocity, its percussion; H_PEND_P > 0 while pending), and
+# the offset of the per-slot FMI 3.0 variable sizes (runtime.FMUInstance)
+H_MODE, H_REACHED, H_PEND_U, H_PEND_P, H_ICOUNT = 25, 26, 27, 28, 29
+H_DATA = 30
 #: the one version of what the binary and the Python side share (work array header,
 #: layout, codes): fmu_sync_constants.h, generated at export, carries it
-WORK_VERSION = 3
+WORK_VERSION = 4
 #: work guard of the exact scheme: most events (impacts, contact changes, flow
 #: pieces) in one doStep; more makes the step fail (rolled back, fmi2Error) in
 #: well under a second instead of running for minutes (H = 1e9)
 EXACT_MAX_EVENTS = 100_000
 #: return codes of :func:`step` (read by fmus/c/fmu_sync_runtime.c)
 R_OK, R_ROLLED_BACK, R_EXACT_TAUDOT, R_EXACT_EVENTS, R_EXACT_STALL = 0, 1, 2, 3, 4
+#: step modes (H_MODE): to the end of the step (FMI 2.0; FMI 3.0 without early return);
+#: stop at the first impact with the impact handled (early return, no event mode); stop
+#: at the first impact before it (early return in event mode: the exact scheme keeps the
+#: impact pending for fmi3UpdateDiscreteStates); apply the pending impact (H ignored)
+MODE_FULL, MODE_EARLY, MODE_EARLY_EVENT, MODE_APPLY_EVENT = 0, 1, 2, 3
 
 
 def exact_size(n: int, m: int, nf: int) -> int:
@@ -84,10 +106,11 @@ def _scratch(n, m, nf):
     return 6 * n + n * n + 4 * nf + m
 
 
-def work_size(n: int, m: int, nf: int) -> int:
-    """Length of the work array for n DOF, m inputs, nf harmonic forces."""
+def work_size(n: int, m: int, nf: int, nx: int = 0) -> int:
+    """Length of the work array for n DOF, m inputs, nf harmonic forces (and the nx
+    FMI 3.0 variable sizes, placed just before the m input derivatives)."""
     system = H_DATA + 4 * n * n + n + nf * n + 2 * nf + n * m + n + 2 + n + 1
-    return system + 2 * n + _scratch(n, m, nf) + exact_size(n, m, nf) + m
+    return system + 2 * n + _scratch(n, m, nf) + exact_size(n, m, nf) + nx + m
 
 
 def pack(work: np.ndarray, sa: SystemArrays, dt: float, scheme: int, theta: float, exact=None) -> None:
@@ -115,9 +138,9 @@ def pack(work: np.ndarray, sa: SystemArrays, dt: float, scheme: int, theta: floa
     k += n + 1 + 2 * n + _scratch(n, m, nf)   # the save area and the scratch
     work[H_IEXACT] = 0.0
     if exact is not None:
-        if k + exact.size > int(work[H_ITAUDOT]):
+        if k + exact.size > int(work[H_ICOUNT]):
             raise ValueError(f"the exact model needs {exact.size} slots, the work array has "
-                             f"{int(work[H_ITAUDOT]) - k}")
+                             f"{int(work[H_ICOUNT]) - k}")
         work[k:k + exact.size] = exact
         work[H_IEXACT] = k
 
@@ -222,7 +245,13 @@ def step(x_ptr, w_ptr, t, H):
     q = x[iq:iq + n]
     u = x[iu:iu + n]
     tau = x[it:it + m]
-    if H == 0.0:
+    mode = int(w[H_MODE])
+    if mode == MODE_APPLY_EVENT and w[H_PEND_P] > 0.0:    # the pending impact of an early return
+        u[0] = w[H_PEND_U]
+        x[int(w[H_IPERC])] = w[H_PEND_P]
+        x[int(w[H_IIMPACTS])] += 1
+        w[H_PEND_P] = 0.0
+    if H == 0.0 or mode == MODE_APPLY_EVENT:
         g, E = _outputs(sa, q, u)
         x[int(w[H_IGAP])] = g
         x[int(w[H_IENERGY])] = E
@@ -234,22 +263,51 @@ def step(x_ptr, w_ptr, t, H):
         save[i] = q[i]
         save[n + i] = u[i]
     scheme = int(w[H_SCHEME])
+    early = mode == MODE_EARLY or mode == MODE_EARLY_EVENT
+    t_stop = t + H
+    pend_u = 0.0
+    pend_p = 0.0
     if scheme == EXACT:
         for j in range(m):
             if taudot[j] != 0.0:
                 return R_EXACT_TAUDOT
         ie = int(w[H_IEXACT])
-        st, q1, u1, P, hits, vref = exact_step(w[ie:], q[0], u[0], t, H, tau, w[H_VREF], int(w[H_MAXEV]))
+        st, t_stop, q1, u1, um, P, Pi, hits, vref = exact_step_early(w[ie:], q[0], u[0], t, H, tau,
+                                                                     w[H_VREF], early, int(w[H_MAXEV]))
         if st == STEP_TOO_MANY_EVENTS:
             return R_EXACT_EVENTS
         if st != STEP_OK:
             return R_EXACT_STALL
         q[0] = q1
         u[0] = u1
+        if Pi > 0.0 and mode == MODE_EARLY_EVENT:   # stop before the impact: left limit
+            u[0] = um
+            pend_u = u1
+            pend_p = Pi
+            P = P - Pi
+            hits -= 1
         status = OK
     else:
-        status, P, hits = _advance(sa, q, u, t, H, w[H_DT], tau, taudot, scheme, w[H_THETA],
-                                   w[k + 2 * n:k + 2 * n + _scratch(n, m, int(w[H_NF]))])
+        sc = w[k + 2 * n:k + 2 * n + _scratch(n, m, int(w[H_NF]))]
+        status, P, hits = _advance(sa, q, u, t, H, w[H_DT], tau, taudot, scheme, w[H_THETA], sc)
+        if early and hits > 0 and status == OK:
+            # redo it internal step by internal step (the same arithmetic: advance_in's t and
+            # last-step rules) up to the end of the first internal step with a percussion
+            for i in range(n):
+                q[i] = save[i]
+                u[i] = save[n + i]
+            dt = w[H_DT]
+            ks = substeps(H, dt)
+            for kk in range(ks):
+                tk = t + kk * dt
+                hk = dt
+                if kk == ks - 1:
+                    hk = (t + H) - tk if kk > 0 else H
+                status, P, hits = _advance(sa, q, u, tk, hk, dt, tau, taudot, scheme, w[H_THETA], sc)
+                if status != OK or P > 0.0:
+                    if kk < ks - 1:
+                        t_stop = tk + hk
+                    break
         vref = w[H_VREF]
     g, E = _outputs(sa, q, u)
     bad = status != OK or not (math.isfinite(g) and math.isfinite(E))
@@ -263,6 +321,9 @@ def step(x_ptr, w_ptr, t, H):
             u[i] = save[n + i]
         return R_ROLLED_BACK
     w[H_VREF] = vref
+    w[H_REACHED] = t_stop
+    w[H_PEND_U] = pend_u
+    w[H_PEND_P] = pend_p
     for j in range(m):
         taudot[j] = 0.0                       # consumed: it applied to this step only
     x[int(w[H_IPERC])] = P

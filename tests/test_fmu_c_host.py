@@ -217,3 +217,38 @@ def test_python_override_variable(setup, tmp_path):
     p = _run_host(setup, "--stop", 0.1, env=_clean_env(FMU_SYNC_PYTHON=str(bare / "bin" / "python")))
     assert p.returncode == 3, p.stdout + p.stderr
     assert "lacks numpy" in p.stderr and "lacks numba" in p.stderr and "FMU_SYNC_PYTHON" in p.stderr
+
+
+@pytest.mark.parametrize("scheme", ["exact", "midpoint"])
+def test_c_host_fmi3_early_return_and_event_mode_match_fmpy(setup, scheme):
+    """The FMI 3.0 FMU in the C host (fresh processes, empty environment) with early
+    return and event mode: the rows (grid points, and each impact twice: before and
+    after event mode) equal fmpy's simulate_fmu with the same options."""
+    start = {"k": 0.0, "f0": -9.81, "F": 0.0, "e": 0.8} if scheme == "exact" else {}
+    fmu = export_fmu("impact-oscillator", setup["tmp"] / f"io3_{scheme}.fmu", {**start, "solver.scheme": scheme},
+                     fmi_version=3)
+    d = setup["tmp"] / f"io3_{scheme}"
+    with zipfile.ZipFile(fmu) as zf:
+        zf.extractall(d)
+    os.chmod(next(d.glob("binaries/x86_64-linux/*.so")), 0o755)
+    stop, H = 4.0, 0.01
+    outs = []
+    for i in range(3):
+        out = setup["tmp"] / f"fmi3_{scheme}_{i}.csv"
+        p = _run_host(setup, "--fmi3", "--early-return", "--event-mode", "--stop", stop, "--step", H,
+                      "--var", VR_Q, "--var", VR_U, "--out", out, dir=d)
+        assert p.returncode == 0, p.stdout + p.stderr[-1500:]
+        outs.append(_read_csv(out))
+    assert all(np.array_equal(o, outs[0]) for o in outs[1:])
+    code = ("import json\nfrom fmpy import simulate_fmu\n"
+            f"r = simulate_fmu({str(fmu)!r}, stop_time={stop!r}, output_interval={H!r}, output=['q', 'u'], "
+            "early_return_allowed=True, use_event_mode=True)\n"
+            "print(json.dumps({n: r[n].tolist() for n in r.dtype.names}))\n")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr[-2000:]
+    ref = json.loads(p.stdout.strip().splitlines()[-1])
+    got = outs[0]
+    assert got.shape == (len(ref["time"]), 3) and len(ref["time"]) > int(stop / H) + 1   # early-return rows
+    assert np.max(np.abs(got[:, 0] - np.array(ref["time"]))) <= 1e-12
+    assert np.max(np.abs(got[:, 1] - np.array(ref["q"]))) <= 1e-12
+    assert np.max(np.abs(got[:, 2] - np.array(ref["u"]))) <= 1e-12

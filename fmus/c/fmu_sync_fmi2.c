@@ -28,6 +28,7 @@
 
 /* ------------------------------------------------------------ FMI 2.0 ABI */
 #include "fmi2_abi.h"
+#include "fmu_sync_glue.h"
 #include "fmu_sync_runtime.h"
 #ifndef FMU_SYNC_GUID
 #error "FMU_SYNC_GUID must be defined (fmu_sync_constants.h)"
@@ -85,8 +86,7 @@ static const struct { const char *name; int mask; } CALLS[F_N] = {
 typedef struct Instance {
     uint32_t magic;
     int state;
-    int logging_on;
-    int log_all, log_warning;       /* enabled optional categories */
+    fsg_logging log;                /* logging on, enabled optional categories */
     char *name;
     fmi2CallbackFunctions cb;
     fsr_instance rt;                /* the runtime: Python instance, variables, work array */
@@ -97,20 +97,7 @@ typedef struct Instance {
 #define MAGIC 0x66737931u           /* "fsy1" */
 
 /* ------------------------------------------------------------ logging */
-/* Categories (modelDescription.xml <LogCategories>): logStatusWarning, logStatusDiscard,
- * logStatusError, logStatusFatal, logAll. Discard, Error and Fatal are always
- * passed to the logger (they carry the reason of a status); Warning and logAll
- * only with logging on. The status returned never depends on logging. */
-static const char *category_of(fmi2Status s) {
-    switch (s) {
-    case fmi2Warning: return "logStatusWarning";
-    case fmi2Discard: return "logStatusDiscard";
-    case fmi2Error: return "logStatusError";
-    case fmi2Fatal: return "logStatusFatal";
-    default: return "logAll";
-    }
-}
-
+/* Categories and which messages reach the logger: fmu_sync_glue.h. */
 static void emit(fmi2CallbackLogger logger, fmi2ComponentEnvironment env, const char *name,
                  fmi2Status status, const char *text) {
     /* the logger's message is a printf format: escape '%' (no allocation per message) */
@@ -122,20 +109,13 @@ static void emit(fmi2CallbackLogger logger, fmi2ComponentEnvironment env, const 
         buf[j++] = *p;
     }
     buf[j] = '\0';
-    logger(env, name ? name : "?", status, category_of(status), buf);
-}
-
-static int wants(const Instance *c, fmi2Status s) {
-    if (s >= fmi2Discard) return 1;
-    if (!c->logging_on) return 0;
-    if (s == fmi2Warning) return c->log_warning || c->log_all;
-    return c->log_all;
+    logger(env, name ? name : "?", status, fsg_category(status), buf);
 }
 
 /* the runtime's log callback: every message of an instance passes here */
 static void glue_log(void *ctx, int status, const char *text) {
     Instance *c = (Instance *)ctx;
-    if (c && c->cb.logger && wants(c, (fmi2Status)status))
+    if (c && c->cb.logger && fsg_wants(&c->log, status))
         emit(c->cb.logger, c->cb.componentEnvironment, c->name, (fmi2Status)status, text);
 }
 
@@ -150,26 +130,9 @@ static fmi2Status call_py(Instance *c, const char *method, fsr_state *arg) {
     return (fmi2Status)s;
 }
 
-static const char *state_name(int st) {
-    switch (st) {
-    case ST_INSTANTIATED: return "instantiated";
-    case ST_INIT: return "initialization mode";
-    case ST_STEP: return "step mode";
-    case ST_TERMINATED: return "terminated";
-    case ST_FATAL: return "fatal error";
-    default: return "?";
-    }
-}
-
-static void allowed_states(int mask, char *out, size_t n) {
-    static const int all[] = {ST_INSTANTIATED, ST_INIT, ST_STEP, ST_TERMINATED};
-    out[0] = '\0';
-    for (size_t i = 0; i < 4; ++i)
-        if (mask & all[i]) {
-            if (out[0]) strncat(out, ", ", n - strlen(out) - 1);
-            strncat(out, state_name(all[i]), n - strlen(out) - 1);
-        }
-}
+static const fsg_state STATES[] = {{ST_INSTANTIATED, "instantiated"}, {ST_INIT, "initialization mode"},
+                                    {ST_STEP, "step mode"}, {ST_TERMINATED, "terminated"}, {ST_FATAL, "fatal error"}};
+#define state_name(st) fsg_state_name(STATES, 5, (st))
 
 /* The one check of every call: a valid instance in an allowed state. */
 static int invalid(fmi2Component comp, int call, Instance **out) {
@@ -180,7 +143,7 @@ static int invalid(fmi2Component comp, int call, Instance **out) {
     *out = c;
     if (!(CALLS[call].mask & c->state)) {
         char allowed[200];
-        allowed_states(CALLS[call].mask, allowed, sizeof allowed);
+        fsg_allowed(STATES, 4, CALLS[call].mask, allowed, sizeof allowed);
         if (c->state == ST_FATAL)
             refuse(c, fmi2Error, "%s refused: the instance had a fatal error; only fmi2FreeInstance is allowed",
                    CALLS[call].name);
@@ -256,8 +219,7 @@ EXPORT fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, 
     c->magic = MAGIC;
     c->cb = *functions;
     c->name = strdup(name);
-    c->logging_on = loggingOn ? 1 : 0;
-    c->log_all = c->log_warning = 1;
+    c->log = (fsg_logging){loggingOn ? 1 : 0, 1, 1};
     c->state = ST_INSTANTIATED;
     c->rt.log = glue_log;
     c->rt.log_ctx = c;
@@ -282,22 +244,9 @@ EXPORT fmi2Status fmi2SetDebugLogging(fmi2Component comp, fmi2Boolean loggingOn,
                                       const fmi2String categories[]) {
     Instance *c;
     if (invalid(comp, F_SetDebugLogging, &c)) return fmi2Error;
-    c->logging_on = loggingOn ? 1 : 0;
-    if (n == 0) {
-        c->log_all = c->log_warning = 1;
-        return fmi2OK;
-    }
-    if (!categories) return refuse(c, fmi2Error, "fmi2SetDebugLogging: %zu categories but categories is NULL", n);
-    c->log_all = c->log_warning = 0;
-    for (size_t i = 0; i < n; ++i) {
-        const char *k = categories[i];
-        if (!k) return refuse(c, fmi2Error, "fmi2SetDebugLogging: category %zu is NULL", i);
-        if (!strcmp(k, "logAll")) c->log_all = 1;
-        else if (!strcmp(k, "logStatusWarning")) c->log_warning = 1;
-        else if (strcmp(k, "logStatusDiscard") && strcmp(k, "logStatusError") && strcmp(k, "logStatusFatal"))
-            return refuse(c, fmi2Error, "fmi2SetDebugLogging: unknown log category '%s' (known: logStatusWarning, "
-                          "logStatusDiscard, logStatusError, logStatusFatal, logAll)", k);
-    }
+    char err[300];
+    if (fsg_set_logging(&c->log, loggingOn, n, categories, err, sizeof err))
+        return refuse(c, fmi2Error, "fmi2SetDebugLogging: %s; logging unchanged", err);
     return fmi2OK;
 }
 

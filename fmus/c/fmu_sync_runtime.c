@@ -673,7 +673,7 @@ int fsr_step(fsr_instance *inst, double t, double H) {
                         "start time nearer 0", G(t), G(H), G(now), G(now), G(t1 - now));
     if (inst->stop_defined && t1 > inst->stop_time + 1e-9 * (fabs(inst->stop_time) < 1.0 ? 1.0 : fabs(inst->stop_time)))
         return fsr_logf(inst, FSR_ERROR, REFUSED "t + H = %s is past the experiment's stopTime = %s "
-                        "(fmi2SetupExperiment); the last step may end at stopTime", G(t), G(H), G(now), G(t1),
+                        "(fmi2SetupExperiment, fmi3EnterInitializationMode); the last step may end at stopTime", G(t), G(H), G(now), G(t1),
                         G(inst->stop_time));
     double dt = w[FSR_H_DT];
     int exact = w[FSR_H_SCHEME] == FSR_SCHEME_EXACT;

@@ -1,6 +1,10 @@
-/* A plain C FMI 2.0 co-simulation host for the tests (no Python in this process).
+/* A plain C FMI 2.0 / FMI 3.0 co-simulation host for the tests (no Python in this process).
  *
  *   fmu_host UNZIPDIR [options]
+ *     --fmi3                   drive it as an FMI 3.0 FMU (fmi3InstantiateCoSimulation, Float64 variables)
+ *     --early-return           FMI 3.0: earlyReturnAllowed; a row is written at every early return too
+ *     --event-mode             FMI 3.0: eventModeUsed; at eventHandlingNeeded: fmi3EnterEventMode,
+ *                              fmi3UpdateDiscreteStates until done, fmi3EnterStepMode, and a second row
  *     --stop T --step H        run setup/enter/exit, doStep 0..T by H, write CSV (default 10, 0.01)
  *     --out FILE.csv           CSV: time and every --var value after each step
  *     --var VR                 Real output value reference to record (repeatable)
@@ -42,6 +46,13 @@ typedef fmi2Status (*Simple)(fmi2Component);
 typedef fmi2Status (*SetReal)(fmi2Component, const fmi2ValueReference *, size_t, const double *);
 typedef fmi2Status (*GetReal)(fmi2Component, const fmi2ValueReference *, size_t, double *);
 typedef fmi2Status (*DoStep)(fmi2Component, double, double, int);
+
+#include "../../fmus/c/fmi3_abi.h"
+
+static void logger3(fmi3InstanceEnvironment env, fmi3Status s, fmi3String cat, fmi3String msg) {
+    (void)env;
+    fprintf(stderr, "LOG %d %s: %s\n", (int)s, cat ? cat : "", msg ? msg : "");
+}
 
 static void logger(void *env, const char *name, fmi2Status s, const char *cat, const char *msg, ...) {
     (void)env; (void)name;
@@ -115,6 +126,90 @@ static void uri_of(const char *dir, char *out, size_t n) {
     snprintf(out + j, n - j, "/resources");
 }
 
+static void write_row(FILE *csv, double t, const double *vals, int n) {
+    if (!csv) return;
+    fprintf(csv, "%.17g", t);
+    for (int i = 0; i < n; ++i) fprintf(csv, ",%.17g", vals[i]);
+    fprintf(csv, "\n");
+}
+
+/* FMI 3.0: instantiate, initialize (the --set values), step 0..stop by H with early
+ * returns and event mode as asked, write time and the --var values; the exit code
+ * as for FMI 2.0. */
+static int run_fmi3(const char *dir, double stop, double H, const char *out, const unsigned *vars, int nvars,
+                    const unsigned *setv, const double *setx, int nset, int early, int event, int logging) {
+    char path[4096], ident[256], token[256], res[4200];
+    snprintf(path, sizeof path, "%s/modelDescription.xml", dir);
+    read_attr(path, "modelIdentifier", ident, sizeof ident);
+    read_attr(path, "instantiationToken", token, sizeof token);
+    snprintf(path, sizeof path, "%s/binaries/x86_64-linux/%s.so", dir, ident);
+    void *lib = dlopen(path, RTLD_NOW | RTLD_LOCAL);
+    if (!lib) {
+        printf("dlopen failed: %s\n", dlerror());
+        return 5;
+    }
+    fmi3InstantiateCoSimulationTYPE *inst = (fmi3InstantiateCoSimulationTYPE *)sym(lib, "fmi3InstantiateCoSimulation");
+    fmi3FreeInstanceTYPE *freei = (fmi3FreeInstanceTYPE *)sym(lib, "fmi3FreeInstance");
+    fmi3EnterInitializationModeTYPE *enter = (fmi3EnterInitializationModeTYPE *)sym(lib, "fmi3EnterInitializationMode");
+    fmi3InstanceCallTYPE *exiti = (fmi3InstanceCallTYPE *)sym(lib, "fmi3ExitInitializationMode");
+    fmi3InstanceCallTYPE *enter_event = (fmi3InstanceCallTYPE *)sym(lib, "fmi3EnterEventMode");
+    fmi3InstanceCallTYPE *enter_step = (fmi3InstanceCallTYPE *)sym(lib, "fmi3EnterStepMode");
+    fmi3InstanceCallTYPE *term = (fmi3InstanceCallTYPE *)sym(lib, "fmi3Terminate");
+    fmi3SetFloat64TYPE *setr = (fmi3SetFloat64TYPE *)sym(lib, "fmi3SetFloat64");
+    fmi3GetFloat64TYPE *getr = (fmi3GetFloat64TYPE *)sym(lib, "fmi3GetFloat64");
+    fmi3UpdateDiscreteStatesTYPE *update = (fmi3UpdateDiscreteStatesTYPE *)sym(lib, "fmi3UpdateDiscreteStates");
+    fmi3DoStepTYPE *dostep = (fmi3DoStepTYPE *)sym(lib, "fmi3DoStep");
+    snprintf(res, sizeof res, "%s/resources/", dir);
+    fmi3Instance c = inst("host", token, res, false, logging, event, early, NULL, 0, NULL, logger3, NULL);
+    if (!c) {
+        printf("instantiate NULL\n");
+        return 3;
+    }
+    FILE *csv = out ? fopen(out, "w") : NULL;
+    double vals[64];
+    check("fmi3EnterInitializationMode", (fmi2Status)enter(c, false, 0.0, 0.0, true, stop));
+    for (int i = 0; i < nset; ++i) check("fmi3SetFloat64", (fmi2Status)setr(c, &setv[i], 1, &setx[i], 1));
+    check("fmi3ExitInitializationMode", (fmi2Status)exiti(c));
+    if (event) {
+        bool more = true, stopit, b1, b2, b3;
+        double te;
+        while (more && worst < fmi2Error) check("fmi3UpdateDiscreteStates", (fmi2Status)update(c, &more, &stopit, &b1, &b2, &b3, &te));
+        check("fmi3EnterStepMode", (fmi2Status)enter_step(c));
+    }
+    if (csv) {
+        fprintf(csv, "time");
+        for (int i = 0; i < nvars; ++i) fprintf(csv, ",vr%u", vars[i]);
+        fprintf(csv, "\n");
+    }
+    long nsteps = (long)(stop / H + 0.5), k = 0;
+    double t = 0.0;
+    while (worst < fmi2Error) {
+        if (nvars) check("fmi3GetFloat64", (fmi2Status)getr(c, vars, (size_t)nvars, vals, (size_t)nvars));
+        write_row(csv, t, vals, nvars);
+        if (k == nsteps) break;
+        bool need = false, stopit = false, er = false;
+        double next = (k + 1) * H, last = t;
+        check("fmi3DoStep", (fmi2Status)dostep(c, t, next - t, true, &need, &stopit, &er, &last));
+        if (worst >= fmi2Error) break;
+        if (er && !early) { printf("early return without earlyReturnAllowed\n"); worst = 9; break; }
+        t = er ? last : next;
+        if (!er) ++k;
+        if (need && event) {
+            if (nvars) check("fmi3GetFloat64", (fmi2Status)getr(c, vars, (size_t)nvars, vals, (size_t)nvars));
+            write_row(csv, t, vals, nvars);
+            check("fmi3EnterEventMode", (fmi2Status)enter_event(c));
+            bool more = true, b1, b2, b3;
+            double te;
+            while (more && worst < fmi2Error) check("fmi3UpdateDiscreteStates", (fmi2Status)update(c, &more, &stopit, &b1, &b2, &b3, &te));
+            check("fmi3EnterStepMode", (fmi2Status)enter_step(c));
+        }
+    }
+    if (csv) fclose(csv);
+    check("fmi3Terminate", (fmi2Status)term(c));
+    freei(c);
+    return worst > fmi2OK ? 1 : 0;
+}
+
 int main(int argc, char **argv) {
     if (argc < 2) {
         fprintf(stderr, "usage: fmu_host UNZIPDIR [options]\n");
@@ -123,7 +218,7 @@ int main(int argc, char **argv) {
     const char *dir = argv[1];
     double stop = 10.0, H = 0.01;
     const char *out = NULL, *uri_opt = NULL, *guid_opt = NULL;
-    int type = 1, cycles = 0, logging = 1, input_first = 0;
+    int type = 1, cycles = 0, logging = 1, input_first = 0, fmi3 = 0, early = 0, event = 0;
     unsigned vars[64], setv[64], inv[64];
     double setx[64], inx[64];
     int nvars = 0, nset = 0, nin = 0;
@@ -142,8 +237,12 @@ int main(int argc, char **argv) {
         else if (!strcmp(a, "--cycles")) cycles = atoi(v), ++i;
         else if (!strcmp(a, "--nolog")) logging = 0;
         else if (!strcmp(a, "--input-first")) input_first = 1;   /* set the inputs before the first read too */
+        else if (!strcmp(a, "--fmi3")) fmi3 = 1;
+        else if (!strcmp(a, "--early-return")) early = 1;
+        else if (!strcmp(a, "--event-mode")) event = 1;
         else { fprintf(stderr, "unknown option %s\n", a); return 2; }
     }
+    if (fmi3) return run_fmi3(dir, stop, H, out, vars, nvars, setv, setx, nset, early, event, logging);
     char path[4096], ident[256], guid[256], uri[8192];
     snprintf(path, sizeof path, "%s/modelDescription.xml", dir);
     read_attr(path, "modelIdentifier", ident, sizeof ident);
@@ -215,11 +314,7 @@ int main(int argc, char **argv) {
         if (k == 0 && input_first)
             for (int i = 0; i < nin; ++i) check("fmi2SetReal", setr(c, &inv[i], 1, &inx[i]));
         if (nvars) check("fmi2GetReal", getr(c, vars, (size_t)nvars, vals));
-        if (csv) {
-            fprintf(csv, "%.17g", t);
-            for (int i = 0; i < nvars; ++i) fprintf(csv, ",%.17g", vals[i]);
-            fprintf(csv, "\n");
-        }
+        write_row(csv, t, vals, nvars);
     }
     if (csv) fclose(csv);
     check("fmi2Terminate", term(c));

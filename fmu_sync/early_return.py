@@ -1,0 +1,199 @@
+"""FMI 3.0 early return as an exchange strategy of the co-simulation master (docs/fmi3.md).
+
+The event-aware retake of the compiled loop (:mod:`fmu_sync.cosim_loop`) notices an
+impact after the step (an impact counter moved), restores every instance and retakes
+the whole step in pieces of ``H_min``: the coupling forces are exchanged every
+``H_min`` around the impact, never *at* it. With FMI 3.0 the FMU says where the
+impact is: each instance steps with early return allowed and stops at its first
+impact; the master takes the earliest stop t*, brings every other instance to t*
+(restoring its saved state and stepping it to t*), lets the stopped ones handle
+the impact in event mode, exchanges the coupling forces at t* from the
+post-impact states, and continues the step from t*. Between impacts the exchange
+is the Jacobi exchange (zero-order hold), every H.
+
+The compiled loop calls FMI 2.0 functions; this driver runs its own exchange in
+Python over FMI 3.0 instances (:class:`fmu_sync.fmi3_bridge.FMU3Host` through
+:class:`fmu_sync.master.FmuInstance`), with the coupling law of the core
+(:func:`fmu_sync.core.network.network_forces`, the function the compiled loop and
+``integrate_network`` call). The arguments, the set-up checks, the record and the
+failures are those of :class:`fmu_sync.master.NetworkMaster`.
+
+:func:`cosimulate_early_return` is the pair entry point (a two-node graph);
+:class:`EarlyReturnMaster` the strategy. The instances are FMI 3.0 instances of
+an fmu-sync FMU (``fmu-sync export --fmi-version 3``).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .core.coupling import chain_work
+from .core.errors import RunFailed
+from .core.network import edge_arrays, network_forces
+from .core.result import NetworkResult, PairResult
+from .fmus import contract
+from .master import NetworkMaster, SlaveError, pair_result
+
+__all__ = ["EarlyReturnMaster", "cosimulate_early_return"]
+
+
+class EarlyReturnMaster(NetworkMaster):
+    """:class:`NetworkMaster` over FMI 3.0 instances whose steps stop at every impact
+    (early return) and exchange the coupling forces there; Jacobi exchange, zero-order hold."""
+
+    METHODS = ("jacobi",)
+    EARLY_RETURN = True
+
+    def __init__(self, fmu, states, A, t_end: float, H: float, coupling: str | None = "switching",
+                 Kp=0.0, Kd=0.0, Q=None, record_every: int = 1, start_values=None,
+                 record_distance: bool = True, allow_unstable: bool = False):
+        super().__init__(fmu, states, A, t_end, H, coupling, Kp, Kd, Q, "jacobi", record_every, False, None,
+                         start_values, record_distance, allow_unstable, "zoh")
+        self.early_stops, self.imp, self.stop_times = 0, [0] * self.N, []
+
+    def check_fmi_version(self) -> None:
+        cs = self.md.coSimulation
+        if self.md.fmiVersion != "3.0" or cs is None or not cs.mightReturnEarlyFromDoStep:
+            raise ValueError(f"the early-return exchange needs an FMI 3.0 co-simulation FMU that may return early "
+                             f"(mightReturnEarlyFromDoStep = true); {self.fmu} is FMI {self.md.fmiVersion}"
+                             + ("" if self.md.fmiVersion != "3.0" else " without early return")
+                             + ": export it with fmu-sync export --fmi-version 3, or use cosimulate with "
+                               "event_aware=True on the FMI 2.0 FMU")
+
+    # ------------------------------------------------------------ the exchange
+    def _arrays(self) -> None:
+        N, n, E = self.N, self.model.n, len(self.edges)
+        self.E2, self.W2 = edge_arrays(self.A, self.edges)
+        self.q, self.u, self.tau, self.scratch = (np.zeros((N, n)) for _ in range(4))
+        self.work = (np.zeros(n), np.zeros(n), *chain_work(n))
+        self.dk, self.bk, self.ek = np.zeros(E), np.zeros(E, dtype=np.int64), np.zeros(E)
+
+    def forces(self, tau, need_d: bool) -> None:
+        """The Jacobi forces at the current states into ``tau`` (and each edge's distance)."""
+        network_forces(self.laws, self.geo, self.Kp_m, self.Kd_m, self.E2, self.W2, self.q, self.u, tau,
+                       *self.work, need_d, self.dk, self.bk, self.ek)
+
+    def read(self) -> None:
+        n = self.model.n
+        for i, s in enumerate(self.slaves):
+            v = s.get(self.model.q + self.model.u)
+            self.q[i], self.u[i] = v[:n], v[n:]
+
+    def give(self, tc: float, h: float) -> None:
+        for i, s in enumerate(self.slaves):
+            s.set(dict(zip(self.model.tau, self.tau[i])))
+            s.do_step(tc, h)
+
+    def communication_step(self, t: float) -> None:
+        """[t, t + H], stopping at every impact: all instances brought to the earliest
+        stop, the impact handled in event mode, the forces exchanged there."""
+        end = t + self.H
+        tc = t
+        while True:
+            if self.coupled:
+                self.forces(self.tau, False)
+                for i in range(self.N):
+                    if not np.all(np.abs(self.tau[i]) <= contract.INPUT_BOUND):   # also catches NaN
+                        raise self.force_bound(i, tc)
+            saved, done = [s.save() for s in self.slaves], False
+            try:
+                self.give(tc, end - tc)
+                stops = [s.host.last_time if s.host.early_return else end for s in self.slaves]
+                t_star = min(stops)
+                if t_star < end:
+                    if not t_star > tc:
+                        i = stops.index(t_star)
+                        raise SlaveError(self.slaves[i].name, tc, "fmi3DoStep", 3, [
+                            f"returned early at lastSuccessfulTime = {t_star!r} without advancing from {tc!r}"])
+                    self.early_stops += 1
+                    self.stop_times.append(t_star)
+                    for i, (s, st) in enumerate(zip(self.slaves, saved)):
+                        if stops[i] > t_star:      # past the impact of another one: back to t*
+                            s.restore(st, tc)
+                            s.set(dict(zip(self.model.tau, self.tau[i])))
+                            s.do_step(tc, t_star - tc)
+                    for s in self.slaves:
+                        s.t = t_star
+                        if s.host.event_needed:
+                            st = s.host.handle_event()
+                            if st > 1:
+                                raise SlaveError(s.name, s.t, "fmi3UpdateDiscreteStates", st, s.host.errors(1))
+                done = True
+            finally:
+                for s, st in zip(self.slaves, saved):
+                    try:
+                        s.free_state(st)
+                    except SlaveError:
+                        if done:     # otherwise the failure that got us here is the one to report
+                            raise
+            self.read()
+            if t_star >= end:
+                self.imp = [s.get_integer(contract.IMPACTS) for s in self.slaves]
+                return
+            tc = t_star
+
+    def record(self, row: int, t: float) -> bool:
+        """Row ``row`` at t: states, the inputs held over the step that ended here, distances;
+        False if a distance is not finite."""
+        self.T[row], self.Qr[row], self.Ur[row], self.TAU[row] = t, self.q, self.u, self.tau
+        if not self.need_d:
+            return True
+        self.forces(self.scratch, True)
+        self.D[row], self.BR[row], self.EU[row] = self.dk, self.bk, self.ek
+        return bool(np.all(np.isfinite(self.dk)))
+
+    def run(self, progress=None) -> NetworkResult:
+        """Run to t_end (failures as :meth:`NetworkMaster.run`: ``partial`` holds the record so far)."""
+        failure, row = None, 0
+        with self.instances() as unzipdir:
+            self._start(unzipdir)
+            self._arrays()
+            self.read()
+            self.imp = [s.get_integer(contract.IMPACTS) for s in self.slaves]
+            if self.coupled:
+                self.forces(self.tau, False)
+            n_steps, H = self.n_steps, self.H
+            if self.record(0, 0.0):
+                row = 1
+            else:
+                failure, n_steps = self.diverged(0.0, "a distance"), 0
+            report_every = max(1, n_steps // 200)
+            for k in range(n_steps):
+                t = (k + 1) * H
+                try:
+                    self.communication_step(k * H)
+                except SlaveError as exc:
+                    failure = exc
+                    break
+                if not (np.all(np.isfinite(self.q)) and np.all(np.isfinite(self.u))):
+                    failure = self.diverged(t, "a state")
+                    break
+                if (k + 1) % self.record_every == 0:
+                    if not self.record(row, t):
+                        failure = self.diverged(t, "a distance")
+                        break
+                    row += 1
+                if progress is not None and (k + 1) % report_every == 0:
+                    progress((k + 1) / n_steps)
+            if progress is not None and failure is None:
+                progress(1.0)
+        return self.finish(row, list(self.imp), failure)
+
+    def result(self, rows: int, impacts: list, error: str | None) -> NetworkResult:
+        r = super().result(rows, impacts, error)
+        r.info.update(method="early-return", early_stops=self.early_stops, stop_times=list(self.stop_times))
+        return r
+
+
+def cosimulate_early_return(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None, Kp=0.0, Kd=0.0,
+                            Q=None, record_every: int = 1, start_values=None, progress=None,
+                            record_distance: bool = True, allow_unstable: bool = False) -> PairResult:
+    """:func:`fmu_sync.master.cosimulate` of an FMI 3.0 FMU with the early-return
+    exchange: the coupling forces are also exchanged at every impact instant."""
+    try:
+        r = EarlyReturnMaster(fmu, [x1, x2], [[0.0, 1.0], [1.0, 0.0]], t_end, H, coupling, Kp, Kd, Q, record_every,
+                              start_values, record_distance, allow_unstable).run(progress)
+    except RunFailed as exc:
+        if exc.partial is not None:
+            exc.partial = pair_result(exc.partial, coupling)
+        raise
+    return pair_result(r, coupling)
