@@ -95,6 +95,21 @@ def test_bench_md_and_stdout(bench):
     assert "## Work–precision" in p.stdout and "## Stability" in p.stdout
 
 
+def test_section_headings_are_stable_so_the_docs_links_hold(bench):
+    """run details go below a heading, never into it: a published page keeps every anchor the
+    docs link to (#core-speed, #fmu-cost, ...), and a heading the docs page has is found again"""
+    import re
+    from pathlib import Path
+    out, _ = bench
+    heads = re.findall(r"^## +(.*)$", (out / "benchmarks.md").read_text(), re.M)
+    assert len(heads) >= 3
+    assert not [h for h in heads if re.search(r"[0-9(]", h)], heads
+    docs = (Path(__file__).resolve().parents[1] / "docs" / bench_pkg.PAGE).read_text()
+    docs_heads = set(re.findall(r"^## +(.*)$", docs, re.M))
+    missing = [h for h in heads if h not in docs_heads]
+    assert not missing, missing
+
+
 def test_publish_replaces_only_the_generated_part(bench):
     out, _ = bench
     report = (out / "benchmarks.md").read_text()

@@ -211,7 +211,7 @@ def main(argv=None) -> int:
 
         if "hold" in sections:
             if fmu is None:
-                parts.append(f"## Co-simulation hold: zero- vs first-order (and the exact slave)\n\nnot run "
+                parts.append(f"## Co-simulation hold: zero- vs first-order\n\nnot run "
                              f"(co-simulation skipped: {why}).\n")
             else:
                 from . import hold_order

@@ -115,7 +115,7 @@ def run(quick: bool = False) -> str:
     dist = measure(n_calls=50_000 if quick else 200_000, repeats=reps)
     pair = pair_speed(repeats=reps, t_end=20.0 if quick else 100.0)
     cos, ph = sim["cos"], sim["phasor"]
-    lines = ["## Core speed (medians of %d interleaved repeats)" % reps, "",
+    lines = ["## Core speed", "", "Medians of %d interleaved repeats." % reps, "",
              f"C baseline `fmu_sync/benchmarks/moreau_loop.c`: the same operations in the same order as "
              f"the 1-DOF kernel, compiled `gcc {sim['flags']}` (numba compiles for the host CPU and "
              f"does not contract a*b+c into FMAs either).", "",

@@ -224,8 +224,8 @@ def run(quick: bool = False) -> str:
     steps, repeat, fresh = (5000, 3, 3) if quick else (20000, 5, 5)
     res = _measure(steps, repeat, fresh)
     per, lat = res["per_step_us"], res["first_step_latency_ms"]
-    lines = [f"## FMU cost (fmpy loop: setReal + doStep + getReal, CPU time per communication step, "
-             f"best of {repeat} x {steps} interleaved steps)", "",
+    lines = ["## FMU cost", "", f"fmpy loop: setReal + doStep + getReal, CPU time per communication step, "
+             f"best of {repeat} x {steps} interleaved steps.", "",
              "| FMU | µs per step | vs minimal C FMU |", "|---|---:|---:|"]
     base = per["minimal C FMU (trivial step)"]
     lines += [f"| {k} | {v:.2f} | ×{v / base:.2f} |" for k, v in per.items()]

@@ -93,7 +93,7 @@ def run(quick: bool = False, smoke: bool = False, progress=None) -> str:
     """The section's markdown."""
     from fmu_sync import export_fmu
     from fmu_sync.core import hold_bound
-    lines = ["## Co-simulation hold: zero- vs first-order (and the exact slave)", ""]
+    lines = ["## Co-simulation hold: zero- vs first-order", "", "The exact slave is compared too.", ""]
     Hs = (0.04, 0.02) if smoke else ((0.08, 0.04, 0.02, 0.01) if quick else (0.16, 0.08, 0.04, 0.02, 0.01))
     t_end = 2.0 if smoke else 10.0
     with tempfile.TemporaryDirectory(prefix="fmu-sync-hold-") as tmp:

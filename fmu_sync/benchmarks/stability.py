@@ -450,7 +450,7 @@ def run(quick: bool = False, fmu=None, progress=None, smoke: bool = False):
             progress((i + 1) / len(plan))
     seconds = time.perf_counter() - t_start
     mode = "smoke" if smoke else ("quick" if quick else "full")
-    md = [f"## Stability ({mode}, {seconds:.0f} s)", "",
+    md = ["## Stability on stiff and extreme cases", "", f"Mode {mode}, {seconds:.0f} s.", "",
           "Every row states its criterion; a divergence must be reported as an error "
           "(`SimulationDiverged` in the core, `SlaveError` with the partial record in co-simulation), never returned as data.",
           "", "### Findings", ""] + summary(rows) + ["", grouped_tables(rows), ""]

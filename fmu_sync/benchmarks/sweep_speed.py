@@ -154,8 +154,8 @@ def run(quick: bool = False, smoke: bool = False) -> str:
     load0 = _load()
     r = measure(**kw)
     M = 1e6
-    lines = [f"## Sweep throughput ({r['runs']} runs x {r['steps']:.0e} steps, switching-coupled "
-             f"forced-pair pair, {r['cores']} cores)", "",
+    lines = ["## Sweep throughput", "", f"{r['runs']} runs x {r['steps']:.0e} steps, switching-coupled "
+             f"forced-pair pair, {r['cores']} cores.", "",
              f"load average {load0} at the start, {_load()} at the end (shared machine: the parallel "
              "ratios need idle cores).", "",
              "| measurement | value | target |", "|---|---|---|",

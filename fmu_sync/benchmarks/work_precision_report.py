@@ -313,8 +313,8 @@ def _interpretations(points, findings, mode) -> list[str]:
 def report(points, mode, seconds) -> tuple[str, dict]:
     findings: dict = {}
     lad = LADDERS[mode]
-    lines = [f"## Work–precision ({mode}: medians of up to {lad['repeats']} interleaved repeats, "
-             f"{seconds:.0f} s)", ""]
+    lines = ["## Work–precision: error against run time", "",
+             f"Mode {mode}: medians of up to {lad['repeats']} interleaved repeats, {seconds:.0f} s.", ""]
     lines.append("Methods: " + "; ".join(f"`{k}` = {v}" for k, v in METHOD_DOC.items()) + ".")
     lines.append("")
     lines.append("Errors: `max_q` = max |q − q_exact| over the run's output times (exact = core/exact.py, "
