@@ -58,6 +58,7 @@ import math
 
 import numpy as np
 
+from .exact_search import newton_step, step_crossing, step_shape
 from .roots import taylor_start
 from .model import MechanicalSystem
 
@@ -223,7 +224,7 @@ class _Seg:
 
 def _refine(seg, which, lo, hi, flo, fplo, fpplo):
     """Root of d[which] in [lo, hi] (sign change), safeguarded Newton from the
-    quadratic Taylor model at lo (port of :func:`.exact_search.refine`)."""
+    quadratic Taylor model at lo (as :func:`.exact_search.refine`, the same Newton step)."""
     if flo == 0.0:
         return lo
     if which == 0 and flo < 0.0:
@@ -234,30 +235,15 @@ def _refine(seg, which, lo, hi, flo, fplo, fpplo):
     for _ in range(400):
         r = seg.ev(x)
         F, Fp = (r[0], r[1]) if which == 0 else (r[1], r[2])
-        if F == 0.0:
+        x, lo, hi, dxold, done = newton_step(x, F, Fp, lo, hi, slo, dxold)
+        if done:
             return x
-        if (F > 0.0) == slo:
-            lo = x
-        else:
-            hi = x
-        width = hi - lo
-        if width <= 4.0 * EPS * max(abs(lo), abs(hi)) or width <= 1e-300:
-            return x
-        xn = x - F / Fp if Fp != 0.0 else lo - 1.0
-        if lo < xn < hi and abs(xn - x) <= 0.5 * dxold:
-            step = abs(xn - x)
-            dxold = step
-            x = xn
-            if step <= 2.0 * EPS * abs(x):
-                return x
-        else:
-            dxold = width
-            x = lo + 0.5 * width
     return x
 
 
 def _search(seg, alpha, depart, taumax, H0):
-    """First down-crossing of d0 in (alpha, taumax] (port of :func:`.exact_search.search`)."""
+    """First down-crossing of d0 in (alpha, taumax] (as :func:`.exact_search.search`, the same
+    step classification)."""
     if alpha >= taumax:
         return NONE, taumax
     d0, d1, d2, d3, sc, z = seg.ev(alpha)
@@ -273,46 +259,13 @@ def _search(seg, alpha, depart, taumax, H0):
         beta = alpha + h
         if beta <= alpha:
             return NONE, taumax
-        J = seg.j4(z, h)
-        h2 = h * h
-        h3 = h2 * h
-        L1 = d1 + min(0.0, d2) * h + min(0.0, d3) * h2 * 0.5 - J * h3 / 6.0
-        lb = (d0 + min(0.0, d1) * h + min(0.0, d2) * h2 * 0.5 + min(0.0, d3) * h3 / 6.0
-              - J * h2 * h2 / 24.0)
-        U1 = d1 + max(0.0, d2) * h + max(0.0, d3) * h2 * 0.5 + J * h3 / 6.0
-        L2 = d2 + d3 * h - J * h2 * 0.5
-        U2 = d2 + d3 * h + J * h2 * 0.5
-        adv = L1 > 0.0 or lb > 0.0
-        decreasing = U1 < 0.0
-        convex = d2 >= 0.0 and L2 >= 0.0
-        concave = d2 <= 0.0 and U2 <= 0.0
+        adv, decreasing, convex, concave = step_shape(d0, d1, d2, d3, seg.j4(z, h), h)
         if not (adv or decreasing or convex or concave or h <= Hmin):
             H = 0.5 * h
             continue
         e0, e1, e2, e3, esc, ez = seg.ev(beta)
         if not adv:
-            tolb = TOLF * esc
-            want_root = False
-            want_crit = False
-            if decreasing:
-                want_root = e0 < -tolb
-            elif convex:
-                if d1 < 0.0:
-                    if e1 <= 0.0:
-                        want_root = e0 < -tolb
-                    else:
-                        want_crit = True
-            elif concave:
-                if e0 < -tolb:
-                    if d1 <= 0.0:
-                        want_root = True
-                    elif e1 < 0.0:
-                        want_crit = True
-            elif e0 < -tolb:
-                if d1 <= 0.0:
-                    want_root = True
-                elif e1 < 0.0:
-                    want_crit = True
+            want_root, want_crit = step_crossing(decreasing, convex, concave, d1, e0, e1, TOLF * esc)
             lo, hi, flo, fplo, fpplo = alpha, beta, d0, d1, d2
             if want_crit:
                 tc = _refine(seg, 1, alpha, beta, d1, d2, d3)

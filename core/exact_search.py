@@ -29,7 +29,7 @@ from .exact_flow import EPS, TOLF, derivs
 from .exact_flow import P_F0, P_F1, P_F2, P_F4, P_S
 from .roots import taylor_start
 
-__all__ = ["NONE", "ROOT", "GRAZE", "search"]
+__all__ = ["NONE", "ROOT", "GRAZE", "search", "step_shape", "step_crossing", "newton_step"]
 
 NONE, ROOT, GRAZE = 0, 1, 2
 
@@ -44,6 +44,79 @@ def j4(mode, prm, d0, d1, h):
     N = max(s * abs(d0), abs(d1))
     Nmax = (N + F0 * h) * math.exp(2.0 * s * h)
     return 5.0 * s * s * s * Nmax + 2.0 * s * s * F0 + s * prm[P_F1] + prm[P_F2]
+
+
+# --------------------------------------------------------------------------- shared with .exact_nd
+@njit(cache=True)
+def step_shape(d0, d1, d2, d3, J, h):
+    """What the derivatives ``d0..d3`` of F at the left end of a step of length ``h``
+    and the bound ``J >= |d4|`` over it prove: ``(adv, decreasing, convex, concave)``
+    -- F increasing (``L1 > 0``) or positive (``lb > 0``) on the whole step, F
+    decreasing (``U1 < 0``), ``d2 >= 0`` or ``d2 <= 0`` on the step."""
+    h2 = h * h
+    h3 = h2 * h
+    L1 = d1 + min(0.0, d2) * h + min(0.0, d3) * h2 * 0.5 - J * h3 / 6.0
+    lb = (d0 + min(0.0, d1) * h + min(0.0, d2) * h2 * 0.5 + min(0.0, d3) * h3 / 6.0
+          - J * h2 * h2 / 24.0)
+    U1 = d1 + max(0.0, d2) * h + max(0.0, d3) * h2 * 0.5 + J * h3 / 6.0
+    L2 = d2 + d3 * h - J * h2 * 0.5
+    U2 = d2 + d3 * h + J * h2 * 0.5
+    adv = L1 > 0.0 or lb > 0.0
+    decreasing = U1 < 0.0
+    convex = d2 >= 0.0 and L2 >= 0.0
+    concave = d2 <= 0.0 and U2 <= 0.0
+    return adv, decreasing, convex, concave
+
+
+@njit(cache=True)
+def step_crossing(decreasing, convex, concave, d1, e0, e1, tolb):
+    """On a step that does not advance (:func:`step_shape`), with the slope ``d1`` at its
+    left end and the value and slope ``e0, e1`` at its right end: ``(want_root, want_crit)`` --
+    F crosses below ``-tolb`` (refine the root) or has an interior critical point to
+    locate first (the minimum of a convex step, the maximum of a concave one)."""
+    want_root = False
+    want_crit = False
+    if decreasing:
+        want_root = e0 < -tolb
+    elif convex:
+        if d1 < 0.0:
+            if e1 <= 0.0:
+                want_root = e0 < -tolb
+            else:
+                want_crit = True          # interior minimum
+    elif concave:
+        if e0 < -tolb:
+            if d1 <= 0.0:
+                want_root = True
+            elif e1 < 0.0:
+                want_crit = True          # interior maximum, root after it
+    elif e0 < -tolb:                      # degenerate step below Hmin
+        if d1 <= 0.0:
+            want_root = True
+        elif e1 < 0.0:
+            want_crit = True
+    return want_root, want_crit
+
+
+@njit(cache=True)
+def newton_step(x, F, Fp, lo, hi, slo, dxold):
+    """One safeguarded Newton step on F (value ``F``, slope ``Fp`` at x) in the bracket ``(lo, hi)``
+    whose left end has the sign ``slo``: the bracket is kept, bisection when Newton
+    leaves it or does not halve the step. Returns ``(x, lo, hi, dxold, done)``."""
+    if F == 0.0:
+        return x, lo, hi, dxold, True
+    if (F > 0.0) == slo:
+        lo = x
+    else:
+        hi = x
+    width = hi - lo
+    if width <= 4.0 * EPS * max(abs(lo), abs(hi)) or width <= 1e-300:
+        return x, lo, hi, dxold, True
+    xn = x - F / Fp if Fp != 0.0 else lo - 1.0
+    if lo < xn < hi and abs(xn - x) <= 0.5 * dxold:
+        step = abs(xn - x)
+        return xn, lo, hi, step, step <= 2.0 * EPS * abs(xn)
+    return lo + 0.5 * width, lo, hi, width, False
 
 
 # --------------------------------------------------------------------------- roots
@@ -72,25 +145,9 @@ def refine(which, lo, hi, flo, fplo, fpplo, mode, prm, rc, roots, hs, hO, hcc, h
         else:
             F = r[1]
             Fp = r[2]
-        if F == 0.0:
+        x, lo, hi, dxold, done = newton_step(x, F, Fp, lo, hi, slo, dxold)
+        if done:
             return x
-        if (F > 0.0) == slo:
-            lo = x
-        else:
-            hi = x
-        width = hi - lo
-        if width <= 4.0 * EPS * max(abs(lo), abs(hi)) or width <= 1e-300:
-            return x
-        xn = x - F / Fp if Fp != 0.0 else lo - 1.0
-        if lo < xn < hi and abs(xn - x) <= 0.5 * dxold:
-            step = abs(xn - x)
-            dxold = step
-            x = xn
-            if step <= 2.0 * EPS * abs(x):
-                return x
-        else:
-            dxold = width
-            x = lo + 0.5 * width
     return x
 
 
@@ -125,46 +182,13 @@ def search(mode, alpha, depart, taumax, H0, prm, rc, roots, hs, hO, hcc, hcs, cp
         beta = alpha + h
         if beta <= alpha:
             return NONE, taumax
-        J = j4(mode, prm, d0, d1, h)
-        h2 = h * h
-        h3 = h2 * h
-        L1 = d1 + min(0.0, d2) * h + min(0.0, d3) * h2 * 0.5 - J * h3 / 6.0
-        lb = (d0 + min(0.0, d1) * h + min(0.0, d2) * h2 * 0.5 + min(0.0, d3) * h3 / 6.0
-              - J * h2 * h2 / 24.0)
-        U1 = d1 + max(0.0, d2) * h + max(0.0, d3) * h2 * 0.5 + J * h3 / 6.0
-        L2 = d2 + d3 * h - J * h2 * 0.5
-        U2 = d2 + d3 * h + J * h2 * 0.5
-        adv = L1 > 0.0 or lb > 0.0
-        decreasing = U1 < 0.0
-        convex = d2 >= 0.0 and L2 >= 0.0
-        concave = d2 <= 0.0 and U2 <= 0.0
+        adv, decreasing, convex, concave = step_shape(d0, d1, d2, d3, j4(mode, prm, d0, d1, h), h)
         if not (adv or decreasing or convex or concave or h <= Hmin):
             H = 0.5 * h
             continue
         e0, e1, e2, e3, esc = derivs(mode, beta, prm, rc, roots, hs, hO, hcc, hcs, cps, sps, g0, v0)
         if not adv:
-            tolb = TOLF * esc
-            want_root = False
-            want_crit = False
-            if decreasing:
-                want_root = e0 < -tolb
-            elif convex:
-                if d1 < 0.0:
-                    if e1 <= 0.0:
-                        want_root = e0 < -tolb
-                    else:
-                        want_crit = True          # interior minimum
-            elif concave:
-                if e0 < -tolb:
-                    if d1 <= 0.0:
-                        want_root = True
-                    elif e1 < 0.0:
-                        want_crit = True          # interior maximum, root after it
-            elif e0 < -tolb:                      # degenerate step below Hmin
-                if d1 <= 0.0:
-                    want_root = True
-                elif e1 < 0.0:
-                    want_crit = True
+            want_root, want_crit = step_crossing(decreasing, convex, concave, d1, e0, e1, TOLF * esc)
             lo = alpha
             hi = beta
             flo = d0
@@ -172,9 +196,9 @@ def search(mode, alpha, depart, taumax, H0, prm, rc, roots, hs, hO, hcc, hcs, cp
             fpplo = d2
             if want_crit:
                 tc = refine(1, alpha, beta, d1, d2, d3, mode, prm, rc, roots, hs, hO, hcc, hcs,
-                             cps, sps, g0, v0)
+                            cps, sps, g0, v0)
                 c0, c1, c2, c3, csc = derivs(mode, tc, prm, rc, roots, hs, hO, hcc, hcs, cps, sps,
-                                          g0, v0)
+                                             g0, v0)
                 if convex:
                     tolm = TOLF * csc
                     if c0 < -tolm:
@@ -190,7 +214,7 @@ def search(mode, alpha, depart, taumax, H0, prm, rc, roots, hs, hO, hcc, hcs, cp
                     fpplo = c2
             if want_root:
                 return ROOT, refine(0, lo, hi, flo, fplo, fpplo, mode, prm, rc, roots, hs, hO,
-                                     hcc, hcs, cps, sps, g0, v0)
+                                    hcc, hcs, cps, sps, g0, v0)
         d0, d1, d2, d3, sc = e0, e1, e2, e3, esc
         alpha = beta
         H = min(2.0 * h, H0)
