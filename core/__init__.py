@@ -13,8 +13,8 @@ The public API of the core (everything a user of the standalone engine needs):
 * the quotient distance :func:`quotient_distance`, the coupling laws
   :func:`coupling_forces` and the laws' own position weight :func:`energy_metric`
   (Q = K + 2 Kp for a pair: V = d^2/2 is then the energy of the relative motion);
-* the exact event-driven solvers :func:`simulate_exact` / :func:`exact_events` (1-DOF)
-  and :func:`simulate_exact_nd` / :func:`exact_events_nd` (n-DOF, linear input);
+* the exact event-driven solver :func:`simulate_exact` / :func:`exact_events` (any n: the
+  compiled closed form for n = 1, the matrix flow for n > 1; results :class:`ExactEvents`);
 * results :class:`SimulationResult`, :class:`PairResult`, :class:`NetworkResult`, and the errors
   :class:`SimulationDiverged` (a run that failed), :class:`UnstableScheme` (a step refused up front).
 
@@ -34,10 +34,9 @@ from .metrics import SyncMetrics, sync_metrics
 from .exchange import UnstableExchange, exchange_limit, hold_bound
 from .network import all_to_all, path, ring, simulate_network, star
 from .exact import ExactEvents, exact_events, simulate_exact
-from .exact_nd import ExactEventsND, exact_events_nd, simulate_exact_nd
 
 __all__ = ["ImpactOscillator", "MechanicalSystem", "SystemArrays", "impact_map", "simulate", "simulate_pair",
            "quotient_distance", "coupling_forces", "energy_metric", "simulate_exact", "exact_events", "ExactEvents",
-           "simulate_exact_nd", "exact_events_nd", "ExactEventsND", "SimulationResult", "PairResult", "RunFailed",
+           "SimulationResult", "PairResult", "RunFailed",
            "SimulationDiverged", "NetworkResult", "simulate_network", "ring", "path", "star", "all_to_all",
            "sync_metrics", "SyncMetrics", "exchange_limit", "hold_bound", "UnstableExchange", "UnstableScheme"]

@@ -1,4 +1,6 @@
-"""Exact event-driven solver for n-DOF linear systems with one unilateral constraint.
+"""Exact event-driven solver for n-DOF linear systems with one unilateral constraint
+(behind :func:`~fmu_sync.core.exact.exact_events` / :func:`~fmu_sync.core.exact.simulate_exact`
+for n > 1 or an input ramp).
 
 Model (SPEC §1)::
 
@@ -23,7 +25,7 @@ Events
 ------
 Gap ``g(s) = c_g^T expm(A s) z_k`` and its derivatives ``c_g^T A^i expm(A s) z_k``.
 The next impact is the first down-crossing of g, found as in the 1-DOF solver
-(:mod:`.exact`): steps classified with g, g', g'', g''' at the left end and a
+(:mod:`.exact_search`): steps classified with g, g', g'', g''' at the left end and a
 rigorous bound ``J >= |g''''|`` over the step, ``J = |(A^T)^4 c_g| e^{||A|| h} |z|``,
 as increasing / positive / decreasing / convex / concave (else halved); a convex
 step with an interior minimum decides between impact (``g_min < -tol``), grazing
@@ -44,7 +46,7 @@ contact if ``lambda >= 0``; the summed percussion of the tail is
 ``(1+e) v+ / ((1-e) W)``. The neglected tangential motion during the tail is
 ``O(v+ T_rem)``.
 
-Output: :func:`simulate_exact_nd` samples the solution on ``t0 + i dt`` (the
+Output: :meth:`Solution.sample` samples the solution on ``t0 + i dt`` (the
 flow over dt applied repeatedly within a segment, re-evaluated exactly every 64
 samples), with ``percussion[i]`` the wall impulse over ``(t[i-1], t[i]]``.
 Limitations: linear force law; one constraint; Python event loop (numpy/scipy):
@@ -53,13 +55,14 @@ the cost is per event and per sample, not per step.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
-from .roots import taylor_start
-from .model import MechanicalSystem, as_state
 
-__all__ = ["simulate_exact_nd", "exact_events_nd", "ExactEventsND"]
+from .exact_search import newton_step, step_crossing, step_shape
+from .roots import taylor_start
+from .model import MechanicalSystem
+
+__all__ = ["solve", "Solution"]
 
 EPS = 2.220446049250313e-16
 TOLF = 64.0 * EPS
@@ -221,7 +224,7 @@ class _Seg:
 
 def _refine(seg, which, lo, hi, flo, fplo, fpplo):
     """Root of d[which] in [lo, hi] (sign change), safeguarded Newton from the
-    quadratic Taylor model at lo (port of :func:`fmu_sync.core.exact._refine`)."""
+    quadratic Taylor model at lo (as :func:`.exact_search.refine`, the same Newton step)."""
     if flo == 0.0:
         return lo
     if which == 0 and flo < 0.0:
@@ -232,30 +235,15 @@ def _refine(seg, which, lo, hi, flo, fplo, fpplo):
     for _ in range(400):
         r = seg.ev(x)
         F, Fp = (r[0], r[1]) if which == 0 else (r[1], r[2])
-        if F == 0.0:
+        x, lo, hi, dxold, done = newton_step(x, F, Fp, lo, hi, slo, dxold)
+        if done:
             return x
-        if (F > 0.0) == slo:
-            lo = x
-        else:
-            hi = x
-        width = hi - lo
-        if width <= 4.0 * EPS * max(abs(lo), abs(hi)) or width <= 1e-300:
-            return x
-        xn = x - F / Fp if Fp != 0.0 else lo - 1.0
-        if lo < xn < hi and abs(xn - x) <= 0.5 * dxold:
-            step = abs(xn - x)
-            dxold = step
-            x = xn
-            if step <= 2.0 * EPS * abs(x):
-                return x
-        else:
-            dxold = width
-            x = lo + 0.5 * width
     return x
 
 
 def _search(seg, alpha, depart, taumax, H0):
-    """First down-crossing of d0 in (alpha, taumax] (port of the 1-DOF search)."""
+    """First down-crossing of d0 in (alpha, taumax] (as :func:`.exact_search.search`, the same
+    step classification)."""
     if alpha >= taumax:
         return NONE, taumax
     d0, d1, d2, d3, sc, z = seg.ev(alpha)
@@ -271,46 +259,13 @@ def _search(seg, alpha, depart, taumax, H0):
         beta = alpha + h
         if beta <= alpha:
             return NONE, taumax
-        J = seg.j4(z, h)
-        h2 = h * h
-        h3 = h2 * h
-        L1 = d1 + min(0.0, d2) * h + min(0.0, d3) * h2 * 0.5 - J * h3 / 6.0
-        lb = (d0 + min(0.0, d1) * h + min(0.0, d2) * h2 * 0.5 + min(0.0, d3) * h3 / 6.0
-              - J * h2 * h2 / 24.0)
-        U1 = d1 + max(0.0, d2) * h + max(0.0, d3) * h2 * 0.5 + J * h3 / 6.0
-        L2 = d2 + d3 * h - J * h2 * 0.5
-        U2 = d2 + d3 * h + J * h2 * 0.5
-        adv = L1 > 0.0 or lb > 0.0
-        decreasing = U1 < 0.0
-        convex = d2 >= 0.0 and L2 >= 0.0
-        concave = d2 <= 0.0 and U2 <= 0.0
+        adv, decreasing, convex, concave = step_shape(d0, d1, d2, d3, seg.j4(z, h), h)
         if not (adv or decreasing or convex or concave or h <= Hmin):
             H = 0.5 * h
             continue
         e0, e1, e2, e3, esc, ez = seg.ev(beta)
         if not adv:
-            tolb = TOLF * esc
-            want_root = False
-            want_crit = False
-            if decreasing:
-                want_root = e0 < -tolb
-            elif convex:
-                if d1 < 0.0:
-                    if e1 <= 0.0:
-                        want_root = e0 < -tolb
-                    else:
-                        want_crit = True
-            elif concave:
-                if e0 < -tolb:
-                    if d1 <= 0.0:
-                        want_root = True
-                    elif e1 < 0.0:
-                        want_crit = True
-            elif e0 < -tolb:
-                if d1 <= 0.0:
-                    want_root = True
-                elif e1 < 0.0:
-                    want_crit = True
+            want_root, want_crit = step_crossing(decreasing, convex, concave, d1, e0, e1, TOLF * esc)
             lo, hi, flo, fplo, fpplo = alpha, beta, d0, d1, d2
             if want_crit:
                 tc = _refine(seg, 1, alpha, beta, d1, d2, d3)
@@ -333,52 +288,45 @@ def _search(seg, alpha, depart, taumax, H0):
     return NONE, taumax
 
 
-@dataclass
-class ExactEventsND:
-    """Events of an n-DOF exact run: impacts (times, pre-impact normal speeds
-    ``w^T u-``, percussions), completed accumulations (``zeno_times``: t_inf),
-    contact intervals, grazing times; ``state(t)`` evaluates the solution."""
+class Solution:
+    """The n-DOF exact solution (the fields of :class:`~fmu_sync.core.exact.ExactEvents`):
+    its segments ``(t_start, kind, z_start)``, events and the closed form between them."""
 
-    impact_times: np.ndarray
-    impact_normal_velocities: np.ndarray
-    impact_percussions: np.ndarray
-    zeno_start_times: np.ndarray
-    zeno_times: np.ndarray
-    contact_intervals: np.ndarray
-    graze_times: np.ndarray
-    t0: float
-    t_end: float
-    _aug: _Aug
-    _segs: list
-    _events: list
+    def __init__(self, aug: _Aug, segs, events, impacts, impact_u, zeno_start, zeno, zeno_p, grazes, contacts):
+        imp = np.array(impacts, dtype=float).reshape(-1, 3)
+        self.aug, self.segs, self.events = aug, segs, events
+        self.impact_times = imp[:, 0].copy()
+        self.impact_velocities = np.array(impact_u, dtype=float).reshape(-1, aug.n)
+        self.impact_normal_velocities = imp[:, 1].copy()
+        self.impact_percussions = imp[:, 2].copy()
+        self.zeno_start_times = np.array(zeno_start, dtype=float)
+        self.zeno_times = np.array(zeno, dtype=float)
+        self.zeno_percussions = np.array(zeno_p, dtype=float)
+        self.contact_intervals = np.array(contacts, dtype=float).reshape(-1, 2)
+        self.contact_open = bool(segs and segs[-1][1] == CONTACT)
+        self.graze_times = np.array(grazes, dtype=float)
 
-    @property
-    def n_impacts(self) -> int:
-        return int(self.impact_times.size)
-
-    def state(self, t):
-        """(q, u) at time(s) t in [t0, t_end] (right-continuous): arrays of shape
-        (n,) for a scalar t, (len(t), n) for an array."""
-        ts = np.atleast_1d(np.asarray(t, dtype=float))
-        if ts.size and (not np.all(np.isfinite(ts)) or ts.min() < self.t0 or ts.max() > self.t_end):
-            raise ValueError(f"times must lie in [{self.t0}, {self.t_end}]")
-        n = self._aug.n
-        starts = np.array([s[0] for s in self._segs])
+    def state(self, ts):
+        """(q, u) at the times ts (a flat array), each of shape (len(ts), n)."""
+        n = self.aug.n
+        starts = np.array([s[0] for s in self.segs])
         Q = np.empty((ts.size, n))
         U = np.empty((ts.size, n))
         k_of = np.maximum(np.searchsorted(starts, ts, side="right") - 1, 0)
         cache = {}
         for i, (ti, k) in enumerate(zip(ts, k_of)):
             if k not in cache:
-                tk, kind, z0 = self._segs[k]
-                cache[k] = (tk, _Seg(self._aug, kind, z0))
+                tk, kind, z0 = self.segs[k]
+                cache[k] = (tk, _Seg(self.aug, kind, z0))
             tk, seg = cache[k]
             z = seg.z(ti - tk)
             Q[i] = z[:n]
             U[i] = z[n:2 * n]
-        if np.ndim(t) == 0:
-            return Q[0], U[0]
         return Q, U
+
+    def sample(self, T):
+        """States at the sorted, uniformly spaced times T and the wall impulse over (T[i-1], T[i]]."""
+        return _sample(self.aug, self.segs, self.events, T)
 
 
 def _run(aug: _Aug, q0, u0, t0, t_end, max_events, zeno_ttol, zeno_vtol):
@@ -389,7 +337,7 @@ def _run(aug: _Aug, q0, u0, t0, t_end, max_events, zeno_ttol, zeno_vtol):
     t = t0
     segs = []            # (t_start, kind, z_start)
     events = []          # (t, P)  (impacts and completed tails)
-    impacts, zeno, zeno_start, grazes, contacts = [], [], [], [], []
+    impacts, impact_u, zeno, zeno_start, zeno_p, grazes, contacts = [], [], [], [], [], [], []
     smax = aug.smax
     H0 = 0.5 / smax if smax > 0.0 else math.inf
     g = float(aug.cg @ z)
@@ -413,6 +361,7 @@ def _run(aug: _Aug, q0, u0, t0, t_end, max_events, zeno_ttol, zeno_vtol):
         if at_wall and v < 0.0 and not left:
             vm = v
             vref = max(vref, -vm)
+            impact_u.append(u.copy())          # u- (u is a view of z)
             z[n:2 * n] = u - (1.0 + e) * aug.Minv_w * (vm / W)
             P = (1.0 + e) * (-vm) / W
             impacts.append((t, vm, P))
@@ -421,7 +370,8 @@ def _run(aug: _Aug, q0, u0, t0, t_end, max_events, zeno_ttol, zeno_vtol):
             if vp > 0.0 and e < 1.0:
                 aw = float(aug.Dg[2] @ z)
                 if aw < 0.0:
-                    Trem = 2.0 * vp / ((-aw) * (1.0 - e))
+                    den = (-aw) * (1.0 - e)          # 0 if a subnormal a_w underflows: no completion
+                    Trem = 2.0 * vp / den if den > 0.0 else math.inf
                     ez = smax * Trem
                     small = vp <= zeno_vtol * vref
                     # the next bounce's apex below the round-off of g (n-DOF: g = w^T q + g0
@@ -439,6 +389,7 @@ def _run(aug: _Aug, q0, u0, t0, t_end, max_events, zeno_ttol, zeno_vtol):
                         t = t + Trem
                         zeno.append(t)
                         events.append((t, Ptail))
+                        zeno_p.append(Ptail)
                         stick = True
                         continue
             at_wall = vp <= 0.0
@@ -487,39 +438,15 @@ def _run(aug: _Aug, q0, u0, t0, t_end, max_events, zeno_ttol, zeno_vtol):
             left = True
     if segs and segs[-1][1] == CONTACT and (not contacts or contacts[-1][0] != segs[-1][0]):
         contacts.append((segs[-1][0], t_end))
-    return segs, events, impacts, zeno_start, zeno, grazes, contacts
+    return Solution(aug, segs, events, impacts, impact_u, zeno_start, zeno, zeno_p, grazes, contacts)
 
 
-def exact_events_nd(system: MechanicalSystem, x0, t_end: float, tau=None, t0: float = 0.0,
-                    taudot=None, t_c: float = 0.0, max_events: int = 1_000_000,
-                    zeno_ttol: float = 1e-12, zeno_vtol: float = 1e-10) -> ExactEventsND:
-    """Event-driven exact solution of an n-DOF system on ``[t0, t_end]`` (module docstring);
-    the input is ``tau + taudot (t - t_c)``."""
-    if not isinstance(system, MechanicalSystem):
-        raise ValueError(f"system must be a MechanicalSystem, got {type(system).__name__}")
-    q0, u0 = as_state(system, x0)
-    g = system.gap(q0)
-    if g < 0.0:
-        raise ValueError(f"initial state violates the constraint: g(q0) = {g:.6g} < 0 (need g(q0) >= 0)")
-    t0 = float(t0)
-    t_end = float(t_end)
-    if not (math.isfinite(t_end) and t_end >= t0):
-        raise ValueError(f"t_end must be finite and >= t0 = {t0}, got {t_end}")
-    for name, val in (("tau", tau), ("taudot", taudot)):
-        if val is not None:
-            a = np.asarray(val, dtype=float).reshape(-1)
-            if a.shape != (system.m,) or not np.all(np.isfinite(a)):
-                raise ValueError(f"{name} must be {system.m} finite numbers, got {a.tolist()}")
-    aug = _Aug(system, tau, taudot, t_c)
-    segs, events, impacts, zs, zt, grazes, contacts = _run(aug, q0, u0, t0, t_end, int(max_events),
-                                                           float(zeno_ttol), float(zeno_vtol))
-    imp = np.array(impacts, dtype=float).reshape(-1, 3)
-    ev = ExactEventsND(impact_times=imp[:, 0].copy(), impact_normal_velocities=imp[:, 1].copy(),
-                         impact_percussions=imp[:, 2].copy(), zeno_start_times=np.array(zs),
-                         zeno_times=np.array(zt), contact_intervals=np.array(contacts).reshape(-1, 2),
-                         graze_times=np.array(grazes), t0=t0, t_end=t_end, _aug=aug, _segs=segs,
-                         _events=events)
-    return ev
+def solve(system: MechanicalSystem, q0, u0, t0: float, t_end: float, tau, taudot, t_c: float,
+          max_events: int, zeno_ttol: float, zeno_vtol: float) -> Solution:
+    """Event-driven exact solution of an n-DOF system on ``[t0, t_end]`` (module docstring)
+    with the input ``tau + taudot (t - t_c)``; the arguments are checked by the caller
+    (:func:`~fmu_sync.core.exact.exact_events`)."""
+    return _run(_Aug(system, tau, taudot, t_c), q0, u0, t0, t_end, max_events, zeno_ttol, zeno_vtol)
 
 
 def _sample(aug: _Aug, segs, events, T):
@@ -584,23 +511,3 @@ def _sample(aug: _Aug, segs, events, T):
         if 1 <= r < R:
             P[r] += Pe
     return Q, U, P
-
-
-def simulate_exact_nd(system: MechanicalSystem, x0, t_end: float, dt: float, tau=None,
-                      record_every: int = 1, t0: float = 0.0, taudot=None, t_c: float = 0.0,
-                      max_events: int = 1_000_000, zeno_ttol: float = 1e-12, zeno_vtol: float = 1e-10):
-    """Exact n-DOF solution sampled on ``t0 + i dt`` (every ``record_every``-th
-    sample), as a :class:`~fmu_sync.core.result.SimulationResult` with
-    ``scheme="exact"`` and the :class:`ExactEventsND` in ``result.events``."""
-    from .checks import check_record_size, check_run, record_rows, record_times
-    from .result import SimulationResult
-    grid, record_every = check_run(t_end, dt, record_every, float(t0))
-    dt = grid.dt
-    rows = record_rows(grid.steps, record_every)
-    check_record_size(rows, 2 * system.n + 2, "the record of simulate_exact")
-    T = record_times(grid, record_every, float(t0))
-    horizon = max(float(t_end), float(T[-1]))
-    ev = exact_events_nd(system, x0, horizon, tau=tau, t0=t0, taudot=taudot, t_c=t_c,
-                                 max_events=max_events, zeno_ttol=zeno_ttol, zeno_vtol=zeno_vtol)
-    Q, U, P = _sample(ev._aug, ev._segs, ev._events, T)
-    return SimulationResult(T, Q, U, P, "exact", dt, events=ev)

@@ -24,7 +24,7 @@ from .coupling import EUCLIDEAN, SWITCHING, UNCOUPLED, coupling_kernel, coupling
 from .distance import (core_2d, distance1, distance_kernel, distance_kernel_unpruned, distance_value,
                        make_geometry)
 from .impact import impact_map_kernel
-from .exact import STEP_OK, exact_model, exact_step
+from .exact_step import STEP_OK, exact_model, exact_step
 from .moreau import DIVERGED, MIDPOINT, OK, THETA, advance, kernels_for
 
 __all__ = ["kernels_for", "advance", "OK", "DIVERGED", "MIDPOINT", "THETA", "make_geometry", "distance_kernel",

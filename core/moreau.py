@@ -1,3 +1,4 @@
+# long module: the Moreau step, its loops, the 1-DOF scalar path and the phasor: one compiled unit
 """Moreau time-stepping (docs/design.md §2.3): compiled kernels.
 
 Two schemes share one step interface ``step(sa, q, u, tau, t, dt, work) -> P``

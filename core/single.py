@@ -1,5 +1,5 @@
 """Single-system simulation: the plain functional entry point over the kernels
-(Moreau schemes of :mod:`.moreau`, or the exact solvers of :mod:`.exact` and :mod:`.exact_nd`)."""
+(Moreau schemes of :mod:`.moreau`, or the exact solver of :mod:`.exact`)."""
 from __future__ import annotations
 
 import numpy as np
@@ -20,8 +20,8 @@ def simulate(system: MechanicalSystem, x0, t_end: float, dt: float, scheme: str 
     """Simulate one system from ``x0 = (q0, u0)`` over ``[t0, t_end]`` with fixed step ``dt``.
 
     ``scheme`` is ``"midpoint"`` (default), ``"theta"`` (Moreau–Jean, ``theta`` in
-    [0.5, 1]) or ``"exact"`` (event-driven, linear force law: :mod:`.exact` for
-    n = 1, :mod:`.exact_nd` for n > 1).
+    [0.5, 1]) or ``"exact"`` (event-driven, linear force law: :func:`.exact.simulate_exact`,
+    any n).
     ``tau`` is a constant input (length m). The run ends exactly at ``t_end``: its
     last step is shortened when ``t_end - t0`` is not a multiple of ``dt``, and
     the final state is the last row of the record (also when ``record_every``
@@ -41,9 +41,6 @@ def simulate(system: MechanicalSystem, x0, t_end: float, dt: float, scheme: str 
     if tau.shape != (system.m,) or not np.all(np.isfinite(tau)):
         raise ValueError(f"tau must be {system.m} finite numbers, got {tau.tolist()}")
     if scheme == "exact":
-        if system.n > 1:
-            from .exact_nd import simulate_exact_nd
-            return simulate_exact_nd(system, (q0, u0), t_end, dt, tau=tau, record_every=record_every, t0=t0)
         return simulate_exact(system, (q0, u0), t_end, dt, tau=tau, record_every=record_every, t0=t0)
     code, theta = scheme_code(scheme, theta)
     check_stable(system, scheme, dt)

@@ -194,7 +194,7 @@ class FMUInstance(InstanceBase):
         """Pack a validated configuration into the work array."""
         exact = None
         if cfg.scheme == S.EXACT:
-            from ..core.exact import exact_model
+            from ..core.exact_step import exact_model
             exact = exact_model(cfg.system)
         S.pack(self.work, cfg.system.arrays(), cfg.dt, cfg.scheme, cfg.theta, exact)
         self.work[S.H_CONFIGURED] = 1.0

@@ -50,8 +50,8 @@ import math
 import numpy as np
 from numba import carray, cfunc, njit, types
 
-from ..core.exact import NT as _EXACT_NT
-from ..core.exact import STEP_OK, STEP_TOO_MANY_EVENTS, exact_step_early
+from ..core.exact_step import NT as _EXACT_NT
+from ..core.exact_step import STEP_OK, STEP_TOO_MANY_EVENTS, exact_step_early
 from ..core.model import SystemArrays
 from ..core.moreau import MIDPOINT, OK, THETA, advance_in, substeps
 from .contract import SCHEME_EXACT as EXACT

@@ -326,6 +326,18 @@ def test_plastic_landing_where_the_force_vanishes():
                                [[2 * np.pi / 3, 1.5 * np.pi], [2.5 * np.pi, 8.0]], rtol=1e-13)
 
 
+def test_subnormal_forcing_is_no_force():
+    # a free acceleration at the wall below the smallest normal number (found by hypothesis:
+    # (1-e)|a_w| underflowed to 0 and the completion test divided by it); the motion is the
+    # undamped oscillator's: q = 2 sin t, impacts at k pi with speeds 2 e^(k-1)
+    sys_ = ImpactOscillator(m=1.0, k=1.0, c=5e-324, f0=5e-324, F=5e-324, Omega=1.0, e=0.5)
+    for ev in (simulate_exact(sys_, (0.0, 2.0), 8.0, 2e-3).events,
+               exact_events(sys_, (0.0, 2.0), 8.0, taudot=[1e-300])):      # the n-DOF solver
+        np.testing.assert_allclose(ev.impact_times, [np.pi, 2 * np.pi], rtol=1e-13)
+        np.testing.assert_allclose(np.reshape(ev.impact_velocities, -1), [-2.0, -1.0], rtol=1e-13)
+        assert ev.zeno_times.size == 0
+
+
 def test_tiny_initial_impact_is_completed():
     sys_ = ImpactOscillator(m=0.2, k=0.0, f0=-0.5, e=0.42)
     ev = exact_events(sys_, (0.0, -1e-123), 1.0)
@@ -397,10 +409,14 @@ def test_dispatch_through_simulate_and_records():
 
 def test_bad_input():
     two = MechanicalSystem(M=np.eye(2), K=np.eye(2), C=np.zeros((2, 2)), f0=[0, 0], w=[1, 0], e=0.5)
-    with pytest.raises(ValueError, match="1-DOF"):
-        simulate_exact(two, ([1, 0], [0, 0]), 1.0, 1e-3)
-    with pytest.raises(ValueError, match="1-DOF"):
-        exact_events(two, ([1, 0], [0, 0]), 1.0)
+    with pytest.raises(ValueError, match="cutoff_vtol"):     # the 1-DOF solver's own option
+        simulate_exact(two, ([1, 0], [0, 0]), 1.0, 1e-3, cutoff_vtol=1e-6)
+    with pytest.raises(ValueError, match="cutoff_vtol"):
+        exact_events(ImpactOscillator(m=1, k=1, e=1.0), (1.0, 0.0), 1.0, taudot=[0.1], cutoff_vtol=1e-6)
+    with pytest.raises(ValueError, match="system"):
+        exact_events("osc", (1.0, 0.0), 1.0)
+    with pytest.raises(ValueError, match="taudot"):
+        exact_events(ImpactOscillator(m=1, k=1, e=0.5), (1.0, 0.0), 1.0, taudot=[0.1, 0.2])
     osc = ImpactOscillator(m=1, k=1, e=0.5)
     for bad in (float("nan"), float("inf"), 0.0, -1e-3, "x"):
         with pytest.raises(ValueError, match="dt"):

@@ -1,4 +1,4 @@
-"""Exact event-driven n-DOF solver (core/exact_nd.py) against an independent
+"""Exact event-driven n-DOF solver (core/exact_nd.py, behind core.exact's entries) against an independent
 DOP853 event-restart reference (tests/_nd_reference.py), on the two-dof scene."""
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from fmu_sync.core import MechanicalSystem, simulate
-from fmu_sync.core.exact_nd import exact_events_nd, simulate_exact_nd
+from fmu_sync.core import exact_events, simulate_exact
 
 from _nd_reference import reference
 
@@ -22,7 +22,7 @@ def two_dof(f0=(0.1, 0.2), F=(0.6, 0.0), e=0.7, g0=0.0):
 
 
 def _compare(system, x0, t_end, dt=0.01, max_step=np.inf, **kw):
-    r = simulate_exact_nd(system, x0, t_end, dt, **kw)
+    r = simulate_exact(system, x0, t_end, dt, **kw)
     ev = r.events
     ref, log = reference(system, x0, r.t, max_step=max_step, **kw)
     err = np.max(np.abs(np.hstack([r.q, r.u]) - ref))
@@ -74,12 +74,12 @@ def test_two_dof_near_grazing_matches_reference(depth):
     # shift the wall so that the first approach of the free motion misses it by `depth`
     # (> 0: no impact) or penetrates by |depth| (< 0: a slow impact, speed ~ sqrt(depth))
     s0 = two_dof(g0=10.0)     # wall far away: the free motion
-    free = simulate_exact_nd(s0, X0, 6.0, 1e-3)
+    free = simulate_exact(s0, X0, 6.0, 1e-3)
     g = free.q @ s0.w
     i = int(np.argmin(g))
     assert 0 < i < g.size - 1
     from scipy.optimize import minimize_scalar
-    ev0 = exact_events_nd(s0, X0, 6.0)
+    ev0 = exact_events(s0, X0, 6.0)
     res = minimize_scalar(lambda t: ev0.state(t)[0] @ s0.w, bracket=(free.t[i - 1], free.t[i], free.t[i + 1]),
                           tol=1e-12)
     wq_min = float(res.fun)
@@ -96,11 +96,11 @@ def test_exact_grazing_touches_without_impact():
     # the motion equals the free motion without the wall (independent: DOP853, no events)
     from scipy.integrate import solve_ivp
     s0 = two_dof(g0=10.0)     # wall far away: the free motion
-    ev0 = exact_events_nd(s0, X0, 6.0)
+    ev0 = exact_events(s0, X0, 6.0)
     from scipy.optimize import minimize_scalar
     res = minimize_scalar(lambda t: ev0.state(t)[0] @ s0.w, bracket=(3.5, 4.1, 4.7), tol=1e-14)
     s = two_dof(g0=-float(res.fun))
-    r = simulate_exact_nd(s, X0, 6.0, 0.01)
+    r = simulate_exact(s, X0, 6.0, 0.01)
     ev = r.events
     assert ev.n_impacts == 0 and ev.graze_times.size == 1
     assert abs(ev.graze_times[0] - res.x) < 1e-6
@@ -126,11 +126,11 @@ def test_linear_input_matches_reference():
 def test_bad_input():
     s = two_dof()
     with pytest.raises(ValueError, match=r"g\(q0\)"):
-        simulate_exact_nd(s, ([-1.0, 0.0], [0, 0]), 1.0, 1e-2)
+        simulate_exact(s, ([-1.0, 0.0], [0, 0]), 1.0, 1e-2)
     with pytest.raises(ValueError, match="tau must be 2 finite numbers"):
-        simulate_exact_nd(s, X0, 1.0, 1e-2, tau=[1.0])
+        simulate_exact(s, X0, 1.0, 1e-2, tau=[1.0])
     with pytest.raises(ValueError, match="t_end must be"):
-        exact_events_nd(s, X0, -1.0)
+        exact_events(s, X0, -1.0)
 
 
 @pytest.mark.parametrize("params, x0", [
@@ -139,12 +139,12 @@ def test_bad_input():
 ])
 def test_one_dof_agrees_with_the_one_dof_solver(params, x0):
     # two independent implementations (gap closed forms vs augmented matrix flow)
-    from fmu_sync.core import ImpactOscillator
-    from fmu_sync.core.exact import simulate_exact
+    from fmu_sync.core import ImpactOscillator, exact_nd
     s = ImpactOscillator(**params)
-    a = simulate_exact(s, x0, 20.0, 0.01)
-    b = simulate_exact_nd(s, x0, 20.0, 0.01)
-    assert np.max(np.abs(a.q - b.q)) < TOL and np.max(np.abs(a.u - b.u)) < TOL
+    a = simulate_exact(s, x0, 20.0, 0.01)          # n = 1: the compiled closed-form solver
+    b = exact_nd.solve(s, np.array([x0[0]]), np.array([x0[1]]), 0.0, 20.0, None, None, 0.0, 10 ** 6, 1e-12, 1e-10)
+    bq, bu, bp = b.sample(a.t)
+    assert np.max(np.abs(a.q - bq)) < TOL and np.max(np.abs(a.u - bu)) < TOL
 
 
 def test_one_dof_linear_input_matches_reference():
@@ -154,3 +154,45 @@ def test_one_dof_linear_input_matches_reference():
     r, ev, log, err = _compare(s, (1.0, 0.0), 12.0, dt=0.05, tau=[-0.2], taudot=[0.06], t_c=0.0)
     assert ev.n_impacts >= 3
     assert err < TOL, err
+
+
+def test_one_entry_for_every_n_with_one_result_type():
+    """simulate_exact / exact_events dispatch on n (and the input ramp); the events of the
+    1-DOF and the n-DOF solver are one type with the same fields and meanings."""
+    import fmu_sync.core as core
+    from fmu_sync.core import ExactEvents
+    assert not {"simulate_exact_nd", "exact_events_nd", "ExactEventsND"} & set(dir(core))
+    s = two_dof(f0=(-1.0, -1.0), F=(2.0, 0.0), e=0.5)        # impacts, accumulations, contact
+    ev = exact_events(s, ([0.3, 0.1], [0.0, 0.0]), 20.0)
+    osc = MechanicalSystem(M=[[2.0]], K=[[1.0]], C=[[0.1]], f0=[1.5], w=[-1.5], g0=1.0, e=0.5,
+                           forcing=[([1.0], 1.2, 0.0)])                    # a wall above, w != 1
+    one = exact_events(osc, (0.1, 0.0), 20.0)
+    ramp = exact_events(osc, (0.1, 0.0), 20.0, taudot=[1e-6])   # n = 1 with a ramp: the n-DOF solver
+    assert type(ev) is type(one) is type(ramp) is ExactEvents
+    for e_, n, sys_ in ((ev, 2, s), (one, 1, osc), (ramp, 1, osc)):
+        sa = sys_.arrays()
+        k = e_.n_impacts
+        assert k >= 3 and e_.zeno_times.size >= 1
+        assert e_.impact_velocities.shape == ((k,) if e_ is one else (k, n))
+        # w^T u- is the normal part of u-, negative; P = (1+e)|w^T u-|/W
+        un = e_.impact_velocities.reshape(k, -1) @ sa.w
+        np.testing.assert_allclose(un, e_.impact_normal_velocities, rtol=1e-14, atol=0)
+        assert np.all(e_.impact_normal_velocities < 0)
+        np.testing.assert_allclose(e_.impact_percussions, (1 + sa.e) * np.abs(un) / sa.W, rtol=1e-13)
+        # u- is the left limit of the solution at the impact (an impact well after the previous event)
+        gaps = np.diff(np.concatenate([[0.0], e_.impact_times]))
+        i = int(np.argmax(gaps))
+        _, u_before = e_.state(e_.impact_times[i] - 1e-7)
+        np.testing.assert_allclose(np.reshape(u_before, -1), np.reshape(e_.impact_velocities[i], -1), atol=1e-5)
+        # a completed accumulation sums the remaining bounces: (1+e) v+ / ((1-e) W), v+ = -e w^T u-
+        j = int(np.nonzero(e_.impact_times == e_.zeno_start_times[0])[0][-1])
+        vp = -sa.e * e_.impact_normal_velocities[j]
+        assert e_.zeno_percussions[0] == pytest.approx((1 + sa.e) * vp / ((1 - sa.e) * sa.W), rel=1e-12)
+        assert e_.zeno_percussions.shape == e_.zeno_times.shape == e_.zeno_start_times.shape
+        assert e_.contact_open == (e_.contact_intervals.size > 0 and e_.contact_intervals[-1, 1] == 20.0)
+        # state: shaped like t for n = 1 (the compiled solver), t.shape + (n,) otherwise
+        q, u = e_.state(np.full((2, 3), 1.0))
+        assert q.shape == u.shape == ((2, 3) if e_ is one else (2, 3, n))
+    # the two solvers on one motion (the ramp's effect is ~1e-6 here): the same solution
+    ts = np.linspace(0.0, 5.0, 51)
+    assert np.max(np.abs(one.state(ts)[0] - ramp.state(ts)[0][:, 0])) < 1e-4

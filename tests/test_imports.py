@@ -127,12 +127,32 @@ def test_no_private_name_is_imported_across_modules():
     assert not bad, "\n".join(bad)
 
 
-def test_no_module_is_over_500_lines_except_the_numerical_kernels():
-    kernels = {"fmu_sync.core.exact", "fmu_sync.core.distance",  # one numerical concept each
-               "fmu_sync.core.moreau",     # the Moreau step, its loops, the 1-DOF fast path, the phasor
-               "fmu_sync.core.exact_nd"}   # the n-DOF event-driven solver
-    long = {n: len(p.read_text().splitlines()) for n, p in MODULES.items() if n not in kernels}
-    assert {n: k for n, k in long.items() if k > 520} == {}
+#: most lines of a module without a reason (issue 17)
+MAX_LINES = 650
+#: the one-line reason a longer module gives at its top (its first line)
+LONG_REASON = "# long module: "
+
+
+def _long_reason(path: Path) -> str:
+    """The reason in the module's first line, "" if there is none (or only a word or two)."""
+    first = (path.read_text().splitlines() or [""])[0]
+    reason = first[len(LONG_REASON):].strip() if first.startswith(LONG_REASON) else ""
+    return reason if len(reason) >= 10 else ""
+
+
+def test_no_module_is_over_650_lines_without_a_reason_at_its_top():
+    lines = {n: len(p.read_text().splitlines()) for n, p in MODULES.items()}
+    assert {n: k for n, k in lines.items() if k > MAX_LINES and not _long_reason(MODULES[n])} == {}
+
+
+def test_the_size_rule_reads_the_reason_at_the_top_only(tmp_path):
+    top = tmp_path / "top.py"
+    top.write_text("# long module: one numerical kernel that reads best in one piece\n\"\"\"Doc.\"\"\"\n")
+    low = tmp_path / "low.py"
+    low.write_text("\"\"\"Doc.\"\"\"\n# long module: one numerical kernel that reads best in one piece\n")
+    bare = tmp_path / "bare.py"
+    bare.write_text("# long module: \n")
+    assert _long_reason(top) and not _long_reason(low) and not _long_reason(bare)
 
 
 def test_benchmarks_use_the_public_api_only():

@@ -183,16 +183,11 @@ def _core_single(scene, T, scheme, theta, dt, fine):
 def _exact_single(scene, T):
     from fmu_sync.core import simulate_exact
     system = _system(scene)
-    if system.n > 1:
-        from fmu_sync.core import simulate_exact_nd
-
-        def fn_nd():
-            r = simulate_exact_nd(system, scene.x0, T, 1e-3)
-            return r.t, r.q, r.u, None
-        return fn_nd
 
     def fn():
         r = simulate_exact(system, scene.x0, T, 1e-3)
+        if system.n > 1:
+            return r.t, r.q, r.u, None
         ev = r.events
         rest = float(ev.zeno_times[0]) if ev.zeno_times.size else None
         return r.t, r.q[:, 0], r.u[:, 0], rest
@@ -328,11 +323,7 @@ def _references(cfgs, mode):
         T = horizon(sc, mode)
         ref = _Reference()
         system = _system(sc)
-        if system.n > 1:
-            from fmu_sync.core import exact_events_nd
-            ref.events = exact_events_nd(system, sc.x0, T)
-        else:
-            ref.events = exact_events(system, sc.x0, T)
+        ref.events = exact_events(system, sc.x0, T)
         if "rest_time" in sc.metrics:
             ref.t_inf = closed_form_rest_time(sc.params, sc.x0[0])
             ref.v_tol = V_REST_REL * math.sqrt(2.0 * G * sc.x0[0])
