@@ -187,7 +187,7 @@ def _per_system(value, N: int, what: str) -> tuple:
 def plan_run(systems, starts, t_end, step, *, scheme="midpoint", theta: float = 0.5, dt=None,
              hold: str = "zoh", A=None, laws=None, Kp=0.0, Kd=0.0, record_every: int = 1,
              t0: float = 0.0, record_values: int | None = None, record_what: str = "the record",
-             record_hint: str = "", allow_unstable: bool = False, allow_unstable_exchange: bool | None = None,
+             record_hint: str = "", allow_unstable: bool = False,
              step_name: str = "dt", state_names=None, system_names=None, exact: bool = False) -> RunPlan:
     """Check a run once, in the order of the module docstring, and return its :class:`RunPlan`.
 
@@ -201,8 +201,8 @@ def plan_run(systems, starts, t_end, step, *, scheme="midpoint", theta: float = 
     ``A`` (default: the pair), ``laws`` (law codes per edge, default all switching),
     ``Kp``, ``Kd``: the coupling (coupled runs only); ``record_values``: float64 values per
     record row (None: the caller keeps no record, or checks it elsewhere);
-    ``allow_unstable``: skip the scheme limit and run an unstable exchange
-    (``allow_unstable_exchange``, default the same, for the exchange alone);
+    ``allow_unstable``: skip the scheme limit and run an unstable exchange (its verdict
+    is still in ``limit``);
     ``state_names``/``system_names``: how messages name the states (``x1``, ... or ``x0``)
     and the systems (default ``system 1``, ...; a scheme refusal then names none).
     """
@@ -259,8 +259,7 @@ def plan_run(systems, starts, t_end, step, *, scheme="midpoint", theta: float = 
             laws_a = np.full(1 if A is None else len(edges_of(weights(A, N))), SWITCHING, dtype=np.int64)
         else:
             laws_a = np.asarray(laws, dtype=np.int64)
-        unstable_ok = allow_unstable if allow_unstable_exchange is None else allow_unstable_exchange
-        Kp_m, Kd_m, Ac, limit = held_exchange(s0.M, Kp, Kd, step, A, laws_a, hold, unstable_ok, step_name)
+        Kp_m, Kd_m, Ac, limit = held_exchange(s0.M, Kp, Kd, step, A, laws_a, hold, allow_unstable, step_name)
         coupled = bool(np.any(laws_a != UNCOUPLED))
     if record_values is not None and grid is not None:                  # 6. the record budget
         check_record_size(rows, int(record_values), record_what, record_hint)
