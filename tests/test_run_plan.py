@@ -240,3 +240,29 @@ def test_the_cli_tells_a_refusal_from_a_failure_by_type(tmp_path, capsys):
     assert "omega_max*dt" in capsys.readouterr().err and not (tmp_path / "s").exists()
     from fmu_sync import cli
     assert not hasattr(cli, "_refused_up_front")   # no message matching left in the CLI
+
+
+def test_no_caller_tells_errors_apart_by_their_text():
+    """Refusals and failures are told apart by type: no comparison, prefix test or regex on an
+    exception's text in the command line, the scenes, the sweeps or the master."""
+    import ast
+    from pathlib import Path
+    import fmu_sync
+    root = Path(fmu_sync.__file__).parent
+    paths = [root / "cli.py", root / "master.py", *sorted((root / "scenes").glob("*.py")),
+             *sorted((root / "sweeps").glob("*.py"))]
+    text = ("str(exc", "str(e)", "str(err", ".args")
+    found = []
+    for path in paths:
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Compare):
+                parts = [node.left, *node.comparators]
+            elif isinstance(node, ast.Call) and isinstance(node.func, (ast.Attribute, ast.Name)) and \
+                    getattr(node.func, "attr", getattr(node.func, "id", "")) in (
+                        "startswith", "endswith", "find", "search", "match", "fullmatch", "findall"):
+                parts = [getattr(node.func, "value", node.func), *node.args]
+            else:
+                continue
+            if any(t in ast.unparse(p) for p in parts for t in text):
+                found.append(f"{path.name}:{node.lineno}: {ast.unparse(node)}")
+    assert not found, found

@@ -175,11 +175,11 @@ def run_variant(variant: Variant, fmu_path=None, progress: Callable | None = Non
             raise RunFailed(result.error, partial=result)
         return result
     except RunFailed as exc:
-        if str(exc).startswith(label):
+        if getattr(exc, "variant_label", None) == label:   # named already (by attribute, not by its text)
             raise
         cls = SimulationDiverged if isinstance(exc, SimulationDiverged) else RunFailed
         err = cls(f"{label}: {exc}")
-        err.partial = exc.partial
+        err.partial, err.variant_label = exc.partial, label
         raise err from None
 
 
