@@ -16,7 +16,11 @@ The public API of the core (everything a user of the standalone engine needs):
 * the exact event-driven solver :func:`simulate_exact` / :func:`exact_events` (any n: the
   compiled closed form for n = 1, the matrix flow for n > 1; results :class:`ExactEvents`);
 * results :class:`SimulationResult`, :class:`PairResult`, :class:`NetworkResult`, and the errors
-  :class:`SimulationDiverged` (a run that failed), :class:`UnstableScheme` (a step refused up front).
+  :class:`SimulationDiverged` (a run that failed) and the refusals made before the first step,
+  each of its own type, all :class:`RunRefused` (ValueErrors): :class:`UnstableScheme`,
+  :class:`UnstableExchange`, :class:`InadmissibleState`, :class:`RecordTooLarge`;
+* the run plan :func:`plan_run` (:class:`RunPlan`): every check of a run, made once
+  (docs/design.md §5.1.1), the one the drivers, scenes, sweeps, master and slave use.
 
 The raw compiled kernels (for benchmarks and custom loops) are in :mod:`.kernels`.
 Where each concept lives: docs/design.md §3. Kernels compile lazily, on first use.
@@ -24,7 +28,9 @@ Where each concept lives: docs/design.md §3. Kernels compile lazily, on first u
 from . import _cache  # noqa: F401  (first: every core kernel's cache is keyed on the whole core)
 from .model import ImpactOscillator, MechanicalSystem, SystemArrays
 from .impact import impact_map
-from .errors import RunFailed, SimulationDiverged, UnstableScheme
+from .errors import RunFailed, RunRefused, SimulationDiverged, UnstableScheme
+from .checks import InadmissibleState, RecordTooLarge
+from .plan import RunPlan, plan_run
 from .result import NetworkResult, PairResult, SimulationResult
 from .single import simulate
 from .distance import quotient_distance
@@ -39,4 +45,5 @@ __all__ = ["ImpactOscillator", "MechanicalSystem", "SystemArrays", "impact_map",
            "quotient_distance", "coupling_forces", "energy_metric", "simulate_exact", "exact_events", "ExactEvents",
            "SimulationResult", "PairResult", "RunFailed",
            "SimulationDiverged", "NetworkResult", "simulate_network", "ring", "path", "star", "all_to_all",
-           "sync_metrics", "SyncMetrics", "exchange_limit", "hold_bound", "UnstableExchange", "UnstableScheme"]
+           "sync_metrics", "SyncMetrics", "exchange_limit", "hold_bound", "UnstableExchange", "UnstableScheme",
+           "RunRefused", "InadmissibleState", "RecordTooLarge", "RunPlan", "plan_run"]

@@ -8,7 +8,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .errors import UnstableScheme
+from .errors import RunRefused, UnstableScheme
 from .model import MechanicalSystem
 
 __all__ = ["check_step", "check_run", "n_steps", "RunSteps", "run_steps", "record_rows", "record_times",
@@ -83,7 +83,7 @@ def record_times(grid: RunSteps, record_every: int, t0: float = 0.0) -> np.ndarr
     return T
 
 
-class RecordTooLarge(ValueError):
+class RecordTooLarge(RunRefused):
     """A record that cannot be held in memory, refused before anything is allocated."""
 
 
@@ -126,10 +126,11 @@ def check_run(t_end, dt, record_every=1, t0: float = 0.0, dt_name: str = "dt") -
 
 
 def check_start(system: MechanicalSystem, q, name: str = "x0") -> None:
-    """Refuse a start position outside the admissible set g(q) >= 0."""
+    """Refuse (:class:`InadmissibleState`) a start position outside the admissible set g(q) >= 0
+    (step 4 of the run plan, :func:`fmu_sync.core.plan.plan_run`)."""
     g = system.gap(q)
-    if g < 0.0:
-        raise ValueError(f"{name} violates the constraint: g(q) = {g:.6g} < 0 (need g >= 0)")
+    if not g >= 0.0:
+        raise InadmissibleState(f"{name} violates the constraint: g(q) = {g:.6g} < 0 (need g >= 0)")
 
 
 #: Relative tolerance of :func:`check_admissible`: a state is inside the wall when
@@ -137,7 +138,7 @@ def check_start(system: MechanicalSystem, q, name: str = "x0") -> None:
 GAP_TOL = 1e-9
 
 
-class InadmissibleState(ValueError):
+class InadmissibleState(RunRefused):
     """A state inside the wall (g(q) < 0 beyond :data:`GAP_TOL`)."""
 
 

@@ -2,9 +2,11 @@
 
 * Bad input (a value out of its domain, an inconsistent system, a scheme known
   to diverge for this step) raises a :class:`ValueError` (or a subclass with its
-  own type: :class:`UnstableScheme`, ``UnstableExchange``, ``RecordTooLarge``,
-  ``InadmissibleState``) before anything runs, naming the argument, its value and
-  what is allowed. Callers tell refusals apart by type, never by message text.
+  own type, all :class:`RunRefused`: :class:`UnstableScheme`, ``UnstableExchange``,
+  ``RecordTooLarge``, ``InadmissibleState``) before anything runs, naming the argument,
+  its value and what is allowed; the checks are made once, by the run plan
+  (:func:`fmu_sync.core.plan.plan_run`, docs/design.md §5.1.1). Callers tell refusals apart
+  by type, never by message text.
 * A run that fails mid-way raises a :class:`RunFailed`; its ``partial``
   attribute holds the result recorded up to the failure (``partial.success``
   is False, ``partial.message`` says what happened), or None where no record
@@ -12,7 +14,7 @@
 """
 from __future__ import annotations
 
-__all__ = ["RunFailed", "SimulationDiverged", "UnstableScheme"]
+__all__ = ["RunFailed", "SimulationDiverged", "RunRefused", "UnstableScheme"]
 
 
 class RunFailed(RuntimeError):
@@ -27,6 +29,11 @@ class SimulationDiverged(RunFailed):
     """The state became non-finite: the scheme is unstable for this step size."""
 
 
-class UnstableScheme(ValueError):
+class RunRefused(ValueError):
+    """A run refused before its first step by the run plan (:func:`fmu_sync.core.plan.plan_run`);
+    each reason is a subclass of its own."""
+
+
+class UnstableScheme(RunRefused):
     """Refused before the first step: the explicit midpoint scheme diverges for
     omega_max*dt >= 2 (:func:`fmu_sync.core.checks.check_stable`)."""

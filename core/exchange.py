@@ -43,6 +43,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .errors import RunRefused
+
 __all__ = ["UnstableExchange", "ExchangeLimit", "exchange_limit", "check_exchange", "zoh_bound",
            "laplacian_modes", "hold_map_radius", "hold_bound", "HOLDS"]
 
@@ -50,7 +52,7 @@ __all__ = ["UnstableExchange", "ExchangeLimit", "exchange_limit", "check_exchang
 HOLDS = ("zoh", "foh")
 
 
-class UnstableExchange(ValueError):
+class UnstableExchange(RunRefused):
     """The coupling forces held over a step make the relative motion grow."""
 
 

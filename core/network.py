@@ -22,13 +22,12 @@ from numba import njit
 
 from .coupling import BRANCH_NONE, UNCOUPLED, gain_matrix, law_metric, metric_info
 from .distance import geometry
-from .exchange import check_exchange
-from .model import MechanicalSystem, SystemArrays, as_state
-from .checks import (check_record_size, check_run, check_stable, check_start, divergence_message, record_rows,
-                     scheme_code)
+from .model import MechanicalSystem, SystemArrays
+from .checks import divergence_message
 from .errors import SimulationDiverged
 from .moreau import DIVERGED, OK, THETA, finish_step, midpoint_step, theta_matrices, theta_step
-from .pair import LAWS, as_systems, check_common_geometry, coupling_step, coupling_step1
+from .pair import LAWS, coupling_step, coupling_step1
+from .plan import as_systems, coupled_weights, edges_of, held_exchange, plan_run, weights
 from .result import NetworkResult
 
 __all__ = ["simulate_network", "ring", "path", "star", "all_to_all", "GRAPHS", "graph", "weights",
@@ -92,28 +91,6 @@ def graph(kind: str, N: int, weight: float = 1.0) -> np.ndarray:
     return GRAPHS[kind](N, weight)
 
 
-def weights(A, N: int | None = None) -> np.ndarray:
-    """Validated N x N weights: finite, >= 0, zero diagonal."""
-    try:
-        a = np.array(A, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"A must be an N x N matrix of weights, got {A!r}") from None
-    if a.ndim != 2 or a.shape[0] != a.shape[1] or (N is not None and a.shape[0] != N):
-        raise ValueError(f"A must be a square N x N weight matrix with N = number of states "
-                         f"({N}), got shape {a.shape}")
-    if not np.all(np.isfinite(a)) or np.any(a < 0.0):
-        raise ValueError(f"A must hold finite weights >= 0, got {a.tolist()}")
-    if np.any(np.diag(a) != 0.0):
-        raise ValueError(f"A must have a zero diagonal (no self-coupling), got {np.diag(a).tolist()}")
-    return a
-
-
-def edges_of(A) -> list:
-    """The coupled pairs (i, j), i < j, in lexicographic order (the record's columns)."""
-    N = A.shape[0]
-    return [(i, j) for i in range(N) for j in range(i + 1, N) if A[i, j] > 0.0 or A[j, i] > 0.0]
-
-
 def edge_laws(coupling, edges) -> np.ndarray:
     """Law codes per edge from one law name or a sequence of names (one per edge)."""
     if coupling is None or isinstance(coupling, str):
@@ -136,37 +113,6 @@ def edge_arrays(A, edges):
     E2 = np.array(edges, dtype=np.int64).reshape(E, 2)
     W2 = np.array([[A[i, j], A[j, i]] for i, j in edges], dtype=np.float64).reshape(E, 2)
     return E2, W2
-
-
-def coupled_weights(A, edges, laws) -> np.ndarray:
-    """``A`` without the edges whose law is "none" (they carry no force): the graph whose
-    Laplacian sets the stability limit of the exchange."""
-    Ac = np.array(A, dtype=np.float64)
-    for (i, j), law in zip(edges, laws):
-        if law == LAWS[None]:
-            Ac[i, j] = Ac[j, i] = 0.0
-    return Ac
-
-
-def held_exchange(M, Kp, Kd, step: float, A=None, laws=None, hold: str = "zoh", allow_unstable: bool = False,
-                  step_name: str = "H"):
-    """The one check of the held coupling exchange of a run (docs/design.md §2.6), as
-    :func:`simulate_pair`, :func:`simulate_network`, the co-simulation master and the
-    scene preflight make it: gains as n x n matrices, the weights of the edges whose law
-    carries a force (``laws``: one code per edge of ``A``, default all coupled; ``A``
-    default the pair), the hold in use (``"zoh"``; the master's ``"foh"``). Returns
-    ``(Kp, Kd, A_coupled, limit)``; ``limit`` is None when no edge is coupled; refused
-    with ``UnstableExchange`` (a ValueError) unless ``allow_unstable``."""
-    n = np.atleast_2d(np.asarray(M, dtype=np.float64)).shape[0]
-    Kp_m, Kd_m = gain_matrix(Kp, n, "Kp"), gain_matrix(Kd, n, "Kd")
-    A = weights([[0.0, 1.0], [1.0, 0.0]] if A is None else A)
-    edges = edges_of(A)
-    laws = np.full(len(edges), LAWS["switching"], dtype=np.int64) if laws is None else np.asarray(laws)
-    Ac = coupled_weights(A, edges, laws)
-    if not np.any(laws != LAWS[None]):
-        return Kp_m, Kd_m, Ac, None
-    return Kp_m, Kd_m, Ac, check_exchange(M, Kp_m, Kd_m, step, A=Ac, allow_unstable=allow_unstable,
-                                          step_name=step_name, hold=hold)
 
 
 # ------------------------------------------------------------------ kernel
@@ -378,41 +324,23 @@ def simulate_network(system, states, A, t_end: float, dt: float, coupling="switc
     if N < 2:
         raise ValueError(f"a network needs at least 2 states, got {N}")
     systems = as_systems(system, N)
-    check_common_geometry(systems, [f"node {i + 1}" for i in range(N)])
     A = weights(A, N)
     edges = edges_of(A)
     laws = edge_laws(coupling, edges)
-    s0 = systems[0]
-    n = s0.n
-    grid, record_every = check_run(t_end, dt, record_every, t0)
-    dt = grid.dt
-    n_steps = grid.steps - 1 if grid.short else grid.steps   # whole steps; then the shortened one
-    dt_last = grid.dt_last if grid.short else 0.0
-    code, theta = scheme_code(scheme, theta)
-    if not allow_unstable:
-        seen = []
-        for s in systems:
-            if not any(s is o for o in seen):
-                check_stable(s, scheme, dt)
-                seen.append(s)
-    for s in systems:
-        if s.m != n or not np.array_equal(s.B, np.eye(n)):
-            raise ValueError(f"coupled systems take the forces through B = I (tau has n = {n} entries); "
-                             f"got B of shape {s.B.shape}")
-    q = np.zeros((N, n))
-    u = np.zeros((N, n))
-    for i, x in enumerate(states):
-        q[i], u[i] = as_state(s0, x, f"x{i + 1}")
-        check_start(s0, q[i], f"x{i + 1}")
-    coupled = bool(np.any(laws != LAWS[None]))
-    Kp_m, Kd_m, _, limit = held_exchange(s0.M, Kp, Kd, dt, A, laws, allow_unstable=allow_unstable, step_name="dt")
     record_d = bool(record_distance) or bool(np.any(laws == LAWS["switching"]))
+    E = len(edges)
+    plan = plan_run(systems, states, t_end, dt, scheme=scheme, theta=theta, A=A, laws=laws, Kp=Kp, Kd=Kd,
+                    record_every=record_every, t0=t0, allow_unstable=allow_unstable,
+                    record_values=1 + 3 * N * systems[0].n + (3 * E + 1 if record_d else 0),
+                    record_what="the record of simulate_network",
+                    system_names=[f"node {i + 1}" for i in range(N)])   # every check, once (docs/design.md §5.1.1)
+    s0, n, grid, dt = systems[0], systems[0].n, plan.grid, plan.dt
+    n_steps, dt_last, record_every = plan.whole_steps, plan.dt_last, plan.record_every
+    code, theta, q, u, rows = plan.code, plan.theta, plan.q.copy(), plan.u.copy(), plan.rows
+    coupled, Kp_m, Kd_m, limit = plan.coupled, plan.Kp, plan.Kd, plan.limit
     lm = law_metric(Q, [s.K for s in systems], Kp_m, coupled_weights(A, edges, laws) if coupled else None,
                     coupled=coupled)
     geo = geometry(s0, lm.Q)
-    rows = record_rows(grid.steps, record_every)
-    E = len(edges)
-    check_record_size(rows, 1 + 3 * N * n + (3 * E + 1 if record_d else 0), "the record of simulate_network")
     T = np.full(rows, np.nan)
     Qr, Ur, TAU = (np.full((rows, N, n), np.nan) for _ in range(3))
     D, EU = np.full((rows, E), np.nan), np.full((rows, E), np.nan)

@@ -17,14 +17,12 @@ from .coupling import LAWS as COUPLING_LAWS
 from .coupling import (BRANCH_NONE, SWITCHING, UNCOUPLED, p_norm_diff, coupling_kernel,
                        coupling_kernel1, euclidean_coupling1, gain_matrix, law_metric, metric_info)
 from .distance import distance1, distance_value, geometry
-from .exchange import check_exchange
-from .model import MechanicalSystem, as_state
 from .moreau import (DIVERGED, OK, THETA, finish_step, midpoint_step, midpoint_step1, scalar_params,
                      step_workspace, theta_matrices, theta_step, theta_step1)
 from .result import PairResult
-from .checks import (check_record_size, check_run, check_stable, check_start, divergence_message, record_rows,
-                     scheme_code)
+from .checks import divergence_message
 from .errors import SimulationDiverged
+from .plan import as_systems, check_common_geometry, plan_run
 
 __all__ = ["simulate_pair", "coupling_step", "LAWS", "gain_matrix", "check_common_geometry", "as_systems"]
 
@@ -195,42 +193,6 @@ def integrate_pair(sa1, sa2, geo, law, Kp, Kd, q1, u1, q2, u2, t0, k0, dt, n_ste
     return OK, total, row, imp1, imp2, v_imp
 
 
-def check_common_geometry(systems, names=None) -> None:
-    """The quotient distance identifies states through one impact map: the systems must
-    share M, w, g0 and e (stiffness, damping, offset force and forcing may differ).
-    Raises ValueError naming the first quantity that differs and both values."""
-    systems = list(systems)
-    names = names or [f"system {i + 1}" for i in range(len(systems))]
-    a = systems[0]
-    for name, b in zip(names[1:], systems[1:]):
-        if b.n != a.n:
-            raise ValueError(f"coupled systems must have the same number of degrees of freedom: "
-                             f"{names[0]} has n = {a.n}, {name} has n = {b.n}")
-        for key in ("M", "w", "g0", "e"):
-            va, vb = getattr(a, key), getattr(b, key)
-            if not np.array_equal(va, vb):
-                fmt = (lambda v: np.asarray(v).tolist())
-                raise ValueError(
-                    f"the quotient distance needs a common impact geometry (equal M, w, g0 and e): "
-                    f"{key} differs: {names[0]} has {key} = {fmt(va)}, {name} has {key} = {fmt(vb)}")
-
-
-def as_systems(system, count: int, what: str = "system") -> list:
-    """One MechanicalSystem for all, or a sequence of ``count`` of them."""
-    if isinstance(system, MechanicalSystem):
-        return [system] * count
-    try:
-        systems = list(system)
-    except TypeError:
-        raise ValueError(f"{what} must be a MechanicalSystem or a sequence of {count}, "
-                         f"got {system!r}") from None
-    if len(systems) != count or not all(isinstance(s, MechanicalSystem) for s in systems):
-        raise ValueError(f"{what} must be a MechanicalSystem or a sequence of {count} MechanicalSystem "
-                         f"objects, got {len(systems)} item(s) of types "
-                         f"{sorted({type(s).__name__ for s in systems})}")
-    return systems
-
-
 def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
                   Kp=0.0, Kd=0.0, Q=None, scheme: str = "midpoint", theta: float = 0.5,
                   record_every: int = 1, record_distance: bool = True, progress=None,
@@ -261,8 +223,9 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
     sent to the sink).
     ``tau1[0]``, ``tau2[0]``: the forces at the start (those held over the first step).
 
-    Before the first step, a step known to diverge is refused: the explicit
-    midpoint scheme (omega_max*dt >= 2, :class:`SimulationDiverged`) and the
+    Before the first step, a step known to diverge is refused (the run plan,
+    :func:`fmu_sync.core.plan.plan_run`): the explicit midpoint scheme
+    (omega_max*dt >= 2, :class:`~fmu_sync.core.errors.UnstableScheme`) and the
     held coupling forces (omega_c*dt beyond min(4 zeta, 1/zeta),
     :class:`fmu_sync.core.exchange.UnstableExchange`, a ValueError); pass
     ``allow_unstable=True`` to run anyway.
@@ -274,36 +237,20 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
         raise ValueError(f"coupling must be one of {list(LAWS)}, got {coupling!r}")
     law = LAWS[coupling]
     systems = as_systems(system, 2)
-    check_common_geometry(systems)
     s1, s2 = systems
-    grid, record_every = check_run(t_end, dt, record_every, t0)
-    dt = grid.dt
-    n_steps = grid.steps - 1 if grid.short else grid.steps   # whole steps; then the shortened one
-    dt_last = grid.dt_last if grid.short else 0.0
-    code, theta = scheme_code(scheme, theta)
-    if not allow_unstable:
-        for s in systems if s1 is not s2 else systems[:1]:
-            check_stable(s, scheme, dt)
-    q1, u1 = as_state(s1, x1, "x1")
-    q2, u2 = as_state(s2, x2, "x2")
-    check_start(s1, q1, "x1")
-    check_start(s1, q2, "x2")
     n = s1.n
-    for s in systems:
-        if s.m != n or not np.array_equal(s.B, np.eye(n)):
-            raise ValueError(f"coupled systems take the forces through B = I (tau has n = {n} entries); "
-                             f"got B of shape {s.B.shape}")
     record_d = bool(record_distance) or law == SWITCHING
-    Kp_m, Kd_m = gain_matrix(Kp, n, "Kp"), gain_matrix(Kd, n, "Kd")
+    plan = plan_run(systems, (x1, x2), t_end, dt, scheme=scheme, theta=theta, laws=[law], Kp=Kp, Kd=Kd,
+                    record_every=record_every, t0=t0, allow_unstable=allow_unstable,
+                    record_values=None if sink is not None else 4 * n + 2 * n + (4 if record_d else 1),
+                    record_what="the record of simulate_pair",
+                    record_hint=", or pass sink= to stream it in chunks")   # every check, once (docs/design.md §5.1.1)
+    grid, dt, record_every, rows = plan.grid, plan.dt, plan.record_every, plan.rows
+    n_steps, dt_last, code, theta = plan.whole_steps, plan.dt_last, plan.code, plan.theta
+    q1, q2, u1, u2 = (a.copy() for a in (plan.q[0], plan.q[1], plan.u[0], plan.u[1]))
+    Kp_m, Kd_m, limit = plan.Kp, plan.Kd, plan.limit
     lm = law_metric(Q, [s.K for s in systems], Kp_m, coupled=law != UNCOUPLED)
     geo = geometry(s1, lm.Q)
-    limit = None
-    if law != UNCOUPLED:
-        limit = check_exchange(s1.M, Kp_m, Kd_m, dt, allow_unstable=allow_unstable, step_name="dt")
-    rows = record_rows(grid.steps, record_every)
-    if sink is None:   # before anything is allocated
-        check_record_size(rows, 4 * n + 2 * n + (4 if record_d else 1), "the record of simulate_pair",
-                          ", or pass sink= to stream it in chunks")
     if sink is not None:
         chunk_rows = int(chunk_rows)
         if chunk_rows < 1:

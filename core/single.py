@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .checks import check_record_size, check_run, check_stable, divergence_message, record_rows, scheme_code
+from .checks import divergence_message
 from .errors import SimulationDiverged
 from .exact import simulate_exact
-from .model import MechanicalSystem, as_state
+from .model import MechanicalSystem
 from .moreau import DIVERGED, kernels_for
+from .plan import plan_run
 from .result import SimulationResult
 
 __all__ = ["simulate"]
@@ -31,22 +32,17 @@ def simulate(system: MechanicalSystem, x0, t_end: float, dt: float, scheme: str 
     :mod:`.moreau`). Raises :class:`SimulationDiverged` if the
     state becomes non-finite (never returns NaN data).
     """
-    grid, record_every = check_run(t_end, dt, record_every, t0)
-    dt = grid.dt
-    q0, u0 = as_state(system, x0)
-    g = system.gap(q0)
-    if g < 0.0:
-        raise ValueError(f"initial state violates the constraint: g(q0) = {g:.6g} < 0 (need g(q0) >= 0)")
+    plan = plan_run(system, [x0], t_end, dt, scheme=scheme, theta=theta, record_every=record_every, t0=t0,
+                    record_values=2 + 2 * system.n, record_what="the record of simulate",
+                    exact=True)   # every check, once (docs/design.md §5.1.1)
+    grid, dt, record_every, rows, n = plan.grid, plan.dt, plan.record_every, plan.rows, system.n
+    q0, u0 = plan.q[0], plan.u[0]
     tau = np.zeros(system.m) if tau is None else np.array(tau, dtype=np.float64, ndmin=1).reshape(-1)
     if tau.shape != (system.m,) or not np.all(np.isfinite(tau)):
         raise ValueError(f"tau must be {system.m} finite numbers, got {tau.tolist()}")
     if scheme == "exact":
         return simulate_exact(system, (q0, u0), t_end, dt, tau=tau, record_every=record_every, t0=t0)
-    code, theta = scheme_code(scheme, theta)
-    check_stable(system, scheme, dt)
-    rows = record_rows(grid.steps, record_every)
-    n = system.n
-    check_record_size(rows, 2 + 2 * n, "the record of simulate")
+    code, theta = plan.code, plan.theta
     T = np.empty(rows)
     Q = np.empty((rows, n))
     U = np.empty((rows, n))

@@ -19,7 +19,7 @@ functional entry points.
 
 Failure convention (docs/design.md §5.1): bad arguments or a foreign FMU raise
 a ValueError before any instance is created; an exchange known to be unstable
-(:func:`fmu_sync.core.network.held_exchange`) or instances with different
+(the run plan, :func:`fmu_sync.core.plan.plan_run`) or instances with different
 impact geometries (M, w, g0, e) raise a ValueError before the first step; a
 slave that fails mid-run raises :class:`SlaveError` and a run whose states or
 distances become non-finite raises :class:`fmu_sync.core.SimulationDiverged`
@@ -36,14 +36,15 @@ from pathlib import Path
 
 import numpy as np
 
-from .core.checks import check_record_size, check_run, check_stable, check_start, check_step, record_rows
+from .core.checks import check_record_size, check_run, check_step, record_rows
 from .core.coupling import chain_work, law_metric, metric_info
 from .core.distance import geometry
 from .core.errors import RunFailed, SimulationDiverged, UnstableScheme
 from .core.exchange import exchange_limit
-from .core.model import MechanicalSystem, as_state
-from .core.network import edge_arrays, edge_laws, edges_of, held_exchange, weights
-from .core.pair import LAWS, check_common_geometry
+from .core.model import MechanicalSystem
+from .core.network import edge_arrays, edge_laws, edges_of, weights
+from .core.pair import LAWS
+from .core.plan import RunPlan, plan_run
 from .core.result import NetworkResult, PairResult
 from .fmi3_bridge import element_names, open_host
 from .fmus import contract
@@ -210,9 +211,10 @@ class NetworkMaster:
         self.check_fmi_version()
         self.model = fmu_model(self.md)  # a foreign FMU fails here, naming what it lacks
         self.hold = check_hold(hold, self.md, self.fmu)
-        check_record_size(record_rows(n_steps, record_every), 1 + 3 * N * self.model.n + 3 * len(self.edges),
-                          "the record of the co-simulation")   # before any instance or array exists
-        self.H, self.n_steps, self.record_every, self.grid = H, n_steps, record_every, grid
+        self.record_values = 1 + 3 * N * self.model.n + 3 * len(self.edges)
+        check_record_size(record_rows(n_steps, record_every), self.record_values,
+                          "the record of the co-simulation")   # the plan's step 6, before any instance exists
+        self.H, self.n_steps, self.record_every, self.grid, self.t_end = H, n_steps, record_every, grid, t_end
         self.coupling = coupling
         self.allow_unstable = bool(allow_unstable)
         self.limit = None
@@ -239,22 +241,18 @@ class NetworkMaster:
         for s, sv in zip(self.slaves, self.start_values):
             s.enter_initialization(0.0)   # FMI 2.0: variables are readable from initialization mode on
             s.set(sv)
-        check_schemes(self.hold, [contract.scheme_name(s.get_integer(contract.SOLVER_SCHEME)) for s in self.slaves])
-        systems = [system_from_fmu(s, model) for s in self.slaves]
-        check_common_geometry(systems, [f"instance {i + 1}" for i in range(N)])
-        self.system = system = systems[0]
-        if not self.allow_unstable:
-            self._check_internal_steps()
-        for i, (s, x) in enumerate(zip(self.slaves, self.states)):
-            label = f"x{i + 1}"
-            q0, u0 = as_state(system, x, label)
-            check_start(system, q0, label)
+        schemes = [contract.scheme_name(s.get_integer(contract.SOLVER_SCHEME)) for s in self.slaves]
+        check_schemes(self.hold, schemes)
+        names = [v.name for v in model.declare() if v.causality == "parameter" and v.type == "Real"]
+        values = [dict(zip(names, s.get(names))) for s in self.slaves]   # what each instance runs with
+        plan = self.plan(values, schemes)   # every check of the run, once (docs/design.md §5.1.1)
+        self.system = system = system_from_fmu(self.slaves[0], model)
+        for s, q0, u0 in zip(self.slaves, plan.q, plan.u):
             s.exit_initialization(model.state_values(q0, u0))
         n = model.n
-        self.check_held_exchange(system)   # Kp_m, Kd_m, A_coupled, limit (the core's one check)
-        names = [v.name for v in model.declare() if v.causality == "parameter" and v.type == "Real"]
-        self.metric = law_metric(self.Q, [model.system(dict(zip(names, s.get(names)))).K for s in self.slaves],
-                                 self.Kp_m, self.A_coupled if self.coupled else None, coupled=self.coupled)
+        self.Kp_m, self.Kd_m, self.A_coupled, self.limit = plan.Kp, plan.Kd, plan.A_coupled, plan.limit
+        self.metric = law_metric(self.Q, [s.K for s in plan.systems], self.Kp_m,
+                                 self.A_coupled if self.coupled else None, coupled=self.coupled)
         self.geo = geometry(system, self.metric.Q)
         E, rows = len(self.edges), record_rows(self.n_steps, self.record_every)
         self.T = np.full(rows, np.nan)
@@ -262,25 +260,23 @@ class NetworkMaster:
         self.D, self.EU = np.full((rows, E), np.nan), np.full((rows, E), np.nan)
         self.BR = np.full((rows, E), -1, dtype=np.int64)
 
-    def check_held_exchange(self, system: MechanicalSystem) -> None:
-        """Before the first step: the held exchange is stable at H for the hold in use (the core's one check)."""
-        self.Kp_m, self.Kd_m, self.A_coupled, self.limit = held_exchange(
-            system.M, self.Kp, self.Kd, self.H, self.A, self.laws, self.hold, self.allow_unstable)
-
-    def _check_internal_steps(self) -> None:
-        """Before the first step: each instance's own scheme limit (the explicit midpoint needs
-        omega_max*dt < 2 for its internal step dt), from its parameter values, with the core's check."""
-        names = [v.name for v in self.model.declare() if v.causality == "parameter" and v.type == "Real"]
-        for i, s in enumerate(self.slaves):
-            values = dict(zip(names, s.get(names)))
-            scheme = contract.scheme_name(s.get_integer(contract.SOLVER_SCHEME))
-            if scheme is None:
-                continue
-            try:
-                check_stable(self.model.system(values), scheme, values[contract.SOLVER_DT])
-            except UnstableScheme as exc:
-                raise UnstableScheme(f"refused before the first step: instance {i + 1}: {exc} "
-                                         f"(allow_unstable=True runs anyway)") from None
+    def plan(self, values: list, schemes: list) -> RunPlan:
+        """The run plan (:func:`fmu_sync.core.plan.plan_run`) of this co-simulation from what the
+        instances report: ``values``, each instance's Real parameters (its system, its internal
+        step ``solver.dt``), ``schemes``, each one's scheme name: the common geometry, each
+        instance's scheme limit, the start states, the held exchange at H for the hold in use,
+        the record. The scene preflight makes the same plan from the scene's values."""
+        N = self.N
+        systems = [self.model.system(v) for v in values]
+        try:
+            return plan_run(systems, self.states, self.t_end, self.H, scheme=schemes,
+                            dt=[v[contract.SOLVER_DT] for v in values], hold=self.hold, A=self.A, laws=self.laws,
+                            Kp=self.Kp, Kd=self.Kd, record_every=self.record_every, step_name="H", exact=True,
+                            allow_unstable=self.allow_unstable, record_values=self.record_values,
+                            record_what="the record of the co-simulation",
+                            system_names=[f"instance {i + 1}" for i in range(N)])
+        except UnstableScheme as exc:
+            raise UnstableScheme(f"refused before the first step: {exc} (allow_unstable=True runs anyway)") from None
 
     def result(self, rows: int, impacts: list, error: str | None) -> NetworkResult:
         sl, need_d, A = slice(0, rows), self.need_d, self.A
@@ -448,7 +444,7 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
     ``start_values``: one dict of parameter start values for every instance, or
     a sequence of N dicts (or None), one per instance (non-identical systems:
     K, C, f0, forcing may differ; M, w, g0 and e must not).
-    Before the first step, the held exchange over ``H`` (:func:`fmu_sync.core.network.held_exchange`,
+    Before the first step (the run plan, :func:`fmu_sync.core.plan.plan_run`), the held exchange over ``H`` (
     ``UnstableExchange``) and each instance's internal midpoint step (omega_max*dt < 2,
     ``UnstableScheme``) are checked; both are ValueErrors, skipped with ``allow_unstable``.
     """

@@ -24,8 +24,7 @@ import math
 
 import numpy as np
 
-from ..core.checks import check_stable, check_step, scheme_code
-from ..core.errors import UnstableScheme
+from ..core.plan import plan_run
 from ._xml import generation_tool, model_description, model_description3, model_guid
 from .contract import INPUT_BOUND, SCHEME_ITEMS, STATE_BOUND, Var
 
@@ -202,28 +201,23 @@ class MechanicalSlave:
     def configure(cls, p: dict) -> Configuration:
         """Validate a complete parameter set; raises ValueError naming what is wrong."""
         system = cls.build_system(p)
-        dt = check_step(p["solver.dt"], "solver.dt")
         scheme_name = _SCHEME_BY_VALUE.get(p["solver.scheme"])
         if scheme_name is None:
             raise ValueError(f"solver.scheme must be one of {sorted(_SCHEME_BY_VALUE)}, got {p['solver.scheme']!r}")
+        if scheme_name == "exact" and cls.N != 1:
+            raise ValueError(f"solver.scheme = exact is offered by the 1-DOF model only (the exact "
+                             f"communication step of the core, core.exact.exact_step); this model has "
+                             f"{cls.N} degrees of freedom: use midpoint or theta")
+        # the run plan's single-system part (docs/design.md §5.1.1): the step, the scheme and its
+        # limit (UnstableScheme), the start state (InadmissibleState); no end time, no record
+        plan = plan_run(system, [cls.start_state(p)], None, p["solver.dt"], scheme=scheme_name,
+                        theta=p["solver.theta"], exact=True, step_name="solver.dt", state_names=["q_start"])
         if scheme_name == "exact":
-            if cls.N != 1:
-                raise ValueError(f"solver.scheme = exact is offered by the 1-DOF model only (the exact "
-                                 f"communication step of the core, core.exact.exact_step); this model has "
-                                 f"{cls.N} degrees of freedom: use midpoint or theta")
             from .stepper import EXACT
             code, theta = EXACT, float(p["solver.theta"])
         else:
-            code, theta = scheme_code(scheme_name, p["solver.theta"])
-            try:
-                check_stable(system, scheme_name, dt)
-            except UnstableScheme as exc:  # known before the run: a configuration error
-                raise ValueError(str(exc)) from None
-        q0, u0 = cls.start_state(p)
-        g = system.gap(q0)
-        if not g >= 0.0:
-            raise ValueError(f"initial state violates the constraint: g(q_start) = {g:.6g} < 0 "
-                             f"(need g(q_start) >= 0)")
+            code, theta = plan.code, plan.theta
+        dt, q0, u0 = plan.dt, plan.q[0], plan.u[0]
         return Configuration(system, dt, scheme_name, int(code), float(theta), q0, u0)
 
     @staticmethod

@@ -647,7 +647,7 @@ def test_parameter_out_of_bounds(runs, case, words):
 
 
 @pytest.mark.parametrize("case, words", [
-    ("gap", ["g(q_start)", "< 0"]), ("asymmetric", ["symmetric"]), ("not_pd", ["positive definite"]),
+    ("gap", ["q_start violates the constraint: g(q)", "< 0"]), ("asymmetric", ["symmetric"]), ("not_pd", ["positive definite"]),
     ("w_zero", ["nonzero"]),
 ])
 def test_invalid_model_is_refused(runs, case, words):

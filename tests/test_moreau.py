@@ -228,7 +228,7 @@ def test_two_dof_oblique_wall_energy_and_admissibility():
 
 # ---------------------------------------------------------------- bad input
 @pytest.mark.parametrize("kwargs, match", [
-    (dict(x0=(-0.1, 0.0)), r"g\(q0\) = -0.1 < 0"),
+    (dict(x0=(-0.1, 0.0)), r"x0 violates the constraint: g\(q\) = -0.1 < 0"),
     (dict(dt=0.0), r"dt must be a positive finite step, got 0.0"),
     (dict(dt=-1e-3), r"dt must be a positive finite step, got -0.001"),
     (dict(dt=float("nan")), r"dt must be a positive finite step, got nan"),

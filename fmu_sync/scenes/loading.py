@@ -9,7 +9,8 @@ from typing import Any
 
 import numpy as np
 
-from ..core import ImpactOscillator, MechanicalSystem
+from ..core import ImpactOscillator, InadmissibleState, MechanicalSystem
+from ..core.checks import check_start
 from ..fmus import contract
 from . import SCENE_DIR, builtin_names
 from .schema import (DISTANCE_PLOTS, KEYS, MODELS, NAME_RE, NETWORK_PLOTS, PLOTS, REQUIRED, SINGLE_PLOTS,
@@ -329,9 +330,10 @@ def _build_variant(name: str, description: str, cfg: dict, where: dict, ctx: str
             fail(key, v, f"has {len(v[0])} entries per q and u, the system has n = {n}",
                  "[q, u]" if n == 1 else f"[[{n} positions], [{n} velocities]]")
         q, u = np.array(v[0]), np.array(v[1])
-        g = system.gap(q)
-        if g < 0:
-            fail(key, v, f"violates the wall: g(q) = {g:.6g} < 0", "states with g(q) >= 0")
+        try:   # the run plan's start check (docs/design.md §5.1.1), named as a scene key
+            check_start(system, q, key)
+        except InadmissibleState as exc:
+            fail(key, v, f"violates the wall: {exc}", "states with g(q) >= 0")
         return (float(q[0]), float(u[0])) if n == 1 else (q, u)
 
     def square(key, v):

@@ -8,13 +8,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-from ..core import RunFailed, SimulationDiverged, UnstableScheme, simulate
+from ..core import RunFailed, RunRefused, SimulationDiverged, UnstableExchange, UnstableScheme, simulate
 from ..fmus import contract
 from ..progress import scaled
 from .loading import Scene, as_scene
 from .schema import DEFAULT_OUT, TABLES, SceneError, Variant
 
-__all__ = ["RunRecord", "SceneRun", "RunRefused", "RunInterrupted", "preflight", "run_scene", "run_variant",
+__all__ = ["RunRecord", "SceneRun", "RunRefused", "RunInterrupted", "preflight", "plan_variant", "run_scene", "run_variant",
            "fmu_start_values", "export_for", "write_run", "run_extra", "error_notes", "skipped_notes", "settings_table"]
 
 
@@ -81,44 +81,54 @@ def export_for(variant: Variant, out_dir) -> Path:
     return Path(export_fmu(model, Path(out_dir) / f"{model.replace('-', '_')}.fmu", None))
 
 
-class RunRefused(ValueError):
-    """A variant refused before its first step (a step known to be unstable)."""
-
-
 def _label(variant: Variant, scene_name: str = "") -> str:
     return f"scene {scene_name!r}, variant {variant.name!r}" if scene_name else f"variant {variant.name!r}"
 
 
-def preflight(variant: Variant, scene_name: str = "") -> None:
-    """Refuse, before anything runs or is written, a variant whose step is known to be
-    unstable: the midpoint scheme at omega_max*dt >= 2 (``UnstableScheme``), and the held
-    coupling exchange beyond its limit for the hold in use (``UnstableExchange``; in
-    co-simulation at run.H with run.hold, in the core at solver.dt with the zero-order
-    hold), unless ``run.allow_unstable``. Both are the very checks the core and the master
-    make (:func:`fmu_sync.core.checks.check_stable`, :func:`fmu_sync.core.network.held_exchange`).
-    Raises :class:`RunRefused`."""
-    from ..core.checks import check_stable
-    from ..core.exchange import UnstableExchange
-    from ..core.network import edge_laws, edges_of, held_exchange
+def plan_variant(variant: Variant):
+    """The run plan (:func:`fmu_sync.core.plan.plan_run`, docs/design.md §5.1.1) of the run the
+    variant makes: its systems, start states, grid and scheme, and (coupled) its exchange: in
+    co-simulation at ``run.H`` with ``run.hold`` (the slaves' internal step ``solver.dt``), in
+    the core at ``solver.dt`` with the zero-order hold. ``run.allow_unstable`` skips the limits
+    as the drivers do (a single system has no such switch). Raises the plan's typed refusals."""
+    from ..core.network import edge_laws, edges_of
+    from ..core.plan import plan_run
     cfg = variant.cfg
+    cosim = variant.pair and variant.mode == "cosim"
+    common = dict(scheme=cfg["solver.scheme"], theta=cfg["solver.theta"], record_every=cfg["run.record_every"])
+    if not variant.pair:
+        return plan_run(variant.system, [variant.x1], cfg["run.t_end"], cfg["solver.dt"], exact=True, **common)
+    if variant.is_network:
+        spec = variant.network
+        systems, states, A = list(spec.systems), list(spec.states), spec.A
+        laws = edge_laws(_laws_arg(variant), edges_of(A))
+    else:
+        systems, states, A = variant.system, [variant.x1, variant.x2], None
+        laws = edge_laws(_coupling_arg(variant.law), [(0, 1)])
+    if cosim:   # the master's plan: the exchange at H, each instance's scheme at its internal step
+        return plan_run(systems, states, cfg["run.t_end"], cfg["run.H"], dt=cfg["solver.dt"], hold=cfg["run.hold"],
+                        A=A, laws=laws, Kp=variant.Kp, Kd=variant.Kd, step_name="H", exact=True,
+                        allow_unstable=bool(cfg["run.allow_unstable"]), **common)
+    return plan_run(systems, states, cfg["run.t_end"], cfg["solver.dt"], A=A, laws=laws, Kp=variant.Kp, Kd=variant.Kd,
+                    allow_unstable=bool(cfg["run.allow_unstable"]),
+                    system_names=[f"node {i + 1}" for i in range(len(states))] if variant.is_network else None,
+                    **common)
+
+
+def preflight(variant: Variant, scene_name: str = ""):
+    """Refuse, before anything runs or is written, a variant that its driver would refuse: the
+    run plan of :func:`plan_variant` (the core's and the master's one plan, so the two cannot
+    disagree). A refusal keeps its type (:class:`~fmu_sync.core.errors.RunRefused`: ``UnstableScheme``,
+    ``UnstableExchange``, ``InadmissibleState``, ...), its message prefixed with the scene and
+    variant. Returns the plan."""
     label = _label(variant, scene_name)
     try:
-        check_stable(variant.system, cfg["solver.scheme"], cfg["solver.dt"])
-    except UnstableScheme as exc:
-        raise RunRefused(f"{label}: refused before the first step: {exc}") from None
-    if not variant.pair or cfg["run.allow_unstable"]:
-        return
-    cosim = variant.mode == "cosim"
-    A, laws = None, edge_laws(_coupling_arg(variant.law), [(0, 1)])
-    if variant.is_network:
-        A = variant.network.A
-        laws = edge_laws(_laws_arg(variant), edges_of(A))
-    try:
-        held_exchange(variant.system.M, variant.Kp, variant.Kd, cfg["run.H"] if cosim else cfg["solver.dt"], A,
-                      laws, hold=cfg["run.hold"] if cosim else "zoh", step_name="H" if cosim else "dt")
-    except UnstableExchange as exc:
-        raise RunRefused(f"{label}: {exc} From the command line: --allow-unstable (or --set "
-                         f"run.allow_unstable=true).") from None
+        return plan_variant(variant)
+    except RunRefused as exc:
+        hint = (" From the command line: --allow-unstable (or --set run.allow_unstable=true)."
+                if isinstance(exc, (UnstableExchange, UnstableScheme)) and variant.pair else "")
+        said = isinstance(exc, UnstableExchange)   # its message says "refused before the first step"
+        raise type(exc)(f"{label}: {'' if said else 'refused before the first step: '}{exc}{hint}") from None
 
 
 def run_variant(variant: Variant, fmu_path=None, progress: Callable | None = None, scene_name: str = "",
@@ -165,11 +175,11 @@ def run_variant(variant: Variant, fmu_path=None, progress: Callable | None = Non
             raise RunFailed(result.error, partial=result)
         return result
     except RunFailed as exc:
-        if str(exc).startswith(label):
+        if getattr(exc, "variant_label", None) == label:   # named already (by attribute, not by its text)
             raise
         cls = SimulationDiverged if isinstance(exc, SimulationDiverged) else RunFailed
         err = cls(f"{label}: {exc}")
-        err.partial = exc.partial
+        err.partial, err.variant_label = exc.partial, label
         raise err from None
 
 

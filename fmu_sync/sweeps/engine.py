@@ -244,7 +244,7 @@ def prepare(scene, runs: list[dict], variant_name: str | None) -> Prepared:
         a["qw"][i] = _run_metric(v, rows[group2[i]], kp)
         a["every"][i] = cfg["run.record_every"]
         out[i, COL["exchange_stable"]] = _exchange_stable(v, kp, kd, dt, cache)
-        why = _refusal(v, rows[group2[i]], q1, q2, dt)
+        why = _refusal(v, rows[group2[i]], (q1, u1), (q2, u2), t_end, dt, theta)
         if not why and not math.isfinite(a["qw"][i]) and v.law not in (None, "none"):
             why = f"no energy metric: k + 2 Kp = {v.system.K[0, 0] + 2 * kp:.6g} is not > 0 (set coupling.Q)"
         if why:
@@ -267,28 +267,31 @@ def _run_metric(v, system2, kp) -> float:
         return float("nan")
 
 
-def _refusal(v, system2, q1, q2, dt) -> str:
-    """Why a run cannot start (the checks of simulate_pair), or ''."""
-    from ..core.checks import check_stable, check_start
-    try:   # the core's own checks (start states, the scheme's limit), as simulate_pair makes them
-        for name, q, s in (("x1", q1, v.system), ("x2", q2, system2)):
-            check_start(s, [q], name)
-        for s in (v.system, system2):
-            check_stable(s, v.cfg["solver.scheme"], dt)
+def _refusal(v, system2, x1, x2, t_end, dt, theta) -> str:
+    """Why a run cannot start, or '': the run plan of simulate_pair (:func:`fmu_sync.core.plan.plan_run`:
+    systems, grid, scheme and its limit, start states); the exchange is not refused (the sweep runs
+    it either way, :func:`_exchange_stable` records its verdict)."""
+    from ..core.coupling import UNCOUPLED
+    from ..core.plan import plan_run
+    try:
+        plan_run((v.system, system2), (x1, x2), t_end, dt, scheme=v.cfg["solver.scheme"], theta=theta,
+                 laws=[UNCOUPLED])
     except ValueError as exc:
         return str(exc)
     return ""
 
 
 def _exchange_stable(v, kp, kd, dt, cache) -> float:
-    """1.0 if the held coupling is stable at this step (the core's own check), else 0.0.
-    The sweep runs either way (as ``simulate_pair(..., allow_unstable=True)``)."""
-    from ..core.exchange import exchange_limit
+    """1.0 if the held coupling is stable at this step (the run plan's exchange check,
+    :func:`fmu_sync.core.plan.held_exchange`), else 0.0. The sweep runs either way
+    (as ``simulate_pair(..., allow_unstable=True)``)."""
+    from ..core.plan import held_exchange
     if v.law == "none":
         return 1.0
     key = (float(v.system.M[0, 0]), kp, kd, dt)
     if key not in cache:
-        cache[key] = 1.0 if exchange_limit(v.system.M, kp, kd, dt, step_name="dt").stable else 0.0
+        lim = held_exchange(v.system.M, kp, kd, dt, allow_unstable=True, step_name="dt")[3]
+        cache[key] = 1.0 if lim.stable else 0.0
     return cache[key]
 
 
@@ -398,8 +401,7 @@ def _fmu_for(variant):
 
 
 def _one_python_run(path, overrides, vname, threshold):
-    from ..core import RunFailed
-    from ..core.exchange import UnstableExchange
+    from ..core import RunFailed, RunRefused, UnstableExchange
     from ..scenes.loading import load_scene
     from ..scenes.running import run_variant
     from ..scenes.schema import SceneError
@@ -412,9 +414,10 @@ def _one_python_run(path, overrides, vname, threshold):
     reason = ""
     try:
         res = run_variant(v, _fmu_for(v) if v.mode == "cosim" else None)
-    except UnstableExchange as exc:   # refused up front by the core's / master's check
+    except RunRefused as exc:   # refused up front by the run plan (core or master)
         row[COL["status"]], row[COL["steps"]], row[COL["t_stop"]] = REFUSED, 0, 0.0
-        row[COL["exchange_stable"]] = 0.0
+        if isinstance(exc, UnstableExchange):
+            row[COL["exchange_stable"]] = 0.0
         return row, str(exc)
     except RunFailed as exc:
         res = getattr(exc, "partial", None)
