@@ -41,7 +41,7 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 
 from . import exact_nd
-from .checks import check_record_size, check_run, record_rows, record_times
+from .checks import check_record_size, check_run, check_start, record_rows, record_times
 from .exact_flow import flow_model
 from .exact_run import CONTACT, IMPACT_EV, ZENO_EV, run_events, sample
 from .exact_step import STEP_NO_PROGRESS, STEP_OK, STEP_TOO_MANY_EVENTS, exact_model, exact_step, exact_step_early
@@ -195,9 +195,7 @@ def _solve(system, x0, t_end, tau, t0, taudot, t_c, max_events, zeno_ttol, zeno_
     tau = _inputs(system, "tau", tau)
     taudot = _inputs(system, "taudot", taudot)
     q0, u0 = as_state(system, x0)
-    g = system.gap(q0)
-    if g < 0.0:
-        raise ValueError(f"initial state violates the constraint: g(q0) = {g:.6g} < 0 (need g(q0) >= 0)")
+    check_start(system, q0, "x0")   # the run plan's start check (no step grid here)
     if system.n == 1 and (taudot is None or not np.any(taudot)):
         max_events = MAX_EVENTS_1 if max_events is None else int(max_events)
         cutoff_vtol = CUTOFF_VTOL if cutoff_vtol is None else cutoff_vtol

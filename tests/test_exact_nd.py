@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fmu_sync.core import MechanicalSystem, simulate
+from fmu_sync.core import InadmissibleState, MechanicalSystem, simulate
 from fmu_sync.core import exact_events, simulate_exact
 
 from _nd_reference import reference
@@ -125,7 +125,7 @@ def test_linear_input_matches_reference():
 
 def test_bad_input():
     s = two_dof()
-    with pytest.raises(ValueError, match=r"g\(q0\)"):
+    with pytest.raises(InadmissibleState, match=r"x0 violates the constraint: g\(q\)"):
         simulate_exact(s, ([-1.0, 0.0], [0, 0]), 1.0, 1e-2)
     with pytest.raises(ValueError, match="tau must be 2 finite numbers"):
         simulate_exact(s, X0, 1.0, 1e-2, tau=[1.0])

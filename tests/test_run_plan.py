@@ -141,9 +141,9 @@ def test_no_second_copy_of_a_run_check():
         # other rules: the impact map's domain (on the wall), the gap output, an FMU state's penetration bound
         "core/impact.py": {"gap"}, "fmus/runtime.py": {"gap"}, "fmus/slave.py": {"gap"},
         "core/exchange.py": set(),
-        # the exact solvers' own entries (exact_events*, simulate_exact*): their grid and record, and
-        # exact_events*'s start check (left to the split of core/exact.py, issue 17 item 6)
-        "core/exact.py": {"check_run"}, "core/exact_nd.py": {"check_run", "gap"},
+        # the exact solvers' one entry (exact_events has no step grid, so no plan): the plan's own
+        # start check, and simulate_exact's grid and record
+        "core/exact.py": {"check_run", "check_start"},
         "core/model.py": {"gap"},
         # the master refuses a record too large before any instance exists (the plan's step 6)
         "fmu_sync/master.py": {"check_run"},
