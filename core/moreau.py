@@ -25,16 +25,18 @@ dependency chain from one step's state to the next: 6 dependent operations per
 step, which is what bounds a long run's speed once the forcing costs nothing
 (and a single rounding at the magnitude of q per step).
 
-Two loops use them, so that the monolithic simulation and the FMU slave run the
-very same arithmetic:
+The loops over these steps (docs/design.md §2.3, "one loop per scheme"):
 
-* :func:`integrate` — ``n_steps`` fixed steps, recording every ``record_every``;
+* :func:`integrate` — one system, ``n_steps`` fixed steps, recording every
+  ``record_every`` (its 1-DOF twin :func:`integrate1` on floats, bit for bit);
 * :func:`advance` — one communication step ``H`` made of internal steps ``dt``,
-  the last one adjusted to land exactly on ``t + H`` (one call per FMU doStep).
+  the last one adjusted to land exactly on ``t + H`` (one call per FMU doStep),
+  so that the monolithic simulation and the FMU slave run the very same arithmetic;
+* coupled systems (pair, network, sweeps): :func:`fmu_sync.core.loop.integrate_network`.
 
-Harmonic forcing: a cos per step and term (the *cos path*) or a rotation
-recurrence re-synchronised exactly every :data:`PHASOR_SYNC` steps (the
-*phasor path*, within 1e-13 of the cos path; see below).
+Harmonic forcing (:mod:`.harmonic`): a cos per step and term (the *cos path*) or
+a rotation recurrence re-synchronised exactly every :data:`PHASOR_SYNC` steps (the
+*phasor path*, within 1e-13 of the cos path).
 
 Everything is nopython and ``cache=True``; the loops allocate nothing per step.
 """
@@ -44,6 +46,9 @@ import math
 
 import numpy as np
 from numba import njit
+
+from .harmonic import (PHASOR_SYNC, hsum1_cos, hsum1_ph, hsum_cos, hsum_ph, ph_rot, ph_sync,  # noqa: F401 (the loops)
+                       harmonic_table, harmonic_workspace)
 
 MIDPOINT = 0
 THETA = 1
@@ -57,135 +62,6 @@ DIVERGED = 1
 #: otherwise drift into subnormal numbers, which slow arithmetic ~20x; 1e-280 is
 #: hundreds of decades below any physical velocity or position.
 FLUSH = 1e-280
-
-
-# ----------------------------------------------------------------------------
-# Harmonic forcing: cos path and phasor path.
-#
-# The cos path evaluates cos(Omega_j tf + phi_j) at every step's force time tf.
-# The phasor path carries (c, s) = (cos, sin)(Omega_j tf + phi_j) from step to
-# step by the rotation (c, s) <- (c cr - s sr, s cr + c sr), (cr, sr) =
-# (cos, sin)(Omega_j dt), and re-synchronises it exactly -- to the very cos/sin
-# values the cos path computes -- every PHASOR_SYNC steps (and at every block
-# start). One rotation step adds at most ~4 eps of error (two rounded products
-# and a rounded sum per component, |c|, |s| <= 1, plus the rounding of cr, sr),
-# so the drift from the exact harmonic stays below 4 PHASOR_SYNC eps = 5.7e-14
-# < 1e-13 between re-synchronisations; the cos path itself carries the rounding
-# of its argument, ~eps |Omega t + phi| (2.7e-14 at Omega t = 240).
-# ----------------------------------------------------------------------------
-
-#: steps between exact re-synchronisations of the phasor (4 N eps <= 1e-13)
-PHASOR_SYNC = 64
-assert 4 * PHASOR_SYNC * 2.220446049250313e-16 < 1e-13
-
-
-@njit(cache=True, inline="always")
-def _hsum_cos(F, Omega, phi, tf, hf):
-    """hf = sum_j F_j cos(Omega_j tf + phi_j) (the cos path), summed in term order."""
-    n = hf.shape[0]
-    if Omega.shape[0] == 0:
-        for i in range(n):
-            hf[i] = 0.0
-        return
-    c = math.cos(Omega[0] * tf + phi[0])
-    for i in range(n):
-        hf[i] = F[0, i] * c
-    for j in range(1, Omega.shape[0]):
-        c = math.cos(Omega[j] * tf + phi[j])
-        for i in range(n):
-            hf[i] += F[j, i] * c
-
-
-@njit(cache=True, inline="always")
-def _hsum1_cos(F, Omega, phi, tf):
-    """:func:`_hsum_cos` for n = 1 (same operation order)."""
-    if Omega.shape[0] == 0:
-        return 0.0
-    fc = F[0, 0] * math.cos(Omega[0] * tf + phi[0])
-    for j in range(1, Omega.shape[0]):
-        fc += F[j, 0] * math.cos(Omega[j] * tf + phi[j])
-    return fc
-
-
-@njit(cache=True, inline="always")
-def _ph_sync(Omega, phi, tf, cv, sv):
-    """Exact (re-)synchronisation of the phasor at force time tf: returns the first
-    term's (cos, sin) (kept in registers by the loops), the others go to cv, sv."""
-    for j in range(1, Omega.shape[0]):
-        x = Omega[j] * tf + phi[j]
-        cv[j] = math.cos(x)
-        sv[j] = math.sin(x)
-    x = Omega[0] * tf + phi[0]
-    return math.cos(x), math.sin(x)
-
-
-@njit(cache=True, inline="always")
-def _ph_rot(c0, s0, cr, sr, cv, sv):
-    """Advance the phasor by one step; returns the first term's (cos, sin)."""
-    for j in range(1, cv.shape[0]):
-        c = cv[j]
-        s = sv[j]
-        cv[j] = c * cr[j] - s * sr[j]
-        sv[j] = s * cr[j] + c * sr[j]
-    return c0 * cr[0] - s0 * sr[0], s0 * cr[0] + c0 * sr[0]
-
-
-@njit(cache=True, inline="always")
-def _hsum_ph(F, c0, cv, hf):
-    """hf = sum_j F_j c_j from the phasor (same operation order as :func:`_hsum_cos`)."""
-    n = hf.shape[0]
-    for i in range(n):
-        hf[i] = F[0, i] * c0
-    for j in range(1, cv.shape[0]):
-        c = cv[j]
-        for i in range(n):
-            hf[i] += F[j, i] * c
-
-
-@njit(cache=True, inline="always")
-def _hsum1_ph(F, c0, cv):
-    fc = F[0, 0] * c0
-    for j in range(1, cv.shape[0]):
-        fc += F[j, 0] * cv[j]
-    return fc
-
-
-@njit(cache=True)
-def harmonic_workspace(Omega, dt):
-    """(cv, sv, cr, sr): phasor state and the one-step rotation for step dt."""
-    nf = Omega.shape[0]
-    cr = np.empty(nf)
-    sr = np.empty(nf)
-    for j in range(nf):
-        cr[j] = math.cos(Omega[j] * dt)
-        sr[j] = math.sin(Omega[j] * dt)
-    return np.zeros(nf), np.zeros(nf), cr, sr
-
-
-@njit(cache=True)
-def harmonic_table(Omega, phi, t0, dt, a, n_steps, phasor):
-    """cos(Omega_j (t0 + k dt + a) + phi_j) for k < n_steps, rows k, as the loops
-    see them (cos path or phasor path): for tests of the phasor's drift."""
-    nf = Omega.shape[0]
-    out = np.empty((n_steps, nf))
-    cv, sv, cr, sr = harmonic_workspace(Omega, dt)
-    c0 = 0.0
-    s0 = 0.0
-    to_sync = 0
-    for k in range(n_steps):
-        if not phasor:
-            for j in range(nf):
-                out[k, j] = math.cos(Omega[j] * ((t0 + k * dt) + a) + phi[j])
-            continue
-        if to_sync == 0:
-            c0, s0 = _ph_sync(Omega, phi, (t0 + k * dt) + a, cv, sv)
-            to_sync = PHASOR_SYNC
-        out[k, 0] = c0
-        for j in range(1, nf):
-            out[k, j] = cv[j]
-        c0, s0 = _ph_rot(c0, s0, cr, sr, cv, sv)
-        to_sync -= 1
-    return out
 
 
 # ----------------------------------------------------------------------------
@@ -204,7 +80,7 @@ def _hbase(sa, tau, i):
 @njit(cache=True, inline="always")
 def _hc_cos(sa, tau, tf, hc):
     """hc = (f0 + B tau) + sum_j F_j cos(Omega_j tf + phi_j) (cos path, term order)."""
-    _hsum_cos(sa.F, sa.Omega, sa.phi, tf, hc)
+    hsum_cos(sa.F, sa.Omega, sa.phi, tf, hc)
     for i in range(hc.shape[0]):
         hc[i] = _hbase(sa, tau, i) + hc[i]
 
@@ -446,17 +322,17 @@ def integrate(sa, q, u, t0, dt, n_steps, tau, scheme, theta, record_every, T, Qr
     to_sync = 0
     while k < n_steps:
         if use_ph and to_sync == 0:
-            c0, s0 = _ph_sync(Omega, phi, (t0 + k * dt) + a, cv, sv)
+            c0, s0 = ph_sync(Omega, phi, (t0 + k * dt) + a, cv, sv)
             to_sync = PHASOR_SYNC
         m = min(to_rec, n_steps - k)
         if use_ph:
             m = min(m, to_sync)
         for i in range(k, k + m):
             if use_ph:
-                _hsum_ph(F, c0, cv, hf)
-                c0, s0 = _ph_rot(c0, s0, cr, sr, cv, sv)
+                hsum_ph(F, c0, cv, hf)
+                c0, s0 = ph_rot(c0, s0, cr, sr, cv, sv)
             else:
-                _hsum_cos(F, Omega, phi, (t0 + i * dt) + a, hf)
+                hsum_cos(F, Omega, phi, (t0 + i * dt) + a, hf)
             for j in range(n):
                 hc[j] = hb[j] + hf[j]
             P, g = step_h(sa, X, iw, WX, a, q, u, hc, dt, y, uf)
@@ -485,7 +361,7 @@ def integrate(sa, q, u, t0, dt, n_steps, tau, scheme, theta, record_every, T, Qr
             X, iw, WX, a = Sinv, Sinv_w, WS, theta * dt_last
         else:
             a = 0.5 * dt_last
-        _hsum_cos(F, Omega, phi, t + a, hf)
+        hsum_cos(F, Omega, phi, t + a, hf)
         for j in range(n):
             hc[j] = hb[j] + hf[j]
         P, g = step_h(sa, X, iw, WX, a, q, u, hc, dt_last, y, uf)
@@ -592,13 +468,13 @@ def advance_in(sa, q, u, t0, H, dt, tau, taudot, foh, scheme, theta, phasor,
             X, iw, WX, a = sa.Minv, sa.Minv_w, sa.W, 0.5 * hk
         if use_ph and hk == dt:
             if to_sync == 0:
-                c0, s0 = _ph_sync(Omega, phi, t + a, cv, sv)
+                c0, s0 = ph_sync(Omega, phi, t + a, cv, sv)
                 to_sync = PHASOR_SYNC
-            _hsum_ph(F, c0, cv, hf)
-            c0, s0 = _ph_rot(c0, s0, cr, sr, cv, sv)
+            hsum_ph(F, c0, cv, hf)
+            c0, s0 = ph_rot(c0, s0, cr, sr, cv, sv)
             to_sync -= 1
         else:                     # cos path (and a shortened last step of the phasor path)
-            _hsum_cos(F, Omega, phi, t + a, hf)
+            hsum_cos(F, Omega, phi, t + a, hf)
         if foh:
             for j in range(tau.shape[0]):
                 tk[j] = tau[j] + taudot[j] * ((t + a) - t0)
@@ -627,7 +503,7 @@ def advance_in(sa, q, u, t0, H, dt, tau, taudot, foh, scheme, theta, phasor,
 # ----------------------------------------------------------------------------
 
 @njit(cache=True, inline="always")
-def _flush1(x):
+def flush1(x):
     return 0.0 if abs(x) < FLUSH else x
 
 
@@ -671,31 +547,8 @@ def step1_h(c, q, u, hc, dt):
             P = -xi / WX
             uf += iw * P
             qn = qn + aiw * P
-        return _flush1(qn), _flush1(uf), P
+        return flush1(qn), flush1(uf), P
     return qn, uf, 0.0
-
-
-@njit(cache=True, inline="always")
-def midpoint_step1(p, F, Omega, phi, q, u, tau, t, dt):
-    """:func:`midpoint_step` on scalars (same operation order), flushing would-be
-    subnormals after every step. Returns (q, u, P)."""
-    a = 0.5 * dt
-    c = step_coeffs1(p, p[0], p[8], p[9], a, dt)
-    hc = (p[3] + p[4] * tau) + _hsum1_cos(F, Omega, phi, t + a)
-    q, u, P = step1_h(c, q, u, hc, dt)
-    return _flush1(q), _flush1(u), P
-
-
-@njit(cache=True, inline="always")
-def theta_step1(p, F, Omega, phi, Si, Si_w, WS, theta, q, u, tau, t, dt):
-    """:func:`theta_step` on scalars (same operation order), flushing would-be
-    subnormals after every step; ``Si = S^-1``, ``Si_w = S^-1 w``,
-    ``WS = w^T S^-1 w``. Returns (q, u, P)."""
-    a = theta * dt
-    c = step_coeffs1(p, Si, Si_w, WS, a, dt)
-    hc = (p[3] + p[4] * tau) + _hsum1_cos(F, Omega, phi, t + a)
-    q, u, P = step1_h(c, q, u, hc, dt)
-    return _flush1(q), _flush1(u), P
 
 
 @njit(cache=True)
@@ -744,7 +597,7 @@ def integrate1(sa, q_, u_, t0, dt, n_steps, tau_, scheme, theta, record_every, T
     to_sync = 0
     while k < n_steps:
         if use_ph and to_sync == 0:
-            c0, s0 = _ph_sync(Omega, phi, (t0 + k * dt) + a, cv, sv)
+            c0, s0 = ph_sync(Omega, phi, (t0 + k * dt) + a, cv, sv)
             to_sync = PHASOR_SYNC
         m = min(to_rec, n_steps - k)
         if use_ph:
@@ -763,20 +616,20 @@ def integrate1(sa, q_, u_, t0, dt, n_steps, tau_, scheme, theta, record_every, T
                     Psum += P
         elif use_ph:
             for i in range(m):
-                fc = _hsum1_ph(F, c0, cv)
-                c0, s0 = _ph_rot(c0, s0, cr, sr, cv, sv)
+                fc = hsum1_ph(F, c0, cv)
+                c0, s0 = ph_rot(c0, s0, cr, sr, cv, sv)
                 q, u, P = step1_h(c, q, u, hb + fc, dt)
                 Psum += P
         else:
             for i in range(k, k + m):
-                fc = _hsum1_cos(F, Omega, phi, (t0 + i * dt) + a)
+                fc = hsum1_cos(F, Omega, phi, (t0 + i * dt) + a)
                 q, u, P = step1_h(c, q, u, hb + fc, dt)
                 Psum += P
         k += m
         to_rec -= m
         to_sync -= m
-        q = _flush1(q)
-        u = _flush1(u)
+        q = flush1(q)
+        u = flush1(u)
         if not (math.isfinite(q) and math.isfinite(u)):
             q_[0] = q
             u_[0] = u
@@ -798,10 +651,10 @@ def integrate1(sa, q_, u_, t0, dt, n_steps, tau_, scheme, theta, record_every, T
         else:
             a = 0.5 * dt_last
             c = step_coeffs1(p, p[0], p[8], p[9], a, dt_last)
-        q, u, P = step1_h(c, q, u, hb + _hsum1_cos(F, Omega, phi, t + a), dt_last)
+        q, u, P = step1_h(c, q, u, hb + hsum1_cos(F, Omega, phi, t + a), dt_last)
         Psum += P
-        q = _flush1(q)
-        u = _flush1(u)
+        q = flush1(q)
+        u = flush1(u)
         q_[0] = q
         u_[0] = u
         if not (math.isfinite(q) and math.isfinite(u)):
