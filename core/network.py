@@ -26,7 +26,7 @@ from .checks import (check_record_size, check_run, check_stable, check_start, di
                      scheme_code)
 from .errors import SimulationDiverged
 from .loop import integrate_network, network_forces, no_decimator, node_force
-from .moreau import OK
+from .steps import OK
 from .pair import LAWS, stack_nodes, as_systems, check_common_geometry
 from .result import NetworkResult
 

@@ -18,7 +18,7 @@ from .distance import geometry
 from .exchange import check_exchange
 from .loop import coupling_step, integrate_network, no_decimator
 from .model import MechanicalSystem, as_state
-from .moreau import OK
+from .steps import OK
 from .result import PairResult
 from .checks import (check_record_size, check_run, check_stable, check_start, divergence_message, record_rows,
                      scheme_code)
