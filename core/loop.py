@@ -254,7 +254,7 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
     ek = np.full(E, np.nan)
     imp = np.zeros(N, dtype=np.int64)
     ep = np.zeros(N, dtype=np.int64)
-    inc = np.zeros(N, dtype=np.bool_)
+    last = np.full(N, -2, dtype=np.int64)   # the last step with a percussion, per node
     v_imp = 0.0
     tau_max = 0.0
     coupled = False
@@ -348,12 +348,10 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
                                qM, h, uf, ua)
             if P > 0.0:
                 imp[i] += 1
-                if not inc[i]:
+                if last[i] != k - 1:   # a new contact episode
                     ep[i] += 1
-                inc[i] = True
+                last[i] = k
                 v = abs(u0) * sqQ if scalar else p_norm_diff(geo.Q, geo.Q, zero, ua, zero, zero)
                 if v > v_imp:
                     v_imp = v
-            else:
-                inc[i] = False
     return OK, total, row, imp, ep, v_imp, tau_max
