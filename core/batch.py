@@ -6,10 +6,10 @@ run and no trajectory: every run keeps a fixed set of numbers (the columns
 ``COLUMNS``, written into one row of ``out``), so memory is O(1) per run
 whatever its length.
 
-Each run is the very loop of :func:`fmu_sync.core.pair.integrate_pair` on its
-1-DOF fast path (the same step functions, the same operation order, the same
-forces held over each step), so its final state, distances and impact counts
-equal a single :func:`~fmu_sync.core.pair.simulate_pair` run bit for bit
+Each run is the one loop of the core, :func:`fmu_sync.core.loop.integrate_network`,
+on the 2-node network (the loop :func:`~fmu_sync.core.pair.simulate_pair` runs, on
+its 1-DOF path) with the decimating recorder instead of a trajectory, so its final
+state, distances and impact counts equal a single ``simulate_pair`` run bit for bit
 (tests/test_sweep.py checks a sample of a gain map).
 
 Per run the loop samples ``d`` at the start of every ``every``-th step and at
@@ -31,11 +31,10 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from .coupling import SWITCHING, UNCOUPLED
-from .distance import ScalarGeometry
-from .metrics import HI, LO, TAIL, resolution_floor, decimated_kernel, decimator_init, decimator_push
-from .moreau import THETA, midpoint_step1, theta_step1
-from .pair import coupling_step1
+from .distance import DistanceGeometry, ScalarGeometry
+from .loop import integrate_network, sample_d
+from .metrics import HI, LO, TAIL, resolution_floor, decimated_kernel, decimator_init
+from .model import SystemArrays
 
 __all__ = ["run_pairs1", "COLUMNS", "COL", "OK", "DIVERGED", "REFUSED", "STATUS_NAMES", "group_row",
            "GROUP_FIELDS", "GEO_FIELDS", "empty_out",
@@ -103,18 +102,6 @@ def _geo(row, Q):
 RECORDER_SIZE = 1024
 
 
-@njit(cache=True, inline="always")
-def _sample(acc, bt, bd, st, t, d):
-    """One sample of d: running d0 / max here, the rest to the recorder."""
-    if acc[0] == 0.0:
-        acc[1] = d
-        acc[2] = d
-    elif d > acc[2]:
-        acc[2] = d
-    acc[0] += 1.0
-    decimator_push(bt, bd, st, t, d)
-
-
 @njit(cache=True)
 def _finish_metrics(acc, bt, bd, st, failed, res, floor=0.0):
     """d0, d_max, t_sync, decay rate and its error, t_fit, bound, sample count into ``res``."""
@@ -138,7 +125,7 @@ def metrics_from_records(t, d, tau1, tau2, n_ok, threshold, t_end, res):
     bt, bd, st = decimator_init(RECORDER_SIZE, threshold, (1.0 - TAIL) * t_end)
     tau_max = 0.0
     for i in range(n_ok):
-        _sample(acc, bt, bd, st, t[i], d[i])
+        sample_d(acc, bt, bd, st, t[i], d[i])
         for j in range(tau1.shape[1]):
             a = abs(tau1[i, j])
             if a > tau_max:
@@ -152,126 +139,76 @@ def metrics_from_records(t, d, tau1, tau2, n_ok, threshold, t_end, res):
 
 
 @njit(cache=True, inline="always")
-def _theta1(p, M, theta, dt):
-    """``theta_matrices`` for n = 1 (same operations): (S^-1, S^-1 w, w^T S^-1 w)."""
-    a = theta * dt
-    S = M + a * p[2] + a * a * p[1]
-    Si = 1.0 / S
-    s = 0.0
-    s += Si * p[5]
-    WS = 0.0
-    WS += p[5] * s
-    return Si, s, WS
+def _node1(i, s, Fi, Oi, pi, K, C, f0, F, Om, ph):
+    """Node i's forces from its group row ``s`` and forcing (as ``pair._nodes``, padding F = 0)."""
+    K[i, 0, 0] = s[2]
+    C[i, 0, 0] = s[3]
+    f0[i, 0] = s[4]
+    for j in range(Oi.shape[0]):
+        F[i, j, 0] = Fi[j]
+        Om[i, j] = Oi[j]
+        ph[i, j] = pi[j]
 
 
 @njit(cache=True)
-def _pair1(law, scheme, theta, p1, M1, F1, Omega1, phi1, p2, M2, F2, Omega2, phi2, sg, kp, kd,
+def _pair1(law, scheme, theta, s1, F1, Omega1, phi1, s2, F2, Omega2, phi2, sg, kp, kd,
            q1, u1, q2, u2, dt, n_steps, dt_last, every, threshold, res):
-    """One run of the ``integrate_pair`` 1-DOF loop (t0 = 0), metrics into ``res``:
-    ``n_steps`` steps of ``dt``, then (``dt_last > 0``) the shortened last step.
-    System 1 and 2 (``p*, M*, F*, Omega*, phi*``) may differ in K, C, f0 and forcing."""
-    Si1 = 0.0
-    Si_w1 = 0.0
-    WS1 = 0.0
-    Si2 = 0.0
-    Si_w2 = 0.0
-    WS2 = 0.0
-    if scheme == THETA:
-        Si1, Si_w1, WS1 = _theta1(p1, M1, theta, dt)
-        Si2, Si_w2, WS2 = _theta1(p2, M2, theta, dt)
-    tau1 = 0.0
-    tau2 = 0.0
-    d = np.nan
-    imp1 = 0
-    imp2 = 0
-    ep1 = 0
-    ep2 = 0
-    in1 = False
-    in2 = False
-    tau_max = 0.0
-    v_imp = 0.0  # largest impact speed (for the window's floor, metrics.resolution_floor)
+    """One run (t0 = 0), metrics into ``res``: the loop of :func:`.loop.integrate_network` on
+    the 2-node network with the decimating recorder, ``n_steps`` steps of ``dt``, then
+    (``dt_last > 0``) the shortened last step. ``s1, s2``: the systems' group rows
+    (:data:`GROUP_FIELDS`); they may differ in K, C, f0 and forcing."""
+    nf = max(Omega1.shape[0], Omega2.shape[0])
+    K = np.empty((2, 1, 1))
+    C = np.empty((2, 1, 1))
+    f0 = np.empty((2, 1))
+    F = np.zeros((2, nf, 1))
+    Om = np.zeros((2, nf))
+    ph = np.zeros((2, nf))
+    _node1(0, s1, F1, Omega1, phi1, K, C, f0, F, Om, ph)
+    _node1(1, s2, F2, Omega2, phi2, K, C, f0, F, Om, ph)
+    M = np.full((1, 1), s1[0])
+    w = np.full(1, s1[6])
+    Minv_w = np.full(1, s1[9])
+    base = SystemArrays(M, np.full((1, 1), s1[1]), K[0], C[0], f0[0], F[0], Om[0], ph[0], np.full((1, 1), s1[5]),
+                        w, s1[7], s1[8], Minv_w, s1[10])
+    geo = DistanceGeometry(np.full((1, 1), sg.Q11), M, w, sg.g0, sg.e, Minv_w, sg.W, np.full(1, sg.Qinv_w1), sg.WQ,
+                           sg.sqrtW, sg.sqrtWQ, sg)
+    q = np.empty((2, 1))
+    u = np.empty((2, 1))
+    q[0, 0] = q1
+    q[1, 0] = q2
+    u[0, 0] = u1
+    u[1, 0] = u2
+    T = np.empty(1)
+    Qr = np.empty((2, 1, 1)).transpose(1, 0, 2)   # the layout simulate_pair hands the loop
+    Ur = np.empty((2, 1, 1)).transpose(1, 0, 2)
+    TAU = np.empty((2, 1, 1)).transpose(1, 0, 2)
+    D = np.full((1, 1), np.nan)
+    EU = np.full((1, 1), np.nan)
+    BR = np.zeros((1, 1), dtype=np.int64)
     acc = np.zeros(3)
-    total = n_steps + 1 if dt_last > 0.0 else n_steps
     t_stop = n_steps * dt + dt_last if dt_last > 0.0 else n_steps * dt
     bt, bd, st = decimator_init(RECORDER_SIZE, threshold, (1.0 - TAIL) * t_stop)
-    status = OK
-    steps = total
-    countdown = 1
-    for k in range(total + 1):
-        is_row = False
-        countdown -= 1
-        if countdown == 0:
-            countdown = every
-            is_row = True
-        if k == total:
-            is_row = True
-        need_d = is_row
-        if law != UNCOUPLED or need_d:
-            tau1, tau2, d_, br, E = coupling_step1(law, sg, kp, kd, q1, u1, q2, u2, need_d)
-            if need_d or law == SWITCHING:
-                d = d_
-        t = 0.0 + k * dt if k <= n_steps else t_stop
-        if is_row:
-            if not (math.isfinite(q1) and math.isfinite(u1) and math.isfinite(q2) and math.isfinite(u2)
-                    and math.isfinite(d)):
-                status = DIVERGED
-                steps = k
-                break
-            _sample(acc, bt, bd, st, t, d)
-        if k == total:
-            break
-        a1 = abs(tau1)
-        if a1 > tau_max:
-            tau_max = a1
-        a2 = abs(tau2)
-        if a2 > tau_max:
-            tau_max = a2
-        ua = abs(u1)
-        ub = abs(u2)
-        hk = dt
-        if k == n_steps:   # the shortened last step
-            hk = dt_last
-            if scheme == THETA:
-                Si1, Si_w1, WS1 = _theta1(p1, M1, theta, hk)
-                Si2, Si_w2, WS2 = _theta1(p2, M2, theta, hk)
-        if scheme == THETA:
-            q1, u1, P1 = theta_step1(p1, F1, Omega1, phi1, Si1, Si_w1, WS1, theta, q1, u1, tau1, t, hk)
-            q2, u2, P2 = theta_step1(p2, F2, Omega2, phi2, Si2, Si_w2, WS2, theta, q2, u2, tau2, t, hk)
-        else:
-            q1, u1, P1 = midpoint_step1(p1, F1, Omega1, phi1, q1, u1, tau1, t, hk)
-            q2, u2, P2 = midpoint_step1(p2, F2, Omega2, phi2, q2, u2, tau2, t, hk)
-        if P1 > 0.0 and ua > v_imp:
-            v_imp = ua
-        if P2 > 0.0 and ub > v_imp:
-            v_imp = ub
-        if P1 > 0.0:
-            imp1 += 1
-            if not in1:
-                ep1 += 1
-            in1 = True
-        else:
-            in1 = False
-        if P2 > 0.0:
-            imp2 += 1
-            if not in2:
-                ep2 += 1
-            in2 = True
-        else:
-            in2 = False
+    E2 = np.zeros((1, 2), dtype=np.int64)   # the pair's edge (0, 1), weights 1 (pair.PAIR_EDGES)
+    E2[0, 1] = 1
+    status, steps, _, imp, ep, v_imp, tau_max = integrate_network(
+        base, K, C, f0, F, Om, ph, geo, np.full(1, law), E2, np.ones((1, 2)), np.full((1, 1), kp),
+        np.full((1, 1), kd), q, u, 0.0, 0, dt, n_steps, scheme, theta, every, True, T, Qr, Ur, TAU, D, BR, EU,
+        dt_last, True, acc, bt, bd, st)
     res[0] = status
     res[1] = steps
-    res[2] = t if status != OK else t_stop
-    res[3] = q1
-    res[4] = u1
-    res[5] = q2
-    res[6] = u2
-    res[COL_DFINAL] = d
+    res[2] = T[0] if status != OK else t_stop
+    res[3] = q[0, 0]
+    res[4] = u[0, 0]
+    res[5] = q[1, 0]
+    res[6] = u[1, 0]
+    res[COL_DFINAL] = D[0, 0]
     res[COL_TAUMAX] = tau_max
-    res[11] = imp1
-    res[12] = imp2
-    res[13] = ep1
-    res[14] = ep2
-    _finish_metrics(acc, bt, bd, st, status != OK, res, resolution_floor(dt, v_imp * math.sqrt(sg.Q11)))
+    res[11] = imp[0]
+    res[12] = imp[1]
+    res[13] = ep[0]
+    res[14] = ep[1]
+    _finish_metrics(acc, bt, bd, st, status != OK, res, resolution_floor(dt, v_imp))
 
 
 @njit(cache=True, parallel=True)
@@ -298,14 +235,10 @@ def run_pairs1(law, scheme, theta, sys_rows, geo_rows, F, Omega, phi, nf, group1
             continue
         g1 = group1[r]
         g2 = group2[r]
-        s1 = sys_rows[g1]
-        s2 = sys_rows[g2]
-        p1 = (s1[1], s1[2], s1[3], s1[4], s1[5], s1[6], s1[7], s1[8], s1[9], s1[10])
-        p2 = (s2[1], s2[2], s2[3], s2[4], s2[5], s2[6], s2[7], s2[8], s2[9], s2[10])
         m1 = nf[g1]
         m2 = nf[g2]
-        _pair1(law[r], scheme[r], theta[r], p1, s1[0], F[g1, :m1].reshape((m1, 1)), Omega[g1, :m1],
-               phi[g1, :m1], p2, s2[0], F[g2, :m2].reshape((m2, 1)), Omega[g2, :m2], phi[g2, :m2],
+        _pair1(law[r], scheme[r], theta[r], sys_rows[g1], F[g1, :m1], Omega[g1, :m1], phi[g1, :m1],
+               sys_rows[g2], F[g2, :m2], Omega[g2, :m2], phi[g2, :m2],
                _geo(geo_rows[g1], qw[r]), kp[r], kd[r], q1[r], u1[r], q2[r], u2[r], dt[r], n_steps[r], dt_last[r],
                every[r],
                threshold, out[r])

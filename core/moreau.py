@@ -1,41 +1,21 @@
-# long module: the Moreau step, its loops, the 1-DOF scalar path and the phasor: one compiled unit
-"""Moreau time-stepping (docs/design.md §2.3): compiled kernels.
+"""Moreau time-stepping (docs/design.md §2.3): the loops of one system.
 
-Two schemes share one step interface ``step(sa, q, u, tau, t, dt, work) -> P``
-that advances ``(q, u)`` in place over ``[t, t + dt]`` and returns the contact
-percussion ``P >= 0`` (N s) applied in that step:
+The step maps of both schemes (``MIDPOINT``, ``THETA``: :func:`~fmu_sync.core.steps.step_h`
+and its float twin ``step1_h``, bitwise equal) are in :mod:`.steps`, the harmonic forcing in
+:mod:`.harmonic`; both are re-exported here.
 
-* ``MIDPOINT`` — Moreau's midpoint scheme, explicit in the smooth forces;
-* ``THETA`` — Moreau–Jean θ-scheme, the linear part (K, C) implicit with the
-  iteration matrix ``S = M + θ dt C + θ² dt² K``, which also takes the place of
-  M in the (scalar, explicit) contact problem.
+The loops over these steps (docs/design.md §2.3, "one loop per scheme"):
 
-Both are one formula (:func:`step_h`) with ``a = θ dt`` (midpoint: θ = 1/2) and
-``X = M^-1`` (midpoint) or ``S^-1`` (theta)::
-
-    y   = hc - (K q0 + (C + a K) u0)          hc = f0 + B tau + sum_j F_j cos(Omega_j tf + phi_j)
-    u1  = u0 + (dt X) y + X w P               tf = t + a
-    q1  = q0 + (dt u0 + (a dt X) y) + a X w P
-    contact if g(q0 + dt/2 u0) <= 0; P = max(0, -(w^T u1free + e w^T u0)) / (w^T X w)
-
-(the midpoint scheme: ``qM = q0 + dt/2 u0``, ``u1 = u0 + dt M^-1 h(qM, u0, tf)``,
-``q1 = qM + dt/2 u1``; theta: ``S (u1 - u0) = dt h(q0 + θ dt u0, u0, tf) + w P``,
-``q1 = q0 + dt (θ u1 + (1 - θ) u0)``). The operation order keeps everything
-that does not depend on the state (hc, the coefficient products) off the
-dependency chain from one step's state to the next: 6 dependent operations per
-step, which is what bounds a long run's speed once the forcing costs nothing
-(and a single rounding at the magnitude of q per step).
-
-Two loops use them, so that the monolithic simulation and the FMU slave run the
-very same arithmetic:
-
-* :func:`integrate` — ``n_steps`` fixed steps, recording every ``record_every``;
+* :func:`integrate` — one system, ``n_steps`` fixed steps, recording every
+  ``record_every`` (its 1-DOF twin :func:`integrate1` on floats, bit for bit);
 * :func:`advance` — one communication step ``H`` made of internal steps ``dt``,
-  the last one adjusted to land exactly on ``t + H`` (one call per FMU doStep).
+  the last one adjusted to land exactly on ``t + H`` (one call per FMU doStep),
+  so that the monolithic simulation and the FMU slave run the very same arithmetic;
+* coupled systems (pair, network, sweeps): :func:`fmu_sync.core.loop.integrate_network`.
 
-Harmonic forcing: a cos per step and term (the *cos path*) or a rotation
-recurrence re-synchronised exactly every :data:`PHASOR_SYNC` steps (the
-*phasor path*, within 1e-13 of the cos path; see below).
+Harmonic forcing (:mod:`.harmonic`): a cos per step and term (the *cos path*) or
+a rotation recurrence re-synchronised exactly every :data:`PHASOR_SYNC` steps (the
+*phasor path*, within 1e-13 of the cos path).
 
 Everything is nopython and ``cache=True``; the loops allocate nothing per step.
 """
@@ -46,361 +26,11 @@ import math
 import numpy as np
 from numba import njit
 
-MIDPOINT = 0
-THETA = 1
-SCHEMES = {"midpoint": MIDPOINT, "theta": THETA}
-
-OK = 0
-DIVERGED = 1
-
-#: Velocities and positions below this magnitude are set to 0 (see :func:`_flush`).
-#: Geometric decay in accumulation phases (u -> -e u per contact step) would
-#: otherwise drift into subnormal numbers, which slow arithmetic ~20x; 1e-280 is
-#: hundreds of decades below any physical velocity or position.
-FLUSH = 1e-280
-
-
-# ----------------------------------------------------------------------------
-# Harmonic forcing: cos path and phasor path.
-#
-# The cos path evaluates cos(Omega_j tf + phi_j) at every step's force time tf.
-# The phasor path carries (c, s) = (cos, sin)(Omega_j tf + phi_j) from step to
-# step by the rotation (c, s) <- (c cr - s sr, s cr + c sr), (cr, sr) =
-# (cos, sin)(Omega_j dt), and re-synchronises it exactly -- to the very cos/sin
-# values the cos path computes -- every PHASOR_SYNC steps (and at every block
-# start). One rotation step adds at most ~4 eps of error (two rounded products
-# and a rounded sum per component, |c|, |s| <= 1, plus the rounding of cr, sr),
-# so the drift from the exact harmonic stays below 4 PHASOR_SYNC eps = 5.7e-14
-# < 1e-13 between re-synchronisations; the cos path itself carries the rounding
-# of its argument, ~eps |Omega t + phi| (2.7e-14 at Omega t = 240).
-# ----------------------------------------------------------------------------
-
-#: steps between exact re-synchronisations of the phasor (4 N eps <= 1e-13)
-PHASOR_SYNC = 64
-assert 4 * PHASOR_SYNC * 2.220446049250313e-16 < 1e-13
-
-
-@njit(cache=True, inline="always")
-def _hsum_cos(F, Omega, phi, tf, hf):
-    """hf = sum_j F_j cos(Omega_j tf + phi_j) (the cos path), summed in term order."""
-    n = hf.shape[0]
-    if Omega.shape[0] == 0:
-        for i in range(n):
-            hf[i] = 0.0
-        return
-    c = math.cos(Omega[0] * tf + phi[0])
-    for i in range(n):
-        hf[i] = F[0, i] * c
-    for j in range(1, Omega.shape[0]):
-        c = math.cos(Omega[j] * tf + phi[j])
-        for i in range(n):
-            hf[i] += F[j, i] * c
-
-
-@njit(cache=True, inline="always")
-def _hsum1_cos(F, Omega, phi, tf):
-    """:func:`_hsum_cos` for n = 1 (same operation order)."""
-    if Omega.shape[0] == 0:
-        return 0.0
-    fc = F[0, 0] * math.cos(Omega[0] * tf + phi[0])
-    for j in range(1, Omega.shape[0]):
-        fc += F[j, 0] * math.cos(Omega[j] * tf + phi[j])
-    return fc
-
-
-@njit(cache=True, inline="always")
-def _ph_sync(Omega, phi, tf, cv, sv):
-    """Exact (re-)synchronisation of the phasor at force time tf: returns the first
-    term's (cos, sin) (kept in registers by the loops), the others go to cv, sv."""
-    for j in range(1, Omega.shape[0]):
-        x = Omega[j] * tf + phi[j]
-        cv[j] = math.cos(x)
-        sv[j] = math.sin(x)
-    x = Omega[0] * tf + phi[0]
-    return math.cos(x), math.sin(x)
-
-
-@njit(cache=True, inline="always")
-def _ph_rot(c0, s0, cr, sr, cv, sv):
-    """Advance the phasor by one step; returns the first term's (cos, sin)."""
-    for j in range(1, cv.shape[0]):
-        c = cv[j]
-        s = sv[j]
-        cv[j] = c * cr[j] - s * sr[j]
-        sv[j] = s * cr[j] + c * sr[j]
-    return c0 * cr[0] - s0 * sr[0], s0 * cr[0] + c0 * sr[0]
-
-
-@njit(cache=True, inline="always")
-def _hsum_ph(F, c0, cv, hf):
-    """hf = sum_j F_j c_j from the phasor (same operation order as :func:`_hsum_cos`)."""
-    n = hf.shape[0]
-    for i in range(n):
-        hf[i] = F[0, i] * c0
-    for j in range(1, cv.shape[0]):
-        c = cv[j]
-        for i in range(n):
-            hf[i] += F[j, i] * c
-
-
-@njit(cache=True, inline="always")
-def _hsum1_ph(F, c0, cv):
-    fc = F[0, 0] * c0
-    for j in range(1, cv.shape[0]):
-        fc += F[j, 0] * cv[j]
-    return fc
-
-
-@njit(cache=True)
-def harmonic_workspace(Omega, dt):
-    """(cv, sv, cr, sr): phasor state and the one-step rotation for step dt."""
-    nf = Omega.shape[0]
-    cr = np.empty(nf)
-    sr = np.empty(nf)
-    for j in range(nf):
-        cr[j] = math.cos(Omega[j] * dt)
-        sr[j] = math.sin(Omega[j] * dt)
-    return np.zeros(nf), np.zeros(nf), cr, sr
-
-
-@njit(cache=True)
-def harmonic_table(Omega, phi, t0, dt, a, n_steps, phasor):
-    """cos(Omega_j (t0 + k dt + a) + phi_j) for k < n_steps, rows k, as the loops
-    see them (cos path or phasor path): for tests of the phasor's drift."""
-    nf = Omega.shape[0]
-    out = np.empty((n_steps, nf))
-    cv, sv, cr, sr = harmonic_workspace(Omega, dt)
-    c0 = 0.0
-    s0 = 0.0
-    to_sync = 0
-    for k in range(n_steps):
-        if not phasor:
-            for j in range(nf):
-                out[k, j] = math.cos(Omega[j] * ((t0 + k * dt) + a) + phi[j])
-            continue
-        if to_sync == 0:
-            c0, s0 = _ph_sync(Omega, phi, (t0 + k * dt) + a, cv, sv)
-            to_sync = PHASOR_SYNC
-        out[k, 0] = c0
-        for j in range(1, nf):
-            out[k, j] = cv[j]
-        c0, s0 = _ph_rot(c0, s0, cr, sr, cv, sv)
-        to_sync -= 1
-    return out
-
-
-# ----------------------------------------------------------------------------
-# The step
-# ----------------------------------------------------------------------------
-
-@njit(cache=True, inline="always")
-def _hbase(sa, tau, i):
-    """f0_i + (B tau)_i: the constant part of the force, row i."""
-    s = sa.f0[i]
-    for j in range(tau.shape[0]):
-        s += sa.B[i, j] * tau[j]
-    return s
-
-
-@njit(cache=True, inline="always")
-def _hc_cos(sa, tau, tf, hc):
-    """hc = (f0 + B tau) + sum_j F_j cos(Omega_j tf + phi_j) (cos path, term order)."""
-    _hsum_cos(sa.F, sa.Omega, sa.phi, tf, hc)
-    for i in range(hc.shape[0]):
-        hc[i] = _hbase(sa, tau, i) + hc[i]
-
-
-@njit(cache=True, inline="always")
-def _contact(sa, g, uf, u, W_, iw):
-    """The scalar contact problem of one step, in place on ``uf``; returns P >= 0.
-
-    If the gap g (at the contact-detection point) is closed and Newton's law
-    ``w^T u_E + e w^T u_A >= 0`` is violated by the free velocity, apply the
-    percussion ``P = -xi / W_`` along ``iw`` (``W_ = w^T M^-1 w``, ``iw = M^-1 w``
-    for the midpoint scheme; S in place of M for the theta scheme).
-    """
-    P = 0.0
-    if g <= 0.0:
-        xi = 0.0
-        for i in range(uf.shape[0]):
-            xi += sa.w[i] * uf[i]
-        xu = 0.0
-        for i in range(u.shape[0]):
-            xu += sa.w[i] * u[i]
-        xi = xi + sa.e * xu
-        if xi < 0.0:
-            P = -xi / W_
-            for i in range(uf.shape[0]):
-                uf[i] += iw[i] * P
-    return P
-
-
-@njit(cache=True, inline="always")
-def step_h(sa, X, iw, WX, a, q, u, hc, dt, y, uf):
-    """One step of either scheme (module docstring), in place on (q, u).
-
-    ``X`` = M^-1 (midpoint, ``a = dt/2``) or S^-1 (theta, ``a = θ dt``), ``iw = X w``,
-    ``WX = w^T X w``; ``hc`` the state-independent force at ``t + a``; ``y`` and
-    ``uf`` scratch. The coefficient products (dt X, a dt X, C + a K, a X w) are
-    written inline: the scalar kernels precompute the same products, and numba
-    hoists them out of the loops. Returns (P, g): the percussion and the gap at
-    the contact-detection point ``q0 + dt/2 u0``.
-    """
-    n = q.shape[0]
-    hd = 0.5 * dt
-    for i in range(n):
-        lin = sa.K[i, 0] * q[0] + (sa.C[i, 0] + a * sa.K[i, 0]) * u[0]
-        for j in range(1, n):
-            lin += sa.K[i, j] * q[j] + (sa.C[i, j] + a * sa.K[i, j]) * u[j]
-        y[i] = hc[i] - lin
-    g = sa.g0
-    for i in range(n):
-        g += sa.w[i] * (q[i] + hd * u[i])
-    for i in range(n):
-        s = (dt * X[i, 0]) * y[0]
-        for j in range(1, n):
-            s += (dt * X[i, j]) * y[j]
-        uf[i] = u[i] + s
-    P = _contact(sa, g, uf, u, WX, iw)
-    for i in range(n):
-        s = (a * (dt * X[i, 0])) * y[0]
-        for j in range(1, n):
-            s += (a * (dt * X[i, j])) * y[j]
-        qn = q[i] + (dt * u[i] + s)
-        if P > 0.0:
-            qn = qn + (a * iw[i]) * P
-        q[i] = qn
-        u[i] = uf[i]
-    return P, g
-
-
-@njit(cache=True, inline="always")
-def midpoint_step(sa, q, u, tau, t, dt, qM, h, uf):
-    """One Moreau midpoint step (docs/design.md §2.3) at time t with input tau, in place
-    (``qM, h, uf``: scratch). Returns the percussion P."""
-    a = 0.5 * dt
-    _hc_cos(sa, tau, t + a, h)
-    return step_h(sa, sa.Minv, sa.Minv_w, sa.W, a, q, u, h, dt, qM, uf)[0]
-
-
-@njit(cache=True)
-def _inverse(A):
-    """Gauss–Jordan inverse with partial pivoting (small n; no LAPACK needed)."""
-    n = A.shape[0]
-    a = A.copy()
-    inv = np.eye(n)
-    for c in range(n):
-        p = c
-        for r in range(c + 1, n):
-            if abs(a[r, c]) > abs(a[p, c]):
-                p = r
-        if p != c:
-            for k in range(n):
-                a[c, k], a[p, k] = a[p, k], a[c, k]
-                inv[c, k], inv[p, k] = inv[p, k], inv[c, k]
-        d = a[c, c]
-        for k in range(n):
-            a[c, k] /= d
-            inv[c, k] /= d
-        for r in range(n):
-            if r != c:
-                f = a[r, c]
-                if f != 0.0:
-                    for k in range(n):
-                        a[r, k] -= f * a[c, k]
-                        inv[r, k] -= f * inv[c, k]
-    return inv
-
-
-@njit(cache=True)
-def theta_matrices(sa, dt, theta, Sinv, Sinv_w):
-    """Fill S^-1 and S^-1 w for S = M + θ dt C + θ² dt² K; return W_S = w^T S^-1 w."""
-    n = sa.M.shape[0]
-    S = np.empty((n, n))
-    a = theta * dt
-    for i in range(n):
-        for j in range(n):
-            S[i, j] = sa.M[i, j] + a * sa.C[i, j] + a * a * sa.K[i, j]
-    Sinv[:, :] = _inverse(S)
-    WS = 0.0
-    for i in range(n):
-        s = 0.0
-        for j in range(n):
-            s += Sinv[i, j] * sa.w[j]
-        Sinv_w[i] = s
-        WS += sa.w[i] * s
-    return WS
-
-
-@njit(cache=True, inline="always")
-def theta_step(sa, q, u, tau, t, dt, theta, Sinv, Sinv_w, WS, qM, h, uf):
-    """One Moreau–Jean θ step at time t with input tau, in place. Returns P.
-
-    S (u1 - u0) = dt h(q0 + θ dt u0, u0, tau, t + θ dt) + w P,
-    q1 = q0 + dt (θ u1 + (1 - θ) u0),
-    contact active if g(q0 + dt/2 u0) <= 0, Newton's law on w^T u1 + e w^T u0.
-    """
-    a = theta * dt
-    _hc_cos(sa, tau, t + a, h)
-    return step_h(sa, Sinv, Sinv_w, WS, a, q, u, h, dt, qM, uf)[0]
-
-
-@njit(cache=True)
-def step_workspace(sa, dt, scheme, theta):
-    """Scratch arrays of a step ``(qM, h, uf)`` and, for the theta scheme, the
-    iteration data ``(S^-1, S^-1 w, W_S)`` for step ``dt`` (unused otherwise)."""
-    n = sa.M.shape[0]
-    Sinv = np.empty((n, n))
-    Sinv_w = np.empty(n)
-    WS = 0.0
-    if scheme == THETA:
-        WS = theta_matrices(sa, dt, theta, Sinv, Sinv_w)
-    return np.empty(n), np.empty(n), np.empty(n), Sinv, Sinv_w, WS
-
-
-@njit(cache=True, inline="always")
-def finish_step(q, u):
-    """Flush would-be subnormals to zero; return False if the state is not finite."""
-    ok = True
-    for i in range(q.shape[0]):
-        if abs(q[i]) < FLUSH:
-            q[i] = 0.0
-        if abs(u[i]) < FLUSH:
-            u[i] = 0.0
-        if not (math.isfinite(q[i]) and math.isfinite(u[i])):
-            ok = False
-    return ok
-
-
-@njit(cache=True, inline="always")
-def _flush(q, u):
-    """Set |x| < FLUSH to 0 (would-be subnormals).
-
-    The loops flush after every *contact* step (where the geometric decay
-    u -> -e u of an accumulation happens, and where the velocity of persistent
-    contact lives at round-off level) and at the end of every block of steps
-    (record or phasor re-synchronisation, at most PHASOR_SYNC steps with the
-    phasor); free flight in between is not flushed. Decay from |x| >= FLUSH to a
-    subnormal (< 2.2e-308, 28 decades further) within one block would need a
-    contraction by > 0.6 per step, far outside the step sizes that resolve a
-    physical system; and a subnormal is only slow, never wrong.
-    """
-    for i in range(q.shape[0]):
-        if abs(q[i]) < FLUSH:
-            q[i] = 0.0
-        if abs(u[i]) < FLUSH:
-            u[i] = 0.0
-
-
-@njit(cache=True, inline="always")
-def _finite(q, u):
-    # a non-finite value never turns finite again (inf - inf = NaN, NaN propagates),
-    # so checking once per block is enough and keeps the hot loop free of it
-    ok = True
-    for i in range(q.shape[0]):
-        if not (math.isfinite(q[i]) and math.isfinite(u[i])):
-            ok = False
-    return ok
+from .harmonic import PHASOR_SYNC, harmonic_table  # noqa: F401 (re-exported: the loops' forcing)
+from .harmonic import harmonic_workspace, hsum1_cos, hsum1_ph, hsum_cos, hsum_ph, ph_rot, ph_sync
+from .steps import MIDPOINT, SCHEMES  # noqa: F401 (re-exported: the scheme codes)
+from .steps import (DIVERGED, OK, THETA, all_finite, flush, flush1, hbase, scalar_params, step1_h, step_coeffs1,
+                    step_h, step_workspace, theta_matrices)
 
 
 @njit(cache=True)
@@ -432,7 +62,7 @@ def integrate(sa, q, u, t0, dt, n_steps, tau, scheme, theta, record_every, T, Qr
     hc = np.zeros(n)
     hb = np.empty(n)
     for i in range(n):
-        hb[i] = _hbase(sa, tau, i)
+        hb[i] = hbase(sa, tau, i)
     use_ph = phasor and Omega.shape[0] > 0
     c0 = 0.0
     s0 = 0.0
@@ -447,28 +77,28 @@ def integrate(sa, q, u, t0, dt, n_steps, tau, scheme, theta, record_every, T, Qr
     to_sync = 0
     while k < n_steps:
         if use_ph and to_sync == 0:
-            c0, s0 = _ph_sync(Omega, phi, (t0 + k * dt) + a, cv, sv)
+            c0, s0 = ph_sync(Omega, phi, (t0 + k * dt) + a, cv, sv)
             to_sync = PHASOR_SYNC
         m = min(to_rec, n_steps - k)
         if use_ph:
             m = min(m, to_sync)
         for i in range(k, k + m):
             if use_ph:
-                _hsum_ph(F, c0, cv, hf)
-                c0, s0 = _ph_rot(c0, s0, cr, sr, cv, sv)
+                hsum_ph(F, c0, cv, hf)
+                c0, s0 = ph_rot(c0, s0, cr, sr, cv, sv)
             else:
-                _hsum_cos(F, Omega, phi, (t0 + i * dt) + a, hf)
+                hsum_cos(F, Omega, phi, (t0 + i * dt) + a, hf)
             for j in range(n):
                 hc[j] = hb[j] + hf[j]
             P, g = step_h(sa, X, iw, WX, a, q, u, hc, dt, y, uf)
             if g <= 0.0:
-                _flush(q, u)
+                flush(q, u)
             Psum += P
         k += m
         to_rec -= m
         to_sync -= m
-        _flush(q, u)
-        if not _finite(q, u):
+        flush(q, u)
+        if not all_finite(q, u):
             return DIVERGED, k, row
         if to_rec == 0:
             to_rec = record_every
@@ -486,13 +116,13 @@ def integrate(sa, q, u, t0, dt, n_steps, tau, scheme, theta, record_every, T, Qr
             X, iw, WX, a = Sinv, Sinv_w, WS, theta * dt_last
         else:
             a = 0.5 * dt_last
-        _hsum_cos(F, Omega, phi, t + a, hf)
+        hsum_cos(F, Omega, phi, t + a, hf)
         for j in range(n):
             hc[j] = hb[j] + hf[j]
         P, g = step_h(sa, X, iw, WX, a, q, u, hc, dt_last, y, uf)
         Psum += P
-        _flush(q, u)
-        if not _finite(q, u):
+        flush(q, u)
+        if not all_finite(q, u):
             return DIVERGED, n_steps, row
     if dt_last > 0.0 or to_rec != record_every:
         T[row] = t0 + n_steps * dt + dt_last if dt_last > 0.0 else t0 + n_steps * dt
@@ -570,7 +200,7 @@ def advance_in(sa, q, u, t0, H, dt, tau, taudot, foh, scheme, theta, phasor,
         sv[j] = 0.0
     for i in range(n):
         hc[i] = 0.0
-        hb[i] = _hbase(sa, tau, i)
+        hb[i] = hbase(sa, tau, i)
     use_ph = phasor and Omega.shape[0] > 0
     c0 = 0.0
     s0 = 0.0
@@ -593,110 +223,30 @@ def advance_in(sa, q, u, t0, H, dt, tau, taudot, foh, scheme, theta, phasor,
             X, iw, WX, a = sa.Minv, sa.Minv_w, sa.W, 0.5 * hk
         if use_ph and hk == dt:
             if to_sync == 0:
-                c0, s0 = _ph_sync(Omega, phi, t + a, cv, sv)
+                c0, s0 = ph_sync(Omega, phi, t + a, cv, sv)
                 to_sync = PHASOR_SYNC
-            _hsum_ph(F, c0, cv, hf)
-            c0, s0 = _ph_rot(c0, s0, cr, sr, cv, sv)
+            hsum_ph(F, c0, cv, hf)
+            c0, s0 = ph_rot(c0, s0, cr, sr, cv, sv)
             to_sync -= 1
         else:                     # cos path (and a shortened last step of the phasor path)
-            _hsum_cos(F, Omega, phi, t + a, hf)
+            hsum_cos(F, Omega, phi, t + a, hf)
         if foh:
             for j in range(tau.shape[0]):
                 tk[j] = tau[j] + taudot[j] * ((t + a) - t0)
             for i in range(n):
-                hb[i] = _hbase(sa, tk, i)
+                hb[i] = hbase(sa, tk, i)
         for i in range(n):
             hc[i] = hb[i] + hf[i]
         P, g = step_h(sa, X, iw, WX, a, q, u, hc, hk, y, uf)
         if g <= 0.0:
-            _flush(q, u)
+            flush(q, u)
         if P > 0.0:
             impacts += 1
             Psum += P
-    _flush(q, u)
-    if not _finite(q, u):
+    flush(q, u)
+    if not all_finite(q, u):
         return DIVERGED, Psum, impacts
     return OK, Psum, impacts
-
-
-# ----------------------------------------------------------------------------
-# 1-DOF fast path.  The general kernels above index small arrays whose size is
-# only known at run time; for n = m = 1 that costs ~6x (measured: 9 vs 58
-# Msteps/s).  The kernels below are the same schemes on scalars, written with
-# the *same operation order* so that they reproduce the general kernels bit
-# for bit (tests/test_moreau.py checks this).  Dispatch: :func:`kernels_for`.
-# ----------------------------------------------------------------------------
-
-@njit(cache=True, inline="always")
-def _flush1(x):
-    return 0.0 if abs(x) < FLUSH else x
-
-
-@njit(cache=True, inline="always")
-def scalar_params(sa):
-    """The 1-DOF system as a tuple of floats (no arrays: nothing to reference-count
-    in a hot loop): (Minv, K, C, f0, B, w, g0, e, Minv_w, W)."""
-    return (sa.Minv[0, 0], sa.K[0, 0], sa.C[0, 0], sa.f0[0], sa.B[0, 0], sa.w[0], sa.g0, sa.e,
-            sa.Minv_w[0], sa.W)
-
-
-@njit(cache=True, inline="always")
-def step_coeffs1(p, X, iw, WX, a, dt):
-    """The scalar coefficients of :func:`step_h` (the same products):
-    (K, C + a K, dt X, a dt X, w, g0, e, X w, a X w, w X w, dt/2)."""
-    Minv, K, C, f0, B, w, g0, e, Minv_w, W = p
-    G1 = dt * X
-    return (K, C + a * K, G1, a * G1, w, g0, e, iw, a * iw, WX, 0.5 * dt)
-
-
-@njit(cache=True, inline="always")
-def step1_h(c, q, u, hc, dt):
-    """:func:`step_h` on scalars (same operation order), flushing would-be
-    subnormals after a contact step; ``c`` from :func:`step_coeffs1`.
-    Returns (q, u, P). (The contact correction sits inside the contact branch, so
-    that the free-flight path carries no select on its dependency chain.)"""
-    K, CK, G1, G2, w, g0, e, iw, aiw, WX, hd = c
-    y = hc - (K * q + CK * u)
-    g = g0
-    g += w * (q + hd * u)
-    uf = u + G1 * y
-    qn = q + (dt * u + G2 * y)
-    if g <= 0.0:
-        P = 0.0
-        xi = 0.0
-        xi += w * uf
-        xu = 0.0
-        xu += w * u
-        xi = xi + e * xu
-        if xi < 0.0:
-            P = -xi / WX
-            uf += iw * P
-            qn = qn + aiw * P
-        return _flush1(qn), _flush1(uf), P
-    return qn, uf, 0.0
-
-
-@njit(cache=True, inline="always")
-def midpoint_step1(p, F, Omega, phi, q, u, tau, t, dt):
-    """:func:`midpoint_step` on scalars (same operation order), flushing would-be
-    subnormals after every step. Returns (q, u, P)."""
-    a = 0.5 * dt
-    c = step_coeffs1(p, p[0], p[8], p[9], a, dt)
-    hc = (p[3] + p[4] * tau) + _hsum1_cos(F, Omega, phi, t + a)
-    q, u, P = step1_h(c, q, u, hc, dt)
-    return _flush1(q), _flush1(u), P
-
-
-@njit(cache=True, inline="always")
-def theta_step1(p, F, Omega, phi, Si, Si_w, WS, theta, q, u, tau, t, dt):
-    """:func:`theta_step` on scalars (same operation order), flushing would-be
-    subnormals after every step; ``Si = S^-1``, ``Si_w = S^-1 w``,
-    ``WS = w^T S^-1 w``. Returns (q, u, P)."""
-    a = theta * dt
-    c = step_coeffs1(p, Si, Si_w, WS, a, dt)
-    hc = (p[3] + p[4] * tau) + _hsum1_cos(F, Omega, phi, t + a)
-    q, u, P = step1_h(c, q, u, hc, dt)
-    return _flush1(q), _flush1(u), P
 
 
 @njit(cache=True)
@@ -723,7 +273,7 @@ def integrate1(sa, q_, u_, t0, dt, n_steps, tau_, scheme, theta, record_every, T
     else:
         a = 0.5 * dt
         c = step_coeffs1(p, p[0], p[8], p[9], a, dt)
-    hb = p[3] + p[4] * tau            # f0 + B tau (as _hbase)
+    hb = p[3] + p[4] * tau            # f0 + B tau (as hbase)
     cv, sv, cr, sr = harmonic_workspace(Omega, dt)
     use_ph = phasor and Omega.shape[0] > 0
     one = Omega.shape[0] == 1
@@ -745,7 +295,7 @@ def integrate1(sa, q_, u_, t0, dt, n_steps, tau_, scheme, theta, record_every, T
     to_sync = 0
     while k < n_steps:
         if use_ph and to_sync == 0:
-            c0, s0 = _ph_sync(Omega, phi, (t0 + k * dt) + a, cv, sv)
+            c0, s0 = ph_sync(Omega, phi, (t0 + k * dt) + a, cv, sv)
             to_sync = PHASOR_SYNC
         m = min(to_rec, n_steps - k)
         if use_ph:
@@ -764,20 +314,20 @@ def integrate1(sa, q_, u_, t0, dt, n_steps, tau_, scheme, theta, record_every, T
                     Psum += P
         elif use_ph:
             for i in range(m):
-                fc = _hsum1_ph(F, c0, cv)
-                c0, s0 = _ph_rot(c0, s0, cr, sr, cv, sv)
+                fc = hsum1_ph(F, c0, cv)
+                c0, s0 = ph_rot(c0, s0, cr, sr, cv, sv)
                 q, u, P = step1_h(c, q, u, hb + fc, dt)
                 Psum += P
         else:
             for i in range(k, k + m):
-                fc = _hsum1_cos(F, Omega, phi, (t0 + i * dt) + a)
+                fc = hsum1_cos(F, Omega, phi, (t0 + i * dt) + a)
                 q, u, P = step1_h(c, q, u, hb + fc, dt)
                 Psum += P
         k += m
         to_rec -= m
         to_sync -= m
-        q = _flush1(q)
-        u = _flush1(u)
+        q = flush1(q)
+        u = flush1(u)
         if not (math.isfinite(q) and math.isfinite(u)):
             q_[0] = q
             u_[0] = u
@@ -799,10 +349,10 @@ def integrate1(sa, q_, u_, t0, dt, n_steps, tau_, scheme, theta, record_every, T
         else:
             a = 0.5 * dt_last
             c = step_coeffs1(p, p[0], p[8], p[9], a, dt_last)
-        q, u, P = step1_h(c, q, u, hb + _hsum1_cos(F, Omega, phi, t + a), dt_last)
+        q, u, P = step1_h(c, q, u, hb + hsum1_cos(F, Omega, phi, t + a), dt_last)
         Psum += P
-        q = _flush1(q)
-        u = _flush1(u)
+        q = flush1(q)
+        u = flush1(u)
         q_[0] = q
         u_[0] = u
         if not (math.isfinite(q) and math.isfinite(u)):

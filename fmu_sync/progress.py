@@ -121,8 +121,8 @@ def caches_cold() -> bool:
     """True when numba has no valid on-disk cache of the core's pair kernel yet (a
     fresh install, or the core changed): the first run then compiles its kernels."""
     try:
-        from .core.pair import integrate_pair
-        cache_file = integrate_pair._cache._cache_file
+        from .core.loop import integrate_network
+        cache_file = integrate_network._cache._cache_file
         return not cache_file._load_index()
     except Exception:  # numba internals moved: say nothing rather than guess
         return False

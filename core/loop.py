@@ -1,0 +1,357 @@
+"""The one fixed-step loop of coupled systems (docs/design.md §2.5): N systems on a graph.
+
+Every step: each node's input ``tau_i = sum_j a_ij tau_i^(j)`` is computed from the
+states at the start of the step (:func:`network_forces`, each edge's law by
+:func:`coupling_step`, the very functions the co-simulation master calls) and held
+over it (Jacobi, zero-order hold), then every system takes one Moreau step of
+:mod:`.moreau`. A co-simulation whose communication step equals ``dt`` reproduces
+this run to round-off.
+
+:func:`integrate_network` is the only such loop in the core:
+
+* :func:`fmu_sync.core.network.simulate_network` runs it as it is;
+* :func:`fmu_sync.core.pair.simulate_pair` runs it as the 2-node network (edge (0, 1),
+  weights 1), as the master treats a pair;
+* :func:`fmu_sync.core.batch.run_pairs1` runs it once per run of a sweep with the
+  *decimating recorder* (``dec``): no trajectory, the last row only, every recorded
+  distance pushed into the fixed-size recorder of :mod:`.metrics`.
+
+The 1-DOF scalar path (n = 1: the step on floats, :func:`fmu_sync.core.moreau.step1_h`,
+bitwise equal to the general step) is chosen once, inside the loop.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .coupling import (BRANCH_NONE, SWITCHING, UNCOUPLED, coupling_kernel, coupling_kernel1,
+                       euclidean_coupling1, p_norm_diff)
+from .distance import distance1, distance_value
+from .metrics import decimator_push
+from .harmonic import hsum1_cos_node
+from .model import SystemArrays
+from .steps import (DIVERGED, OK, THETA, finish_step, flush1, midpoint_step, scalar_params, step1_h,
+                    step_coeffs1, theta_matrices, theta_step)
+
+__all__ = ["coupling_step", "coupling_step1", "network_forces", "node_force", "integrate_network",
+           "sample_d", "no_decimator"]
+
+
+# ------------------------------------------------------------------ one edge
+@njit(cache=True)
+def coupling_step(law, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u, need_d):
+    """Coupling forces into ``tau1, tau2`` and the distance record at this state.
+
+    Returns ``(d, branch, euclidean)``: the quotient distance (NaN and branch
+    ``BRANCH_NONE`` unless the law uses it or ``need_d``), its branch code and
+    ``||x1 - x2||_P``. ``c1q, c1u, c2q, c2u``: (n,) scratch arrays for the chain
+    ends (:func:`fmu_sync.core.coupling.chain_work`). One compiled call,
+    used once per step and edge by :func:`integrate_network` and once per
+    communication step by the master.
+    """
+    if law == SWITCHING:
+        d, branch = coupling_kernel(law, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u)
+        return d, branch, p_norm_diff(geo.Q, geo.M, q1, u1, q2, u2)
+    E, _ = coupling_kernel(law, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u)
+    if need_d:
+        d, branch = distance_value(geo, q1, u1, q2, u2)
+        return d, branch, E
+    return np.nan, BRANCH_NONE, E
+
+
+@njit(cache=True, inline="always")
+def coupling_step1(law, sg, kp, kd, q1, u1, q2, u2, need_d):
+    """:func:`coupling_step` for 1-DOF on floats (``sg = geo.scalar``, scalar
+    gains): ``(tau1, tau2, d, branch, euclidean)``, the same arithmetic as the
+    array kernels (which hand n = 1 to the same float kernels)."""
+    tau1, tau2, value, branch = coupling_kernel1(law, sg, kp, kd, q1, u1, q2, u2)
+    if law == SWITCHING:
+        return tau1, tau2, value, branch, euclidean_coupling1(sg, kp, kd, q1, u1, q2, u2)[2]
+    if need_d:
+        r = distance1(sg, q1, u1, q2, u2)
+        return tau1, tau2, r[0], r[1], value
+    return tau1, tau2, np.nan, BRANCH_NONE, value
+
+
+@njit(cache=True, inline="always")
+def _edge(law, geo, Kp, Kd, q, u, a, b, t1, t2, c1q, c1u, c2q, c2u, need_d):
+    """:func:`coupling_step` of the edge (a, b) (its 1-DOF float form
+    :func:`coupling_step1` for n = 1, the same arithmetic): forces into t1, t2; returns
+    ``(d, branch, euclidean)``."""
+    if q.shape[1] == 1:
+        t1[0], t2[0], d, br, eu = coupling_step1(law, geo.scalar, Kp[0, 0], Kd[0, 0], q[a, 0], u[a, 0], q[b, 0],
+                                                 u[b, 0], need_d)
+        return d, br, eu
+    return coupling_step(law, geo, Kp, Kd, q[a], u[a], q[b], u[b], t1, t2, c1q, c1u, c2q, c2u, need_d)
+
+
+# ------------------------------------------------------------------ all edges
+@njit(cache=True, inline="always")
+def _forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, need_d, dk, bk, ek):
+    n = q.shape[1]
+    for i in range(q.shape[0]):
+        for c in range(n):
+            tau[i, c] = 0.0
+    for e_ in range(E2.shape[0]):
+        a = E2[e_, 0]
+        b = E2[e_, 1]
+        d, br, eu = _edge(laws[e_], geo, Kp, Kd, q, u, a, b, t1, t2, c1q, c1u, c2q, c2u, need_d)
+        if laws[e_] != UNCOUPLED:
+            if W2[e_, 0] > 0.0:
+                for c in range(n):
+                    tau[a, c] += W2[e_, 0] * t1[c]
+            if W2[e_, 1] > 0.0:
+                for c in range(n):
+                    tau[b, c] += W2[e_, 1] * t2[c]
+        dk[e_] = d
+        bk[e_] = br
+        ek[e_] = eu
+
+
+@njit(cache=True)
+def network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, need_d, dk, bk, ek):
+    """Every node's input ``tau_i = sum_j a_ij tau_i^(j)`` at the states ``q, u`` (N, n), each
+    edge's law evaluated once (:func:`coupling_step`), and each edge's distance record into
+    ``dk, bk, ek`` (E,). ``E2`` (E, 2) edges (i, j); ``W2`` (E, 2) weights (a_ij, a_ji);
+    ``t1, t2, c1q, c1u, c2q, c2u``: (n,) scratch. The forces of :func:`integrate_network`
+    (inlined there) and, per communication step, of the master's exchange loop."""
+    _forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, need_d, dk, bk, ek)
+
+
+@njit(cache=True)
+def node_force(i, laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u):
+    """Node i's input alone at the states ``q, u`` (the Gauss–Seidel exchange: each node's
+    input from the newest states of the others); arguments as :func:`network_forces`."""
+    n = q.shape[1]
+    for c in range(n):
+        tau[i, c] = 0.0
+    for e_ in range(E2.shape[0]):
+        a = E2[e_, 0]
+        b = E2[e_, 1]
+        if laws[e_] == UNCOUPLED or (i != a and i != b):
+            continue
+        w = W2[e_, 0] if i == a else W2[e_, 1]
+        if w > 0.0:
+            _edge(laws[e_], geo, Kp, Kd, q, u, a, b, t1, t2, c1q, c1u, c2q, c2u, False)
+            for c in range(n):
+                tau[i, c] += w * (t1[c] if i == a else t2[c])
+
+
+# ------------------------------------------------------------------ recorders
+@njit(cache=True, inline="always")
+def sample_d(acc, bt, bd, st, t, d):
+    """The decimating recorder's sample of d: ``acc`` = (count, d at the first sample, max),
+    the rest to the fixed-size recorder of :mod:`.metrics` (:func:`.metrics.decimator_push`)."""
+    if acc[0] == 0.0:
+        acc[1] = d
+        acc[2] = d
+    elif d > acc[2]:
+        acc[2] = d
+    acc[0] += 1.0
+    decimator_push(bt, bd, st, t, d)
+
+
+def no_decimator():
+    """``(acc, bt, bd, st)`` for a full record (``dec=False``): unused."""
+    return np.zeros(3), np.zeros(0), np.zeros(0), np.zeros(0)
+
+
+# ------------------------------------------------------------------ the loop
+@njit(cache=True, inline="always")
+def _node(base, K, C, f0, F, Omega, phi, i):
+    """The SystemArrays of node i: the common geometry of ``base``, the node's forces."""
+    return SystemArrays(base.M, base.Minv, K[i], C[i], f0[i], F[i], Omega[i], phi[i], base.B, base.w,
+                        base.g0, base.e, base.Minv_w, base.W)
+
+
+@njit(cache=True, inline="always")
+def _matrices(base, K, C, f0, F, Omega, phi, scheme, theta, h, Sinv, Sinv_w, WS, co):
+    """Per node, for step h: the theta iteration data (S^-1, S^-1 w, W_S) and, for n = 1,
+    the scalar step coefficients (:func:`.moreau.step_coeffs1`) into ``co[i]``."""
+    scalar = K.shape[1] == 1
+    for i in range(K.shape[0]):
+        sa = _node(base, K, C, f0, F, Omega, phi, i)
+        if scheme == THETA:
+            WS[i] = theta_matrices(sa, h, theta, Sinv[i], Sinv_w[i])
+        if scalar:
+            if scheme == THETA:
+                c = step_coeffs1(scalar_params(sa), Sinv[i, 0, 0], Sinv_w[i, 0], WS[i], theta * h, h)
+            else:
+                c = step_coeffs1(scalar_params(sa), sa.Minv[0, 0], sa.Minv_w[0], sa.W, 0.5 * h, h)
+            (co[i, 0], co[i, 1], co[i, 2], co[i, 3], co[i, 4], co[i, 5], co[i, 6], co[i, 7], co[i, 8], co[i, 9],
+             co[i, 10]) = c
+
+
+@njit(cache=True)
+def _step_node(base, K, C, f0, F, Omega, phi, i, q, u, tau, t, hk, scheme, theta, Sinv, Sinv_w, WS, qM, h, uf, ua):
+    """One Moreau step of node i (n > 1) in place, its start velocity into ``ua``; returns P.
+    (A call, not inlined: the loop's body stays the small 1-DOF path.)"""
+    for c in range(q.shape[1]):
+        ua[c] = u[i, c]
+    sa = _node(base, K, C, f0, F, Omega, phi, i)
+    if scheme == THETA:
+        P = theta_step(sa, q[i], u[i], tau[i], t, hk, theta, Sinv[i], Sinv_w[i], WS[i], qM, h, uf)
+    else:
+        P = midpoint_step(sa, q[i], u[i], tau[i], t, hk, qM, h, uf)
+    finish_step(q[i], u[i])
+    return P
+
+
+@njit(cache=True)
+def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, q, u, t0, k0, dt,
+                      n_steps, scheme, theta, record_every, record_d, T, Qr, Ur, TAU, D, BR, EU, dt_last,
+                      dec, acc, bt, bd, st):
+    """The loop over steps ``k0 .. k0 + n_steps`` (time ``t0 + k dt``), then, if
+    ``dt_last > 0``, the shortened last step of the run; the final state is always a row.
+
+    ``base``: SystemArrays with the common M, w, g0, e (and B = I); ``K, C``
+    (N, n, n), ``f0`` (N, n), ``F`` (N, nf, n), ``Omega, phi`` (N, nf): the
+    nodes' forces (padding terms F = 0). ``E2`` (E, 2) edges (i, j); ``W2`` (E, 2)
+    weights (a_ij, a_ji); ``laws`` (E,). ``q, u`` (N, n), advanced in place.
+
+    Recorder: a row every ``record_every`` steps (row 0 the start, the last row the end)
+    of ``T`` (rows,), ``Qr, Ur, TAU`` (rows, N, n) (TAU: the forces held over the step
+    that ends at the row), and with ``record_d`` the edges' ``D, BR, EU`` (rows, E).
+    ``dec`` (decimating recorder): the arrays have one row, each row overwrites it, and
+    each row's distance of edge 0 goes to :func:`sample_d` ``(acc, bt, bd, st)``.
+
+    Returns ``(status, steps_done, rows_written, impacts (N,), episodes (N,), v_impact,
+    tau_max)``: contact episodes (runs of consecutive steps with a percussion), the largest
+    speed sqrt(u^T Q u) of a system at the start of a step with a positive percussion
+    (:meth:`PairResult.window_floor`), and (``dec`` only) max |tau| over the steps.
+    ``status`` is DIVERGED if a state or recorded distance is not finite at a row.
+    """
+    N = q.shape[0]
+    n = q.shape[1]
+    E = E2.shape[0]
+    scalar = n == 1
+    qM = np.empty(n)
+    h = np.empty(n)
+    uf = np.empty(n)
+    ua = np.empty(n)
+    zero = np.zeros(n)
+    Sinv = np.zeros((N, n, n))
+    Sinv_w = np.zeros((N, n))
+    WS = np.zeros(N)
+    co = np.zeros((N, 11))
+    _matrices(base, K, C, f0, F, Omega, phi, scheme, theta, dt, Sinv, Sinv_w, WS, co)
+    B0 = base.B[0, 0]
+    sg = geo.scalar
+    sqQ = math.sqrt(sg.Q11)
+    kp0 = Kp[0, 0]
+    kd0 = Kd[0, 0]
+    tau = np.zeros((N, n))
+    t1 = np.zeros(n)
+    t2 = np.zeros(n)
+    c1q = np.empty(n)
+    c1u = np.empty(n)
+    c2q = np.empty(n)
+    c2u = np.empty(n)
+    dk = np.full(E, np.nan)
+    bk = np.full(E, BRANCH_NONE)
+    ek = np.full(E, np.nan)
+    imp = np.zeros(N, dtype=np.int64)
+    ep = np.zeros(N, dtype=np.int64)
+    last = np.full(N, -2, dtype=np.int64)   # the last step with a percussion, per node
+    v_imp = 0.0
+    tau_max = 0.0
+    coupled = False
+    for k in range(E):
+        if laws[k] != UNCOUPLED:
+            coupled = True
+    row = 0
+    countdown = 1  # row 0 is the initial state
+    total = n_steps + 1 if dt_last > 0.0 else n_steps
+    for k in range(total + 1):
+        is_row = k == total   # the final state is always a row
+        countdown -= 1
+        if countdown == 0:
+            countdown = record_every
+            is_row = True
+        need_d = is_row and record_d
+        # forces from the states at the start of the step (Jacobi, zero-order hold); for n = 1
+        # network_forces on floats, written out here: the arrays an inlined or called kernel takes
+        # cost reference counting on every step (measured: 2 instead of 8 Msteps/s for a pair)
+        if (coupled or need_d) and scalar:
+            for i in range(N):
+                tau[i, 0] = 0.0
+            for e_ in range(E):
+                ia = E2[e_, 0]
+                ib = E2[e_, 1]
+                f1, f2, dk[e_], bk[e_], ek[e_] = coupling_step1(laws[e_], sg, kp0, kd0, q[ia, 0], u[ia, 0],
+                                                                q[ib, 0], u[ib, 0], need_d)
+                if laws[e_] != UNCOUPLED:
+                    if W2[e_, 0] > 0.0:
+                        tau[ia, 0] += W2[e_, 0] * f1
+                    if W2[e_, 1] > 0.0:
+                        tau[ib, 0] += W2[e_, 1] * f2
+        elif coupled or need_d:
+            _forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, need_d, dk, bk, ek)
+        r = 0 if dec else row
+        if k == 0 and k0 == 0:
+            for i in range(N):
+                for c in range(n):
+                    TAU[0, i, c] = tau[i, c]
+        if is_row:
+            T[r] = t0 + (k0 + k) * dt if k <= n_steps else t0 + (k0 + n_steps) * dt + dt_last
+            ok = True
+            for i in range(N):
+                for c in range(n):
+                    Qr[r, i, c] = q[i, c]
+                    Ur[r, i, c] = u[i, c]
+                if not finish_step(q[i], u[i]):
+                    ok = False
+            if record_d:
+                for e_ in range(E):
+                    D[r, e_] = dk[e_]
+                    BR[r, e_] = bk[e_]
+                    EU[r, e_] = ek[e_]
+                    if not math.isfinite(dk[e_]):
+                        ok = False
+            if not ok:
+                return DIVERGED, k, row, imp, ep, v_imp, tau_max
+            if dec:
+                sample_d(acc, bt, bd, st, T[0], dk[0])
+            row += 1
+        if k == total:
+            break
+        if (countdown == 1 or k == total - 1) and not dec:
+            for i in range(N):
+                for c in range(n):
+                    TAU[row, i, c] = tau[i, c]
+        if dec:
+            for i in range(N):
+                for c in range(n):
+                    a_ = abs(tau[i, c])
+                    if a_ > tau_max:
+                        tau_max = a_
+        t = t0 + (k0 + k) * dt
+        hk = dt
+        if k == n_steps:   # the shortened last step
+            hk = dt_last
+            _matrices(base, K, C, f0, F, Omega, phi, scheme, theta, hk, Sinv, Sinv_w, WS, co)
+        a = theta * hk if scheme == THETA else 0.5 * hk
+        for i in range(N):
+            u0 = 0.0
+            if scalar:   # the 1-DOF path: the step on floats (bitwise the general step)
+                cf = (co[i, 0], co[i, 1], co[i, 2], co[i, 3], co[i, 4], co[i, 5], co[i, 6], co[i, 7], co[i, 8],
+                      co[i, 9], co[i, 10])
+                u0 = u[i, 0]
+                hc = (f0[i, 0] + B0 * tau[i, 0]) + hsum1_cos_node(F, Omega, phi, i, t + a)
+                qn, un, P = step1_h(cf, q[i, 0], u0, hc, hk)
+                q[i, 0] = flush1(qn)
+                u[i, 0] = flush1(un)
+            else:
+                P = _step_node(base, K, C, f0, F, Omega, phi, i, q, u, tau, t, hk, scheme, theta, Sinv, Sinv_w, WS,
+                               qM, h, uf, ua)
+            if P > 0.0:
+                imp[i] += 1
+                if last[i] != k - 1:   # a new contact episode
+                    ep[i] += 1
+                last[i] = k
+                v = abs(u0) * sqQ if scalar else p_norm_diff(geo.Q, geo.Q, zero, ua, zero, zero)
+                if v > v_imp:
+                    v_imp = v
+    return OK, total, row, imp, ep, v_imp, tau_max
