@@ -13,7 +13,7 @@ is the Jacobi exchange (zero-order hold), every H.
 
 The compiled loop calls FMI 2.0 functions; this driver runs its own exchange in
 Python over FMI 3.0 instances (:class:`fmu_sync.fmi3_bridge.FMU3Host` through
-:class:`fmu_sync.master.FmuInstance`), with the coupling law of the core
+:func:`fmu_sync.master.open_instance`), with the coupling law of the core
 (:func:`fmu_sync.core.network.network_forces`, the function the compiled loop and
 ``integrate_network`` call). The arguments, the set-up checks, the record and the
 failures are those of :class:`fmu_sync.master.NetworkMaster`.
@@ -97,7 +97,7 @@ class EarlyReturnMaster(NetworkMaster):
             saved, done = [s.save() for s in self.slaves], False
             try:
                 self.give(tc, end - tc)
-                stops = [s.host.last_time if s.host.early_return else end for s in self.slaves]
+                stops = [s.last_time if s.early_return else end for s in self.slaves]
                 t_star = min(stops)
                 if t_star < end:
                     if not t_star > tc:
@@ -113,10 +113,8 @@ class EarlyReturnMaster(NetworkMaster):
                             s.do_step(tc, t_star - tc)
                     for s in self.slaves:
                         s.t = t_star
-                        if s.host.event_needed:
-                            st = s.host.handle_event()
-                            if st > 1:
-                                raise SlaveError(s.name, s.t, "fmi3UpdateDiscreteStates", st, s.host.errors(1))
+                        if s.event_needed:
+                            s.handle_event()      # a failed call raises SlaveError
                 done = True
             finally:
                 for s, st in zip(self.slaves, saved):

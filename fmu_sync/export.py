@@ -54,7 +54,7 @@ from .fmus import contract
 from . import __version__
 from .fmus.slave import model_guid
 
-__all__ = ["MODELS", "export_fmu", "export_coupling", "main_export", "model_class", "carried_files",
+__all__ = ["MODELS", "export_fmu", "export_coupling", "main_export", "model_slave", "carried_files",
            "carried_modules", "build_binary", "constants_header", "fmu_guid", "write_archive", "MAX_SUBSTEPS",
            "COUPLING", "FMI_VERSIONS"]
 
@@ -74,13 +74,15 @@ _CARRIED_INITS = {
     "__init__.py": b'"""fmu-sync model code carried by an FMU (the modules its slave and stepper import)."""\n',
     "core/__init__.py": b'"""The core modules an fmu-sync FMU runs (the import closure of its slave and stepper)."""\n',
 }
-#: the roots of the carried code: the C-facing instance and the hot path (plus every slave module)
-_CARRIED_ROOTS = ("fmus/__init__.py", "fmus/runtime.py", "fmus/stepper.py", "fmus/coupling.py",
-                  "fmus/coupling_runtime.py", "fmus/coupling_stepper.py")
 #: the coupling FMU's export key (fmu_sync.fmus.coupling; not a mechanical model of the registry)
 COUPLING = "coupling"
-_COUPLING_BUILD = {"slave": "fmus.coupling:CouplingSlave", "runtime": "fmus.coupling_runtime",
-                   "stepper": "fmus.coupling_stepper"}
+#: the modules of each kind of FMU: the C-facing instance (the build record's ``runtime``, which
+#: makes the slave), the hot path (``stepper``) and the slave; a mechanical model of the registry
+#: or the coupling. The carried code is the import closure of these (:func:`carried_modules`).
+_KINDS = {
+    "mechanical": {"runtime": "fmus.runtime", "stepper": "fmus.stepper", "slave": "fmus.slave"},
+    COUPLING: {"runtime": "fmus.coupling_runtime", "stepper": "fmus.coupling_stepper", "slave": "fmus.coupling"},
+}
 
 
 def _fmus_dir() -> Path:
@@ -93,18 +95,15 @@ def _core_dir() -> Path:
     return Path(fmu_sync.core.__file__).resolve().parent
 
 
-def model_class(model: str):
-    """The slave class of an export key ("impact-oscillator", "mechanical-system-2")."""
-    import importlib
-    module, cls = contract.model(model).slave.split(":")
-    return getattr(importlib.import_module(module), cls)
+def model_slave(model: str):
+    """The slave of an export key ("impact-oscillator", "mechanical-system-2"): the one
+    :class:`~fmu_sync.fmus.slave.MechanicalSlave` on the model's contract entry."""
+    from .fmus.slave import slave
+    return slave(model)
 
 
-def _carried_slave(model: str) -> str:
-    """"module:class" of the slave relative to the carried package."""
-    slave = contract.model(model).slave
-    assert slave.startswith("fmu_sync."), slave
-    return slave[len("fmu_sync."):]
+def _kind(model: str) -> dict:
+    return _KINDS[COUPLING if model == COUPLING else "mechanical"]
 
 
 def _read(rel: str) -> bytes:
@@ -148,13 +147,12 @@ def _imported_modules(rel: str) -> list[str]:
     return out
 
 
-def carried_modules() -> list[str]:
-    """Paths ("core/exact.py", "fmus/slave.py") of the modules an FMU carries: the
-    import closure, deferred imports included, of its runtime, stepper and slave modules."""
-    roots = list(_CARRIED_ROOTS)
-    for key in MODELS:
-        module = contract.model(key).slave.split(":")[0]
-        roots.append("/".join(module.split(".")[1:]) + ".py")
+def carried_modules(model: str = "impact-oscillator") -> list[str]:
+    """Paths ("core/exact.py", "fmus/slave.py") of the modules the FMU of ``model`` carries:
+    the import closure, deferred imports included, of its kind's runtime, stepper and slave
+    modules (a mechanical model does not carry the coupling's, nor the coupling the
+    mechanical slave)."""
+    roots = ["fmus/__init__.py"] + [m.replace(".", "/") + ".py" for m in _kind(model).values()]
     seen, todo = set(), roots
     while todo:
         rel = todo.pop()
@@ -164,9 +162,9 @@ def carried_modules() -> list[str]:
     return sorted(seen)
 
 
-def carried_files() -> list[tuple[str, bytes]]:
-    """(path relative to the carried package, content) of the code the FMU runs."""
-    return sorted(_CARRIED_INITS.items()) + [(rel, _read(rel)) for rel in carried_modules()]
+def carried_files(model: str = "impact-oscillator") -> list[tuple[str, bytes]]:
+    """(path relative to the carried package, content) of the code the FMU of ``model`` runs."""
+    return sorted(_CARRIED_INITS.items()) + [(rel, _read(rel)) for rel in carried_modules(model)]
 
 
 def _code_hash(files: list[tuple[str, bytes]]) -> str:
@@ -279,14 +277,14 @@ def warm_cache(resources: dict[str, bytes], build: dict) -> None:
         path = boot.unpack(tmp, build)
     if path not in sys.path:
         sys.path.insert(0, path)
-    stepper = importlib.import_module(f"{build['package']}.{build.get('stepper', 'fmus.stepper')}")
+    stepper = importlib.import_module(f"{build['package']}.{build['stepper']}")
     stepper.step.address  # compiled (or loaded from the cache) at import
 
 
 def _identity(model: str, starts: dict, fmi_version: int = 2) -> tuple[list[tuple[str, bytes]], str, str]:
     """(carried files, their hash, GUID): the GUID changes with the model, the start
     values, the package version, the carried code, the C source and the FMI version, and nothing else."""
-    code = carried_files()
+    code = carried_files(model)
     c_source = b"".join(p.read_bytes() for p in sorted((_fmus_dir() / "c").glob("*.[ch]"))) + constants_header()
     digest = _code_hash(code)
     return code, digest, model_guid(model, starts, digest + hashlib.sha256(c_source).hexdigest()
@@ -295,7 +293,7 @@ def _identity(model: str, starts: dict, fmi_version: int = 2) -> tuple[list[tupl
 
 def fmu_guid(model: str = "impact-oscillator", start_values: dict | None = None, fmi_version: int = 2) -> str:
     """The GUID :func:`export_fmu` gives ``model`` with ``start_values``."""
-    return _identity(model, model_class(model).normalize_start_values(dict(start_values or {})), fmi_version)[2]
+    return _identity(model, model_slave(model).normalize_start_values(dict(start_values or {})), fmi_version)[2]
 
 
 def export_fmu(model: str = "impact-oscillator", path=None, start_values: dict | None = None,
@@ -315,8 +313,7 @@ def export_fmu(model: str = "impact-oscillator", path=None, start_values: dict |
         if fmi_version != 2:
             raise ValueError(f"the coupling FMU is exported for FMI 2.0 only, got fmi_version={fmi_version!r}")
         return export_coupling(path, start_values=start_values, warm=warm)
-    cls = model_class(model)
-    return _export(cls, model, path, start_values, {"slave": _carried_slave(model)}, {}, warm, fmi_version)
+    return _export(model_slave(model), model, path, start_values, {}, warm, fmi_version)
 
 
 def export_coupling(path=None, A=None, n: int = 1, start_values: dict | None = None, warm: bool = True,
@@ -331,10 +328,10 @@ def export_coupling(path=None, A=None, n: int = 1, start_values: dict | None = N
     from .core.coupling import energy_metric
     from .core.network import weights
     from .fmus.contract import matrix
-    from .fmus.coupling import CouplingSpec, coupling_slave
+    from .fmus.coupling import CouplingSlave, CouplingSpec
     A = weights([[0.0, 1.0], [1.0, 0.0]] if A is None else A)
     spec = CouplingSpec.from_weights(A, n)
-    cls = coupling_slave(spec)
+    cls = CouplingSlave(spec)
     starts = {f"a[{a + 1},{b + 1}]": float(A[a, b]) for i, j in spec.edges for a, b in ((i, j), (j, i))}
     starts.update(cls.normalize_start_values(dict(start_values or {})))
     q_names, kp_names = (["Q"], ["Kp"]) if n == 1 else (matrix("Q", n), matrix("Kp", n))
@@ -342,11 +339,10 @@ def export_coupling(path=None, A=None, n: int = 1, start_values: dict | None = N
         p = cls.start_parameters(starts)
         Kp = np.array([p[k] for k in kp_names]).reshape(n, n)
         starts.update(zip(q_names, (float(x) for x in energy_metric(K, Kp, A).reshape(-1))))
-    return _export(cls, COUPLING, path, starts, _COUPLING_BUILD, {"structure": spec.as_dict()}, warm)
+    return _export(cls, COUPLING, path, starts, {"structure": spec.as_dict()}, warm)
 
 
-def _export(cls, model: str, path, start_values, build_extra: dict, start_extra: dict, warm: bool,
-            fmi_version: int = 2) -> Path:
+def _export(cls, model: str, path, start_values, start_extra: dict, warm: bool, fmi_version: int = 2) -> Path:
     starts = cls.normalize_start_values(dict(start_values or {}))
     all_starts = cls.start_parameters(starts)
     try:
@@ -364,7 +360,8 @@ def _export(cls, model: str, path, start_values, build_extra: dict, start_extra:
     boot_module = f"fmu_sync_boot_{digest[:16]}"
     build = {"model": model, "model_identifier": cls.MODEL_IDENTIFIER, "package": package, "code_hash": digest,
              "fmu_sync_version": __version__, "guid": guid,
-             "built_with": _runtime_versions(), "max_substeps": MAX_SUBSTEPS, **build_extra}
+             "built_with": _runtime_versions(), "max_substeps": MAX_SUBSTEPS, "fmi_version": fmi_version,
+             "runtime": _kind(model)["runtime"], "stepper": _kind(model)["stepper"]}
     from fmu_sync.fmus import boot as _boot
     from fmu_sync.fmus.slave import START_FILE
     resources = {f"fmu_sync_code/{rel}": data for rel, data in code}
@@ -448,11 +445,11 @@ def main_export(argv=None) -> int:
             raise ValueError(f"--nodes and --dof are options of the coupling FMU, not of {args.model}")
         if args.model == COUPLING:
             from .core.network import graph
-            from .fmus.coupling import CouplingSpec, coupling_slave
+            from .fmus.coupling import CouplingSlave, CouplingSpec
             A = graph(args.graph, 2 if args.nodes is None else args.nodes)
-            cls = coupling_slave(CouplingSpec.from_weights(A, args.dof))
+            cls = CouplingSlave(CouplingSpec.from_weights(A, args.dof))
         else:
-            cls = model_class(args.model)
+            cls = model_slave(args.model)
         if args.list:
             for v in cls.declare():
                 unit = f" [{v.unit}]" if v.unit else ""

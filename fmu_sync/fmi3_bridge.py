@@ -24,12 +24,13 @@ __all__ = ["FMU3Host", "open_host", "element_names", "OK", "WARNING", "DISCARD",
 _ELEMENT = re.compile(r"^(?P<base>.+)\[(?P<i>\d+)\]$")
 
 
-def open_host(unzipdir, md, name: str, early_return: bool = False):
+def open_host(unzipdir, md, name: str, early_return: bool = False, raises: bool = False):
     """An :class:`FMUHost` (FMI 2.0) or :class:`FMU3Host` (FMI 3.0: early return and
-    event mode if ``early_return``) on an unpacked FMU with model description ``md``."""
+    event mode if ``early_return``) on an unpacked FMU with model description ``md``
+    (``raises``: failed calls raise :class:`fmu_sync.fmi_bridge.SlaveError`)."""
     if md.fmiVersion == "3.0":
-        return FMU3Host(unzipdir, name, True, md, early_return=early_return, event_mode=early_return)
-    return FMUHost(unzipdir, instance_name=name, model_description=md)
+        return FMU3Host(unzipdir, name, True, md, early_return=early_return, event_mode=early_return, raises=raises)
+    return FMUHost(unzipdir, instance_name=name, model_description=md, raises=raises)
 
 
 def element_names(md) -> list[str]:
@@ -44,11 +45,13 @@ def element_names(md) -> list[str]:
 class FMU3Host(FMUHost):
     """One instance of an FMI 3.0 co-simulation FMU, driven through fmpy."""
 
+    PREFIX = "fmi3"
+
     def __init__(self, path, instance_name: str = "instance", logging: bool = True, model_description=None,
-                 early_return: bool = True, event_mode: bool = True):
+                 early_return: bool = True, event_mode: bool = True, raises: bool = False):
         from fmpy.fmi3 import FMU3Slave
 
-        self._open(path, model_description)
+        self._open(path, model_description, instance_name, raises)
         if self.md.fmiVersion != "3.0":
             if self._owns_dir:
                 import shutil
@@ -122,7 +125,7 @@ class FMU3Host(FMUHost):
 
     # ---------------------------------------------------------------- life cycle
     def enter_initialization(self, start_time: float = 0.0) -> int:
-        self.last_time = start_time
+        self.last_time = self.t = start_time
         return self.call("enterInitializationMode", None, start_time)[0]
 
     def exit_initialization(self, start_values: dict | None = None) -> int:
@@ -136,7 +139,10 @@ class FMU3Host(FMUHost):
 
     def do_step(self, t: float, h: float) -> int:
         """fmi3DoStep; keeps ``early_return``, ``event_needed`` and ``last_time``."""
+        self.t = t
         st, res = self.call("doStep", t, h)
+        if st <= WARNING:
+            self.t = t + h
         if res is not None:
             self.event_needed, _, self.early_return, self.last_time = res
         else:

@@ -8,8 +8,10 @@ distance are computed by the core's compiled :func:`fmu_sync.core.pair.coupling_
 function the monolithic :func:`fmu_sync.core.simulate_pair` calls every step. With ``H`` equal to
 the slaves' internal step the two runs agree to round-off.
 
-Structure: :class:`FmuInstance` is a thin, status-checked wrapper of one
-instance (fmpy loads, initialises and frees it); :class:`NetworkMaster` holds one
+Structure: each instance is one host (:class:`FmuInstance`, the
+:class:`fmu_sync.fmi_bridge.FMUHost` of its FMI version made with ``raises=True``:
+fmpy loads, initialises and frees it, and a failed call raises :class:`SlaveError`
+at the call); :class:`NetworkMaster` holds one
 run: it checks the arguments, sets the instances up and hands their FMI C function
 pointers and component handles to the compiled exchange loop
 (:mod:`fmu_sync.cosim_loop`), which runs the communication steps in chunks
@@ -47,6 +49,7 @@ from .core.pair import LAWS
 from .core.plan import RunPlan, plan_run
 from .core.result import NetworkResult, PairResult
 from .fmi3_bridge import element_names, open_host
+from .fmi_bridge import FMUHost, SlaveError
 from .fmus import contract
 from . import cosim_loop as loop
 from .cosim_loop import CALLS, exchange_chunk, fmi_functions
@@ -55,81 +58,18 @@ from .hold import check_hold, check_schemes
 __all__ = ["cosimulate", "cosimulate_network", "NetworkMaster", "NetworkResult", "SlaveError", "FmuInstance",
            "fmu_model", "system_from_fmu", "pair_result"]
 
-STATUS = ("OK", "Warning", "Discard", "Error", "Fatal", "Pending")
 #: Communication steps per compiled chunk when no progress is reported (Ctrl-C is honoured between chunks).
 CHUNK_STEPS = 4096
+#: One FMU instance as the master uses it: the host of its FMI version whose failed calls raise
+#: :class:`SlaveError` (naming the instance, the time, the FMI call, the status and the FMU's
+#: logged reason); :func:`open_instance` makes one.
+FmuInstance = FMUHost
 
 
-class SlaveError(RunFailed):
-    """A slave answered an FMI call with a status worse than fmi2Warning."""
-
-    def __init__(self, slave: str, t: float, call: str, status: int, log: list[str]):
-        reason = log[-1] if log else "no message logged"
-        label = STATUS[status] if 0 <= status < len(STATUS) else str(status)
-        super().__init__(f"slave {slave!r} failed at t = {t:.6g}: {call} returned fmi2{label}: {reason}")
-        self.slave, self.t, self.call, self.status, self.log = slave, t, call, status, list(log)
-
-
-class FmuInstance:
-    """One FMU instance as the master uses it: the status-returning
-    :class:`fmu_sync.fmi_bridge.FMUHost`, with every status worse than
-    fmi2Warning turned into a :class:`SlaveError` naming the instance, the time
-    and the FMU's logged reason."""
-
-    def __init__(self, unzipdir: str, md, name: str, early_return: bool = False):
-        self.name, self.t = name, 0.0
-        self.host = open_host(unzipdir, md, name, early_return)   # FMI 2.0 or FMI 3.0
-        self.vr = self.host.variables
-
-    def _check(self, call: str, status: int):
-        if status > 1:
-            raise SlaveError(self.name, self.t, call, status,
-                             self.host.errors(min_status=1) or [m for _, _, m in self.host.messages])
-
-    def get(self, names) -> np.ndarray:
-        values = self.host.get(names)
-        self._check("fmi2GetReal", self.host.last_status)
-        return np.array(values, dtype=np.float64)
-
-    def get_integer(self, name: str) -> int:
-        value = self.host.get([name])[0]
-        self._check("fmi2GetInteger", self.host.last_status)
-        return int(value)
-
-    def set(self, values: dict) -> None:
-        self._check("fmi2SetReal", self.host.set(values))
-
-    def initialize(self, t0: float, start_values: dict) -> None:
-        self.enter_initialization(t0)
-        self.exit_initialization(start_values)
-
-    def enter_initialization(self, t0: float) -> None:
-        """setupExperiment + enterInitializationMode: variables are readable from here on (FMI 2.0)."""
-        self.t = t0
-        self._check("initialization", self.host.enter_initialization(t0))
-
-    def exit_initialization(self, start_values: dict) -> None:
-        self._check("initialization", self.host.exit_initialization(start_values))
-
-    def do_step(self, t: float, h: float) -> None:
-        self.t = t
-        self._check("fmi2DoStep", self.host.do_step(t, h))
-        self.t = t + h
-
-    def save(self):
-        status, state = self.host.get_state()
-        self._check("fmi2GetFMUstate", status)
-        return state
-
-    def restore(self, state, t: float) -> None:
-        self._check("fmi2SetFMUstate", self.host.set_state(state))
-        self.t = t
-
-    def free_state(self, state) -> None:
-        self._check("fmi2FreeFMUstate", self.host.free_state(state))
-
-    def close(self) -> None:
-        self.host.close()
+def open_instance(unzipdir: str, md, name: str, early_return: bool = False) -> FmuInstance:
+    """The master's instance ``name`` of an unpacked FMU (FMI 2.0, or FMI 3.0 with early return
+    and event mode if ``early_return``): failed calls raise :class:`SlaveError`."""
+    return open_host(unzipdir, md, name, early_return, raises=True)
 
 
 @functools.lru_cache(maxsize=16)
@@ -156,7 +96,7 @@ def system_from_fmu(instance: FmuInstance, model=None) -> MechanicalSystem:
     """The geometry the distance needs (M, w, g0, e), read from the FMU's parameters
     named by the FMU contract (K = C = f0 = 0: only M, w, g0 and e enter the
     distance and the coupling)."""
-    model = model or fmu_model(instance.host.md)
+    model = model or fmu_model(instance.md)
     return model.geometry_system(dict(zip(model.geometry, instance.get(list(model.geometry)))))
 
 
@@ -237,7 +177,7 @@ class NetworkMaster:
     def _start(self, unzipdir: str) -> None:
         model, N = self.model, self.N
         for i in range(N):
-            self.slaves.append(FmuInstance(unzipdir, self.md, f"system{i + 1}", self.EARLY_RETURN))
+            self.slaves.append(open_instance(unzipdir, self.md, f"system{i + 1}", self.EARLY_RETURN))
         for s, sv in zip(self.slaves, self.start_values):
             s.enter_initialization(0.0)   # FMI 2.0: variables are readable from initialization mode on
             s.set(sv)
@@ -309,15 +249,15 @@ class NetworkMaster:
         function addresses and component handle, the value references, the settings and
         the loop's state between chunks."""
         model, N, n = self.model, self.N, self.model.n
-        self.fn = np.stack([fmi_functions(s.host.fmu.dll) for s in self.slaves])
+        self.fn = np.stack([fmi_functions(s.fmu.dll) for s in self.slaves])
         needed = (["fmi2SetRealInputDerivatives"] if self.hold == "foh" else []) + (
             ["fmi2GetFMUstate", "fmi2SetFMUstate", "fmi2FreeFMUstate"] if self.event_aware else [])
         for name in needed:
             if not np.all(self.fn[:, CALLS.index(name)]):
                 why = "hold='foh'" if "Derivatives" in name else "event_aware=True"
                 raise ValueError(f"{self.fmu}: its binary does not export {name}, which {why} needs")
-        self.comp = np.array([s.host.fmu.component or 0 for s in self.slaves], dtype=np.int64)
-        ref = (lambda names: np.array([self.slaves[0].vr[v].valueReference for v in names], dtype=np.uint32))
+        self.comp = np.array([s.fmu.component or 0 for s in self.slaves], dtype=np.int64)
+        ref = (lambda names: np.array([self.slaves[0].variables[v].valueReference for v in names], dtype=np.uint32))
         self.vr_out, self.vr_tau, self.vr_imp = ref(model.q + model.u), ref(model.tau), ref([contract.IMPACTS])
         E2, W2 = edge_arrays(self.A, self.edges)
         flags = np.zeros(loop.FLAGS, dtype=np.int64)
@@ -368,9 +308,8 @@ class NetworkMaster:
         if code == loop.SLAVE_FAILED:
             s = self.slaves[i]
             if status >= 4:   # fmi2Fatal: no call but freeing it any more
-                s.host.dead = True
-            return SlaveError(s.name, t, CALLS[call], status,
-                              s.host.errors(min_status=1) or [m for _, _, m in s.host.messages])
+                s.dead = True
+            return s.failure(CALLS[call], status, t)
         if code == loop.FORCE_BOUND:
             return self.force_bound(i, t)
         return self.diverged(t, "a state" if code == loop.STATE_DIVERGED else "a distance")

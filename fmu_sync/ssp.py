@@ -332,7 +332,7 @@ def _coupling_setup(pkg: SspPackage, zf: zipfile.ZipFile, tmp: Path):
     """(coupling slave class, its parameter values): the FMU's start values under the bindings."""
     import json
 
-    from .fmus.coupling import CouplingSpec, coupling_slave
+    from .fmus.coupling import CouplingSlave, CouplingSpec
     src = pkg.sources.get(COUPLING_COMPONENT)
     if src is None:
         raise SsdError(f"{pkg.path}: no component {COUPLING_COMPONENT!r} (the coupling FMU); components: "
@@ -345,7 +345,7 @@ def _coupling_setup(pkg: SspPackage, zf: zipfile.ZipFile, tmp: Path):
                            f"fmu_sync_start.json)") from None
     if start.get("model") != "coupling":
         raise SsdError(f"{pkg.path}: {src} is the {start.get('model')!r} model, not the coupling FMU")
-    cls = coupling_slave(CouplingSpec.from_dict(start["structure"]))
+    cls = CouplingSlave(CouplingSpec.from_dict(start["structure"]))
     values = cls.start_parameters(cls.normalize_start_values(start["start"]))
     values.update(cls.normalize_start_values(pkg.parameters.get(COUPLING_COMPONENT, {})))
     return cls, values

@@ -83,19 +83,26 @@ def _categories_and_experiment(root: Element, log_categories: dict[str, str], de
     SubElement(root, "DefaultExperiment", {k: fmt_real(v) for k, v in default_experiment.items()})
 
 
+def _head(fmi_version: str, identity: dict, model_name: str, description: str, generation_tool: str,
+          cosimulation: dict, variables: list[Var], log_categories: dict, default_experiment: dict) -> Element:
+    """<fmiModelDescription> with its attributes (``identity``: the GUID or FMI 3.0 instantiation
+    token), <CoSimulation>, unit and type definitions, log categories and the default experiment:
+    what both FMI versions write before the variables."""
+    root = Element("fmiModelDescription", {"fmiVersion": fmi_version, "modelName": model_name, **identity,
+                                           "description": description, "generationTool": generation_tool,
+                                           "variableNamingConvention": "structured"})
+    SubElement(root, "CoSimulation", cosimulation)
+    _unit_definitions(root, {v.unit for v in variables if v.unit})
+    _type_definitions(root, {v.declared_type for v in variables if v.declared_type}, fmi3=fmi_version == "3.0")
+    _categories_and_experiment(root, log_categories, default_experiment)
+    return root
+
+
 def model_description(*, model_name: str, model_identifier: str, guid: str, description: str,
                       generation_tool: str, variables: list[Var], default_experiment: dict,
                       log_categories: dict[str, str]) -> Element:
     """The complete <fmiModelDescription> element (FMI 2.0, co-simulation)."""
-    root = Element("fmiModelDescription", {
-        "fmiVersion": "2.0",
-        "modelName": model_name,
-        "guid": guid,
-        "description": description,
-        "generationTool": generation_tool,
-        "variableNamingConvention": "structured",
-    })
-    SubElement(root, "CoSimulation", {
+    root = _head("2.0", {"guid": guid}, model_name, description, generation_tool, {
         "modelIdentifier": model_identifier,
         "needsExecutionTool": "false",
         "canHandleVariableCommunicationStepSize": "true",
@@ -107,10 +114,7 @@ def model_description(*, model_name: str, model_identifier: str, guid: str, desc
         "canGetAndSetFMUstate": "true",
         "canSerializeFMUstate": "true",
         "providesDirectionalDerivative": "false",
-    })
-    _unit_definitions(root, {v.unit for v in variables if v.unit})
-    _type_definitions(root, {v.declared_type for v in variables if v.declared_type})
-    _categories_and_experiment(root, log_categories, default_experiment)
+    }, variables, log_categories, default_experiment)
 
     mv = SubElement(root, "ModelVariables")
     index = {}
@@ -203,15 +207,7 @@ def model_description3(*, model_name: str, model_identifier: str, token: str, de
     """The complete <fmiModelDescription> element (FMI 3.0, co-simulation with
     early return and event mode); ``time_vr``: value reference of the independent
     variable ``time``."""
-    root = Element("fmiModelDescription", {
-        "fmiVersion": "3.0",
-        "modelName": model_name,
-        "instantiationToken": token,
-        "description": description,
-        "generationTool": generation_tool,
-        "variableNamingConvention": "structured",
-    })
-    SubElement(root, "CoSimulation", {
+    root = _head("3.0", {"instantiationToken": token}, model_name, description, generation_tool, {
         "modelIdentifier": model_identifier,
         "needsExecutionTool": "false",
         "canBeInstantiatedOnlyOncePerProcess": "false",
@@ -226,10 +222,7 @@ def model_description3(*, model_name: str, model_identifier: str, token: str, de
         "canReturnEarlyAfterIntermediateUpdate": "false",
         "hasEventMode": "true",
         "providesEvaluateDiscreteStates": "false",
-    })
-    _unit_definitions(root, {v.unit for v in variables if v.unit})
-    _type_definitions(root, {v.declared_type for v in variables if v.declared_type}, fmi3=True)
-    _categories_and_experiment(root, log_categories, default_experiment)
+    }, variables, log_categories, default_experiment)
 
     mv = SubElement(root, "ModelVariables")
     SubElement(mv, "Float64", name="time", valueReference=str(time_vr), causality="independent",

@@ -14,10 +14,12 @@ with the standard library only. For each fmi2Instantiate, :func:`instantiate`:
    ``/tmp`` or ``/var/tmp``/fmu-sync-<uid>; none writable: an error that names
    them and says to set FMU_SYNC_CACHE), ``<folder>/<hash>/<package>``: a stable source path, so numba's
    on-disk cache hits across the fresh temp folders an importer unzips to;
-3. imports ``<package>.fmus.runtime`` (or the build's ``runtime`` module, e.g.
+3. imports the build's ``runtime`` module (``fmus.runtime`` for a mechanical model,
    ``fmus.coupling_runtime`` for the coupling FMU) from there (a package name unique to the
    content: two FMUs of different code coexist in one process) and returns a
-   new instance.
+   new instance (``runtime.create(resources, model, max_substeps, fmi_version)``).
+
+Its messages name the instantiation call of the build's FMI version.
 """
 from __future__ import annotations
 
@@ -32,6 +34,8 @@ BUILD_FILE = "fmu_sync_build.json"
 CODE_DIR = "fmu_sync_code"
 #: the temporary folders tried after $TMPDIR (when the user's cache folder is not writable)
 TMP_DIRS = ("/tmp", "/var/tmp")
+#: the instantiation call of each FMI version (the build record's fmi_version)
+INSTANTIATE = {2: "fmi2Instantiate", 3: "fmi3InstantiateCoSimulation"}
 _checked: dict[str, list[str]] = {}
 
 
@@ -71,14 +75,15 @@ def _advice(embedded: bool) -> str:
             f"interpreter (FMU_SYNC_PYTHON is ignored in a Python host)")
 
 
-def check_runtime(built: dict, embedded: bool = False) -> list[str]:
+def check_runtime(built: dict, embedded: bool = False, call: str = INSTANTIATE[2]) -> list[str]:
     """Messages about the running environment versus the build (E: missing, W: different);
-    ``embedded``: the binary started this interpreter (a C host), else the host's own."""
+    ``embedded``: the binary started this interpreter (a C host), else the host's own;
+    ``call``: the instantiation call the messages name."""
     out = []
     where = f"the Python environment {sys.prefix} (Python {sys.version.split()[0]}, {sys.executable})"
     py_now = ".".join(map(str, sys.version_info[:3]))
     if py_now != built.get("python"):
-        out.append(f"W:fmi2Instantiate: running on Python {py_now}; the FMU was built with Python "
+        out.append(f"W:{call}: running on Python {py_now}; the FMU was built with Python "
                    f"{built.get('python')} (its code is plain Python; numba compiles it for this one)")
     for dist in ("numpy", "numba"):
         have = _version(dist)
@@ -88,10 +93,10 @@ def check_runtime(built: dict, embedded: bool = False) -> list[str]:
                     if embedded else
                     f"install them into that environment ({sys.executable} -m pip install numpy numba), or "
                     f"run the importer from an environment that has them")
-            out.append(f"E:fmi2Instantiate: {where} lacks {dist} (the FMU was built with {dist} {want}); "
+            out.append(f"E:{call}: {where} lacks {dist} (the FMU was built with {dist} {want}); "
                        f"{_advice(embedded)}: {todo}")
         elif have != want:
-            out.append(f"W:fmi2Instantiate: {dist} {have} in {where}; the FMU was built with {dist} {want}")
+            out.append(f"W:{call}: {dist} {have} in {where}; the FMU was built with {dist} {want}")
     return out
 
 
@@ -162,12 +167,15 @@ def instantiate(resources_dir: str, instance_name: str, guid: str, embedded: int
     """(reply, instance or None) for the binary; never raises. ``embedded``: the
     binary started this interpreter (a plain C host), else it is the host's own."""
     msgs: list[str] = []
+    call = INSTANTIATE[2]
     try:
         with open(os.path.join(resources_dir, BUILD_FILE), encoding="utf-8") as f:
             build = json.load(f)
+        fmi_version = int(build.get("fmi_version", 2))
+        call = INSTANTIATE[fmi_version]
         key = build["code_hash"]
         if key not in _checked:
-            _checked[key] = check_runtime(build["built_with"], bool(embedded))
+            _checked[key] = check_runtime(build["built_with"], bool(embedded), call)
         msgs += _checked[key]
         if any(m.startswith("E:") for m in msgs):
             return "\x1e".join(msgs), None
@@ -177,19 +185,17 @@ def instantiate(resources_dir: str, instance_name: str, guid: str, embedded: int
             if path not in sys.path:
                 sys.path.insert(0, path)
         import importlib
-        runtime = importlib.import_module(f"{package}.{build.get('runtime', 'fmus.runtime')}")
-        module, cls = build["slave"].split(":")
-        slave_cls = getattr(importlib.import_module(f"{package}.{module}"), cls)
-        reply, inst = runtime.create(slave_cls, resources_dir, build["model"],
-                                     float(build.get("max_substeps", "inf")))
+        runtime = importlib.import_module(f"{package}.{build['runtime']}")
+        reply, inst = runtime.create(resources_dir, build["model"], float(build.get("max_substeps", "inf")),
+                                     fmi_version)
         if reply:
             msgs.append(reply)
         return "\x1e".join(msgs), inst
     except SetupError as exc:
-        msgs.append(f"E:fmi2Instantiate: {exc}")
+        msgs.append(f"E:{call}: {exc}")
         return "\x1e".join(msgs), None
     except Exception as exc:
         import traceback
         tb = traceback.format_exc(limit=4).replace("\x1e", " ")
-        msgs.append(f"E:fmi2Instantiate: cannot set up the Python slave: {exc!r}\n{tb}")
+        msgs.append(f"E:{call}: cannot set up the Python slave: {exc!r}\n{tb}")
         return "\x1e".join(msgs), None

@@ -12,7 +12,8 @@ Everything that crosses the FMI boundary is named here and nowhere else:
   start state and solver settings) and the FMU's parameter/start values, both
   ways, and the geometry (M, w, g0, e) an importer reads back from an FMU.
 
-The slave classes (:mod:`.slave`), the export (:mod:`fmu_sync.export`), the
+The one slave of every model (:class:`.slave.MechanicalSlave`, built on an
+:class:`FmuModel`), the export (:mod:`fmu_sync.export`), the
 master (:mod:`fmu_sync.master`) and the scenes all go through this module. It
 imports nothing but the standard library, numpy and the core, so that it can
 travel inside an FMU together with ``core/``.
@@ -223,7 +224,9 @@ def _outputs(n: int, depends: dict) -> list[Var]:
 # ---------------------------------------------------------------- the registry
 @dataclass(frozen=True)
 class FmuModel:
-    """One model of the registry: its FMU interface and its link to the core.
+    """One model of the registry: its FMU interface and its link to the core (the one
+    model object: :class:`.slave.MechanicalSlave` and the instance behind the binary are
+    generic and take everything model-specific from it).
 
     ``declare()`` returns the interface (a fresh :class:`Var` list, in
     value-reference order); ``system(values)`` builds the core system from
@@ -233,8 +236,6 @@ class FmuModel:
 
     key: str                 # export key (fmu_sync.export_fmu(model=...))
     identifier: str          # FMI modelIdentifier
-    module_name: str         # module name of the FMU's entry-point script (unique per model)
-    slave: str               # "module:class" of the slave implementing it
     family: str              # the scenes' system.model
     n: int
     description: str
@@ -328,6 +329,8 @@ def _io_geometry(p: dict) -> MechanicalSystem:
     return MechanicalSystem(M=[[p["m"]]], K=z, C=z, f0=np.zeros(1), w=np.ones(1), g0=0.0, e=p["e"])
 
 
+# 1-DOF impact oscillator (ImpactOscillator): m q'' + c q' + k q = f0 + F cos(Omega t + phi) + tau,
+# q >= 0 (wall at q = 0), Newton restitution e. Defaults: scenes/forced-pair.toml, system 1.
 def _io_declare() -> list[Var]:
     outputs = _outputs(1, {
         "q": ["q_start"], "u": ["u_start"], GAP: ["q_start"],
@@ -437,15 +440,13 @@ def _ms2_geometry(p: dict) -> MechanicalSystem:
 #: The model registry: export key -> :class:`FmuModel`.
 MODELS: dict[str, FmuModel] = {m.key: m for m in (
     FmuModel(
-        key="impact-oscillator", identifier="ImpactOscillator", module_name="fmu_sync_impact_oscillator",
-        slave="fmu_sync.fmus.impact_oscillator:ImpactOscillatorSlave", family="impact-oscillator", n=1,
+        key="impact-oscillator", identifier="ImpactOscillator", family="impact-oscillator", n=1,
         description=("1-DOF impact oscillator m q'' + c q' + k q = f0 + F cos(Omega t + phi) + tau, "
                      "q >= 0, Newton restitution e; Moreau time-stepping (fmu-sync core)"),
         declare=_io_declare, system=_io_system, values=_io_values, geometry=("m", "e"),
         _geometry_system=_io_geometry),
     FmuModel(
-        key="mechanical-system-2", identifier="MechanicalSystem2", module_name="fmu_sync_mechanical_system2",
-        slave="fmu_sync.fmus.mechanical_system2:MechanicalSystem2Slave", family="mechanical-system", n=_N2,
+        key="mechanical-system-2", identifier="MechanicalSystem2", family="mechanical-system", n=_N2,
         description=("2-DOF mechanical system M q'' + C q' + K q = f0 + F cos(Omega t + phi) + tau "
                      "with the unilateral constraint w^T q + g0 >= 0 and Newton restitution e; "
                      "Moreau time-stepping (fmu-sync core)"),

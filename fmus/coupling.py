@@ -32,9 +32,9 @@ import numpy as np
 from ..core.coupling import gain_matrix
 from ..core.distance import make_geometry
 from .contract import INPUT_BOUND, LAW_ITEMS, LAW_TYPE, POSITIVE_MIN, Var, matrix
-from .slave import MechanicalSlave
+from .slave import Slave
 
-__all__ = ["CouplingSpec", "CouplingSlave", "coupling_slave", "node_names", "edge_names", "MODEL",
+__all__ = ["CouplingSpec", "CouplingSlave", "node_names", "edge_names", "MODEL",
            "IDENTIFIER", "BRANCH_CODES"]
 
 MODEL = "coupling"
@@ -153,30 +153,33 @@ class CouplingConfiguration:
         self.laws, self.W2, self.Kp, self.Kd, self.geo = laws, W2, Kp, Kd, geo
 
 
-class CouplingSlave(MechanicalSlave):
-    """The coupling FMU of one structure (:func:`coupling_slave` makes the class)."""
+class CouplingSlave(Slave):
+    """The slave of the coupling FMU of one structure: ``CouplingSlave(spec)``."""
 
     MODEL = MODEL
     MODEL_IDENTIFIER = IDENTIFIER
-    DESCRIPTION = ""
-    SPEC: CouplingSpec = None
-    DEFAULT_EXPERIMENT = {"startTime": 0.0, "stopTime": 10.0, "stepSize": 1e-2}
 
-    @classmethod
-    def declare(cls) -> list[Var]:
-        return declare(cls.SPEC)
+    def __init__(self, spec: CouplingSpec):
+        self.SPEC = spec
+        self.N = spec.n
+        edges = ", ".join(f"({i + 1},{j + 1})" for i, j in spec.edges)
+        self.DESCRIPTION = (
+            f"Synchronizing coupling of {spec.N} mechanical systems with {spec.n} degree(s) of freedom on "
+            f"the edges {edges}: forces tau_i = sum_j a_ij tau_i^(j) of the switching quotient or "
+            f"Euclidean PD law per edge, quotient distance d and V per edge (fmu-sync core)")
 
-    @classmethod
-    def _square(cls, p: dict, sym: str):
-        n = cls.SPEC.n
+    def declare(self) -> list[Var]:
+        return declare(self.SPEC)
+
+    def _square(self, p: dict, sym: str):
+        n = self.SPEC.n
         if n == 1:
             return np.array([[p[sym]]], dtype=np.float64)
         return np.array([p[k] for k in matrix(sym, n)], dtype=np.float64).reshape(n, n)
 
-    @classmethod
-    def configure(cls, p: dict) -> CouplingConfiguration:
+    def configure(self, p: dict) -> CouplingConfiguration:
         """Validate a complete parameter set; raises ValueError naming what is wrong."""
-        spec = cls.SPEC
+        spec = self.SPEC
         n, E = spec.n, len(spec.edges)
         codes = {v for _, v, _ in LAW_ITEMS}
         laws = np.array([p[k] for k in edge_names("law", E)], dtype=np.int64)
@@ -187,21 +190,11 @@ class CouplingSlave(MechanicalSlave):
                       dtype=np.float64).reshape(E, 2)
         if not (np.all(np.isfinite(W2)) and np.all(W2 >= 0.0)):
             raise ValueError(f"the weights a[i,j] must be finite and >= 0, got {W2.tolist()}")
-        Kp = gain_matrix(cls._square(p, "Kp"), n, "Kp")
-        Kd = gain_matrix(cls._square(p, "Kd"), n, "Kd")
+        Kp = gain_matrix(self._square(p, "Kp"), n, "Kp")
+        Kd = gain_matrix(self._square(p, "Kd"), n, "Kd")
         w = [p["w"]] if n == 1 else [p[f"w[{k + 1}]"] for k in range(n)]
-        geo = make_geometry(cls._square(p, "M"), w, p["g0"], p["e"], cls._square(p, "Q"))
+        geo = make_geometry(self._square(p, "M"), w, p["g0"], p["e"], self._square(p, "Q"))
         return CouplingConfiguration(laws, W2, Kp, Kd, geo)
 
-    @classmethod
-    def input_names(cls) -> list[str]:
-        return [v.name for v in cls.declare() if v.causality == "input"]
-
-
-def coupling_slave(spec: CouplingSpec) -> type:
-    """The slave class of a coupling FMU with this structure."""
-    edges = ", ".join(f"({i + 1},{j + 1})" for i, j in spec.edges)
-    desc = (f"Synchronizing coupling of {spec.N} mechanical systems with {spec.n} degree(s) of freedom on "
-            f"the edges {edges}: forces tau_i = sum_j a_ij tau_i^(j) of the switching quotient or "
-            f"Euclidean PD law per edge, quotient distance d and V per edge (fmu-sync core)")
-    return type("CouplingSlave", (CouplingSlave,), {"SPEC": spec, "DESCRIPTION": desc, "N": spec.n})
+    def input_names(self) -> list[str]:
+        return [v.name for v in self.declare() if v.causality == "input"]

@@ -13,40 +13,36 @@ import math
 import numpy as np
 
 from . import coupling_stepper as CS
-from .coupling import CouplingSpec, coupling_slave
-from .runtime import InstanceBase, read_start_file
-from .slave import PHASES, START_FILE
-from .stepper import H_CONFIGURED, H_PHASE, H_TIME
+from .coupling import CouplingSlave, CouplingSpec
+from .runtime import InstanceBase, create_instance
+from .slave import PHASES
+from .stepper import H_CONFIGURED
 
 __all__ = ["CouplingInstance", "create", "STATE_FORMAT"]
 
 STATE_FORMAT = "fmu-sync-coupling-state/1"
-_PHASE_NAMES = {code: name for name, code in PHASES.items()}
 
 
 class CouplingInstance(InstanceBase):
     """One instance of a coupling FMU: variable array, table, work array; validation and state."""
 
-    def __init__(self, slave_cls, start_values: dict):
-        self._declare(slave_cls, start_values)
-        spec = self.spec = slave_cls.SPEC
-        N, n, E, m = spec.N, spec.n, len(spec.edges), len(self.inputs)
-        self.m = m
+    STATE_FORMAT = STATE_FORMAT
+
+    def __init__(self, slave: CouplingSlave, start_values: dict, fmi_version: int = 2):
+        super().__init__(slave, start_values, fmi_version)
+        spec = self.spec = slave.SPEC
+        N, n, E, m = spec.N, spec.n, len(spec.edges), self.m
         self.work = np.zeros(CS.work_size(N, n, E, m))
         first = {key: self.index[(f"{key}[1]" if key not in ("q", "u", "tau") or n == 1 else f"{key}[1,1]")]
                  for key in ("q", "u", "tau", "d", "V", "euclidean", "branch")}
         CS.init_header(self.work, N, n, E, m, len(self.vars), first)
         self.i_in = int(self.work[CS.C_IQ])
         self.outputs = [self.index[v.name] for v in self.vars if v.causality == "output"]
-        self.cfg = None
         self._bind(CS.step)
         self._reset_values()
 
     def _reset_values(self) -> None:
-        self.x[:] = self.starts
-        self.work[H_TIME] = 0.0
-        self.cfg = None
-        self.work[H_CONFIGURED] = 0.0
+        self._clear()
         self.refresh()
 
     def _evaluate(self) -> None:
@@ -76,12 +72,8 @@ class CouplingInstance(InstanceBase):
         return ""
 
     # ------------------------------------------------------------ FMU state
-    def get_state(self) -> dict:
-        return {"format": STATE_FORMAT, "model": self.cls.MODEL, "spec": self.spec.as_dict(),
-                "phase": _PHASE_NAMES.get(int(self.work[H_PHASE]), "instantiated"),
-                "time": float(self.work[H_TIME]),
-                "inputs": self.x[self.i_in:self.i_in + self.m].tolist(),
-                "parameters": self._parameters()}
+    def _state(self) -> dict:
+        return {"spec": self.spec.as_dict(), "inputs": self.x[self.i_in:self.i_in + self.m].tolist()}
 
     def state_reason(self, s) -> tuple[str | None, object]:
         if not isinstance(s, dict) or s.get("format") != STATE_FORMAT:
@@ -109,37 +101,24 @@ class CouplingInstance(InstanceBase):
                 r = v.check(p[v.name])
                 if r:
                     return f"parameter {r}", None
-            cfg = self.cls.configure(p)
+            cfg = self.slave.configure(p)
         except KeyError as exc:
             return f"missing entry {exc}", None
         except ValueError as exc:
             return f"its parameters are invalid: {exc}", None
         return None, cfg
 
-    def set_state(self, s) -> str:
-        reason, cfg = self.state_reason(s)
-        if reason:
-            return f"E:fmi2SetFMUstate: {reason}; state unchanged"
-        for name, value in s["parameters"].items():
-            self.x[self.index[name]] = value
+    def _restore(self, s: dict, cfg) -> None:
         self.x[self.i_in:self.i_in + self.m] = s["inputs"]
-        self.work[H_TIME] = s["time"]
-        self.work[H_PHASE] = PHASES[s["phase"]]
         self._install(cfg)
         self._evaluate()
-        return ""
 
 
-def create(slave_base, resources_dir: str, model: str,
-           max_substeps: float = math.inf) -> tuple[str, CouplingInstance | None]:
+def create(resources_dir: str, model: str, max_substeps: float = math.inf,
+           fmi_version: int = 2) -> tuple[str, CouplingInstance | None]:
     """A new instance: the structure and start values of ``resources/fmu_sync_start.json``
     (``max_substeps``: unused, the coupling has no internal steps)."""
-    reply, data = read_start_file(resources_dir, model)
-    if data is None:
-        return reply, None
-    try:
-        cls = coupling_slave(CouplingSpec.from_dict(data["structure"]))
-        starts = cls.normalize_start_values(data.get("start", {}))
-    except (KeyError, TypeError, ValueError) as exc:
-        return f"E:fmi2Instantiate: bad structure or start value in {START_FILE}: {exc!r}", None
-    return "", CouplingInstance(cls, starts)
+    def make(data):
+        slave = CouplingSlave(CouplingSpec.from_dict(data["structure"]))
+        return CouplingInstance(slave, slave.normalize_start_values(data.get("start", {})), fmi_version)
+    return create_instance(resources_dir, model, fmi_version, make)

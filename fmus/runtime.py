@@ -22,10 +22,11 @@ import numpy as np
 
 from . import stepper as S
 from ._xml import POSITIVE_MIN, fmi3_groups
-from .slave import PHASES, RUNNING_PHASES, START_FILE, STATE_FORMAT
+from .contract import model as contract_model
+from .slave import PHASES, RUNNING_PHASES, START_FILE, STATE_FORMAT, MechanicalSlave
 
-__all__ = ["FMUInstance", "create", "LAYOUT", "TYPES", "CAUSALITIES", "variable_table", "InstanceBase",
-           "read_start_file"]
+__all__ = ["FMUInstance", "create", "LAYOUT", "TYPES", "CAUSALITIES", "CALL_NAMES", "variable_table",
+           "InstanceBase", "create_instance"]
 
 #: what layout() hands over, in order (one uint64 each; the binary's FSR_L_* indices)
 LAYOUT = ("version", "nvars", "x", "type", "caus", "min", "max", "work", "stepper", "names", "hints")
@@ -33,6 +34,13 @@ LAYOUT = ("version", "nvars", "x", "type", "caus", "min", "max", "work", "steppe
 TYPES = {"Real": 0, "Integer": 1, "Enumeration": 2}
 CAUSALITIES = {"parameter": 0, "input": 1, "output": 2}
 _PHASE_NAMES = {code: name for name, code in PHASES.items()}
+#: the FMI calls a reply names, per FMI version of the glue in use (the build record's fmi_version)
+CALL_NAMES = {
+    2: {"instantiate": "fmi2Instantiate", "exit": "fmi2ExitInitializationMode", "reset": "fmi2Reset",
+        "set_state": "fmi2SetFMUstate", "deserialize": "fmi2DeSerializeFMUstate", "error": "fmi2Error"},
+    3: {"instantiate": "fmi3InstantiateCoSimulation", "exit": "fmi3ExitInitializationMode", "reset": "fmi3Reset",
+        "set_state": "fmi3SetFMUState", "deserialize": "fmi3DeserializeFMUState", "error": "fmi3Error"},
+}
 
 
 def _q_u_names(n):
@@ -71,18 +79,27 @@ def variable_table(vars_: list) -> tuple:
 
 
 class InstanceBase:
-    """What every Python instance behind the binary shares: the variables and their
-    table, the layout handed to the binary, the parameter values, state bytes."""
+    """What every Python instance behind the binary shares (a mechanical model's and the
+    coupling's): the slave, the variables and their table, the layout handed to the binary,
+    the parameter values, the FMU state's common part and its bytes. A kind of instance
+    gives ``_reset_values``, ``refresh``, ``exit_initialization``, ``_state``, ``_restore``
+    and ``state_reason``."""
 
-    def _declare(self, slave_cls, start_values: dict) -> None:
-        self.cls = slave_cls
-        self.vars = slave_cls.variables(start_values)
+    #: the format tag of this kind's FMU states
+    STATE_FORMAT = STATE_FORMAT
+
+    def __init__(self, slave, start_values: dict, fmi_version: int = 2):
+        self.slave = slave
+        self.calls = CALL_NAMES[fmi_version]
+        self.vars = slave.variables(start_values)
         self.index = {v.name: i for i, v in enumerate(self.vars)}
         self.params = [v for v in self.vars if v.causality == "parameter"]
         self.inputs = [v for v in self.vars if v.causality == "input"]
         (self.starts, self.vtype, self.vcaus, self.vmin, self.vmax, self._names,
          self._hints) = variable_table(self.vars)
         self.x = self.starts.copy()
+        self.m = len(self.inputs)
+        self.cfg = None
 
     def _bind(self, stepper) -> None:
         """The numba cfunc ``stepper`` (same signature for every model), callable from Python."""
@@ -111,15 +128,41 @@ class InstanceBase:
 
     def _configuration(self) -> tuple[str, object]:
         """("", configuration) of the current parameters, or (the reply refusing
-        fmi2ExitInitializationMode, None)."""
+        the exit of initialization mode, None)."""
         try:
-            return "", self.cls.configure(self._parameters())
+            return "", self.slave.configure(self._parameters())
         except ValueError as exc:
-            return (f"E:fmi2ExitInitializationMode: invalid configuration: {exc}; the instance stays in "
-                    f"initialization mode (set valid parameters and call it again, or fmi2Reset)"), None
+            return (f"E:{self.calls['exit']}: invalid configuration: {exc}; the instance stays in "
+                    f"initialization mode (set valid parameters and call it again, or {self.calls['reset']})"), None
+
+    def _clear(self) -> None:
+        """Back to the start values, unconfigured, at time 0 (each kind then clears its own slots)."""
+        self.x[:] = self.starts
+        self.work[S.H_TIME] = 0.0
+        self.work[S.H_CONFIGURED] = 0.0
+        self.cfg = None
 
     def reset(self) -> str:
         self._reset_values()
+        return ""
+
+    # ------------------------------------------------------------ FMU state
+    def get_state(self) -> dict:
+        """The instance's state: the part every kind shares and the kind's own (``_state``)."""
+        return {"format": self.STATE_FORMAT, "model": self.slave.MODEL,
+                "phase": _PHASE_NAMES.get(int(self.work[S.H_PHASE]), "instantiated"),
+                "time": float(self.work[S.H_TIME]), "parameters": self._parameters(), **self._state()}
+
+    def set_state(self, s) -> str:
+        """Restore a saved state (checked by ``state_reason``; a refused one changes nothing)."""
+        reason, cfg = self.state_reason(s)
+        if reason:
+            return f"E:{self.calls['set_state']}: {reason}; state unchanged"
+        for name, value in s["parameters"].items():
+            self.x[self.index[name]] = value
+        self.work[S.H_TIME] = s["time"]
+        self.work[S.H_PHASE] = PHASES[s["phase"]]
+        self._restore(s, cfg)
         return ""
 
     def state_reason(self, s) -> tuple[str | None, object]:
@@ -127,32 +170,33 @@ class InstanceBase:
         raise NotImplementedError
 
     def serialize(self, s) -> bytes:
-        return self.cls.state_to_bytes(s)
+        return self.slave.state_to_bytes(s)
 
     def deserialize(self, data: bytes):
         try:
-            s = self.cls.state_from_bytes(data)
+            s = self.slave.state_from_bytes(data)
         except Exception as exc:
-            return (f"E:fmi2DeSerializeFMUstate: cannot deserialise the FMU state ({len(data)} bytes): {exc}",
+            return (f"E:{self.calls['deserialize']}: cannot deserialise the FMU state ({len(data)} bytes): {exc}",
                     None)
         reason, _ = self.state_reason(s)
         if reason:
-            return f"E:fmi2DeSerializeFMUstate: {reason}", None
+            return f"E:{self.calls['deserialize']}: {reason}", None
         return "", s
 
 
 class FMUInstance(InstanceBase):
     """One instance: variable array, table, work array; validation and state."""
 
-    def __init__(self, slave_cls, start_values: dict, max_substeps: float = math.inf):
-        self._declare(slave_cls, start_values)
+    def __init__(self, slave: MechanicalSlave, start_values: dict, max_substeps: float = math.inf,
+                 fmi_version: int = 2):
+        super().__init__(slave, start_values, fmi_version)
         self.max_substeps = max_substeps     # the binary's limit of internal steps per doStep
         nv = len(self.vars)
 
-        n, m = slave_cls.N, len(self.inputs)
+        n, m = slave.N, self.m
         qn, un = _q_u_names(n)
-        self.n, self.m = n, m
-        self.work = np.zeros(S.work_size(n, m, slave_cls.NF_MAX, nv))
+        self.n = n
+        self.work = np.zeros(S.work_size(n, m, slave.NF_MAX, nv))
         w = self.work
         w[S.H_LEN] = w.shape[0]
         w[S.H_VERSION] = S.WORK_VERSION
@@ -173,21 +217,17 @@ class FMUInstance(InstanceBase):
         w[S.H_IIMPACTS], w[S.H_IPERC] = self.index["impacts"], self.index["percussion"]
         self.i_gap, self.i_energy = self.index["gap"], self.index["energy"]
         self.i_impacts, self.i_perc = self.index["impacts"], self.index["percussion"]
-        self.cfg = None
         self._bind(S.step)
         self._reset_values()
 
     # ------------------------------------------------------------ helpers
     def _reset_values(self) -> None:
-        self.x[:] = self.starts
+        self._clear()
         self.x[self.i_impacts] = 0.0
         self.x[self.i_perc] = 0.0
-        self.work[S.H_TIME] = 0.0
-        self.work[S.H_CONFIGURED] = 0.0
         self.work[S.H_VREF] = 0.0
         self.work[S.H_PEND_P] = 0.0
         self.work[self.i_taudot:self.i_taudot + self.m] = 0.0
-        self.cfg = None
         self.refresh()
 
     def _install(self, cfg) -> None:
@@ -209,11 +249,11 @@ class FMUInstance(InstanceBase):
         """Outputs in initialization mode: q, u from q_start, u_start; gap and
         energy of the current parameters (NaN while they are not a valid system)."""
         p = self._parameters()
-        q0, u0 = self.cls.start_state(p)
+        q0, u0 = self.slave.start_state(p)
         self.x[self.i_q:self.i_q + self.n] = q0
         self.x[self.i_u:self.i_u + self.n] = u0
         try:
-            system = self.cls.build_system(p)
+            system = self.slave.build_system(p)
             self.x[self.i_gap] = system.gap(q0)
             self.x[self.i_energy] = system.energy(q0, u0)
         except ValueError:
@@ -239,23 +279,19 @@ class FMUInstance(InstanceBase):
         """A notice when the default experiment's step needs more internal steps than a doStep may take
         (logged as a warning; the call stays OK: an importer may use smaller steps, and some importers,
         fmusim for one, stop at any status other than OK)."""
-        H = float(self.cls.DEFAULT_EXPERIMENT["stepSize"])
+        H = float(self.slave.DEFAULT_EXPERIMENT["stepSize"])
         count = math.ceil(H / cfg.dt - 1e-9)      # as fsr_step (fmus/c/fmu_sync_runtime.c) counts them
         if cfg.scheme == S.EXACT or count <= self.max_substeps:
             return ""
-        return (f"N:fmi2ExitInitializationMode: solver.dt = {cfg.dt:g} makes a doStep of the default "
+        return (f"N:{self.calls['exit']}: solver.dt = {cfg.dt:g} makes a doStep of the default "
                 f"experiment's step H = {H:g} (modelDescription.xml) need {count:.6g} internal steps, more "
                 f"than the limit {self.max_substeps:.0f}: every doStep with H > {self.max_substeps * cfg.dt:.6g} "
-                f"will be refused (fmi2Error); use solver.dt >= {H / self.max_substeps:.6g} or smaller steps")
+                f"will be refused ({self.calls['error']}); use solver.dt >= {H / self.max_substeps:.6g} or smaller steps")
 
     # ------------------------------------------------------------ FMU state
-    def get_state(self) -> dict:
+    def _state(self) -> dict:
         x = self.x
         return {
-            "format": STATE_FORMAT,
-            "model": self.cls.MODEL,
-            "phase": _PHASE_NAMES.get(int(self.work[S.H_PHASE]), "instantiated"),
-            "time": float(self.work[S.H_TIME]),
             "q": x[self.i_q:self.i_q + self.n].tolist(),
             "u": x[self.i_u:self.i_u + self.n].tolist(),
             "tau": x[self.i_tau:self.i_tau + self.m].tolist(),
@@ -264,23 +300,15 @@ class FMUInstance(InstanceBase):
             "pending": [float(self.work[S.H_PEND_U]), float(self.work[S.H_PEND_P])],
             "impacts": int(x[self.i_impacts]),
             "percussion": float(x[self.i_perc]),
-            "parameters": self._parameters(),
         }
 
-    def set_state(self, s) -> str:
-        reason, cfg = self.state_reason(s)
-        if reason:
-            return f"E:fmi2SetFMUstate: {reason}; state unchanged"
-        for name, value in s["parameters"].items():
-            self.x[self.index[name]] = value
+    def _restore(self, s: dict, cfg) -> None:
         x = self.x
         x[self.i_q:self.i_q + self.n] = s["q"]
         x[self.i_u:self.i_u + self.n] = s["u"]
         x[self.i_tau:self.i_tau + self.m] = s["tau"]
         x[self.i_impacts] = s["impacts"]
         x[self.i_perc] = s["percussion"]
-        self.work[S.H_TIME] = s["time"]
-        self.work[S.H_PHASE] = PHASES[s["phase"]]
         self.work[self.i_taudot:self.i_taudot + self.m] = s["taudot"]
         self.work[S.H_PEND_U], self.work[S.H_PEND_P] = s["pending"]
         if s["phase"] in RUNNING_PHASES:
@@ -292,34 +320,35 @@ class FMUInstance(InstanceBase):
             self.work[S.H_CONFIGURED] = 0.0
             self.work[S.H_VREF] = 0.0
             self.refresh()
-        return ""
 
     def state_reason(self, s) -> tuple[str | None, object]:
-        return self.cls.check_state(s, self.params, self.inputs)
+        return self.slave.check_state(s, self.params, self.inputs)
 
 
-def read_start_file(resources_dir: str, model: str) -> tuple[str, dict | None]:
-    """(reply, contents of resources/fmu_sync_start.json or None)."""
+def create_instance(resources_dir: str, model: str, fmi_version: int, make) -> tuple[str, object]:
+    """(reply, ``make(contents of resources/fmu_sync_start.json)`` or None): what every kind of
+    instance shares at instantiation (the start file read and checked, refusals as replies)."""
+    call = CALL_NAMES[fmi_version]["instantiate"]
     path = os.path.join(resources_dir, START_FILE)
     try:
         with open(path, encoding="utf-8") as f:
             data = json.load(f)
     except Exception as exc:
-        return f"E:fmi2Instantiate: cannot read the start values {path}: {exc}", None
+        return f"E:{call}: cannot read the start values {path}: {exc}", None
     if data.get("model") != model:
-        return f"E:fmi2Instantiate: {path} holds start values of model {data.get('model')!r}, not {model!r}", None
-    return "", data
-
-
-def create(slave_cls, resources_dir: str, model: str,
-           max_substeps: float = math.inf) -> tuple[str, FMUInstance | None]:
-    """A new instance with the start values of ``resources/fmu_sync_start.json``;
-    ``max_substeps``: the binary's limit of internal steps per doStep (from the build record)."""
-    reply, data = read_start_file(resources_dir, model)
-    if data is None:
-        return reply, None
+        return f"E:{call}: {path} holds start values of model {data.get('model')!r}, not {model!r}", None
     try:
-        starts = slave_cls.normalize_start_values(data.get("start", {}))
-    except ValueError as exc:
-        return f"E:fmi2Instantiate: bad start value in {os.path.join(resources_dir, START_FILE)}: {exc}", None
-    return "", FMUInstance(slave_cls, starts, max_substeps)
+        return "", make(data)
+    except (KeyError, TypeError, ValueError) as exc:
+        return f"E:{call}: bad start value in {path}: {exc}", None
+
+
+def create(resources_dir: str, model: str, max_substeps: float = math.inf,
+           fmi_version: int = 2) -> tuple[str, FMUInstance | None]:
+    """A new instance of the registered model ``model`` (its one slave, :class:`MechanicalSlave`)
+    with the start values of ``resources/fmu_sync_start.json``; ``max_substeps``: the binary's
+    limit of internal steps per doStep (from the build record)."""
+    def make(data):
+        slave = MechanicalSlave(contract_model(model))
+        return FMUInstance(slave, slave.normalize_start_values(data.get("start", {})), max_substeps, fmi_version)
+    return create_instance(resources_dir, model, fmi_version, make)

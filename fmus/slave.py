@@ -4,13 +4,14 @@ The FMU's binary (``fmus/c/fmu_sync_fmi2.c``, the FMI glue, over
 ``fmus/c/fmu_sync_runtime.c``, the Python embedding) is the FMI ABI; this module is
 what it runs in Python, carried inside the FMU (``resources/fmu_sync_code``):
 
-* :class:`MechanicalSlave` — what both models share: the interface (one
-  :class:`~._xml.Var` per scalar, value reference = position), start values,
-  the validation of a parameter set (a valid core ``MechanicalSystem``, a known
-  scheme, g(q_start) >= 0, a scheme not known to diverge) and of an FMU state;
-* a model class (:mod:`.impact_oscillator`, :mod:`.mechanical_system2`) only
-  names its entry of the FMU contract (:mod:`.contract`), which declares its
-  variables and how its parameters make a core system.
+* :class:`Slave` — what every FMU's slave shares, the coupling FMU's too: the
+  interface (one :class:`~.contract.Var` per scalar, value reference = position),
+  the model description, start values, the FMU state bytes;
+* :class:`MechanicalSlave` — the one slave of every mechanical model: built on the
+  model's entry of the FMU contract (``MechanicalSlave(contract.MODELS[key])``,
+  :func:`slave`), which declares its variables and how its parameters make a core
+  system; it validates a parameter set (a valid core ``MechanicalSystem``, a known
+  scheme, g(q_start) >= 0, a scheme not known to diverge) and an FMU state.
 
 The C-facing instance (arrays, layout, replies) is :mod:`.runtime`; the hot
 path (one core ``advance`` per doStep, no Python) is :mod:`.stepper`.
@@ -26,9 +27,9 @@ import numpy as np
 
 from ..core.plan import plan_run
 from ._xml import generation_tool, model_description, model_description3, model_guid
-from .contract import INPUT_BOUND, SCHEME_ITEMS, STATE_BOUND, Var
+from .contract import INPUT_BOUND, SCHEME_ITEMS, STATE_BOUND, FmuModel, Var, model
 
-__all__ = ["MechanicalSlave", "STATE_FORMAT", "START_FILE", "Configuration", "PHASES", "RUNNING_PHASES",
+__all__ = ["Slave", "MechanicalSlave", "slave", "STATE_FORMAT", "START_FILE", "Configuration", "PHASES", "RUNNING_PHASES",
            "INPUT_BOUND", "generation_tool", "model_guid", "seal", "unseal"]
 
 #: Name of the start-value file in the FMU's resources/ (written by fmu_sync.export).
@@ -79,8 +80,10 @@ class Configuration:
         self.u0 = u0
 
 
-class MechanicalSlave:
-    """Common part of the fmu-sync co-simulation slaves (not an FMU by itself)."""
+class Slave:
+    """What the slave of every fmu-sync FMU shares (the mechanical models' and the coupling's):
+    the interface, the model description, start values and FMU state bytes. A kind of model
+    sets the attributes below in its constructor and gives :meth:`declare` and ``configure``."""
 
     #: export key (``fmu_sync.export.export_fmu(model=...)``)
     MODEL = ""
@@ -100,30 +103,14 @@ class MechanicalSlave:
         "logAll": "Everything, including informational messages (with logging on)",
     }
 
-    #: the model's entry in the FMU contract (fmu_sync.fmus.contract.MODELS)
-    CONTRACT = None
-
-    # ------------------------------------------------------------ model (from the contract)
-    @classmethod
-    def declare(cls) -> list[Var]:
+    def declare(self) -> list[Var]:
         """The interface, in value-reference order (a fresh list on each call)."""
-        return cls.CONTRACT.declare()
-
-    @classmethod
-    def build_system(cls, p: dict):
-        """The core system for parameter values ``p`` (raises ValueError)."""
-        return cls.CONTRACT.system(p)
-
-    @classmethod
-    def start_state(cls, p: dict) -> tuple[list, list]:
-        """(q_start, u_start) as lists of n floats."""
-        return cls.CONTRACT.start_state(p)
+        raise NotImplementedError
 
     # ------------------------------------------------------------ interface
-    @classmethod
-    def variables(cls, start_values: dict | None = None) -> list[Var]:
+    def variables(self, start_values: dict | None = None) -> list[Var]:
         """The declared variables with value references and the given start values."""
-        vars_ = cls.declare()
+        vars_ = self.declare()
         for vr, v in enumerate(vars_):
             v.value_reference = vr
         by_name = {v.name: v for v in vars_}
@@ -131,37 +118,34 @@ class MechanicalSlave:
             by_name[name].start = value
         return vars_
 
-    @classmethod
-    def description(cls, start_values: dict, guid: str, version: str, fmi_version: int = 2):
+    def description(self, start_values: dict, guid: str, version: str, fmi_version: int = 2):
         """The complete <fmiModelDescription> element of an FMU with these start values
         (``version``: the exporting fmu-sync's; FMI 2.0, or FMI 3.0 with ``time`` after the
         last scalar's value reference)."""
-        variables = cls.variables(start_values)
-        common = dict(model_name=cls.MODEL_IDENTIFIER, model_identifier=cls.MODEL_IDENTIFIER,
-                      description=cls.DESCRIPTION, generation_tool=generation_tool(version, fmi_version),
-                      variables=variables, default_experiment=cls.DEFAULT_EXPERIMENT,
-                      log_categories=cls.LOG_CATEGORIES)
+        variables = self.variables(start_values)
+        common = dict(model_name=self.MODEL_IDENTIFIER, model_identifier=self.MODEL_IDENTIFIER,
+                      description=self.DESCRIPTION, generation_tool=generation_tool(version, fmi_version),
+                      variables=variables, default_experiment=self.DEFAULT_EXPERIMENT,
+                      log_categories=self.LOG_CATEGORIES)
         if fmi_version == 3:
             return model_description3(token=guid, time_vr=len(variables), **common)
         return model_description(guid=guid, **common)
 
-    @classmethod
-    def variable_names(cls) -> list[str]:
-        return [v.name for v in cls.declare()]
+    def variable_names(self) -> list[str]:
+        return [v.name for v in self.declare()]
 
-    @classmethod
-    def normalize_start_values(cls, values: dict) -> dict:
+    def normalize_start_values(self, values: dict) -> dict:
         """Check start values (names, types, bounds) and return them in FMI form.
 
         Only parameters and inputs have start values. ``solver.scheme`` accepts
         the item name ("midpoint", "theta") or its value. Raises ValueError.
         """
-        decl = {v.name: v for v in cls.declare()}
+        decl = {v.name: v for v in self.declare()}
         out = {}
         for name, value in values.items():
             v = decl.get(name)
             if v is None:
-                raise ValueError(f"{cls.MODEL_IDENTIFIER} has no variable {name!r}; "
+                raise ValueError(f"{self.MODEL_IDENTIFIER} has no variable {name!r}; "
                                  f"variables: {', '.join(decl)}")
             if v.causality not in ("parameter", "input"):
                 raise ValueError(f"{name} is an {v.causality} (initial={v.initial}): it has no start value")
@@ -188,29 +172,67 @@ class MechanicalSlave:
             out[name] = value
         return out
 
-    @classmethod
-    def start_parameters(cls, start_values: dict | None = None) -> dict:
+    def start_parameters(self, start_values: dict | None = None) -> dict:
         """Every parameter and input with its start value (the declared default
         unless ``start_values`` overrides it)."""
-        out = {v.name: v.start for v in cls.declare() if v.start is not None}
+        out = {v.name: v.start for v in self.declare() if v.start is not None}
         out.update(start_values or {})
         return out
 
+    # ------------------------------------------------------------ FMU state bytes
+    @staticmethod
+    def state_to_bytes(state: dict) -> bytes:
+        # JSON under a checksummed header: floats are written with repr (shortest
+        # round-trip text), so a deserialised state reproduces the run bit for bit.
+        return seal(json.dumps(state, sort_keys=True, separators=(",", ":"), allow_nan=False).encode("utf-8"))
+
+    @staticmethod
+    def state_from_bytes(data: bytes):
+        state = json.loads(unseal(data).decode("utf-8"))
+        if not isinstance(state, dict):
+            raise ValueError(f"a JSON {type(state).__name__}, not an object")
+        return state
+
+
+class MechanicalSlave(Slave):
+    """The slave of a mechanical model of the contract's registry: ``MechanicalSlave(model)``
+    with ``model`` a :class:`~.contract.FmuModel` (its variables and how its parameters make
+    a core system); the same class for every model."""
+
+    def __init__(self, fmu_model: FmuModel):
+        #: the model's entry in the FMU contract (fmu_sync.fmus.contract.MODELS)
+        self.contract = fmu_model
+        self.MODEL = fmu_model.key
+        self.MODEL_IDENTIFIER = fmu_model.identifier
+        self.N = fmu_model.n
+        self.DESCRIPTION = fmu_model.description
+
+    # ------------------------------------------------------------ model (from the contract)
+    def declare(self) -> list[Var]:
+        return self.contract.declare()
+
+    def build_system(self, p: dict):
+        """The core system for parameter values ``p`` (raises ValueError)."""
+        return self.contract.system(p)
+
+    def start_state(self, p: dict) -> tuple[list, list]:
+        """(q_start, u_start) as lists of n floats."""
+        return self.contract.start_state(p)
+
     # ------------------------------------------------------------ validation
-    @classmethod
-    def configure(cls, p: dict) -> Configuration:
+    def configure(self, p: dict) -> Configuration:
         """Validate a complete parameter set; raises ValueError naming what is wrong."""
-        system = cls.build_system(p)
+        system = self.build_system(p)
         scheme_name = _SCHEME_BY_VALUE.get(p["solver.scheme"])
         if scheme_name is None:
             raise ValueError(f"solver.scheme must be one of {sorted(_SCHEME_BY_VALUE)}, got {p['solver.scheme']!r}")
-        if scheme_name == "exact" and cls.N != 1:
+        if scheme_name == "exact" and self.N != 1:
             raise ValueError(f"solver.scheme = exact is offered by the 1-DOF model only (the exact "
                              f"communication step of the core, core.exact.exact_step); this model has "
-                             f"{cls.N} degrees of freedom: use midpoint or theta")
+                             f"{self.N} degrees of freedom: use midpoint or theta")
         # the run plan's single-system part (docs/design.md §5.1.1): the step, the scheme and its
         # limit (UnstableScheme), the start state (InadmissibleState); no end time, no record
-        plan = plan_run(system, [cls.start_state(p)], None, p["solver.dt"], scheme=scheme_name,
+        plan = plan_run(system, [self.start_state(p)], None, p["solver.dt"], scheme=scheme_name,
                         theta=p["solver.theta"], exact=True, step_name="solver.dt", state_names=["q_start"])
         if scheme_name == "exact":
             from .stepper import EXACT
@@ -239,16 +261,15 @@ class MechanicalSlave:
         acc = abs(float(a.Minv_w @ h)) + float(np.sum(np.abs(a.F @ a.Minv_w)))
         return 2.0 * (cfg.dt * speed + cfg.dt * cfg.dt * acc)
 
-    @classmethod
-    def check_state(cls, s, params: list[Var], inputs: list[Var]) -> tuple[str | None, Configuration | None]:
+    def check_state(self, s, params: list[Var], inputs: list[Var]) -> tuple[str | None, Configuration | None]:
         """(reason, None) if ``s`` is not a valid saved state of this model, else (None, cfg)."""
         if not isinstance(s, dict):
             return f"not an FMU state of this slave ({type(s).__name__})", None
         if s.get("format") != STATE_FORMAT:
             return f"unknown state format {s.get('format')!r} (expected {STATE_FORMAT!r})", None
-        if s.get("model") != cls.MODEL:
-            return f"state of model {s.get('model')!r}, this FMU is {cls.MODEL!r}", None
-        n, m = cls.N, len(inputs)
+        if s.get("model") != self.MODEL:
+            return f"state of model {s.get('model')!r}, this FMU is {self.MODEL!r}", None
+        n, m = self.N, len(inputs)
         try:
             if s["phase"] not in PHASES:
                 return f"bad phase {s['phase']!r} (one of {', '.join(PHASES)})", None
@@ -289,26 +310,18 @@ class MechanicalSlave:
         except KeyError as exc:
             return f"missing entry {exc}", None
         try:
-            cfg = cls.configure(p)
+            cfg = self.configure(p)
         except ValueError as exc:
             return f"its parameters are invalid: {exc}", None
         g = cfg.system.gap(s["q"])
-        bound = cls.penetration_bound(cfg, s["q"], s["u"], s["tau"])
+        bound = self.penetration_bound(cfg, s["q"], s["u"], s["tau"])
         if not g >= -bound:
             return (f"q = {s['q']!r} is inside the wall: g(q) = {g:.6g} is below the scheme's penetration "
                     f"bound -{bound:.3g} (2 (dt sqrt(W u^T M u) + dt^2 |w^T M^-1 h|) for solver.dt = "
                     f"{cfg.dt:g})"), None
         return None, cfg
 
-    @staticmethod
-    def state_to_bytes(state: dict) -> bytes:
-        # JSON under a checksummed header: floats are written with repr (shortest
-        # round-trip text), so a deserialised state reproduces the run bit for bit.
-        return seal(json.dumps(state, sort_keys=True, separators=(",", ":"), allow_nan=False).encode("utf-8"))
 
-    @staticmethod
-    def state_from_bytes(data: bytes):
-        state = json.loads(unseal(data).decode("utf-8"))
-        if not isinstance(state, dict):
-            raise ValueError(f"a JSON {type(state).__name__}, not an object")
-        return state
+def slave(key: str) -> MechanicalSlave:
+    """The slave of the registered mechanical model ``key`` (ValueError names the registered ones)."""
+    return MechanicalSlave(model(key))

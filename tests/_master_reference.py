@@ -58,7 +58,7 @@ class PythonMaster(NetworkMaster):
         self.work = chain_work(n)
 
     def read(self, s: FmuInstance) -> list:
-        v = s.get(self.model.q + self.model.u)
+        v = np.asarray(s.get(self.model.q + self.model.u), dtype=np.float64)
         n = self.model.n
         return [v[:n].copy(), v[n:].copy()]
 
@@ -104,7 +104,7 @@ class PythonMaster(NetworkMaster):
     def _give(self, i: int, s: FmuInstance, t: float, h: float) -> None:
         s.set(dict(zip(self.model.tau, self.tau[i])))
         if self.hold == "foh":   # after the value (setting an input resets its derivative); fmu_sync.hold
-            s._check("fmi2SetRealInputDerivatives", s.host.set_input_derivatives(
+            s.set_input_derivatives((
                 dict(zip(self.model.tau, self.history.slope(i, self.tau[i], t)))))
         s.do_step(t, h)
 

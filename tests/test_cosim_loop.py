@@ -320,3 +320,42 @@ def test_ctrl_c_between_chunks_stops_the_run_and_leaves_nothing_behind(fmu, monk
     with pytest.raises(KeyboardInterrupt):
         cosimulate(fmu, X1, X2, 5.0, 1e-2, coupling="switching", progress=interrupt, **GAINS)
     assert made and not any(Path(d).exists() for d in made)
+
+
+@pytest.mark.parametrize("call, status", [("fmi2DoStep", 3), ("fmi2DoStep", 2), ("fmi2SetReal", 3),
+                                          ("fmi2GetReal", 4), ("fmi2GetInteger", 3)])
+def test_the_master_host_raises_slave_error_at_the_failing_call(c_fmu, tmp_path, call, status):
+    """The master's one wrapper of an instance (master.open_instance: the FMUHost with raises=True)
+    raises SlaveError at the failing call itself, naming the instance, the time, the FMI call, the
+    status and the FMU's logged reason; the same host without raises returns the status."""
+    from fmpy import extract
+
+    from fmu_sync.fmi_bridge import FMUHost
+    d = extract(str(c_fmu), str(tmp_path / "u"))
+    md = master.model_description(d)
+    sv = {"fail_call": CALL_CODES[call], "fail_step": 3, "fail_status": status}
+    s = master.open_instance(d, md, "osc7")
+    p = FMUHost(d, instance_name="probe", model_description=md)
+    try:
+        for h in (s, p):
+            h.initialize(0.5, {**C_START, **sv})
+            for k in range(2):
+                h.do_step(0.5 + 0.1 * k, 0.1)
+        assert s.t == pytest.approx(0.7)
+        act = {"fmi2DoStep": lambda h: h.do_step(0.7, 0.1), "fmi2SetReal": lambda h: h.set({"tau": 0.0}),
+               "fmi2GetReal": lambda h: h.get(["q"]), "fmi2GetInteger": lambda h: h.get_integer("impacts")}[call]
+        if call != "fmi2DoStep":
+            for h in (s, p):
+                h.do_step(0.7, 0.1)
+        with pytest.raises(SlaveError) as err:
+            act(s)
+        e = err.value
+        assert (e.slave, e.call, e.status) == ("osc7", call, status)
+        assert e.t == pytest.approx(0.7 if call == "fmi2DoStep" else 0.8)
+        assert "injected failure" in e.log[-1] and f"{call}: injected failure" in str(e)
+        assert str(e).startswith(f"slave 'osc7' failed at t = {e.t:.6g}: {call} returned fmi2")
+        act(p)                                   # the probing host: a status, no exception
+        assert p.last_status == status and "injected failure" in p.errors(min_status=1)[-1]
+    finally:
+        s.close()
+        p.close()

@@ -184,7 +184,7 @@ def test_main_export(tmp_path, capsys):
 def test_slave_import_compiles_nothing():
     """The slave module imports the compiled kernel but compiles nothing."""
     code = textwrap.dedent("""
-        import fmu_sync.fmus.impact_oscillator, fmu_sync.fmus.mechanical_system2
+        import fmu_sync.fmus.slave, fmu_sync.fmus.runtime
         from fmu_sync.core import moreau
         print(len(moreau.advance.signatures), len(moreau.advance.overloads))
     """)
@@ -194,18 +194,19 @@ def test_slave_import_compiles_nothing():
 
 
 def test_fmu_carries_only_what_its_slave_and_stepper_import():
-    """The carried code is the import closure of the runtime, stepper and slaves (deferred imports
+    """The carried code is the import closure of the runtime, stepper and slave (deferred imports
     included); nothing in it imports the host package fmu_sync."""
     import ast
 
     from fmu_sync import export
     files = dict(export.carried_files())
-    # (core/network.py and core/pair.py come with the coupling FMU's stepper: network_forces)
+    # (core/network.py and core/pair.py come with the coupling FMU's stepper only: network_forces)
     for name in ("core/batch.py", "core/exact.py", "core/exact_nd.py", "core/kernels.py", "core/single.py",
-                 "core/_cache.py"):      # (core/exact.py: the public entries; the FMU runs core/exact_step.py)
+                 "core/_cache.py", "core/network.py", "core/pair.py", "fmus/coupling.py",
+                 "fmus/coupling_stepper.py"):   # (core/exact.py: the public entries; the FMU runs core/exact_step.py)
         assert name not in files, name
     for name in ("core/moreau.py", "core/exact_step.py", "core/model.py", "fmus/stepper.py", "fmus/runtime.py",
-                 "fmus/slave.py", "fmus/contract.py", "fmus/impact_oscillator.py", "fmus/mechanical_system2.py"):
+                 "fmus/slave.py", "fmus/contract.py"):
         assert name in files, name
     for rel, data in files.items():
         pkg = rel.split("/")[0] if "/" in rel else ""
@@ -228,10 +229,96 @@ def test_changing_core_batch_leaves_the_guid_unchanged(monkeypatch):
 
     def edited(target):
         return lambda rel: read(rel) + (b"\n# edited\n" if rel == target else b"")
-    monkeypatch.setattr(export, "_read", edited("core/batch.py"))
-    assert export.fmu_guid("impact-oscillator") == guid
+    for other in ("core/batch.py", "core/network.py", "core/pair.py", "fmus/coupling.py"):  # not carried
+        monkeypatch.setattr(export, "_read", edited(other))
+        assert export.fmu_guid("impact-oscillator") == guid, other
     monkeypatch.setattr(export, "_read", edited("core/moreau.py"))     # a module the FMU runs: a new GUID
     assert export.fmu_guid("impact-oscillator") != guid
+
+
+def _closure(roots) -> set:
+    """The core/fmus modules reachable from ``roots`` ("fmus/slave.py") through their imports,
+    deferred ones included: the test's own walk (importlib's name resolution and finder)."""
+    import ast
+    import importlib.util
+    from pathlib import Path
+
+    seen, todo = set(), list(roots)
+    while todo:
+        rel = todo.pop()
+        if rel in seen:
+            continue
+        seen.add(rel)
+        here = "fmu_sync." + rel[:-3].replace("/", ".")
+        for node in ast.walk(ast.parse(Path(importlib.util.find_spec(here).origin).read_text())):
+            if isinstance(node, ast.ImportFrom) and node.level:
+                base = importlib.util.resolve_name("." * node.level + (node.module or ""), here.rsplit(".", 1)[0])
+                for name in [base] + [f"{base}.{a.name}" for a in node.names]:
+                    try:
+                        spec = importlib.util.find_spec(name)
+                    except ModuleNotFoundError:
+                        spec = None
+                    if spec is not None and spec.origin and not spec.origin.endswith("__init__.py"):
+                        todo.append(name.split(".", 1)[1].replace(".", "/") + ".py")
+    return seen
+
+
+@pytest.mark.parametrize("model", sorted(MODELS))
+def test_exported_fmu_carries_the_closure_of_its_own_slave_and_stepper(fmus, model):
+    """An exported mechanical FMU's code is exactly the import closure of its runtime, stepper and
+    slave (fmus/__init__.py and the two stub __init__ files beside): nothing of the coupling FMU."""
+    with zipfile.ZipFile(fmus[model]) as zf:
+        code = {n[len("resources/fmu_sync_code/"):] for n in zf.namelist()
+                if n.startswith("resources/fmu_sync_code/")}
+    want = _closure(["fmus/runtime.py", "fmus/stepper.py", "fmus/slave.py"])
+    assert code - {"__init__.py", "core/__init__.py", "fmus/__init__.py"} == want
+    assert not {"fmus/coupling.py", "fmus/coupling_runtime.py", "fmus/coupling_stepper.py",
+                "core/network.py", "core/pair.py", "core/batch.py"} & code
+
+
+def test_the_carried_code_runs_without_fmu_sync(fmus):
+    """The oscillator FMU's code, unpacked as its boot script does, makes an instance and steps it
+    (the exact scheme too: its deferred imports) in a process where importing fmu_sync fails; every
+    module it loads is one the FMU carries."""
+    with zipfile.ZipFile(fmus["impact-oscillator"]) as zf:
+        build = json.loads(zf.read("resources/fmu_sync_build.json"))
+        code = {n[len("resources/fmu_sync_code/"):] for n in zf.namelist()
+                if n.startswith("resources/fmu_sync_code/")}
+        res = zf.extract
+        import tempfile
+        tmp = tempfile.mkdtemp(prefix="fmu-sync-carried-")
+        for n in zf.namelist():
+            if n.startswith("resources/"):
+                res(n, tmp)
+    script = textwrap.dedent(f"""
+        import importlib, json, sys
+        class Block:
+            def find_spec(self, name, path=None, target=None):
+                if name.split(".")[0] == "fmu_sync":
+                    raise ImportError("fmu_sync must not be imported by an FMU's code")
+        sys.meta_path.insert(0, Block())
+        resources = {tmp + '/resources'!r}
+        sys.path.insert(0, resources)
+        boot = importlib.import_module({build['package'].replace('fmu_sync_m', 'fmu_sync_boot_')!r})
+        reply, inst = boot.instantiate(resources, "carried", {build['guid']!r})
+        assert inst is not None, reply
+        assert inst.exit_initialization() == "", "exit"
+        inst._step(inst.x.ctypes.data, inst.work.ctypes.data, 0.0, 0.1)
+        inst.x[inst.index["solver.scheme"]] = 2
+        assert inst.set_state(dict(inst.get_state(), phase="initialization")) == ""
+        assert inst.exit_initialization() == "", "exit exact"
+        pkg = {build['package']!r} + "."
+        print(json.dumps(sorted(m[len(pkg):] for m in sys.modules if m.startswith(pkg))))
+    """)
+    try:
+        out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    finally:
+        import shutil
+        shutil.rmtree(tmp, ignore_errors=True)
+    assert out.returncode == 0, out.stderr[-3000:]
+    loaded = {m.replace(".", "/") + ".py" for m in json.loads(out.stdout.splitlines()[-1])}
+    assert {"fmus/runtime.py", "fmus/stepper.py", "fmus/slave.py", "core/exact_step.py"} <= loaded
+    assert loaded - {"core.py", "fmus.py"} <= code
 
 
 def test_one_scheme_numbering_and_generated_constants():

@@ -235,3 +235,42 @@ def test_do_step_goes_through_the_runtime_checks(fmus):
         assert h.do_step(0.2, 0.2) == ERROR and "past the experiment's stopTime = 0.3" in h.errors()[-1]
         assert h.get(["time"]) == [0.2]
         assert h.do_step(0.2, 0.1) == OK and h.get(["time"]) == [0.30000000000000004]
+
+
+def test_the_runtime_messages_name_the_fmi3_calls(fmus):
+    """The Python runtime's replies in an FMI 3.0 FMU name the FMI 3.0 calls (fmi3DeserializeFMUState,
+    fmi3SetFMUState, fmi3ExitInitializationMode), never an FMI 2.0 one; the FMI 2.0 FMU names its own."""
+    from fmu_sync.fmi_bridge import SlaveError
+    from fmu_sync.fmus.slave import seal
+    bad = seal(b'{"format": "nonsense"}')
+    for v, names in ((3, ("fmi3DeserializeFMUState", "fmi3ExitInitializationMode", "fmi3Reset")),
+                     (2, ("fmi2DeSerializeFMUstate", "fmi2ExitInitializationMode", "fmi2Reset"))):
+        host = FMU3Host(fmus["ball", 3], "m", event_mode=False) if v == 3 else FMUHost(fmus["ball", 2], "m")
+        with host as h:
+            assert h.enter_initialization(0.0) == OK
+            assert h.deserialize_state(bad)[0] == ERROR
+            assert h.set({"m": -1.0}) == ERROR          # below its min: refused at the set itself
+            # midpoint with omega*dt = 10: refused at the exit of initialization
+            assert h.set({"solver.scheme": 0, "k": 1e8, "solver.dt": 1e-3}) == OK
+            assert h.exit_initialization() == ERROR
+            logged = [m for s, _, m in h.messages if s >= ERROR]
+            assert any(m.startswith(names[0] + ": ") for m in logged), logged
+            assert any(m.startswith(names[1] + ": invalid configuration") and names[2] in m for m in logged)
+            other = "fmi2" if v == 3 else "fmi3"
+            assert not any(other in m for s, _, m in h.messages), [m for _, _, m in h.messages if other in m]
+    # the master's wrapper names them too, with the FMI 3.0 status prefix
+    from fmu_sync.fmi3_bridge import open_host
+    from fmu_sync.master import model_description
+    from fmpy import extract
+    d = extract(fmus["ball", 3])
+    h = open_host(d, model_description(d), "r", raises=True)
+    try:
+        h.enter_initialization(0.0)
+        with pytest.raises(SlaveError, match=r"fmi3DeserializeFMUState returned fmi3Error: "
+                                             r"fmi3DeserializeFMUState: ") as err:
+            h.deserialize_state(bad)
+        assert (err.value.slave, err.value.call, err.value.status) == ("r", "fmi3DeserializeFMUState", ERROR)
+    finally:
+        h.close()
+        import shutil
+        shutil.rmtree(d, ignore_errors=True)

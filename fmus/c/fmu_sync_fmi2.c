@@ -24,15 +24,10 @@
 #include <stdlib.h>
 #include <string.h>
 
-#define EXPORT __attribute__((visibility("default")))
-
 /* ------------------------------------------------------------ FMI 2.0 ABI */
 #include "fmi2_abi.h"
 #include "fmu_sync_glue.h"
 #include "fmu_sync_runtime.h"
-#ifndef FMU_SYNC_GUID
-#error "FMU_SYNC_GUID must be defined (fmu_sync_constants.h)"
-#endif
 #define G fsr_g
 
 /* ------------------------------------------------------------ instance */
@@ -179,13 +174,7 @@ static int check_vr(Instance *c, int call, fmi2ValueReference vr, int want_int) 
 EXPORT const char *fmi2GetTypesPlatform(void) { return "default"; }
 EXPORT const char *fmi2GetVersion(void) { return "2.0"; }
 
-static void free_instance(Instance *c) {
-    if (!c) return;
-    fsr_free(&c->rt);
-    free(c->name);
-    c->magic = 0;
-    free(c);
-}
+static void free_instance(Instance *c) { FSG_FREE_INSTANCE(c); }
 
 EXPORT fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2String fmuGUID,
                                      fmi2String fmuResourceLocation, const fmi2CallbackFunctions *functions,
@@ -255,14 +244,8 @@ EXPORT fmi2Status fmi2SetupExperiment(fmi2Component comp, fmi2Boolean toleranceD
     Instance *c;
     (void)toleranceDefined; (void)tolerance;
     if (invalid(comp, F_SetupExperiment, &c)) return fmi2Error;
-    if (!isfinite(startTime))
-        return refuse(c, fmi2Error, "fmi2SetupExperiment: startTime = %g rejected: must be finite", startTime);
-    if (stopTimeDefined && !(stopTime >= startTime))
-        return refuse(c, fmi2Error, "fmi2SetupExperiment: stopTime = %s must be >= startTime = %s",
-                      G(stopTime), G(startTime));
-    c->rt.work[FSR_H_TIME] = startTime;
-    c->rt.stop_defined = stopTimeDefined ? 1 : 0;    /* enforced by every doStep (fsr_step) */
-    c->rt.stop_time = stopTime;
+    if (fsg_experiment(&c->rt, "fmi2SetupExperiment", startTime, stopTimeDefined, stopTime) != FSR_OK)
+        return fmi2Error;
     c->last_successful_time = startTime;
     return fmi2OK;
 }

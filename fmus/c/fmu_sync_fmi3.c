@@ -33,11 +33,6 @@
 #include "fmi3_abi.h"
 #include "fmu_sync_glue.h"
 #include "fmu_sync_runtime.h"
-
-#ifndef FMU_SYNC_GUID
-#error "FMU_SYNC_GUID must be defined (fmu_sync_constants.h)"
-#endif
-#define EXPORT __attribute__((visibility("default")))
 #define G fsr_g
 
 /* states of the FMI 3.0 co-simulation state machine (the first four are the
@@ -98,23 +93,12 @@ typedef struct Instance {
 static void on_log(void *ctx, int s, const char *text) {
     Instance *c = (Instance *)ctx;
     if (!c || !c->logger || !fsg_wants(&c->log, s)) return;
-    char msg[3200];
-    /* the runtime's Python replies name the FMI 2.0 call they answer: say fmi3 here */
-    if (strncmp(text, "fmi2", 4) == 0) snprintf(msg, sizeof msg, "fmi3%s", text + 4);
-    else snprintf(msg, sizeof msg, "%s", text);
-    c->logger(c->env, (fmi3Status)s, fsg_category(s), msg);
+    /* the runtime's replies name the FMI 3.0 calls (the build record's fmi_version) */
+    c->logger(c->env, (fmi3Status)s, fsg_category(s), text);
 }
 
-static fmi3Status refuse(Instance *c, fmi3Status s, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
-static fmi3Status refuse(Instance *c, fmi3Status s, const char *fmt, ...) {
-    char msg[3000];
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(msg, sizeof msg, fmt, ap);
-    va_end(ap);
-    on_log(c, s, msg);
-    return s;
-}
+/* log the reason of a status and return it (through the runtime's logger: on_log) */
+#define refuse(c, s, ...) ((fmi3Status)fsr_logf(&(c)->rt, (s), __VA_ARGS__))
 
 static const fsg_state STATES[] = {{ST_INSTANTIATED, "instantiated"}, {ST_INIT, "initialization mode"},
                                     {ST_EVENT, "event mode"}, {ST_STEP, "step mode"}, {ST_TERMINATED, "terminated"},
@@ -150,13 +134,7 @@ static fmi3Status checked(Instance *c, int s) {
 /* ------------------------------------------------------------ instance */
 EXPORT const char *fmi3GetVersion(void) { return "3.0"; }
 
-static void free_instance(Instance *c) {
-    if (!c) return;
-    fsr_free(&c->rt);
-    free(c->name);
-    c->magic = 0;
-    free(c);
-}
+static void free_instance(Instance *c) { FSG_FREE_INSTANCE(c); }
 
 EXPORT fmi3Instance fmi3InstantiateCoSimulation(
     fmi3String instanceName, fmi3String token, fmi3String resourcePath, fmi3Boolean visible,
@@ -164,7 +142,8 @@ EXPORT fmi3Instance fmi3InstantiateCoSimulation(
     const fmi3ValueReference requiredIntermediateVariables[], size_t nRequiredIntermediateVariables,
     fmi3InstanceEnvironment env, fmi3LogMessageCallback logMessage, fmi3IntermediateUpdateCallback intermediateUpdate) {
     (void)visible; (void)requiredIntermediateVariables; (void)intermediateUpdate;
-    Instance tmp = {.logger = logMessage, .env = env, .log = {1, 1, 1}};
+    Instance tmp = {.logger = logMessage, .env = env, .log = {1, 1, 1}, .rt = {.log = on_log}};
+    tmp.rt.log_ctx = &tmp;
     char err[3000] = "", resdir[4096];
 #define FAIL(...)                                              \
     do {                                                       \
@@ -216,7 +195,8 @@ EXPORT fmi3Instance fmi3InstantiateModelExchange(fmi3String instanceName, fmi3St
                                                  fmi3Boolean visible, fmi3Boolean loggingOn,
                                                  fmi3InstanceEnvironment env, fmi3LogMessageCallback logMessage) {
     (void)token; (void)resourcePath; (void)visible; (void)loggingOn;
-    Instance tmp = {.logger = logMessage, .env = env};
+    Instance tmp = {.logger = logMessage, .env = env, .rt = {.log = on_log}};
+    tmp.rt.log_ctx = &tmp;
     refuse(&tmp, fmi3Error, "fmi3InstantiateModelExchange(%s): this FMU is for Co-Simulation only",
            instanceName ? instanceName : "?");
     return NULL;
@@ -230,7 +210,8 @@ EXPORT fmi3Instance fmi3InstantiateScheduledExecution(fmi3String instanceName, f
                                                       fmi3LockPreemptionCallback lock,
                                                       fmi3UnlockPreemptionCallback unlock) {
     (void)token; (void)resourcePath; (void)visible; (void)loggingOn; (void)clockUpdate; (void)lock; (void)unlock;
-    Instance tmp = {.logger = logMessage, .env = env};
+    Instance tmp = {.logger = logMessage, .env = env, .rt = {.log = on_log}};
+    tmp.rt.log_ctx = &tmp;
     refuse(&tmp, fmi3Error, "fmi3InstantiateScheduledExecution(%s): this FMU is for Co-Simulation only",
            instanceName ? instanceName : "?");
     return NULL;
@@ -256,14 +237,8 @@ EXPORT fmi3Status fmi3EnterInitializationMode(fmi3Instance inst, fmi3Boolean tol
     Instance *c;
     (void)toleranceDefined; (void)tolerance;
     if (invalid(inst, F_EnterInit, NULL, &c)) return fmi3Error;
-    if (!isfinite(startTime))
-        return refuse(c, fmi3Error, "fmi3EnterInitializationMode: startTime = %s rejected: must be finite", G(startTime));
-    if (stopTimeDefined && !(stopTime >= startTime))
-        return refuse(c, fmi3Error, "fmi3EnterInitializationMode: stopTime = %s must be >= startTime = %s",
-                      G(stopTime), G(startTime));
-    c->rt.work[FSR_H_TIME] = startTime;
-    c->rt.stop_defined = stopTimeDefined ? 1 : 0;    /* enforced by every doStep (fsr_step) */
-    c->rt.stop_time = stopTime;
+    if (fsg_experiment(&c->rt, "fmi3EnterInitializationMode", startTime, stopTimeDefined, stopTime) != FSR_OK)
+        return fmi3Error;
     c->state = ST_INIT;
     c->init_dirty = 1;
     return fmi3OK;

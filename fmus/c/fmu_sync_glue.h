@@ -1,15 +1,48 @@
-/* What every FMI glue of fmu-sync shares (fmu_sync_fmi2.c, fmu_sync_fmi3.c): the log
- * categories (modelDescription.xml <LogCategories>: fmus/slave.py LOG_CATEGORIES), which
+/* What every FMI glue of fmu-sync shares (fmu_sync_fmi2.c, fmu_sync_fmi3.c): the GUID guard,
+ * EXPORT, freeing an instance, the experiment's checks, the log categories (modelDescription.xml <LogCategories>: fmus/slave.py LOG_CATEGORIES), which
  * messages reach the importer, the categories of fmiXSetDebugLogging, and the names of
  * the states a refused call talks about. Statuses are the runtime's (FSR_*, numerically
  * fmi2Status and fmi3Status). Header-only: each glue has its own copy. */
 #ifndef FMU_SYNC_GLUE_H
 #define FMU_SYNC_GLUE_H
+#include <math.h>
 #include <stddef.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "fmu_sync_runtime.h"
+
+#ifndef FMU_SYNC_GUID
+#error "FMU_SYNC_GUID must be defined (fmu_sync_constants.h)"
+#endif
+#define EXPORT __attribute__((visibility("default")))
+
+/* free a glue's Instance (its runtime part rt, its name, then itself); NULL is a no-op */
+#define FSG_FREE_INSTANCE(c)          \
+    do {                              \
+        if (c) {                      \
+            fsr_free(&(c)->rt);       \
+            free((c)->name);          \
+            (c)->magic = 0;           \
+            free(c);                  \
+        }                             \
+    } while (0)
+
+/* the experiment (fmi2SetupExperiment, fmi3EnterInitializationMode): FSR_OK and the start time
+ * and stopTime set in the runtime (every doStep checks it, fsr_step), or FSR_ERROR with the
+ * reason logged under the name of the call (nothing changed) */
+static inline int fsg_experiment(fsr_instance *rt, const char *call, double start, int stop_defined, double stop) {
+    if (!isfinite(start))
+        return fsr_logf(rt, FSR_ERROR, "%s: startTime = %s rejected: must be finite", call, fsr_g(start));
+    if (stop_defined && !(stop >= start))
+        return fsr_logf(rt, FSR_ERROR, "%s: stopTime = %s must be >= startTime = %s", call, fsr_g(stop),
+                        fsr_g(start));
+    rt->work[FSR_H_TIME] = start;
+    rt->stop_defined = stop_defined ? 1 : 0;
+    rt->stop_time = stop;
+    return FSR_OK;
+}
 
 /* logging switched on, and the optional categories enabled */
 typedef struct { int on, all, warning; } fsg_logging;

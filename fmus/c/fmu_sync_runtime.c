@@ -701,6 +701,11 @@ int fsr_step(fsr_instance *inst, double t, double H) {
                         "at t = %s: the exact solver could not decide a contact (no progress in time)",
                         G(t), G(H), G(now));
     default:
+        if (fsr_feedthrough(inst))            /* the coupling FMU: no state of its own, its outputs failed */
+            return fsr_logf(inst, FSR_ERROR, "doStep(t = %s, H = %s) failed and was rolled back, state unchanged "
+                            "at t = %s: the outputs computed from the current inputs are not finite (inputs "
+                            "or gains that overflow the coupling forces, or a distance that cannot be computed)",
+                            G(t), G(H), G(now));
         return fsr_logf(inst, FSR_ERROR, "doStep(t = %s, H = %s) failed and was rolled back, state unchanged "
                         "at t = %s: the state became non-finite or left |q|, |u| <= %s with solver.dt = %s "
                         "(a diverging scheme or an overflowing force, e.g. an input or forcing amplitude near "

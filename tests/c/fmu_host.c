@@ -126,6 +126,20 @@ static void uri_of(const char *dir, char *out, size_t n) {
     snprintf(out + j, n - j, "/resources");
 }
 
+/* dlopen the FMU's binaries/<platform>/<modelIdentifier>.so and read the identity attribute
+ * id_attr ("guid" or "instantiationToken") of its modelDescription.xml into id; NULL (the reason
+ * printed) if it cannot be loaded */
+static void *open_binary(const char *dir, const char *platform, const char *id_attr, char *id, size_t n) {
+    char path[4096], ident[256];
+    snprintf(path, sizeof path, "%s/modelDescription.xml", dir);
+    read_attr(path, "modelIdentifier", ident, sizeof ident);
+    read_attr(path, id_attr, id, n);
+    snprintf(path, sizeof path, "%s/binaries/%s/%s.so", dir, platform, ident);
+    void *lib = dlopen(path, RTLD_NOW | RTLD_LOCAL);
+    if (!lib) printf("dlopen failed: %s\n", dlerror());
+    return lib;
+}
+
 static void write_row(FILE *csv, double t, const double *vals, int n) {
     if (!csv) return;
     fprintf(csv, "%.17g", t);
@@ -138,16 +152,9 @@ static void write_row(FILE *csv, double t, const double *vals, int n) {
  * as for FMI 2.0. */
 static int run_fmi3(const char *dir, double stop, double H, const char *out, const unsigned *vars, int nvars,
                     const unsigned *setv, const double *setx, int nset, int early, int event, int logging) {
-    char path[4096], ident[256], token[256], res[4200];
-    snprintf(path, sizeof path, "%s/modelDescription.xml", dir);
-    read_attr(path, "modelIdentifier", ident, sizeof ident);
-    read_attr(path, "instantiationToken", token, sizeof token);
-    snprintf(path, sizeof path, "%s/binaries/x86_64-linux/%s.so", dir, ident);
-    void *lib = dlopen(path, RTLD_NOW | RTLD_LOCAL);
-    if (!lib) {
-        printf("dlopen failed: %s\n", dlerror());
-        return 5;
-    }
+    char token[256], res[4200];
+    void *lib = open_binary(dir, "x86_64-linux", "instantiationToken", token, sizeof token);
+    if (!lib) return 5;
     fmi3InstantiateCoSimulationTYPE *inst = (fmi3InstantiateCoSimulationTYPE *)sym(lib, "fmi3InstantiateCoSimulation");
     fmi3FreeInstanceTYPE *freei = (fmi3FreeInstanceTYPE *)sym(lib, "fmi3FreeInstance");
     fmi3EnterInitializationModeTYPE *enter = (fmi3EnterInitializationModeTYPE *)sym(lib, "fmi3EnterInitializationMode");
@@ -243,16 +250,9 @@ int main(int argc, char **argv) {
         else { fprintf(stderr, "unknown option %s\n", a); return 2; }
     }
     if (fmi3) return run_fmi3(dir, stop, H, out, vars, nvars, setv, setx, nset, early, event, logging);
-    char path[4096], ident[256], guid[256], uri[8192];
-    snprintf(path, sizeof path, "%s/modelDescription.xml", dir);
-    read_attr(path, "modelIdentifier", ident, sizeof ident);
-    read_attr(path, "guid", guid, sizeof guid);
-    snprintf(path, sizeof path, "%s/binaries/linux64/%s.so", dir, ident);
-    void *lib = dlopen(path, RTLD_NOW | RTLD_LOCAL);
-    if (!lib) {
-        printf("dlopen failed: %s\n", dlerror());
-        return 5;
-    }
+    char guid[256], uri[8192];
+    void *lib = open_binary(dir, "linux64", "guid", guid, sizeof guid);
+    if (!lib) return 5;
     Instantiate inst = (Instantiate)sym(lib, "fmi2Instantiate");
     FreeInstance freei = (FreeInstance)sym(lib, "fmi2FreeInstance");
     Setup setup = (Setup)sym(lib, "fmi2SetupExperiment");

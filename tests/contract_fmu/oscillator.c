@@ -13,10 +13,8 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "../../fmus/c/fmi2_abi.h"
+#include "../c/fmi2_test_stub.h"      /* EXPORT, the FMI 2.0 types and the calls that do nothing */
 #include "contract_vars.h"
-
-#define EXPORT __attribute__((visibility("default")))
 enum { F_DOSTEP = 1, F_SETREAL, F_GETREAL, F_GETINT, F_GETSTATE, F_SETDER };
 
 typedef struct {
@@ -28,6 +26,8 @@ typedef struct {
     char name[64];
 } Osc;
 
+FMI2_TEST_CALLS(Osc)
+
 static fmi2Status fail(Osc *s, int call, const char *what) {
     if (s->iv[VR_fail_call] != call || s->steps != s->iv[VR_fail_step] - (call == F_DOSTEP)) return fmi2OK;
     int st = s->iv[VR_fail_status];
@@ -37,8 +37,6 @@ static fmi2Status fail(Osc *s, int call, const char *what) {
     return (fmi2Status)st;
 }
 
-EXPORT const char *fmi2GetTypesPlatform(void) { return "default"; }
-EXPORT const char *fmi2GetVersion(void) { return "2.0"; }
 
 EXPORT fmi2Component fmi2Instantiate(fmi2String name, fmi2Type type, fmi2String guid, fmi2String res,
                                      const fmi2CallbackFunctions *functions, fmi2Boolean visible,
@@ -52,19 +50,9 @@ EXPORT fmi2Component fmi2Instantiate(fmi2String name, fmi2Type type, fmi2String 
     snprintf(s->name, sizeof s->name, "%s", name ? name : "");
     return s;
 }
-EXPORT void fmi2FreeInstance(fmi2Component c) { free(c); }
-EXPORT fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean on, size_t n, const fmi2String cats[]) {
-    (void)c; (void)on; (void)n; (void)cats; return fmi2OK;
-}
-EXPORT fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean tol_on, fmi2Real tol, fmi2Real t0,
-                                      fmi2Boolean stop_on, fmi2Real stop) {
-    (void)tol_on; (void)tol; (void)stop_on; (void)stop; ((Osc *)c)->t = t0; return fmi2OK;
-}
-EXPORT fmi2Status fmi2EnterInitializationMode(fmi2Component c) { (void)c; return fmi2OK; }
 EXPORT fmi2Status fmi2ExitInitializationMode(fmi2Component c) {
     Osc *s = c; s->r[VR_q] = s->r[VR_q_start]; s->r[VR_u] = s->r[VR_u_start]; return fmi2OK;
 }
-EXPORT fmi2Status fmi2Terminate(fmi2Component c) { (void)c; return fmi2OK; }
 EXPORT fmi2Status fmi2Reset(fmi2Component c) { (void)c; return fmi2Error; }
 
 EXPORT fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Real value[]) {
@@ -140,21 +128,4 @@ EXPORT fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *state) {
     (void)c; free(*state); *state = NULL; return fmi2OK;
 }
 
-#define REFUSE(decl) EXPORT fmi2Status decl { return fmi2Error; }
-REFUSE(fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Boolean v[]))
-REFUSE(fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2String v[]))
-REFUSE(fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Boolean v[]))
-REFUSE(fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2String v[]))
-REFUSE(fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate s, size_t *size))
-REFUSE(fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate s, fmi2Byte b[], size_t size))
-REFUSE(fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte b[], size_t size, fmi2FMUstate *s))
-REFUSE(fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference a[], size_t na,
-                                    const fmi2ValueReference b[], size_t nb, const fmi2Real dv[], fmi2Real df[]))
-REFUSE(fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t n,
-                                    const fmi2Integer order[], fmi2Real value[]))
-REFUSE(fmi2CancelStep(fmi2Component c))
-REFUSE(fmi2GetStatus(fmi2Component c, const fmi2StatusKind s, fmi2Status *value))
-REFUSE(fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *value))
-REFUSE(fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Integer *value))
-REFUSE(fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value))
-REFUSE(fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2String *value))
+FMI2_TEST_REFUSALS
