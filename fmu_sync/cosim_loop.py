@@ -30,6 +30,7 @@ import math
 import numpy as np
 from llvmlite import ir
 from numba import njit, types
+from numba.core import cgutils
 from numba.extending import intrinsic
 
 from .core.network import network_forces, node_force
@@ -93,6 +94,33 @@ def fmi_call(typingctx, fn, args):
         return builder.call(builder.inttoptr(address, fnty.as_pointer()), values)
 
     return sig, codegen
+
+
+def _unmanaged_value(context, builder, ty, value):
+    """``value`` of type ``ty`` with every array's meminfo and parent set to NULL (tuples recursively)."""
+    if isinstance(ty, types.Array):
+        ary = cgutils.create_struct_proxy(ty)(context, builder, value=value)
+        ary.meminfo = cgutils.get_null_value(ary.meminfo.type)
+        ary.parent = cgutils.get_null_value(ary.parent.type)
+        return ary._getvalue()
+    if isinstance(ty, types.BaseTuple):
+        for j, t in enumerate(ty.types):
+            item = _unmanaged_value(context, builder, t, builder.extract_value(value, j))
+            value = builder.insert_value(value, item, j)
+    return value
+
+
+@intrinsic
+def unmanaged(typingctx, x):
+    """``x`` (an array, or a tuple of arrays and scalars) as views that numba's runtime does not
+    track (NULL meminfo): passing them on costs no reference counting (an atomic
+    increment and decrement per array per call otherwise, most of the loop's time). Only
+    for arrays the caller keeps alive for the whole call (the arguments of
+    :func:`exchange_chunk`), never returned or stored."""
+    def codegen(context, builder, signature, llargs):
+        return _unmanaged_value(context, builder, signature.args[0], llargs[0])
+
+    return x(x), codegen
 
 
 @njit(cache=True, inline="always")
@@ -264,6 +292,10 @@ def exchange_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, H, H_last, t
     state handles; ``keep``: copies for the retake (q, u, hist_tau, hist, ctl). The record
     arrays are preallocated for the whole run. Returns the outcome code (also ``FAIL[0]``)
     and the last step done."""
+    (ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, q, u, tau, tau_next, hist_tau, hist, imp, ctl, saved, keep,
+     T, Qr, Ur, TAU, D, BR, EU, w, FAIL, fail_t) = unmanaged((ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, q, u,
+                                                              tau, tau_next, hist_tau, hist, imp, ctl, saved, keep,
+                                                              T, Qr, Ur, TAU, D, BR, EU, w, FAIL, fail_t))
     N = q.shape[0]
     need_d = flags[NEED_D] != 0
     jacobi = flags[GAUSS_SEIDEL] == 0 and flags[DELAY] == NOT_DELAYED   # the record may compute tau
