@@ -28,7 +28,6 @@ recorded up to the failure (finite rows only).
 """
 from __future__ import annotations
 
-import atexit
 import contextlib
 import functools
 import math
@@ -51,6 +50,7 @@ from .fmus import contract
 from . import cosim_loop as loop
 from .cosim_loop import CALLS, exchange_chunk, fmi_functions
 from .hold import check_hold, check_schemes
+from .instance_pool import give_back, keep_instances, kept_key, take
 
 __all__ = ["cosimulate", "cosimulate_network", "keep_instances", "NetworkMaster", "NetworkResult", "SlaveError", "FmuInstance",
            "fmu_model", "system_from_fmu", "pair_result"]
@@ -130,40 +130,6 @@ class FmuInstance:
 
     def close(self) -> None:
         self.host.close()
-
-    def reset(self) -> bool:
-        """fmi2Reset for the next run (:func:`keep_instances`): True if the instance is as
-        instantiated again (its log and time cleared), False if it must be freed instead."""
-        if self.host.dead or self.host.call("reset")[0] > 1:
-            return False
-        self.host.messages.clear()
-        self.host.last_status = 0
-        self.t = 0.0
-        return True
-
-
-#: Idle instances kept for the next run in this process, by (unpacked folder, GUID,
-#: instance name): see :func:`keep_instances`
-_KEPT: dict = {}
-_KEEP_FOLDERS: set = set()
-
-
-def keep_instances(unzipdir) -> None:
-    """Runs in this process on the unpacked FMU folder ``unzipdir`` keep their instances
-    for the next run instead of freeing them: at its end a run resets each instance
-    (fmi2Reset; one that fails or had a fatal error is freed) and the next run takes it
-    up where a fresh one starts (setupExperiment, initialisation, its own start values).
-    Bit for bit as fresh instances (tests/test_fmu_reset.py); FMI 2.0 only. A sweep
-    worker calls it for its folder (fmu_sync.sweeps.engine): instantiating costs more
-    than a short run. Kept instances are freed at exit."""
-    if not _KEEP_FOLDERS:
-        atexit.register(_free_kept)
-    _KEEP_FOLDERS.add(str(unzipdir))
-
-
-def _free_kept() -> None:
-    for key in list(_KEPT):
-        _KEPT.pop(key).close()
 
 
 @functools.lru_cache(maxsize=16)
@@ -270,7 +236,7 @@ class NetworkMaster:
     def _start(self, unzipdir: str) -> None:
         model, N = self.model, self.N
         for i in range(N):
-            kept = _KEPT.pop(self._kept_key(unzipdir, i), None)
+            kept = take(self._kept_key(unzipdir, i))
             self.slaves.append(kept or FmuInstance(unzipdir, self.md, f"system{i + 1}", self.EARLY_RETURN))
         for s, sv in zip(self.slaves, self.start_values):
             s.enter_initialization(0.0)   # FMI 2.0: variables are readable from initialization mode on
@@ -451,19 +417,15 @@ class NetworkMaster:
             yield unzipdir
         finally:
             for i, s in enumerate(self.slaves):
-                key = self._kept_key(unzipdir, i)
-                if key is not None and key not in _KEPT and s.reset():
-                    _KEPT[key] = s
-                else:
-                    s.close()
+                give_back(self._kept_key(unzipdir, i), s)   # kept for the next run, or freed
             if not self.unpacked:
                 shutil.rmtree(unzipdir, ignore_errors=True)
 
     def _kept_key(self, unzipdir: str, i: int):
         """The key of instance i in the kept instances (None: not kept, :func:`keep_instances`)."""
-        if str(unzipdir) not in _KEEP_FOLDERS or self.md.fmiVersion != "2.0" or self.EARLY_RETURN:
+        if self.md.fmiVersion != "2.0" or self.EARLY_RETURN:
             return None
-        return str(unzipdir), self.md.guid, f"system{i + 1}"
+        return kept_key(unzipdir, self.md.guid, f"system{i + 1}")
 
     def finish(self, rows: int, impacts: list, failure: RunFailed | None) -> NetworkResult:
         """The result of ``rows`` recorded rows; a failure is raised with it as ``partial``."""
