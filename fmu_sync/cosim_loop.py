@@ -64,6 +64,12 @@ FLAGS = 10
 NOT_DELAYED, DELAYED, DELAYED_ZERO = range(3)
 WARNING = 1
 
+#: the core's network_forces inlined into the loop (numba IR inlining: its own source and
+#: arithmetic, bit for bit): called, it takes its ~20 arrays through the stack every step,
+#: a third of the loop's own time. Never compiled on its own, so not cached itself: it is
+#: compiled into exchange_chunk, which is.
+_forces_inline = njit(inline="always")(network_forces.py_func)
+
 
 def fmi_functions(dll, optional=("fmi2SetRealInputDerivatives", "fmi2GetFMUstate", "fmi2SetFMUstate",
                                  "fmi2FreeFMUstate")) -> np.ndarray:
@@ -222,7 +228,7 @@ def _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau, 
                 network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau_next, t1, t2, c1q, c1u, c2q, c2u, False, dk, bk,
                                ek)
         elif fresh == 0:
-            network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, False, dk, bk, ek)
+            _forces_inline(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, False, dk, bk, ek)
         for i in range(N):
             for c in range(tau.shape[1]):
                 if not abs(tau[i, c]) <= INPUT_BOUND:
@@ -256,7 +262,7 @@ def _record(row, t, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, jacobi, ctl, T
     if not need_d:
         return True
     if jacobi:
-        network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, True, dk, bk, ek)
+        _forces_inline(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, True, dk, bk, ek)
         ctl[FRESH] = 1
     else:
         network_forces(laws, geo, Kp, Kd, E2, W2, q, u, scratch, t1, t2, c1q, c1u, c2q, c2u, True, dk, bk, ek)
