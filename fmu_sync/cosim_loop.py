@@ -30,6 +30,7 @@ import math
 import numpy as np
 from llvmlite import ir
 from numba import njit, types
+from numba.core import cgutils
 from numba.extending import intrinsic
 
 from .core.network import network_forces, node_force
@@ -63,6 +64,12 @@ FLAGS = 10
 NOT_DELAYED, DELAYED, DELAYED_ZERO = range(3)
 WARNING = 1
 
+#: the core's network_forces inlined into the loop (numba IR inlining: its own source and
+#: arithmetic, bit for bit): called, it takes its ~20 arrays through the stack every step,
+#: a third of the loop's own time. Never compiled on its own, so not cached itself: it is
+#: compiled into exchange_chunk, which is.
+_forces_inline = njit(inline="always")(network_forces.py_func)
+
 
 def fmi_functions(dll, optional=("fmi2SetRealInputDerivatives", "fmi2GetFMUstate", "fmi2SetFMUstate",
                                  "fmi2FreeFMUstate")) -> np.ndarray:
@@ -93,6 +100,33 @@ def fmi_call(typingctx, fn, args):
         return builder.call(builder.inttoptr(address, fnty.as_pointer()), values)
 
     return sig, codegen
+
+
+def _unmanaged_value(context, builder, ty, value):
+    """``value`` of type ``ty`` with every array's meminfo and parent set to NULL (tuples recursively)."""
+    if isinstance(ty, types.Array):
+        ary = cgutils.create_struct_proxy(ty)(context, builder, value=value)
+        ary.meminfo = cgutils.get_null_value(ary.meminfo.type)
+        ary.parent = cgutils.get_null_value(ary.parent.type)
+        return ary._getvalue()
+    if isinstance(ty, types.BaseTuple):
+        for j, t in enumerate(ty.types):
+            item = _unmanaged_value(context, builder, t, builder.extract_value(value, j))
+            value = builder.insert_value(value, item, j)
+    return value
+
+
+@intrinsic
+def unmanaged(typingctx, x):
+    """``x`` (an array, or a tuple of arrays and scalars) as views that numba's runtime does not
+    track (NULL meminfo): passing them on costs no reference counting (an atomic
+    increment and decrement per array per call otherwise, most of the loop's time). Only
+    for arrays the caller keeps alive for the whole call (the arguments of
+    :func:`exchange_chunk`), never returned or stored."""
+    def codegen(context, builder, signature, llargs):
+        return _unmanaged_value(context, builder, signature.args[0], llargs[0])
+
+    return x(x), codegen
 
 
 @njit(cache=True, inline="always")
@@ -194,7 +228,7 @@ def _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau, 
                 network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau_next, t1, t2, c1q, c1u, c2q, c2u, False, dk, bk,
                                ek)
         elif fresh == 0:
-            network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, False, dk, bk, ek)
+            _forces_inline(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, False, dk, bk, ek)
         for i in range(N):
             for c in range(tau.shape[1]):
                 if not abs(tau[i, c]) <= INPUT_BOUND:
@@ -228,7 +262,7 @@ def _record(row, t, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, jacobi, ctl, T
     if not need_d:
         return True
     if jacobi:
-        network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, True, dk, bk, ek)
+        _forces_inline(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, True, dk, bk, ek)
         ctl[FRESH] = 1
     else:
         network_forces(laws, geo, Kp, Kd, E2, W2, q, u, scratch, t1, t2, c1q, c1u, c2q, c2u, True, dk, bk, ek)
@@ -264,6 +298,10 @@ def exchange_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, H, H_last, t
     state handles; ``keep``: copies for the retake (q, u, hist_tau, hist, ctl). The record
     arrays are preallocated for the whole run. Returns the outcome code (also ``FAIL[0]``)
     and the last step done."""
+    (ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, q, u, tau, tau_next, hist_tau, hist, imp, ctl, saved, keep,
+     T, Qr, Ur, TAU, D, BR, EU, w, FAIL, fail_t) = unmanaged((ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, q, u,
+                                                              tau, tau_next, hist_tau, hist, imp, ctl, saved, keep,
+                                                              T, Qr, Ur, TAU, D, BR, EU, w, FAIL, fail_t))
     N = q.shape[0]
     need_d = flags[NEED_D] != 0
     jacobi = flags[GAUSS_SEIDEL] == 0 and flags[DELAY] == NOT_DELAYED   # the record may compute tau

@@ -54,8 +54,9 @@ from .fmus import contract
 from . import cosim_loop as loop
 from .cosim_loop import CALLS, exchange_chunk, fmi_functions
 from .hold import check_hold, check_schemes
+from .instance_pool import give_back, keep_instances, kept_key, take
 
-__all__ = ["cosimulate", "cosimulate_network", "NetworkMaster", "NetworkResult", "SlaveError", "FmuInstance",
+__all__ = ["cosimulate", "cosimulate_network", "keep_instances", "NetworkMaster", "NetworkResult", "SlaveError", "FmuInstance",
            "fmu_model", "system_from_fmu", "pair_result"]
 
 #: Communication steps per compiled chunk when no progress is reported (Ctrl-C is honoured between chunks).
@@ -177,7 +178,8 @@ class NetworkMaster:
     def _start(self, unzipdir: str) -> None:
         model, N = self.model, self.N
         for i in range(N):
-            self.slaves.append(open_instance(unzipdir, self.md, f"system{i + 1}", self.EARLY_RETURN))
+            kept = take(self._kept_key(unzipdir, i))
+            self.slaves.append(kept or open_instance(unzipdir, self.md, f"system{i + 1}", self.EARLY_RETURN))
         for s, sv in zip(self.slaves, self.start_values):
             s.enter_initialization(0.0)   # FMI 2.0: variables are readable from initialization mode on
             s.set(sv)
@@ -349,10 +351,16 @@ class NetworkMaster:
         try:
             yield unzipdir
         finally:
-            for s in self.slaves:
-                s.close()
+            for i, s in enumerate(self.slaves):
+                give_back(self._kept_key(unzipdir, i), s)   # kept for the next run, or freed
             if not self.unpacked:
                 shutil.rmtree(unzipdir, ignore_errors=True)
+
+    def _kept_key(self, unzipdir: str, i: int):
+        """The key of instance i in the kept instances (None: not kept, :func:`keep_instances`)."""
+        if self.md.fmiVersion != "2.0" or self.EARLY_RETURN:
+            return None
+        return kept_key(unzipdir, self.md.guid, f"system{i + 1}")
 
     def finish(self, rows: int, impacts: list, failure: RunFailed | None) -> NetworkResult:
         """The result of ``rows`` recorded rows; a failure is raised with it as ``partial``."""

@@ -28,6 +28,7 @@ from ..core.distance import DistanceGeometry, ScalarGeometry
 from ..core.network import network_forces
 from .stepper import (H_CONFIGURED, H_DATA, H_DT, H_FEEDTHROUGH, H_ITAU, H_ITAUDOT, H_LEN, H_M, H_NX,
                       H_SCHEME, H_VERSION, WORK_VERSION)
+from .workarray import mat, put
 
 __all__ = ["step", "pack", "work_size", "H_FEEDTHROUGH", "C_NODES", "C_DOF", "C_EDGES", "C_IQ", "C_IU",
            "C_ITAU", "C_ID", "C_IV", "C_IEU", "C_IBR", "NO_SCHEME"]
@@ -81,10 +82,7 @@ def pack(work: np.ndarray, cfg, edges) -> None:
     work[k:k + E] = 0.5 * (cfg.W2[:, 0] + cfg.W2[:, 1])
     k += E
     g = cfg.geo
-    for a in (cfg.Kp, cfg.Kd, g.Q, g.M, g.w):
-        flat = np.ascontiguousarray(a, dtype=np.float64).reshape(-1)
-        work[k:k + flat.size] = flat
-        k += flat.size
+    k = put(work, k, (cfg.Kp, cfg.Kd, g.Q, g.M, g.w))
     work[k], work[k + 1] = g.g0, g.e
     k += 2
     n = g.w.shape[0]
@@ -106,19 +104,19 @@ def _evaluate(x, w):
     k = H_DATA
     ints = w[k:k + 3 * E].view(np.int64)
     laws = ints[:E]
-    E2 = ints[E:3 * E].reshape((E, 2))
+    E2 = mat(ints, E, E, 2)
     k += 3 * E
-    W2 = w[k:k + 2 * E].reshape((E, 2))
+    W2 = mat(w, k, E, 2)
     k += 2 * E
     asym = w[k:k + E]
     k += E
-    Kp = w[k:k + n * n].reshape((n, n))
+    Kp = mat(w, k, n, n)
     k += n * n
-    Kd = w[k:k + n * n].reshape((n, n))
+    Kd = mat(w, k, n, n)
     k += n * n
-    Q = w[k:k + n * n].reshape((n, n))
+    Q = mat(w, k, n, n)
     k += n * n
-    M = w[k:k + n * n].reshape((n, n))
+    M = mat(w, k, n, n)
     k += n * n
     wv = w[k:k + n]
     k += n
@@ -140,9 +138,9 @@ def _evaluate(x, w):
     iq = int(w[C_IQ])
     iu = int(w[C_IU])
     it = int(w[C_ITAU])
-    q = x[iq:iq + N * n].reshape((N, n))
-    u = x[iu:iu + N * n].reshape((N, n))
-    tau = x[it:it + N * n].reshape((N, n))
+    q = mat(x, iq, N, n)
+    u = mat(x, iu, N, n)
+    tau = mat(x, it, N, n)
     s = w[k:]
     dk = s[0:E]
     ek = s[E:2 * E]

@@ -56,6 +56,7 @@ from ..core.model import SystemArrays
 from ..core.moreau import MIDPOINT, OK, THETA, advance_in, substeps
 from .contract import SCHEME_EXACT as EXACT
 from .contract import STATE_BOUND
+from .workarray import mat, put
 
 __all__ = ["step", "pack", "work_size", "H_LEN", "H_VERSION", "H_TIME", "H_PHASE", "H_DT",
            "H_CONFIGURED", "WORK_VERSION", "H_FEEDTHROUGH", "H_VREF", "H_ITAUDOT", "H_IEXACT", "H_MAXEV", "H_BOUND",
@@ -126,11 +127,7 @@ def pack(work: np.ndarray, sa: SystemArrays, dt: float, scheme: int, theta: floa
     work[H_SCHEME], work[H_THETA], work[H_DT] = scheme, theta, dt
     work[H_MAXEV] = EXACT_MAX_EVENTS
     work[H_BOUND] = STATE_BOUND
-    k = H_DATA
-    for a in (sa.M, sa.Minv, sa.K, sa.C, sa.f0, sa.F, sa.Omega, sa.phi, sa.B, sa.w):
-        flat = np.ascontiguousarray(a, dtype=np.float64).reshape(-1)
-        work[k:k + flat.size] = flat
-        k += flat.size
+    k = put(work, H_DATA, (sa.M, sa.Minv, sa.K, sa.C, sa.f0, sa.F, sa.Omega, sa.phi, sa.B, sa.w))
     work[k], work[k + 1] = sa.g0, sa.e
     k += 2
     work[k:k + n] = sa.Minv_w
@@ -151,23 +148,23 @@ def _unpack(w):
     m = int(w[H_M])
     nf = int(w[H_NF])
     k = H_DATA
-    M = w[k:k + n * n].reshape((n, n))
+    M = mat(w, k, n, n)
     k += n * n
-    Minv = w[k:k + n * n].reshape((n, n))
+    Minv = mat(w, k, n, n)
     k += n * n
-    K = w[k:k + n * n].reshape((n, n))
+    K = mat(w, k, n, n)
     k += n * n
-    C = w[k:k + n * n].reshape((n, n))
+    C = mat(w, k, n, n)
     k += n * n
     f0 = w[k:k + n]
     k += n
-    F = w[k:k + nf * n].reshape((nf, n))
+    F = mat(w, k, nf, n)
     k += nf * n
     Omega = w[k:k + nf]
     k += nf
     phi = w[k:k + nf]
     k += nf
-    B = w[k:k + n * m].reshape((n, m))
+    B = mat(w, k, n, m)
     k += n * m
     wv = w[k:k + n]
     k += n
@@ -221,7 +218,7 @@ def _advance(sa, q, u, t, H, dt, tau, taudot, scheme, theta, s):
         # scratch: y, hf, uf, Sinv_w, hc, hb (n each), Sinv (n*n), cv, sv, cr, sr (nf each), tk (m)
         k = 6 * n + n * n
         return advance_in(sa, q, u, t, H, dt, tau, taudot, foh, scheme, theta, False,
-                          s[0:n], s[n:2 * n], s[2 * n:3 * n], s[6 * n:k].reshape((n, n)), s[3 * n:4 * n],
+                          s[0:n], s[n:2 * n], s[2 * n:3 * n], mat(s, 6 * n, n, n), s[3 * n:4 * n],
                           s[k:k + nf], s[k + nf:k + 2 * nf], s[k + 2 * nf:k + 3 * nf],
                           s[k + 3 * nf:k + 4 * nf], s[4 * n:5 * n], s[5 * n:6 * n],
                           s[k + 4 * nf:k + 4 * nf + m])

@@ -397,6 +397,8 @@ def _fmu_for(variant):
         d = tempfile.mkdtemp(prefix=f"fmu-sync-sweep-{os.getpid()}-")
         atexit.register(shutil.rmtree, d, True)
         _FMUS[key] = extract(str(export_for(variant, d)), unzipdir=os.path.join(d, "unpacked"))
+        from ..instance_pool import keep_instances
+        keep_instances(_FMUS[key])   # its instances are reset and reused run after run
     return _FMUS[key]
 
 
