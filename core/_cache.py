@@ -17,7 +17,7 @@ import os
 
 from numba.core import caching
 
-__all__ = ["install", "core_stamp", "CORE_DIR"]
+__all__ = ["install", "core_stamp", "depends_on_core", "CORE_DIR"]
 
 CORE_DIR = os.path.dirname(os.path.abspath(__file__))
 _stamp: bytes | None = None
@@ -37,13 +37,28 @@ def core_stamp() -> bytes:
     return _stamp
 
 
+#: files outside the core whose kernels compile core kernels into themselves (registered
+#: with :func:`depends_on_core` before their first ``@njit(cache=True)``)
+_DEPENDENTS: set = set()
+
+
+def depends_on_core(py_file: str) -> None:
+    """Stamp the cached kernels of ``py_file`` with its own stamp and the core's: an edit of
+    the core then recompiles them too (fmu_sync/cosim_loop.py compiles the core's force
+    assembly into its loop)."""
+    _DEPENDENTS.add(os.path.abspath(py_file))
+
+
 class _CoreStamp:
     def get_source_stamp(self):
+        if os.path.abspath(self._py_file) in _DEPENDENTS:
+            return (core_stamp(), super().get_source_stamp())
         return core_stamp()
 
     @classmethod
     def from_function(cls, py_func, py_file):
-        if os.path.dirname(os.path.abspath(py_file)) != CORE_DIR:
+        path = os.path.abspath(py_file)
+        if os.path.dirname(path) != CORE_DIR and path not in _DEPENDENTS:
             return None
         return super().from_function(py_func, py_file)
 

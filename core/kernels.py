@@ -26,8 +26,9 @@ from .distance import (core_2d, distance1, distance_kernel, distance_kernel_unpr
 from .impact import impact_map_kernel
 from .exact_step import STEP_OK, exact_model, exact_step
 from .moreau import DIVERGED, MIDPOINT, OK, THETA, advance, kernels_for
+from ._cache import depends_on_core   # a custom loop compiling core kernels in registers its file
 
-__all__ = ["kernels_for", "advance", "OK", "DIVERGED", "MIDPOINT", "THETA", "make_geometry", "distance_kernel",
+__all__ = ["depends_on_core", "kernels_for", "advance", "OK", "DIVERGED", "MIDPOINT", "THETA", "make_geometry", "distance_kernel",
            "distance_value", "distance1", "distance_kernel_unpruned", "core_2d", "coupling_kernel",
            "coupling_kernel1", "gain_matrix", "SWITCHING", "EUCLIDEAN", "UNCOUPLED", "impact_map_kernel",
            "exact_model", "exact_step", "STEP_OK"]

@@ -34,7 +34,10 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 from .core.network import network_forces, node_force
+from .core.kernels import depends_on_core
 from .fmus.contract import INPUT_BOUND
+
+depends_on_core(__file__)   # its cache follows the core's edits (it compiles network_forces in)
 
 __all__ = ["CALLS", "fmi_functions", "exchange_chunk", "DONE", "SLAVE_FAILED", "FORCE_BOUND",
            "STATE_DIVERGED", "DISTANCE_DIVERGED"]

@@ -45,3 +45,11 @@ def test_stamp_covers_every_core_module(tmp_path, monkeypatch):
     with open(copy / "distance.py", "a") as f:
         f.write("\n# edited\n")
     assert _cache.core_stamp() != before
+
+
+def test_the_master_loop_cache_follows_core_edits():
+    """fmu_sync/cosim_loop.py compiles the core's force assembly into its loop: its cached
+    kernels are stamped with the core's stamp beside their own, so a core edit recompiles them"""
+    from fmu_sync import cosim_loop
+    stamp = cosim_loop.exchange_chunk._cache._impl.locator.get_source_stamp()
+    assert isinstance(stamp, tuple) and stamp[0] == _cache.core_stamp() and stamp[1] != _cache.core_stamp()
