@@ -191,10 +191,12 @@ def _pair1(law, scheme, theta, s1, F1, Omega1, phi1, s2, F2, Omega2, phi2, sg, k
     bt, bd, st = decimator_init(RECORDER_SIZE, threshold, (1.0 - TAIL) * t_stop)
     E2 = np.zeros((1, 2), dtype=np.int64)   # the pair's edge (0, 1), weights 1 (pair.PAIR_EDGES)
     E2[0, 1] = 1
-    status, steps, _, imp, ep, v_imp, tau_max = integrate_network(
+    imp = np.zeros(2, dtype=np.int64)
+    ep = np.zeros(2, dtype=np.int64)
+    status, steps, _, v_imp, tau_max = integrate_network(
         base, K, C, f0, F, Om, ph, geo, np.full(1, law), E2, np.ones((1, 2)), np.full((1, 1), kp),
         np.full((1, 1), kd), q, u, 0.0, 0, dt, n_steps, scheme, theta, every, True, T, Qr, Ur, TAU, D, BR, EU,
-        dt_last, True, acc, bt, bd, st)
+        dt_last, True, acc, bt, bd, st, imp, ep)
     res[0] = status
     res[1] = steps
     res[2] = T[0] if status != OK else t_stop

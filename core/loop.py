@@ -202,7 +202,7 @@ def _step_node(base, K, C, f0, F, Omega, phi, i, q, u, tau, t, hk, scheme, theta
 @njit(cache=True)
 def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, q, u, t0, k0, dt,
                       n_steps, scheme, theta, record_every, record_d, T, Qr, Ur, TAU, D, BR, EU, dt_last,
-                      dec, acc, bt, bd, st):
+                      dec, acc, bt, bd, st, imp, ep):
     """The loop over steps ``k0 .. k0 + n_steps`` (time ``t0 + k dt``), then, if
     ``dt_last > 0``, the shortened last step of the run; the final state is always a row.
 
@@ -217,8 +217,13 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
     ``dec`` (decimating recorder): the arrays have one row, each row overwrites it, and
     each row's distance of edge 0 goes to :func:`sample_d` ``(acc, bt, bd, st)``.
 
-    Returns ``(status, steps_done, rows_written, impacts (N,), episodes (N,), v_impact,
-    tau_max)``: contact episodes (runs of consecutive steps with a percussion), the largest
+    ``imp``, ``ep`` (N,) int64: set to each node's impacts and contact episodes (runs of
+    consecutive steps with a percussion) of this call. Output arrays come from the caller
+    and only numbers are returned: boxing an array made here would call into Python on
+    return, where a pending Ctrl-C or SIGTERM would be raised inside numba's runtime
+    (a SystemError or a crash instead of a clean KeyboardInterrupt; tests/test_leftovers.py).
+
+    Returns ``(status, steps_done, rows_written, v_impact, tau_max)``: the largest
     speed sqrt(u^T Q u) of a system at the start of a step with a positive percussion
     (:meth:`PairResult.window_floor`), and (``dec`` only) max |tau| over the steps.
     ``status`` is DIVERGED if a state or recorded distance is not finite at a row.
@@ -252,8 +257,8 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
     dk = np.full(E, np.nan)
     bk = np.full(E, BRANCH_NONE)
     ek = np.full(E, np.nan)
-    imp = np.zeros(N, dtype=np.int64)
-    ep = np.zeros(N, dtype=np.int64)
+    imp[:] = 0
+    ep[:] = 0
     last = np.full(N, -2, dtype=np.int64)   # the last step with a percussion, per node
     v_imp = 0.0
     tau_max = 0.0
@@ -311,7 +316,7 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
                     if not math.isfinite(dk[e_]):
                         ok = False
             if not ok:
-                return DIVERGED, k, row, imp, ep, v_imp, tau_max
+                return DIVERGED, k, row, v_imp, tau_max
             if dec:
                 sample_d(acc, bt, bd, st, T[0], dk[0])
             row += 1
@@ -354,4 +359,4 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
                 v = abs(u0) * sqQ if scalar else p_norm_diff(geo.Q, geo.Q, zero, ua, zero, zero)
                 if v > v_imp:
                     v_imp = v
-    return OK, total, row, imp, ep, v_imp, tau_max
+    return OK, total, row, v_imp, tau_max

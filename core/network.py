@@ -173,14 +173,15 @@ def simulate_network(system, states, A, t_end: float, dt: float, coupling="switc
             chunks = [0]
     row0, k0 = 0, 0
     imp = np.zeros(N, dtype=np.int64)
+    i_, ep = np.zeros(N, dtype=np.int64), np.zeros(N, dtype=np.int64)   # each chunk's counts
     status = OK
     for c, steps in enumerate(chunks):
         last = c == len(chunks) - 1
         sl = slice(row0, rows)
-        status, done, written, i_, _, _, _ = integrate_network(
+        status, done, written, _, _ = integrate_network(
             *nodes, geo, laws, E2, W2, Kp_m, Kd_m, q, u, float(t0), k0, dt, steps,
             code, theta, record_every, record_d, T[sl], Qr[sl], Ur[sl], TAU[sl], D[sl], BR[sl], EU[sl],
-            dt_last if last else 0.0, False, *dec)
+            dt_last if last else 0.0, False, *dec, i_, ep)
         imp += i_
         if status != OK:
             row0 += written

@@ -152,6 +152,7 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
                           coupling=coupling if coupling != "none" else None, info=dict(info))
 
     row0, k0, imp1, imp2, sent = 0, 0, 0, 0, 0
+    imp, ep = np.zeros(2, dtype=np.int64), np.zeros(2, dtype=np.int64)   # each chunk's counts
     status = OK
     for c, steps in enumerate(chunks):
         last = c == len(chunks) - 1
@@ -159,10 +160,10 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
             row0 = 0
         sl = slice(row0, cap)
         # a chunk records its start row; the next chunk starts on the row it ended on
-        status, done, written, imp, _, v, _ = integrate_network(
+        status, done, written, v, _ = integrate_network(
             *nodes, geo, laws, PAIR_EDGES, PAIR_WEIGHTS, Kp_m, Kd_m, q, u, float(t0), k0, dt, steps, code,
             theta, record_every, record_d, T[sl], Qr[sl], Ur[sl], TAU[sl], D2[sl], BR2[sl], EU2[sl],
-            dt_last if last else 0.0, False, *dec)
+            dt_last if last else 0.0, False, *dec, imp, ep)
         imp1 += int(imp[0])
         imp2 += int(imp[1])
         info["v_impact"] = max(info["v_impact"], v)

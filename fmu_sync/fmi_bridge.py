@@ -219,6 +219,17 @@ class FMUHost:
         """(status, state) from serialised bytes."""
         return self.call("deSerializeFMUstate", bytes(data))
 
+    def reset(self) -> int:
+        """fmi2Reset: the instance as after instantiation (time 0, not stepping, an empty log);
+        returns the status (a status worse than Warning raises with ``raises``)."""
+        status = self.call("reset")[0]
+        if status <= WARNING:
+            self._stepping = False
+            self.t = 0.0
+            self.messages.clear()     # the next run's SlaveError reports its own log only
+            self.last_status = OK
+        return status
+
     # ---------------------------------------------------------------- close
     def close(self) -> None:
         """Terminate (if stepping and alive), free the instance, remove unpacked files."""

@@ -43,9 +43,6 @@ def give_back(key, instance) -> None:
     if key is None or key in _KEPT or instance.dead or _reset(instance) > 1:
         instance.close()
         return
-    instance.messages.clear()       # the next run's SlaveError reports its own log only
-    instance.last_status = 0
-    instance.t = 0.0
     _KEPT[key] = instance
 
 
@@ -53,7 +50,7 @@ def _reset(instance) -> int:
     """fmi2Reset's status (a master's instance raises for a status worse than Warning)."""
     from .fmi_bridge import SlaveError
     try:
-        return instance.call("reset")[0]
+        return instance.reset()
     except SlaveError as exc:
         return exc.status
 

@@ -74,3 +74,29 @@ def test_no_second_coupled_loop():
                                     "metrics_from_records"}
     assert "integrate_network" in batch._pair1.py_func.__code__.co_names
     assert "integrate_network" in compiled(loop)
+
+
+def test_the_compiled_loops_never_call_into_python():
+    """A kernel that boxes an array it made calls numba's unpickler (Python) on return; a
+    pending Ctrl-C or SIGTERM is then raised inside numba's runtime (a SystemError or a
+    crash, not a clean KeyboardInterrupt). The loops take their output arrays from the caller."""
+    import sys
+    from fmu_sync.core import ImpactOscillator, ring, simulate, simulate_network, simulate_pair
+    s = ImpactOscillator(m=1.0, k=1.0, c=0.1, F=0.5, Omega=1.3, e=0.8)
+    runs = [lambda: simulate_pair(s, (0.5, 0.0), (0.8, 0.1), 2.0, 1e-3, coupling="switching", Kp=1.0, Kd=0.5),
+            lambda: simulate_network(s, [(0.5, 0.0), (0.8, 0.1), (0.2, 0.3)], ring(3), 2.0, 1e-3, Kp=1.0, Kd=0.5),
+            lambda: simulate(s, (0.5, 0.0), 2.0, 1e-3)]
+    for run in runs:
+        run()                                   # compiled (or loaded from the cache)
+    calls = []
+
+    def profile(frame, event, arg):
+        if event == "call" and frame.f_code.co_name == "_numba_unpickle":
+            calls.append(frame.f_back.f_code.co_filename + f":{frame.f_back.f_lineno}")
+    sys.setprofile(profile)
+    try:
+        for run in runs:
+            run()
+    finally:
+        sys.setprofile(None)
+    assert not calls, calls
