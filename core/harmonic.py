@@ -54,18 +54,6 @@ def hsum1_cos(F, Omega, phi, tf):
 
 
 @njit(cache=True, inline="always")
-def hsum1_cos_node(F, Omega, phi, i, tf):
-    """:func:`hsum1_cos` of node i of stacked forcing ``F`` (N, nf, 1), ``Omega, phi`` (N, nf), same
-    operation order, by index (no array view per node and step in the coupled loop)."""
-    if Omega.shape[1] == 0:
-        return 0.0
-    fc = F[i, 0, 0] * math.cos(Omega[i, 0] * tf + phi[i, 0])
-    for j in range(1, Omega.shape[1]):
-        fc += F[i, j, 0] * math.cos(Omega[i, j] * tf + phi[i, j])
-    return fc
-
-
-@njit(cache=True, inline="always")
 def ph_sync(Omega, phi, tf, cv, sv):
     """Exact (re-)synchronisation of the phasor at force time tf: returns the first
     term's (cos, sin) (kept in registers by the loops), the others go to cv, sv."""

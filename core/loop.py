@@ -30,7 +30,6 @@ from .coupling import (BRANCH_NONE, SWITCHING, UNCOUPLED, coupling_kernel, coupl
                        euclidean_coupling1, p_norm_diff)
 from .distance import distance1, distance_value
 from .metrics import decimator_push
-from .harmonic import hsum1_cos_node
 from .model import SystemArrays
 from .steps import (DIVERGED, OK, THETA, finish_step, flush1, midpoint_step, scalar_params, step1_h,
                     step_coeffs1, theta_matrices, theta_step)
@@ -116,7 +115,7 @@ def network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, 
     edge's law evaluated once (:func:`coupling_step`), and each edge's distance record into
     ``dk, bk, ek`` (E,). ``E2`` (E, 2) edges (i, j); ``W2`` (E, 2) weights (a_ij, a_ji);
     ``t1, t2, c1q, c1u, c2q, c2u``: (n,) scratch. The forces of :func:`integrate_network`
-    (inlined there) and, per communication step, of the master's exchange loop."""
+    (called there for n > 1) and, per communication step, of the master's exchange loop."""
     _forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, need_d, dk, bk, ek)
 
 
@@ -166,10 +165,11 @@ def _node(base, K, C, f0, F, Omega, phi, i):
                         base.g0, base.e, base.Minv_w, base.W)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _matrices(base, K, C, f0, F, Omega, phi, scheme, theta, h, Sinv, Sinv_w, WS, co):
     """Per node, for step h: the theta iteration data (S^-1, S^-1 w, W_S) and, for n = 1,
-    the scalar step coefficients (:func:`.moreau.step_coeffs1`) into ``co[i]``."""
+    the scalar step coefficients (:func:`.moreau.step_coeffs1`) into ``co[i]``. (A call: the
+    loop's body stays small.)"""
     scalar = K.shape[1] == 1
     for i in range(K.shape[0]):
         sa = _node(base, K, C, f0, F, Omega, phi, i)
@@ -182,6 +182,17 @@ def _matrices(base, K, C, f0, F, Omega, phi, scheme, theta, h, Sinv, Sinv_w, WS,
                 c = step_coeffs1(scalar_params(sa), sa.Minv[0, 0], sa.Minv_w[0], sa.W, 0.5 * h, h)
             (co[i, 0], co[i, 1], co[i, 2], co[i, 3], co[i, 4], co[i, 5], co[i, 6], co[i, 7], co[i, 8], co[i, 9],
              co[i, 10]) = c
+
+
+@njit(cache=True, inline="always")
+def _impact(i, k, imp, ep, last, v, v_imp):
+    """Node i had a percussion in step k at speed v: its impact and contact-episode counts
+    (an episode: a run of consecutive steps with a percussion); returns the largest speed."""
+    imp[i] += 1
+    if last[i] != k - 1:   # a new contact episode
+        ep[i] += 1
+    last[i] = k
+    return v if v > v_imp else v_imp
 
 
 @njit(cache=True)
@@ -248,6 +259,15 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
     kp0 = Kp[0, 0]
     kd0 = Kd[0, 0]
     tau = np.zeros((N, n))
+    # the 1-DOF path's 1-D views (for n = 1 the element i of q, u, tau, f0)
+    q1d = q.reshape(N * n)
+    u1d = u.reshape(N * n)
+    tau1d = tau.reshape(N * n)
+    f01 = f0.reshape(N * n)
+    nf = Omega.shape[1]
+    F1d = np.ascontiguousarray(F).reshape(N * nf * n)
+    Om1d = np.ascontiguousarray(Omega).reshape(N * nf)
+    ph1d = np.ascontiguousarray(phi).reshape(N * nf)
     t1 = np.zeros(n)
     t2 = np.zeros(n)
     c1q = np.empty(n)
@@ -263,37 +283,46 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
     v_imp = 0.0
     tau_max = 0.0
     coupled = False
+    law0 = laws[0] if E > 0 else UNCOUPLED
+    uniform = True   # one law on every edge (a pair): the law is then loop-invariant
     for k in range(E):
         if laws[k] != UNCOUPLED:
             coupled = True
+        if laws[k] != law0:
+            uniform = False
     row = 0
     countdown = 1  # row 0 is the initial state
     total = n_steps + 1 if dt_last > 0.0 else n_steps
-    for k in range(total + 1):
+    k = 0
+    while True:
         is_row = k == total   # the final state is always a row
         countdown -= 1
         if countdown == 0:
             countdown = record_every
             is_row = True
         need_d = is_row and record_d
-        # forces from the states at the start of the step (Jacobi, zero-order hold); for n = 1
-        # network_forces on floats, written out here: the arrays an inlined or called kernel takes
-        # cost reference counting on every step (measured: 2 instead of 8 Msteps/s for a pair)
+        # forces from the states at the start of the step (Jacobi, zero-order hold)
         if (coupled or need_d) and scalar:
+            # network_forces for n = 1 on floats, written out here: the arrays an inlined or called
+            # kernel takes cost reference counting on every step (measured: 2 instead of 8 Msteps/s)
             for i in range(N):
-                tau[i, 0] = 0.0
+                tau1d[i] = 0.0
             for e_ in range(E):
                 ia = E2[e_, 0]
                 ib = E2[e_, 1]
-                f1, f2, dk[e_], bk[e_], ek[e_] = coupling_step1(laws[e_], sg, kp0, kd0, q[ia, 0], u[ia, 0],
-                                                                q[ib, 0], u[ib, 0], need_d)
-                if laws[e_] != UNCOUPLED:
+                lw = law0 if uniform else laws[e_]
+                f1, f2, d_, b_, e1 = coupling_step1(lw, sg, kp0, kd0, q1d[ia], u1d[ia], q1d[ib], u1d[ib], need_d)
+                if need_d:   # the record is read at rows only
+                    dk[e_] = d_
+                    bk[e_] = b_
+                    ek[e_] = e1
+                if lw != UNCOUPLED:
                     if W2[e_, 0] > 0.0:
-                        tau[ia, 0] += W2[e_, 0] * f1
+                        tau1d[ia] += W2[e_, 0] * f1
                     if W2[e_, 1] > 0.0:
-                        tau[ib, 0] += W2[e_, 1] * f2
+                        tau1d[ib] += W2[e_, 1] * f2
         elif coupled or need_d:
-            _forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, need_d, dk, bk, ek)
+            network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, need_d, dk, bk, ek)
         r = 0 if dec else row
         if k == 0 and k0 == 0:
             for i in range(N):
@@ -301,13 +330,19 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
                     TAU[0, i, c] = tau[i, c]
         if is_row:
             T[r] = t0 + (k0 + k) * dt if k <= n_steps else t0 + (k0 + n_steps) * dt + dt_last
+            # the states (then flushed, as moreau.finish_step) and the edges' distance records, on the
+            # 1-D views (no array views or calls: with the decimating recorder this is every few steps)
             ok = True
             for i in range(N):
                 for c in range(n):
-                    Qr[r, i, c] = q[i, c]
-                    Ur[r, i, c] = u[i, c]
-                if not finish_step(q[i], u[i]):
-                    ok = False
+                    x = q1d[i * n + c]
+                    v = u1d[i * n + c]
+                    Qr[r, i, c] = x
+                    Ur[r, i, c] = v
+                    q1d[i * n + c] = flush1(x)
+                    u1d[i * n + c] = flush1(v)
+                    if not (math.isfinite(x) and math.isfinite(v)):
+                        ok = False
             if record_d:
                 for e_ in range(E):
                     D[r, e_] = dk[e_]
@@ -327,36 +362,44 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
                 for c in range(n):
                     TAU[row, i, c] = tau[i, c]
         if dec:
-            for i in range(N):
-                for c in range(n):
-                    a_ = abs(tau[i, c])
-                    if a_ > tau_max:
-                        tau_max = a_
+            for i in range(N * n):
+                a_ = abs(tau1d[i])
+                if a_ > tau_max:
+                    tau_max = a_
         t = t0 + (k0 + k) * dt
         hk = dt
         if k == n_steps:   # the shortened last step
             hk = dt_last
             _matrices(base, K, C, f0, F, Omega, phi, scheme, theta, hk, Sinv, Sinv_w, WS, co)
         a = theta * hk if scheme == THETA else 0.5 * hk
-        for i in range(N):
-            u0 = 0.0
-            if scalar:   # the 1-DOF path: the step on floats (bitwise the general step)
+        if scalar:   # the 1-DOF path: the step on floats (bitwise the general step), 1-D views
+            for i in range(N):
+                u0 = u1d[i]
+                # the forcing (harmonic.hsum1_cos of node i, written out: no arrays handed per step)
+                fc = 0.0
+                if nf > 0:
+                    fc = F1d[i * nf] * math.cos(Om1d[i * nf] * (t + a) + ph1d[i * nf])
+                    for j in range(1, nf):
+                        fc += F1d[i * nf + j] * math.cos(Om1d[i * nf + j] * (t + a) + ph1d[i * nf + j])
+                hc = (f01[i] + B0 * tau1d[i]) + fc
                 cf = (co[i, 0], co[i, 1], co[i, 2], co[i, 3], co[i, 4], co[i, 5], co[i, 6], co[i, 7], co[i, 8],
                       co[i, 9], co[i, 10])
-                u0 = u[i, 0]
-                hc = (f0[i, 0] + B0 * tau[i, 0]) + hsum1_cos_node(F, Omega, phi, i, t + a)
-                qn, un, P = step1_h(cf, q[i, 0], u0, hc, hk)
-                q[i, 0] = flush1(qn)
-                u[i, 0] = flush1(un)
-            else:
+                qn, un, P = step1_h(cf, q1d[i], u0, hc, hk)
+                q1d[i] = flush1(qn)
+                u1d[i] = flush1(un)
+                if P > 0.0:
+                    imp[i] += 1
+                    if last[i] != k - 1:   # a new contact episode
+                        ep[i] += 1
+                    last[i] = k
+                    v = abs(u0) * sqQ
+                    if v > v_imp:
+                        v_imp = v
+        else:
+            for i in range(N):
                 P = _step_node(base, K, C, f0, F, Omega, phi, i, q, u, tau, t, hk, scheme, theta, Sinv, Sinv_w, WS,
                                qM, h, uf, ua)
-            if P > 0.0:
-                imp[i] += 1
-                if last[i] != k - 1:   # a new contact episode
-                    ep[i] += 1
-                last[i] = k
-                v = abs(u0) * sqQ if scalar else p_norm_diff(geo.Q, geo.Q, zero, ua, zero, zero)
-                if v > v_imp:
-                    v_imp = v
+                if P > 0.0:
+                    v_imp = _impact(i, k, imp, ep, last, p_norm_diff(geo.Q, geo.Q, zero, ua, zero, zero), v_imp)
+        k += 1
     return OK, total, row, v_imp, tau_max
