@@ -28,7 +28,7 @@ from ..core.distance import DistanceGeometry, ScalarGeometry
 from ..core.network import network_forces
 from .stepper import (H_CONFIGURED, H_DATA, H_DT, H_FEEDTHROUGH, H_ITAU, H_ITAUDOT, H_LEN, H_M, H_NX,
                       H_SCHEME, H_VERSION, WORK_VERSION)
-from .workarray import mat, put
+from .workarray import mat, put, put_wall, wall
 
 __all__ = ["step", "pack", "work_size", "H_FEEDTHROUGH", "C_NODES", "C_DOF", "C_EDGES", "C_IQ", "C_IU",
            "C_ITAU", "C_ID", "C_IV", "C_IEU", "C_IBR", "NO_SCHEME"]
@@ -82,13 +82,9 @@ def pack(work: np.ndarray, cfg, edges) -> None:
     work[k:k + E] = 0.5 * (cfg.W2[:, 0] + cfg.W2[:, 1])
     k += E
     g = cfg.geo
-    k = put(work, k, (cfg.Kp, cfg.Kd, g.Q, g.M, g.w))
-    work[k], work[k + 1] = g.g0, g.e
-    k += 2
+    k = put(work, k, (cfg.Kp, cfg.Kd, g.Q, g.M))
+    k = put_wall(work, k, g.w, g.g0, g.e, g.Minv_w, g.W)
     n = g.w.shape[0]
-    work[k:k + n] = g.Minv_w
-    work[k + n] = g.W
-    k += n + 1
     work[k:k + n] = g.Qinv_w
     work[k + n], work[k + n + 1], work[k + n + 2] = g.WQ, g.sqrtW, g.sqrtWQ
     k += n + 3
@@ -118,14 +114,7 @@ def _evaluate(x, w):
     k += n * n
     M = mat(w, k, n, n)
     k += n * n
-    wv = w[k:k + n]
-    k += n
-    g0 = w[k]
-    e = w[k + 1]
-    k += 2
-    Minv_w = w[k:k + n]
-    W = w[k + n]
-    k += n + 1
+    wv, g0, e, Minv_w, W, k = wall(w, k, n)
     Qinv_w = w[k:k + n]
     WQ = w[k + n]
     sqrtW = w[k + n + 1]

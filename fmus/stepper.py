@@ -56,7 +56,7 @@ from ..core.model import SystemArrays
 from ..core.moreau import MIDPOINT, OK, THETA, advance_in, substeps
 from .contract import SCHEME_EXACT as EXACT
 from .contract import STATE_BOUND
-from .workarray import mat, put
+from .workarray import mat, put, put_wall, wall
 
 __all__ = ["step", "pack", "work_size", "H_LEN", "H_VERSION", "H_TIME", "H_PHASE", "H_DT",
            "H_CONFIGURED", "WORK_VERSION", "H_FEEDTHROUGH", "H_VREF", "H_ITAUDOT", "H_IEXACT", "H_MAXEV", "H_BOUND",
@@ -127,12 +127,9 @@ def pack(work: np.ndarray, sa: SystemArrays, dt: float, scheme: int, theta: floa
     work[H_SCHEME], work[H_THETA], work[H_DT] = scheme, theta, dt
     work[H_MAXEV] = EXACT_MAX_EVENTS
     work[H_BOUND] = STATE_BOUND
-    k = put(work, H_DATA, (sa.M, sa.Minv, sa.K, sa.C, sa.f0, sa.F, sa.Omega, sa.phi, sa.B, sa.w))
-    work[k], work[k + 1] = sa.g0, sa.e
-    k += 2
-    work[k:k + n] = sa.Minv_w
-    work[k + n] = sa.W
-    k += n + 1 + 2 * n + _scratch(n, m, nf)   # the save area and the scratch
+    k = put(work, H_DATA, (sa.M, sa.Minv, sa.K, sa.C, sa.f0, sa.F, sa.Omega, sa.phi, sa.B))
+    k = put_wall(work, k, sa.w, sa.g0, sa.e, sa.Minv_w, sa.W)
+    k += 2 * n + _scratch(n, m, nf)   # the save area and the scratch
     work[H_IEXACT] = 0.0
     if exact is not None:
         if k + exact.size > int(work[H_ICOUNT]):
@@ -166,14 +163,7 @@ def _unpack(w):
     k += nf
     B = mat(w, k, n, m)
     k += n * m
-    wv = w[k:k + n]
-    k += n
-    g0 = w[k]
-    e = w[k + 1]
-    k += 2
-    Minv_w = w[k:k + n]
-    W = w[k + n]
-    k += n + 1
+    wv, g0, e, Minv_w, W, k = wall(w, k, n)
     sa = SystemArrays(M, Minv, K, C, f0, F, Omega, phi, B, wv, g0, e, Minv_w, W)
     return sa, k
 

@@ -11,12 +11,12 @@ a measurable part of a doStep of a small system (docs/design.md, the FMU's hot p
 from __future__ import annotations
 
 import numpy as np
-from numba import types
+from numba import njit, types
 from numba.core.imputils import impl_ret_borrowed
 from numba.extending import intrinsic
 from numba.np.arrayobj import make_array, populate_array
 
-__all__ = ["put", "mat"]
+__all__ = ["put", "mat", "put_wall", "wall"]
 
 
 def put(work: np.ndarray, k: int, arrays) -> int:
@@ -26,6 +26,25 @@ def put(work: np.ndarray, k: int, arrays) -> int:
         work[k:k + flat.size] = flat
         k += flat.size
     return k
+
+
+def put_wall(work: np.ndarray, k: int, w, g0: float, e: float, Minv_w, W: float) -> int:
+    """Write the wall block (w, g0, e, M^-1 w, W = w^T M^-1 w) from slot ``k`` on, the layout
+    :func:`wall` reads; returns the slot after it."""
+    n = len(w)
+    work[k:k + n] = w
+    work[k + n], work[k + n + 1] = g0, e
+    k += n + 2
+    work[k:k + n] = Minv_w
+    work[k + n] = W
+    return k + n + 1
+
+
+@njit(cache=True, inline="always")
+def wall(w, k, n):
+    """The wall block :func:`put_wall` wrote at slot ``k`` (n DOF): views of w and M^-1 w,
+    g0, e, W, and the slot after the block."""
+    return w[k:k + n], w[k + n], w[k + n + 1], w[k + n + 2:k + 2 * n + 2], w[k + 2 * n + 2], k + 2 * n + 3
 
 
 @intrinsic
