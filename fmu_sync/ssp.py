@@ -28,8 +28,6 @@ coupling component's parameters become the master's graph, laws and gains
 from __future__ import annotations
 
 import io
-import math
-import shutil
 import tempfile
 import zipfile
 from dataclasses import dataclass, field

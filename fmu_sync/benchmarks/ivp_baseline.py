@@ -4,10 +4,6 @@ n-DOF system, :func:`ivp_impacts_nd`) as most Python users would write it with s
 from __future__ import annotations
 
 import math
-import statistics
-import time
-from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 

@@ -2,10 +2,8 @@
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass
 
-import numpy as np
 
 __all__ = ["G", "ZETA", "Row", "osc", "fmt3", "div_ok"]
 

@@ -2,10 +2,6 @@
 from __future__ import annotations
 
 import math
-import time
-from dataclasses import dataclass
-
-import numpy as np
 
 from .stability_base import ZETA, Row  # noqa: F401
 from .stability_coupling import zoh_limit

@@ -37,10 +37,8 @@ repeated fewer times (``repeats`` column). Error evaluation is never timed.
 
 from __future__ import annotations
 
-import math
 import time
 
-import numpy as np
 
 from .ivp_baseline import ivp_impacts  # noqa: F401
 from .work_precision_cases import (METHOD_DOC, SCENES, Point, Case, WorkPrecision,  # noqa: F401

@@ -13,7 +13,7 @@ from ..core import ImpactOscillator, InadmissibleState, MechanicalSystem
 from ..core.checks import check_start
 from ..fmus import contract
 from . import SCENE_DIR, builtin_names
-from .schema import (DISTANCE_PLOTS, KEYS, MODELS, NAME_RE, NETWORK_PLOTS, PLOTS, REQUIRED, SINGLE_PLOTS,
+from .schema import (DISTANCE_PLOTS, KEYS, MODELS, NAME_RE, NETWORK_PLOTS, REQUIRED, SINGLE_PLOTS,
                      SYSTEM_KEYS, TABLES, VARIANT_TABLES, BadValue, NetworkSpec, SceneError, Variant, choice,
                      plots_for, show_value)
 
