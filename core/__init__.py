@@ -7,8 +7,9 @@ The public API of the core (everything a user of the standalone engine needs):
 * runs: :func:`simulate` (one system), :func:`simulate_pair` (two coupled systems,
   identical or not), :func:`simulate_network` (N systems on a graph: :func:`ring`,
   :func:`path`, :func:`star`, :func:`all_to_all`);
-* synchronization metrics :func:`sync_metrics` (decay rate with uncertainty,
-  t_sync, ultimate bound; :class:`SyncMetrics`) and the stability limit of the
+* synchronization metrics :func:`sync_metrics` (decay rate with its spread and
+  whether it is resolved, t_sync, ultimate bound; :class:`SyncMetrics`), the rate over
+  start states :func:`sync_rate` (median and interquartile range; :class:`EnsembleRate`), and the stability limit of the
   held coupling :func:`exchange_limit` (:class:`UnstableExchange` when refused);
 * the quotient distance :func:`quotient_distance`, the coupling laws
   :func:`coupling_forces` and the laws' own position weight :func:`energy_metric`
@@ -37,6 +38,7 @@ from .distance import quotient_distance
 from .coupling import coupling_forces, energy_metric
 from .pair import simulate_pair
 from .metrics import SyncMetrics, sync_metrics
+from .ensemble import EnsembleRate, sync_rate
 from .exchange import UnstableExchange, exchange_limit, hold_bound
 from .network import all_to_all, path, ring, simulate_network, star
 from .exact import ExactEvents, exact_events, simulate_exact
@@ -45,5 +47,5 @@ __all__ = ["ImpactOscillator", "MechanicalSystem", "SystemArrays", "impact_map",
            "quotient_distance", "coupling_forces", "energy_metric", "simulate_exact", "exact_events", "ExactEvents",
            "SimulationResult", "PairResult", "RunFailed",
            "SimulationDiverged", "NetworkResult", "simulate_network", "ring", "path", "star", "all_to_all",
-           "sync_metrics", "SyncMetrics", "exchange_limit", "hold_bound", "UnstableExchange", "UnstableScheme",
+           "sync_metrics", "SyncMetrics", "sync_rate", "EnsembleRate", "exchange_limit", "hold_bound", "UnstableExchange", "UnstableScheme",
            "RunRefused", "InadmissibleState", "RecordTooLarge", "RunPlan", "plan_run"]

@@ -18,7 +18,7 @@ final state, d at the start, at the end and its maximum, max |tau| over all
 steps, impacts and contact episodes of each system, and from the fixed-size
 decimated recorder of :mod:`.metrics`: the time after which d stays below the
 threshold (``t_sync``), the decay rate of the envelope of d with its
-uncertainty, the envelope-fit time ``t_fit`` and the ultimate bound.
+spread, its verdict code and the decades its window spans, the envelope-fit time ``t_fit`` and the ultimate bound.
 
 Systems differ between runs only through a small table of *system groups*
 (one row of floats per distinct system, see :func:`group_row`), so a sweep
@@ -33,7 +33,7 @@ from numba import njit, prange
 
 from .distance import DistanceGeometry, ScalarGeometry
 from .loop import integrate_network, sample_d
-from .metrics import HI, LO, TAIL, resolution_floor, decimated_kernel, decimator_init
+from .metrics import HI, LO, TAIL, decimated_kernel, decimator_init
 from .model import SystemArrays
 
 __all__ = ["run_pairs1", "COLUMNS", "COL", "OK", "DIVERGED", "REFUSED", "STATUS_NAMES", "group_row",
@@ -48,11 +48,12 @@ STATUS_NAMES = ("ok", "diverged", "refused")
 #: One row of ``out`` per run.
 COLUMNS = ("status", "steps", "t_stop", "q1", "u1", "q2", "u2", "d0", "d_final", "d_max", "tau_max",
            "impacts1", "impacts2", "episodes1", "episodes2", "t_sync", "decay_rate", "decay_rate_err",
-           "t_fit", "bound", "samples", "exchange_stable")
+           "t_fit", "bound", "samples", "exchange_stable", "rate_code", "rate_decades")
 COL = {name: i for i, name in enumerate(COLUMNS)}
 COL_D0, COL_DFINAL, COL_DMAX, COL_TAUMAX = COL["d0"], COL["d_final"], COL["d_max"], COL["tau_max"]
 COL_TSYNC, COL_RATE, COL_RATE_ERR = COL["t_sync"], COL["decay_rate"], COL["decay_rate_err"]
 COL_TFIT, COL_BOUND, COL_SAMPLES = COL["t_fit"], COL["bound"], COL["samples"]
+COL_RATE_CODE, COL_DECADES = COL["rate_code"], COL["rate_decades"]
 
 #: Floats of a system group row (the scalar system of :func:`.moreau.scalar_params` plus M).
 GROUP_FIELDS = ("M", "Minv", "K", "C", "f0", "B", "w", "g0", "e", "Minv_w", "W")
@@ -103,11 +104,15 @@ RECORDER_SIZE = 1024
 
 
 @njit(cache=True)
-def _finish_metrics(acc, bt, bd, st, failed, res, floor=0.0):
-    """d0, d_max, t_sync, decay rate and its error, t_fit, bound, sample count into ``res``."""
+def _finish_metrics(acc, bt, bd, st, failed, res):
+    """d0, d_max, t_sync, decay rate, its spread, verdict code and decades, t_fit, bound, sample
+    count into ``res``."""
     res[COL_D0] = acc[1] if acc[0] > 0 else np.nan
     res[COL_DMAX] = acc[2] if acc[0] > 0 else np.nan
-    rate, err, ta, tb, nf, t_sync, t_fit, bound, _, _ = decimated_kernel(bt, bd, st, HI, LO, floor, TAIL)
+    rate, err, _, _, dec, t_sync, t_fit, bound, code, _, _, _, _, _ = decimated_kernel(bt, bd, st, HI, LO, 0.0,
+                                                                                        TAIL)
+    res[COL_RATE_CODE] = code
+    res[COL_DECADES] = max(dec, 0)
     res[COL_TSYNC] = np.inf if failed or acc[0] == 0 else t_sync
     res[COL_RATE] = rate
     res[COL_RATE_ERR] = err
@@ -193,7 +198,7 @@ def _pair1(law, scheme, theta, s1, F1, Omega1, phi1, s2, F2, Omega2, phi2, sg, k
     E2[0, 1] = 1
     imp = np.zeros(2, dtype=np.int64)
     ep = np.zeros(2, dtype=np.int64)
-    status, steps, _, v_imp, tau_max = integrate_network(
+    status, steps, _, _, tau_max = integrate_network(
         base, K, C, f0, F, Om, ph, geo, np.full(1, law), E2, np.ones((1, 2)), np.full((1, 1), kp),
         np.full((1, 1), kd), q, u, 0.0, 0, dt, n_steps, scheme, theta, every, True, T, Qr, Ur, TAU, D, BR, EU,
         dt_last, True, acc, bt, bd, st, imp, ep)
@@ -210,7 +215,7 @@ def _pair1(law, scheme, theta, s1, F1, Omega1, phi1, s2, F2, Omega2, phi2, sg, k
     res[12] = imp[1]
     res[13] = ep[0]
     res[14] = ep[1]
-    _finish_metrics(acc, bt, bd, st, status != OK, res, resolution_floor(dt, v_imp))
+    _finish_metrics(acc, bt, bd, st, status != OK, res)
 
 
 @njit(cache=True, parallel=True)

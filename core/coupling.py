@@ -411,6 +411,6 @@ def law_metric(Q, K, Kp, A=None, coupled: bool = True) -> LawMetric:
 
 def metric_info(lm: LawMetric, geo) -> dict:
     """The ``info`` entries of a result that say which Q was used, and the wall (w, g0) of its
-    distance geometry ``geo`` (for ``result.window_floor``)."""
+    distance geometry ``geo``."""
     return dict(metric=lm.metric, Q=np.asarray(lm.Q).tolist(), lyapunov=bool(lm.lyapunov), metric_note=lm.note,
                 w=np.asarray(geo.w).tolist(), g0=float(geo.g0))

@@ -236,7 +236,7 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
 
     Returns ``(status, steps_done, rows_written, v_impact, tau_max)``: the largest
     speed sqrt(u^T Q u) of a system at the start of a step with a positive percussion
-    (:meth:`PairResult.window_floor`), and (``dec`` only) max |tau| over the steps.
+    (``info["v_impact"]`` of a pair result), and (``dec`` only) max |tau| over the steps.
     ``status`` is DIVERGED if a state or recorded distance is not finite at a row.
     """
     N = q.shape[0]

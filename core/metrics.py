@@ -1,35 +1,48 @@
-"""Synchronization metrics of a distance record d(t) (robust to the step size).
+"""Synchronization metrics of a distance record d(t) (docs/design.md §2.7).
 
 The first time after which d stays below a threshold (``t_sync``) is
 ill-conditioned on a d that oscillates under a decaying envelope (the PD part
 of the coupling makes d oscillate): a peak that grazes the threshold moves
 ``t_sync`` by a whole oscillation period when dt changes. The decay *rate* of
-the envelope is well-conditioned. Definitions (all on samples ``(t_i, d_i)``):
+the envelope is the number to compare runs by. Definitions (all on samples ``(t_i, d_i)``):
 
 * **envelope** ``env_i = max_{j >= i} d_j`` (running maximum from the right):
-  nonincreasing; ``d_i = env_i`` marks a point of the upper envelope.
-* **decay window** ``[t_a, t_b]``: ``t_a`` the first time ``env <= hi * dmax``
-  (``dmax = max d``, default ``hi = 0.1``: the transient is skipped), ``t_b``
-  the first time ``env <= floor = max(lo * dmax, floor_abs)`` (default
-  ``lo = 1e-10``, above round-off), or the last sample if d never gets there.
-* **fit points**: the envelope points in the window that are local maxima of d
-  (the peaks of the oscillation, ``d_{i-1} < d_i >= d_{i+1}``); if there are
-  fewer than ``MIN_PEAKS`` (a monotone d), every envelope point of the window.
-  d = 0 points are skipped (log 0).
-* **rate** ``sigma``: least squares of ``log d = a - sigma t`` over the fit
-  points (so d ~ exp(-sigma t), V = d^2/2 ~ exp(-2 sigma t)).
-* **rate_err**: standard uncertainty of sigma, the larger of the least-squares
-  standard error of the slope and half the difference of the slopes fitted on
-  the two halves of the window (a non-exponential decay shows up there even
-  when the residuals of the global fit are correlated and small).
+  nonincreasing; its **hull** is the points where ``d_i = env_i`` that are local
+  maxima of d (the peaks of the oscillation), with the first maximum of d in front;
+  with fewer than ``MIN_PEAKS`` peaks (a monotone d), every point with ``d_i = env_i``.
+  Between hull points log d is interpolated linearly in t, so a level's crossing
+  time does not jump by half an oscillation.
+* **where d stops falling** (``stall``): ``max d`` over the last ``tail`` fraction of
+  the record (default 0.2): the ultimate bound of non-identical systems, the
+  round-off level of identical ones, or (d still falling at the end) the level d
+  had reached at 80 % of the run.
+* **decay window**: from ``d_from = hi * max d`` (default ``hi = 0.1``: the first
+  clear descent, the transient skipped) down to ``d_to``, the lowest whole decade
+  below ``d_from`` that is still at least ``max(lo * max d, floor_abs, STALL * stall)``
+  (default ``lo = 1e-13``; ``STALL = 10``: a decade above where d stops falling), and
+  reached by the hull. ``t_from``, ``t_to``: the hull's crossing times of these levels.
+* **per-decade rates** ``r_k = ln 10 / (tau_{k+1} - tau_k)``, ``tau_k`` the crossing
+  time of ``d_from * 10^-k``: the local decay of each decade the window spans.
+* **rate** ``sigma`` = the median of the per-decade rates (so d ~ exp(-sigma t),
+  V = d^2/2 ~ exp(-2 sigma t)); **rate_err** = their spread: half the range
+  between their 16th and 84th percentiles (half the whole range with fewer than 5
+  decades), or the difference between the median and the window's average rate
+  ``decades ln 10 / (t_to - t_from)`` if that is larger (a few slow decades). A rate
+  that differs between decades says so in its uncertainty.
+* **resolved** (:func:`verdict`): the window spans at least ``MIN_DECADES`` decades and
+  the spread is at most ``MAX_REL_ERR`` of the rate; otherwise a code and a reason.
 * **t_sync**: the time of the first sample after the last sample with
   ``d >= threshold`` (``t_0`` if d never reaches it; ``inf`` if the last
   sample is still at or above it; NaN d counts as above).
-* **t_fit**: the time where the fitted envelope ``exp(a - sigma t)`` crosses
-  the threshold (well-conditioned companion of t_sync; NaN without a fit).
+* **t_fit**: the time where the fitted envelope ``exp(a - sigma t)`` crosses the
+  threshold, ``a`` the median over the window's levels of ``log d_k + sigma tau_k``.
 * **bound** (practical synchronization, ultimate bound): ``max d`` over the
-  last ``tail`` fraction of the run (default 0.2), for runs that cannot
-  synchronize exactly (non-identical systems).
+  last ``tail`` fraction of the run, for runs that cannot synchronize exactly.
+
+No formula of the step cuts the window: where the step limits what d can show, the
+per-decade rates differ (the spread) and the same run at half the step differs
+(``fmu-sync run SCENE --convergence``). For a forced impacting pair a single start
+state's rate is one sample: :mod:`.ensemble` gives the statistic over start states.
 
 For compiled sweeps with O(1) memory per run, :func:`decimator` keeps a
 fixed-size buffer of block maxima of d (block length doubling when full, the
@@ -48,87 +61,82 @@ import numpy as np
 from numba import njit
 
 __all__ = ["SyncMetrics", "sync_metrics", "metrics_kernel", "decimator", "decimator_push",
-           "decimated_metrics", "decimated_kernel", "HI", "LO", "TAIL", "MIN_PEAKS", "rate_verdict",
-           "resolution_floor", "MAX_REL_ERR", "MAX_RESIDUAL", "MIN_RESOLVED_PEAKS", "RESOLUTION_FACTOR"]
+           "decimated_metrics", "decimated_kernel", "HI", "LO", "TAIL", "STALL", "MIN_PEAKS", "MIN_DECADES",
+           "MAX_REL_ERR", "RESOLVED", "NO_RECORD", "NO_DESCENT", "TOO_FEW_DECADES", "SPREAD", "verdict",
+           "reason_text", "REASON_NAMES"]
 
-HI = 0.1          #: window starts when the envelope falls below HI * max(d)
-LO = 1e-10        #: window ends when the envelope falls below LO * max(d) (or floor_abs)
-TAIL = 0.2        #: the ultimate bound is max d over the last TAIL of the run
-MIN_PEAKS = 8     #: fewer envelope peaks than this: fit all envelope points
+HI = 0.1          #: the window starts where the envelope falls below HI * max(d)
+LO = 1e-13        #: ... and ends at LO * max(d) at the lowest (or where d stops falling)
+TAIL = 0.2        #: the ultimate bound (where d stops falling) is max d over the last TAIL of the run
+STALL = 10.0      #: the window ends at least STALL times above where d stops falling
+MIN_PEAKS = 8     #: fewer envelope peaks than this: the hull is every envelope point
+#: A rate is resolved when its window spans at least MIN_DECADES decades and its spread
+#: (rate_err) is at most MAX_REL_ERR of it.
+MIN_DECADES = 2
+MAX_REL_ERR = 0.5
 
-
-#: A decay rate is shown only when resolved (:func:`rate_verdict`): its standard uncertainty at
-#: most MAX_REL_ERR of it, the RMS residual of log d about the fit at most MAX_RESIDUAL (a factor
-#: e^0.5 = 1.65), at least MIN_RESOLVED_PEAKS envelope peaks in the window (or 2 MIN_RESOLVED_PEAKS
-#: envelope points of a monotone d), and d above the window's floor when the window starts.
-MAX_REL_ERR = 0.2
-MAX_RESIDUAL = 0.5
-MIN_RESOLVED_PEAKS = 4
-#: The default window ends at the first power of ten at or above RESOLUTION_FACTOR * h * v: h the
-#: step that decides an impact (dt, or H in co-simulation), v the largest impact speed in the
-#: P-norm, sqrt(u^T Q u). Below h * v the step, not the law, decides how d passes an impact
-#: (d moves by up to ~h v there); rounding up to a decade puts runs whose steps differ by a factor
-#: of up to 10 on the same window, so their rates compare (docs/design.md §2.7).
-RESOLUTION_FACTOR = 5.0
+#: Verdict codes (:func:`verdict`), the same in the compiled sweeps' tables.
+RESOLVED, NO_RECORD, NO_DESCENT, TOO_FEW_DECADES, SPREAD = range(5)
+REASON_NAMES = ("resolved", "no record", "no descent", "too few decades", "spread")
 
 
 @njit(cache=True)
-def resolution_floor(h, speed):
-    """The level the default decay window ends at, at least: the first power of ten at or above
-    RESOLUTION_FACTOR * h * speed (``speed``: the largest impact speed in the P-norm; 0 without
-    impacts or with h = 0)."""
-    x = RESOLUTION_FACTOR * h * speed
-    if not (x > 0.0 and x < np.inf):
-        return 0.0
-    return 10.0 ** math.ceil(math.log10(x))
+def verdict(rate, err, decades):
+    """The verdict code of a rate (:data:`RESOLVED` ... :data:`SPREAD`) from the window's
+    whole decades, the median per-decade rate and its spread."""
+    if decades < 0:
+        return NO_RECORD
+    if decades == 0 or not rate > 0.0:
+        return NO_DESCENT
+    if decades < MIN_DECADES:
+        return TOO_FEW_DECADES
+    if not (err <= MAX_REL_ERR * rate):
+        return SPREAD
+    return RESOLVED
 
 
-def rate_verdict(rate, rate_err, n_fit=None, peaks=None, residual=None, d_top=None, floor=None) -> str:
-    """Why a fitted decay rate means nothing ('' when it is resolved).
-
-    The criteria (constants above): a finite positive rate; ``rate_err <= MAX_REL_ERR * rate``;
-    ``residual <= MAX_RESIDUAL``; enough peaks; d not already at the floor (``d_top`` the largest
-    d, ``floor`` the window's end level). Arguments left None are not checked (a sweep table
-    keeps only the rate and its uncertainty)."""
-    if d_top is not None and floor is not None and floor > 0.0 and not d_top > 10.0 * floor:
-        return (f"d never rises a decade above the level the step resolves (max d = {d_top:.3g}, "
-                f"window floor {floor:.3g})")
-    if rate is None or not math.isfinite(rate):
-        return "no decay window (d never fell to a tenth of its maximum above the floor)"
-    if not rate > 0.0:
-        return f"d does not decay (fitted rate {rate:.3g} 1/s)"
-    if peaks is not None and n_fit is not None and peaks < MIN_RESOLVED_PEAKS and n_fit < 2 * MIN_RESOLVED_PEAKS:
-        return f"d collapsed to the floor within {peaks} peaks ({n_fit} envelope points fitted)"
-    if not (math.isfinite(rate_err) and rate_err <= MAX_REL_ERR * rate):
-        return (f"uncertainty {rate_err:.2g} 1/s exceeds {MAX_REL_ERR:.0%} of the rate {rate:.3g} 1/s")
-    if residual is not None and not residual <= MAX_RESIDUAL:
-        return f"d is not exponential on the window (fit residual {residual:.2g} in log d > {MAX_RESIDUAL})"
-    return ""
+def reason_text(code, rate=math.nan, err=math.nan, decades=0, stall=math.nan) -> str:
+    """Why a rate means nothing, in words ('' when resolved); the numbers are optional."""
+    code = int(code) if code == code else NO_RECORD
+    if code == RESOLVED:
+        return ""
+    if code == NO_RECORD:
+        return "no record to fit (fewer than 3 finite samples, or d is 0 throughout)"
+    at = f" (it stops falling at about {stall:.2g})" if stall == stall and stall > 0 else ""
+    if code == NO_DESCENT:
+        return f"d never falls a decade below its maximum{at}"
+    if code == TOO_FEW_DECADES:
+        return (f"d falls through {int(decades)} whole decade(s) below a tenth of its maximum before it stops "
+                f"falling or the run ends{at}; at least {MIN_DECADES} are needed")
+    return (f"the local decay rate varies too much across the window: spread {err:.2g} 1/s exceeds "
+            f"{MAX_REL_ERR:.0%} of the median {rate:.3g} 1/s")
 
 
 class SyncMetrics(NamedTuple):
     """Synchronization metrics of one distance record (see the module docstring)."""
 
-    rate: float        #: decay rate sigma of the envelope of d (1/s); NaN without a decay window
-    rate_err: float    #: standard uncertainty of ``rate``
-    t_from: float      #: decay window start
-    t_to: float        #: decay window end
-    n_fit: int         #: number of points fitted
+    rate: float        #: decay rate sigma: median of the per-decade rates (1/s); NaN without a window
+    rate_err: float    #: their spread (half the 16-84 % range, or |median - window average|; 1/s)
+    t_from: float      #: decay window start (the hull crosses d_from)
+    t_to: float        #: decay window end (the hull crosses d_to)
+    decades: int       #: whole decades the window spans
     t_sync: float      #: time after which d stays below ``threshold`` (inf: never)
     t_fit: float       #: time where the fitted envelope crosses ``threshold``
     bound: float       #: ultimate bound: max d over the last ``tail`` of the run
     threshold: float   #: the threshold of t_sync (absolute, or threshold_rel * d0)
-    residual: float = math.nan   #: RMS residual of log d about the fitted line
-    peaks: int = 0               #: envelope peaks in the window
-    floor: float = 0.0           #: the level the window ends at (max(lo * max d, floor_abs))
-    reason: str = ""             #: why the rate means nothing ('' when resolved: :func:`rate_verdict`)
+    d_from: float = math.nan     #: the window's top level (HI * max d)
+    d_to: float = math.nan       #: the window's end level
+    decade_rates: tuple = ()     #: the local rate of each decade of the window (1/s)
+    code: int = NO_RECORD        #: verdict code (:func:`verdict`)
+    reason: str = ""             #: why the rate means nothing ('' when resolved)
     d0: float = math.nan         #: d at the first sample
     threshold_rel: float = math.nan  #: the relative threshold asked for (NaN: absolute only)
+    intercept: float = math.nan  #: a of the fitted envelope exp(a - rate t)
 
     @property
     def resolved(self) -> bool:
-        """The rate means something (:func:`rate_verdict`); otherwise show "—" and :attr:`reason`."""
-        return self.reason == ""
+        """The rate means something (:func:`verdict`); otherwise show "—" and :attr:`reason`."""
+        return self.code == RESOLVED
 
     @property
     def starts_below(self) -> bool:
@@ -141,10 +149,17 @@ class SyncMetrics(NamedTuple):
             return f"— ({self.reason})"
         return f"{self.rate:.4g} ± {self.rate_err:.2g} 1/s"
 
+    def window_text(self) -> str:
+        """The decay window: times, levels and decades (empty without one)."""
+        if not self.decades > 0:
+            return ""
+        return (f"window [{self.t_from:.4g}, {self.t_to:.4g}] s, d from {self.d_from:.3g} to {self.d_to:.3g} "
+                f"({self.decades} decades; per-decade rates {min(self.decade_rates):.3g} to "
+                f"{max(self.decade_rates):.3g} 1/s)")
+
     def summary(self) -> str:
-        r = ("rate " + self.rate_text()
-             + (f" (fit on [{self.t_from:.4g}, {self.t_to:.4g}] s, {self.n_fit} points, window down to "
-                f"d = {self.floor:.3g})" if self.resolved else ""))
+        w = self.window_text()
+        r = "rate " + self.rate_text() + (f" ({w})" if w and self.resolved else "")
         ts = "never" if math.isinf(self.t_sync) else f"{self.t_sync:.4g} s"
         if self.starts_below:
             ts += f" (d0 = {self.d0:.3g} already below the threshold: says nothing)"
@@ -152,53 +167,29 @@ class SyncMetrics(NamedTuple):
 
 
 @njit(cache=True)
-def _slope(t, y, sel, i0, i1):
-    """Least-squares slope and intercept of y(t) over the selected indices in [i0, i1).
-
-    Returns ``(slope, intercept, stderr, count)``; slope NaN with fewer than 3 points."""
-    n = 0
-    st = 0.0
-    sy = 0.0
-    for i in range(i0, i1):
-        if sel[i]:
-            n += 1
-            st += t[i]
-            sy += y[i]
-    if n < 3:
-        return np.nan, np.nan, np.nan, n
-    tm = st / n
-    ym = sy / n
-    stt = 0.0
-    sty = 0.0
-    for i in range(i0, i1):
-        if sel[i]:
-            dtm = t[i] - tm
-            stt += dtm * dtm
-            sty += dtm * (y[i] - ym)
-    if stt <= 0.0:
-        return np.nan, np.nan, np.nan, n
-    b = sty / stt
-    a = ym - b * tm
-    rss = 0.0
-    for i in range(i0, i1):
-        if sel[i]:
-            r = y[i] - a - b * t[i]
-            rss += r * r
-    se = math.sqrt(rss / (n - 2) / stt)
-    return b, a, se, n
+def _crossing(ht, hy, nh, y):
+    """Time where the hull (ht, hy = log d, nh points, hy nonincreasing) first reaches log level
+    y, log-linear between hull points; NaN if it never does."""
+    for j in range(nh):
+        if hy[j] <= y:
+            if j == 0:
+                return ht[0]
+            return ht[j - 1] + (ht[j] - ht[j - 1]) * (hy[j - 1] - y) / (hy[j - 1] - hy[j])
+    return np.nan
 
 
 @njit(cache=True)
 def metrics_kernel(t, d, threshold, hi, lo, floor_abs, tail):
     """The metrics of ``(t, d)`` (arrays of equal length, t increasing).
 
-    Returns ``(rate, rate_err, t_from, t_to, n_fit, t_sync, t_fit, bound)``.
-    Samples from the first non-finite d on are ignored by the fit (they count
-    as "above" for t_sync)."""
+    Returns ``(rate, rate_err, t_from, t_to, decades, t_sync, t_fit, bound, code, d_from, d_to,
+    stall, intercept, decade_rates)``. Samples from the first non-finite d on are ignored by the
+    window (they count as "above" for t_sync and make the bound inf)."""
     N = t.shape[0]
     nan = np.nan
+    none = np.empty(0)
     if N == 0:
-        return nan, nan, nan, nan, 0, nan, nan, nan, nan, 0
+        return nan, nan, nan, nan, -1, nan, nan, nan, NO_RECORD, nan, nan, nan, nan, none
     # t_sync: first sample after the last one with d >= threshold (NaN counts as above)
     last_above = -1
     for i in range(N - 1, -1, -1):
@@ -230,7 +221,15 @@ def metrics_kernel(t, d, threshold, hi, lo, floor_abs, tail):
         if v > bound:
             bound = v
     if M < 3:
-        return nan, nan, nan, nan, 0, t_sync, nan, bound, nan, 0
+        return nan, nan, nan, nan, -1, t_sync, nan, bound, NO_RECORD, nan, nan, nan, nan, none
+    # where d stops falling: max d over the last `tail` of the finite prefix
+    t_tail = t[M - 1] - tail * (t[M - 1] - t[0])
+    stall = 0.0
+    for i in range(M - 1, -1, -1):
+        if t[i] < t_tail:
+            break
+        if d[i] > stall:
+            stall = d[i]
     env = np.empty(M)
     m = -np.inf
     for i in range(M - 1, -1, -1):
@@ -239,68 +238,73 @@ def metrics_kernel(t, d, threshold, hi, lo, floor_abs, tail):
         env[i] = m
     dmax = env[0]
     if not dmax > 0.0:
-        return nan, nan, nan, nan, 0, t_sync, nan, bound, nan, 0
-    top = hi * dmax
-    floor = max(lo * dmax, floor_abs)
-    i0 = -1
-    for i in range(M):
-        if env[i] <= top:
-            i0 = i
-            break
-    if i0 < 0:
-        return nan, nan, nan, nan, 0, t_sync, nan, bound, nan, 0
-    i1 = M
-    for i in range(i0, M):
-        if env[i] <= floor:
-            i1 = i + 1
-            break
-    sel = np.zeros(M, dtype=np.bool_)
-    y = np.empty(M)
-    peaks = 0
-    for i in range(i0, i1):
-        y[i] = math.log(d[i]) if d[i] > 0.0 else -np.inf
-        if d[i] > 0.0 and d[i] == env[i]:
-            left = d[i - 1] if i > 0 else -np.inf
-            right = d[i + 1] if i + 1 < M else -np.inf
-            if left < d[i] and d[i] >= right:
-                sel[i] = True
-                peaks += 1
-    if peaks < MIN_PEAKS:
-        for i in range(i0, i1):
-            sel[i] = d[i] > 0.0 and d[i] == env[i]
-    b, a, se, n = _slope(t, y, sel, i0, i1)
-    if not math.isfinite(b):
-        return nan, nan, t[i0], t[i1 - 1], n, t_sync, nan, bound, nan, peaks
-    # the two halves of the window (by time)
-    tm = 0.5 * (t[i0] + t[i1 - 1])
-    ih = i0
-    while ih < i1 and t[ih] < tm:
-        ih += 1
-    b1, _, _, _ = _slope(t, y, sel, i0, ih)
-    b2, _, _, _ = _slope(t, y, sel, ih, i1)
-    err = se
-    if math.isfinite(b1) and math.isfinite(b2):
-        err = max(err, 0.5 * abs(b1 - b2))
-    rate = -b
-    t_fit = (a - math.log(threshold)) / rate if rate > 0.0 and threshold > 0.0 else nan
-    rss = 0.0
-    for i in range(i0, i1):
-        if sel[i]:
-            r = y[i] - a - b * t[i]
-            rss += r * r
-    return rate, err, t[i0], t[i1 - 1], n, t_sync, t_fit, bound, math.sqrt(rss / n), peaks
+        return nan, nan, nan, nan, -1, t_sync, nan, bound, NO_RECORD, nan, nan, stall, nan, none
+    imax = 0
+    while d[imax] != dmax:
+        imax += 1
+    # the hull: the first maximum, then the envelope's peaks (or every envelope point)
+    ht = np.empty(M - imax)
+    hy = np.empty(M - imax)
+    ht[0] = t[imax]
+    hy[0] = math.log(dmax)
+    nh = 1
+    for i in range(imax + 1, M):
+        if d[i] > 0.0 and d[i] == env[i] and d[i - 1] < d[i] and (i + 1 == M or d[i] >= d[i + 1]):
+            ht[nh] = t[i]
+            hy[nh] = math.log(d[i])
+            nh += 1
+    if nh - 1 < MIN_PEAKS:
+        nh = 1
+        for i in range(imax + 1, M):
+            if d[i] > 0.0 and d[i] == env[i]:
+                ht[nh] = t[i]
+                hy[nh] = math.log(d[i])
+                nh += 1
+    d_from = hi * dmax
+    end = max(lo * dmax, floor_abs, STALL * stall)
+    low = hy[nh - 1]          # the lowest level the hull reaches
+    if end < math.exp(low):
+        end = math.exp(low)
+    if not end < d_from:
+        return nan, nan, nan, nan, 0, t_sync, nan, bound, NO_DESCENT, d_from, nan, stall, nan, none
+    decades = int(math.floor(math.log10(d_from / end) + 1e-9))
+    y0 = math.log(d_from)
+    ln10 = math.log(10.0)
+    tau = np.empty(decades + 1)
+    for k in range(decades + 1):
+        tau[k] = _crossing(ht, hy, nh, y0 - k * ln10)
+    d_to = d_from * 10.0 ** (-decades)
+    if decades == 0:
+        return nan, nan, tau[0], tau[0], 0, t_sync, nan, bound, NO_DESCENT, d_from, d_to, stall, nan, none
+    rates = np.empty(decades)
+    for k in range(decades):
+        span = tau[k + 1] - tau[k]
+        rates[k] = ln10 / span if span > 0.0 else np.inf
+    rate = np.median(rates)
+    if decades < 5:
+        err = 0.5 * (np.max(rates) - np.min(rates))
+    else:
+        err = 0.5 * (np.percentile(rates, 84.0) - np.percentile(rates, 16.0))
+    # a few slow (or fast) decades move the window's average rate away from the median: the
+    # uncertainty covers that difference too
+    mean = decades * ln10 / (tau[decades] - tau[0]) if tau[decades] > tau[0] else np.inf
+    err = max(err, abs(mean - rate))
+    a = np.empty(decades + 1)
+    for k in range(decades + 1):
+        a[k] = y0 - k * ln10 + rate * tau[k]
+    intercept = np.median(a)
+    t_fit = (intercept - math.log(threshold)) / rate if rate > 0.0 and math.isfinite(rate) and threshold > 0.0 else nan
+    return (rate, err, tau[0], tau[decades], decades, t_sync, t_fit, bound, verdict(rate, err, decades),
+            d_from, d_to, stall, intercept, rates)
 
 
-def _pack(r, threshold, d, lo, floor_abs, threshold_rel=math.nan) -> SyncMetrics:
-    rate, err, ta, tb, n, ts, tf, bound, rms, peaks = r
-    fin = d[np.isfinite(d)] if d is not None else np.empty(0)
-    dmax = float(fin.max()) if fin.size else math.nan
-    floor = max(lo * dmax, floor_abs) if math.isfinite(dmax) else floor_abs
+def _pack(r, threshold, d, threshold_rel=math.nan) -> SyncMetrics:
+    rate, err, ta, tb, dec, ts, tf, bound, code, d_from, d_to, stall, a, rates = r
     d0 = float(d[0]) if d is not None and len(d) else math.nan
-    why = rate_verdict(float(rate), float(err), int(n), int(peaks), float(rms), dmax, floor)
-    return SyncMetrics(float(rate), float(err), float(ta), float(tb), int(n), float(ts), float(tf),
-                       float(bound), float(threshold), float(rms), int(peaks), float(floor), why, d0,
-                       float(threshold_rel))
+    why = reason_text(code, float(rate), float(err), int(dec), float(stall))
+    return SyncMetrics(float(rate), float(err), float(ta), float(tb), max(int(dec), 0), float(ts), float(tf),
+                       float(bound), float(threshold), float(d_from), float(d_to),
+                       tuple(float(x) for x in rates), int(code), why, d0, float(threshold_rel), float(a))
 
 
 def _check(threshold, hi, lo, floor_abs, tail):
@@ -321,8 +325,8 @@ def sync_metrics(t, d, threshold: float = 1e-6, hi: float = HI, lo: float = LO,
     """:class:`SyncMetrics` of a distance record ``d`` sampled at times ``t``.
 
     ``threshold_rel``: a threshold for t_sync relative to d0 = d[0]; when given, ``threshold_rel * d0``
-    replaces the absolute ``threshold``. ``floor_abs``: the level the decay window
-    ends at, at least (:func:`resolution_floor` is what the drivers' results pass)."""
+    replaces the absolute ``threshold``. ``hi``, ``lo``, ``tail``: the window (module docstring);
+    ``floor_abs``: an absolute level the window must not go below (default 0: none)."""
     t = np.ascontiguousarray(t, dtype=np.float64)
     d = np.ascontiguousarray(d, dtype=np.float64)
     if t.ndim != 1 or t.shape != d.shape:
@@ -335,7 +339,7 @@ def sync_metrics(t, d, threshold: float = 1e-6, hi: float = HI, lo: float = LO,
         if d.size and d[0] > 0.0 and math.isfinite(d[0]):
             threshold = rel * float(d[0])
     threshold, hi, lo, floor_abs, tail = _check(threshold, hi, lo, floor_abs, tail)
-    return _pack(metrics_kernel(t, d, threshold, hi, lo, floor_abs, tail), threshold, d, lo, floor_abs, rel)
+    return _pack(metrics_kernel(t, d, threshold, hi, lo, floor_abs, tail), threshold, d, rel)
 
 
 # ------------------------------------------------------------ O(1)-memory record
@@ -419,7 +423,8 @@ def decimated_kernel(bt, bd, st, hi, lo, floor_abs, tail):
     if m > n:
         t[n] = st[_BT]
         d[n] = st[_BMAX]
-    rate, err, ta, tb, nf, _, t_fit, bound, rms, peaks = metrics_kernel(t, d, st[_THR], hi, lo, floor_abs, tail)
+    rate, err, ta, tb, dec, _, t_fit, bound, code, d_from, d_to, stall, a, rates = metrics_kernel(
+        t, d, st[_THR], hi, lo, floor_abs, tail)
     if st[_LAST_ABOVE] != st[_LAST_ABOVE]:
         t_sync = st[_T0]
     elif st[_AFTER] != st[_AFTER]:
@@ -428,7 +433,7 @@ def decimated_kernel(bt, bd, st, hi, lo, floor_abs, tail):
         t_sync = st[_AFTER]
     if st[_TAIL_START] > -np.inf and st[_TAIL_MAX] > -np.inf:
         bound = st[_TAIL_MAX]
-    return rate, err, ta, tb, nf, t_sync, t_fit, bound, rms, peaks
+    return rate, err, ta, tb, dec, t_sync, t_fit, bound, code, d_from, d_to, stall, a, rates
 
 
 class decimator:
@@ -458,4 +463,4 @@ def decimated_metrics(bt, bd, state, hi: float = HI, lo: float = LO, floor_abs: 
     """:class:`SyncMetrics` from a decimator's buffers (see :class:`decimator`)."""
     thr, hi, lo, floor_abs, tail = _check(state[_THR], hi, lo, floor_abs, tail)
     n = int(state[_N])
-    return _pack(decimated_kernel(bt, bd, state, hi, lo, floor_abs, tail), thr, bd[:n], lo, floor_abs)
+    return _pack(decimated_kernel(bt, bd, state, hi, lo, floor_abs, tail), thr, bd[:n])

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .distance import BRANCH_NAMES
-from .metrics import SyncMetrics, resolution_floor, sync_metrics
+from .metrics import SyncMetrics, sync_metrics
 
 __all__ = ["RunStatus", "SimulationResult", "PairResult", "NetworkResult", "BRANCH_NAMES"]
 
@@ -61,34 +61,6 @@ class RunStatus:
         """The position weight of the distance ``||x||_P^2 = q^T Q q + u^T M u`` used by the run."""
         Q = getattr(self, "info", {}).get("Q")
         return None if Q is None else np.asarray(Q)
-
-    def window_floor(self) -> float:
-        """Where the default decay window ends, at least: :func:`.metrics.resolution_floor` of the
-        step that decides an impact (max of ``dt`` and ``H``) and the largest impact speed
-        ``sqrt(u^T Q u)`` (kept by the core pair loop at the steps with a percussion; otherwise
-        estimated from the records near the wall) -- 0 without impacts; docs/design.md §2.7."""
-        info = getattr(self, "info", {})
-        if info.get("Q") is None or info.get("w") is None or not self._impact_count():
-            return 0.0
-        h = max(float(info.get("dt") or 0.0), float(info.get("H") or 0.0))
-        if "v_impact" in info:   # kept by the compiled loop (simulate_pair, as the sweeps)
-            return float(resolution_floor(h, float(info["v_impact"])))
-        Q, w, g0 = np.asarray(info["Q"]), np.asarray(info["w"]), float(info.get("g0", 0.0))
-        t = np.asarray(self.t)
-        spacing = float(np.max(np.diff(t))) if t.size > 1 else h
-        v_near, v_all = 0.0, 0.0
-        for q, u in self._states():
-            q, u = np.atleast_2d(np.asarray(q)), np.atleast_2d(np.asarray(u))
-            ok = np.all(np.isfinite(q), axis=1) & np.all(np.isfinite(u), axis=1)
-            if not ok.any():
-                continue
-            q, u = q[ok], u[ok]
-            speed = np.sqrt(np.maximum(np.einsum("ri,ij,rj->r", u, Q, u), 0.0))
-            near = q @ w + g0 <= 2.0 * max(spacing, h) * np.abs(u @ w)
-            v_all = max(v_all, float(speed.max()))
-            if near.any():
-                v_near = max(v_near, float(speed[near].max()))
-        return float(resolution_floor(h, v_near if v_near > 0.0 else v_all))
 
     @property
     def success(self) -> bool:
@@ -163,21 +135,15 @@ class PairResult(RunStatus):
 
     def sync(self, threshold: float = 1e-6, threshold_rel: float | None = None, **window) -> SyncMetrics:
         """Synchronization metrics of d (:mod:`fmu_sync.core.metrics`): decay rate of its
-        envelope with its uncertainty (and whether it is resolved), ``t_sync`` (time after which
+        envelope (median of the per-decade rates over the decades d falls through) with its
+        spread, whether it is resolved and why not, the window, ``t_sync`` (time after which
         d < threshold, or < ``threshold_rel * d0``), ``t_fit``, and the ultimate bound (max d
         over the last 20 % of the run). ``window``: ``hi``, ``lo``, ``floor_abs``, ``tail`` of
-        :func:`sync_metrics`; ``floor_abs`` defaults to :meth:`window_floor` (the level the
-        step can resolve)."""
+        :func:`sync_metrics`. For a forced impacting pair one start state's rate is a sample:
+        :func:`fmu_sync.core.sync_rate` gives the statistic over start states."""
         if self.d is None:
             raise ValueError("this run did not record the distance d")
-        window.setdefault("floor_abs", self.window_floor())
         return sync_metrics(self.t, self.d, threshold, threshold_rel=threshold_rel, **window)
-
-    def _states(self):
-        return ((self.q1, self.u1), (self.q2, self.u2))
-
-    def _impact_count(self) -> int:
-        return int(self.impacts1) + int(self.impacts2)
 
     @property
     def rate(self) -> float:
@@ -186,7 +152,7 @@ class PairResult(RunStatus):
 
     @property
     def rate_err(self) -> float:
-        """Standard uncertainty of :attr:`rate`."""
+        """Uncertainty of :attr:`rate`: the spread of its per-decade rates."""
         return self.sync().rate_err
 
     @property
@@ -269,12 +235,4 @@ class NetworkResult(RunStatus):
         :meth:`PairResult.sync`."""
         if self.d is None:
             raise ValueError("this run did not record the distances d")
-        window.setdefault("floor_abs", self.window_floor())
         return sync_metrics(self.t, self.d_max, threshold, threshold_rel=threshold_rel, **window)
-
-    def _states(self):
-        q, u = np.asarray(self.q), np.asarray(self.u)
-        return [(q[:, i], u[:, i]) for i in range(q.shape[1])] if q.ndim == 3 else []
-
-    def _impact_count(self) -> int:
-        return int(np.sum(self.impacts))

@@ -9,6 +9,8 @@ The component-level API (the core's own API is :mod:`fmu_sync.core`):
   (:class:`SceneError` for a bad scene);
 * :func:`sweep` — families of pair runs (gain maps, basins, samples) as an xarray Dataset,
   on all cores or a Dask cluster (:mod:`fmu_sync.sweeps`);
+* :func:`sync_rate` — the decay rate of d over start states (median and interquartile
+  range), in the core or in co-simulation (:mod:`fmu_sync.ensemble`);
 * :func:`load` — a saved run (``.npz``, ``.csv``, ``.nc``) back into its result object, a
   sweep's ``.nc`` into its Dataset; :func:`redraw` — a finished run's plots again
   (``fmu-sync plot DIR``; docs/results.md);
@@ -53,6 +55,7 @@ _API = {
     "convergence": "scenes.convergence", "run_demo": "scenes.demo",
     "sweep": "sweeps",
     "load": "results", "redraw": "results",
+    "sync_rate": "ensemble",
 }
 
 __all__ = ["__version__", *_API]

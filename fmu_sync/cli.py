@@ -54,6 +54,9 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument("--quick", action="store_true", help="shorter run (40 s simulated instead of 100 s)")
     d.add_argument("--t-end", type=float, default=None, metavar="SECONDS",
                    help="simulated time (default 100 s, 40 s with --quick)")
+    d.add_argument("--starts", type=int, default=16, metavar="N",
+                   help="compare the Euclidean and switching laws by their decay rate over N start states "
+                        "(median and interquartile range; default 16, 0: not computed)")
     d.add_argument("--quiet", action="store_true", help="no progress display")
 
     r = sub.add_parser("run", help="run a scene (built-in name or .toml path) or an SSP package (.ssp)")
@@ -79,6 +82,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="disk budget of a run's data files, e.g. 50GB (default 20GB)")
     r.add_argument("--overwrite", action="store_true",
                    help="replace another scene's results found in the output folder (refused otherwise)")
+    r.add_argument("--starts", type=int, default=0, metavar="N",
+                   help="also run each coupled pair variant from N start states (its own first) and report "
+                        "the ensemble decay rate: median and interquartile range (summary.md, the terminal)")
     r.add_argument("--convergence", action="store_true",
                    help="rerun each variant at its step, /2 and /4 (solver.dt in core mode, run.H in cosim) "
                         "and write only the metrics (decay rate, t_sync, bound) to convergence.md/.csv")
@@ -209,6 +215,17 @@ def _cmd_run(args) -> int:
         sr = run_scene(scene, args.out, progress=bar, plots=not args.no_plots, formats=formats,
                        max_memory=max_memory, max_disk=max_disk, overwrite=args.overwrite)
     _print_summary(sr, f"scene {scene.name}")
+    if args.starts and not sr.failed:
+        from . import ensemble
+        with _progress(f"{scene.name} ensemble", args.quiet) as bar:
+            ens = ensemble.scene_ensembles(sr.runs, args.starts, sr.out_dir, bar, scene.name)
+        if ens:
+            ensemble.print_table(ens)
+            if sr.summary is not None:
+                ensemble.add_to_summary(sr.summary, ensemble.markdown(ens, args.starts))
+        else:
+            print("\n--starts: no coupled pair variant to run (single systems, networks and uncoupled pairs "
+                  "have no ensemble rate)")
     return EXIT_FAILED if sr.failed else 0
 
 
@@ -244,8 +261,11 @@ def _cmd_demo(args) -> int:
     from .scenes.demo import run_demo
     _announce_compilation(None, args.quiet)
     with _progress("demo", args.quiet) as bar:
-        sr = run_demo(args.out, quick=args.quick, progress=bar, t_end=args.t_end)
+        sr = run_demo(args.out, quick=args.quick, progress=bar, t_end=args.t_end, n_starts=args.starts)
     _print_summary(sr, "demo: forced pair, co-simulation vs core")
+    if sr.ensembles:
+        from .ensemble import print_table
+        print_table(sr.ensembles)
     return EXIT_FAILED if sr.failed else 0
 
 

@@ -201,10 +201,10 @@ def _sync_marks(ax, result, t):
         ax.plot([], [], ls="none", label=f"t_sync: d not below {SYNC_THRESHOLD:g} within t_end")
     if m is None:
         return
-    if m.resolved and np.isfinite(m.t_fit):   # the fit line only for a rate that means something
+    if m.resolved:   # the fit line over the whole window, only for a rate that means something
         tt = np.linspace(m.t_from, m.t_to, 50)
-        ax.semilogy(tt, SYNC_THRESHOLD * np.exp(-m.rate * (tt - m.t_fit)), color="k", ls="-.", lw=1.2,
-                    label=f"fitted decay rate {m.rate:.3g} ± {m.rate_err:.1g} 1/s")
+        ax.semilogy(tt, np.exp(m.intercept - m.rate * tt), color="k", ls="-.", lw=1.2,
+                    label=f"decay rate {m.rate:.3g} ± {m.rate_err:.1g} 1/s ({m.decades} decades)")
     elif np.isfinite(m.rate):
         ax.plot([], [], ls="none", label=f"decay rate — ({m.reason})")
     if not np.isfinite(m.t_sync) and np.isfinite(m.bound) and m.bound >= SYNC_THRESHOLD:

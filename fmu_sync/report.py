@@ -12,9 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .core.metrics import rate_verdict
 
-__all__ = ["SYNC_THRESHOLD", "is_pair", "wall", "impact_rows", "impact_records", "contact_starts", "metrics", "record_columns", "record_meta", "write_data", "write_netcdf", "rows", "write_summary",
+__all__ = ["SYNC_THRESHOLD", "is_pair", "wall", "impact_rows", "impact_records", "contact_starts", "metrics", "record_columns", "record_meta", "write_data", "write_netcdf", "rows", "write_summary", "md_table",
            "print_table", "max_abs_difference", "format_value", "run_notes", "decay_resolved"]
 
 #: d below this counts as synchronized (time to sync = first time after which d stays below it).
@@ -46,8 +45,8 @@ def _sync_fields(m) -> dict:
     if m is None:
         return {}
     return dict(rate=m.rate, rate_err=m.rate_err, t_fit=m.t_fit, bound=m.bound, fit_from=m.t_from,
-                fit_to=m.t_to, fit_floor=m.floor, rate_reason=m.reason, d0=m.d0,
-                starts_below=m.starts_below)
+                fit_to=m.t_to, fit_floor=m.d_to, rate_reason=m.reason, rate_resolved=m.resolved,
+                rate_window=m.window_text(), d0=m.d0, starts_below=m.starts_below)
 
 
 def _metric_fields(result) -> dict:
@@ -328,11 +327,9 @@ def _rate(m):
 
 
 def decay_resolved(m) -> bool:
-    """A fitted decay worth showing (:func:`fmu_sync.core.metrics.rate_verdict`): the metrics'
-    own verdict when they carry one, else the verdict on the rate and its uncertainty alone."""
-    if "rate_reason" in m:
-        return m["rate_reason"] == "" and m.get("rate") is not None
-    return rate_verdict(m.get("rate"), m.get("rate_err")) == ""
+    """A decay rate worth showing: the metrics' own verdict (:attr:`SyncMetrics.resolved
+    <fmu_sync.core.metrics.SyncMetrics.resolved>`)."""
+    return bool(m.get("rate_resolved")) and m.get("rate") is not None
 
 
 def _t_sync(m):
@@ -355,9 +352,8 @@ def run_notes(runs) -> list[str]:
         bits = []
         if m.get("rate_reason"):
             bits.append(f"decay rate — : {m['rate_reason']}")
-        elif m.get("rate") is not None and m.get("fit_to") is not None:
-            bits.append(f"decay rate fitted on [{m['fit_from']:.4g}, {m['fit_to']:.4g}] s, down to "
-                        f"d = {m.get('fit_floor', 0.0):.3g}")
+        elif m.get("rate_window"):
+            bits.append(f"decay rate over its {m['rate_window']}")
         if m.get("starts_below"):
             bits.append(f"d0 = {m['d0']:.3g} starts below the t_sync threshold: its t_sync says nothing")
         if m.get("metric"):
@@ -457,7 +453,7 @@ def _numeric(cells) -> bool:
     return all(num(c) for c in cells)
 
 
-def _md_table(header, table) -> list[str]:
+def md_table(header, table) -> list[str]:
     columns = list(zip(*table)) if table else [()] * len(header)
     out = ["| " + " | ".join(_md_cell(h) for h in header) + " |",
            "|" + "|".join("---:" if col and _numeric(col) else "---" for col in columns) + "|"]
@@ -466,20 +462,22 @@ def _md_table(header, table) -> list[str]:
 
 
 def write_summary(path, title: str, description: str, rows, settings=(), files=(), base=None,
-                  notes=()) -> Path:
-    """Write ``summary.md``: results table, notes, settings and the list of files written."""
+                  notes=(), sections=()) -> Path:
+    """Write ``summary.md``: results table, notes, further ``sections`` (markdown lines; the
+    ensemble rate), settings and the list of files written."""
     path = Path(path)
     header, table = rows
     lines = [f"# {title}", ""]
     if description:
         lines += [description.strip(), ""]
-    lines += ["## Results", ""] + _md_table(header, table) + [""]
-    lines += ["- decay rate: exponential decay rate of the envelope of d (of max d for a network), fitted "
-              "on its decay window, ± its standard uncertainty (well-conditioned: compare runs with this, "
-              "not with t_sync differences; — where it means nothing: not resolved by the criteria of "
-              "fmu_sync.core.metrics.rate_verdict, uncertainty above 20 % of the rate, fit residual above 0.5 "
-              "in log d, fewer than 4 peaks, d at the floor; the reason is in the notes; the window ends at "
-              "the level the step resolves, docs/design.md §2.7). "
+    lines += ["## Results", ""] + md_table(header, table) + [""]
+    lines += ["- decay rate: decay rate of the envelope of d (of max d for a network): the median of its "
+              "per-decade rates over the decades d falls through, from a tenth of its maximum down to a decade "
+              "above where it stops falling (round-off or the ultimate bound), ± their spread (compare runs with "
+              "this, not with t_sync differences; — where it means nothing: fewer than 2 decades, or a spread "
+              "above 50 % of the rate; the window and the reason are in the notes; docs/design.md §2.7). "
+              "For a forced impacting pair one start state's rate is a sample: compare laws by the ensemble "
+              "rate over start states (fmu-sync run SCENE --starts N). "
               "ultimate bound: max d over the last 20 % of the run "
               "(practical synchronization of non-identical systems)."]
     lines += [f"- t_sync: first time after which the quotient distance d stays below {SYNC_THRESHOLD:g} "
@@ -495,8 +493,9 @@ def write_summary(path, title: str, description: str, rows, settings=(), files=(
               "solver counted impact steps but the record does not resolve the arrivals, e.g. unresolved "
               "stiff chatter or a coarse record_every)."]
     lines += [f"- {n}" for n in notes] + [""]
+    lines += list(sections)
     if settings:
-        lines += ["## Settings", ""] + _md_table(["key", "value"], [[k, f"`{v}`"] for k, v in settings]) + [""]
+        lines += ["## Settings", ""] + md_table(["key", "value"], [[k, f"`{v}`"] for k, v in settings]) + [""]
     if files:
         lines += ["## Files", ""]
         for f in files:

@@ -312,15 +312,15 @@ def test_threshold_rel_and_a_start_below_the_threshold():
 
 
 def test_rate_verdicts_say_why():
-    from fmu_sync.core.metrics import rate_verdict
-    assert rate_verdict(0.5, 0.01) == ""
-    assert "exceeds 20%" in rate_verdict(8.5e-8, 2.8e-7)
-    assert "exceeds 20%" in rate_verdict(1.382, 1.0)
-    assert "no decay window" in rate_verdict(float("nan"), float("nan"))
-    assert "does not decay" in rate_verdict(-0.1, 0.01)
-    assert "collapsed to the floor within 2 peaks" in rate_verdict(1.0, 0.01, n_fit=5, peaks=2)
-    assert "not exponential" in rate_verdict(1.0, 0.01, n_fit=50, peaks=20, residual=1.3)
-    assert "step resolves" in rate_verdict(1.0, 0.01, d_top=1e-2, floor=1e-2)
+    from fmu_sync.core.metrics import (NO_DESCENT, NO_RECORD, RESOLVED, SPREAD, TOO_FEW_DECADES, reason_text,
+                                       verdict)
+    assert verdict(0.5, 0.01, 6) == RESOLVED and reason_text(RESOLVED) == ""
+    assert verdict(0.5, 0.3, 6) == SPREAD and "exceeds 50%" in reason_text(SPREAD, 0.5, 0.3, 6)
+    assert verdict(0.5, 0.01, 1) == TOO_FEW_DECADES
+    assert "1 whole decade(s)" in reason_text(TOO_FEW_DECADES, 0.5, 0.01, 1, 0.02)
+    assert verdict(float("nan"), float("nan"), 0) == NO_DESCENT
+    assert "never falls a decade" in reason_text(NO_DESCENT)
+    assert verdict(float("nan"), float("nan"), -1) == NO_RECORD and "no record" in reason_text(NO_RECORD)
 
 
 @pytest.mark.parametrize("scene", ["stiff-wall", "zeno-table"])

@@ -20,10 +20,12 @@ def _damped(t, sigma=0.5, omega=1.7, phase=0.3):
 def test_rate_of_an_oscillating_envelope_is_exact_on_its_peaks():
     t = np.linspace(0.0, 60.0, 600_001)
     m = sync_metrics(t, _damped(t), threshold=1e-6)
-    assert m.rate == pytest.approx(0.5, rel=1e-5)  # peaks sampled every 1e-4 s
-    assert m.rate_err < 1e-5
+    assert m.resolved and m.rate == pytest.approx(0.5, rel=1e-5)  # peaks sampled every 1e-4 s
+    assert m.rate_err < 1e-5 and m.decades >= 6 and len(m.decade_rates) == m.decades
+    # the window: from a tenth of max d down to a decade above where d stops falling (here: the run's end)
+    assert m.d_from == pytest.approx(0.1 * _damped(t).max()) and m.d_to >= 10 * m.bound
+    assert 0.0 < m.t_from < m.t_to < 60.0
     # the fitted envelope is the peak line: t_fit is where it crosses 1e-6, t_sync the last crossing
-    assert m.t_from > 0.0 and m.t_to < 60.0 and m.n_fit >= 8
     assert m.t_sync <= m.t_fit + 2 * math.pi / 1.7
 
 
@@ -33,11 +35,35 @@ def test_rate_of_a_monotone_decay_and_of_noise():
     assert m.rate == pytest.approx(1.25, rel=1e-9)
     assert m.t_sync == pytest.approx(math.log(3e6) / 1.25, abs=1e-3)
     assert m.t_fit == pytest.approx(math.log(3e6) / 1.25, rel=1e-9)
-    # multiplicative noise: the reported uncertainty covers the true rate
+    # multiplicative noise: the reported spread covers the true rate
     rng = np.random.default_rng(1)
     d = np.exp(-0.8 * t + 0.3 * rng.standard_normal(t.size))
     m = sync_metrics(t[::100], d[::100])
-    assert abs(m.rate - 0.8) < 3 * m.rate_err and m.rate_err < 0.05
+    assert abs(m.rate - 0.8) < 2 * m.rate_err + 0.02 and m.rate_err < 0.2
+
+
+def _kinked(t, sigma, seed=0):
+    """A d with a known mean rate: an oscillating exponential whose log gets kinks at random
+    'impacts' (slope changes of +-30 % lasting a fraction of a period, summing to zero over the
+    run), a periodic modulation of the envelope, and round-off noise at 1e-16 below which d stops."""
+    rng = np.random.default_rng(seed)
+    k = np.zeros_like(t)
+    hits = np.sort(rng.uniform(t[0], t[-1], 60))
+    for h in hits:   # a kink: the slope changes by +-0.3 sigma for 0.4 s, then back (a dent, no drift)
+        s = rng.choice([-1.0, 1.0]) * 0.3 * sigma
+        k += s * np.clip(t - h, 0.0, 0.4) - s * np.clip(t - h - 0.4, 0.0, 0.4)
+    d = _damped(t, sigma=sigma, omega=2.3) * np.exp(k) * (1.0 + 0.3 * np.abs(np.sin(1.1 * t)))
+    return np.maximum(d, 1e-16 * (1.0 + rng.random(t.size)))
+
+
+def test_synthetic_d_with_kinks_and_a_round_off_floor_gives_its_rate_to_2_percent():
+    t = np.linspace(0.0, 80.0, 80_001)
+    for sigma, seed in ((0.45, 0), (0.6, 1), (1.1, 2)):
+        m = sync_metrics(t, _kinked(t, sigma, seed))
+        assert m.resolved, m.reason
+        assert m.rate == pytest.approx(sigma, rel=0.02), (sigma, m.decade_rates)
+        # the window stops a decade above the round-off floor, not at a formula of the step
+        assert m.d_to >= 1e-15 and m.decades >= 8
 
 
 def test_t_sync_bound_and_degenerate_records():
@@ -84,43 +110,47 @@ def test_rate_of_a_linear_pair_matches_the_closed_form():
     r = simulate_pair(s, (10.0, 0.0), (11.0, 0.5), 40.0, 1e-3, coupling="switching", Kp=Kp, Kd=Kd)
     assert r.impacts1 == r.impacts2 == 0 and np.all(r.branch == 0)
     sigma = (c + 2 * Kd) / (2 * m_)
-    m = sync_metrics(r.t, r.d, threshold=1e-6)
-    # the zero-order hold shifts the rate by O(dt): 1e-3 relative at dt = 1e-3
-    assert m.rate == pytest.approx(sigma, rel=1e-3)
+    m = r.sync()
+    # the zero-order hold shifts the rate by O(dt): 1e-3 relative at dt = 1e-3 (issue 25: within 1 %)
+    assert m.resolved and m.rate == pytest.approx(sigma, rel=1e-3)
     assert abs(m.rate - sigma) < 3 * m.rate_err + 1e-3 * sigma
+
+
+def _average_decay(t, d, hi, lo):
+    """The independent estimate: the average decay between two levels of the running maximum of
+    d from the end, ``ln(hi / lo) / (t_lo - t_hi)`` (levels relative to max d)."""
+    env = np.maximum.accumulate(np.asarray(d)[::-1])[::-1]
+    top = env[0]
+    assert env[-1] <= lo * top, "d never gets down to the lower level"
+    return math.log(hi / lo) / (t[np.argmax(env <= lo * top)] - t[np.argmax(env <= hi * top)])
+
+
+FORCED = dict(m=1, k=1, c=0, f0=0.2, F=0.5, Omega=2.5, e=0.9)
 
 
 @pytest.fixture(scope="module")
 def forced_pairs():
-    # the issue's case: forced pair, switching, Kp = 1, Kd = 0.5, 60 s, default metric (energy)
-    s = ImpactOscillator(m=1, k=1, c=0, f0=0.2, F=0.5, Omega=2.5, e=0.9)
-    out = {}
-    for dt in (1e-4, 5e-5, 2.5e-5):
-        out[dt] = simulate_pair(s, (1.0, 0.0), (0.2, 0.5), 60.0, dt, coupling="switching", Kp=1.0, Kd=0.5,
-                                record_every=round(1e-3 / dt))
-    return out
+    # the forced pair, Kp = 1, Kd = 0.5, 60 s, default metric (energy), both laws, three steps
+    s = ImpactOscillator(**FORCED)
+    return {(law, dt): simulate_pair(s, (1.0, 0.0), (0.2, 0.5), 60.0, dt, coupling=law, Kp=1.0, Kd=0.5,
+                                     record_every=round(1e-3 / dt))
+            for law in ("switching", "euclidean") for dt in (1e-3, 5e-4, 2.5e-4)}
 
 
-def test_forced_pair_default_rate_agrees_across_dt(forced_pairs):
-    # The default window ends at the level the step resolves (result.window_floor(): a decade at
-    # or above 5 dt v_impact), so the default rate agrees within 3 % and within the uncertainty
-    # (measured: 0.4179 +- 0.011, 0.4174 +- 0.0091, 0.4184 +- 0.0074, window [3.59, 14.9] s down
-    # to d = 1e-3 at all three dt).
-    ms = {dt: r.sync() for dt, r in forced_pairs.items()}
-    rates = np.array([m.rate for m in ms.values()])
-    assert all(m.resolved for m in ms.values()), [m.reason for m in ms.values()]
-    assert (rates.max() - rates.min()) < 0.03 * rates.mean()
-    for a in ms.values():
-        assert a.floor == pytest.approx(1e-3)      # reported in the summary
-        for b in ms.values():
-            assert abs(a.rate - b.rate) <= math.hypot(a.rate_err, b.rate_err)
-
-
-def test_forced_pair_rate_without_the_floor_depends_on_dt(forced_pairs):
-    # the same fit down to 1e-10 max d (below the resolved level): the step decides how d passes
-    # the impacts there, and the rates spread by more than 3 % -- why the default window stops
-    rates = [sync_metrics(r.t, r.d, floor_abs=0.0).rate for r in forced_pairs.values()]
-    assert max(rates) - min(rates) > 0.03 * np.mean(rates)
+def test_forced_pair_rate_intervals_overlap_across_dt(forced_pairs):
+    # one trajectory of a forced impacting pair: the local decay differs between decades and
+    # between steps; the reported spread says so, so the intervals rate +- spread at dt = 1e-3,
+    # 5e-4, 2.5e-4 overlap (measured in the report of issue 25)
+    for law in ("switching", "euclidean"):
+        ms = [forced_pairs[law, dt].sync() for dt in (1e-3, 5e-4, 2.5e-4)]
+        assert all(m.resolved for m in ms), [m.reason for m in ms]
+        for a in ms:
+            for b in ms:
+                assert abs(a.rate - b.rate) <= a.rate_err + b.rate_err, (law, [(m.rate, m.rate_err) for m in ms])
+        for m, (r, dt) in zip(ms, ((forced_pairs[law, dt], dt) for dt in (1e-3, 5e-4, 2.5e-4))):
+            # the rate describes the decades d falls through: within 20 % of the independent estimate
+            ref = _average_decay(r.t, r.d, 1e-3, 1e-9)
+            assert m.rate == pytest.approx(ref, rel=0.2), (law, dt, m.rate, ref)
 
 
 def test_decimator_runs_inside_a_compiled_loop():
@@ -138,10 +168,11 @@ def test_decimator_runs_inside_a_compiled_loop():
             x = np.exp(-sigma * t) * np.cos(1.7 * t + 0.3)
             v = np.exp(-sigma * t) * (-sigma * np.cos(1.7 * t + 0.3) - 1.7 * np.sin(1.7 * t + 0.3))
             decimator_push(bt, bd, st, t, np.sqrt(x * x + v * v))
-        return decimated_kernel(bt, bd, st, 0.1, 1e-10, 0.0, 0.2)
+        return decimated_kernel(bt, bd, st, 0.1, 1e-13, 0.0, 0.2)
 
-    rate, err, t_from, t_to, n_fit, t_sync, t_fit, bound, residual, peaks = sweep(0.5, 600_000, 256)
+    rate, err, t_from, t_to, decades, t_sync, t_fit, bound, code, *_ = sweep(0.5, 600_000, 256)
     t = np.linspace(0.0, 60.0, 600_001)
     full = sync_metrics(t, _damped(t))
+    assert code == 0 and decades >= 6
     assert rate == pytest.approx(0.5, rel=5e-3) and abs(rate - 0.5) < 3 * err + 1e-3
     assert t_sync == pytest.approx(full.t_sync, abs=1e-9) and bound == pytest.approx(full.bound)

@@ -347,3 +347,38 @@ def test_progress_shows_runs_failures_and_time_left():
     assert "0/100 runs, 0 failed" in text
     assert "50/100 runs, 3 failed" in text and "ETA" in text.splitlines()[1]
     assert "100/100 runs, 4 failed" in text
+
+
+def _average_decay(t, d, hi, lo):
+    """The independent estimate of issue 25: the average decay between two levels (relative to
+    max d) of the running maximum of d from the end; NaN if d never gets down to ``lo``."""
+    env = np.maximum.accumulate(np.asarray(d)[::-1])[::-1]
+    if not env[-1] <= lo * env[0]:
+        return float("nan")
+    return np.log(hi / lo) / (t[np.argmax(env <= lo * env[0])] - t[np.argmax(env <= hi * env[0])])
+
+
+def test_gain_map_cells_carry_a_rate_that_matches_their_own_average_decay():
+    # issue 25: the forced pair's 6 x 6 gain map over Kp, Kd in [0.1, 10] at the sweep scene's own dt
+    # (2e-2, 60 s): most synchronized cells carry a resolved rate (flag and reason in every cell),
+    # each within 25 % of the same run's average decay of d over [1e-2, 1e-8] max d
+    from fmu_sync.sweeps import load_sweep_scene
+    dt = load_sweep_scene("gain-map")["overrides"]["solver.dt"]
+    grid = {"coupling.Kp": "logspace(-1, 1, 6)", "coupling.Kd": "logspace(-1, 1, 6)"}
+    ds = sweep(SCENE, variant="switching", grid=grid, overrides={"run.t_end": 60.0, "solver.dt": dt}, quiet=True)
+    sync = ds["synchronized"].values
+    resolved = ds["rate_resolved"].values
+    assert sync.sum() >= 12 and (resolved & sync).sum() >= 0.8 * sync.sum()
+    reasons = ds["rate_reason"].values
+    assert all((r == "") == bool(ok) for r, ok in zip(reasons.ravel(), resolved.ravel()))
+    checked = 0
+    for i, kp in enumerate(ds["coupling.Kp"].values):
+        for j, kd in enumerate(ds["coupling.Kd"].values):
+            if not resolved[i, j]:
+                continue
+            r = _single(float(kp), float(kd), t_end=60.0, dt=dt)
+            ref = _average_decay(r.t, r.d, 1e-2, 1e-8)
+            if np.isfinite(ref):
+                checked += 1
+                assert float(ds["decay_rate"][i, j]) == pytest.approx(ref, rel=0.25), (kp, kd)
+    assert checked >= 0.8 * resolved.sum()

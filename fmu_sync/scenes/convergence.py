@@ -8,9 +8,10 @@ written: only the metrics (:mod:`fmu_sync.core.metrics`: fitted decay rate of
 the envelope of d with its uncertainty, t_sync, ultimate bound) and the final d
 go to ``convergence.md`` and ``convergence.csv``.
 
-The verdict of a variant compares the rates of successive steps: converged when
-every change ``|rate_k - rate_{k-1}|`` is within the combined uncertainty
-``hypot(rate_err_k, rate_err_{k-1})`` of the two fits.
+The verdict of a variant compares the rates of successive steps, only where both are
+resolved (never two rates that mean nothing): converged when the intervals
+``rate ± rate_err`` (median ± spread of the per-decade rates) of every two successive
+steps overlap, ``|rate_k - rate_{k-1}| <= rate_err_k + rate_err_{k-1}``.
 """
 from __future__ import annotations
 
@@ -20,7 +21,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from ..core.metrics import rate_verdict
 from ..progress import scaled
 from .loading import Scene, as_scene, load_scene
 from .schema import DEFAULT_OUT, SceneError, Variant
@@ -43,8 +43,9 @@ class ConvergenceRow:
     t_fit: float
     bound: float
     final_d: float
+    reason: str = ""              #: why the rate means nothing ('' when resolved)
     change: float = math.nan      #: relative change of the rate from the previous (coarser) step
-    within: bool | None = None    #: that change within the combined uncertainty of the two rates
+    within: bool | None = None    #: the two rates' intervals overlap (None: either is unresolved)
 
 
 @dataclass
@@ -86,18 +87,16 @@ def _step_name(v: Variant) -> str:
 
 
 def _verdict(rows) -> tuple[str, bool]:
-    if any(not math.isfinite(r.rate) for r in rows):
-        return "not converged: no decay of d fitted at every step (rate undefined)", False
-    why = [rate_verdict(r.rate, r.rate_err) for r in rows]
-    if any(why):
-        return f"no verdict: the rate means nothing at some step ({next(w for w in why if w)})", False
+    why = [r.reason for r in rows if r.reason]
+    if why:
+        return f"no verdict: the rate means nothing at some step ({why[0]})", False
     changes = [abs(r.change) for r in rows[1:]]
     worst = max(changes)
     if all(r.within for r in rows[1:]):
-        return f"rate converged: changes {100 * worst:.3g} % < uncertainty", True
+        return f"rate converged: changes up to {100 * worst:.3g} %, within the rates' spreads", True
     bad = [r for r in rows[1:] if not r.within]
     return (f"not converged: rate changes {100 * abs(bad[0].change):.3g} % at step {bad[0].step:g}, beyond "
-            f"the uncertainty of the two fits (refine the step further)"), False
+            f"the spreads of the two rates (refine the step further)"), False
 
 
 def _metrics(result, threshold):
@@ -180,10 +179,13 @@ def convergence(scene, out_dir=None, overrides: dict | None = None, variants=Non
                     record_every=int(vk.cfg["run.record_every"]),
                     rate=m.rate if m else nan, rate_err=m.rate_err if m else nan,
                     t_sync=m.t_sync if m else nan, t_fit=m.t_fit if m else nan,
-                    bound=m.bound if m else nan, final_d=_final_d(result)))
+                    bound=m.bound if m else nan, final_d=_final_d(result),
+                    reason=(m.reason if m else "no distance recorded")))
             for prev, row in zip(vc.rows, vc.rows[1:]):
-                row.change = (row.rate - prev.rate) / abs(prev.rate) if prev.rate else math.nan
-                row.within = bool(abs(row.rate - prev.rate) <= math.hypot(row.rate_err, prev.rate_err))
+                if row.reason or prev.reason:   # never compare a rate that means nothing
+                    continue
+                row.change = (row.rate - prev.rate) / abs(prev.rate)
+                row.within = bool(abs(row.rate - prev.rate) <= row.rate_err + prev.rate_err)
             vc.verdict, vc.converged = _verdict(vc.rows)
             results.append(vc)
     except BaseException:
@@ -220,7 +222,7 @@ def table_rows(results) -> list[list[str]]:
     for vc in results:
         for r in vc.rows:
             out.append([vc.name, f"{vc.step_name} = {r.step:g}", f"{r.dt:g}", str(r.record_every),
-                        _g(r.rate) if not rate_verdict(r.rate, r.rate_err) else "—", _g(r.rate_err, ".2g"), _g(r.t_sync, ".4g"), _g(r.t_fit, ".4g"),
+                        _g(r.rate) if not r.reason else "—", _g(r.rate_err, ".2g"), _g(r.t_sync, ".4g"), _g(r.t_fit, ".4g"),
                         _g(r.bound, ".3g"), _g(r.final_d, ".3g"),
                         "-" if math.isnan(r.change) else f"{100 * r.change:+.3g} %",
                         "-" if r.within is None else ("yes" if r.within else "no")])
@@ -242,10 +244,12 @@ def _write(scene: Scene, results, out_dir: Path) -> list[Path]:
     md = out_dir / "convergence.md"
     text = [f"# Convergence check of scene `{scene.name}`", "",
             "Each variant rerun at its step, /2 and /4 (record_every scaled: the same record times); "
-            "rate: fitted decay rate of the envelope of d with its standard uncertainty; t_sync: time "
+            "rate: decay rate of the envelope of d (median of its per-decade rates) ± their spread, — where "
+            "it means nothing; t_sync: time "
             "after which d stays below 1e-6; t_fit: where the fitted envelope crosses 1e-6; ultimate "
             "bound: max d over the last 20 % of the run. Rate change: relative to the previous (coarser) "
-            "step; within uncertainty: |change| <= hypot of the two rate_err.", "",
+            "step; within uncertainty: the intervals rate ± rate_err overlap (|change| <= the sum of the two "
+            "rate_err; only where both rates are resolved).", "",
             format_table(results), "", "## Verdicts", ""]
     text += [f"- {line}" for line in verdicts(results)]
     md.write_text("\n".join(text) + "\n")

@@ -5,6 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Callable
 
+from ..ensemble import N_STARTS
+from ..ensemble import markdown as ensemble_markdown
+from ..ensemble import scene_ensembles
 from ..progress import scaled
 from .loading import load_scene
 from .running import (RunRecord, SceneRun, error_notes, export_for, run_variant, settings_table, skipped_notes,
@@ -22,7 +25,7 @@ DEMO_QUICK_T_END = 50.0
 
 
 def run_demo(out_dir=None, quick: bool = False, progress: Callable | None = None,
-             t_end: float | None = None) -> SceneRun:
+             t_end: float | None = None, n_starts: int = N_STARTS) -> SceneRun:
     """The README's demo: forced-pair, co-simulated three ways and compared with the core.
 
     Exports the 1-DOF FMU into ``out_dir`` (default ``./fmu-sync-demo``), runs
@@ -30,6 +33,8 @@ def run_demo(out_dir=None, quick: bool = False, progress: Callable | None = None
     uncoupled, Euclidean and switching variants, compares d on the common
     grid (max |d_cosim - d_core|) and writes data, plots and ``summary.md``.
     ``quick`` shortens the run to ``DEMO_QUICK_T_END`` (50 s); ``t_end`` sets it outright.
+    The Euclidean and switching laws are then compared by their ensemble rate over ``n_starts``
+    start states, in both modes (:mod:`fmu_sync.ensemble`; 0: not computed).
     """
     from .. import plots as P
     from .. import report
@@ -48,7 +53,7 @@ def run_demo(out_dir=None, quick: bool = False, progress: Callable | None = None
     fmu_path = export_for(cosim.variant(DEMO_VARIANTS[0]), out_dir)
     files = [fmu_path]
     runs = []
-    steps = 2 * len(DEMO_VARIANTS)
+    steps = 2 * len(DEMO_VARIANTS) + (4 if n_starts else 0)
     k = 0
     for name in DEMO_VARIANTS:
         for tag, sc, fmu in (("cosim", cosim, fmu_path), ("core", core, None)):
@@ -64,6 +69,7 @@ def run_demo(out_dir=None, quick: bool = False, progress: Callable | None = None
         diff = report.max_abs_difference(rc.result, rm.result, "d")
         rc.metrics["d_vs_core"] = rm.metrics["d_vs_core"] = diff
     files += [f for r in runs for f in r.files]
+    ens = scene_ensembles(runs, n_starts, out_dir, scaled(progress, k / steps, 1.0), scene.name) if n_starts else []
     cos = {r.name.removesuffix("-cosim"): r.result for r in runs if r.name.endswith("-cosim")}
     files.append(P.compare_plot(cos, out_dir / "compare-distance.png",
                                 title=f"forced-pair, co-simulation (H = {H:g} s): quotient distance d"))
@@ -76,6 +82,7 @@ def run_demo(out_dir=None, quick: bool = False, progress: Callable | None = None
                                 dashed=[k for k in both if k.endswith("(core)")],
                                 title=f"forced-pair: d, co-simulation (H = {H:g} s) vs core (dt = {dt:g} s)"))
     sr = SceneRun(scene, out_dir, runs, files)
+    sr.ensembles = ens
     note = (f"Co-simulation: the FMU `{fmu_path.name}`, two instances, communication step H = {H:g} s, "
             f"{v0.cfg['run.method']} exchange, coupling forces held over each H. Core: `simulate_pair` with "
             f"dt = {dt:g} s, forces held over each dt. max|d - d_core| compares the two runs' d on the "
@@ -84,5 +91,6 @@ def run_demo(out_dir=None, quick: bool = False, progress: Callable | None = None
                                       description=scene.description, rows=report.rows(runs, demo=True),
                                       settings=settings_table(scene, [r.variant for r in runs],
                                                               [r.name for r in runs]), files=files,
-                                      base=out_dir, notes=[note] + error_notes(runs) + skipped_notes(runs) + report.run_notes(runs))
+                                      base=out_dir, notes=[note] + error_notes(runs) + skipped_notes(runs) + report.run_notes(runs),
+                                      sections=ensemble_markdown(ens, n_starts) if ens else ())
     return sr

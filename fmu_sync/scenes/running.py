@@ -36,6 +36,7 @@ class SceneRun:
     runs: list
     files: list
     summary: Path | None = None
+    ensembles: list = field(default_factory=list)   #: (name, mode, law, EnsembleRate) (fmu_sync.ensemble)
 
     @property
     def failed(self) -> list:

@@ -20,7 +20,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.metrics import rate_verdict
 
 __all__ = ["heat_map", "basin", "scatter", "line_plot", "sweep_plots", "zoh_margin", "LABELS"]
 
@@ -162,12 +161,10 @@ def _two_d(ds, x, y):
 
 
 def resolved_rate(sub) -> np.ndarray:
-    """The decay rate where the run succeeded and the rate is resolved (:func:`rate_verdict` on the
-    rate and its uncertainty: the two numbers a sweep keeps), NaN elsewhere."""
+    """The decay rate where the run succeeded and the rate is resolved (the cell's own
+    ``rate_resolved`` flag, :mod:`fmu_sync.core.metrics`), NaN elsewhere."""
     rate = np.asarray(sub["decay_rate"].values, dtype=float)
-    err = np.asarray(sub["decay_rate_err"].values, dtype=float)
-    ok = (np.asarray(sub["status"].values) == 0) & np.vectorize(
-        lambda r, e: rate_verdict(r, e) == "", otypes=[bool])(rate, err)
+    ok = (np.asarray(sub["status"].values) == 0) & np.asarray(sub["rate_resolved"].values, dtype=bool)
     return np.where(ok, rate, np.nan)
 
 
@@ -217,7 +214,7 @@ def heat_map(ds, x: str, y: str, path, title: str | None = None) -> Path:
             _overlay(ax, XE, YE, nosync & ~div & ~ref, "0.82", "not synchronized by t_end")
         else:
             _overlay(ax, XE, YE, (sub["status"].values == 0) & ~np.isfinite(rate), "0.82",
-                     "no resolved decay rate (no window, or uncertainty > 20 % of it)")
+                     "no resolved decay rate (fewer than 2 decades, or spread > 50 % of it)")
         _overlay(ax, XE, YE, div, "#b2182b", "diverged (stopped early)")
         _overlay(ax, XE, YE, ref, "black", "refused (invalid start)")
         drawn = _zoh_line(ax, ds, x, y, xlog, ylog)

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.batch import COL, STATUS_NAMES
+from ..core.metrics import MAX_REL_ERR, MIN_DECADES, REASON_NAMES, RESOLVED, reason_text
 
 __all__ = ["ChunkStore", "to_dataset", "write_dataset", "read_dataset", "RESULT_FILE", "VARIABLES"]
 
@@ -31,8 +32,11 @@ RESULT_FILE = "sweep.nc"
 VARIABLES = {
     "status": ("status", "int8", "", "0 ok, 1 diverged (stopped early), 2 refused before the first step"),
     "t_sync": ("t_sync", "f8", "s", "first sample time after which d stays below the threshold (inf: never)"),
-    "decay_rate": ("decay_rate", "f8", "1/s", "decay rate of the envelope of d (fmu_sync.core.metrics)"),
-    "decay_rate_err": ("decay_rate_err", "f8", "1/s", "standard uncertainty of decay_rate"),
+    "decay_rate": ("decay_rate", "f8", "1/s", "decay rate of the envelope of d: median of its per-decade rates "
+                   "(fmu_sync.core.metrics); meaningful only where rate_resolved"),
+    "decay_rate_err": ("decay_rate_err", "f8", "1/s", "spread of the per-decade rates (uncertainty of decay_rate)"),
+    "rate_code": ("rate_code", "int8", "", "verdict on decay_rate (fmu_sync.core.metrics.verdict)"),
+    "rate_decades": ("rate_decades", "f8", "", "whole decades of d the decay window spans"),
     "t_fit": ("t_fit", "f8", "s", "time where the fitted envelope of d crosses the threshold"),
     "bound": ("bound", "f8", "", "ultimate bound: max d over the last 20 % of the run"),
     "d0": ("d0", "f8", "", "quotient distance d at t = 0"),
@@ -135,7 +139,20 @@ def to_dataset(out: np.ndarray, reasons: list, keys: list, axes, runs: list, att
                       {"long_name": long})
     data["status"][2].update(flag_values=np.arange(len(STATUS_NAMES), dtype=np.int8),
                              flag_meanings=" ".join(STATUS_NAMES))
+    data["rate_code"][2].update(flag_values=np.arange(len(REASON_NAMES), dtype=np.int8),
+                                flag_meanings=" ".join(n.replace(" ", "_") for n in REASON_NAMES))
     ok = out[:, COL["status"]] == 0
+    code = out[:, COL["rate_code"]]
+    resolved = ok & (code == RESOLVED)
+    data["rate_resolved"] = (dims, resolved.reshape(shape),
+                             {"long_name": f"decay_rate means something: the run finished, its window spans at "
+                                           f"least {MIN_DECADES} decades and the spread is at most "
+                                           f"{MAX_REL_ERR:.0%} of it"})
+    why = [("the run failed" if not o else reason_text(c, r, e, n)) if not rs else ""
+           for o, rs, c, r, e, n in zip(ok, resolved, code, out[:, COL["decay_rate"]],
+                                        out[:, COL["decay_rate_err"]], out[:, COL["rate_decades"]])]
+    data["rate_reason"] = (dims, np.array(why, dtype=object).reshape(shape),
+                           {"long_name": "why decay_rate means nothing ('' where rate_resolved)"})
     sync = ok & np.isfinite(out[:, COL["t_sync"]])
     data["synchronized"] = (dims, sync.reshape(shape),
                             {"long_name": "run finished and d stayed below the threshold from t_sync on"})
@@ -148,7 +165,7 @@ def write_dataset(ds, path) -> Path:
     """NetCDF-4 via h5netcdf, atomically (``path`` appears complete or not at all)."""
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp")
-    enc = {"reason": {"dtype": str}} if "reason" in ds else {}
+    enc = {k: {"dtype": str} for k in ("reason", "rate_reason") if k in ds}
     ds.to_netcdf(tmp, engine="h5netcdf", encoding=enc)
     os.replace(tmp, path)
     return path
