@@ -30,7 +30,8 @@ the envelope is the number to compare runs by. Definitions (all on samples ``(t_
   ``decades ln 10 / (t_to - t_from)`` if that is larger (a few slow decades). A rate
   that differs between decades says so in its uncertainty.
 * **resolved** (:func:`verdict`): the window spans at least ``MIN_DECADES`` decades and
-  the spread is at most ``MAX_REL_ERR`` of the rate; otherwise a code and a reason.
+  ``MIN_SAMPLES`` samples of d, and the spread is at most ``MAX_REL_ERR`` of the rate;
+  otherwise a code and a reason.
 * **t_sync**: the time of the first sample after the last sample with
   ``d >= threshold`` (``t_0`` if d never reaches it; ``inf`` if the last
   sample is still at or above it; NaN d counts as above).
@@ -62,7 +63,8 @@ from numba import njit
 
 __all__ = ["SyncMetrics", "sync_metrics", "metrics_kernel", "decimator", "decimator_push",
            "decimated_metrics", "decimated_kernel", "HI", "LO", "TAIL", "STALL", "MIN_PEAKS", "MIN_DECADES",
-           "MAX_REL_ERR", "RESOLVED", "NO_RECORD", "NO_DESCENT", "TOO_FEW_DECADES", "SPREAD", "verdict",
+           "MAX_REL_ERR", "MIN_SAMPLES", "RESOLVED", "NO_RECORD", "NO_DESCENT", "TOO_FEW_DECADES", "SPREAD",
+           "FEW_SAMPLES", "verdict",
            "reason_text", "REASON_NAMES"]
 
 HI = 0.1          #: the window starts where the envelope falls below HI * max(d)
@@ -70,26 +72,30 @@ LO = 1e-13        #: ... and ends at LO * max(d) at the lowest (or where d stops
 TAIL = 0.2        #: the ultimate bound (where d stops falling) is max d over the last TAIL of the run
 STALL = 10.0      #: the window ends at least STALL times above where d stops falling
 MIN_PEAKS = 8     #: fewer envelope peaks than this: the hull is every envelope point
-#: A rate is resolved when its window spans at least MIN_DECADES decades and its spread
-#: (rate_err) is at most MAX_REL_ERR of it.
+#: A rate is resolved when its window spans at least MIN_DECADES decades and MIN_SAMPLES samples
+#: of d (fewer: the record or the step, not the law, decides it) and its spread (rate_err) is at
+#: most MAX_REL_ERR of it.
 MIN_DECADES = 2
+MIN_SAMPLES = 20
 MAX_REL_ERR = 0.5
 
 #: Verdict codes (:func:`verdict`), the same in the compiled sweeps' tables.
-RESOLVED, NO_RECORD, NO_DESCENT, TOO_FEW_DECADES, SPREAD = range(5)
-REASON_NAMES = ("resolved", "no record", "no descent", "too few decades", "spread")
+RESOLVED, NO_RECORD, NO_DESCENT, TOO_FEW_DECADES, SPREAD, FEW_SAMPLES = range(6)
+REASON_NAMES = ("resolved", "no record", "no descent", "too few decades", "spread", "few samples")
 
 
 @njit(cache=True)
-def verdict(rate, err, decades):
-    """The verdict code of a rate (:data:`RESOLVED` ... :data:`SPREAD`) from the window's
-    whole decades, the median per-decade rate and its spread."""
+def verdict(rate, err, decades, samples):
+    """The verdict code of a rate (:data:`RESOLVED` ... :data:`FEW_SAMPLES`) from the window's
+    whole decades, the samples of d in it, the median per-decade rate and its spread."""
     if decades < 0:
         return NO_RECORD
     if decades == 0 or not rate > 0.0:
         return NO_DESCENT
     if decades < MIN_DECADES:
         return TOO_FEW_DECADES
+    if samples < MIN_SAMPLES:
+        return FEW_SAMPLES
     if not (err <= MAX_REL_ERR * rate):
         return SPREAD
     return RESOLVED
@@ -108,6 +114,9 @@ def reason_text(code, rate=math.nan, err=math.nan, decades=0, stall=math.nan) ->
     if code == TOO_FEW_DECADES:
         return (f"d falls through {int(decades)} whole decade(s) below a tenth of its maximum before it stops "
                 f"falling or the run ends{at}; at least {MIN_DECADES} are needed")
+    if code == FEW_SAMPLES:
+        return (f"d falls through its window within fewer than {MIN_SAMPLES} samples: the record or the step, "
+                "not the law, decides the rate (record more often or take a smaller step)")
     return (f"the local decay rate varies too much across the window: spread {err:.2g} 1/s exceeds "
             f"{MAX_REL_ERR:.0%} of the median {rate:.3g} 1/s")
 
@@ -276,6 +285,10 @@ def metrics_kernel(t, d, threshold, hi, lo, floor_abs, tail):
     d_to = d_from * 10.0 ** (-decades)
     if decades == 0:
         return nan, nan, tau[0], tau[0], 0, t_sync, nan, bound, NO_DESCENT, d_from, d_to, stall, nan, none
+    samples = 0
+    for i in range(imax, M):
+        if tau[0] <= t[i] <= tau[decades]:
+            samples += 1
     rates = np.empty(decades)
     for k in range(decades):
         span = tau[k + 1] - tau[k]
@@ -294,7 +307,7 @@ def metrics_kernel(t, d, threshold, hi, lo, floor_abs, tail):
         a[k] = y0 - k * ln10 + rate * tau[k]
     intercept = np.median(a)
     t_fit = (intercept - math.log(threshold)) / rate if rate > 0.0 and math.isfinite(rate) and threshold > 0.0 else nan
-    return (rate, err, tau[0], tau[decades], decades, t_sync, t_fit, bound, verdict(rate, err, decades),
+    return (rate, err, tau[0], tau[decades], decades, t_sync, t_fit, bound, verdict(rate, err, decades, samples),
             d_from, d_to, stall, intercept, rates)
 
 

@@ -96,9 +96,10 @@ def markdown(entries, n_starts: int) -> list[str]:
 
 
 def scene_ensembles(runs, n_starts: int, fmu_dir=None, progress: Callable | None = None,
-                    scene_name: str = "") -> list:
+                    scene_name: str = "", fmu_path=None) -> list:
     """``(name, mode, law, EnsembleRate)`` of every coupled pair variant among ``runs`` (records
-    of a scene run that finished); co-simulated variants use the FMU exported into ``fmu_dir``."""
+    of a scene run that finished); co-simulated variants use ``fmu_path`` (the FMU the scene
+    ran), else one exported into ``fmu_dir``."""
     from .progress import scaled
     from .scenes.running import export_for
     todo = [r for r in runs if not r.metrics.get("error") and r.variant.pair and not r.variant.is_network
@@ -106,7 +107,9 @@ def scene_ensembles(runs, n_starts: int, fmu_dir=None, progress: Callable | None
     out = []
     for k, r in enumerate(todo):
         v = r.variant
-        fmu = export_for(v, fmu_dir) if v.mode == "cosim" else None
+        if v.mode == "cosim" and fmu_path is None:
+            fmu_path = export_for(v, fmu_dir)
+        fmu = fmu_path if v.mode == "cosim" else None
         e = variant_sync_rate(v, n_starts, fmu, progress=scaled(progress, k / len(todo), (k + 1) / len(todo)),
                               scene_name=scene_name)
         out.append((r.name, v.mode, v.law, e))

@@ -312,15 +312,16 @@ def test_threshold_rel_and_a_start_below_the_threshold():
 
 
 def test_rate_verdicts_say_why():
-    from fmu_sync.core.metrics import (NO_DESCENT, NO_RECORD, RESOLVED, SPREAD, TOO_FEW_DECADES, reason_text,
-                                       verdict)
-    assert verdict(0.5, 0.01, 6) == RESOLVED and reason_text(RESOLVED) == ""
-    assert verdict(0.5, 0.3, 6) == SPREAD and "exceeds 50%" in reason_text(SPREAD, 0.5, 0.3, 6)
-    assert verdict(0.5, 0.01, 1) == TOO_FEW_DECADES
+    from fmu_sync.core.metrics import (FEW_SAMPLES, NO_DESCENT, NO_RECORD, RESOLVED, SPREAD, TOO_FEW_DECADES,
+                                       reason_text, verdict)
+    assert verdict(0.5, 0.01, 6, 100) == RESOLVED and reason_text(RESOLVED) == ""
+    assert verdict(0.5, 0.3, 6, 100) == SPREAD and "exceeds 50%" in reason_text(SPREAD, 0.5, 0.3, 6)
+    assert verdict(0.5, 0.01, 1, 100) == TOO_FEW_DECADES
     assert "1 whole decade(s)" in reason_text(TOO_FEW_DECADES, 0.5, 0.01, 1, 0.02)
-    assert verdict(float("nan"), float("nan"), 0) == NO_DESCENT
+    assert verdict(0.5, 0.01, 6, 12) == FEW_SAMPLES and "fewer than 20 samples" in reason_text(FEW_SAMPLES)
+    assert verdict(float("nan"), float("nan"), 0, 0) == NO_DESCENT
     assert "never falls a decade" in reason_text(NO_DESCENT)
-    assert verdict(float("nan"), float("nan"), -1) == NO_RECORD and "no record" in reason_text(NO_RECORD)
+    assert verdict(float("nan"), float("nan"), -1, 0) == NO_RECORD and "no record" in reason_text(NO_RECORD)
 
 
 @pytest.mark.parametrize("scene", ["stiff-wall", "zeno-table"])
@@ -334,5 +335,7 @@ def test_stiff_wall_and_zeno_table_print_no_rate_they_cannot_resolve(scene, tmp_
         assert not shown or m["rate_err"] <= 0.5 * m["rate"]
         assert not shown, m                                   # measured: both unresolved
     text = sr.summary.read_text()
-    assert "decay rate — :" in text and ("step resolves" in text or "exceeds 20%" in text)
+    # stiff-wall: d falls two decades within 12 steps of the theta scheme's damping; zeno-table: the
+    # local rate varies from 0.6 to 394 1/s across the window (measured)
+    assert "decay rate — :" in text and ("fewer than 20 samples" in text or "exceeds 50%" in text)
     assert "Q = " in text and "(energy)" in text

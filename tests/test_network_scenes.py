@@ -2,6 +2,7 @@
 built-in ring-8 (synchronizes under the switching law, core and co-simulated) and
 mismatched-pair (bounded d, its ultimate bound) scenes."""
 import json
+import math
 
 import numpy as np
 import pytest
@@ -53,7 +54,12 @@ def test_ring8_core_synchronizes_from_the_scene(tmp_path):
     r, m = run.result, run.metrics
     assert r.d.shape[1] == 8 and m["kind"] == "network" and m["N"] == 8
     assert m["final_d"] < 1e-8 and np.isfinite(m["t_sync"]) and m["t_sync"] < 0.9 * m["t_end"]
-    assert m["rate"] > 0 and m["rate_err"] < 0.2 * m["rate"]
+    assert m["rate"] > 0 and m["rate_resolved"] and m["rate_err"] < 0.2 * m["rate"]
+    # issue 25: within 15 % of an independent estimate, the average decay of the running maximum of
+    # max d from the end between 1e-2 and 1e-12 of its maximum (measured: 0.5587 against 0.549)
+    env = np.maximum.accumulate(r.d_max[::-1])[::-1]
+    t_a, t_b = r.t[np.argmax(env <= 1e-2 * env[0])], r.t[np.argmax(env <= 1e-12 * env[0])]
+    assert env[-1] <= 1e-12 * env[0] and m["rate"] == pytest.approx(math.log(1e10) / (t_b - t_a), rel=0.15)
     # the scene runs exactly simulate_network with the scene's numbers (an independent call)
     cfg = run.variant.cfg
     ref = simulate_network(run.variant.system, list(run.variant.network.states), ring(8), cfg["run.t_end"],

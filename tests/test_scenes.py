@@ -353,9 +353,16 @@ def test_demo_plumbing_with_stand_ins(tmp_path, monkeypatch):
         return path
     monkeypatch.setattr(plots, "PLOTTERS", {k: stub for k in plots.PLOTTERS})
     monkeypatch.setattr(plots, "compare_plot", lambda results, path, **kw: stub(None, path))
-    sr = run_demo(tmp_path, quick=True)
+    sr = run_demo(tmp_path, quick=True, n_starts=2)
     kinds = [c[0] for c in calls]
-    assert kinds == ["export"] + ["cosim", "core"] * 3
+    # the six runs, then the ensemble rate of each coupled law in both modes (2 starts each, the
+    # FMU already exported)
+    assert kinds == ["export"] + ["cosim", "core"] * 3 + ["cosim"] * 2 + ["core"] * 2 + ["cosim"] * 2 + ["core"] * 2
+    assert [c[1] for c in calls[7:]] == ["euclidean"] * 4 + ["switching"] * 4
+    assert [(n, mode, e.n_starts, e.median) for n, mode, _, e in sr.ensembles] == [
+        ("euclidean-cosim", "cosim", 2, pytest.approx(1.0)), ("euclidean-core", "core", 2, pytest.approx(1.0)),
+        ("switching-cosim", "cosim", 2, pytest.approx(1.0)), ("switching-core", "core", 2, pytest.approx(1.0))]
+    calls = calls[:7]
     cos = [c for c in calls if c[0] == "cosim"]
     core = [c for c in calls if c[0] == "core"]
     assert [c[1] for c in cos] == [None, "euclidean", "switching"] == [c[1] for c in core]
@@ -364,6 +371,7 @@ def test_demo_plumbing_with_stand_ins(tmp_path, monkeypatch):
     assert [r.metrics["d_vs_core"] for r in sr.runs] == [0.0] * 6   # identical stand-in data
     summary = (tmp_path / "summary.md").read_text()
     assert "| uncoupled | cosim |" in summary and "| switching | core |" in summary
+    assert "## Ensemble decay rate" in summary and "| switching-core | core | switching | 1 [1, 1] | 2/2 |" in summary
     for name in ("compare-distance.png", "compare-euclidean.png", "cosim-vs-core.png",
                  "switching-cosim-distance.png", "euclidean-core.csv"):
         assert (tmp_path / name).stat().st_size > 0, name

@@ -114,12 +114,18 @@ def test_decay_rate_bound_and_t_fit_are_the_metrics_of_the_recorded_distance():
         ds = sweep(SCENE, variant="switching", grid={"coupling.Kp": [1.0, 10.0]},
                    overrides={"run.t_end": t_end, "coupling.Kd": 2.0}, quiet=True)
         for i, kp in enumerate([1.0, 10.0]):
-            m = _single(kp, 2.0, t_end=t_end).sync()     # the same window floor (impact speeds, dt)
+            m = _single(kp, 2.0, t_end=t_end).sync()
             rate = float(ds["decay_rate"][i])
-            assert rate > 0.1 and float(ds["t_sync"][i]) == m.t_sync
+            assert float(ds["t_sync"][i]) == m.t_sync
+            # the cell's verdict is the record's (8 s, Kp = 1: d has not fallen two decades yet)
+            assert int(ds["rate_code"][i]) == m.code and bool(ds["rate_resolved"][i]) == m.resolved
+            assert (ds["rate_reason"].values[i] == "") == m.resolved
+            assert m.resolved or (t_end, kp) == (8.0, 1.0)
             if exact:
-                assert rate == m.rate and float(ds["decay_rate_err"][i]) == m.rate_err
-                assert float(ds["t_fit"][i]) == m.t_fit and float(ds["bound"][i]) == m.bound
+                assert rate == m.rate or (np.isnan(rate) and np.isnan(m.rate))
+                assert float(ds["decay_rate_err"][i]) == m.rate_err or np.isnan(m.rate_err)
+                assert float(ds["t_fit"][i]) == m.t_fit or np.isnan(m.t_fit)
+                assert float(ds["bound"][i]) == m.bound
             else:
                 assert abs(rate - m.rate) < 0.05 * m.rate + 3 * m.rate_err
                 assert float(ds["bound"][i]) == m.bound
@@ -349,11 +355,13 @@ def test_progress_shows_runs_failures_and_time_left():
     assert "100/100 runs, 4 failed" in text
 
 
-def _average_decay(t, d, hi, lo):
-    """The independent estimate of issue 25: the average decay between two levels (relative to
-    max d) of the running maximum of d from the end; NaN if d never gets down to ``lo``."""
+def _average_decay(t, d, hi=1e-2):
+    """The independent estimate of issue 25: the average decay of the running maximum of d from
+    the end between ``hi`` max d and the lower of 1e-8 max d and a decade above the lowest level it
+    reaches (NaN if that is not two decades below ``hi``)."""
     env = np.maximum.accumulate(np.asarray(d)[::-1])[::-1]
-    if not env[-1] <= lo * env[0]:
+    lo = max(1e-8, 10.0 ** (np.floor(np.log10(max(env[-1], 1e-300) / env[0])) + 1))
+    if lo > 1e-2 * hi:
         return float("nan")
     return np.log(hi / lo) / (t[np.argmax(env <= lo * env[0])] - t[np.argmax(env <= hi * env[0])])
 
@@ -361,7 +369,8 @@ def _average_decay(t, d, hi, lo):
 def test_gain_map_cells_carry_a_rate_that_matches_their_own_average_decay():
     # issue 25: the forced pair's 6 x 6 gain map over Kp, Kd in [0.1, 10] at the sweep scene's own dt
     # (2e-2, 60 s): most synchronized cells carry a resolved rate (flag and reason in every cell),
-    # each within 25 % of the same run's average decay of d over [1e-2, 1e-8] max d
+    # each within 25 % of the same run's average decay of d from 1e-2 max d down to 1e-8 max d (or a
+    # decade above the lowest level it reaches; measured: 20 of 20, all 22 resolved cells within 12 %)
     from fmu_sync.sweeps import load_sweep_scene
     dt = load_sweep_scene("gain-map")["overrides"]["solver.dt"]
     grid = {"coupling.Kp": "logspace(-1, 1, 6)", "coupling.Kd": "logspace(-1, 1, 6)"}
@@ -377,7 +386,7 @@ def test_gain_map_cells_carry_a_rate_that_matches_their_own_average_decay():
             if not resolved[i, j]:
                 continue
             r = _single(float(kp), float(kd), t_end=60.0, dt=dt)
-            ref = _average_decay(r.t, r.d, 1e-2, 1e-8)
+            ref = _average_decay(r.t, r.d)
             if np.isfinite(ref):
                 checked += 1
                 assert float(ds["decay_rate"][i, j]) == pytest.approx(ref, rel=0.25), (kp, kd)

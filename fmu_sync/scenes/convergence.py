@@ -25,7 +25,7 @@ from ..progress import scaled
 from .loading import Scene, as_scene, load_scene
 from .schema import DEFAULT_OUT, SceneError, Variant
 
-__all__ = ["ConvergenceRow", "VariantConvergence", "ConvergenceRun", "refined_overrides", "convergence",
+__all__ = ["ConvergenceRow", "VariantConvergence", "ConvergenceRun", "refined_overrides", "convergence", "compare_rows",
            "LEVELS"]
 
 #: the steps checked: the scene's step divided by 1, 2, 4
@@ -84,6 +84,18 @@ def refined_overrides(variant: Variant, level: int) -> dict:
 
 def _step_name(v: Variant) -> str:
     return "run.H" if v.mode == "cosim" and v.pair else "solver.dt"
+
+
+def compare_rows(rows) -> tuple[str, bool]:
+    """Set each row's ``change`` and ``within`` against the previous (coarser) step, only where
+    both rates are resolved (never two rates that mean nothing); return the verdict and whether
+    the rate converged."""
+    for prev, row in zip(rows, rows[1:]):
+        if row.reason or prev.reason:
+            continue
+        row.change = (row.rate - prev.rate) / abs(prev.rate)
+        row.within = bool(abs(row.rate - prev.rate) <= row.rate_err + prev.rate_err)
+    return _verdict(rows)
 
 
 def _verdict(rows) -> tuple[str, bool]:
@@ -181,12 +193,7 @@ def convergence(scene, out_dir=None, overrides: dict | None = None, variants=Non
                     t_sync=m.t_sync if m else nan, t_fit=m.t_fit if m else nan,
                     bound=m.bound if m else nan, final_d=_final_d(result),
                     reason=(m.reason if m else "no distance recorded")))
-            for prev, row in zip(vc.rows, vc.rows[1:]):
-                if row.reason or prev.reason:   # never compare a rate that means nothing
-                    continue
-                row.change = (row.rate - prev.rate) / abs(prev.rate)
-                row.within = bool(abs(row.rate - prev.rate) <= row.rate_err + prev.rate_err)
-            vc.verdict, vc.converged = _verdict(vc.rows)
+            vc.verdict, vc.converged = compare_rows(vc.rows)
             results.append(vc)
     except BaseException:
         for f in fmus.values():

@@ -69,7 +69,8 @@ def run_demo(out_dir=None, quick: bool = False, progress: Callable | None = None
         diff = report.max_abs_difference(rc.result, rm.result, "d")
         rc.metrics["d_vs_core"] = rm.metrics["d_vs_core"] = diff
     files += [f for r in runs for f in r.files]
-    ens = scene_ensembles(runs, n_starts, out_dir, scaled(progress, k / steps, 1.0), scene.name) if n_starts else []
+    ens = scene_ensembles(runs, n_starts, out_dir, scaled(progress, k / steps, 1.0), scene.name,
+                          fmu_path) if n_starts else []
     cos = {r.name.removesuffix("-cosim"): r.result for r in runs if r.name.endswith("-cosim")}
     files.append(P.compare_plot(cos, out_dir / "compare-distance.png",
                                 title=f"forced-pair, co-simulation (H = {H:g} s): quotient distance d"))

@@ -164,6 +164,8 @@ def resolved_rate(sub) -> np.ndarray:
     """The decay rate where the run succeeded and the rate is resolved (the cell's own
     ``rate_resolved`` flag, :mod:`fmu_sync.core.metrics`), NaN elsewhere."""
     rate = np.asarray(sub["decay_rate"].values, dtype=float)
+    if "rate_resolved" not in sub:   # a sweep.nc written before cells carried their verdict: none shown
+        return np.full(rate.shape, np.nan)
     ok = (np.asarray(sub["status"].values) == 0) & np.asarray(sub["rate_resolved"].values, dtype=bool)
     return np.where(ok, rate, np.nan)
 
