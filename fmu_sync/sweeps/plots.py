@@ -216,7 +216,7 @@ def heat_map(ds, x: str, y: str, path, title: str | None = None) -> Path:
             _overlay(ax, XE, YE, nosync & ~div & ~ref, "0.82", "not synchronized by t_end")
         else:
             _overlay(ax, XE, YE, (sub["status"].values == 0) & ~np.isfinite(rate), "0.82",
-                     "no resolved decay rate (fewer than 2 decades, or spread > 50 % of it)")
+                     "no resolved decay rate (under 2 decades or 20 samples, or spread > 50 %)")
         _overlay(ax, XE, YE, div, "#b2182b", "diverged (stopped early)")
         _overlay(ax, XE, YE, ref, "black", "refused (invalid start)")
         drawn = _zoh_line(ax, ds, x, y, xlog, ylog)
