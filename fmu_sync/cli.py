@@ -201,6 +201,7 @@ def _cmd_run(args) -> int:
     from .scenes.loading import load_scene, parse_override
     from .scenes.running import run_scene
     from .output import parse_formats, parse_size
+    _check_starts(args.starts)
     overrides = dict(parse_override(s) for s in args.overrides)
     if args.allow_unstable:
         overrides["run.allow_unstable"] = True
@@ -257,8 +258,15 @@ def _announce_compilation(scene, quiet: bool) -> None:
               file=sys.stderr, flush=True)
 
 
+def _check_starts(n: int) -> None:
+    """``--starts N``: refused before anything runs unless N >= 0 (0: no ensemble)."""
+    if n < 0:
+        raise ValueError(f"--starts must be a whole number >= 0 (0: no ensemble rate), got {n}")
+
+
 def _cmd_demo(args) -> int:
     from .scenes.demo import run_demo
+    _check_starts(args.starts)
     _announce_compilation(None, args.quiet)
     with _progress("demo", args.quiet) as bar:
         sr = run_demo(args.out, quick=args.quick, progress=bar, t_end=args.t_end, n_starts=args.starts)

@@ -94,3 +94,11 @@ def test_the_demo_records_rates_match_their_average_decay(tmp_path):
             t_a, t_b = r.t[np.argmax(env <= 1e-3 * env[0])], r.t[np.argmax(env <= 1e-9 * env[0])]
             assert m.resolved and env[-1] <= 1e-9 * env[0], (mode, law, m.reason)
             assert m.rate == pytest.approx(math.log(1e6) / (t_b - t_a), rel=0.2), (mode, law)
+
+
+def test_cli_refuses_a_negative_start_count_before_anything_runs(tmp_path, capsys):
+    from fmu_sync.cli import main
+    for cmd in (["run", "forced-pair"], ["demo"]):
+        assert main(cmd + ["--starts", "-1", "-o", str(tmp_path / "x")]) == 2
+        assert "--starts must be a whole number >= 0" in capsys.readouterr().err
+        assert not (tmp_path / "x").exists()
