@@ -300,7 +300,8 @@ def test_non_identical_systems_V_grows_at_most_as_the_mismatch_allows():
 
 def test_threshold_rel_and_a_start_below_the_threshold():
     from fmu_sync.core.metrics import sync_metrics
-    t = np.linspace(0.0, 10.0, 1001)
+    # 20 s: the window (a tenth of max d down to a decade above d over the last 20 %) spans 4 decades
+    t = np.linspace(0.0, 20.0, 2001)
     d = 1e-3 * np.exp(-t)
     m = sync_metrics(t, d, threshold=1e-6, threshold_rel=1e-2)      # 1e-5: the relative one replaces it
     assert m.threshold == pytest.approx(1e-5) and m.t_sync == pytest.approx(math.log(100), abs=0.011)
