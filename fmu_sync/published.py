@@ -236,6 +236,6 @@ def main(argv=None) -> int:
                 publish(new[b.name], ROOT / b.page, *b.markers())
                 for src, dest in b.figures:
                     shutil.copyfile(Path(tmp) / b.source / src, ROOT / dest)
-    verb = "rewritten" if args.regenerate else "stale"
+    verb = "changed (rewritten)" if args.regenerate else "stale"
     print(f"{len(stale)} of {len(blocks)} blocks {verb}" + (f": {', '.join(b.name for b in stale)}" if stale else ""))
     return 1 if stale and args.check else 0
