@@ -110,8 +110,8 @@ def _g(x: float, fmt: str = ".3g") -> str:
 
 
 def _demo_table(sr) -> str:
-    from .report import _md_table, rows
-    return "\n".join(_md_table(*rows(sr.runs, demo=True)))
+    from .report import md_table, rows
+    return "\n".join(md_table(*rows(sr.runs, demo=True)))
 
 
 def _demo_impact(sr) -> str:
@@ -132,12 +132,17 @@ def _demo_impact(sr) -> str:
 def _ssp_orders(out) -> str:
     lines = [f"| package | order | t_sync (d < 1e-6) | decay rate (1/s) | max d at {SSP_T_END:g} s |",
              "|---|---|---:|---|---:|"]
+    why = []
     for label, runs in out:
         for k, (method, r) in enumerate(runs):
             m = r.sync()
-            rate = f"{m.rate:.2g} ± {m.rate_err:.1g}" if m.resolved else f"— ({m.reason})"
+            rate = f"{m.rate:.2g} ± {m.rate_err:.1g}" if m.resolved else "—"
+            if not m.resolved:
+                why.append(f"{label}, {dict(SSP_ORDERS)[method]}: {m.reason}")
             lines.append(f"| {label if k == 0 else ''} | {dict(SSP_ORDERS)[method]} | {_g(m.t_sync, '.4g')} s | "
                          f"{rate} | {_g(float(r.d_max[-1]), '.2g')} |")
+    if why:
+        lines += ["", "A rate shown as — is not resolved (`SyncMetrics.reason`):", ""] + [f"- {w}" for w in why]
     label, runs = out[0]
     x = {m: np.concatenate([r.q.reshape(len(r.t), -1), r.u.reshape(len(r.t), -1)], axis=1) for m, r in runs}
     t = runs[0][1].t
@@ -153,11 +158,11 @@ def _convergence(run) -> str:
 
 
 def _networks(out) -> str:
-    from .report import _md_table, rows
+    from .report import md_table, rows
     lines = []
     for scene, mode, sr in out:
         lines += [f"`fmu-sync run {scene}" + (" --set run.mode=cosim`" if mode == "cosim" else "`") + ":", ""]
-        lines += _md_table(*rows([r for r in sr.runs if r.result is not None])) + [""]
+        lines += md_table(*rows([r for r in sr.runs if r.result is not None])) + [""]
     ring = next(sr for s, _, sr in out if s == "ring-8").runs[0].variant
     lam = np.sort(np.linalg.eigvalsh(np.diag(ring.network.A.sum(1)) - ring.network.A))[1]
     Kd, m = float(ring.cfg["coupling.Kd"]), float(ring.network.systems[0].M[0, 0])

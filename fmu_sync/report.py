@@ -14,7 +14,7 @@ import numpy as np
 
 from .core.metrics import rate_verdict
 
-__all__ = ["SYNC_THRESHOLD", "is_pair", "wall", "impact_rows", "impact_records", "contact_starts", "metrics", "record_columns", "record_meta", "write_data", "write_netcdf", "rows", "write_summary",
+__all__ = ["SYNC_THRESHOLD", "is_pair", "wall", "md_table", "impact_rows", "impact_records", "contact_starts", "metrics", "record_columns", "record_meta", "write_data", "write_netcdf", "rows", "write_summary",
            "print_table", "max_abs_difference", "format_value", "run_notes", "decay_resolved"]
 
 #: d below this counts as synchronized (time to sync = first time after which d stays below it).
@@ -457,7 +457,7 @@ def _numeric(cells) -> bool:
     return all(num(c) for c in cells)
 
 
-def _md_table(header, table) -> list[str]:
+def md_table(header, table) -> list[str]:
     columns = list(zip(*table)) if table else [()] * len(header)
     out = ["| " + " | ".join(_md_cell(h) for h in header) + " |",
            "|" + "|".join("---:" if col and _numeric(col) else "---" for col in columns) + "|"]
@@ -473,7 +473,7 @@ def write_summary(path, title: str, description: str, rows, settings=(), files=(
     lines = [f"# {title}", ""]
     if description:
         lines += [description.strip(), ""]
-    lines += ["## Results", ""] + _md_table(header, table) + [""]
+    lines += ["## Results", ""] + md_table(header, table) + [""]
     lines += ["- decay rate: exponential decay rate of the envelope of d (of max d for a network), fitted "
               "on its decay window, ± its standard uncertainty (well-conditioned: compare runs with this, "
               "not with t_sync differences; — where it means nothing: not resolved by the criteria of "
@@ -496,7 +496,7 @@ def write_summary(path, title: str, description: str, rows, settings=(), files=(
               "stiff chatter or a coarse record_every)."]
     lines += [f"- {n}" for n in notes] + [""]
     if settings:
-        lines += ["## Settings", ""] + _md_table(["key", "value"], [[k, f"`{v}`"] for k, v in settings]) + [""]
+        lines += ["## Settings", ""] + md_table(["key", "value"], [[k, f"`{v}`"] for k, v in settings]) + [""]
     if files:
         lines += ["## Files", ""]
         for f in files:

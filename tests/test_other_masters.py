@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
 import sys
 import zipfile
 from pathlib import Path
@@ -99,19 +98,14 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 from fmu_sync.ssp import NS, SSD, SsdError, read_ssp, run_ssp, write_ssp  # noqa: E402
+from _children import child  # noqa: E402
 
 T = 10.0      # long enough for impacts of both systems and the coupling to act
 H = 0.01
 
 
-def _child(name: str, args: dict, tmp: Path, timeout: float = 600.0):
-    args_path = tmp / f"{name}.args.json"
-    args_path.write_text(json.dumps(args))
-    out_path = tmp / f"{name}.out.json"
-    p = subprocess.run([sys.executable, __file__, name, str(args_path), str(out_path)],
-                       capture_output=True, text=True, timeout=timeout)
-    assert p.returncode == 0, f"child {name} exited with {p.returncode}:\n{p.stderr[-3000:]}"
-    return json.loads(out_path.read_text())
+def _child(name: str, args: dict, tmp: Path, timeout: float = 900.0):
+    return child(__file__, name, args, tmp, timeout)
 
 
 @pytest.fixture(scope="module")

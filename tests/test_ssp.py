@@ -158,6 +158,7 @@ from fmu_sync.core.coupling import coupling_forces  # noqa: E402
 from fmu_sync.core.distance import quotient_distance  # noqa: E402
 from fmu_sync.export import export_coupling  # noqa: E402
 from fmu_sync.ssp import run_ssp, write_ssp  # noqa: E402
+from _children import child  # noqa: E402
 
 T_SYNC = 60.0          # the claim: d < 1e-6 by t = 60 s
 T_CMP = 20.0           # the exchange-order comparisons (a third of the run: enough impacts)
@@ -169,13 +170,7 @@ MS2 = MechanicalSystem(M=[[2.0, 0.5], [0.5, 1.0]], K=np.eye(2), C=np.zeros((2, 2
 
 
 def _child(name: str, args: dict, tmp: Path, timeout: float = 900.0):
-    args_path = tmp / f"{name}.args.json"
-    args_path.write_text(json.dumps(args))
-    out_path = tmp / f"{name}.out.json"
-    p = subprocess.run([sys.executable, __file__, name, str(args_path), str(out_path)],
-                       capture_output=True, text=True, timeout=timeout)
-    assert p.returncode == 0, f"child {name} exited with {p.returncode}:\n{p.stderr[-3000:]}"
-    return json.loads(out_path.read_text())
+    return child(__file__, name, args, tmp, timeout)
 
 
 def _states_by_branch(system, rng, per_branch=4, Q_=Q):
