@@ -171,6 +171,15 @@ def _networks(out) -> str:
     return "\n".join(lines)
 
 
+def _work_precision_caption(folder: Path) -> str:
+    """What the figure is, and the machine line of the run that drew it (its timings depend on the load)."""
+    machine = next((line[2:] for line in (folder / "benchmarks.md").read_text().splitlines()
+                    if line.startswith("- machine:")), "machine: not recorded")
+    return ("The work–precision diagram of the forced pair (the `forced-pair` scene: our parameters), as "
+            "`fmu-sync report work-precision` drew it (one `work_precision_<scene>_<metric>.png` per scene and "
+            f"metric). The errors are reproducible; the run times are this run's, {machine}.")
+
+
 BLOCKS = (
     Block("demo-table", "README.md", "demo", _demo_table,
           "<!-- demo table: begin", "<!-- demo table: end -->",
@@ -181,10 +190,7 @@ BLOCKS = (
     Block("ssp-orders", "docs/ssp.md", "ssp-orders", _ssp_orders),
     Block("convergence", "docs/benchmarks.md", "convergence", _convergence),
     Block("networks", "docs/benchmarks.md", "networks", _networks),
-    Block("work-precision-figure", "docs/benchmarks.md", "work-precision",
-          lambda out: "The work–precision diagram of the forced pair (`forced-pair` scene: our parameters), as "
-                      "`fmu-sync report work-precision` draws it (one `work_precision_<scene>_<metric>.png` per "
-                      "scene and metric; timings vary from run to run, the errors do not).",
+    Block("work-precision-figure", "docs/benchmarks.md", "work-precision", _work_precision_caption,
           figures=(("work_precision_forced-pair_max_q.png", "docs/work-precision-forced-pair.png"),)),
 )
 
