@@ -231,6 +231,10 @@ def main(argv=None) -> int:
             fn, cmd, cheap = SOURCES[b.source]
             print(f"{b.name:22s} {b.page:20s} {'(suite)' if cheap else '       '} {cmd}")
         return 0
+    missing = sorted({b.page for b in blocks if not (ROOT / b.page).is_file()})
+    if missing:
+        raise ValueError(f"fmu-sync docs rewrites a source checkout's pages (an editable install); {ROOT} has no "
+                         f"{', '.join(missing)}")
     for b in blocks:                                        # every page has its markers before anything runs
         generated_part(ROOT / b.page, *b.markers())
     with tempfile.TemporaryDirectory(prefix="fmu-sync-docs-") as tmp:

@@ -405,8 +405,8 @@ def run_ssp(path, method: str = "jacobi", t_end: float | None = None, H: float |
     t_end = pkg.t_end if t_end is None else t_end
     H = pkg.H if H is None else H
     if t_end is None or H is None:
-        raise SsdError(f"{pkg.path}: no stopTime or no step size (osp:FixedStepAlgorithm baseStepSize) in "
-                       f"its DefaultExperiment: give t_end and H")
+        raise SsdError(f"{pkg.path}: no stopTime or no step size (osp:FixedStepAlgorithm baseStepSize in "
+                       f"its DefaultExperiment, or OMSimulator's fixedStepSize in its system): give t_end and H")
     with zipfile.ZipFile(pkg.path) as zf, tempfile.TemporaryDirectory(prefix="fmu-sync-ssp-") as tmp:
         ccls, cvals = _coupling_setup(pkg, zf, Path(tmp))
         spec = ccls.SPEC
@@ -442,18 +442,20 @@ def _one_model(pkg: SspPackage, zf: zipfile.ZipFile, names: list[str]) -> bytes:
                                f"or fmu_sync_start.json)") from None
         return (build.get("model"), build.get("code_hash")), start
 
-    first, start0 = identity(srcs[0])
-    bound = {k for c in names for k in pkg.parameters.get(c, {})}
-    for src in srcs[1:]:
-        ident, start = identity(src)
+    seen = {src: identity(src) for src in srcs}
+    first, start0 = seen[srcs[0]]
+    for c in names:              # each system runs srcs[0] under its own bindings: the rest must be equal
+        src = pkg.sources[c]
+        ident, start = seen[src]
         if ident != first:
             raise SsdError(f"{pkg.path}: our master runs N instances of one model; {srcs[0]} is {first[0]!r} "
                            f"(code {first[1][:12]}) but {src} is {ident[0]!r} (code {str(ident[1])[:12]})")
+        bound = pkg.parameters.get(c, {})
         diff = sorted(k for k in set(start) | set(start0) if k not in bound and start.get(k) != start0.get(k))
         if diff:
             k = diff[0]
-            raise SsdError(f"{pkg.path}: the systems' FMUs differ in {k!r}, which no binding sets "
-                           f"({srcs[0]}: {start0.get(k)!r}, {src}: {start.get(k)!r}): our master runs N "
+            raise SsdError(f"{pkg.path}: the systems' FMUs differ in {k!r}, which the bindings of {c!r} do not "
+                           f"set ({srcs[0]}: {start0.get(k)!r}, {src}: {start.get(k)!r}): our master runs N "
                            f"instances of one model")
     return blobs[srcs[0]]
 
