@@ -10,6 +10,7 @@
     fmu-sync validate FILE.fmu                 check an FMU with fmpy (exit 1 on problems)
     fmu-sync bench [--quick] [-o DIR]          the benchmark report DIR/benchmarks.md (see `fmu-sync bench --help`)
     fmu-sync report work-precision|stability   one of the mission's reports alone (options of `fmu-sync bench`)
+    fmu-sync docs --regenerate | --check       the docs' published numbers, rewritten or checked (docs/benchmarks.md)
     fmu-sync sweep SCENE --grid K=V.. [-o DIR] gain maps, basins, samples (see `fmu-sync sweep --help`)
 
 Exit status:
@@ -117,6 +118,8 @@ def _parser() -> argparse.ArgumentParser:
                    add_help=False)
     sub.add_parser("report", help="one of the mission's reports: work-precision (error against run time) or "
                    "stability (stiff and extreme cases); options as `fmu-sync bench`", add_help=False)
+    sub.add_parser("docs", help="the README's and docs' published numbers and figures: --regenerate, --check "
+                   "(options: see `fmu-sync docs --help`)", add_help=False)
     from .sweeps.cli import add_parser as add_sweep
     add_sweep(sub)
     return p
@@ -354,6 +357,9 @@ def _main(argv) -> int:
             return int(bench_main(argv[1:]) or 0)
         if argv and argv[0] == "report":
             return _cmd_report(argv[1:])
+        if argv and argv[0] == "docs":
+            from .published import main as docs_main
+            return int(docs_main(argv[1:]) or 0)
         args = _parser().parse_args(argv)
         if args.command == "scenes":
             return _cmd_scenes(args.show)

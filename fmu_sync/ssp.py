@@ -45,8 +45,14 @@ SSD = "SystemStructure.ssd"
 NS = {"ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
       "ssc": "http://ssp-standard.org/SSP1/SystemStructureCommon",
       "ssv": "http://ssp-standard.org/SSP1/SystemStructureParameterValues",
-      "osp": "http://opensimulationplatform.com/SSP/OSPAnnotations"}
+      "osp": "http://opensimulationplatform.com/SSP/OSPAnnotations",
+      "oms": "https://raw.githubusercontent.com/OpenModelica/OMSimulator/master/schema/oms.xsd"}
+#: the annotation types of the two masters that read a step from a package (SSP 1.0 has none):
+#: libcosim reads the Open Simulation Platform's, OMSimulator its own (docs/ssp.md)
 OSP = "com.opensimulationplatform"
+OMS = "org.openmodelica"
+#: OMSimulator's solver of a fixed-step co-simulation: ``oms_ma``, an undelayed Jacobi exchange
+OMS_SOLVER = {"name": "fixedstep", "method": "oms_ma"}
 COUPLING_COMPONENT = "coupling"
 _COUPLING_FMU = "resources/coupling.fmu"
 for _p, _u in NS.items():
@@ -102,7 +108,17 @@ def _component(elements, name: str, source: str, connectors, ssv: str):
         _connector(cons, *args)
     binds = ET.SubElement(comp, _q("ssd", "ParameterBindings"))
     ET.SubElement(binds, _q("ssd", "ParameterBinding"), {"source": ssv})
+    _oms_annotation(comp)
     return comp
+
+
+def _oms_annotation(element, H: float | None = None) -> None:
+    """OMSimulator's fixed-step solver as the last child of a ``ssd:System`` (with its step
+    ``H``) or a ``ssd:Component`` (the solver's name only): without it OMSimulator steps at
+    its default 1 ms whatever the package's experiment says."""
+    ann = ET.SubElement(ET.SubElement(element, _q("ssd", "Annotations")), _q("ssc", "Annotation"), {"type": OMS})
+    info = {"name": OMS_SOLVER["name"]} if H is None else {**OMS_SOLVER, "fixedStepSize": _fmt(H)}
+    ET.SubElement(ET.SubElement(ann, _q("oms", "Annotations")), _q("oms", "SimulationInformation"), info)
 
 
 def _real_values(decl, values: dict) -> dict:
@@ -187,15 +203,19 @@ def write_ssp(scene, path, variant: str | None = None, overrides: dict | None = 
         q0, u0 = as_state(s, x, "x")
         comp_values.append(_real_values(decl, {**model.values(s), **model.state_values(q0, u0), **solver}))
     coupling_real, coupling_enum = _coupling_values(v, systems, A, edges, laws, n)
-    osc_name = f"resources/{model.key.replace('-', '_')}.fmu"
+    N = len(comp_values)
+    # one FMU file per system, whose start values are that system's bound values: a master that
+    # ignores the bindings (fmpy's simulate_ssp without parameter_set) still runs the scene
+    osc_names = [f"resources/{system_component(i, N)}.fmu" for i in range(N)]
     path.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="fmu-sync-ssp-") as tmp:
-        osc = export_fmu(model.key, Path(tmp) / "osc.fmu", {**comp_values[0], contract.SOLVER_SCHEME:
-                                                            solver[contract.SOLVER_SCHEME]})
+        oscs = [export_fmu(model.key, Path(tmp) / f"osc{i}.fmu", {**vals, contract.SOLVER_SCHEME:
+                                                                  solver[contract.SOLVER_SCHEME]}, warm=i == 0)
+                for i, vals in enumerate(comp_values)]
         cpl = export_coupling(Path(tmp) / "coupling.fmu", A, n, {**coupling_real, **coupling_enum})
-        files = [(SSD, _ssd(sc.name, v, model, edges, len(systems), n, osc_name, cfg)),
-                 (osc_name, osc.read_bytes()), (_COUPLING_FMU, cpl.read_bytes())]
-    N = len(comp_values)
+        files = [(SSD, _ssd(sc.name, v, model, edges, N, n, osc_names, cfg))]
+        files += [(name, osc.read_bytes()) for name, osc in zip(osc_names, oscs)]
+        files.append((_COUPLING_FMU, cpl.read_bytes()))
     files += [(f"resources/{system_component(i, N)}.ssv", _ssv(system_component(i, N), vals))
               for i, vals in enumerate(comp_values)]
     files.append((f"resources/{COUPLING_COMPONENT}.ssv", _ssv(COUPLING_COMPONENT, coupling_real)))
@@ -203,7 +223,7 @@ def write_ssp(scene, path, variant: str | None = None, overrides: dict | None = 
     return path
 
 
-def _ssd(scene_name, v, model, edges, N, n, osc_name, cfg) -> bytes:
+def _ssd(scene_name, v, model, edges, N, n, osc_names, cfg) -> bytes:
     from .fmus.coupling import edge_names, node_names
     root = ET.Element(_q("ssd", "SystemStructureDescription"),
                       {"version": "1.0", "name": f"{scene_name}-{v.name}",
@@ -214,7 +234,7 @@ def _ssd(scene_name, v, model, edges, N, n, osc_name, cfg) -> bytes:
     for i in range(N):
         cons = [(a, "output", "Real", "m") for a in qn] + [(a, "output", "Real", "m/s") for a in un] + \
                [(a, "input", "Real", "N") for a in tn]
-        _component(elements, system_component(i, N), osc_name, cons, f"resources/{system_component(i, N)}.ssv")
+        _component(elements, system_component(i, N), osc_names[i], cons, f"resources/{system_component(i, N)}.ssv")
     E = len(edges)
     cons = []
     for base, unit in (("q", "m"), ("u", "m/s")):
@@ -233,6 +253,7 @@ def _ssd(scene_name, v, model, edges, N, n, osc_name, cfg) -> bytes:
             ET.SubElement(conns, _q("ssd", "Connection"), {
                 "startElement": COUPLING_COMPONENT, "startConnector": theirs,
                 "endElement": system_component(i, N), "endConnector": mine})
+    _oms_annotation(system, cfg["run.H"])
     exp = ET.SubElement(root, _q("ssd", "DefaultExperiment"),
                         {"startTime": "0.0", "stopTime": _fmt(cfg["run.t_end"])})
     ann = ET.SubElement(ET.SubElement(exp, _q("ssd", "Annotations")), _q("ssc", "Annotation"), {"type": OSP})
@@ -305,9 +326,28 @@ def read_ssp(path) -> SspPackage:
                  for c in system.iter(_q("ssd", "Connection"))]
         exp = root.find(_q("ssd", "DefaultExperiment"))
         t_end = float(exp.get("stopTime")) if exp is not None and exp.get("stopTime") else None
-        fs = root.find(f".//{_q('osp', 'FixedStepAlgorithm')}")
-        H = float(fs.get("baseStepSize")) if fs is not None else None
+        H = _package_step(path, root, system)
     return SspPackage(path, root.get("name"), sources, params, conns, t_end, H)
+
+
+def _package_step(path, root, system) -> float | None:
+    """The communication step the package gives: libcosim's (``osp:FixedStepAlgorithm``) and
+    OMSimulator's (the system's ``oms:SimulationInformation fixedStepSize``), which must agree
+    when both are there (a package edited in one tool only is refused, naming both)."""
+    fs = root.find(f".//{_q('osp', 'FixedStepAlgorithm')}")
+    steps = {"osp:FixedStepAlgorithm baseStepSize": fs.get("baseStepSize") if fs is not None else None}
+    for ann in system.findall(f"{_q('ssd', 'Annotations')}/{_q('ssc', 'Annotation')}"):
+        info = ann.find(f".//{_q('oms', 'SimulationInformation')}") if ann.get("type") == OMS else None
+        if info is not None and info.get("fixedStepSize"):
+            steps["oms:SimulationInformation fixedStepSize"] = info.get("fixedStepSize")
+    try:
+        given = {k: float(v) for k, v in steps.items() if v is not None}
+    except ValueError:
+        raise SsdError(f"{path}: a step size is not a number: {steps}") from None
+    if len(set(given.values())) > 1:
+        raise SsdError(f"{path}: the package gives two different communication steps: "
+                       + ", ".join(f"{k} = {v!r}" for k, v in given.items()) + " (edit both, or give H)")
+    return next(iter(given.values()), None)
 
 
 def fmpy_parameter_set(path):
@@ -365,8 +405,8 @@ def run_ssp(path, method: str = "jacobi", t_end: float | None = None, H: float |
     t_end = pkg.t_end if t_end is None else t_end
     H = pkg.H if H is None else H
     if t_end is None or H is None:
-        raise SsdError(f"{pkg.path}: no stopTime or no step size (osp:FixedStepAlgorithm baseStepSize) in "
-                       f"its DefaultExperiment: give t_end and H")
+        raise SsdError(f"{pkg.path}: no stopTime or no step size (osp:FixedStepAlgorithm baseStepSize in "
+                       f"its DefaultExperiment, or OMSimulator's fixedStepSize in its system): give t_end and H")
     with zipfile.ZipFile(pkg.path) as zf, tempfile.TemporaryDirectory(prefix="fmu-sync-ssp-") as tmp:
         ccls, cvals = _coupling_setup(pkg, zf, Path(tmp))
         spec = ccls.SPEC
@@ -379,12 +419,45 @@ def run_ssp(path, method: str = "jacobi", t_end: float | None = None, H: float |
             raise SsdError(f"{pkg.path}: the coupling's inputs q[1]..q[{spec.N}] must each be connected to a "
                            f"system's q, found {', '.join(f'q[{i + 1}] <- {c}' for i, c in sorted(nodes.items()))}")
         names = [nodes[i] for i in range(spec.N)]
-        srcs = {pkg.sources[c] for c in names}
-        if len(srcs) != 1:
-            raise SsdError(f"{pkg.path}: our master runs N instances of one FMU; the systems use {sorted(srcs)}")
         fmu = Path(tmp) / "system.fmu"
-        fmu.write_bytes(zf.read(srcs.pop()))
+        fmu.write_bytes(_one_model(pkg, zf, names))
         return _run_master(pkg, fmu, names, spec, cfg, t_end, H, method, record_every, progress, allow_unstable)
+
+
+def _one_model(pkg: SspPackage, zf: zipfile.ZipFile, names: list[str]) -> bytes:
+    """The FMU our master instantiates N times: the systems' FMU files (one per system, as
+    :func:`write_ssp` writes them, or one shared) must be one model whose start values differ
+    only in what each component's bindings set (refused otherwise, naming the first difference)."""
+    import json
+    srcs = list(dict.fromkeys(pkg.sources[c] for c in names))
+    blobs = {s: zf.read(s) for s in srcs}
+
+    def identity(src):
+        with zipfile.ZipFile(io.BytesIO(blobs[src])) as fz:
+            try:
+                build = json.loads(fz.read("resources/fmu_sync_build.json"))
+                start = json.loads(fz.read("resources/fmu_sync_start.json"))["start"]
+            except KeyError:
+                raise SsdError(f"{pkg.path}: {src} is not an fmu-sync FMU (no resources/fmu_sync_build.json "
+                               f"or fmu_sync_start.json)") from None
+        return (build.get("model"), build.get("code_hash")), start
+
+    seen = {src: identity(src) for src in srcs}
+    first, start0 = seen[srcs[0]]
+    for c in names:              # each system runs srcs[0] under its own bindings: the rest must be equal
+        src = pkg.sources[c]
+        ident, start = seen[src]
+        if ident != first:
+            raise SsdError(f"{pkg.path}: our master runs N instances of one model; {srcs[0]} is {first[0]!r} "
+                           f"(code {first[1][:12]}) but {src} is {ident[0]!r} (code {str(ident[1])[:12]})")
+        bound = pkg.parameters.get(c, {})
+        diff = sorted(k for k in set(start) | set(start0) if k not in bound and start.get(k) != start0.get(k))
+        if diff:
+            k = diff[0]
+            raise SsdError(f"{pkg.path}: the systems' FMUs differ in {k!r}, which the bindings of {c!r} do not "
+                           f"set ({srcs[0]}: {start0.get(k)!r}, {src}: {start.get(k)!r}): our master runs N "
+                           f"instances of one model")
+    return blobs[srcs[0]]
 
 
 def _run_master(pkg, fmu, names, spec, cfg, t_end, H, method, record_every, progress, allow_unstable):

@@ -23,6 +23,14 @@ def test_quickstart_holds_the_demo_then_the_test_command_ci_runs():
     demo, tests = _quickstart_commands(README.read_text())     # exactly two commands
     assert demo.endswith("fmu-sync demo")
     assert tests.endswith("python3 -m pytest -q")
+    # PEP 668: a distribution's Python refuses pip outside a virtual environment; the first command
+    # makes one and both install and run inside it
+    venv = demo.split(" && ")[0].split()
+    assert venv[:3] == ["python3", "-m", "venv"], demo
+    env = venv[-1]
+    for cmd in (demo, tests):
+        for part in cmd.split(" && ")[1 if cmd is demo else 0:]:
+            assert part.startswith(f"{env}/bin/"), part
     ci = (ROOT / ".ci" / "run").read_text().splitlines()
     assert any(tests in line for line in ci if not line.lstrip().startswith("#")), tests
 

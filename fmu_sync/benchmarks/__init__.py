@@ -35,7 +35,7 @@ import tempfile
 import time
 from pathlib import Path
 
-__all__ = ["main", "EXTRA_SECTIONS", "REPORTS", "SECTIONS", "PAGE", "publish"]
+__all__ = ["main", "EXTRA_SECTIONS", "REPORTS", "SECTIONS", "PAGE", "publish", "generated_part"]
 
 #: the mission's reports (``fmu-sync report NAME``): error against run time, stability on stiff
 #: and extreme cases
@@ -77,25 +77,34 @@ def _export(tmp: Path):
         return None, f"{type(ex).__name__}: {ex}"
 
 
-def _generated_span(text: str, page: Path) -> tuple[int, int]:
+def _generated_span(text: str, page: Path, begin: str = BEGIN, end: str = END) -> tuple[int, int]:
     """Where the generated part of ``page`` lies: from the end of the begin-marker line to the
-    start of the end-marker line. A page without one pair of markers, in order, is refused."""
-    b, e = text.find(BEGIN), text.find(END)
-    if b < 0 or e < 0 or text.count(BEGIN) != 1 or text.count(END) != 1 or e < b:
-        raise ValueError(f"--publish {page}: the page must hold one line starting {BEGIN!r} and, after it, one "
-                         f"line {END!r} (the part between them is replaced); found begin at {b}, end at {e}")
+    start of the end-marker line. A page without one pair of markers, in order, is refused.
+    (Also the rule of every published block of the docs: :mod:`fmu_sync.published`.)"""
+    b, e = text.find(begin), text.find(end)
+    if b < 0 or e < 0 or text.count(begin) != 1 or text.count(end) != 1 or e < b:
+        raise ValueError(f"{page}: the page must hold one line starting {begin!r} and, after it, one "
+                         f"line {end!r} (the part between them is replaced); found begin at {b}, end at {e}")
     start = text.find("\n", b)
     return (len(text) if start < 0 else start + 1), e
 
 
-def publish(report: str, page) -> Path:
+def generated_part(page, begin: str = BEGIN, end: str = END) -> str:
+    """The text between the markers of ``page`` (ValueError without one pair of them)."""
+    page = Path(page)
+    text = page.read_text()
+    a, b = _generated_span(text, page, begin, end)
+    return text[a:b]
+
+
+def publish(report: str, page, begin: str = BEGIN, end: str = END) -> Path:
     """Write ``report`` into ``page`` between its markers (a new page: the markers around it)."""
     page = Path(page)
     if not page.exists():
-        page.write_text(f"{BEGIN} (replaced by `fmu-sync bench --publish`) -->\n{report.rstrip()}\n{END}\n")
+        page.write_text(f"{begin} (replaced by `fmu-sync bench --publish`) -->\n{report.rstrip()}\n{end}\n")
         return page
     text = page.read_text()
-    a, b = _generated_span(text, page)
+    a, b = _generated_span(text, page, begin, end)
     page.write_text(text[:a] + report.rstrip() + "\n" + text[b:])
     return page
 
@@ -106,7 +115,7 @@ def _check_publish(page) -> None:
     if page.is_dir() or not page.parent.is_dir():
         raise ValueError(f"--publish {page}: not a file in an existing folder")
     if page.exists():
-        _generated_span(page.read_text(), page)
+        _generated_span(page.read_text(), f"--publish {page}")
 
 
 def main(argv=None) -> int:

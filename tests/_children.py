@@ -1,0 +1,19 @@
+"""Running a test module's scenario in a child process (``python MODULE SCENARIO ARGS.json OUT.json``):
+FMUs are loaded there, never in pytest's process (docs/design.md: teardown at exit)."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+
+def child(module: str, name: str, args: dict, tmp: Path, timeout: float = 900.0):
+    """Run ``scenario_<name>(args)`` of the test module file ``module`` in a fresh process; its JSON."""
+    args_path = tmp / f"{name}.args.json"
+    args_path.write_text(json.dumps(args))
+    out_path = tmp / f"{name}.out.json"
+    p = subprocess.run([sys.executable, module, name, str(args_path), str(out_path)],
+                       capture_output=True, text=True, timeout=timeout)
+    assert p.returncode == 0, f"child {name} exited with {p.returncode}:\n{p.stderr[-3000:]}"
+    return json.loads(out_path.read_text())
