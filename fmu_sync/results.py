@@ -75,9 +75,11 @@ def _npz_arrays(path: Path) -> dict:
         with np.load(path, allow_pickle=False) as z:
             return {k: z[k] for k in z.files}
     except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError) as exc:
-        why = "an array of Python objects, which fmu-sync never writes (not loaded: unpickling is unsafe)" \
-            if "pickle" in str(exc) else f"{type(exc).__name__}: {exc}"
-        raise ValueError(f"{path}: a damaged .npz archive, cannot read its arrays ({why}); write it again") from None
+        if "pickle" in str(exc):
+            raise ValueError(f"{path}: holds an array of Python objects, which fmu-sync never writes; not loaded "
+                             "(unpickling a file runs its code)") from None
+        raise ValueError(f"{path}: a damaged .npz archive, cannot read its arrays ({type(exc).__name__}: {exc}); "
+                         "write it again") from None
 
 
 def _from_npz(path: Path):
