@@ -183,7 +183,21 @@ def _texts(fig_path_fn, *args, **kw):
         leg = ax.get_legend()
         if leg is not None:
             out += [t.get_text() for t in leg.get_texts()]
-    return fig, out
+    return fig, [t.replace("\n", " ") for t in out]     # wrapped legend labels read as one line
+
+
+def _inside_and_beside(fig):
+    """Every title and legend lies inside the figure, and no legend covers its axes' data area."""
+    fig.canvas.draw()
+    R = fig.canvas.get_renderer()
+    W, H = fig.bbox.width, fig.bbox.height
+    for ax in fig.axes:
+        for art in [ax.title] + ([ax.get_legend()] if ax.get_legend() else []):
+            b = art.get_window_extent(R)
+            assert b.x0 >= -0.5 and b.x1 <= W + 0.5 and b.y0 >= -0.5 and b.y1 <= H + 0.5, (art, b, W, H)
+        leg = ax.get_legend()
+        if leg is not None:
+            assert not leg.get_window_extent(R).overlaps(ax.get_window_extent(R)), ax.get_ylabel()
 
 
 def test_impact_zoom_window_shows_the_jump_with_d_continuous(osc):
@@ -209,6 +223,35 @@ def test_titles_single_and_zero_noted(tmp_path, pair, osc):
     _, texts = _texts(plots.compare_plot, {"a": pair}, tmp_path / "c.png", title="only this")
     assert [t for t in texts if t.startswith("TITLE:")] == ["TITLE:only this"]
 
+
+
+def test_forces_with_exact_zeros_one_note_inside_the_figure(tmp_path, pair, osc):
+    """τ exactly 0 in some records (the switching law at d = 0): the note is drawn once, every
+    title and legend lies inside the figure and beside the data (issue 28: twice, run off the left
+    edge, the title cut)."""
+    tau1 = np.where((pair.d == 0.0).reshape(pair.tau1.shape[0], -1), 0.0, pair.tau1)
+    tau1[100:110] = 0.0
+    r = PairResult(pair.t, pair.q1, pair.u1, pair.q2, pair.u2, tau1, -tau1, pair.d, pair.branch, pair.euclidean,
+                   coupling="switching")
+    fig, texts = _texts(plots.plot_forces, r, tmp_path / "f.png", system=osc, title="forced-pair, switching")
+    notes = [t.get_text() for ax in fig.axes if ax.get_legend() for t in ax.get_legend().get_texts()
+             if "exactly 0" in t.get_text().replace("\n", " ")]
+    notes += [t.get_text() for ax in fig.axes for t in ax.texts if "exactly 0" in t.get_text()]
+    assert len(notes) == 1, notes
+    assert "TITLE:forced-pair, switching: coupling forces (switching)" in texts
+    _inside_and_beside(fig)
+
+
+@pytest.mark.parametrize("kind", ["distance", "lyapunov", "forces", "positions"])
+def test_legends_beside_the_data(tmp_path, pair, osc, kind):
+    """The legends of the time plots (the ultimate-bound line of an uncoupled run among them) lie
+    beside the axes, inside the figure."""
+    unc = PairResult(pair.t, pair.q1, pair.u1, pair.q2, pair.u2, pair.tau1, pair.tau2, pair.euclidean * 0.9,
+                     pair.branch, pair.euclidean, coupling=None)
+    fig, texts = _texts(plots.PLOTTERS[kind], unc, tmp_path / "x.png", system=osc, title="forced-pair, uncoupled")
+    if kind == "distance":
+        assert any(t.startswith("ultimate bound") for t in texts), texts
+    _inside_and_beside(fig)
 
 def test_uncoupled_forces_one_panel_no_empty_axes(tmp_path, pair, osc):
     z = np.zeros_like(pair.tau1)
