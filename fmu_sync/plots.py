@@ -8,6 +8,7 @@ default: the 1-DOF wall q = 0) and a title, and returns the path written.
 """
 from __future__ import annotations
 
+import os
 import textwrap
 from pathlib import Path
 from typing import Mapping
@@ -22,7 +23,7 @@ from .report import SYNC_THRESHOLD, contact_starts, impact_records, is_network, 
 
 __all__ = ["plot_positions", "plot_distance", "plot_lyapunov", "plot_forces", "plot_phase",
            "plot_impact_zoom", "impact_window", "tail_start", "PHASE_TURNS",
-           "compare_plot", "skip_reason", "PLOTTERS"]
+           "compare_plot", "skip_reason", "PLOTTERS", "save_figure"]
 
 STYLE = {
     "font.size": 11, "axes.titlesize": 12, "axes.labelsize": 11, "legend.fontsize": 9.5,
@@ -43,10 +44,22 @@ def _figure(nrows=1, height=4.2, width=8.0, sharex=True):
 
 
 def _save(fig, path) -> Path:
+    with matplotlib.rc_context(STYLE):
+        return save_figure(fig, path, DPI)
+
+
+def save_figure(fig, path, dpi) -> Path:
+    """Write ``fig`` as the PNG ``path`` whole or not at all: drawn into a temporary file beside it,
+    renamed when complete (an interrupted run, Ctrl-C or SIGTERM, leaves no truncated PNG)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with matplotlib.rc_context(STYLE):
-        fig.savefig(path, dpi=DPI)
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        fig.savefig(tmp, dpi=dpi, format=path.suffix[1:] or "png")
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
     return path
 
 

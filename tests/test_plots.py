@@ -260,3 +260,44 @@ def test_uncoupled_forces_one_panel_no_empty_axes(tmp_path, pair, osc):
     assert len(fig.axes) == 1 and any("no coupling force" in t for t in texts)
     fig, _ = _texts(plots.plot_forces, pair, tmp_path / "g.png", system=osc)
     assert len(fig.axes) == 2 and all(ax.lines for ax in fig.axes)
+
+
+_SAVE_LOOP = """
+import sys
+import numpy as np
+from fmu_sync import plots
+from fmu_sync.core.result import PairResult
+t = np.linspace(0.0, 100.0, 200001)
+x = np.sin(t)[:, None]
+d = np.exp(-0.1 * t)
+r = PairResult(t, x, x, -x, -x, x, -x, d, np.zeros(t.size, dtype=np.int64), 2 * d, impacts1=0, impacts2=0,
+               coupling="switching")
+print("ready", flush=True)
+for i in range(1000):
+    plots.plot_forces(r, f"{sys.argv[1]}/f{i}.png", title="interrupted")
+"""
+
+
+def test_an_interrupted_plot_leaves_no_truncated_png(tmp_path):
+    """SIGINT (Ctrl-C) while figures are written: every PNG left is whole (it ends with its IEND
+    chunk) and no temporary file stays (issue 28: a 124-byte PNG of the interrupted variant)."""
+    import random
+    import signal
+    import subprocess
+    import sys
+    import time
+    rng = random.Random(28)
+    for k in range(3):
+        out = tmp_path / f"try{k}"
+        out.mkdir()
+        p = subprocess.Popen([sys.executable, "-c", _SAVE_LOOP, str(out)], stdout=subprocess.PIPE, text=True)
+        assert p.stdout.readline().strip() == "ready"
+        while not list(out.glob("f1.png")) and p.poll() is None:
+            time.sleep(0.02)
+        time.sleep(rng.uniform(0.0, 0.5))
+        p.send_signal(signal.SIGINT)
+        p.wait(timeout=60)
+        files = sorted(out.iterdir())
+        assert files and all(f.suffix == ".png" and not f.name.startswith(".") for f in files), files
+        for f in files:
+            assert f.read_bytes().endswith(b"IEND\xaeB`\x82"), (f, f.stat().st_size)

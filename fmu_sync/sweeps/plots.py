@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.metrics import rate_verdict
+from ..plots import save_figure
 
 __all__ = ["heat_map", "basin", "scatter", "line_plot", "sweep_plots", "zoh_margin", "LABELS"]
 
@@ -241,7 +242,7 @@ def heat_map(ds, x: str, y: str, path, title: str | None = None) -> Path:
     fig.suptitle(f"{head}{' (' + v + ')' if v else ''}: {n} runs, {nf} failed"
                  + (f"  [{note}]" if note else ""), fontsize=12)
     path = Path(path)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, 110)
     plt.close(fig)
     return path
 
@@ -291,7 +292,7 @@ def basin(ds, x: str, y: str, path, title: str | None = None) -> Path:
                   + (f" ({ds.attrs['variant']})" if ds.attrs.get("variant") else ""))
                  + f": {n} runs, {nf} failed" + (f"  [{note}]" if note else ""), fontsize=11)
     path = Path(path)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, 110)
     plt.close(fig)
     return path
 
@@ -321,7 +322,7 @@ def scatter(ds, x: str, y: str, path) -> Path:
     ax.set_title(f"{ds.attrs.get('method', '')} sample of {ds.attrs.get('scene', '')}: {st.size} runs, "
                  f"{int((st != 0).sum())} failed")
     path = Path(path)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, 110)
     plt.close(fig)
     return path
 
@@ -363,7 +364,7 @@ def line_plot(ds, x: str, path) -> Path:
     fig.suptitle(f"sweep of {ds.attrs.get('scene', '')}: {n} runs, {nf} failed; t_sync where synchronized",
                  fontsize=11)
     path = Path(path)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, 110)
     plt.close(fig)
     return path
 
