@@ -15,7 +15,7 @@ from .loading import Scene, as_scene
 from .schema import DEFAULT_OUT, TABLES, SceneError, Variant
 
 __all__ = ["RunRecord", "SceneRun", "RunRefused", "RunInterrupted", "preflight", "plan_variant", "run_scene", "run_variant",
-           "fmu_start_values", "export_for", "write_run", "run_extra", "error_notes", "skipped_notes", "settings_table"]
+           "fmu_start_values", "export_for", "write_run", "run_extra", "record_interval", "error_notes", "skipped_notes", "settings_table"]
 
 
 @dataclass
@@ -241,10 +241,23 @@ def write_run(run: RunRecord, out_dir: Path, plots, title: str, formats=("csv", 
 
 def run_extra(variant: Variant, plots, title: str) -> dict:
     """What a data file keeps of the scene (:func:`fmu_sync.report.record_meta`): the variant's
-    settings, the plots and title of ``fmu-sync plot DIR``, and the wall (w, g0) they draw."""
+    settings, the plots and title of ``fmu-sync plot DIR``, the wall (w, g0) they draw, and the
+    record interval in seconds (:func:`record_interval`)."""
     from ..core.views import plain_settings
     return {"settings": plain_settings(variant.cfg), "plots": list(plots), "title": title,
-            "wall": {"w": [float(x) for x in variant.system.w], "g0": float(variant.system.g0)}}
+            "wall": {"w": [float(x) for x in variant.system.w], "g0": float(variant.system.g0)},
+            "record_interval": record_interval(variant)[0]}
+
+
+def record_interval(variant: Variant) -> tuple[float, str]:
+    """``(seconds, words)``: the time between two record rows of the variant's run.
+    ``run.record_every`` counts steps of the run's grid (:func:`fmu_sync.output.estimate`'s rule):
+    ``solver.dt`` in the core, ``run.H`` in co-simulation, so one value records a cosim run
+    H/dt times more sparsely; the summary and the data file say the interval as a time."""
+    from ..output import _steps
+    _, step, name = _steps(variant.cfg)
+    k = int(variant.cfg["run.record_every"])
+    return k * step, f"{k * step:g} s (run.record_every = {k} step{'s' if k > 1 else ''} of {name} = {step:g} s)"
 
 
 def _stream_run(v: Variant, out_dir: Path, fmu_path, progress, scene_name, formats, est, max_memory, extra):
@@ -501,6 +514,9 @@ def settings_table(scene: Scene, variants, names=None) -> list[tuple[str, str]]:
             rows.append((k, values.pop()))
         else:
             rows.append((k, "; ".join(f"{n}: {v.cfg[k]!r}" for n, v in zip(names, variants))))
+    every = [record_interval(v)[1] for v in variants]
+    rows.append(("record interval", every[0] if len(set(every)) == 1 else
+                 "; ".join(f"{n}: {x}" for n, x in zip(names, every))))
     return rows
 
 
