@@ -209,7 +209,7 @@ def test_the_plan_carries_what_the_drivers_need():
     assert p.q.tolist() == [[1.0], [0.5]] and p.u.tolist() == [[0.0], [0.2]]
     assert p.Kp.tolist() == [[2.0]] and p.limit.stable and p.limit.hold == "zoh"
     with pytest.raises(UnstableExchange):   # the same run at the first-order hold's H, beyond its bound
-        plan_run(s, [(1.0, 0.0), (0.5, 0.2)], 1.0, 1.2 * p.limit.H_max, laws=[1], Kp=2.0, Kd=1.0, hold="foh",
+        plan_run(s, [(1.0, 0.0), (0.5, 0.2)], 10.0, 1.2 * p.limit.H_max, laws=[1], Kp=2.0, Kd=1.0, hold="foh",
                  step_name="H")
 
 
