@@ -17,7 +17,8 @@ Exit status:
     0  every run reached its end
     2  bad input, refused before anything ran or was written: a bad scene or
        option, a missing file, an output path that is a file or not writable,
-       a step known to be unstable (midpoint omega_max*dt >= 2, or the held
+       a step not shorter than the run (dt or H >= t_end), a step known to be
+       unstable (midpoint omega_max*dt >= 2, or the held
        coupling exchange beyond its limit: the message names omega_c*H and the
        largest stable H), a record above the memory/disk budget
     3  a run failed mid-way (diverged, a slave failed): the summary says which,
