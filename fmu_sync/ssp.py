@@ -439,7 +439,7 @@ def save_result(res, out, formats=("csv", "npz"), plots: bool = True, method: st
     from . import plots as P
     from . import report
     from .output import check_out_dir, make_out_dir, results_in
-    from .scenes.running import _clean
+    from .scenes.running import clean_written
     from .scenes.schema import plots_for
     out = check_out_dir(out)
     name = Path(res.info.get("package", "package")).name
@@ -474,7 +474,7 @@ def save_result(res, out, formats=("csv", "npz"), plots: bool = True, method: st
             settings=[(k, repr(v)) for k, v in settings.items() if v is not None], files=files, base=out,
             notes=notes)
     except BaseException:
-        _clean(out, created, files)
+        clean_written(out, created, files)
         raise
     return summary
 

@@ -9,8 +9,6 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from ..plots import save_figure
-
 __all__ = ["work_precision_plot", "work_precision_plots"]
 
 STYLE = {"font.size": 10, "axes.grid": True, "grid.alpha": 0.3, "legend.fontsize": 8.5,
@@ -76,7 +74,9 @@ def work_precision_plot(points, scene: str, metric: str, path) -> Path | None:
         ref = pts[0].reference
         ax.set_title(f"Work–precision: {scene}, {metric} (reference: {ref})", fontsize=10)
         ax.legend(loc="best")
-        path = save_figure(fig, path, DPI)
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(path, dpi=DPI)
     return path
 
 

@@ -15,7 +15,7 @@ from .loading import Scene, as_scene
 from .schema import DEFAULT_OUT, TABLES, SceneError, Variant
 
 __all__ = ["RunRecord", "SceneRun", "RunRefused", "RunInterrupted", "preflight", "plan_variant", "run_scene", "run_variant",
-           "fmu_start_values", "export_for", "write_run", "run_extra", "record_interval", "error_notes", "skipped_notes", "settings_table"]
+           "fmu_start_values", "export_for", "write_run", "run_extra", "record_interval", "clean_written", "error_notes", "skipped_notes", "settings_table"]
 
 
 @dataclass
@@ -254,8 +254,8 @@ def record_interval(variant: Variant) -> tuple[float, str]:
     ``run.record_every`` counts steps of the run's grid (:func:`fmu_sync.output.estimate`'s rule):
     ``solver.dt`` in the core, ``run.H`` in co-simulation, so one value records a cosim run
     H/dt times more sparsely; the summary and the data file say the interval as a time."""
-    from ..output import _steps
-    _, step, name = _steps(variant.cfg)
+    from ..output import run_grid
+    _, step, name = run_grid(variant.cfg)
     k = int(variant.cfg["run.record_every"])
     return k * step, f"{k * step:g} s (run.record_every = {k} step{'s' if k > 1 else ''} of {name} = {step:g} s)"
 
@@ -359,7 +359,7 @@ def run_scene(scene, out_dir=None, overrides: dict | None = None, progress: Call
         plan.append((v, fmts, est, stream))
 
     old = results_in(out_dir, f"Scene `{scene.name}`", overwrite)
-    _clean(out_dir, False, old)   # --overwrite: another scene's results go, after every check passed
+    clean_written(out_dir, False, old)   # --overwrite: another scene's results go, after every check passed
     created = make_out_dir(out_dir)
     fmus = {}
     runs = []
@@ -393,7 +393,7 @@ def run_scene(scene, out_dir=None, overrides: dict | None = None, progress: Call
             try:
                 write_run(run, out_dir, scene.plots, scene.name, fmts, scaled(progress, mid, b), draw=plots)
             except BaseException:
-                _clean(out_dir, False, run.files)   # never half a variant's files
+                clean_written(out_dir, False, run.files)   # never half a variant's files
                 raise
             if progress is not None:
                 progress(b)
@@ -402,7 +402,7 @@ def run_scene(scene, out_dir=None, overrides: dict | None = None, progress: Call
     except KeyboardInterrupt:
         raise _interrupted(scene, out_dir, created, runs, fmus, current, plots, chosen) from None
     except BaseException:
-        _clean(out_dir, created, [f for r in runs for f in r.files] + list(fmus.values()))
+        clean_written(out_dir, created, [f for r in runs for f in r.files] + list(fmus.values()))
         raise
     return _summarize(scene, out_dir, created, runs, fmus, plots, chosen)
 
@@ -415,7 +415,7 @@ def _interrupted(scene, out_dir, created, runs, fmus, current, plots, chosen) ->
     done = [r for r in runs if r.result is not None]
     rest = [v.name for v in chosen if v.name not in {r.name for r in runs}]
     if not done:
-        _clean(out_dir, created, list(fmus.values()))
+        clean_written(out_dir, created, list(fmus.values()))
         return RunInterrupted(f"interrupted during variant {current!r}: nothing kept (no variant had finished)")
     sr = _summarize(scene, out_dir, created, runs, fmus, plots, chosen)
     again = " ".join(f"--variant {n}" for n in rest)
@@ -428,7 +428,7 @@ def _summarize(scene, out_dir, created, runs, fmus, plots, chosen) -> SceneRun:
     from .. import report
     written = [r for r in runs if r.result is not None]
     if not written:   # every run failed without a record: leave nothing behind
-        _clean(out_dir, created, list(fmus.values()))
+        clean_written(out_dir, created, list(fmus.values()))
         sr = SceneRun(scene, out_dir, runs, [])
         return sr
     files = list(fmus.values()) + [f for r in runs for f in r.files]
@@ -445,7 +445,7 @@ def _summarize(scene, out_dir, created, runs, fmus, plots, chosen) -> SceneRun:
     return sr
 
 
-def _clean(out_dir: Path, created: bool, files) -> None:
+def clean_written(out_dir: Path, created: bool, files) -> None:
     """Remove what this run wrote (and the folder if it made it and it is empty)."""
     for f in files:
         try:
