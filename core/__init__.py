@@ -30,7 +30,7 @@ from . import _cache  # noqa: F401  (first: every core kernel's cache is keyed o
 from .model import ImpactOscillator, MechanicalSystem, SystemArrays
 from .impact import impact_map
 from .errors import RunFailed, RunRefused, SimulationDiverged, UnstableScheme
-from .checks import InadmissibleState, RecordTooLarge
+from .checks import InadmissibleState, RecordTooLarge, StepTooLarge
 from .plan import RunPlan, plan_run
 from .result import NetworkResult, PairResult, SimulationResult
 from .single import simulate
@@ -48,4 +48,4 @@ __all__ = ["ImpactOscillator", "MechanicalSystem", "SystemArrays", "impact_map",
            "SimulationResult", "PairResult", "RunFailed",
            "SimulationDiverged", "NetworkResult", "simulate_network", "ring", "path", "star", "all_to_all",
            "sync_metrics", "SyncMetrics", "sync_rate", "EnsembleRate", "exchange_limit", "hold_bound", "UnstableExchange", "UnstableScheme",
-           "RunRefused", "InadmissibleState", "RecordTooLarge", "RunPlan", "plan_run"]
+           "RunRefused", "InadmissibleState", "RecordTooLarge", "StepTooLarge", "RunPlan", "plan_run"]

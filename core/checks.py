@@ -12,7 +12,7 @@ from .errors import RunRefused, UnstableScheme
 from .model import MechanicalSystem
 
 __all__ = ["check_step", "check_run", "n_steps", "RunSteps", "run_steps", "record_rows", "record_times",
-           "check_record_size", "RecordTooLarge", "record_budget", "GAP_TOL", "InadmissibleState",
+           "check_record_size", "RecordTooLarge", "StepTooLarge", "record_budget", "GAP_TOL", "InadmissibleState",
            "check_admissible", "scheme_code", "check_stable", "coupling_omega",
            "divergence_message", "check_start"]
 
@@ -122,7 +122,20 @@ def check_run(t_end, dt, record_every=1, t0: float = 0.0, dt_name: str = "dt") -
         raise ValueError(f"record_every must be an integer >= 1, got {record_every!r}") from None
     if record_every < 1:
         raise ValueError(f"record_every must be >= 1, got {record_every}")
-    return run_steps(t_end, dt, t0), record_every
+    grid = run_steps(t_end, dt, t0)
+    span = grid.t_end - float(t0)
+    if span > 0.0 and dt >= span:
+        raise StepTooLarge(
+            f"{dt_name} = {dt:g} s is not shorter than the run (t_end - t0 = {span:g} s): one step tests the wall "
+            f"once, at its midpoint, and can end deep inside it (a falling ball at q = -3.9 m); choose {dt_name} "
+            f"< {span:g} s, a small fraction of the motion's time scale")
+    return grid, record_every
+
+
+class StepTooLarge(RunRefused):
+    """A step not shorter than the run itself (``dt >= t_end - t0``): a single step tests the
+    wall once, at its midpoint, and may end deep inside it; refused by every driver through
+    :func:`check_run` (the run plan, step 2: core and co-simulation alike)."""
 
 
 def check_start(system: MechanicalSystem, q, name: str = "x0") -> None:

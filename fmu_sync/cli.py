@@ -18,7 +18,8 @@ Exit status:
     0  every run reached its end
     2  bad input, refused before anything ran or was written: a bad scene or
        option, a missing file, an output path that is a file or not writable,
-       a step known to be unstable (midpoint omega_max*dt >= 2, or the held
+       a step not shorter than the run (dt or H >= t_end), a step known to be
+       unstable (midpoint omega_max*dt >= 2, or the held
        coupling exchange beyond its limit: the message names omega_c*H and the
        largest stable H), a record above the memory/disk budget
     3  a run failed mid-way (diverged, a slave failed): the summary says which,
@@ -183,18 +184,32 @@ def _cmd_ssp(args) -> int:
 
 
 def _cmd_run_ssp(args) -> int:
+    from .core import RunFailed
+    from .output import check_out_dir, parse_formats
     from .ssp import run_ssp, save_result
     if args.overrides or args.variant or args.convergence:
-        raise ValueError("an SSP package takes --method, -o, --allow-unstable and --quiet only "
-                         "(its values are the package's: edit its .ssv files, or the scene and write it again)")
+        raise ValueError("an SSP package takes --method, -o, --format, --no-plots, --allow-unstable and --quiet "
+                         "only (its values are the package's: edit its .ssv files, or the scene and write it again)")
+    formats = parse_formats(args.formats) if args.formats is not None else ("csv", "npz")
+    out = check_out_dir(args.out or Path("fmu-sync-out") / Path(args.scene).stem)
+    failed = None
     with _progress(Path(args.scene).name, args.quiet) as bar:
-        res = run_ssp(args.scene, method=args.method, progress=bar, allow_unstable=args.allow_unstable)
-    out = args.out or Path("fmu-sync-out") / Path(args.scene).stem
-    path = save_result(res, out)
+        try:
+            res = run_ssp(args.scene, method=args.method, progress=bar, allow_unstable=args.allow_unstable)
+        except RunFailed as exc:   # keep the record up to the failure, marked partial
+            if exc.partial is None:
+                raise
+            res, failed = exc.partial, exc
+            res.error = res.error or str(exc)
+    summary = save_result(res, out, formats, plots=not args.no_plots, method=args.method)
+    if failed is not None:
+        print(f"{PROG}: error: {_one_line(failed)} (record kept, marked partial, no plots: {summary.parent}/)",
+              file=sys.stderr)
+        return EXIT_FAILED
     m = res.sync()
     print(f"{args.scene}: {len(res.info['components'])} systems, method {args.method}, H = {res.info['H']:g}, "
           f"t_end = {res.t[-1]:g} s; max d at the end {res.d_max[-1]:.3g}, t_sync(1e-6) = {m.t_sync:.4g} s")
-    print(f"written to {path}")
+    print(f"written to {summary.parent}/ (summary: {summary.name})")
     return 0
 
 

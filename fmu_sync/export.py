@@ -353,7 +353,7 @@ def _export(cls, model: str, path, start_values, start_extra: dict, warm: bool, 
     path = Path(path) if path is not None else Path(f"{cls.MODEL_IDENTIFIER}.fmu")
     if path.suffix != ".fmu":
         raise ValueError(f"the FMU file name must end in .fmu, got {str(path)!r}")
-    path.parent.mkdir(parents=True, exist_ok=True)
+    _check_target(path)
 
     code, digest, guid = _identity(model, {**starts, **start_extra}, fmi_version)
     package = f"fmu_sync_m{digest[:16]}"
@@ -384,6 +384,25 @@ def _export(cls, model: str, path, start_values, start_extra: dict, warm: bool, 
     if warm:
         warm_cache(resources, build)
     return path
+
+
+def _check_target(path: Path) -> None:
+    """Refuse (:class:`~fmu_sync.output.OutputPathError`, naming ``path``) an FMU path that cannot be
+    written: a folder, inside a file, in a folder that cannot be created or written (before anything
+    is built); the folder is created."""
+    from .output import OutputPathError, check_out_dir, make_out_dir, plain_os_error
+    if path.is_dir():
+        raise OutputPathError(f"cannot write the FMU {path}: it is a folder; give a file name ending in .fmu")
+    try:
+        make_out_dir(check_out_dir(path.parent))
+        fd, probe = tempfile.mkstemp(prefix=".export-", suffix=".probe", dir=path.parent)
+    except OutputPathError as exc:
+        raise OutputPathError(f"cannot write the FMU {path}: {exc}") from None
+    except OSError as exc:   # even root cannot create files in /sys or /proc
+        raise OutputPathError(f"cannot write the FMU {path}: its folder {path.parent} does not take new files "
+                              f"({plain_os_error(exc).split(' (')[0]}); choose another -o") from None
+    os.close(fd)
+    os.unlink(probe)
 
 
 def write_archive(path: Path, files) -> None:

@@ -31,7 +31,7 @@ from .core.checks import record_rows, run_steps
 
 __all__ = ["FORMATS", "DEFAULT_MAX_MEMORY", "DEFAULT_MAX_DISK", "OutputTooLarge", "OutputPathError",
            "Estimate", "parse_size", "format_size", "parse_formats", "estimate", "check_budget",
-           "check_out_dir", "make_out_dir", "plain_os_error", "results_in", "RecordWriter", "pair_columns", "network_columns", "single_columns", "WRITE_ROWS"]
+           "check_out_dir", "make_out_dir", "plain_os_error", "results_in", "run_grid", "RecordWriter", "pair_columns", "network_columns", "single_columns", "WRITE_ROWS"]
 
 #: data files of a run: CSV (one row per record), NPZ (numpy arrays and the layout), NetCDF
 #: (the result's xarray Dataset; needs the whole record in memory)
@@ -171,7 +171,7 @@ class Estimate:
                 f"{format_size(self.disk)} on disk as {'+'.join(self.formats) or 'no data files'}")
 
 
-def _steps(cfg) -> tuple[int, float, str]:
+def run_grid(cfg) -> tuple[int, float, str]:
     """Steps of a variant's run (the last one shortened to land on run.t_end), its step and the step's key."""
     step, name = (cfg["run.H"], "run.H") if cfg["run.mode"] == "cosim" and cfg.get("initial.x2") is not None \
         else (cfg["solver.dt"], "solver.dt")
@@ -181,7 +181,7 @@ def _steps(cfg) -> tuple[int, float, str]:
 def estimate(variant, formats=("csv", "npz")) -> Estimate:
     """The record size of a :class:`~fmu_sync.scenes.schema.Variant` (nothing runs)."""
     cfg = variant.cfg
-    steps, _, _ = _steps(cfg)
+    steps, _, _ = run_grid(cfg)
     every = int(cfg["run.record_every"])
     n = variant.system.n
     if variant.is_network:

@@ -8,6 +8,8 @@ default: the 1-DOF wall q = 0) and a title, and returns the path written.
 """
 from __future__ import annotations
 
+import os
+import textwrap
 from pathlib import Path
 from typing import Mapping
 
@@ -21,7 +23,7 @@ from .report import SYNC_THRESHOLD, contact_starts, impact_records, is_network, 
 
 __all__ = ["plot_positions", "plot_distance", "plot_lyapunov", "plot_forces", "plot_phase",
            "plot_impact_zoom", "impact_window", "tail_start", "PHASE_TURNS",
-           "compare_plot", "skip_reason", "PLOTTERS"]
+           "compare_plot", "skip_reason", "PLOTTERS", "save_figure"]
 
 STYLE = {
     "font.size": 11, "axes.titlesize": 12, "axes.labelsize": 11, "legend.fontsize": 9.5,
@@ -42,10 +44,22 @@ def _figure(nrows=1, height=4.2, width=8.0, sharex=True):
 
 
 def _save(fig, path) -> Path:
+    with matplotlib.rc_context(STYLE):
+        return save_figure(fig, path, DPI)
+
+
+def save_figure(fig, path, dpi) -> Path:
+    """Write ``fig`` as the PNG ``path`` whole or not at all: drawn into a temporary file beside it,
+    renamed when complete (an interrupted run, Ctrl-C or SIGTERM, leaves no truncated PNG)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with matplotlib.rc_context(STYLE):
-        fig.savefig(path, dpi=DPI)
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        fig.savefig(tmp, dpi=dpi, format=path.suffix[1:] or "png")
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
     return path
 
 
@@ -66,6 +80,18 @@ def _positive(y):
 def _title(ax, title, what):
     """One title line: ``<scene, run>: <what the plot shows>``."""
     ax.set_title(f"{title}: {what}" if title else what)
+
+
+#: legend labels are wrapped at this many characters (a legend beside the axes stays narrow)
+LEGEND_WRAP = 34
+
+
+def _legend(ax, fontsize=8.5):
+    """The legend beside the axes, on the right (never over the data), long labels wrapped."""
+    handles, labels = ax.get_legend_handles_labels()
+    if handles:
+        ax.legend(handles, [textwrap.fill(x, LEGEND_WRAP) for x in labels], loc="upper left",
+                  bbox_to_anchor=(1.01, 1.0), fontsize=fontsize)
 
 
 def _wall_band(ax, horizontal=True, label="wall"):
@@ -103,7 +129,7 @@ def _network_positions(result, path, system=None, title=None) -> Path:
 
 def _network_distance(result, path, system=None, title=None) -> Path:
     t = np.asarray(result.t)
-    fig, (ax,) = _figure()
+    fig, (ax,) = _figure(width=10.0)
     D = np.asarray(result.d)
     one = len(result.edges) == 1
     if not one:
@@ -117,7 +143,7 @@ def _network_distance(result, path, system=None, title=None) -> Path:
     _zero_note(ax, t, result.d_max, "k", "max d")
     ax.set_xlabel("time t [s]")
     ax.set_ylabel("quotient distance d (P-norm)")
-    ax.legend(loc="upper right", fontsize=8.5)
+    _legend(ax)
     _title(ax, title, "quotient distance d" if one else "pairwise quotient distances and their maximum")
     return _save(fig, path)
 
@@ -219,7 +245,7 @@ def plot_distance(result, path, system=None, title=None) -> Path:
     with t_sync and the fitted decay rate marked (a network: the pairwise d and their maximum)."""
     if is_network(result):
         return _network_distance(result, path, system, title)
-    fig, (ax,) = _figure()
+    fig, (ax,) = _figure(width=10.0)
     t = np.asarray(result.t)
     ax.semilogy(t, _positive(result.euclidean), color="#ff7f0e", lw=1.0, label="Euclidean error ‖x1 − x2‖_P")
     ax.semilogy(t, _positive(result.d), color="#2ca02c", lw=1.8, label="quotient distance d")
@@ -228,7 +254,7 @@ def plot_distance(result, path, system=None, title=None) -> Path:
     _zero_note(ax, t, result.d, "#2ca02c")
     ax.set_xlabel("time t [s]")
     ax.set_ylabel("distance (P-norm)")
-    ax.legend(loc="upper right", fontsize=8.5)
+    _legend(ax)
     _title(ax, title, "Euclidean error vs quotient distance")
     return _save(fig, path)
 
@@ -304,12 +330,12 @@ def plot_impact_zoom(result, path, system=None, title=None) -> Path:
 
 def plot_lyapunov(result, path, system=None, title=None) -> Path:
     """V(t) on a log axis: d²/2 for a pair, ½ Σ_edges a_ij d_ij² for a network."""
-    fig, (ax,) = _figure()
+    fig, (ax,) = _figure(width=10.0)
     ax.semilogy(np.asarray(result.t), _positive(result.V), color="#9467bd", lw=1.5, label=_V_LABEL[is_network(result)])
     _zero_note(ax, result.t, result.V, "#9467bd", "V")
     ax.set_xlabel("time t [s]")
     ax.set_ylabel("Lyapunov function V")
-    ax.legend(loc="upper right")
+    _legend(ax)
     _title(ax, title, "Lyapunov function V(t)")
     return _save(fig, path)
 
@@ -328,20 +354,25 @@ def plot_forces(result, path, system=None, title=None) -> Path:
         ax.set_xlabel("time t [s]")
         _title(ax, title, f"coupling forces ({getattr(result, 'coupling', None) or 'none'})")
         return _save(fig, path)
-    fig, (ax, axl) = _figure(2, height=6.4)
+    fig, (ax, axl) = _figure(2, height=6.4, width=10.0)
+    norms = []
     for k, (name, tau) in enumerate(zip(("τ1", "τ2"), taus)):
         for j in range(tau.shape[1]):
             label = name if tau.shape[1] == 1 else f"{name}[{j + 1}]"
             ax.step(t, tau[:, j], where="pre", color=COLORS[k], ls="-" if j == 0 else "--", label=label)
-        norm = np.linalg.norm(tau, axis=1)
-        axl.semilogy(t, _positive(norm), color=COLORS[k], lw=1.0, label=f"|{name}|")
-        _zero_note(axl, t, norm, COLORS[k], f"|{name}|")
+        norms.append(np.linalg.norm(tau, axis=1))
+        axl.semilogy(t, _positive(norms[-1]), color=COLORS[k], lw=1.0, label=f"|{name}|")
+    if np.array_equal(norms[0] == 0.0, norms[1] == 0.0):   # the law's forces vanish together: one note
+        _zero_note(axl, t, norms[0], "k", "|τ1| = |τ2|")
+    else:
+        for k, name in enumerate(("τ1", "τ2")):
+            _zero_note(axl, t, norms[k], COLORS[k], f"|{name}|")
     ax.axhline(0.0, color="k", lw=0.6)
     ax.set_ylabel("coupling force τ [N]")
-    ax.legend(loc="upper right")
+    _legend(ax)
     axl.set_xlabel("time t [s]")
     axl.set_ylabel("|τ| [N] (log)")
-    axl.legend(loc="upper right")
+    _legend(axl)
     _title(ax, title, f"coupling forces ({getattr(result, 'coupling', None) or 'none'})")
     return _save(fig, path)
 
@@ -426,7 +457,7 @@ def compare_plot(results: Mapping[str, object], path, quantity: str = "d", title
         ax.axhline(SYNC_THRESHOLD, color="k", ls=":", lw=1.0, label=f"sync threshold {SYNC_THRESHOLD:g}")
     ax.set_xlabel("time t [s]")
     ax.set_ylabel(ylabel)
-    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8.5)
+    _legend(ax)
     ax.set_title(title if title else f"{what} of each run")
     return _save(fig, path)
 

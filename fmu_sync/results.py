@@ -48,8 +48,8 @@ def load_meta(path) -> dict:
     older file."""
     path = Path(path)
     if path.suffix == ".npz":
-        with np.load(path, allow_pickle=False) as z:
-            return json.loads(str(z["meta"])) if "meta" in z.files else {}
+        a = _npz_arrays(path)
+        return json.loads(str(a["meta"])) if "meta" in a else {}
     if path.suffix == ".nc":
         import xarray as xr
         with xr.open_dataset(path, engine="h5netcdf") as ds:
@@ -63,10 +63,28 @@ def load_meta(path) -> dict:
 
 
 # ---------------------------------------------------------------- npz
+def _npz_arrays(path: Path) -> dict:
+    """Every array of a ``.npz`` (never unpickled); a file that is not one, or is cut short or
+    damaged, is a ValueError naming the file and what is wrong with it."""
+    import zipfile
+    import zlib
+    if not zipfile.is_zipfile(path):
+        raise ValueError(f"{path}: not a .npz archive (no zip directory: the file is truncated, damaged or of "
+                         f"another kind, {path.stat().st_size} bytes); write it again")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return {k: z[k] for k in z.files}
+    except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError) as exc:
+        if "pickle" in str(exc):
+            raise ValueError(f"{path}: holds an array of Python objects, which fmu-sync never writes; not loaded "
+                             "(unpickling a file runs its code)") from None
+        raise ValueError(f"{path}: a damaged .npz archive, cannot read its arrays ({type(exc).__name__}: {exc}); "
+                         "write it again") from None
+
+
 def _from_npz(path: Path):
     from .core.result import NetworkResult, PairResult, SimulationResult
-    with np.load(path, allow_pickle=False) as z:
-        a = {k: z[k] for k in z.files}
+    a = _npz_arrays(path)
     meta = json.loads(str(a.pop("meta"))) if "meta" in a else None
     if meta is None:   # a file of 0.1.0: the layout from the array names
         if all(k in a for k in _PAIR):
@@ -112,8 +130,11 @@ def _from_csv(path: Path):
         if unit is not None and unit != UNITS[name]:
             raise ValueError(f"{path.name}: column {h!r} is in {unit}; fmu-sync writes {name} in {UNITS[name]}")
     bcols = [i for i, c in enumerate(cols) if c[0] == "branch"]
-    data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2, dtype=np.float64,
-                      converters={i: branch_code for i in bcols}, encoding="ascii")
+    try:
+        data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2, dtype=np.float64,
+                          converters={i: branch_code for i in bcols}, encoding="ascii")
+    except ValueError as exc:
+        raise ValueError(f"{path}: {_bad_row(path, len(cols)) or exc}") from None
     if data.shape[1] != len(cols) and data.size:
         raise ValueError(f"{path.name}: rows have {data.shape[1]} values, the header names {len(cols)}")
     data = data.reshape(-1, len(cols))
@@ -151,6 +172,18 @@ def _from_csv(path: Path):
     return NetworkResult(t, node("q"), node("u"), node("tau"), edges, d,
                          None if d is None else edge_cols("branch").astype(np.int64),
                          None if d is None else edge_cols("euclidean"), one("V"), None, info={"loaded_from": "csv"})
+
+
+def _bad_row(path: Path, width: int) -> str:
+    """The first line of a CSV whose values are not ``width`` numbers, in words ("" if none)."""
+    with open(path, encoding="ascii", errors="replace") as fh:
+        fh.readline()
+        for i, line in enumerate(fh, start=2):
+            cells = line.rstrip("\r\n").split(",")
+            if len(cells) != width:
+                return (f"line {i} has {len(cells)} values, the header names {width} (the file is truncated or "
+                        "damaged there); write it again")
+    return ""
 
 
 # ---------------------------------------------------------------- nc

@@ -32,6 +32,7 @@ import tempfile
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 from xml.etree import ElementTree as ET
 
 import numpy as np
@@ -464,6 +465,7 @@ def _run_master(pkg, fmu, names, spec, cfg, t_end, H, method, record_every, prog
     from fmpy import read_model_description
 
     from .core.coupling import LAWS
+    from .core.errors import RunFailed
     from .core.model import MechanicalSystem
     from .core.pair import check_common_geometry
     from .ssp_master import SspMaster
@@ -489,18 +491,66 @@ def _run_master(pkg, fmu, names, spec, cfg, t_end, H, method, record_every, prog
     master = SspMaster(fmu, states, A, t_end, H, [None if x == "none" else x for x in laws], cfg.Kp, cfg.Kd,
                            geo.Q, method=method, record_every=record_every, start_values=starts,
                            allow_unstable=allow_unstable)
-    res = master.run(progress)
-    res.info.update(package=str(pkg.path), components=names)
+    about = dict(package=str(pkg.path), components=names, method=method, H=float(H),
+                 wall={"w": [float(x) for x in np.ravel(geo.w)], "g0": float(geo.g0)})
+    try:
+        res = master.run(progress)
+    except RunFailed as exc:   # the record up to the failure says what it is too
+        if exc.partial is not None:
+            exc.partial.info.update(about)
+        raise
+    res.info.update(about)
     return res
 
 
-def save_result(res, out) -> Path:
-    """Write a package run's record to ``out/result.npz`` (t, q, u, tau, d, branch, euclidean,
-    V, edges) and return its path."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    path = out / "result.npz"
-    arrays = {k: getattr(res, k) for k in ("t", "q", "u", "tau", "d", "branch", "euclidean", "V")
-              if getattr(res, k) is not None}
-    np.savez(path, edges=np.array(res.edges, dtype=np.int64).reshape(-1, 2), **arrays)
-    return path
+def save_result(res, out, formats=("csv", "npz"), plots: bool = True, method: str | None = None) -> Path:
+    """Write a package run as a scene run is written (docs/results.md): ``out/result.npz``
+    (with its ``meta``: layout, counts, the package's settings, plots, title and wall) and/or
+    ``result.csv``, the network plots and ``summary.md``; a failed run (``res.error``) keeps its
+    record as ``result.partial.*``, no plots. ``fmu_sync.load`` and ``fmu-sync plot`` read the
+    folder back. Returns the summary's path."""
+    from . import plots as P
+    from . import report
+    from .output import check_out_dir, make_out_dir, results_in
+    from .scenes.running import clean_written
+    from .scenes.schema import plots_for
+    out = check_out_dir(out)
+    name = Path(res.info.get("package", "package")).name
+    head = f"Package `{name}`"
+    results_in(out, head)                             # another run's results there: refused
+    created = make_out_dir(out)
+    failed = bool(res.error)
+    info = res.info
+    wall = info.get("wall")
+    kinds = plots_for(True, res.d is not None, True)
+    settings = {"package": info.get("package"), "method": method or info.get("method"), "H": info.get("H"),
+                "t_end": float(res.t[-1]) if len(res.t) else None, "components": info.get("components")}
+    extra = {"settings": settings, "plots": kinds, "title": name, "wall": wall}
+    files = []
+    try:
+        files += report.write_data(res, out / "result", formats, partial=failed, extra=extra)
+        skipped = []
+        if plots and not failed:
+            system = None if wall is None else _wall_system(wall)
+            for k in kinds:
+                why = P.skip_reason(k, res)
+                if why is None:
+                    files.append(P.PLOTTERS[k](res, out / f"result-{k}.png", system=system, title=name))
+                else:
+                    skipped.append(f"no {k} plot: {why}")
+        run = SimpleNamespace(name=name, metrics={**report.metrics(res), "error": res.error})
+        notes = ([f"**the run failed**: {res.error} Its record up to the failure is marked partial (no plots)."]
+                 if failed else []) + skipped + report.run_notes([run])
+        summary = report.write_summary(
+            out / "summary.md", title=head, description=f"The SSP package `{info.get('package')}` run in "
+            f"fmu-sync's master (`fmu-sync run {name}`).", rows=report.rows([run]),
+            settings=[(k, repr(v)) for k, v in settings.items() if v is not None], files=files, base=out,
+            notes=notes)
+    except BaseException:
+        clean_written(out, created, files)
+        raise
+    return summary
+
+
+def _wall_system(wall: dict):
+    return SimpleNamespace(w=np.asarray(wall["w"], dtype=float), g0=float(wall["g0"]))

@@ -67,9 +67,14 @@ class CouplingInstance(InstanceBase):
         return ""
 
     def refresh(self) -> str:
-        """Outputs in initialization mode (NaN while the parameters are not a valid set)."""
-        self.exit_initialization()
-        return ""
+        """Outputs in initialization mode; NaN while the parameters are not a valid set, said
+        with a warning (the reason :meth:`exit_initialization` would refuse with)."""
+        reply = self.exit_initialization()
+        if not reply:
+            return ""
+        why = reply[2:].split("invalid configuration: ", 1)[-1].split("; the instance stays", 1)[0]
+        return (f"W:the coupling's outputs are NaN in initialization mode: the parameters are not a valid set "
+                f"yet ({why}); set valid parameters before {self.calls['exit']}")
 
     # ------------------------------------------------------------ FMU state
     def _state(self) -> dict:

@@ -256,9 +256,11 @@ class FMUInstance(InstanceBase):
             system = self.slave.build_system(p)
             self.x[self.i_gap] = system.gap(q0)
             self.x[self.i_energy] = system.energy(q0, u0)
-        except ValueError:
+        except ValueError as exc:
             self.x[self.i_gap] = math.nan
             self.x[self.i_energy] = math.nan
+            return (f"W:outputs gap and energy are NaN in initialization mode: the parameters are not a valid "
+                    f"system yet ({exc}); set valid parameters before {self.calls['exit']}")
         return ""
 
     def exit_initialization(self) -> str:

@@ -181,6 +181,18 @@ def test_main_export(tmp_path, capsys):
         main_export(["no-such-model"])
 
 
+
+def test_export_to_a_path_it_cannot_write_is_a_refusal_naming_it(tmp_path, capsys):
+    """/sys/x.fmu (root cannot create files there either), a path under a file, a folder: exit 2,
+    the message names the path asked for (not a temporary file), nothing is left behind."""
+    (tmp_path / "file").write_text("x")
+    (tmp_path / "dir.fmu").mkdir()
+    for target in ("/sys/x.fmu", str(tmp_path / "file" / "x.fmu"), str(tmp_path / "dir.fmu")):
+        assert main_export(["impact-oscillator", "-o", target]) == 2, target
+        err = capsys.readouterr().err
+        assert f"cannot write the FMU {target}:" in err and ".export-" not in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dir.fmu", "file"]
+
 def test_slave_import_compiles_nothing():
     """The slave module imports the compiled kernel but compiles nothing."""
     code = textwrap.dedent("""

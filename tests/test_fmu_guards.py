@@ -122,6 +122,27 @@ def scenario_simulate_fmu(fmu):
     return out
 
 
+def scenario_init_outputs(fmu):
+    """Outputs read in initialization mode while the parameters are not a valid system (M not
+    symmetric): fmi2GetReal's status (the raw call) and the log; then the parameters made valid."""
+    import ctypes
+    from fmu_sync.fmi_bridge import FMUHost
+    h = FMUHost(fmu, instance_name="init", logging=True)
+    h.call("setupExperiment", None, 0.0, None)
+    h.call("enterInitializationMode")
+    h.set({"M[1,2]": 0.3})   # M[2,1] = 0.5: not symmetric
+    names = ["gap", "energy"]
+    vr = (ctypes.c_uint * 2)(*[h.vr(n) for n in names])
+    val = (ctypes.c_double * 2)()
+    out = {"status": int(h.fmu.fmi2GetReal(h.fmu.component, vr, 2, val)), "values": [repr(v) for v in val],
+           "log": " ".join(h.errors(min_status=1))}
+    h.set({"M[1,2]": 0.5})
+    out["valid_status"] = int(h.fmu.fmi2GetReal(h.fmu.component, vr, 2, val))
+    out["valid_values"] = list(val)
+    h.close()
+    return out
+
+
 def _child_main(argv):
     name, fmu = argv
     print(json.dumps(globals()[f"scenario_{name}"](fmu)))
@@ -274,3 +295,13 @@ def test_read_only_home_and_tmp_in_a_real_importer(fmus, tmp_path):
 
 if __name__ == "__main__":
     _child_main(sys.argv[1:])
+
+
+def test_outputs_in_initialization_mode_with_invalid_parameters_warn_with_the_reason(tmp_path):
+    """NaN outputs while the parameters are not a valid system came with fmi2OK and no word (issue 28):
+    now fmi2Warning, the reason logged; valid parameters give numbers and fmi2OK again."""
+    fmu = export_fmu("mechanical-system-2", tmp_path / "m2.fmu")
+    r = _child("init_outputs", fmu)
+    assert r["status"] == 1 and r["values"] == ["nan", "nan"], r
+    assert "not a valid system yet" in r["log"] and "symmetric" in r["log"], r["log"]
+    assert r["valid_status"] == 0 and all(math.isfinite(v) for v in r["valid_values"]), r

@@ -183,7 +183,21 @@ def _texts(fig_path_fn, *args, **kw):
         leg = ax.get_legend()
         if leg is not None:
             out += [t.get_text() for t in leg.get_texts()]
-    return fig, out
+    return fig, [t.replace("\n", " ") for t in out]     # wrapped legend labels read as one line
+
+
+def _inside_and_beside(fig):
+    """Every title and legend lies inside the figure, and no legend covers its axes' data area."""
+    fig.canvas.draw()
+    R = fig.canvas.get_renderer()
+    W, H = fig.bbox.width, fig.bbox.height
+    for ax in fig.axes:
+        for art in [ax.title] + ([ax.get_legend()] if ax.get_legend() else []):
+            b = art.get_window_extent(R)
+            assert b.x0 >= -0.5 and b.x1 <= W + 0.5 and b.y0 >= -0.5 and b.y1 <= H + 0.5, (art, b, W, H)
+        leg = ax.get_legend()
+        if leg is not None:
+            assert not leg.get_window_extent(R).overlaps(ax.get_window_extent(R)), ax.get_ylabel()
 
 
 def test_impact_zoom_window_shows_the_jump_with_d_continuous(osc):
@@ -210,6 +224,35 @@ def test_titles_single_and_zero_noted(tmp_path, pair, osc):
     assert [t for t in texts if t.startswith("TITLE:")] == ["TITLE:only this"]
 
 
+
+def test_forces_with_exact_zeros_one_note_inside_the_figure(tmp_path, pair, osc):
+    """τ exactly 0 in some records (the switching law at d = 0): the note is drawn once, every
+    title and legend lies inside the figure and beside the data (issue 28: twice, run off the left
+    edge, the title cut)."""
+    tau1 = np.where((pair.d == 0.0).reshape(pair.tau1.shape[0], -1), 0.0, pair.tau1)
+    tau1[100:110] = 0.0
+    r = PairResult(pair.t, pair.q1, pair.u1, pair.q2, pair.u2, tau1, -tau1, pair.d, pair.branch, pair.euclidean,
+                   coupling="switching")
+    fig, texts = _texts(plots.plot_forces, r, tmp_path / "f.png", system=osc, title="forced-pair, switching")
+    notes = [t.get_text() for ax in fig.axes if ax.get_legend() for t in ax.get_legend().get_texts()
+             if "exactly 0" in t.get_text().replace("\n", " ")]
+    notes += [t.get_text() for ax in fig.axes for t in ax.texts if "exactly 0" in t.get_text()]
+    assert len(notes) == 1, notes
+    assert "TITLE:forced-pair, switching: coupling forces (switching)" in texts
+    _inside_and_beside(fig)
+
+
+@pytest.mark.parametrize("kind", ["distance", "lyapunov", "forces", "positions"])
+def test_legends_beside_the_data(tmp_path, pair, osc, kind):
+    """The legends of the time plots (the ultimate-bound line of an uncoupled run among them) lie
+    beside the axes, inside the figure."""
+    unc = PairResult(pair.t, pair.q1, pair.u1, pair.q2, pair.u2, pair.tau1, pair.tau2, pair.euclidean * 0.9,
+                     pair.branch, pair.euclidean, coupling=None)
+    fig, texts = _texts(plots.PLOTTERS[kind], unc, tmp_path / "x.png", system=osc, title="forced-pair, uncoupled")
+    if kind == "distance":
+        assert any(t.startswith("ultimate bound") for t in texts), texts
+    _inside_and_beside(fig)
+
 def test_uncoupled_forces_one_panel_no_empty_axes(tmp_path, pair, osc):
     z = np.zeros_like(pair.tau1)
     unc = PairResult(pair.t, pair.q1, pair.u1, pair.q2, pair.u2, z, z, pair.d, pair.branch, pair.euclidean)
@@ -217,3 +260,44 @@ def test_uncoupled_forces_one_panel_no_empty_axes(tmp_path, pair, osc):
     assert len(fig.axes) == 1 and any("no coupling force" in t for t in texts)
     fig, _ = _texts(plots.plot_forces, pair, tmp_path / "g.png", system=osc)
     assert len(fig.axes) == 2 and all(ax.lines for ax in fig.axes)
+
+
+_SAVE_LOOP = """
+import sys
+import numpy as np
+from fmu_sync import plots
+from fmu_sync.core.result import PairResult
+t = np.linspace(0.0, 100.0, 200001)
+x = np.sin(t)[:, None]
+d = np.exp(-0.1 * t)
+r = PairResult(t, x, x, -x, -x, x, -x, d, np.zeros(t.size, dtype=np.int64), 2 * d, impacts1=0, impacts2=0,
+               coupling="switching")
+print("ready", flush=True)
+for i in range(1000):
+    plots.plot_forces(r, f"{sys.argv[1]}/f{i}.png", title="interrupted")
+"""
+
+
+def test_an_interrupted_plot_leaves_no_truncated_png(tmp_path):
+    """SIGINT (Ctrl-C) while figures are written: every PNG left is whole (it ends with its IEND
+    chunk) and no temporary file stays (issue 28: a 124-byte PNG of the interrupted variant)."""
+    import random
+    import signal
+    import subprocess
+    import sys
+    import time
+    rng = random.Random(28)
+    for k in range(3):
+        out = tmp_path / f"try{k}"
+        out.mkdir()
+        p = subprocess.Popen([sys.executable, "-c", _SAVE_LOOP, str(out)], stdout=subprocess.PIPE, text=True)
+        assert p.stdout.readline().strip() == "ready"
+        while not list(out.glob("f1.png")) and p.poll() is None:
+            time.sleep(0.02)
+        time.sleep(rng.uniform(0.0, 0.5))
+        p.send_signal(signal.SIGINT)
+        p.wait(timeout=60)
+        files = sorted(out.iterdir())
+        assert files and all(f.suffix == ".png" and not f.name.startswith(".") for f in files), files
+        for f in files:
+            assert f.read_bytes().endswith(b"IEND\xaeB`\x82"), (f, f.stat().st_size)

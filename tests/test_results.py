@@ -181,6 +181,31 @@ def test_load_says_what_it_cannot_read(tmp_path):
         fmu_sync.load(tmp_path / "ft.csv")
 
 
+
+def test_load_of_a_damaged_file_names_it_and_gives_no_unsafe_advice(tmp_path):
+    """A garbage or cut-short .npz, a cut-short .csv, a member of an object array: a ValueError that
+    names the file and the damage, never numpy's advice to unpickle or to "use usecols" (issue 28)."""
+    r = simulate(ImpactOscillator(m=1.0, k=0.0, c=0.0, f0=-9.81, e=0.7), (1.0, 0.0), 1.5, 1e-3)
+    npz, csv = report.write_data(r, tmp_path / "ball", ("npz", "csv"))[::-1]
+    data = npz.read_bytes()
+    cases = {"garbage.npz": b"garbage" * 20, "cut.npz": data[: len(data) // 2],
+             "cut.csv": csv.read_bytes()[: len(csv.read_bytes()) // 2]}
+    np.savez(tmp_path / "objects.npz", t=np.array([object()], dtype=object))
+    damaged = bytearray(data)      # the zip directory intact, a compressed member garbled
+    mid = data.index(b"q.npy") + 200
+    damaged[mid:mid + 64] = b"\xff" * 64
+    cases["damaged.npz"] = bytes(damaged)
+    for name, blob in cases.items():
+        (tmp_path / name).write_bytes(blob)
+    for name in [*cases, "objects.npz"]:
+        with pytest.raises(ValueError) as info:
+            fmu_sync.load(tmp_path / name)
+        msg = str(info.value)
+        assert name in msg and "allow_pickle" not in msg and "usecols" not in msg, msg
+        assert re.search(r"truncated|damaged|never writes", msg), msg
+    with pytest.raises(ValueError, match=r"cut\.csv: line \d+ has \d+ values, the header names 4"):
+        fmu_sync.load(tmp_path / "cut.csv")
+
 def test_a_sweep_nc_loads_as_its_dataset(tmp_path):
     from fmu_sync.core.batch import COL
     from fmu_sync.sweeps.store import to_dataset, write_dataset

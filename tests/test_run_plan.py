@@ -209,7 +209,7 @@ def test_the_plan_carries_what_the_drivers_need():
     assert p.q.tolist() == [[1.0], [0.5]] and p.u.tolist() == [[0.0], [0.2]]
     assert p.Kp.tolist() == [[2.0]] and p.limit.stable and p.limit.hold == "zoh"
     with pytest.raises(UnstableExchange):   # the same run at the first-order hold's H, beyond its bound
-        plan_run(s, [(1.0, 0.0), (0.5, 0.2)], 1.0, 1.2 * p.limit.H_max, laws=[1], Kp=2.0, Kd=1.0, hold="foh",
+        plan_run(s, [(1.0, 0.0), (0.5, 0.2)], 10.0, 1.2 * p.limit.H_max, laws=[1], Kp=2.0, Kd=1.0, hold="foh",
                  step_name="H")
 
 
@@ -265,3 +265,24 @@ def test_no_caller_tells_errors_apart_by_their_text():
             if any(t in ast.unparse(p) for p in parts for t in text):
                 found.append(f"{path.name}:{node.lineno}: {ast.unparse(node)}")
     assert not found, found
+
+
+def test_a_step_as_long_as_the_run_is_refused_in_core_and_cosim(tmp_path, capsys):
+    """``fmu-sync run bouncing-ball --set solver.dt=10 --set run.t_end=1`` ran one step and ended at
+    q = -3.9 m, exit 0 (issue 28). The run plan's one rule (dt < t_end - t0) refuses it in the core,
+    the pair and the master's plan (step H) alike, naming the step and the run's length."""
+    from fmu_sync.core import StepTooLarge
+    from fmu_sync.core.plan import plan_run
+    ball = ImpactOscillator(m=1.0, k=0.0, c=0.0, f0=-9.81, e=0.8)
+    for dt in (10.0, 1.0):
+        with pytest.raises(StepTooLarge, match=rf"dt = {dt:g} s is not shorter than the run \(t_end - t0 = 1 s\)"):
+            simulate(ball, (1.0, 0.0), 1.0, dt)
+    with pytest.raises(StepTooLarge):
+        simulate_pair(ball, (1.0, 0.0), (0.5, 0.0), 2.0, 2.0, coupling="switching", Kp=1.0, Kd=0.5)
+    with pytest.raises(StepTooLarge, match=r"H = 5 s is not shorter"):
+        plan_run(ball, [(1.0, 0.0), (0.5, 0.0)], 5.0, 5.0, dt=1e-3, step_name="H", Kp=1.0, Kd=0.5)
+    assert simulate(ball, (1.0, 0.0), 1.0, 0.1).q.min() > -0.1 * 9.81   # resolved: O(dt |u|)
+    assert main(["run", "bouncing-ball", "--set", "solver.dt=10", "--set", "run.t_end=1", "-o",
+                 str(tmp_path / "bb"), "--quiet"]) == 2
+    assert "dt = 10 s is not shorter than the run" in capsys.readouterr().err
+    assert not (tmp_path / "bb").exists()

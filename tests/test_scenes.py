@@ -375,3 +375,18 @@ def test_demo_plumbing_with_stand_ins(tmp_path, monkeypatch):
     for name in ("compare-distance.png", "compare-euclidean.png", "cosim-vs-core.png",
                  "switching-cosim-distance.png", "euclidean-core.csv"):
         assert (tmp_path / name).stat().st_size > 0, name
+
+
+def test_the_record_interval_is_said_as_a_time_core_and_cosim():
+    """run.record_every counts steps of solver.dt in the core and of run.H in co-simulation (issue 28:
+    `--set run.mode=cosim` then recorded every 0.1 s, unsaid): the summary's settings and the data
+    file's meta say the interval in seconds, with the step it counts."""
+    from fmu_sync.scenes.loading import load_scene
+    from fmu_sync.scenes.running import run_extra, settings_table
+    rows = {}
+    for mode in ("core", "cosim"):
+        sc = load_scene("forced-pair", {"run.mode": mode}, ["switching"])
+        rows[mode] = dict(settings_table(sc, sc.variants))["record interval"]
+        assert run_extra(sc.variants[0], [], "t")["record_interval"] == pytest.approx(0.01 if mode == "core" else 0.1)
+    assert rows["core"] == "0.01 s (run.record_every = 10 steps of solver.dt = 0.001 s)"
+    assert rows["cosim"] == "0.1 s (run.record_every = 10 steps of run.H = 0.01 s)"

@@ -418,5 +418,32 @@ def test_cli_runs_a_package_in_our_master(packages, tmp_path):
     assert rec["d"].shape == (int(T_SYNC / 0.01) + 1, 1) and rec["d"][-1, 0] < 1e-6
 
 
+
+def test_a_package_run_writes_what_a_scene_run_writes(tmp_path):
+    """``fmu-sync run pair.ssp -o D`` (a child process): a record that ``fmu_sync.load`` reads with
+    its ``meta``, the network plots, a summary; ``fmu-sync plot D`` draws them again (issue 28)."""
+    import fmu_sync
+    from fmu_sync.results import load_meta
+    pkg = write_ssp("forced-pair", tmp_path / "pair.ssp", "switching", {"run.t_end": 2.0})
+    out = tmp_path / "D"
+    p = subprocess.run([sys.executable, "-m", "fmu_sync.cli", "run", str(pkg), "-o", str(out), "--quiet"],
+                       capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr[-2000:]
+    r = fmu_sync.load(out / "result.npz")
+    assert r.q.shape == (201, 2, 1) and r.edges == [(0, 1)] and r.impacts is not None
+    meta = load_meta(out / "result.npz")
+    assert meta["title"] == "pair.ssp" and meta["settings"]["method"] == "jacobi" and meta["wall"]["g0"] == 0.0
+    assert np.array_equal(fmu_sync.load(out / "result.csv").d, r.d)
+    summary = (out / "summary.md").read_text()
+    assert summary.startswith("# Package `pair.ssp`") and "result-distance.png" in summary
+    pngs = sorted(f.name for f in out.glob("*.png"))
+    assert pngs == ["result-distance.png", "result-lyapunov.png", "result-positions.png"]
+    for f in out.glob("*.png"):
+        f.unlink()
+    p = subprocess.run([sys.executable, "-m", "fmu_sync.cli", "plot", str(out)], capture_output=True, text=True,
+                       timeout=600)
+    assert p.returncode == 0, p.stderr[-2000:]
+    assert sorted(f.name for f in out.glob("*.png")) == pngs
+
 if __name__ == "__main__":
     _child_main(sys.argv[1:])

@@ -391,3 +391,80 @@ def test_gain_map_cells_carry_a_rate_that_matches_their_own_average_decay():
                 checked += 1
                 assert float(ds["decay_rate"][i, j]) == pytest.approx(ref, rel=0.25), (kp, kd)
     assert checked >= 0.8 * resolved.sum()
+
+
+def _captured(monkeypatch):
+    """The figures the sweep plots save (fmu_sync.sweeps.plots.save_figure), kept for inspection."""
+    import fmu_sync.sweeps.plots as SP
+    figs = []
+    real = SP.save_figure
+
+    def keep(fig, path, dpi):
+        figs.append(fig)
+        return real(fig, path, dpi)
+    monkeypatch.setattr(SP, "save_figure", keep)
+    return SP, figs
+
+
+def test_samples_plot_draws_every_sample_and_counts_each_kind(tmp_path, monkeypatch):
+    """An LHS sample whose rates are finite but not resolved (issue 28: 213 samples with Kp in
+    [0.03, 0.08] had finite rates in sweep.nc and were not drawn, unsaid): every sample is drawn,
+    the legend counts each kind."""
+    import xarray as xr
+    SP, figs = _captured(monkeypatch)
+    rng = np.random.default_rng(28)
+    n = 60
+    Kp, e = 10 ** rng.uniform(-2, 2, n), rng.uniform(0.5, 1.0, n)
+    rate = rng.uniform(0.2, 1.0, n)
+    err = np.where(Kp < 0.1, 0.5 * rate, 0.01 * rate)            # unresolved below Kp = 0.1
+    status = np.zeros(n, dtype=np.int8)
+    status[:3], status[3:5] = 1, 2
+    rate[5:9] = np.nan                                             # no rate at all
+    ds = xr.Dataset({"status": ("run", status), "decay_rate": ("run", rate), "decay_rate_err": ("run", err),
+                     "rate_resolved": ("run", np.isfinite(rate) & (Kp >= 0.1)),
+                     "synchronized": ("run", np.isfinite(rate))},
+                    coords={"run": np.arange(n), "coupling.Kp": ("run", Kp), "system.e": ("run", e)},
+                    attrs={"method": "lhs", "scene": "forced-pair"})
+    SP.scatter(ds, "coupling.Kp", "system.e", tmp_path / "samples.png")
+    ax = figs[-1].axes[0]
+    drawn = sum(len(c.get_offsets()) for c in ax.collections)
+    assert drawn == n
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    loose = int(((status == 0) & np.isfinite(rate) & (Kp < 0.1)).sum())
+    assert loose > 0 and f"decay rate not resolved, open ({loose})" in labels, labels
+    assert "no decay rate (4)" in labels and "diverged (3)" in labels and "refused (2)" in labels
+
+
+def test_basin_colours_without_a_rate_are_told_apart(tmp_path, monkeypatch):
+    """basin.png: the cells without a colour-scale value (not synchronized; synchronized, no rate;
+    diverged; refused) in colours far apart (issue 28: two greys), the legend off the map."""
+    import xarray as xr
+    from matplotlib.colors import to_rgb
+    SP, figs = _captured(monkeypatch)
+    q, u = np.linspace(0, 3, 6), np.linspace(-3, 3, 6)
+    status = np.zeros((6, 6), dtype=np.int8)
+    status[0, 0], status[0, 1] = 1, 2
+    rate = np.full((6, 6), 0.5)
+    rate[1, :3] = np.nan
+    sync = np.ones((6, 6), dtype=bool)
+    sync[2, :3] = False
+    rate[2, :3] = np.nan
+    dims = ("initial.q2", "initial.u2")
+    ds = xr.Dataset({"status": (dims, status), "decay_rate": (dims, rate), "decay_rate_err": (dims, 0.01 * rate),
+                     "rate_resolved": (dims, np.isfinite(rate)), "synchronized": (dims, sync)}, coords={"initial.q2": q, "initial.u2": u},
+                    attrs={"scene": "forced-pair"})
+    SP.basin(ds, *dims, tmp_path / "basin.png")
+    fig = figs[-1]
+    ax = fig.axes[0]
+    leg = ax.get_legend()
+    colours = {t.get_text(): np.array(to_rgb(h.get_facecolor())) for t, h in zip(leg.get_texts(), leg.legend_handles)}
+    assert len(colours) == 4, colours
+    names = list(colours)
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            assert np.abs(colours[a] - colours[b]).sum() > 0.45, (a, b, colours[a], colours[b])
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    canvas = FigureCanvasAgg(fig)      # pyplot closed it: draw it on a canvas of its own
+    canvas.draw()
+    R = canvas.get_renderer()
+    assert not leg.get_window_extent(R).overlaps(ax.get_window_extent(R))

@@ -15,7 +15,7 @@ from .loading import Scene, as_scene
 from .schema import DEFAULT_OUT, TABLES, SceneError, Variant
 
 __all__ = ["RunRecord", "SceneRun", "RunRefused", "RunInterrupted", "preflight", "plan_variant", "run_scene", "run_variant",
-           "fmu_start_values", "export_for", "write_run", "run_extra", "error_notes", "skipped_notes", "settings_table"]
+           "fmu_start_values", "export_for", "write_run", "run_extra", "record_interval", "clean_written", "error_notes", "skipped_notes", "settings_table"]
 
 
 @dataclass
@@ -242,10 +242,23 @@ def write_run(run: RunRecord, out_dir: Path, plots, title: str, formats=("csv", 
 
 def run_extra(variant: Variant, plots, title: str) -> dict:
     """What a data file keeps of the scene (:func:`fmu_sync.report.record_meta`): the variant's
-    settings, the plots and title of ``fmu-sync plot DIR``, and the wall (w, g0) they draw."""
+    settings, the plots and title of ``fmu-sync plot DIR``, the wall (w, g0) they draw, and the
+    record interval in seconds (:func:`record_interval`)."""
     from ..core.views import plain_settings
     return {"settings": plain_settings(variant.cfg), "plots": list(plots), "title": title,
-            "wall": {"w": [float(x) for x in variant.system.w], "g0": float(variant.system.g0)}}
+            "wall": {"w": [float(x) for x in variant.system.w], "g0": float(variant.system.g0)},
+            "record_interval": record_interval(variant)[0]}
+
+
+def record_interval(variant: Variant) -> tuple[float, str]:
+    """``(seconds, words)``: the time between two record rows of the variant's run.
+    ``run.record_every`` counts steps of the run's grid (:func:`fmu_sync.output.estimate`'s rule):
+    ``solver.dt`` in the core, ``run.H`` in co-simulation, so one value records a cosim run
+    H/dt times more sparsely; the summary and the data file say the interval as a time."""
+    from ..output import run_grid
+    _, step, name = run_grid(variant.cfg)
+    k = int(variant.cfg["run.record_every"])
+    return k * step, f"{k * step:g} s (run.record_every = {k} step{'s' if k > 1 else ''} of {name} = {step:g} s)"
 
 
 def _stream_run(v: Variant, out_dir: Path, fmu_path, progress, scene_name, formats, est, max_memory, extra):
@@ -347,7 +360,7 @@ def run_scene(scene, out_dir=None, overrides: dict | None = None, progress: Call
         plan.append((v, fmts, est, stream))
 
     old = results_in(out_dir, f"Scene `{scene.name}`", overwrite)
-    _clean(out_dir, False, old)   # --overwrite: another scene's results go, after every check passed
+    clean_written(out_dir, False, old)   # --overwrite: another scene's results go, after every check passed
     created = make_out_dir(out_dir)
     fmus = {}
     runs = []
@@ -381,7 +394,7 @@ def run_scene(scene, out_dir=None, overrides: dict | None = None, progress: Call
             try:
                 write_run(run, out_dir, scene.plots, scene.name, fmts, scaled(progress, mid, b), draw=plots)
             except BaseException:
-                _clean(out_dir, False, run.files)   # never half a variant's files
+                clean_written(out_dir, False, run.files)   # never half a variant's files
                 raise
             if progress is not None:
                 progress(b)
@@ -390,7 +403,7 @@ def run_scene(scene, out_dir=None, overrides: dict | None = None, progress: Call
     except KeyboardInterrupt:
         raise _interrupted(scene, out_dir, created, runs, fmus, current, plots, chosen) from None
     except BaseException:
-        _clean(out_dir, created, [f for r in runs for f in r.files] + list(fmus.values()))
+        clean_written(out_dir, created, [f for r in runs for f in r.files] + list(fmus.values()))
         raise
     return _summarize(scene, out_dir, created, runs, fmus, plots, chosen)
 
@@ -403,7 +416,7 @@ def _interrupted(scene, out_dir, created, runs, fmus, current, plots, chosen) ->
     done = [r for r in runs if r.result is not None]
     rest = [v.name for v in chosen if v.name not in {r.name for r in runs}]
     if not done:
-        _clean(out_dir, created, list(fmus.values()))
+        clean_written(out_dir, created, list(fmus.values()))
         return RunInterrupted(f"interrupted during variant {current!r}: nothing kept (no variant had finished)")
     sr = _summarize(scene, out_dir, created, runs, fmus, plots, chosen)
     again = " ".join(f"--variant {n}" for n in rest)
@@ -416,7 +429,7 @@ def _summarize(scene, out_dir, created, runs, fmus, plots, chosen) -> SceneRun:
     from .. import report
     written = [r for r in runs if r.result is not None]
     if not written:   # every run failed without a record: leave nothing behind
-        _clean(out_dir, created, list(fmus.values()))
+        clean_written(out_dir, created, list(fmus.values()))
         sr = SceneRun(scene, out_dir, runs, [])
         return sr
     files = list(fmus.values()) + [f for r in runs for f in r.files]
@@ -433,7 +446,7 @@ def _summarize(scene, out_dir, created, runs, fmus, plots, chosen) -> SceneRun:
     return sr
 
 
-def _clean(out_dir: Path, created: bool, files) -> None:
+def clean_written(out_dir: Path, created: bool, files) -> None:
     """Remove what this run wrote (and the folder if it made it and it is empty)."""
     for f in files:
         try:
@@ -502,6 +515,9 @@ def settings_table(scene: Scene, variants, names=None) -> list[tuple[str, str]]:
             rows.append((k, values.pop()))
         else:
             rows.append((k, "; ".join(f"{n}: {v.cfg[k]!r}" for n, v in zip(names, variants))))
+    every = [record_interval(v)[1] for v in variants]
+    rows.append(("record interval", every[0] if len(set(every)) == 1 else
+                 "; ".join(f"{n}: {x}" for n, x in zip(names, every))))
     return rows
 
 

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..plots import save_figure
 
 __all__ = ["heat_map", "basin", "scatter", "line_plot", "sweep_plots", "zoh_margin", "LABELS"]
 
@@ -131,6 +132,12 @@ def _zoh_line(ax, ds, x, y, xlog, ylog):
     return True
 
 
+#: the cells of a map without a colour-scale value: colours apart from each other, from viridis, from
+#: the diverged red and the refused black (two greys were hard to tell apart)
+NOT_SYNCHRONIZED = "#de77ae"
+NO_RATE = "0.8"
+
+
 def _masks(da_status, sync):
     st = np.asarray(da_status)
     return st == 1, st == 2, (st == 0) & ~np.asarray(sync)
@@ -213,9 +220,9 @@ def heat_map(ds, x: str, y: str, path, title: str | None = None) -> Path:
         m = ax.pcolormesh(XE, YE, Z.T, cmap=cmap, norm=norm, shading="flat", **kw)
         _colorbar(fig, m, ax, clabel, norm)
         if ax is axes[1]:
-            _overlay(ax, XE, YE, nosync & ~div & ~ref, "0.82", "not synchronized by t_end")
+            _overlay(ax, XE, YE, nosync & ~div & ~ref, NOT_SYNCHRONIZED, "not synchronized by t_end")
         else:
-            _overlay(ax, XE, YE, (sub["status"].values == 0) & ~np.isfinite(rate), "0.82",
+            _overlay(ax, XE, YE, (sub["status"].values == 0) & ~np.isfinite(rate), NO_RATE,
                      "no resolved decay rate (under 2 decades or 20 samples, or spread > 50 %)")
         _overlay(ax, XE, YE, div, "#b2182b", "diverged (stopped early)")
         _overlay(ax, XE, YE, ref, "black", "refused (invalid start)")
@@ -232,7 +239,7 @@ def heat_map(ds, x: str, y: str, path, title: str | None = None) -> Path:
         if drawn:
             handles = ax.get_legend_handles_labels()[0] + handles
         if handles:
-            ax.legend(handles=handles, loc="lower right", fontsize=8, framealpha=0.9)
+            ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(0.0, -0.12), fontsize=8, frameon=False)
     n, nf = int(ds["status"].size), int((ds["status"].values != 0).sum())
     head = title or (f"{ds.attrs['sweep_scene']}: " if ds.attrs.get("sweep_scene") else "sweep of ") + \
         ds.attrs.get("scene", "")
@@ -240,7 +247,7 @@ def heat_map(ds, x: str, y: str, path, title: str | None = None) -> Path:
     fig.suptitle(f"{head}{' (' + v + ')' if v else ''}: {n} runs, {nf} failed"
                  + (f"  [{note}]" if note else ""), fontsize=12)
     path = Path(path)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, 110)
     plt.close(fig)
     return path
 
@@ -265,8 +272,8 @@ def basin(ds, x: str, y: str, path, title: str | None = None) -> Path:
     m = ax.pcolormesh(XE, YE, rate.T, cmap="viridis", norm=norm, shading="flat")
     _colorbar(fig, m, ax, "decay rate of d (1/s, log scale)" + (f"; median {np.median(finite):.3g}" if finite.size
                                                                  else ""), norm)
-    _overlay(ax, XE, YE, nosync & ~div & ~ref, "0.82", "not synchronized by t_end")
-    _overlay(ax, XE, YE, ~nosync & ~div & ~ref & ~np.isfinite(rate), "0.6",
+    _overlay(ax, XE, YE, nosync & ~div & ~ref, NOT_SYNCHRONIZED, "not synchronized by t_end")
+    _overlay(ax, XE, YE, ~nosync & ~div & ~ref & ~np.isfinite(rate), NO_RATE,
              "synchronized, no decay window resolved")
     _overlay(ax, XE, YE, div, "#b2182b", "diverged")
     _overlay(ax, XE, YE, ref, "black", "refused (start violates the wall)")
@@ -279,8 +286,8 @@ def basin(ds, x: str, y: str, path, title: str | None = None) -> Path:
         if x.startswith("initial.q") and XE[0] < 0 < XE[-1]:
             ax.axvline(0.0, color="black", lw=1.5)
     handles = ax.get_legend_handles_labels()[0] + getattr(ax, "legend_handles_extra", [])
-    if handles:
-        ax.legend(handles=handles, loc="upper right", fontsize=8, framealpha=0.9)
+    if handles:   # below the map, never over its cells
+        ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(0.0, -0.1), ncol=2, fontsize=8, frameon=False)
     ax.set_xlim(XE[0], XE[-1])
     ax.set_ylim(YE[0], YE[-1])
     ax.set_xlabel(_label(x))
@@ -290,37 +297,53 @@ def basin(ds, x: str, y: str, path, title: str | None = None) -> Path:
                   + (f" ({ds.attrs['variant']})" if ds.attrs.get("variant") else ""))
                  + f": {n} runs, {nf} failed" + (f"  [{note}]" if note else ""), fontsize=11)
     path = Path(path)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, 110)
     plt.close(fig)
     return path
 
 
 def scatter(ds, x: str, y: str, path) -> Path:
-    """Random / LHS samples: decay rate at the sampled points, failures marked."""
+    """Random / LHS samples: every sample is drawn. The decay rate colours each run that has one
+    (filled: resolved; open: a rate the fit does not resolve, :func:`resolved_rate`); runs without a
+    rate in grey, failures marked; the legend counts each kind."""
     plt = _plt()
+    from matplotlib.colors import Normalize
     fig, ax = plt.subplots(figsize=(7.5, 5.8), constrained_layout=True)
     xv, yv = ds[x].values.astype(float), ds[y].values.astype(float)
     st = ds["status"].values
-    ok = st == 0
-    ok = ok & np.isfinite(resolved_rate(ds))
-    m = ax.scatter(xv[ok], yv[ok], c=ds["decay_rate"].values[ok], cmap="viridis", s=18)
-    fig.colorbar(m, ax=ax, label="decay rate of d (1/s)")
+    rate = np.asarray(ds["decay_rate"].values, dtype=float)
+    done = st == 0
+    good = done & np.isfinite(resolved_rate(ds))
+    loose = done & np.isfinite(rate) & ~good
+    none = done & ~np.isfinite(rate)
+    shown = rate[good | loose]
+    norm = Normalize(vmin=shown.min(), vmax=max(shown.max(), shown.min() + 1e-12)) if shown.size else None
+    m = ax.scatter(xv[good], yv[good], c=rate[good], cmap="viridis", norm=norm, s=18,
+                   label=f"decay rate resolved ({int(good.sum())})")
+    if loose.any():
+        cmap = plt.get_cmap("viridis")
+        ax.scatter(xv[loose], yv[loose], facecolors="none", edgecolors=cmap(norm(rate[loose])), s=22, lw=1.2,
+                   label=f"decay rate not resolved, open ({int(loose.sum())})")
+    if none.any():
+        ax.scatter(xv[none], yv[none], color="0.6", marker=".", s=20,
+                   label=f"no decay rate ({int(none.sum())})")
+    if norm is not None:
+        fig.colorbar(m, ax=ax, label="decay rate of d (1/s)")
     for code, color, label in ((1, "#b2182b", "diverged"), (2, "black", "refused")):
         sel = st == code
         if sel.any():
-            ax.scatter(xv[sel], yv[sel], marker="x", color=color, s=24, label=label)
+            ax.scatter(xv[sel], yv[sel], marker="x", color=color, s=24, label=f"{label} ({int(sel.sum())})")
     if _is_log(np.sort(xv)) or (np.all(xv > 0) and xv.max() / xv.min() > 50):
         ax.set_xscale("log")
     if np.all(yv > 0) and yv.max() / yv.min() > 50:
         ax.set_yscale("log")
     ax.set_xlabel(_label(x))
     ax.set_ylabel(_label(y))
-    if ax.get_legend_handles_labels()[0]:
-        ax.legend(fontsize=8)
-    ax.set_title(f"{ds.attrs.get('method', '')} sample of {ds.attrs.get('scene', '')}: {st.size} runs, "
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(0.0, -0.1), ncol=2, frameon=False)
+    ax.set_title(f"{ds.attrs.get('method', '')} sample of {ds.attrs.get('scene', '')}: {st.size} runs, all drawn, "
                  f"{int((st != 0).sum())} failed")
     path = Path(path)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, 110)
     plt.close(fig)
     return path
 
@@ -362,7 +385,7 @@ def line_plot(ds, x: str, path) -> Path:
     fig.suptitle(f"sweep of {ds.attrs.get('scene', '')}: {n} runs, {nf} failed; t_sync where synchronized",
                  fontsize=11)
     path = Path(path)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, 110)
     plt.close(fig)
     return path
 

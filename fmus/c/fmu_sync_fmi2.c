@@ -293,7 +293,7 @@ EXPORT fmi2Status fmi2Reset(fmi2Component comp) {
 static fmi2Status refresh_if_dirty(Instance *c) {
     if (c->state == ST_INIT && c->init_dirty) {
         fmi2Status s = call_py(c, "refresh", NULL);
-        if (s >= fmi2Error) return s;
+        if (s != fmi2OK) return s;   /* warning: outputs NaN, the parameters not a valid set yet (reason logged) */
         c->init_dirty = 0;
         c->outputs_stale = 0;
     }
@@ -309,12 +309,13 @@ EXPORT fmi2Status fmi2GetReal(fmi2Component comp, const fmi2ValueReference vr[],
     Instance *c;
     if (invalid(comp, F_GetReal, &c)) return fmi2Error;
     if (nvr && (!vr || !value)) return refuse(c, fmi2Error, "fmi2GetReal: NULL vr or value array");
-    if (refresh_if_dirty(c) >= fmi2Error) return fmi2Error;
+    fmi2Status s = refresh_if_dirty(c);
+    if (s >= fmi2Error) return fmi2Error;
     for (size_t i = 0; i < nvr; ++i) {
         if (!check_vr(c, F_GetReal, vr[i], 0)) return fmi2Error;
         value[i] = c->rt.x[vr[i]];
     }
-    return fmi2OK;
+    return s;
 }
 
 EXPORT fmi2Status fmi2GetInteger(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr,

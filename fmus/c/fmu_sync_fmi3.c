@@ -293,6 +293,7 @@ static fmi3Status refresh_if_dirty(Instance *c) {
     if (c->state == ST_INIT && c->init_dirty) {
         int s = fsr_call(&c->rt, "refresh", NULL);
         if (s >= fmi3Error) return checked(c, s);
+        if (s != fmi3OK) return (fmi3Status)s;   /* outputs NaN: parameters not a valid set yet (reason logged) */
         c->init_dirty = 0;
     }
     return fmi3OK;
@@ -339,7 +340,8 @@ static fmi3Status get_values(fmi3Instance inst, const char *fn, const fmi3ValueR
     if (invalid(inst, F_Get, fn, &c)) return fmi3Error;
     if (nv && !(dv || iv)) return refuse(c, fmi3Error, "%s: values is NULL", fn);
     if (!check_refs(c, fn, vr, nvr, nv, iv != NULL, dv != NULL)) return fmi3Error;
-    if (refresh_if_dirty(c) >= fmi3Error) return fmi3Error;
+    fmi3Status st = refresh_if_dirty(c);
+    if (st >= fmi3Error) return fmi3Error;
     size_t j = 0;
     for (size_t i = 0; i < nvr; ++i) {
         if (vr[i] == c->rt.nvars) { dv[j++] = c->rt.work[FSR_H_TIME]; continue; }
@@ -349,7 +351,7 @@ static fmi3Status get_values(fmi3Instance inst, const char *fn, const fmi3ValueR
             else iv[j] = (int64_t)v;
         }
     }
-    return fmi3OK;
+    return st;
 }
 
 /* all-or-nothing: every value is checked before any is written */
@@ -555,7 +557,8 @@ EXPORT fmi3Status fmi3DoStep(fmi3Instance inst, fmi3Float64 t, fmi3Float64 H, fm
     double *w = c->rt.work;
     *eventHandlingNeeded = *terminateSimulation = *earlyReturn = false;
     *lastSuccessfulTime = w[FSR_H_TIME];
-    if (apply_pending(c))      /* the importer stepped on without event mode: the impact happens now */
+    int pended = apply_pending(c);   /* the importer stepped on without event mode: the impact happens now */
+    if (pended)
         fsr_logf(&c->rt, fmi3Warning, "fmi3DoStep: the impact at t = %s was pending for event mode "
                  "(fmi3EnterEventMode, fmi3UpdateDiscreteStates); applied before this step", G(w[FSR_H_TIME]));
     double now = w[FSR_H_TIME];
@@ -570,7 +573,7 @@ EXPORT fmi3Status fmi3DoStep(fmi3Instance inst, fmi3Float64 t, fmi3Float64 H, fm
                  G(reached));
     }
     *lastSuccessfulTime = w[FSR_H_TIME];
-    return (fmi3Status)s;
+    return (fmi3Status)(pended && s < fmi3Warning ? fmi3Warning : s);   /* the skipped event mode: visible */
 }
 
 /* ------------------------------------------------------------ not provided */
