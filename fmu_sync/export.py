@@ -69,6 +69,10 @@ _ZIP_DATE = (2020, 1, 1, 0, 0, 0)
 FMI_VERSIONS = (2, 3)
 _C_GLUE = {2: "c/fmu_sync_fmi2.c", 3: "c/fmu_sync_fmi3.c"}
 _C_RUNTIME = "c/fmu_sync_runtime.c"
+#: the binary's libraries. libdl.so.2 stays a dependency (gcc links --as-needed, and -ldl is an empty
+#: archive since glibc 2.34): on glibc < 2.34 the old dlopen bound by fmu_sync_runtime.c lives there
+#: (the glibc floor, docs/fmu.md "The binary")
+_LIBS = ("-Wl,--no-as-needed", "-l:libdl.so.2", "-Wl,--as-needed", "-lpthread", "-lm")
 #: the carried package's __init__ files: the real core/__init__.py imports every run API of the core
 _CARRIED_INITS = {
     "__init__.py": b'"""fmu-sync model code carried by an FMU (the modules its slave and stepper import)."""\n',
@@ -232,7 +236,7 @@ def build_binary(out: Path, guid: str, boot_module: str, max_substeps: int = MAX
     with tempfile.TemporaryDirectory(prefix="fmu-sync-h-") as inc:
         Path(inc, _CONSTANTS_H).write_bytes(constants_header(guid, boot_module, max_substeps))
         cmd = [cc, "-std=gnu11", "-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-s", f"-I{inc}",
-               "-o", str(out), *srcs, "-ldl", "-lpthread", "-lm"]
+               "-o", str(out), *srcs, *_LIBS]
         p = subprocess.run(cmd, capture_output=True, text=True)
     if p.returncode != 0:
         raise RuntimeError(f"cannot build the FMU binary ({' '.join(cmd)}):\n{p.stderr[-3000:]}")

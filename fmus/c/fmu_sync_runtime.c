@@ -27,12 +27,22 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <fcntl.h>
 #include <strings.h>
-#include <sys/stat.h>
 #include <unistd.h>
 #include <wchar.h>
 
 #include "fmu_sync_runtime.h"
+
+/* glibc floor (docs/fmu.md "The binary"): the binary loads on glibc 2.17 (RHEL 7/8, Ubuntu
+ * 20.04, Debian 11). dlopen/dlsym/dlerror moved into libc in 2.34 with new versions: bind the
+ * old ones (libdl, linked with -ldl); stat/fstat are real functions only since 2.33, so none is
+ * called (fsr_is_dir opens the folder instead). tests/test_fmu_portable.py checks every symbol. */
+#if defined(__x86_64__) && defined(__GLIBC__)
+__asm__(".symver dlopen,dlopen@GLIBC_2.2.5");
+__asm__(".symver dlsym,dlsym@GLIBC_2.2.5");
+__asm__(".symver dlerror,dlerror@GLIBC_2.2.5");
+#endif
 
 #ifndef FMU_SYNC_BOOT
 #error "FMU_SYNC_BOOT must be defined (fmu_sync_constants.h)"
@@ -411,12 +421,19 @@ int fsr_resources_path(const char *uri, char *out, size_t n, char *err, size_t e
     }
     while (j > 1 && out[j - 1] == '/') --j;
     out[j] = '\0';
-    struct stat sb;
-    if (stat(out, &sb) != 0 || !S_ISDIR(sb.st_mode)) {
+    if (!fsr_is_dir(out)) {
         snprintf(err, en, "fmuResourceLocation '%s' -> '%s' is not a folder (%s)", uri, out,
                  strerror(errno ? errno : ENOTDIR));
         return 0;
     }
+    return 1;
+}
+
+int fsr_is_dir(const char *path) {
+    errno = 0;
+    int fd = open(path, O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+    if (fd < 0) return 0;
+    close(fd);
     return 1;
 }
 

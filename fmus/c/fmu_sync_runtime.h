@@ -63,6 +63,8 @@ typedef struct fsr_instance {
 typedef struct fsr_state fsr_state;  /* a saved FMU state (opaque) */
 
 int fsr_resources_path(const char *uri, char *out, size_t n, char *err, size_t en);
+/* 1 if path is a folder this process can open (no stat: glibc floor, fmu_sync_runtime.c) */
+int fsr_is_dir(const char *path);
 int fsr_start(const char *resdir, char *err, size_t n);
 int fsr_new(fsr_instance *inst, const char *resdir, const char *name, const char *guid, char *err, size_t n);
 void fsr_free(fsr_instance *inst);
