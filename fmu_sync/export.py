@@ -56,10 +56,15 @@ from .fmus.slave import model_guid
 
 __all__ = ["MODELS", "export_fmu", "export_coupling", "main_export", "model_slave", "carried_files",
            "carried_modules", "build_binary", "constants_header", "fmu_guid", "write_archive", "MAX_SUBSTEPS",
-           "COUPLING", "FMI_VERSIONS"]
+           "COUPLING", "FMI_VERSIONS", "TARGET_REQUIRES", "target_requires"]
 
 #: The export keys: the FMU contract's model registry.
 MODELS = contract.MODELS
+#: the tested range of each third-party package an FMU's code may import (pyproject.toml's
+#: dependencies say the same, tests/test_fmu_travel.py checks it); numba 0.57.1 hung in its inline
+#: pass. The target needs those its carried code imports (:func:`target_requires`), checked at
+#: instantiation (fmus/boot.py); the export needs numpy and numba in range.
+TARGET_REQUIRES = {"numpy": ">=1.24", "numba": ">=0.59,<0.69"}
 #: most internal steps one fmi2DoStep may take (larger steps are refused with fmi2Error)
 MAX_SUBSTEPS = 10_000_000
 
@@ -68,7 +73,7 @@ _ZIP_DATE = (2020, 1, 1, 0, 0, 0)
 #: the instance runtime (the Python embedding)
 FMI_VERSIONS = (2, 3)
 _C_GLUE = {2: "c/fmu_sync_fmi2.c", 3: "c/fmu_sync_fmi3.c"}
-_C_RUNTIME = "c/fmu_sync_runtime.c"
+_C_RUNTIME = ("c/fmu_sync_runtime.c", "c/fmu_sync_python.c")
 #: the binary's libraries. libdl.so.2 stays a dependency (gcc links --as-needed, and -ldl is an empty
 #: archive since glibc 2.34): on glibc < 2.34 the old dlopen bound by fmu_sync_runtime.c lives there
 #: (the glibc floor, docs/fmu.md "The binary")
@@ -229,7 +234,7 @@ def build_binary(out: Path, guid: str, boot_module: str, max_substeps: int = MAX
                  glue: str | None = None, fmi_version: int = 2) -> Path:
     """Compile the FMI binary (``glue``, by default the FMI version's, and the runtime, with the
     generated constants header) with gcc (``$CC`` overrides) into ``out``."""
-    srcs = [str(_fmus_dir() / (glue or _C_GLUE[fmi_version])), str(_fmus_dir() / _C_RUNTIME)]
+    srcs = [str(_fmus_dir() / (glue or _C_GLUE[fmi_version])), *(str(_fmus_dir() / s) for s in _C_RUNTIME)]
     cc = os.environ.get("CC", "gcc")
     if shutil.which(cc) is None:
         raise RuntimeError(f"cannot build the FMU binary: C compiler {cc!r} not found (install gcc or set CC)")
@@ -253,10 +258,45 @@ def python_record() -> str:
 
 
 def _runtime_versions() -> dict:
+    """Python, numpy and numba of this export; RuntimeError if numpy or numba is outside
+    TARGET_REQUIRES (the tested range: numba 0.57.1 hung for 15 min in its inline pass)."""
     import numba
     import numpy
-    return {"python": ".".join(map(str, sys.version_info[:3])), "numpy": numpy.__version__,
-            "numba": numba.__version__}
+    from .fmus.boot import satisfies
+    versions = {"python": ".".join(map(str, sys.version_info[:3])), "numpy": numpy.__version__,
+                "numba": numba.__version__}
+    for dist, spec in TARGET_REQUIRES.items():
+        if not satisfies(versions[dist], spec):
+            raise RuntimeError(f"cannot export with {dist} {versions[dist]}: fmu-sync is tested with "
+                               f"{dist}{spec} (pyproject.toml); install it: {sys.executable} -m pip install "
+                               f"'{dist}{spec}'")
+    return versions
+
+
+def target_requires(model: str = "impact-oscillator") -> dict[str, str]:
+    """{distribution: specifier} the target's Python needs for the FMU of ``model``: the
+    third-party packages its carried code imports when imported (a deferred import inside a
+    function, such as core/views.py's xarray, is not needed), with their TARGET_REQUIRES range."""
+    import ast
+    names = set()
+
+    def visit(node):
+        if isinstance(node, ast.Import):
+            names.update(a.name.split(".")[0] for a in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            names.add(node.module.split(".")[0])
+        elif not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+            for child in ast.iter_child_nodes(node):
+                visit(child)
+
+    for rel in carried_modules(model):
+        visit(ast.parse(_read(rel), rel))
+    names -= set(sys.stdlib_module_names) | {"__future__"}
+    unknown = names - set(TARGET_REQUIRES)
+    if unknown:
+        raise ValueError(f"the FMU's carried code imports {', '.join(sorted(unknown))}, which TARGET_REQUIRES "
+                         f"does not list (the target could not be told what it needs)")
+    return {d: TARGET_REQUIRES[d] for d in TARGET_REQUIRES if d in names}
 
 
 def _model_description_xml(cls, starts: dict, guid: str, fmi_version: int = 2) -> bytes:
@@ -364,7 +404,8 @@ def _export(cls, model: str, path, start_values, start_extra: dict, warm: bool, 
     boot_module = f"fmu_sync_boot_{digest[:16]}"
     build = {"model": model, "model_identifier": cls.MODEL_IDENTIFIER, "package": package, "code_hash": digest,
              "fmu_sync_version": __version__, "guid": guid,
-             "built_with": _runtime_versions(), "max_substeps": MAX_SUBSTEPS, "fmi_version": fmi_version,
+             "built_with": _runtime_versions(), "requires": target_requires(model),
+             "max_substeps": MAX_SUBSTEPS, "fmi_version": fmi_version,
              "runtime": _kind(model)["runtime"], "stepper": _kind(model)["stepper"]}
     from fmu_sync.fmus import boot as _boot
     from fmu_sync.fmus.slave import START_FILE

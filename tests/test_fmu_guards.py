@@ -207,7 +207,7 @@ def test_missing_numba_in_a_python_host_names_that_host(monkeypatch):
     from fmu_sync.fmus import boot
     monkeypatch.setattr(boot, "_version", lambda dist: None if dist == "numba" else "1")
     py_host = " ".join(boot.check_runtime({"numba": "0.68.1", "numpy": "1"}, embedded=False))
-    assert "lacks numba" in py_host and sys.executable in py_host and "-m pip install numpy numba" in py_host
+    assert "lacks numba" in py_host and sys.executable in py_host and "-m pip install numba" in py_host
     assert "FMU_SYNC_PYTHON is ignored" in py_host and "set FMU_SYNC_PYTHON" not in py_host
     c_host = " ".join(boot.check_runtime({"numba": "0.68.1", "numpy": "1"}, embedded=True))
     assert "lacks numba" in c_host and "set FMU_SYNC_PYTHON" in c_host and "plain C program" in c_host

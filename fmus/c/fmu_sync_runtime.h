@@ -6,9 +6,9 @@
  *
  *   fsr_resources_path(uri, path)   file: URI of the resources folder -> local path
  *   fsr_start(resdir)               once per process (thread-safe): the host's interpreter if it
- *                                   runs one, else the libpython recorded at export (or the one of
- *                                   the interpreter named by FMU_SYNC_PYTHON, found without
- *                                   running it), initialised; then the FMU's boot module imported
+ *                                   runs one, else the one fsp_find chooses (FMU_SYNC_PYTHON, the
+ *                                   interpreter recorded at export, python3 on PATH), initialised;
+ *                                   then the FMU's boot module imported
  *   fsr_new(inst, resdir, name, guid)  a Python FMUInstance (fmus/runtime.py) and its layout
  *                                   (variable array x, per-variable table, work array, stepper)
  *   fsr_call(inst, method, state)   a reply method of the instance ("exit_initialization",
@@ -86,6 +86,18 @@ int fsr_step(fsr_instance *inst, double t, double H);
  * inputs by the stepper (H = 0, no Python, no GIL); FSR_ERROR if they are not finite */
 int fsr_feedthrough(const fsr_instance *inst);
 int fsr_outputs(fsr_instance *inst, const char *call);
+
+/* Which Python a plain C host runs the FMU with (fmu_sync_python.c; the order: docs/fmu.md
+ * "How it finds Python"). 0 with err naming every interpreter tried, what it lacked and the
+ * command that fixes it on this platform. */
+typedef struct fsp_choice {
+    char program[1024];             /* the interpreter (Py_SetProgramName: its environment) */
+    char lib[1024];                 /* its libpython */
+    char tried[3000];               /* how it was chosen, for the FMU's own messages */
+} fsp_choice;
+int fsp_find(const char *resdir, fsp_choice *out, char *err, size_t n);
+/* "key = value" (or KEY=value, KEY="value") of a text file; 0 if absent */
+int fsp_read_key(const char *path, const char *key, char *out, size_t n);
 
 /* helpers for messages */
 const char *fsr_g(double v);                  /* shortest round-trip text of a double */
