@@ -52,6 +52,7 @@ import numpy as np
 
 from .fmus import contract
 from . import __version__
+from .fmu_docs import documentation_files
 from .fmus.slave import model_guid
 
 __all__ = ["MODELS", "export_fmu", "export_coupling", "main_export", "model_slave", "carried_files",
@@ -421,10 +422,13 @@ def _export(cls, model: str, path, start_values, start_extra: dict, warm: bool, 
         binary = build_binary(Path(tmp) / f"{cls.MODEL_IDENTIFIER}.so", guid, boot_module,
                               fmi_version=fmi_version).read_bytes()
     platform = "linux64" if fmi_version == 2 else "x86_64-linux"
+    description = _model_description_xml(cls, starts, guid, fmi_version)
+    root = ET.fromstring(description)
     files: list[tuple[str, bytes]] = [
-        ("modelDescription.xml", _model_description_xml(cls, starts, guid, fmi_version)),
+        ("modelDescription.xml", description),
         (f"binaries/{platform}/{cls.MODEL_IDENTIFIER}.so", binary),
-    ] + [(f"resources/{name}", data) for name, data in sorted(resources.items())]
+    ] + documentation_files(build, root.get("modelName"), root.get("description") or "", platform) + [
+        (f"resources/{name}", data) for name, data in sorted(resources.items())]
     write_archive(path, files)
     if warm:
         warm_cache(resources, build)
