@@ -4,11 +4,13 @@ Imported once per process by the FMU's binary (resources/ briefly on sys.path),
 with the standard library only. For each fmi2Instantiate, :func:`instantiate`:
 
 1. reads ``resources/fmu_sync_build.json`` (model, package name, content hash,
-   Python/numpy/numba versions the FMU was built with) and checks the running
-   environment: a missing numpy or numba is an error (fmi2Instantiate returns
-   NULL with the reason logged), other versions than the build's are logged as
-   warnings;
-2. copies the carried code (``resources/fmu_sync_code``) once to a per-user
+   the packages the target needs with their ranges, ``requires``, and the versions
+   the FMU was built with) and checks the running environment: a required package
+   missing or out of its range is an error naming the command that installs it for
+   this Python (fmi2Instantiate returns NULL with the reason logged), other versions
+   than the build's are logged as warnings;
+2. uses a complete copy of the carried code already in a cache folder (even a
+   read-only one), else copies it (``resources/fmu_sync_code``) once to a per-user
    cache folder keyed on its content, ``$FMU_SYNC_CACHE`` or
    ``$XDG_CACHE_HOME/fmu-sync`` or ``~/.cache/fmu-sync`` (else ``$TMPDIR``,
    ``/tmp`` or ``/var/tmp``/fmu-sync-<uid>; none writable: an error that names
@@ -195,11 +197,13 @@ def cache_root(embedded: bool = False) -> str:
 def unpack(resources_dir: str, build: dict, embedded: bool = False) -> str:
     """The folder to put on sys.path (holds ``<package>/``), unpacking if needed."""
     digest, package = build["code_hash"], build["package"]
+    for _, base in _cache_candidates():   # a complete copy is used even where it cannot be written
+        done = os.path.join(base, digest)
+        if os.path.isfile(os.path.join(done, ".complete")) and code_hash(os.path.join(done, package)) == digest:
+            return done
     root = cache_root(embedded)
     dest = os.path.join(root, digest)
     marker = os.path.join(dest, ".complete")
-    if os.path.isfile(marker) and code_hash(os.path.join(dest, package)) == digest:
-        return dest
     src = os.path.join(resources_dir, CODE_DIR)
     if code_hash(src) != digest:
         raise SetupError(f"the FMU's code in {src} does not match its recorded hash {digest[:12]}: "
@@ -235,6 +239,9 @@ def instantiate(resources_dir: str, instance_name: str, guid: str, embedded: int
         key = build["code_hash"]
         if key not in _checked:
             _checked[key] = check_runtime(build["built_with"], bool(embedded), call, build.get("requires"))
+            if embedded and CHOSEN:
+                _checked[key].insert(0, f"I:{call}: Python chosen: {sys.executable} (Python "
+                                        f"{sys.version.split()[0]}); tried {CHOSEN}")
         msgs += _checked[key]
         if any(m.startswith("E:") for m in msgs):
             return "\x1e".join(msgs), None
