@@ -276,22 +276,23 @@ def _runtime_versions() -> dict:
 
 def target_requires(model: str = "impact-oscillator") -> dict[str, str]:
     """{distribution: specifier} the target's Python needs for the FMU of ``model``: the
-    third-party packages its carried code imports when imported (a deferred import inside a
-    function, such as core/views.py's xarray, is not needed), with their TARGET_REQUIRES range."""
+    third-party packages its carried code imports unconditionally when imported (an import
+    inside a function, such as core/views.py's xarray, or under ``if``/``try``, such as
+    core/jit.py's numba, is not needed), with their TARGET_REQUIRES range."""
     import ast
     names = set()
 
-    def visit(node):
-        if isinstance(node, ast.Import):
-            names.update(a.name.split(".")[0] for a in node.names)
-        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
-            names.add(node.module.split(".")[0])
-        elif not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
-            for child in ast.iter_child_nodes(node):
-                visit(child)
+    def visit(body):
+        for node in body:
+            if isinstance(node, ast.Import):
+                names.update(a.name.split(".")[0] for a in node.names)
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                names.add(node.module.split(".")[0])
+            elif isinstance(node, ast.ClassDef):
+                visit(node.body)
 
     for rel in carried_modules(model):
-        visit(ast.parse(_read(rel), rel))
+        visit(ast.parse(_read(rel), rel).body)
     names -= set(sys.stdlib_module_names) | {"__future__"}
     unknown = names - set(TARGET_REQUIRES)
     if unknown:

@@ -133,3 +133,83 @@ def test_no_python_at_all_names_what_was_tried_and_the_fix(travel):
     assert "FMU_SYNC_PYTHON: not set" in err and f"{travel['gone']}/bin/python: gone" in err, err
     assert f"python3 on PATH ({empty}): none" in err, err
     assert re.search(r"apt-get install \S*libpython3\S* python3-numpy|dnf install|--enable-shared", err), err
+
+
+# --------------------------------------------------------------- what the target is told, unit by unit
+@pytest.mark.parametrize("version, spec, ok", [
+    ("1.24.0", ">=1.24", True), ("1.23.5", ">=1.24", False), ("2.4.6", ">=1.24", True),
+    ("0.57.1", ">=0.59,<0.69", False), ("0.68.1", ">=0.59,<0.69", True), ("0.69.0", ">=0.59,<0.69", False),
+    ("2.0.0rc1", ">=2.0", True), ("1.26", "==1.26.0", True), ("1.26.1", "!=1.26.1", False), ("3", "", True),
+])
+def test_version_ranges(version, spec, ok):
+    from fmu_sync.fmus.boot import satisfies
+    assert satisfies(version, spec) is ok
+
+
+def test_pyproject_states_the_ranges_the_fmu_checks():
+    """TARGET_REQUIRES (what an FMU's build record carries) and pyproject.toml's dependencies agree."""
+    import tomllib
+    from fmu_sync.export import TARGET_REQUIRES
+    deps = tomllib.loads((Path(__file__).resolve().parents[1] / "pyproject.toml").read_text())["project"]
+    spec = {re.match(r"[A-Za-z0-9_.-]+", d).group(0): set(d[len(re.match(r"[A-Za-z0-9_.-]+", d).group(0)):]
+                                                       .replace(" ", "").split(","))
+            for d in deps["dependencies"]}
+    for dist, want in TARGET_REQUIRES.items():
+        assert spec[dist] == set(want.split(",")), (dist, spec[dist], want)
+
+
+def test_the_build_record_names_the_carried_imports():
+    from fmu_sync.export import TARGET_REQUIRES, target_requires
+    for model in ("impact-oscillator", "mechanical-system-2", "coupling"):
+        needs = target_requires(model)
+        assert "numpy" in needs and set(needs) <= set(TARGET_REQUIRES)
+        assert "xarray" not in needs and "matplotlib" not in needs    # deferred imports of core/views.py
+
+
+def test_export_refuses_a_numpy_outside_the_range(monkeypatch):
+    import numpy
+    from fmu_sync import export
+    monkeypatch.setattr(numpy, "__version__", "1.21.6")
+    with pytest.raises(RuntimeError, match=r"cannot export with numpy 1\.21\.6: .*numpy>=1\.24.*pip install"):
+        export._runtime_versions()
+
+
+def test_an_old_numpy_is_refused_with_the_command(monkeypatch):
+    from fmu_sync.fmus import boot
+    monkeypatch.setattr(boot, "_version", lambda dist: "1.21.6")
+    msgs = boot.check_runtime({"numpy": "2.4.6"}, embedded=True, requires={"numpy": ">=1.24"})
+    err = [m for m in msgs if m.startswith("E:")]
+    assert len(err) == 1 and "has numpy 1.21.6 (needs numpy>=1.24)" in err[0], msgs
+    assert f"{sys.executable} -m pip install 'numpy>=1.24'" in err[0]       # this interpreter is a venv's
+
+
+def test_install_command_for_a_debian_system_python(monkeypatch, tmp_path):
+    """A PEP 668 system Python on Debian/Ubuntu: the distribution's package, not pip."""
+    from fmu_sync.fmus import boot
+    import sysconfig
+    (tmp_path / "EXTERNALLY-MANAGED").write_text("[externally-managed]\n")
+    monkeypatch.setattr(sys, "prefix", sys.base_prefix)
+    monkeypatch.setattr(sysconfig, "get_path", lambda name: str(tmp_path))
+    monkeypatch.setattr(boot.os.path, "isfile", lambda p: p == str(tmp_path / "EXTERNALLY-MANAGED")
+                        or p == "/etc/debian_version")
+    assert boot.install_command({"numpy": ">=1.24"}) == "sudo apt-get install python3-numpy"
+
+
+def test_a_read_only_cache_that_holds_the_code_is_used(tmp_path, monkeypatch):
+    """A cache folder prepared once (FMU_SYNC_CACHE) and then made read-only is used as it is."""
+    from fmu_sync.fmus import boot
+    res = tmp_path / "resources" / "fmu_sync_code" / "core"
+    res.mkdir(parents=True)
+    (res / "a.py").write_text("x = 1\n")
+    digest = boot.code_hash(str(tmp_path / "resources" / "fmu_sync_code"))
+    build = {"code_hash": digest, "package": "pkg"}
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("FMU_SYNC_CACHE", str(cache))
+    first = boot.unpack(str(tmp_path / "resources"), build)
+    real_access = os.access                                  # read-only, even for root
+    monkeypatch.setattr(boot.os, "access", lambda p, mode: False if mode & os.W_OK else real_access(p, mode))
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "elsewhere"))
+    monkeypatch.setenv("TMPDIR", str(tmp_path / "elsewhere"))
+    monkeypatch.setattr(boot, "TMP_DIRS", ())
+    assert boot.unpack(str(tmp_path / "resources"), build) == first
+    assert not (tmp_path / "elsewhere").exists()             # nothing written anywhere else
