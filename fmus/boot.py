@@ -4,20 +4,21 @@ Imported once per process by the FMU's binary (resources/ briefly on sys.path),
 with the standard library only. For each fmi2Instantiate, :func:`instantiate`:
 
 1. reads ``resources/fmu_sync_build.json`` (model, package name, content hash,
-   Python/numpy/numba versions the FMU was built with) and checks the running
-   environment: a missing numpy or numba is an error (fmi2Instantiate returns
-   NULL with the reason logged), other versions than the build's are logged as
-   warnings;
+   Python/numpy versions the FMU was built with) and checks the running
+   environment: a missing numpy is an error (fmi2Instantiate returns NULL with
+   the reason logged), other versions than the build's are logged as warnings.
+   numba is not needed: the stepper is native code in the binary, and the
+   carried code runs as plain Python (``core/jit.py``), importing nothing that compiles;
 2. copies the carried code (``resources/fmu_sync_code``) once to a per-user
    cache folder keyed on its content, ``$FMU_SYNC_CACHE`` or
    ``$XDG_CACHE_HOME/fmu-sync`` or ``~/.cache/fmu-sync`` (else ``$TMPDIR``,
    ``/tmp`` or ``/var/tmp``/fmu-sync-<uid>; none writable: an error that names
-   them and says to set FMU_SYNC_CACHE), ``<folder>/<hash>/<package>``: a stable source path, so numba's
-   on-disk cache hits across the fresh temp folders an importer unzips to;
+   them and says to set FMU_SYNC_CACHE), ``<folder>/<hash>/<package>``;
 3. imports the build's ``runtime`` module (``fmus.runtime`` for a mechanical model,
    ``fmus.coupling_runtime`` for the coupling FMU) from there (a package name unique to the
    content: two FMUs of different code coexist in one process) and returns a
-   new instance (``runtime.create(resources, model, max_substeps, fmi_version)``).
+   new instance (``runtime.create(resources, model, max_substeps, fmi_version, stepper)``;
+   ``stepper``: the address of the binary's native stepper, handed over by the binary).
 
 Its messages name the instantiation call of the build's FMI version.
 """
@@ -84,15 +85,15 @@ def check_runtime(built: dict, embedded: bool = False, call: str = INSTANTIATE[2
     py_now = ".".join(map(str, sys.version_info[:3]))
     if py_now != built.get("python"):
         out.append(f"W:{call}: running on Python {py_now}; the FMU was built with Python "
-                   f"{built.get('python')} (its code is plain Python; numba compiles it for this one)")
-    for dist in ("numpy", "numba"):
+                   f"{built.get('python')} (its code is plain Python)")
+    for dist in ("numpy",):
         have = _version(dist)
         want = built.get(dist)
         if have is None:
-            todo = ("install numpy and numba there, or set FMU_SYNC_PYTHON to an interpreter that has them"
+            todo = ("install numpy there, or set FMU_SYNC_PYTHON to an interpreter that has it"
                     if embedded else
-                    f"install them into that environment ({sys.executable} -m pip install numpy numba), or "
-                    f"run the importer from an environment that has them")
+                    f"install it into that environment ({sys.executable} -m pip install numpy), or "
+                    f"run the importer from an environment that has it")
             out.append(f"E:{call}: {where} lacks {dist} (the FMU was built with {dist} {want}); "
                        f"{_advice(embedded)}: {todo}")
         elif have != want:
@@ -163,9 +164,10 @@ def unpack(resources_dir: str, build: dict, embedded: bool = False) -> str:
     return dest
 
 
-def instantiate(resources_dir: str, instance_name: str, guid: str, embedded: int = 0):
+def instantiate(resources_dir: str, instance_name: str, guid: str, embedded: int = 0, stepper: int = 0):
     """(reply, instance or None) for the binary; never raises. ``embedded``: the
-    binary started this interpreter (a plain C host), else it is the host's own."""
+    binary started this interpreter (a plain C host), else it is the host's own;
+    ``stepper``: the address of the binary's native stepper."""
     msgs: list[str] = []
     call = INSTANTIATE[2]
     try:
@@ -187,7 +189,7 @@ def instantiate(resources_dir: str, instance_name: str, guid: str, embedded: int
         import importlib
         runtime = importlib.import_module(f"{package}.{build['runtime']}")
         reply, inst = runtime.create(resources_dir, build["model"], float(build.get("max_substeps", "inf")),
-                                     fmi_version)
+                                     fmi_version, stepper)
         if reply:
             msgs.append(reply)
         return "\x1e".join(msgs), inst
