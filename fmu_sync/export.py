@@ -59,7 +59,7 @@ from . import __version__, native
 from .fmus.slave import model_guid
 
 __all__ = ["MODELS", "export_fmu", "export_coupling", "main_export", "model_slave", "carried_files",
-           "carried_modules", "build_binary", "stepper_cfunc", "constants_header", "fmu_guid", "write_archive", "MAX_SUBSTEPS",
+           "carried_modules", "bytecode", "build_binary", "stepper_cfunc", "constants_header", "fmu_guid", "write_archive", "MAX_SUBSTEPS",
            "COUPLING", "FMI_VERSIONS"]
 
 #: The export keys: the FMU contract's model registry.
@@ -171,6 +171,29 @@ def carried_modules(model: str = "impact-oscillator") -> list[str]:
 def carried_files(model: str = "impact-oscillator") -> list[tuple[str, bytes]]:
     """(path relative to the carried package, content) of the code the FMU of ``model`` runs."""
     return sorted(_CARRIED_INITS.items()) + [(rel, _read(rel)) for rel in carried_modules(model)]
+
+
+def bytecode(files: list[tuple[str, bytes]]) -> list[tuple[str, bytes]]:
+    """The carried modules compiled for this Python (``<dir>/__pycache__/<name>.<tag>.pyc``), so
+    that a target running the same Python version imports them without compiling (the
+    cold start, docs/fmu.md); checked-hash pycs (PEP 552): valid whatever the files' dates after
+    unzipping, ignored for a source they do not match, ignored by other Python versions
+    (which compile the sources)."""
+    import py_compile
+    tag = sys.implementation.cache_tag
+    if tag is None:      # pragma: no cover (an implementation without bytecode caching)
+        return []
+    out = []
+    with tempfile.TemporaryDirectory(prefix="fmu-sync-pyc-") as tmp:
+        for rel, data in files:
+            src = Path(tmp, "src.py")
+            src.write_bytes(data)
+            folder, name = os.path.split(rel)
+            pyc = Path(tmp, "out.pyc")
+            py_compile.compile(str(src), cfile=str(pyc), dfile=rel, doraise=True,
+                               invalidation_mode=py_compile.PycInvalidationMode.CHECKED_HASH)
+            out.append((f"{folder + '/' if folder else ''}__pycache__/{name[:-3]}.{tag}.pyc", pyc.read_bytes()))
+    return out
 
 
 def _code_hash(files: list[tuple[str, bytes]]) -> str:
@@ -366,6 +389,7 @@ def _export(cls, model: str, path, start_values, start_extra: dict, fmi_version:
     from fmu_sync.fmus import boot as _boot
     from fmu_sync.fmus.slave import START_FILE
     resources = {f"fmu_sync_code/{rel}": data for rel, data in code}
+    resources.update({f"fmu_sync_code/{rel}": data for rel, data in bytecode(code)})
     resources.update({
         f"{boot_module}.py": Path(_boot.__file__).read_bytes(),
         "fmu_sync_build.json": (json.dumps(build, indent=2, sort_keys=True) + "\n").encode(),

@@ -182,6 +182,16 @@ def test_every_runtime_symbol_is_provided_by_the_c_support():
     assert native.RUNTIME <= defined, sorted(native.RUNTIME - defined)
 
 
+def test_pyproject_pins_the_tested_numba_and_llvmlite():
+    """The dependency ranges are the ranges the emission was tested with (native.TESTED)."""
+    import tomllib
+    deps = tomllib.loads((Path(native.__file__).parents[1] / "pyproject.toml").read_text())["project"]["dependencies"]
+    for dist, (lo, hi) in native.TESTED.items():
+        spec = next(d for d in deps if re.match(rf"{dist}\b", d))
+        assert spec == f"{dist}>={lo[0]}.{lo[1]},<{hi[0]}.{hi[1] + 1}", spec
+    native.check_versions()     # the installed ones are in range
+
+
 def test_export_fails_for_untested_numba_or_llvmlite(monkeypatch, tmp_path):
     monkeypatch.setitem(native.TESTED, "numba", ((0, 1), (0, 2)))
     with pytest.raises(native.NativeCodeError, match=r"numba .* is installed.*0\.1\.x to 0\.2\.x"):
