@@ -8,18 +8,20 @@ with the standard library only. For each fmi2Instantiate, :func:`instantiate`:
    the FMU was built with) and checks the running environment: a required package
    missing or out of its range is an error naming the command that installs it for
    this Python (fmi2Instantiate returns NULL with the reason logged), other versions
-   than the build's are logged as warnings;
+   than the build's are logged as warnings. numba is not needed: the stepper is
+   native code in the binary, and the carried code runs as plain Python
+   (``core/jit.py``), importing nothing that compiles;
 2. uses a complete copy of the carried code already in a cache folder (even a
    read-only one), else copies it (``resources/fmu_sync_code``) once to a per-user
    cache folder keyed on its content, ``$FMU_SYNC_CACHE`` or
    ``$XDG_CACHE_HOME/fmu-sync`` or ``~/.cache/fmu-sync`` (else ``$TMPDIR``,
    ``/tmp`` or ``/var/tmp``/fmu-sync-<uid>; none writable: an error that names
-   them and says to set FMU_SYNC_CACHE), ``<folder>/<hash>/<package>``: a stable source path, so numba's
-   on-disk cache hits across the fresh temp folders an importer unzips to;
+   them and says to set FMU_SYNC_CACHE), ``<folder>/<hash>/<package>``;
 3. imports the build's ``runtime`` module (``fmus.runtime`` for a mechanical model,
    ``fmus.coupling_runtime`` for the coupling FMU) from there (a package name unique to the
    content: two FMUs of different code coexist in one process) and returns a
-   new instance (``runtime.create(resources, model, max_substeps, fmi_version)``).
+   new instance (``runtime.create(resources, model, max_substeps, fmi_version, stepper)``;
+   ``stepper``: the address of the binary's native stepper, handed over by the binary).
 
 Its messages name the instantiation call of the build's FMI version.
 """
@@ -132,10 +134,10 @@ def check_runtime(built: dict, embedded: bool = False, call: str = INSTANTIATE[2
                   requires: dict | None = None) -> list[str]:
     """Messages about the running environment versus the build (E: missing or too old, W: other
     than the build's); ``requires``: the build record's {distribution: specifier} (by default
-    numpy and numba, any version); ``embedded``: the binary started this interpreter (a C host),
+    numpy, any version); ``embedded``: the binary started this interpreter (a C host),
     else the host's own; ``call``: the instantiation call the messages name."""
     out = []
-    requires = {"numpy": "", "numba": ""} if requires is None else requires
+    requires = {"numpy": ""} if requires is None else requires
     where = f"the Python environment {sys.prefix} (Python {sys.version.split()[0]}, {sys.executable})"
     py_now = ".".join(map(str, sys.version_info[:3]))
     if py_now != built.get("python"):
@@ -226,9 +228,10 @@ def unpack(resources_dir: str, build: dict, embedded: bool = False) -> str:
     return dest
 
 
-def instantiate(resources_dir: str, instance_name: str, guid: str, embedded: int = 0):
+def instantiate(resources_dir: str, instance_name: str, guid: str, embedded: int = 0, stepper: int = 0):
     """(reply, instance or None) for the binary; never raises. ``embedded``: the
-    binary started this interpreter (a plain C host), else it is the host's own."""
+    binary started this interpreter (a plain C host), else it is the host's own;
+    ``stepper``: the address of the binary's native stepper."""
     msgs: list[str] = []
     call = INSTANTIATE[2]
     try:
@@ -253,7 +256,7 @@ def instantiate(resources_dir: str, instance_name: str, guid: str, embedded: int
         import importlib
         runtime = importlib.import_module(f"{package}.{build['runtime']}")
         reply, inst = runtime.create(resources_dir, build["model"], float(build.get("max_substeps", "inf")),
-                                     fmi_version)
+                                     fmi_version, stepper)
         if reply:
             msgs.append(reply)
         return "\x1e".join(msgs), inst

@@ -23,9 +23,9 @@ NEEDS_OBJDUMP = pytest.mark.skipif(shutil.which("objdump") is None, reason="objd
 @pytest.fixture(scope="module")
 def binaries(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("portable")
-    fmus = {"fmi2": export_fmu("impact-oscillator", tmp / "io.fmu", warm=False),
-            "fmi3": export_fmu("impact-oscillator", tmp / "io3.fmu", warm=False, fmi_version=3),
-            "coupling": export_coupling(tmp / "coupling.fmu", warm=False)}
+    fmus = {"fmi2": export_fmu("impact-oscillator", tmp / "io.fmu"),
+            "fmi3": export_fmu("impact-oscillator", tmp / "io3.fmu", fmi_version=3),
+            "coupling": export_coupling(tmp / "coupling.fmu")}
     out = {"fmus": fmus}
     for kind, fmu in fmus.items():
         with zipfile.ZipFile(fmu) as zf:

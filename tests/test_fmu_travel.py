@@ -60,7 +60,7 @@ def _venv(path: Path, expose=()) -> Path:
 def travel(tmp_path_factory):
     """An exported FMU whose recorded interpreter (an exporting venv) was removed, and the C host."""
     tmp = tmp_path_factory.mktemp("travel")
-    fmu = export_fmu("impact-oscillator", tmp / "io.fmu", warm=False)
+    fmu = export_fmu("impact-oscillator", tmp / "io.fmu")
     d = tmp / "io"
     with zipfile.ZipFile(fmu) as zf:
         zf.extractall(d)
@@ -91,7 +91,7 @@ def test_runs_on_another_machine_with_only_what_it_says_it_needs(travel):
     """Exit 0 and q equal to fmpy's run on the exporting machine to 1e-12; the Python was found on
     PATH after the recorded one, gone, was passed over."""
     needs = travel["build"]["requires"]
-    assert "numpy" in needs
+    assert set(needs) == {"numpy"}                          # a Python+numpy-only venv: no numba, no LLVM
     target = _venv(travel["tmp"] / "target-venv", expose=needs)
     out = travel["tmp"] / "travel.csv"
     stop, H, tau = 2.0, 0.01, 0.05

@@ -516,7 +516,7 @@ static int apply_pending(Instance *c) {
     if (!(w[FSR_H_PEND_P] > 0.0)) return 0;
     double mode = w[FSR_H_MODE];
     w[FSR_H_MODE] = FSR_MODE_APPLY_EVENT;
-    c->rt.stepper(c->rt.x, w, w[FSR_H_TIME], 0.0);
+    (void)fsr_outputs(&c->rt, "fmi3UpdateDiscreteStates");   /* the stepper with H = 0 in this mode */
     w[FSR_H_MODE] = mode;
     return 1;
 }

@@ -7,9 +7,10 @@
  * only to set up an instance, to validate the parameters at the end of
  * initialization, to compute outputs in initialization mode and to save /
  * restore / (de)serialise FMU states; those calls take the GIL. The
- * communication step (fsr_step) calls the numba stepper (a cfunc) through its
- * address, without the GIL, on the arrays the Python instance handed over
- * (they live as long as the instance).
+ * communication step (fsr_step) calls the native stepper fsr_native_step (the
+ * numba cfunc compiled at export and linked in, fmu_sync_native.h), without the
+ * GIL, on the arrays the Python instance handed over (they live as long as the
+ * instance); the Python slave gets fsr_python_step's address at instantiation.
  *
  * Constants (fmu_sync_constants.h, generated at export): FMU_SYNC_BOOT (module
  * name of the boot script in resources/), FSR_MAX_SUBSTEPS and the shared codes.
@@ -32,6 +33,7 @@
 #include <unistd.h>
 #include <wchar.h>
 
+#include "fmu_sync_native.h"
 #include "fmu_sync_runtime.h"
 
 /* glibc floor (docs/fmu.md "The binary"): the binary loads on glibc 2.17 (RHEL 7/8, Ubuntu
@@ -403,7 +405,6 @@ static int take_layout(fsr_instance *inst, char *err, size_t n) {
     inst->vmin = (const double *)(uintptr_t)L[FSR_L_MIN];
     inst->vmax = (const double *)(uintptr_t)L[FSR_L_MAX];
     inst->work = (double *)(uintptr_t)L[FSR_L_WORK];
-    inst->stepper = (fsr_stepper)(uintptr_t)L[FSR_L_STEPPER];
     if (inst->work[FSR_H_VERSION] != FSR_VERSION) {
         snprintf(err, n, "work array version %g, this binary expects %d", inst->work[FSR_H_VERSION],
                  FSR_VERSION);
@@ -429,7 +430,8 @@ static int take_layout(fsr_instance *inst, char *err, size_t n) {
 int fsr_new(fsr_instance *inst, const char *resdir, const char *name, const char *guid, char *err, size_t n) {
     int gil = py.GILEnsure();
     PyObject *dir = py.UnicodeDecodeFSDefault(resdir);
-    PyObject *r = dir ? py.CallMethod(g_boot, "instantiate", "Ossi", dir, name, guid, g_embedded) : NULL;
+    PyObject *r = dir ? py.CallMethod(g_boot, "instantiate", "OssiK", dir, name, guid, g_embedded,
+                                      (unsigned long long)(uintptr_t)&fsr_python_step) : NULL;
     if (dir) py.DecRef(dir);
     int s = FSR_OK;
     if (!r) {
@@ -573,6 +575,12 @@ int fsr_state_deserialize(fsr_instance *inst, const char *call, const char *data
 }
 
 /* ------------------------------------------------------------ the communication step (no Python) */
+static int native_raised(fsr_instance *inst, const char *call) {
+    return fsr_logf(inst, FSR_ERROR, "%s: internal error: the compiled stepper raised an exception at t = %s "
+                    "(a state or parameter its code does not handle); the outputs may be partly updated: "
+                    "restore a saved FMU state or reset the instance", call, fsr_g(inst->work[FSR_H_TIME]));
+}
+
 /* Every step that is refused or cannot complete returns FSR_ERROR with the
  * state unchanged (docs/design.md §5.1): an invalid argument, a step past
  * stopTime, a time that cannot advance, too much work, a state that turned
@@ -607,7 +615,9 @@ int fsr_step(fsr_instance *inst, double t, double H) {
                         "more than the limit %.0f (fmu_sync.export.MAX_SUBSTEPS); this step can never complete: use "
                         "a smaller H or a larger solver.dt", G(t), G(H), G(now), count, G(dt),
                         (double)FSR_MAX_SUBSTEPS);
-    int32_t rc = inst->stepper(inst->x, w, now, H);
+    int32_t rc = fsr_native_step(inst->x, w, now, H);
+    if (fsr_native_raised())
+        return native_raised(inst, "doStep");
     switch (rc) {
     case FSR_R_OK:
         break;
@@ -648,7 +658,10 @@ int fsr_feedthrough(const fsr_instance *inst) {
 
 int fsr_outputs(fsr_instance *inst, const char *call) {
     double *w = inst->work;
-    if (inst->stepper(inst->x, w, w[FSR_H_TIME], 0.0) != 0)
+    int32_t rc = fsr_native_step(inst->x, w, w[FSR_H_TIME], 0.0);
+    if (fsr_native_raised())
+        return native_raised(inst, call);
+    if (rc != 0)
         return fsr_logf(inst, FSR_ERROR, "%s: the outputs computed from the current inputs are not finite "
                         "(or the parameters are not a valid set)", call);
     return FSR_OK;

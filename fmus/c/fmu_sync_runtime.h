@@ -10,13 +10,13 @@
  *                                   interpreter recorded at export, python3 on PATH), initialised;
  *                                   then the FMU's boot module imported
  *   fsr_new(inst, resdir, name, guid)  a Python FMUInstance (fmus/runtime.py) and its layout
- *                                   (variable array x, per-variable table, work array, stepper)
+ *                                   (variable array x, per-variable table, work array)
  *   fsr_call(inst, method, state)   a reply method of the instance ("exit_initialization",
  *                                   "refresh", "reset", "set_state"), GIL taken inside
  *   fsr_state_get / _set / _free / _serialize / _deserialize   FMU states (Python snapshots)
  *   fsr_step(inst, t, H)            one communication step: argument checks (H, t, stopTime,
- *                                   a time that advances, the internal-step limit), the numba
- *                                   stepper called through its address, no Python, no GIL;
+ *                                   a time that advances, the internal-step limit), the native
+ *                                   stepper (fmu_sync_native.h) called, no Python, no GIL;
  *                                   a step that cannot complete is FSR_ERROR, rolled back
  *   fsr_outputs(inst, call)         outputs of a direct-feedthrough FMU from its current inputs
  *                                   (the stepper with H = 0), no Python, no GIL
@@ -42,7 +42,6 @@
 enum { FSR_OK = 0, FSR_WARNING = 1, FSR_DISCARD = 2, FSR_ERROR = 3, FSR_FATAL = 4 };
 
 typedef void (*fsr_log)(void *ctx, int status, const char *text);
-typedef int32_t (*fsr_stepper)(double *x, double *work, double t, double H);
 
 typedef struct fsr_instance {
     void *obj;                      /* the Python FMUInstance (a PyObject *) */
@@ -53,7 +52,6 @@ typedef struct fsr_instance {
     const int32_t *vtype, *vcaus;
     const double *vmin, *vmax;
     double *work;
-    fsr_stepper stepper;
     const char **name_of;           /* per variable: its name */
     const char **hint_of;           /* per variable: its allowed values ("" if a range) */
     int stop_defined;               /* the experiment's stopTime (doStep must not pass it) */
