@@ -197,12 +197,13 @@ def cache_root(embedded: bool = False) -> str:
 
 
 def unpack(resources_dir: str, build: dict, embedded: bool = False) -> str:
-    """The folder to put on sys.path (holds ``<package>/``), unpacking if needed."""
+    """The folder to put on sys.path (holds ``<package>/``): the first cache folder that holds a
+    complete copy of this code (even a read-only one), else a copy made in the first writable one."""
     digest, package = build["code_hash"], build["package"]
-    for _, base in _cache_candidates():   # a complete copy is used even where it cannot be written
-        done = os.path.join(base, digest)
-        if os.path.isfile(os.path.join(done, ".complete")) and code_hash(os.path.join(done, package)) == digest:
-            return done
+    for _, base in _cache_candidates():   # a complete copy is used where it is, read-only or not
+        dest = os.path.join(base, digest)
+        if os.path.isfile(os.path.join(dest, ".complete")) and code_hash(os.path.join(dest, package)) == digest:
+            return dest
     root = cache_root(embedded)
     dest = os.path.join(root, digest)
     marker = os.path.join(dest, ".complete")

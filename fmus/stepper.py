@@ -82,7 +82,7 @@ H_MODE, H_REACHED, H_PEND_U, H_PEND_P, H_ICOUNT = 25, 26, 27, 28, 29
 H_DATA = 30
 #: the one version of what the binary and the Python side share (work array header,
 #: layout, codes): fmu_sync_constants.h, generated at export, carries it
-WORK_VERSION = 4
+WORK_VERSION = 5
 #: work guard of the exact scheme: most events (impacts, contact changes, flow
 #: pieces) in one doStep; more makes the step fail (rolled back, fmi2Error) in
 #: well under a second instead of running for minutes (H = 1e9)

@@ -342,7 +342,8 @@ def test_one_scheme_numbering_and_generated_constants():
     assert h["FSR_SCHEME_EXACT"] == str(stepper.EXACT) and h["FSR_SCHEME_THETA"] == str(SCHEMES["theta"])
     assert h["FSR_H_TIME"] == str(stepper.H_TIME) and h["FSR_H_ITAUDOT"] == str(stepper.H_ITAUDOT)
     assert h["FSR_VERSION"] == str(int(stepper.WORK_VERSION)) and h["FSR_STEP"] == str(slave.PHASES["step"])
-    assert h["FSR_L_STEPPER"] == str(runtime.LAYOUT.index("stepper")) and h["FMU_SYNC_GUID"] == '"{x}"'
+    assert h["FSR_L_WORK"] == str(runtime.LAYOUT.index("work")) and "FSR_L_STEPPER" not in h
+    assert h["FMU_SYNC_GUID"] == '"{x}"'
     c_dir = Path(slave.__file__).parent / "c"
     hand = "".join(p.read_text() for p in c_dir.glob("*.[ch]"))
     assert not re.search(r"#define (FSR_H_|FSR_SCHEME_|FSR_VERSION|FSR_L_)|FSR_H_\w+ = \d", hand)

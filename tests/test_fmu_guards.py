@@ -231,6 +231,28 @@ def test_no_writable_cache_folder_gives_the_advice(tmp_path, monkeypatch):
     assert str(blocker / "cache") in text and "vartmp" in text and "Not a directory" in text
 
 
+def test_a_read_only_cache_that_holds_the_code_is_used(tmp_path, monkeypatch):
+    """Nothing is compiled on the target, so a cache folder that already holds the unpacked code
+    is all the FMU needs, writable or not (here: every folder refused as unwritable)."""
+    from fmu_sync.fmus import boot
+    res = tmp_path / "resources"
+    (res / boot.CODE_DIR / "core").mkdir(parents=True)
+    (res / boot.CODE_DIR / "__init__.py").write_text("")
+    (res / boot.CODE_DIR / "core" / "m.py").write_text("X = 1\n")
+    build = {"code_hash": boot.code_hash(str(res / boot.CODE_DIR)), "package": "fmu_sync_mtest"}
+    monkeypatch.setenv("FMU_SYNC_CACHE", str(tmp_path / "cache"))
+    first = boot.unpack(str(res), build)
+    assert Path(first, build["package"], "core", "m.py").read_text() == "X = 1\n"
+
+    def unwritable(embedded=False):
+        raise boot.SetupError("no writable folder")
+    monkeypatch.setattr(boot, "cache_root", unwritable)
+    assert boot.unpack(str(res), build) == first
+    Path(first, build["package"], "core", "m.py").write_text("X = 2\n")     # damaged: not used
+    with pytest.raises(boot.SetupError):
+        boot.unpack(str(res), build)
+
+
 _RO = shutil.which("unshare") and subprocess.run(
     ["unshare", "-rm", "sh", "-c", "mount --bind -o ro /tmp /tmp && ! touch /tmp/.fmu-sync-ro-probe"],
     capture_output=True).returncode == 0

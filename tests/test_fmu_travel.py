@@ -193,23 +193,3 @@ def test_install_command_for_a_debian_system_python(monkeypatch, tmp_path):
     monkeypatch.setattr(boot.os.path, "isfile", lambda p: p == str(tmp_path / "EXTERNALLY-MANAGED")
                         or p == "/etc/debian_version")
     assert boot.install_command({"numpy": ">=1.24"}) == "sudo apt-get install python3-numpy"
-
-
-def test_a_read_only_cache_that_holds_the_code_is_used(tmp_path, monkeypatch):
-    """A cache folder prepared once (FMU_SYNC_CACHE) and then made read-only is used as it is."""
-    from fmu_sync.fmus import boot
-    res = tmp_path / "resources" / "fmu_sync_code" / "core"
-    res.mkdir(parents=True)
-    (res / "a.py").write_text("x = 1\n")
-    digest = boot.code_hash(str(tmp_path / "resources" / "fmu_sync_code"))
-    build = {"code_hash": digest, "package": "pkg"}
-    cache = tmp_path / "cache"
-    monkeypatch.setenv("FMU_SYNC_CACHE", str(cache))
-    first = boot.unpack(str(tmp_path / "resources"), build)
-    real_access = os.access                                  # read-only, even for root
-    monkeypatch.setattr(boot.os, "access", lambda p, mode: False if mode & os.W_OK else real_access(p, mode))
-    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "elsewhere"))
-    monkeypatch.setenv("TMPDIR", str(tmp_path / "elsewhere"))
-    monkeypatch.setattr(boot, "TMP_DIRS", ())
-    assert boot.unpack(str(tmp_path / "resources"), build) == first
-    assert not (tmp_path / "elsewhere").exists()             # nothing written anywhere else
