@@ -193,3 +193,20 @@ def test_install_command_for_a_debian_system_python(monkeypatch, tmp_path):
     monkeypatch.setattr(boot.os.path, "isfile", lambda p: p == str(tmp_path / "EXTERNALLY-MANAGED")
                         or p == "/etc/debian_version")
     assert boot.install_command({"numpy": ">=1.24"}) == "sudo apt-get install python3-numpy"
+
+
+def test_a_python_without_its_shared_library_is_named(travel):
+    """python3 on PATH whose installation has no libpython (a static build): it is named with what
+    it lacks, and the advice is a shared build (this prefix is not the distribution's /usr)."""
+    prefix = travel["tmp"] / "static-python"
+    (prefix / "bin").mkdir(parents=True)
+    real = prefix / "bin" / "python3.11"
+    real.write_text("#!/bin/sh\nexit 1\n")
+    real.chmod(0o755)
+    (prefix / "bin" / "python3").symlink_to("python3.11")
+    p = _run_empty_env(travel, [prefix / "bin"], "--stop", 0.1, timeout=60)
+    assert p.returncode == 3 and "instantiate NULL" in p.stdout, p.stdout + p.stderr
+    err = " ".join(ln for ln in p.stderr.splitlines() if ln.startswith("LOG 3"))
+    assert (f"python3 on PATH {prefix}/bin/python3: Python 3.11 without its shared library "
+            f"libpython3.11.so.1.0 (looked under {prefix}/lib) and without numpy") in err, err
+    assert "--enable-shared" in err and "FMU_SYNC_PYTHON" in err, err
