@@ -177,7 +177,8 @@ def test_binary_carries_the_stepper_and_binds_libm_to_the_oldest_glibc(fmus):
 
 
 def test_every_runtime_symbol_is_provided_by_the_c_support():
-    src = (Path(native.__file__).parent / "fmus" / "c" / "fmu_sync_native.c").read_text()
+    import fmu_sync.fmus
+    src = (Path(fmu_sync.fmus.__file__).parent / "c" / "fmu_sync_native.c").read_text()
     defined = set(re.findall(r"\bfsrx_(\w+)", src)) | set(re.findall(r"(?:FLAGGED|QUIET)\((\w+)\)", src))
     assert native.RUNTIME <= defined, sorted(native.RUNTIME - defined)
 
