@@ -216,6 +216,25 @@ def test_export_fails_naming_a_symbol_the_binary_cannot_provide(tmp_path):
     assert native.link_names(["cos", "NRT_Free"]) == {"cos": "cos@GLIBC_2.2.5", "NRT_Free": "fsrx_NRT_Free"}
 
 
+def test_export_fails_for_an_address_of_the_exporting_process(tmp_path):
+    """A ctypes function called from the stepper is an address valid only in this process."""
+    import ctypes
+    import ctypes.util
+
+    from numba import cfunc
+    libm = ctypes.CDLL(ctypes.util.find_library("m"))
+    c_cos = libm.cos
+    c_cos.restype, c_cos.argtypes = ctypes.c_double, [ctypes.c_double]
+
+    @cfunc("int32(CPointer(float64), CPointer(float64), float64, float64)", nopython=True)
+    def through_ctypes(x, w, t, H):
+        w[0] = c_cos(t)
+        return 0
+
+    with pytest.raises(native.NativeCodeError, match="address of this process"):
+        native.stepper_object(through_ctypes, tmp_path / "s.o")
+
+
 def test_cli_export_reports_native_failure(monkeypatch, tmp_path, capsys):
     from fmu_sync.export import main_export
     monkeypatch.setitem(native.TESTED, "llvmlite", ((0, 1), (0, 2)))
