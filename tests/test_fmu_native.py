@@ -47,7 +47,7 @@ def _flat(md):
         if v.causality == "input":
             ins.append(v.valueReference)
         elif v.causality == "output":
-            (ints if v.type in ("Integer", "Int32", "Int64") else reals).append(v.valueReference)
+            (ints if v.type in ("Integer", "Int64") else reals).append(v.valueReference)
     return ins, reals, ints
 
 
@@ -79,14 +79,15 @@ def scenario_compare(a):
             if fmi3:
                 s.setFloat64(ins, list(tau))
                 s.doStep(t, H)
-                got = list(s.getFloat64(reals)) + [float(v) for v in s.getInt32(ints)]
+                got = list(s.getFloat64(reals)) + [float(v) for v in s.getInt64(ints)]
             else:
                 s.setReal(ins, list(tau))
                 s.doStep(t, H)
                 got = list(s.getReal(reals)) + [float(v) for v in s.getInteger(ints)]
             inst.x[ins] = tau
-            assert inst._step(inst.x.ctypes.data, inst.work.ctypes.data, t, H) == 0
-            inst.work[S.H_TIME] = t + H
+            now = float(inst.work[S.H_TIME])              # as fsr_step: the slave's own time
+            assert inst._step(inst.x.ctypes.data, inst.work.ctypes.data, now, H) == 0
+            inst.work[S.H_TIME] = now + H
             want = [float(inst.x[i]) for i in reals + ints]
             n += len(want)
             mism += sum(np.float64(g).tobytes() != np.float64(w).tobytes() for g, w in zip(got, want))
@@ -112,6 +113,10 @@ def _child_main(argv):
     args = json.loads(Path(args_path).read_text())
     Path(out_path).write_text(json.dumps(globals()[f"scenario_{name}"](args)))
 
+
+if __name__ == "__main__":      # a child: the parent side's imports (numba among them) stay out
+    _child_main(sys.argv[1:])
+    sys.exit(0)
 
 # =============================================================== parent side
 import pytest  # noqa: E402
@@ -241,6 +246,3 @@ def test_cli_export_reports_native_failure(monkeypatch, tmp_path, capsys):
     assert main_export(["impact-oscillator", "-o", str(tmp_path / "x.fmu")]) == 2
     assert "llvmlite" in capsys.readouterr().err
 
-
-if __name__ == "__main__":
-    _child_main(sys.argv[1:])
