@@ -152,6 +152,14 @@ def stepper_object(stepper, out: Path) -> Path:
         entry = module.get_function(stepper.native_name)
     except Exception as exc:
         raise NativeCodeError(f"cannot read the compiled module of the stepper from numba: {exc!r}") from None
+    fixed = re.search(r"inttoptr \(i64 ([1-9]\d{4,})", str(module))
+    if fixed:
+        raise NativeCodeError(
+            f"the stepper calls or reads something through an address of this process "
+            f"({int(fixed.group(1)):#x}: a ctypes/cffi function, a function passed as a first-class "
+            f"value, or an array baked in as a constant), which does not exist in the FMU's process: "
+            f"call numba functions by name (a global or a closure variable of the stepper) and pass "
+            f"data through the work array")
     for fn in module.functions:
         if not fn.is_declaration:
             fn.linkage = "internal"

@@ -58,12 +58,15 @@ def code_hash(root: str) -> str:
 
 
 def _version(dist: str) -> str | None:
+    """The version of the module ``dist`` (its ``__version__``; None if it cannot be imported).
+    The FMU imports numpy anyway; importlib.metadata would add ~40 ms to a cold start."""
+    import importlib
     try:
-        from importlib.metadata import version
-        return version(dist)
+        return str(importlib.import_module(dist).__version__)
+    except ImportError:
+        return None
     except Exception:
-        import importlib.util
-        return "unknown" if importlib.util.find_spec(dist) is not None else None
+        return "unknown"
 
 
 def _vtuple(v: str) -> tuple[int, ...]:

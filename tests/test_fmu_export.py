@@ -3,6 +3,7 @@ binary: the FMUs are run in child processes by tests/test_fmu_run.py."""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import textwrap
@@ -268,10 +269,14 @@ def test_exported_fmu_carries_the_closure_of_its_own_slave_and_stepper(fmus, mod
     """An exported mechanical FMU's code is exactly the import closure of its runtime, stepper and
     slave (fmus/__init__.py and the two stub __init__ files beside): nothing of the coupling FMU."""
     with zipfile.ZipFile(fmus[model]) as zf:
-        code = {n[len("resources/fmu_sync_code/"):] for n in zf.namelist()
-                if n.startswith("resources/fmu_sync_code/")}
+        files = {n[len("resources/fmu_sync_code/"):] for n in zf.namelist()
+                 if n.startswith("resources/fmu_sync_code/")}
+    code = {n for n in files if "__pycache__" not in n}
     want = _closure(["fmus/runtime.py", "fmus/stepper.py", "fmus/slave.py"])
     assert code - {"__init__.py", "core/__init__.py", "fmus/__init__.py"} == want
+    tag = sys.implementation.cache_tag          # and the bytecode of each module, nothing more
+    assert files - code == {f"{os.path.dirname(n) + '/' if '/' in n else ''}__pycache__/"
+                            f"{os.path.basename(n)[:-3]}.{tag}.pyc" for n in code}
     assert not {"fmus/coupling.py", "fmus/coupling_runtime.py", "fmus/coupling_stepper.py",
                 "core/network.py", "core/pair.py", "core/batch.py"} & code
 

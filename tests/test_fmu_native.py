@@ -47,7 +47,7 @@ def _flat(md):
         if v.causality == "input":
             ins.append(v.valueReference)
         elif v.causality == "output":
-            (ints if v.type in ("Integer", "Int32", "Int64") else reals).append(v.valueReference)
+            (ints if v.type in ("Integer", "Int64") else reals).append(v.valueReference)
     return ins, reals, ints
 
 
@@ -79,14 +79,15 @@ def scenario_compare(a):
             if fmi3:
                 s.setFloat64(ins, list(tau))
                 s.doStep(t, H)
-                got = list(s.getFloat64(reals)) + [float(v) for v in s.getInt32(ints)]
+                got = list(s.getFloat64(reals)) + [float(v) for v in s.getInt64(ints)]
             else:
                 s.setReal(ins, list(tau))
                 s.doStep(t, H)
                 got = list(s.getReal(reals)) + [float(v) for v in s.getInteger(ints)]
             inst.x[ins] = tau
-            assert inst._step(inst.x.ctypes.data, inst.work.ctypes.data, t, H) == 0
-            inst.work[S.H_TIME] = t + H
+            now = float(inst.work[S.H_TIME])              # as fsr_step: the slave's own time
+            assert inst._step(inst.x.ctypes.data, inst.work.ctypes.data, now, H) == 0
+            inst.work[S.H_TIME] = now + H
             want = [float(inst.x[i]) for i in reals + ints]
             n += len(want)
             mism += sum(np.float64(g).tobytes() != np.float64(w).tobytes() for g, w in zip(got, want))
@@ -112,6 +113,10 @@ def _child_main(argv):
     args = json.loads(Path(args_path).read_text())
     Path(out_path).write_text(json.dumps(globals()[f"scenario_{name}"](args)))
 
+
+if __name__ == "__main__":      # a child: the parent side's imports (numba among them) stay out
+    _child_main(sys.argv[1:])
+    sys.exit(0)
 
 # =============================================================== parent side
 import pytest  # noqa: E402
@@ -177,7 +182,8 @@ def test_binary_carries_the_stepper_and_binds_libm_to_the_oldest_glibc(fmus):
 
 
 def test_every_runtime_symbol_is_provided_by_the_c_support():
-    src = (Path(native.__file__).parent / "fmus" / "c" / "fmu_sync_native.c").read_text()
+    import fmu_sync.fmus
+    src = (Path(fmu_sync.fmus.__file__).parent / "c" / "fmu_sync_native.c").read_text()
     defined = set(re.findall(r"\bfsrx_(\w+)", src)) | set(re.findall(r"(?:FLAGGED|QUIET)\((\w+)\)", src))
     assert native.RUNTIME <= defined, sorted(native.RUNTIME - defined)
 
@@ -215,12 +221,28 @@ def test_export_fails_naming_a_symbol_the_binary_cannot_provide(tmp_path):
     assert native.link_names(["cos", "NRT_Free"]) == {"cos": "cos@GLIBC_2.2.5", "NRT_Free": "fsrx_NRT_Free"}
 
 
+def test_export_fails_for_an_address_of_the_exporting_process(tmp_path):
+    """A ctypes function called from the stepper is an address valid only in this process."""
+    import ctypes
+    import ctypes.util
+
+    from numba import cfunc
+    libm = ctypes.CDLL(ctypes.util.find_library("m"))
+    c_cos = libm.cos
+    c_cos.restype, c_cos.argtypes = ctypes.c_double, [ctypes.c_double]
+
+    @cfunc("int32(CPointer(float64), CPointer(float64), float64, float64)", nopython=True)
+    def through_ctypes(x, w, t, H):
+        w[0] = c_cos(t)
+        return 0
+
+    with pytest.raises(native.NativeCodeError, match="address of this process"):
+        native.stepper_object(through_ctypes, tmp_path / "s.o")
+
+
 def test_cli_export_reports_native_failure(monkeypatch, tmp_path, capsys):
     from fmu_sync.export import main_export
     monkeypatch.setitem(native.TESTED, "llvmlite", ((0, 1), (0, 2)))
     assert main_export(["impact-oscillator", "-o", str(tmp_path / "x.fmu")]) == 2
     assert "llvmlite" in capsys.readouterr().err
 
-
-if __name__ == "__main__":
-    _child_main(sys.argv[1:])
