@@ -234,7 +234,8 @@ int fsp_find(const char *resdir, fsp_choice *out, char *err, size_t n) {
     if (env && *env) {
         if (!describe(env, &c)) {
             snprintf(err, n, "FMU_SYNC_PYTHON = %s: %s; set it to the interpreter of an environment with numpy "
-                     "(a Python built with --enable-shared; on Debian/Ubuntu the libpython3.X package)", env, c.why);
+                     "(a Python built with --enable-shared; on Debian/Ubuntu the libpython%s package)", env, c.why,
+                     c.ver[0] ? c.ver : "3.X");
             return 0;
         }
         snprintf(out->program, sizeof out->program, "%s", env);
