@@ -29,7 +29,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from .jit import njit, prange
 
 from .distance import DistanceGeometry, ScalarGeometry
 from .loop import integrate_network, sample_d

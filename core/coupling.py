@@ -35,7 +35,7 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 from .distance import BRANCH_E, resolve_geometry, geometry_state, distance1, distance_kernel
 

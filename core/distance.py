@@ -62,7 +62,7 @@ from types import SimpleNamespace
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 from .model import MechanicalSystem, SystemArrays, as_state
 from .checks import check_admissible

@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 __all__ = ["BRANCH_E", "BRANCH_J12", "BRANCH_J21", "BRANCH_J2", "BRANCH_NAMES", "core_2d", "distance_2d",
            "branch_values_2d"]

@@ -59,7 +59,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 from .model import MechanicalSystem
 

@@ -42,7 +42,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 from .exact_flow import EPS, derivs, force, phases, sticks
 from .exact_flow import P_A, P_E, P_F0, P_OMX, P_S, P_S0, P_W

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
+from .jit import njit
 
 from .exact_flow import EPS, TOLF, derivs
 from .exact_flow import P_F0, P_F1, P_F2, P_F4, P_S

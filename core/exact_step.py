@@ -9,7 +9,7 @@ the system is packed once into one float64 array (:func:`exact_model`).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 from .exact_flow import EPS, NPRM, NT, P_F0, P_S0, flow_model
 from .exact_run import IMPACT_EV, run_events, sample, vref_start

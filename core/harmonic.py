@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 __all__ = ["PHASOR_SYNC", "harmonic_workspace", "harmonic_table"]
 

@@ -11,7 +11,7 @@ checked Python entry point.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 from .distance import make_geometry
 from .model import MechanicalSystem, as_state

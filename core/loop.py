@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 from .coupling import (BRANCH_NONE, SWITCHING, UNCOUPLED, coupling_kernel, coupling_kernel1,
                        euclidean_coupling1, p_norm_diff)

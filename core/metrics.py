@@ -59,7 +59,7 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 __all__ = ["SyncMetrics", "sync_metrics", "metrics_kernel", "decimator", "decimator_push",
            "decimated_metrics", "decimated_kernel", "HI", "LO", "TAIL", "STALL", "MIN_PEAKS", "MIN_DECADES",

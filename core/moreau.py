@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 from .harmonic import PHASOR_SYNC, harmonic_table  # noqa: F401 (re-exported: the loops' forcing)
 from .harmonic import harmonic_workspace, hsum1_cos, hsum1_ph, hsum_cos, hsum_ph, ph_rot, ph_sync

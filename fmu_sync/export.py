@@ -12,25 +12,29 @@ are FMI 3.0 arrays.
 The FMU holds:
 
 * ``binaries/linux64/<ModelIdentifier>.so`` — our FMI 2.0 binary: the FMI glue
-  (``fmus/c/fmu_sync_fmi2.c``) and the instance runtime that embeds Python
-  (``fmus/c/fmu_sync_runtime.c``), compiled here with gcc (GUID and boot module
+  (``fmus/c/fmu_sync_fmi2.c``), the instance runtime that embeds Python
+  (``fmus/c/fmu_sync_runtime.c``) and the stepper as native code: the numba cfunc
+  compiled here to baseline x86-64 object code (:mod:`fmu_sync.native`) and linked
+  with its support (``fmus/c/fmu_sync_native.c``), all by gcc (GUID and boot module
   compiled in). It loads libpython itself, so any C host can load the FMU;
-* ``resources/fmu_sync_code/`` — the Python code it runs: only the modules its
-  slave and stepper import (:func:`carried_modules`, the import closure with deferred
-  imports), none importing ``fmu_sync``; so the importing machine needs Python with
-  numpy and numba, not fmu-sync, and an edit of a core module the FMU does not run
-  (``core/batch.py``) leaves its GUID unchanged; ``resources/fmu_sync_boot_<hash>.py``
-  sets it up;
+* ``resources/fmu_sync_code/`` — the Python code it runs (configuration, checks, state):
+  only the modules its slave and stepper import (:func:`carried_modules`, the import
+  closure with deferred imports), none importing ``fmu_sync``, run as plain Python
+  (the carried package sets ``PLAIN_PYTHON``, ``core/jit.py``); so the importing machine
+  needs Python with numpy only (no numba, nothing compiled there), and an edit of a core
+  module the FMU does not run (``core/batch.py``) leaves its GUID unchanged;
+  ``resources/fmu_sync_boot_<hash>.py`` sets it up;
 * ``resources/fmu_sync_python.txt`` — the interpreter (``program``) and its
   libpython recorded at export (``FMU_SYNC_PYTHON`` overrides them at run time);
-* ``resources/fmu_sync_build.json`` — model, content hash, the Python / numpy /
-  numba versions of the build; ``resources/fmu_sync_start.json`` — start values
-  (the same as the ``start`` attributes of modelDescription.xml).
+* ``resources/fmu_sync_build.json`` — model, content hash, the Python / numpy
+  versions of the build and the numba / llvmlite versions and CPU of its native
+  stepper; ``resources/fmu_sync_start.json`` — start values (the same as the
+  ``start`` attributes of modelDescription.xml).
 
 The archive is written directly, byte-for-byte reproducible (no timestamps,
-deterministic GUID). By default the export also compiles the FMU's numba
-stepper into the per-user cache (``warm=True``), so the first instantiation
-elsewhere on this machine loads it instead of compiling it.
+deterministic GUID). When the stepper cannot be made native code (numba or llvmlite
+outside the tested versions, a feature the binary cannot provide, no binutils), the
+export fails (:class:`fmu_sync.native.NativeCodeError`), never the FMU on its target.
 """
 from __future__ import annotations
 
@@ -51,15 +55,22 @@ from xml.etree import ElementTree as ET
 import numpy as np
 
 from .fmus import contract
-from . import __version__
+from . import __version__, native
+from .fmu_docs import documentation_files
 from .fmus.slave import model_guid
 
 __all__ = ["MODELS", "export_fmu", "export_coupling", "main_export", "model_slave", "carried_files",
-           "carried_modules", "build_binary", "constants_header", "fmu_guid", "write_archive", "MAX_SUBSTEPS",
-           "COUPLING", "FMI_VERSIONS"]
+           "carried_modules", "bytecode", "build_binary", "stepper_cfunc", "constants_header", "fmu_guid",
+           "write_archive", "MAX_SUBSTEPS", "COUPLING", "FMI_VERSIONS", "TARGET_REQUIRES", "target_requires"]
 
 #: The export keys: the FMU contract's model registry.
 MODELS = contract.MODELS
+#: the range of each third-party package an FMU's carried code may import (pyproject.toml's
+#: dependencies say the same, tests/test_fmu_travel.py checks it). The target needs those its
+#: carried code imports (:func:`target_requires`), checked at instantiation (fmus/boot.py); the
+#: export refuses a numpy outside it. numba and llvmlite are the export's alone, pinned to their
+#: tested versions (fmu_sync.native.TESTED; numba 0.57.1 hung for 15 min in its inline pass).
+TARGET_REQUIRES = {"numpy": ">=1.24"}
 #: most internal steps one fmi2DoStep may take (larger steps are refused with fmi2Error)
 MAX_SUBSTEPS = 10_000_000
 
@@ -68,10 +79,16 @@ _ZIP_DATE = (2020, 1, 1, 0, 0, 0)
 #: the instance runtime (the Python embedding)
 FMI_VERSIONS = (2, 3)
 _C_GLUE = {2: "c/fmu_sync_fmi2.c", 3: "c/fmu_sync_fmi3.c"}
-_C_RUNTIME = "c/fmu_sync_runtime.c"
+_C_RUNTIME = ("c/fmu_sync_runtime.c", "c/fmu_sync_python.c", "c/fmu_sync_native.c")
+#: the binary's libraries. libdl.so.2 stays a dependency (gcc links --as-needed, and -ldl is an empty
+#: archive since glibc 2.34): on glibc < 2.34 the old dlopen bound by fmu_sync_runtime.c lives there
+#: (the glibc floor, docs/fmu.md "The binary")
+_LIBS = ("-Wl,--no-as-needed", "-l:libdl.so.2", "-Wl,--as-needed", "-lpthread", "-lm")
 #: the carried package's __init__ files: the real core/__init__.py imports every run API of the core
 _CARRIED_INITS = {
-    "__init__.py": b'"""fmu-sync model code carried by an FMU (the modules its slave and stepper import)."""\n',
+    "__init__.py": b'"""fmu-sync model code carried by an FMU (the modules its slave and stepper import)."""\n'
+                   b"#: run as plain Python (core/jit.py): the stepper is the binary's native code\n"
+                   b"PLAIN_PYTHON = True\n",
     "core/__init__.py": b'"""The core modules an fmu-sync FMU runs (the import closure of its slave and stepper)."""\n',
 }
 #: the coupling FMU's export key (fmu_sync.fmus.coupling; not a mechanical model of the registry)
@@ -167,6 +184,29 @@ def carried_files(model: str = "impact-oscillator") -> list[tuple[str, bytes]]:
     return sorted(_CARRIED_INITS.items()) + [(rel, _read(rel)) for rel in carried_modules(model)]
 
 
+def bytecode(files: list[tuple[str, bytes]]) -> list[tuple[str, bytes]]:
+    """The carried modules compiled for this Python (``<dir>/__pycache__/<name>.<tag>.pyc``), so
+    that a target running the same Python version imports them without compiling (the
+    cold start, docs/fmu.md); checked-hash pycs (PEP 552): valid whatever the files' dates after
+    unzipping, ignored for a source they do not match, ignored by other Python versions
+    (which compile the sources)."""
+    import py_compile
+    tag = sys.implementation.cache_tag
+    if tag is None:      # pragma: no cover (an implementation without bytecode caching)
+        return []
+    out = []
+    with tempfile.TemporaryDirectory(prefix="fmu-sync-pyc-") as tmp:
+        for rel, data in files:
+            src = Path(tmp, "src.py")
+            src.write_bytes(data)
+            folder, name = os.path.split(rel)
+            pyc = Path(tmp, "out.pyc")
+            py_compile.compile(str(src), cfile=str(pyc), dfile=rel, doraise=True,
+                               invalidation_mode=py_compile.PycInvalidationMode.CHECKED_HASH)
+            out.append((f"{folder + '/' if folder else ''}__pycache__/{name[:-3]}.{tag}.pyc", pyc.read_bytes()))
+    return out
+
+
 def _code_hash(files: list[tuple[str, bytes]]) -> str:
     # the same walk as fmus/boot.py:code_hash over the unpacked tree
     from fmu_sync.fmus.boot import code_hash
@@ -221,18 +261,27 @@ def constants_header(guid: str = "", boot_module: str = "", max_substeps: int = 
     return ("\n".join(lines + ["#endif", ""])).encode()
 
 
+def stepper_cfunc(model: str = "impact-oscillator"):
+    """The numba cfunc that is the stepper of ``model``'s FMU (its kind's stepper module's ``step``)."""
+    import importlib
+    return importlib.import_module(f"fmu_sync.{_kind(model)['stepper']}").step
+
+
 def build_binary(out: Path, guid: str, boot_module: str, max_substeps: int = MAX_SUBSTEPS,
-                 glue: str | None = None, fmi_version: int = 2) -> Path:
-    """Compile the FMI binary (``glue``, by default the FMI version's, and the runtime, with the
-    generated constants header) with gcc (``$CC`` overrides) into ``out``."""
-    srcs = [str(_fmus_dir() / (glue or _C_GLUE[fmi_version])), str(_fmus_dir() / _C_RUNTIME)]
+                 glue: str | None = None, fmi_version: int = 2, model: str = "impact-oscillator") -> Path:
+    """Compile the FMI binary (``glue``, by default the FMI version's, the runtime with the
+    generated constants header, and ``model``'s stepper as native object code,
+    :func:`fmu_sync.native.stepper_object`) with gcc (``$CC`` overrides) into ``out``;
+    every symbol resolved at link time (libc, libm, libdl, libpthread; Python is looked up at run time)."""
+    srcs = [str(_fmus_dir() / (glue or _C_GLUE[fmi_version]))] + [str(_fmus_dir() / c) for c in _C_RUNTIME]
     cc = os.environ.get("CC", "gcc")
     if shutil.which(cc) is None:
         raise RuntimeError(f"cannot build the FMU binary: C compiler {cc!r} not found (install gcc or set CC)")
     with tempfile.TemporaryDirectory(prefix="fmu-sync-h-") as inc:
         Path(inc, _CONSTANTS_H).write_bytes(constants_header(guid, boot_module, max_substeps))
+        obj = native.stepper_object(stepper_cfunc(model), Path(inc) / "fmu_sync_stepper.o")
         cmd = [cc, "-std=gnu11", "-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-s", f"-I{inc}",
-               "-o", str(out), *srcs, "-ldl", "-lpthread", "-lm"]
+               "-Wl,--no-undefined", "-o", str(out), *srcs, str(obj), *_LIBS]
         p = subprocess.run(cmd, capture_output=True, text=True)
     if p.returncode != 0:
         raise RuntimeError(f"cannot build the FMU binary ({' '.join(cmd)}):\n{p.stderr[-3000:]}")
@@ -249,10 +298,50 @@ def python_record() -> str:
 
 
 def _runtime_versions() -> dict:
-    import numba
+    """What the target's Python is compared with (boot.check_runtime): Python and numpy;
+    RuntimeError if numpy is outside TARGET_REQUIRES (numba and llvmlite, which the export
+    alone needs, are checked against their tested versions by :func:`fmu_sync.native.check_versions`)."""
     import numpy
-    return {"python": ".".join(map(str, sys.version_info[:3])), "numpy": numpy.__version__,
-            "numba": numba.__version__}
+    from .fmus.boot import satisfies
+    versions = {"python": ".".join(map(str, sys.version_info[:3])), "numpy": numpy.__version__}
+    for dist, spec in TARGET_REQUIRES.items():
+        if not satisfies(versions[dist], spec):
+            raise RuntimeError(f"cannot export with {dist} {versions[dist]}: fmu-sync is tested with "
+                               f"{dist}{spec} (pyproject.toml); install it: {sys.executable} -m pip install "
+                               f"'{dist}{spec}'")
+    return versions
+
+
+def target_requires(model: str = "impact-oscillator") -> dict[str, str]:
+    """{distribution: specifier} the target's Python needs for the FMU of ``model``: the
+    third-party packages its carried code imports unconditionally when imported (an import
+    inside a function, such as core/views.py's xarray, or under ``if``/``try``, such as
+    core/jit.py's numba, is not needed), with their TARGET_REQUIRES range."""
+    import ast
+    names = set()
+
+    def visit(body):
+        for node in body:
+            if isinstance(node, ast.Import):
+                names.update(a.name.split(".")[0] for a in node.names)
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                names.add(node.module.split(".")[0])
+            elif isinstance(node, ast.ClassDef):
+                visit(node.body)
+
+    for rel in carried_modules(model):
+        visit(ast.parse(_read(rel), rel).body)
+    names -= set(sys.stdlib_module_names) | {"__future__"}
+    unknown = names - set(TARGET_REQUIRES)
+    if unknown:
+        raise ValueError(f"the FMU's carried code imports {', '.join(sorted(unknown))}, which TARGET_REQUIRES "
+                         f"does not list (the target could not be told what it needs)")
+    return {d: TARGET_REQUIRES[d] for d in TARGET_REQUIRES if d in names}
+
+
+def _native_record() -> dict:
+    """How the native stepper was made (informative: the target needs none of it)."""
+    return {**native.check_versions(), "cpu": native.CPU, "triple": native.TRIPLE, "entry": native.ENTRY}
 
 
 def _model_description_xml(cls, starts: dict, guid: str, fmi_version: int = 2) -> bytes:
@@ -261,24 +350,6 @@ def _model_description_xml(cls, starts: dict, guid: str, fmi_version: int = 2) -
     buf = io.BytesIO()
     ET.ElementTree(root).write(buf, encoding="UTF-8", xml_declaration=True)
     return buf.getvalue() + b"\n"
-
-
-def warm_cache(resources: dict[str, bytes], build: dict) -> None:
-    """Unpack the carried code into the per-user cache and compile its stepper
-    there (numba's on-disk cache), as the first instantiation would."""
-    import importlib
-
-    from fmu_sync.fmus import boot
-    with tempfile.TemporaryDirectory(prefix="fmu-sync-warm-") as tmp:
-        for rel, data in resources.items():
-            p = Path(tmp, rel)
-            p.parent.mkdir(parents=True, exist_ok=True)
-            p.write_bytes(data)
-        path = boot.unpack(tmp, build)
-    if path not in sys.path:
-        sys.path.insert(0, path)
-    stepper = importlib.import_module(f"{build['package']}.{build['stepper']}")
-    stepper.step.address  # compiled (or loaded from the cache) at import
 
 
 def _identity(model: str, starts: dict, fmi_version: int = 2) -> tuple[list[tuple[str, bytes]], str, str]:
@@ -297,7 +368,7 @@ def fmu_guid(model: str = "impact-oscillator", start_values: dict | None = None,
 
 
 def export_fmu(model: str = "impact-oscillator", path=None, start_values: dict | None = None,
-               warm: bool = True, fmi_version: int = 2) -> Path:
+               fmi_version: int = 2) -> Path:
     """Build the FMU of ``model`` at ``path`` (default ``<ModelIdentifier>.fmu``) and return its path.
 
     ``start_values`` maps variable names (``"e"``, ``"solver.dt"``, ``"M[1,2]"``,
@@ -312,12 +383,11 @@ def export_fmu(model: str = "impact-oscillator", path=None, start_values: dict |
     if model == COUPLING:
         if fmi_version != 2:
             raise ValueError(f"the coupling FMU is exported for FMI 2.0 only, got fmi_version={fmi_version!r}")
-        return export_coupling(path, start_values=start_values, warm=warm)
-    return _export(model_slave(model), model, path, start_values, {}, warm, fmi_version)
+        return export_coupling(path, start_values=start_values)
+    return _export(model_slave(model), model, path, start_values, {}, fmi_version)
 
 
-def export_coupling(path=None, A=None, n: int = 1, start_values: dict | None = None, warm: bool = True,
-                    K=1.0) -> Path:
+def export_coupling(path=None, A=None, n: int = 1, start_values: dict | None = None, K=1.0) -> Path:
     """Build the coupling FMU (:mod:`fmu_sync.fmus.coupling`) of the graph ``A``
     (N x N weights; default the pair ``[[0, 1], [1, 0]]``) for systems with ``n``
     degrees of freedom. The weights of ``A`` are the start values of ``a[i,j]``;
@@ -339,10 +409,10 @@ def export_coupling(path=None, A=None, n: int = 1, start_values: dict | None = N
         p = cls.start_parameters(starts)
         Kp = np.array([p[k] for k in kp_names]).reshape(n, n)
         starts.update(zip(q_names, (float(x) for x in energy_metric(K, Kp, A).reshape(-1))))
-    return _export(cls, COUPLING, path, starts, {"structure": spec.as_dict()}, warm)
+    return _export(cls, COUPLING, path, starts, {"structure": spec.as_dict()})
 
 
-def _export(cls, model: str, path, start_values, start_extra: dict, warm: bool, fmi_version: int = 2) -> Path:
+def _export(cls, model: str, path, start_values, start_extra: dict, fmi_version: int = 2) -> Path:
     starts = cls.normalize_start_values(dict(start_values or {}))
     all_starts = cls.start_parameters(starts)
     try:
@@ -360,11 +430,14 @@ def _export(cls, model: str, path, start_values, start_extra: dict, warm: bool, 
     boot_module = f"fmu_sync_boot_{digest[:16]}"
     build = {"model": model, "model_identifier": cls.MODEL_IDENTIFIER, "package": package, "code_hash": digest,
              "fmu_sync_version": __version__, "guid": guid,
-             "built_with": _runtime_versions(), "max_substeps": MAX_SUBSTEPS, "fmi_version": fmi_version,
+             "built_with": _runtime_versions(), "requires": target_requires(model),
+             "native_stepper": _native_record(),
+             "max_substeps": MAX_SUBSTEPS, "fmi_version": fmi_version,
              "runtime": _kind(model)["runtime"], "stepper": _kind(model)["stepper"]}
     from fmu_sync.fmus import boot as _boot
     from fmu_sync.fmus.slave import START_FILE
     resources = {f"fmu_sync_code/{rel}": data for rel, data in code}
+    resources.update({f"fmu_sync_code/{rel}": data for rel, data in bytecode(code)})
     resources.update({
         f"{boot_module}.py": Path(_boot.__file__).read_bytes(),
         "fmu_sync_build.json": (json.dumps(build, indent=2, sort_keys=True) + "\n").encode(),
@@ -374,15 +447,16 @@ def _export(cls, model: str, path, start_values, start_extra: dict, warm: bool, 
     })
     with tempfile.TemporaryDirectory(prefix="fmu-sync-build-") as tmp:
         binary = build_binary(Path(tmp) / f"{cls.MODEL_IDENTIFIER}.so", guid, boot_module,
-                              fmi_version=fmi_version).read_bytes()
+                              fmi_version=fmi_version, model=model).read_bytes()
     platform = "linux64" if fmi_version == 2 else "x86_64-linux"
+    description = _model_description_xml(cls, starts, guid, fmi_version)
+    root = ET.fromstring(description)
     files: list[tuple[str, bytes]] = [
-        ("modelDescription.xml", _model_description_xml(cls, starts, guid, fmi_version)),
+        ("modelDescription.xml", description),
         (f"binaries/{platform}/{cls.MODEL_IDENTIFIER}.so", binary),
-    ] + [(f"resources/{name}", data) for name, data in sorted(resources.items())]
+    ] + documentation_files(build, root.get("modelName"), root.get("description") or "", platform) + [
+        (f"resources/{name}", data) for name, data in sorted(resources.items())]
     write_archive(path, files)
-    if warm:
-        warm_cache(resources, build)
     return path
 
 
@@ -440,8 +514,8 @@ def main_export(argv=None) -> int:
     parser = argparse.ArgumentParser(
         prog="fmu-sync export",
         description="Export an FMI 2.0 (or FMI 3.0: --fmi-version 3) co-simulation FMU of an fmu-sync model, "
-                    "or the coupling FMU of a pair or network (the importing machine needs Python with numpy "
-                    "and numba; see the README).")
+                    "or the coupling FMU of a pair or network (the importing machine needs Python with numpy; "
+                    "the stepper is compiled here into the FMU's binary; see docs/fmu.md).")
     parser.add_argument("model", choices=sorted([*MODELS, COUPLING]), help="model to export")
     parser.add_argument("-o", "--output", default=None,
                         help="FMU file to write (default: <ModelIdentifier>.fmu in the current folder)")
@@ -481,7 +555,7 @@ def main_export(argv=None) -> int:
             path = export_coupling(args.output, A, args.dof, _parse_set(args.sets))
         else:
             path = export_fmu(args.model, args.output, _parse_set(args.sets), fmi_version=args.fmi_version)
-    except ValueError as exc:
+    except (ValueError, native.NativeCodeError) as exc:
         print(f"fmu-sync export: error: {exc}", file=sys.stderr)
         return 2
     print(f"wrote {path}")

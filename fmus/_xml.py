@@ -36,6 +36,13 @@ UNITS: dict[str, dict[str, int]] = {
 }
 
 
+#: needsExecutionTool, FMI 2.0 §4.3.1 / FMI 3.0 §4.3.1: "a tool is needed to execute the model and the
+#: FMU just contains the communication to this tool", the tool being the generationTool. Not so here:
+#: the FMU carries its model (binary and code); the target needs a Python runtime with numpy, not
+#: fmu-sync, stated in the FMU's documentation/ (docs/fmu.md "needsExecutionTool").
+NEEDS_EXECUTION_TOOL = "false"
+
+
 def generation_tool(version: str, fmi_version: int = 2) -> str:
     """generationTool of an FMU exported by fmu-sync ``version`` (the FMU's code never imports fmu_sync)."""
     return f"fmu-sync {version} (own FMI {fmi_version}.0 binary, Python slave)"
@@ -104,7 +111,7 @@ def model_description(*, model_name: str, model_identifier: str, guid: str, desc
     """The complete <fmiModelDescription> element (FMI 2.0, co-simulation)."""
     root = _head("2.0", {"guid": guid}, model_name, description, generation_tool, {
         "modelIdentifier": model_identifier,
-        "needsExecutionTool": "false",
+        "needsExecutionTool": NEEDS_EXECUTION_TOOL,
         "canHandleVariableCommunicationStepSize": "true",
         "canInterpolateInputs": "true",
         "maxOutputDerivativeOrder": "0",
@@ -209,7 +216,7 @@ def model_description3(*, model_name: str, model_identifier: str, token: str, de
     variable ``time``."""
     root = _head("3.0", {"instantiationToken": token}, model_name, description, generation_tool, {
         "modelIdentifier": model_identifier,
-        "needsExecutionTool": "false",
+        "needsExecutionTool": NEEDS_EXECUTION_TOOL,
         "canBeInstantiatedOnlyOncePerProcess": "false",
         "canGetAndSetFMUState": "true",
         "canSerializeFMUState": "true",

@@ -4,20 +4,24 @@ Imported once per process by the FMU's binary (resources/ briefly on sys.path),
 with the standard library only. For each fmi2Instantiate, :func:`instantiate`:
 
 1. reads ``resources/fmu_sync_build.json`` (model, package name, content hash,
-   Python/numpy/numba versions the FMU was built with) and checks the running
-   environment: a missing numpy or numba is an error (fmi2Instantiate returns
-   NULL with the reason logged), other versions than the build's are logged as
-   warnings;
-2. copies the carried code (``resources/fmu_sync_code``) once to a per-user
+   the packages the target needs with their ranges, ``requires``, and the versions
+   the FMU was built with) and checks the running environment: a required package
+   missing or out of its range is an error naming the command that installs it for
+   this Python (fmi2Instantiate returns NULL with the reason logged), other versions
+   than the build's are logged as warnings. numba is not needed: the stepper is
+   native code in the binary, and the carried code runs as plain Python
+   (``core/jit.py``), importing nothing that compiles;
+2. uses a complete copy of the carried code already in a cache folder (even a
+   read-only one), else copies it (``resources/fmu_sync_code``) once to a per-user
    cache folder keyed on its content, ``$FMU_SYNC_CACHE`` or
    ``$XDG_CACHE_HOME/fmu-sync`` or ``~/.cache/fmu-sync`` (else ``$TMPDIR``,
    ``/tmp`` or ``/var/tmp``/fmu-sync-<uid>; none writable: an error that names
-   them and says to set FMU_SYNC_CACHE), ``<folder>/<hash>/<package>``: a stable source path, so numba's
-   on-disk cache hits across the fresh temp folders an importer unzips to;
+   them and says to set FMU_SYNC_CACHE), ``<folder>/<hash>/<package>``;
 3. imports the build's ``runtime`` module (``fmus.runtime`` for a mechanical model,
    ``fmus.coupling_runtime`` for the coupling FMU) from there (a package name unique to the
    content: two FMUs of different code coexist in one process) and returns a
-   new instance (``runtime.create(resources, model, max_substeps, fmi_version)``).
+   new instance (``runtime.create(resources, model, max_substeps, fmi_version, stepper)``;
+   ``stepper``: the address of the binary's native stepper, handed over by the binary).
 
 Its messages name the instantiation call of the build's FMI version.
 """
@@ -54,12 +58,49 @@ def code_hash(root: str) -> str:
 
 
 def _version(dist: str) -> str | None:
+    """The version of the module ``dist`` (its ``__version__``; None if it cannot be imported).
+    The FMU imports numpy anyway; importlib.metadata would add ~40 ms to a cold start."""
+    import importlib
     try:
-        from importlib.metadata import version
-        return version(dist)
+        return str(importlib.import_module(dist).__version__)
+    except ImportError:
+        return None
     except Exception:
-        import importlib.util
-        return "unknown" if importlib.util.find_spec(dist) is not None else None
+        return "unknown"
+
+
+def _vtuple(v: str) -> tuple[int, ...]:
+    """(1, 26, 4) of "1.26.4" (a pre-release "2.0.0rc1" counts as 2.0.0)."""
+    out = []
+    for part in v.split("."):
+        digits = ""
+        for ch in part:
+            if not ch.isdigit():
+                break
+            digits += ch
+        if not digits:
+            break
+        out.append(int(digits))
+    return tuple(out)
+
+
+def satisfies(version: str, spec: str) -> bool:
+    """Whether ``version`` meets a PEP 440 specifier set of plain releases (">=0.59,<0.69")."""
+    import operator
+    ops = {">=": operator.ge, "<=": operator.le, "==": operator.eq, "!=": operator.ne, ">": operator.gt,
+           "<": operator.lt}
+    have = _vtuple(version)
+    for clause in filter(None, (c.strip() for c in spec.split(","))):
+        op = next(o for o in (">=", "<=", "==", "!=", ">", "<") if clause.startswith(o))
+        want = _vtuple(clause[len(op):].strip())
+        n = max(len(have), len(want))
+        if not ops[op](have + (0,) * (n - len(have)), want + (0,) * (n - len(want))):
+            return False
+    return True
+
+
+#: how the binary chose this interpreter in a plain C host (set by fmus/c/fmu_sync_runtime.c)
+CHOSEN = ""
 
 
 class SetupError(RuntimeError):
@@ -69,34 +110,59 @@ class SetupError(RuntimeError):
 def _advice(embedded: bool) -> str:
     """Where the environment of the FMU's Python is chosen, in the host at hand."""
     if embedded:
-        return ("this importer is a plain C program: the FMU started the Python recorded at export, or "
-                "the one FMU_SYNC_PYTHON names in the importer's environment")
+        return ("this importer is a plain C program: the FMU chose this Python itself (FMU_SYNC_PYTHON, else the "
+                "interpreter recorded at export, else python3 on PATH" + (f"; tried {CHOSEN}" if CHOSEN else "")
+                + ")")
     return (f"this importer is itself a Python process ({sys.executable}) and the FMU runs in its "
             f"interpreter (FMU_SYNC_PYTHON is ignored in a Python host)")
 
 
-def check_runtime(built: dict, embedded: bool = False, call: str = INSTANTIATE[2]) -> list[str]:
-    """Messages about the running environment versus the build (E: missing, W: different);
-    ``embedded``: the binary started this interpreter (a C host), else the host's own;
-    ``call``: the instantiation call the messages name."""
+def install_command(reqs: dict) -> str:
+    """The one command that installs ``reqs`` ({"numpy": ">=1.24"}) for this interpreter: pip in a venv
+    or an ordinary installation, the distribution's packages for a Debian/Ubuntu system Python
+    (PEP 668: pip is refused there)."""
+    import sysconfig
+    names = " ".join(f"'{d}{spec}'" if spec else d for d, spec in reqs.items())
+    managed = sys.prefix == sys.base_prefix and os.path.isfile(
+        os.path.join(sysconfig.get_path("stdlib"), "EXTERNALLY-MANAGED"))
+    if managed and os.path.isfile("/etc/debian_version"):
+        return "sudo apt-get install " + " ".join(f"python3-{d}" for d in reqs)
+    if managed:
+        return (f"python3 -m venv ~/fmu-python && ~/fmu-python/bin/python -m pip install {names} (this system "
+                f"Python refuses pip, PEP 668), then set FMU_SYNC_PYTHON=~/fmu-python/bin/python")
+    return f"{sys.executable} -m pip install {names}"
+
+
+def check_runtime(built: dict, embedded: bool = False, call: str = INSTANTIATE[2],
+                  requires: dict | None = None) -> list[str]:
+    """Messages about the running environment versus the build (E: missing or too old, W: other
+    than the build's); ``requires``: the build record's {distribution: specifier} (by default
+    numpy, any version); ``embedded``: the binary started this interpreter (a C host),
+    else the host's own; ``call``: the instantiation call the messages name."""
     out = []
+    requires = {"numpy": ""} if requires is None else requires
     where = f"the Python environment {sys.prefix} (Python {sys.version.split()[0]}, {sys.executable})"
     py_now = ".".join(map(str, sys.version_info[:3]))
     if py_now != built.get("python"):
         out.append(f"W:{call}: running on Python {py_now}; the FMU was built with Python "
-                   f"{built.get('python')} (its code is plain Python; numba compiles it for this one)")
-    for dist in ("numpy", "numba"):
+                   f"{built.get('python')} (its code is plain Python)")
+    missing, old = [], []
+    for dist, spec in requires.items():
         have = _version(dist)
-        want = built.get(dist)
         if have is None:
-            todo = ("install numpy and numba there, or set FMU_SYNC_PYTHON to an interpreter that has them"
-                    if embedded else
-                    f"install them into that environment ({sys.executable} -m pip install numpy numba), or "
-                    f"run the importer from an environment that has them")
-            out.append(f"E:{call}: {where} lacks {dist} (the FMU was built with {dist} {want}); "
-                       f"{_advice(embedded)}: {todo}")
-        elif have != want:
-            out.append(f"W:{call}: {dist} {have} in {where}; the FMU was built with {dist} {want}")
+            missing.append(dist)
+        elif have != "unknown" and spec and not satisfies(have, spec):
+            old.append(f"{dist} {have} (needs {dist}{spec})")
+        elif have != built.get(dist):
+            out.append(f"W:{call}: {dist} {have} in {where}; the FMU was built with {dist} {built.get(dist)}")
+    if missing or old:
+        bad = {d: requires[d] for d in requires if d in missing or any(o.startswith(d + " ") for o in old)}
+        what = "; ".join([f"lacks {d} (the FMU needs {d}{requires[d]}, built with {built.get(d)})"
+                          for d in missing] + [f"has {o}" for o in old])
+        todo = f"install {' and '.join(bad)} there: {install_command(bad)}"
+        todo += (", or set FMU_SYNC_PYTHON to an interpreter that has them" if embedded else
+                 ", or run the importer from an environment that has them")
+        out.append(f"E:{call}: {where} {what}; {_advice(embedded)}: {todo}")
     return out
 
 
@@ -134,13 +200,16 @@ def cache_root(embedded: bool = False) -> str:
 
 
 def unpack(resources_dir: str, build: dict, embedded: bool = False) -> str:
-    """The folder to put on sys.path (holds ``<package>/``), unpacking if needed."""
+    """The folder to put on sys.path (holds ``<package>/``): the first cache folder that holds a
+    complete copy of this code (even a read-only one), else a copy made in the first writable one."""
     digest, package = build["code_hash"], build["package"]
+    for _, base in _cache_candidates():   # a complete copy is used where it is, read-only or not
+        dest = os.path.join(base, digest)
+        if os.path.isfile(os.path.join(dest, ".complete")) and code_hash(os.path.join(dest, package)) == digest:
+            return dest
     root = cache_root(embedded)
     dest = os.path.join(root, digest)
     marker = os.path.join(dest, ".complete")
-    if os.path.isfile(marker) and code_hash(os.path.join(dest, package)) == digest:
-        return dest
     src = os.path.join(resources_dir, CODE_DIR)
     if code_hash(src) != digest:
         raise SetupError(f"the FMU's code in {src} does not match its recorded hash {digest[:12]}: "
@@ -163,9 +232,10 @@ def unpack(resources_dir: str, build: dict, embedded: bool = False) -> str:
     return dest
 
 
-def instantiate(resources_dir: str, instance_name: str, guid: str, embedded: int = 0):
+def instantiate(resources_dir: str, instance_name: str, guid: str, embedded: int = 0, stepper: int = 0):
     """(reply, instance or None) for the binary; never raises. ``embedded``: the
-    binary started this interpreter (a plain C host), else it is the host's own."""
+    binary started this interpreter (a plain C host), else it is the host's own;
+    ``stepper``: the address of the binary's native stepper."""
     msgs: list[str] = []
     call = INSTANTIATE[2]
     try:
@@ -175,7 +245,10 @@ def instantiate(resources_dir: str, instance_name: str, guid: str, embedded: int
         call = INSTANTIATE[fmi_version]
         key = build["code_hash"]
         if key not in _checked:
-            _checked[key] = check_runtime(build["built_with"], bool(embedded), call)
+            _checked[key] = check_runtime(build["built_with"], bool(embedded), call, build.get("requires"))
+            if embedded and CHOSEN:
+                _checked[key].insert(0, f"I:{call}: Python chosen: {sys.executable} (Python "
+                                        f"{sys.version.split()[0]}); tried {CHOSEN}")
         msgs += _checked[key]
         if any(m.startswith("E:") for m in msgs):
             return "\x1e".join(msgs), None
@@ -187,7 +260,7 @@ def instantiate(resources_dir: str, instance_name: str, guid: str, embedded: int
         import importlib
         runtime = importlib.import_module(f"{package}.{build['runtime']}")
         reply, inst = runtime.create(resources_dir, build["model"], float(build.get("max_substeps", "inf")),
-                                     fmi_version)
+                                     fmi_version, stepper)
         if reply:
             msgs.append(reply)
         return "\x1e".join(msgs), inst

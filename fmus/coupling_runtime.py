@@ -28,8 +28,8 @@ class CouplingInstance(InstanceBase):
 
     STATE_FORMAT = STATE_FORMAT
 
-    def __init__(self, slave: CouplingSlave, start_values: dict, fmi_version: int = 2):
-        super().__init__(slave, start_values, fmi_version)
+    def __init__(self, slave: CouplingSlave, start_values: dict, fmi_version: int = 2, stepper: int = 0):
+        super().__init__(slave, start_values, fmi_version, stepper)
         spec = self.spec = slave.SPEC
         N, n, E, m = spec.N, spec.n, len(spec.edges), self.m
         self.work = np.zeros(CS.work_size(N, n, E, m))
@@ -38,7 +38,6 @@ class CouplingInstance(InstanceBase):
         CS.init_header(self.work, N, n, E, m, len(self.vars), first)
         self.i_in = int(self.work[CS.C_IQ])
         self.outputs = [self.index[v.name] for v in self.vars if v.causality == "output"]
-        self._bind(CS.step)
         self._reset_values()
 
     def _reset_values(self) -> None:
@@ -120,10 +119,11 @@ class CouplingInstance(InstanceBase):
 
 
 def create(resources_dir: str, model: str, max_substeps: float = math.inf,
-           fmi_version: int = 2) -> tuple[str, CouplingInstance | None]:
+           fmi_version: int = 2, stepper: int = 0) -> tuple[str, CouplingInstance | None]:
     """A new instance: the structure and start values of ``resources/fmu_sync_start.json``
-    (``max_substeps``: unused, the coupling has no internal steps)."""
+    (``max_substeps``: unused, the coupling has no internal steps; ``stepper``: the address of
+    the binary's native stepper)."""
     def make(data):
         slave = CouplingSlave(CouplingSpec.from_dict(data["structure"]))
-        return CouplingInstance(slave, slave.normalize_start_values(data.get("start", {})), fmi_version)
+        return CouplingInstance(slave, slave.normalize_start_values(data.get("start", {})), fmi_version, stepper)
     return create_instance(resources_dir, model, fmi_version, make)

@@ -22,12 +22,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import carray, cfunc, njit, types
+from ..core.jit import carray, cfunc, njit
 
 from ..core.distance import DistanceGeometry, ScalarGeometry
 from ..core.network import network_forces
 from .stepper import (H_CONFIGURED, H_DATA, H_DT, H_FEEDTHROUGH, H_ITAU, H_ITAUDOT, H_LEN, H_M, H_NX,
-                      H_SCHEME, H_VERSION, WORK_VERSION)
+                      H_SCHEME, H_VERSION, STEP_SIGNATURE, WORK_VERSION)
 from .workarray import mat, put, put_wall, wall
 
 __all__ = ["step", "pack", "work_size", "H_FEEDTHROUGH", "C_NODES", "C_DOF", "C_EDGES", "C_IQ", "C_IU",
@@ -157,10 +157,7 @@ def _evaluate(x, w):
     return 0 if ok else 1
 
 
-_SIG = types.int32(types.CPointer(types.float64), types.CPointer(types.float64), types.float64, types.float64)
-
-
-@cfunc(_SIG, cache=True, nopython=True)
+@cfunc(STEP_SIGNATURE, cache=True, nopython=True)
 def step(x_ptr, w_ptr, t, H):
     w = carray(w_ptr, (int(w_ptr[H_LEN]),))
     x = carray(x_ptr, (int(w[H_NX]),))

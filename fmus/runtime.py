@@ -3,9 +3,12 @@
 The binary holds a reference to an :class:`FMUInstance` and reads, once, its
 :meth:`layout`: the addresses of the variable array ``x`` (float64, one slot per
 value reference; Integer and Enumeration values are exact in a double), of the
-per-variable table (type, causality, min, max, names, allowed values), of the
-work array and of the stepper cfunc. Those arrays are owned here and never
-reallocated, so the addresses stay valid for the instance's life.
+per-variable table (type, causality, min, max, names, allowed values) and of the
+work array. Those arrays are owned here and never reallocated, so the addresses
+stay valid for the instance's life. The stepper is native code in the binary
+(compiled at export, :mod:`fmu_sync.native`): the binary hands its address over at
+instantiation (``stepper``), and this side calls it through ctypes (the outputs
+in initialization mode, after a restore).
 
 Every method the binary calls returns a *reply*: messages separated by
 ``\\x1e``, each prefixed ``I:``/``W:``/``D:``/``E:`` (status of the call) or
@@ -29,7 +32,7 @@ __all__ = ["FMUInstance", "create", "LAYOUT", "TYPES", "CAUSALITIES", "CALL_NAME
            "InstanceBase", "create_instance"]
 
 #: what layout() hands over, in order (one uint64 each; the binary's FSR_L_* indices)
-LAYOUT = ("version", "nvars", "x", "type", "caus", "min", "max", "work", "stepper", "names", "hints")
+LAYOUT = ("version", "nvars", "x", "type", "caus", "min", "max", "work", "names", "hints")
 #: codes of the per-variable table (the binary's FSR_T_* and FSR_C_*)
 TYPES = {"Real": 0, "Integer": 1, "Enumeration": 2}
 CAUSALITIES = {"parameter": 0, "input": 1, "output": 2}
@@ -88,8 +91,9 @@ class InstanceBase:
     #: the format tag of this kind's FMU states
     STATE_FORMAT = STATE_FORMAT
 
-    def __init__(self, slave, start_values: dict, fmi_version: int = 2):
+    def __init__(self, slave, start_values: dict, fmi_version: int = 2, stepper: int = 0):
         self.slave = slave
+        self._bind(stepper)
         self.calls = CALL_NAMES[fmi_version]
         self.vars = slave.variables(start_values)
         self.index = {v.name: i for i, v in enumerate(self.vars)}
@@ -101,18 +105,21 @@ class InstanceBase:
         self.m = len(self.inputs)
         self.cfg = None
 
-    def _bind(self, stepper) -> None:
-        """The numba cfunc ``stepper`` (same signature for every model), callable from Python."""
+    def _bind(self, stepper: int) -> None:
+        """The binary's stepper at address ``stepper`` (``int32 (double *x, double *work, double t,
+        double H)``, the same for every model: fsr_python_step), callable from Python."""
         import ctypes
-        self._address = stepper.address
+        if not isinstance(stepper, int) or stepper <= 0:
+            raise ValueError(f"no native stepper address from the binary (got {stepper!r}): the FMU's binary "
+                             f"and its Python code do not match (export it again)")
         self._step = ctypes.CFUNCTYPE(ctypes.c_int32, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_double,
-                                      ctypes.c_double)(stepper.address)
+                                      ctypes.c_double)(stepper)
 
     def layout(self) -> bytes:
-        """What the binary reads once (LAYOUT, version stepper.WORK_VERSION): the arrays and the stepper."""
+        """What the binary reads once (LAYOUT, version stepper.WORK_VERSION): the arrays."""
         fields = {"version": S.WORK_VERSION, "nvars": self.x.shape[0], "x": self.x.ctypes.data,
                   "type": self.vtype.ctypes.data, "caus": self.vcaus.ctypes.data, "min": self.vmin.ctypes.data,
-                  "max": self.vmax.ctypes.data, "work": self.work.ctypes.data, "stepper": self._address,
+                  "max": self.vmax.ctypes.data, "work": self.work.ctypes.data,
                   "names": self._names.ctypes.data, "hints": self._hints.ctypes.data}
         return struct.pack(f"<{len(LAYOUT)}Q", *(fields[k] for k in LAYOUT))
 
@@ -188,8 +195,8 @@ class FMUInstance(InstanceBase):
     """One instance: variable array, table, work array; validation and state."""
 
     def __init__(self, slave: MechanicalSlave, start_values: dict, max_substeps: float = math.inf,
-                 fmi_version: int = 2):
-        super().__init__(slave, start_values, fmi_version)
+                 fmi_version: int = 2, stepper: int = 0):
+        super().__init__(slave, start_values, fmi_version, stepper)
         self.max_substeps = max_substeps     # the binary's limit of internal steps per doStep
         nv = len(self.vars)
 
@@ -217,7 +224,6 @@ class FMUInstance(InstanceBase):
         w[S.H_IIMPACTS], w[S.H_IPERC] = self.index["impacts"], self.index["percussion"]
         self.i_gap, self.i_energy = self.index["gap"], self.index["energy"]
         self.i_impacts, self.i_perc = self.index["impacts"], self.index["percussion"]
-        self._bind(S.step)
         self._reset_values()
 
     # ------------------------------------------------------------ helpers
@@ -346,11 +352,13 @@ def create_instance(resources_dir: str, model: str, fmi_version: int, make) -> t
 
 
 def create(resources_dir: str, model: str, max_substeps: float = math.inf,
-           fmi_version: int = 2) -> tuple[str, FMUInstance | None]:
+           fmi_version: int = 2, stepper: int = 0) -> tuple[str, FMUInstance | None]:
     """A new instance of the registered model ``model`` (its one slave, :class:`MechanicalSlave`)
     with the start values of ``resources/fmu_sync_start.json``; ``max_substeps``: the binary's
-    limit of internal steps per doStep (from the build record)."""
+    limit of internal steps per doStep (from the build record); ``stepper``: the address of the
+    binary's native stepper."""
     def make(data):
         slave = MechanicalSlave(contract_model(model))
-        return FMUInstance(slave, slave.normalize_start_values(data.get("start", {})), max_substeps, fmi_version)
+        return FMUInstance(slave, slave.normalize_start_values(data.get("start", {})), max_substeps, fmi_version,
+                           stepper)
     return create_instance(resources_dir, model, fmi_version, make)

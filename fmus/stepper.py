@@ -48,7 +48,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import carray, cfunc, njit, types
+from ..core.jit import carray, cfunc, njit
 
 from ..core.exact_step import NT as _EXACT_NT
 from ..core.exact_step import STEP_OK, STEP_TOO_MANY_EVENTS, exact_step_early
@@ -58,7 +58,7 @@ from .contract import SCHEME_EXACT as EXACT
 from .contract import STATE_BOUND
 from .workarray import mat, put, put_wall, wall
 
-__all__ = ["step", "pack", "work_size", "H_LEN", "H_VERSION", "H_TIME", "H_PHASE", "H_DT",
+__all__ = ["step", "STEP_SIGNATURE", "pack", "work_size", "H_LEN", "H_VERSION", "H_TIME", "H_PHASE", "H_DT",
            "H_CONFIGURED", "WORK_VERSION", "H_FEEDTHROUGH", "H_VREF", "H_ITAUDOT", "H_IEXACT", "H_MAXEV", "H_BOUND",
            "EXACT", "exact_size",
            "EXACT_MAX_EVENTS", "R_OK", "R_ROLLED_BACK", "R_EXACT_TAUDOT", "R_EXACT_EVENTS", "R_EXACT_STALL",
@@ -82,7 +82,7 @@ H_MODE, H_REACHED, H_PEND_U, H_PEND_P, H_ICOUNT = 25, 26, 27, 28, 29
 H_DATA = 30
 #: the one version of what the binary and the Python side share (work array header,
 #: layout, codes): fmu_sync_constants.h, generated at export, carries it
-WORK_VERSION = 4
+WORK_VERSION = 5
 #: work guard of the exact scheme: most events (impacts, contact changes, flow
 #: pieces) in one doStep; more makes the step fail (rolled back, fmi2Error) in
 #: well under a second instead of running for minutes (H = 1e9)
@@ -216,10 +216,12 @@ def _advance(sa, q, u, t, H, dt, tau, taudot, scheme, theta, s):
     return -1, 0.0, 0
 
 
-_SIG = types.int32(types.CPointer(types.float64), types.CPointer(types.float64), types.float64, types.float64)
+#: the C signature of every FMU stepper (fsr_stepper in fmus/c/fmu_sync_runtime.h): numba's
+#: text form, so that the module imports without numba (core/jit.py)
+STEP_SIGNATURE = "int32(CPointer(float64), CPointer(float64), float64, float64)"
 
 
-@cfunc(_SIG, cache=True, nopython=True)
+@cfunc(STEP_SIGNATURE, cache=True, nopython=True)
 def step(x_ptr, w_ptr, t, H):
     w = carray(w_ptr, (int(w_ptr[H_LEN]),))
     x = carray(x_ptr, (int(w[H_NX]),))

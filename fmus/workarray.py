@@ -11,10 +11,7 @@ a measurable part of a doStep of a small system (docs/design.md, the FMU's hot p
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, types
-from numba.core.imputils import impl_ret_borrowed
-from numba.extending import intrinsic
-from numba.np.arrayobj import make_array, populate_array
+from ..core.jit import NUMBA, njit
 
 __all__ = ["put", "mat", "put_wall", "wall"]
 
@@ -47,25 +44,38 @@ def wall(w, k, n):
     return w[k:k + n], w[k + n], w[k + n + 1], w[k + n + 2:k + 2 * n + 2], w[k + 2 * n + 2], k + 2 * n + 3
 
 
-@intrinsic
-def mat(typingctx, w, k, r, c):
-    """``w[k:k + r * c].reshape((r, c))`` for a 1-D C-contiguous ``w``, as a view (same
-    owner as ``w``) made without the reshape helper call; the caller guarantees
-    ``k + r * c <= len(w)`` (the packed layout)."""
-    if not (isinstance(w, types.Array) and w.ndim == 1 and w.layout == "C"
-            and all(isinstance(a, types.Integer) for a in (k, r, c))):
-        return None
-    ret = types.Array(w.dtype, 2, "C")
+def _mat_python(w, k, r, c):
+    """:func:`mat` as plain Python (the carried code's mode, core/jit.py): the same view."""
+    return w[k:k + r * c].reshape((r, c))
 
-    def codegen(context, builder, signature, args):
-        wv, kv, rv, cv = args
-        src = make_array(signature.args[0])(context, builder, wv)
-        out = make_array(ret)(context, builder)
-        kv, rv, cv = (context.cast(builder, v, t, types.intp) for v, t in zip((kv, rv, cv), signature.args[1:]))
-        itemsize = context.get_constant(types.intp, context.get_abi_sizeof(context.get_data_type(w.dtype)))
-        populate_array(out, data=builder.gep(src.data, [kv]), shape=[rv, cv],
-                       strides=[builder.mul(cv, itemsize), itemsize], itemsize=itemsize,
-                       meminfo=src.meminfo, parent=src.parent)
-        return impl_ret_borrowed(context, builder, ret, out._getvalue())
 
-    return ret(w, k, r, c), codegen
+if not NUMBA:
+    mat = _mat_python
+else:
+    from numba import types
+    from numba.core.imputils import impl_ret_borrowed
+    from numba.extending import intrinsic
+    from numba.np.arrayobj import make_array, populate_array
+
+    @intrinsic
+    def mat(typingctx, w, k, r, c):
+        """``w[k:k + r * c].reshape((r, c))`` for a 1-D C-contiguous ``w``, as a view (same
+        owner as ``w``) made without the reshape helper call; the caller guarantees
+        ``k + r * c <= len(w)`` (the packed layout)."""
+        if not (isinstance(w, types.Array) and w.ndim == 1 and w.layout == "C"
+                and all(isinstance(a, types.Integer) for a in (k, r, c))):
+            return None
+        ret = types.Array(w.dtype, 2, "C")
+
+        def codegen(context, builder, signature, args):
+            wv, kv, rv, cv = args
+            src = make_array(signature.args[0])(context, builder, wv)
+            out = make_array(ret)(context, builder)
+            kv, rv, cv = (context.cast(builder, v, t, types.intp) for v, t in zip((kv, rv, cv), signature.args[1:]))
+            itemsize = context.get_constant(types.intp, context.get_abi_sizeof(context.get_data_type(w.dtype)))
+            populate_array(out, data=builder.gep(src.data, [kv]), shape=[rv, cv],
+                           strides=[builder.mul(cv, itemsize), itemsize], itemsize=itemsize,
+                           meminfo=src.meminfo, parent=src.parent)
+            return impl_ret_borrowed(context, builder, ret, out._getvalue())
+
+        return ret(w, k, r, c), codegen

@@ -207,7 +207,7 @@ def test_rss_does_not_grow_over_1000_instances(setup):
 
 
 def test_python_override_variable(setup, tmp_path):
-    """FMU_SYNC_PYTHON chooses the interpreter; one without numpy/numba gives a clear error, no crash."""
+    """FMU_SYNC_PYTHON chooses the interpreter; one without numpy gives a clear error, no crash."""
     p = _run_host(setup, "--stop", 0.1, env=_clean_env(FMU_SYNC_PYTHON=sys.executable))
     assert p.returncode == 0, p.stdout + p.stderr
     p = _run_host(setup, "--stop", 0.1, env=_clean_env(FMU_SYNC_PYTHON="/nonexistent/python"))
@@ -216,7 +216,7 @@ def test_python_override_variable(setup, tmp_path):
     subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(bare)], check=True, timeout=120)
     p = _run_host(setup, "--stop", 0.1, env=_clean_env(FMU_SYNC_PYTHON=str(bare / "bin" / "python")))
     assert p.returncode == 3, p.stdout + p.stderr
-    assert "lacks numpy" in p.stderr and "lacks numba" in p.stderr and "FMU_SYNC_PYTHON" in p.stderr
+    assert "lacks numpy" in p.stderr and "numba" not in p.stderr and "FMU_SYNC_PYTHON" in p.stderr
 
 
 @pytest.mark.parametrize("scheme", ["exact", "midpoint"])

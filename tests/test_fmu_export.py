@@ -3,6 +3,7 @@ binary: the FMUs are run in child processes by tests/test_fmu_run.py."""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import textwrap
@@ -280,18 +281,23 @@ def test_exported_fmu_carries_the_closure_of_its_own_slave_and_stepper(fmus, mod
     """An exported mechanical FMU's code is exactly the import closure of its runtime, stepper and
     slave (fmus/__init__.py and the two stub __init__ files beside): nothing of the coupling FMU."""
     with zipfile.ZipFile(fmus[model]) as zf:
-        code = {n[len("resources/fmu_sync_code/"):] for n in zf.namelist()
-                if n.startswith("resources/fmu_sync_code/")}
+        files = {n[len("resources/fmu_sync_code/"):] for n in zf.namelist()
+                 if n.startswith("resources/fmu_sync_code/")}
+    code = {n for n in files if "__pycache__" not in n}
     want = _closure(["fmus/runtime.py", "fmus/stepper.py", "fmus/slave.py"])
     assert code - {"__init__.py", "core/__init__.py", "fmus/__init__.py"} == want
+    tag = sys.implementation.cache_tag          # and the bytecode of each module, nothing more
+    assert files - code == {f"{os.path.dirname(n) + '/' if '/' in n else ''}__pycache__/"
+                            f"{os.path.basename(n)[:-3]}.{tag}.pyc" for n in code}
     assert not {"fmus/coupling.py", "fmus/coupling_runtime.py", "fmus/coupling_stepper.py",
                 "core/network.py", "core/pair.py", "core/batch.py"} & code
 
 
 def test_the_carried_code_runs_without_fmu_sync(fmus):
     """The oscillator FMU's code, unpacked as its boot script does, makes an instance and steps it
-    (the exact scheme too: its deferred imports) in a process where importing fmu_sync fails; every
-    module it loads is one the FMU carries."""
+    (the exact scheme too: its deferred imports) in a process where importing fmu_sync, numba or
+    llvmlite fails; every module it loads is one the FMU carries. (The stepper here is a stand-in
+    with the binary's signature: the real one is native code in the binary.)"""
     with zipfile.ZipFile(fmus["impact-oscillator"]) as zf:
         build = json.loads(zf.read("resources/fmu_sync_build.json"))
         code = {n[len("resources/fmu_sync_code/"):] for n in zf.namelist()
@@ -303,22 +309,27 @@ def test_the_carried_code_runs_without_fmu_sync(fmus):
             if n.startswith("resources/"):
                 res(n, tmp)
     script = textwrap.dedent(f"""
-        import importlib, json, sys
+        import ctypes, importlib, json, sys
         class Block:
             def find_spec(self, name, path=None, target=None):
-                if name.split(".")[0] == "fmu_sync":
-                    raise ImportError("fmu_sync must not be imported by an FMU's code")
+                if name.split(".")[0] in ("fmu_sync", "numba", "llvmlite"):
+                    raise ImportError(name + " must not be imported by an FMU's code")
+        calls = []
+        stepper = ctypes.CFUNCTYPE(ctypes.c_int32, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_double,
+                                   ctypes.c_double)(lambda x, w, t, H: calls.append(H) or 0)
         sys.meta_path.insert(0, Block())
         resources = {tmp + '/resources'!r}
         sys.path.insert(0, resources)
         boot = importlib.import_module({build['package'].replace('fmu_sync_m', 'fmu_sync_boot_')!r})
-        reply, inst = boot.instantiate(resources, "carried", {build['guid']!r})
+        reply, inst = boot.instantiate(resources, "carried", {build['guid']!r}, 0,
+                                       ctypes.cast(stepper, ctypes.c_void_p).value)
         assert inst is not None, reply
         assert inst.exit_initialization() == "", "exit"
         inst._step(inst.x.ctypes.data, inst.work.ctypes.data, 0.0, 0.1)
         inst.x[inst.index["solver.scheme"]] = 2
         assert inst.set_state(dict(inst.get_state(), phase="initialization")) == ""
         assert inst.exit_initialization() == "", "exit exact"
+        assert calls == [0.0, 0.1, 0.0], calls
         pkg = {build['package']!r} + "."
         print(json.dumps(sorted(m[len(pkg):] for m in sys.modules if m.startswith(pkg))))
     """)
@@ -348,7 +359,8 @@ def test_one_scheme_numbering_and_generated_constants():
     assert h["FSR_SCHEME_EXACT"] == str(stepper.EXACT) and h["FSR_SCHEME_THETA"] == str(SCHEMES["theta"])
     assert h["FSR_H_TIME"] == str(stepper.H_TIME) and h["FSR_H_ITAUDOT"] == str(stepper.H_ITAUDOT)
     assert h["FSR_VERSION"] == str(int(stepper.WORK_VERSION)) and h["FSR_STEP"] == str(slave.PHASES["step"])
-    assert h["FSR_L_STEPPER"] == str(runtime.LAYOUT.index("stepper")) and h["FMU_SYNC_GUID"] == '"{x}"'
+    assert h["FSR_L_WORK"] == str(runtime.LAYOUT.index("work")) and "FSR_L_STEPPER" not in h
+    assert h["FMU_SYNC_GUID"] == '"{x}"'
     c_dir = Path(slave.__file__).parent / "c"
     hand = "".join(p.read_text() for p in c_dir.glob("*.[ch]"))
     assert not re.search(r"#define (FSR_H_|FSR_SCHEME_|FSR_VERSION|FSR_L_)|FSR_H_\w+ = \d", hand)

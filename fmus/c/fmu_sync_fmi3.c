@@ -28,7 +28,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/stat.h>
 
 #include "fmi3_abi.h"
 #include "fmu_sync_glue.h"
@@ -162,8 +161,7 @@ EXPORT fmi3Instance fmi3InstantiateCoSimulation(
              resourcePath ? "empty" : "NULL");
     snprintf(resdir, sizeof resdir, "%s", resourcePath);
     for (size_t j = strlen(resdir); j > 1 && resdir[j - 1] == '/'; --j) resdir[j - 1] = '\0';
-    struct stat sb;
-    if (stat(resdir, &sb) != 0 || !S_ISDIR(sb.st_mode))
+    if (!fsr_is_dir(resdir))
         FAIL("fmi3InstantiateCoSimulation: resourcePath '%s' is not a folder", resourcePath);
     if (!fsr_start(resdir, err, sizeof err)) FAIL("fmi3InstantiateCoSimulation: %s", err);
 
@@ -520,7 +518,7 @@ static int apply_pending(Instance *c) {
     if (!(w[FSR_H_PEND_P] > 0.0)) return 0;
     double mode = w[FSR_H_MODE];
     w[FSR_H_MODE] = FSR_MODE_APPLY_EVENT;
-    c->rt.stepper(c->rt.x, w, w[FSR_H_TIME], 0.0);
+    (void)fsr_outputs(&c->rt, "fmi3UpdateDiscreteStates");   /* the stepper with H = 0 in this mode */
     w[FSR_H_MODE] = mode;
     return 1;
 }

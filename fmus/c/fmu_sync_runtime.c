@@ -7,9 +7,10 @@
  * only to set up an instance, to validate the parameters at the end of
  * initialization, to compute outputs in initialization mode and to save /
  * restore / (de)serialise FMU states; those calls take the GIL. The
- * communication step (fsr_step) calls the numba stepper (a cfunc) through its
- * address, without the GIL, on the arrays the Python instance handed over
- * (they live as long as the instance).
+ * communication step (fsr_step) calls the native stepper fsr_native_step (the
+ * numba cfunc compiled at export and linked in, fmu_sync_native.h), without the
+ * GIL, on the arrays the Python instance handed over (they live as long as the
+ * instance); the Python slave gets fsr_python_step's address at instantiation.
  *
  * Constants (fmu_sync_constants.h, generated at export): FMU_SYNC_BOOT (module
  * name of the boot script in resources/), FSR_MAX_SUBSTEPS and the shared codes.
@@ -27,12 +28,23 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <fcntl.h>
 #include <strings.h>
-#include <sys/stat.h>
 #include <unistd.h>
 #include <wchar.h>
 
+#include "fmu_sync_native.h"
 #include "fmu_sync_runtime.h"
+
+/* glibc floor (docs/fmu.md "The binary"): the binary loads on glibc 2.17 (RHEL 7/8, Ubuntu
+ * 20.04, Debian 11). dlopen/dlsym/dlerror moved into libc in 2.34 with new versions: bind the
+ * old ones (libdl, linked with -ldl); stat/fstat are real functions only since 2.33, so none is
+ * called (fsr_is_dir opens the folder instead). tests/test_fmu_portable.py checks every symbol. */
+#if defined(__x86_64__) && defined(__GLIBC__)
+__asm__(".symver dlopen,dlopen@GLIBC_2.2.5");
+__asm__(".symver dlsym,dlsym@GLIBC_2.2.5");
+__asm__(".symver dlerror,dlerror@GLIBC_2.2.5");
+#endif
 
 #ifndef FMU_SYNC_BOOT
 #error "FMU_SYNC_BOOT must be defined (fmu_sync_constants.h)"
@@ -51,6 +63,7 @@ static struct {
     void (*GILRelease)(int);
     PyObject *(*ImportModule)(const char *);
     PyObject *(*GetAttrString)(PyObject *, const char *);
+    int (*SetAttrString)(PyObject *, const char *, PyObject *);
     PyObject *(*CallMethod)(PyObject *, const char *, const char *, ...);
     const char *(*UnicodeAsUTF8)(PyObject *);
     PyObject *(*UnicodeDecodeFSDefault)(const char *);
@@ -69,6 +82,7 @@ static pthread_mutex_t g_lock = PTHREAD_MUTEX_INITIALIZER;
 static int g_py_ready = 0;          /* 1 once the API and the boot module are loaded */
 static PyObject *g_boot = NULL;     /* the boot module (one per process) */
 static int g_embedded = 0;          /* 1 if this binary started the interpreter (a plain C host) */
+static char g_tried[3000];          /* how fsp_find chose that interpreter */
 
 static int load_api(void *h, char *err, size_t n) {
 #define SYM(field, name)                                                          \
@@ -88,6 +102,7 @@ static int load_api(void *h, char *err, size_t n) {
     SYM(GILRelease, "PyGILState_Release");
     SYM(ImportModule, "PyImport_ImportModule");
     SYM(GetAttrString, "PyObject_GetAttrString");
+    SYM(SetAttrString, "PyObject_SetAttrString");
     SYM(CallMethod, "PyObject_CallMethod");
     SYM(UnicodeAsUTF8, "PyUnicode_AsUTF8");
     SYM(UnicodeDecodeFSDefault, "PyUnicode_DecodeFSDefault");
@@ -118,97 +133,6 @@ static void py_error_text(char *out, size_t n) {
     if (tb) py.DecRef(tb);
 }
 
-static void trim(char *s) {
-    size_t k = strlen(s);
-    while (k && (s[k - 1] == '\n' || s[k - 1] == '\r' || s[k - 1] == ' ')) s[--k] = '\0';
-}
-
-/* Read "key=value" (spaces around '=' allowed) from a text file: the FMU's
- * resources/fmu_sync_python.txt (written at export) or a venv's pyvenv.cfg. */
-static int read_key(const char *path, const char *key, char *out, size_t n) {
-    FILE *f = fopen(path, "r");
-    if (!f) return 0;
-    char line[4096];
-    size_t kl = strlen(key);
-    int found = 0;
-    while (!found && fgets(line, sizeof line, f)) {
-        if (strncmp(line, key, kl) != 0) continue;
-        const char *p = line + kl;
-        while (*p == ' ' || *p == '\t') ++p;
-        if (*p != '=') continue;
-        ++p;
-        while (*p == ' ' || *p == '\t') ++p;
-        snprintf(out, n, "%s", p);
-        trim(out);
-        found = 1;
-    }
-    fclose(f);
-    return found;
-}
-
-static int read_manifest_value(const char *resdir, const char *key, char *out, size_t n) {
-    char path[4096];
-    snprintf(path, sizeof path, "%s/fmu_sync_python.txt", resdir);
-    return read_key(path, key, out, n);
-}
-
-/* FMU_SYNC_PYTHON=/path/to/python: that interpreter's libpython, found from
- * files, without running anything. A venv's pyvenv.cfg (beside bin/ or in it)
- * names the base interpreter's folder ("home") and its version; otherwise the
- * interpreter's real path gives both (.../bin/python3.11). The library is
- * <prefix>/lib/libpythonX.Y.so.1.0 (or .so, lib64/, lib/<multiarch>/). */
-static int python_from_override(const char *exe, char *lib, size_t nl, char *err, size_t n) {
-    if (exe[0] != '/') {
-        snprintf(err, n, "FMU_SYNC_PYTHON = %s: give the interpreter's absolute path", exe);
-        return 0;
-    }
-    if (access(exe, X_OK) != 0) {
-        snprintf(err, n, "FMU_SYNC_PYTHON = %s: cannot run it (%s)", exe, strerror(errno));
-        return 0;
-    }
-    char bin[4096], cfg[4200], home[4096] = "", ver[64] = "";
-    snprintf(bin, sizeof bin, "%s", exe);
-    *strrchr(bin, '/') = '\0';
-    snprintf(cfg, sizeof cfg, "%s/../pyvenv.cfg", bin);
-    if (access(cfg, R_OK) != 0) snprintf(cfg, sizeof cfg, "%s/pyvenv.cfg", bin);
-    if (read_key(cfg, "home", home, sizeof home)) {
-        if (!read_key(cfg, "version", ver, sizeof ver)) read_key(cfg, "version_info", ver, sizeof ver);
-    } else {
-        char real[PATH_MAX];
-        if (!realpath(exe, real)) {
-            snprintf(err, n, "FMU_SYNC_PYTHON = %s: cannot resolve it (%s)", exe, strerror(errno));
-            return 0;
-        }
-        char *base = strrchr(real, '/');
-        *base++ = '\0';
-        snprintf(home, sizeof home, "%s", real);
-        if (strncmp(base, "python", 6) == 0) snprintf(ver, sizeof ver, "%s", base + 6);
-    }
-    /* "3.11.7" or "3.11.7.final.0" -> "3.11" */
-    char *dot = strchr(ver, '.');
-    if (dot && (dot = strchr(dot + 1, '.'))) *dot = '\0';
-    if (!ver[0] || !strchr(ver, '.')) {
-        snprintf(err, n, "FMU_SYNC_PYTHON = %s: cannot tell its Python version (no pyvenv.cfg with 'version', "
-                 "and its real name is not pythonX.Y); name the interpreter as .../bin/python3.11", exe);
-        return 0;
-    }
-    size_t hl = strlen(home);
-    while (hl > 1 && home[hl - 1] == '/') home[--hl] = '\0';
-    char *up = strrchr(home, '/');
-    if (up && up != home) *up = '\0';           /* <prefix>/bin -> <prefix> */
-    static const char *const forms[] = {"%s/lib/libpython%s.so.1.0", "%s/lib/libpython%s.so",
-                                        "%s/lib64/libpython%s.so.1.0", "%s/lib/x86_64-linux-gnu/libpython%s.so.1.0",
-                                        "%s/lib/aarch64-linux-gnu/libpython%s.so.1.0"};
-    for (size_t i = 0; i < sizeof forms / sizeof *forms; ++i) {
-        snprintf(lib, nl, forms[i], home, ver);
-        if (access(lib, R_OK) == 0) return 1;
-    }
-    snprintf(err, n, "FMU_SYNC_PYTHON = %s: no shared Python library found for Python %s under %s/lib "
-             "(tried libpython%s.so.1.0 and .so; the interpreter must be built with --enable-shared)",
-             exe, ver, home, ver);
-    return 0;
-}
-
 /* Load the Python C API: the host's interpreter if it runs one, else the
  * libpython recorded at export (or FMU_SYNC_PYTHON), initialised once with
  * that interpreter's environment. Then import the boot module. Holds g_lock. */
@@ -219,28 +143,18 @@ static int ensure_python(const char *resdir, char *err, size_t n) {
     if (is_init && is_init()) {
         if (!load_api(RTLD_DEFAULT, err, n)) return 0;
     } else {
-        char lib[4096], program[4096];
-        const char *env = getenv("FMU_SYNC_PYTHON");
-        if (env && *env) {
-            if (!python_from_override(env, lib, sizeof lib, err, n)) return 0;
-            snprintf(program, sizeof program, "%s", env);
-        } else {
-            if (!read_manifest_value(resdir, "libpython", lib, sizeof lib) ||
-                !read_manifest_value(resdir, "program", program, sizeof program)) {
-                snprintf(err, n, "cannot read %s/fmu_sync_python.txt (libpython, program): is the FMU complete?",
-                         resdir);
-                return 0;
-            }
-        }
-        void *h = dlopen(lib, RTLD_NOW | RTLD_GLOBAL);
+        static fsp_choice choice;
+        if (!fsp_find(resdir, &choice, err, n)) return 0;
+        snprintf(g_tried, sizeof g_tried, "%s", choice.tried);
+        void *h = dlopen(choice.lib, RTLD_NOW | RTLD_GLOBAL);
         if (!h) {
-            snprintf(err, n, "cannot load the Python library %s (%s); set FMU_SYNC_PYTHON to a Python "
-                     "interpreter whose environment has numpy and numba", lib, dlerror());
+            snprintf(err, n, "cannot load the Python library %s of %s (%s); chosen from: %s", choice.lib,
+                     choice.program, dlerror(), choice.tried);
             return 0;
         }
         if (!load_api(h, err, n)) return 0;
         if (!py.IsInitialized()) {
-            wchar_t *w = py.DecodeLocale(program, NULL);
+            wchar_t *w = py.DecodeLocale(choice.program, NULL);
             if (w) py.SetProgramName(w);    /* finds that interpreter's (venv's) site-packages */
             py.InitializeEx(0);             /* no signal handlers: the host owns them */
             own = 1;
@@ -256,6 +170,11 @@ static int ensure_python(const char *resdir, char *err, size_t n) {
         if (r) py.DecRef(r);
         g_boot = py.ImportModule(FMU_SYNC_BOOT);
         if (!g_boot) py_error_text(err, n);
+        PyObject *how = g_boot && own ? py.UnicodeDecodeFSDefault(g_tried) : NULL;
+        if (how) {                      /* how this Python was chosen, for the boot's messages */
+            py.SetAttrString(g_boot, "CHOSEN", how);
+            py.DecRef(how);
+        }
         r = py.CallMethod(path, "remove", "O", dir);   /* leave sys.path as it was */
         if (r) py.DecRef(r);
         ok = g_boot != NULL;
@@ -411,12 +330,19 @@ int fsr_resources_path(const char *uri, char *out, size_t n, char *err, size_t e
     }
     while (j > 1 && out[j - 1] == '/') --j;
     out[j] = '\0';
-    struct stat sb;
-    if (stat(out, &sb) != 0 || !S_ISDIR(sb.st_mode)) {
+    if (!fsr_is_dir(out)) {
         snprintf(err, en, "fmuResourceLocation '%s' -> '%s' is not a folder (%s)", uri, out,
                  strerror(errno ? errno : ENOTDIR));
         return 0;
     }
+    return 1;
+}
+
+int fsr_is_dir(const char *path) {
+    errno = 0;
+    int fd = open(path, O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+    if (fd < 0) return 0;
+    close(fd);
     return 1;
 }
 
@@ -479,7 +405,6 @@ static int take_layout(fsr_instance *inst, char *err, size_t n) {
     inst->vmin = (const double *)(uintptr_t)L[FSR_L_MIN];
     inst->vmax = (const double *)(uintptr_t)L[FSR_L_MAX];
     inst->work = (double *)(uintptr_t)L[FSR_L_WORK];
-    inst->stepper = (fsr_stepper)(uintptr_t)L[FSR_L_STEPPER];
     if (inst->work[FSR_H_VERSION] != FSR_VERSION) {
         snprintf(err, n, "work array version %g, this binary expects %d", inst->work[FSR_H_VERSION],
                  FSR_VERSION);
@@ -505,7 +430,8 @@ static int take_layout(fsr_instance *inst, char *err, size_t n) {
 int fsr_new(fsr_instance *inst, const char *resdir, const char *name, const char *guid, char *err, size_t n) {
     int gil = py.GILEnsure();
     PyObject *dir = py.UnicodeDecodeFSDefault(resdir);
-    PyObject *r = dir ? py.CallMethod(g_boot, "instantiate", "Ossi", dir, name, guid, g_embedded) : NULL;
+    PyObject *r = dir ? py.CallMethod(g_boot, "instantiate", "OssiK", dir, name, guid, g_embedded,
+                                      (unsigned long long)(uintptr_t)&fsr_python_step) : NULL;
     if (dir) py.DecRef(dir);
     int s = FSR_OK;
     if (!r) {
@@ -649,6 +575,12 @@ int fsr_state_deserialize(fsr_instance *inst, const char *call, const char *data
 }
 
 /* ------------------------------------------------------------ the communication step (no Python) */
+static int native_raised(fsr_instance *inst, const char *call) {
+    return fsr_logf(inst, FSR_ERROR, "%s: internal error: the compiled stepper raised an exception at t = %s "
+                    "(a state or parameter its code does not handle); the outputs may be partly updated: "
+                    "restore a saved FMU state or reset the instance", call, fsr_g(inst->work[FSR_H_TIME]));
+}
+
 /* Every step that is refused or cannot complete returns FSR_ERROR with the
  * state unchanged (docs/design.md §5.1): an invalid argument, a step past
  * stopTime, a time that cannot advance, too much work, a state that turned
@@ -683,7 +615,9 @@ int fsr_step(fsr_instance *inst, double t, double H) {
                         "more than the limit %.0f (fmu_sync.export.MAX_SUBSTEPS); this step can never complete: use "
                         "a smaller H or a larger solver.dt", G(t), G(H), G(now), count, G(dt),
                         (double)FSR_MAX_SUBSTEPS);
-    int32_t rc = inst->stepper(inst->x, w, now, H);
+    int32_t rc = fsr_native_step(inst->x, w, now, H);
+    if (fsr_native_raised())
+        return native_raised(inst, "doStep");
     switch (rc) {
     case FSR_R_OK:
         break;
@@ -724,7 +658,10 @@ int fsr_feedthrough(const fsr_instance *inst) {
 
 int fsr_outputs(fsr_instance *inst, const char *call) {
     double *w = inst->work;
-    if (inst->stepper(inst->x, w, w[FSR_H_TIME], 0.0) != 0)
+    int32_t rc = fsr_native_step(inst->x, w, w[FSR_H_TIME], 0.0);
+    if (fsr_native_raised())
+        return native_raised(inst, call);
+    if (rc != 0)
         return fsr_logf(inst, FSR_ERROR, "%s: the outputs computed from the current inputs are not finite "
                         "(or the parameters are not a valid set)", call);
     return FSR_OK;

@@ -6,17 +6,17 @@
  *
  *   fsr_resources_path(uri, path)   file: URI of the resources folder -> local path
  *   fsr_start(resdir)               once per process (thread-safe): the host's interpreter if it
- *                                   runs one, else the libpython recorded at export (or the one of
- *                                   the interpreter named by FMU_SYNC_PYTHON, found without
- *                                   running it), initialised; then the FMU's boot module imported
+ *                                   runs one, else the one fsp_find chooses (FMU_SYNC_PYTHON, the
+ *                                   interpreter recorded at export, python3 on PATH), initialised;
+ *                                   then the FMU's boot module imported
  *   fsr_new(inst, resdir, name, guid)  a Python FMUInstance (fmus/runtime.py) and its layout
- *                                   (variable array x, per-variable table, work array, stepper)
+ *                                   (variable array x, per-variable table, work array)
  *   fsr_call(inst, method, state)   a reply method of the instance ("exit_initialization",
  *                                   "refresh", "reset", "set_state"), GIL taken inside
  *   fsr_state_get / _set / _free / _serialize / _deserialize   FMU states (Python snapshots)
  *   fsr_step(inst, t, H)            one communication step: argument checks (H, t, stopTime,
- *                                   a time that advances, the internal-step limit), the numba
- *                                   stepper called through its address, no Python, no GIL;
+ *                                   a time that advances, the internal-step limit), the native
+ *                                   stepper (fmu_sync_native.h) called, no Python, no GIL;
  *                                   a step that cannot complete is FSR_ERROR, rolled back
  *   fsr_outputs(inst, call)         outputs of a direct-feedthrough FMU from its current inputs
  *                                   (the stepper with H = 0), no Python, no GIL
@@ -42,7 +42,6 @@
 enum { FSR_OK = 0, FSR_WARNING = 1, FSR_DISCARD = 2, FSR_ERROR = 3, FSR_FATAL = 4 };
 
 typedef void (*fsr_log)(void *ctx, int status, const char *text);
-typedef int32_t (*fsr_stepper)(double *x, double *work, double t, double H);
 
 typedef struct fsr_instance {
     void *obj;                      /* the Python FMUInstance (a PyObject *) */
@@ -53,7 +52,6 @@ typedef struct fsr_instance {
     const int32_t *vtype, *vcaus;
     const double *vmin, *vmax;
     double *work;
-    fsr_stepper stepper;
     const char **name_of;           /* per variable: its name */
     const char **hint_of;           /* per variable: its allowed values ("" if a range) */
     int stop_defined;               /* the experiment's stopTime (doStep must not pass it) */
@@ -63,6 +61,8 @@ typedef struct fsr_instance {
 typedef struct fsr_state fsr_state;  /* a saved FMU state (opaque) */
 
 int fsr_resources_path(const char *uri, char *out, size_t n, char *err, size_t en);
+/* 1 if path is a folder this process can open (no stat: glibc floor, fmu_sync_runtime.c) */
+int fsr_is_dir(const char *path);
 int fsr_start(const char *resdir, char *err, size_t n);
 int fsr_new(fsr_instance *inst, const char *resdir, const char *name, const char *guid, char *err, size_t n);
 void fsr_free(fsr_instance *inst);
@@ -84,6 +84,18 @@ int fsr_step(fsr_instance *inst, double t, double H);
  * inputs by the stepper (H = 0, no Python, no GIL); FSR_ERROR if they are not finite */
 int fsr_feedthrough(const fsr_instance *inst);
 int fsr_outputs(fsr_instance *inst, const char *call);
+
+/* Which Python a plain C host runs the FMU with (fmu_sync_python.c; the order: docs/fmu.md
+ * "How it finds Python"). 0 with err naming every interpreter tried, what it lacked and the
+ * command that fixes it on this platform. */
+typedef struct fsp_choice {
+    char program[1024];             /* the interpreter (Py_SetProgramName: its environment) */
+    char lib[1024];                 /* its libpython */
+    char tried[3000];               /* how it was chosen, for the FMU's own messages */
+} fsp_choice;
+int fsp_find(const char *resdir, fsp_choice *out, char *err, size_t n);
+/* "key = value" (or KEY=value, KEY="value") of a text file; 0 if absent */
+int fsp_read_key(const char *path, const char *key, char *out, size_t n);
 
 /* helpers for messages */
 const char *fsr_g(double v);                  /* shortest round-trip text of a double */

@@ -15,6 +15,8 @@
  *     --type N                 fmuType (default 1 = fmi2CoSimulation)
  *     --cycles N               instantiate / 1 doStep / free N times; print RSS after 20 and after N
  *     --nolog                  loggingOn = false
+ *     --timing                 print "first_dostep_monotonic S": CLOCK_MONOTONIC when the first doStep
+ *                              returned (the parent compares it with its clock before starting us)
  *
  * Prints "instantiate NULL" and exits 3 if fmi2Instantiate fails; "status CALL S"
  * for any call that does not return fmi2OK; the logger writes to stderr as
@@ -26,6 +28,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 typedef void *fmi2Component;
 typedef unsigned int fmi2ValueReference;
@@ -225,7 +228,7 @@ int main(int argc, char **argv) {
     const char *dir = argv[1];
     double stop = 10.0, H = 0.01;
     const char *out = NULL, *uri_opt = NULL, *guid_opt = NULL;
-    int type = 1, cycles = 0, logging = 1, input_first = 0, fmi3 = 0, early = 0, event = 0;
+    int type = 1, cycles = 0, logging = 1, input_first = 0, fmi3 = 0, early = 0, event = 0, timing = 0;
     unsigned vars[64], setv[64], inv[64];
     double setx[64], inx[64];
     int nvars = 0, nset = 0, nin = 0;
@@ -243,6 +246,7 @@ int main(int argc, char **argv) {
         else if (!strcmp(a, "--type")) type = atoi(v), ++i;
         else if (!strcmp(a, "--cycles")) cycles = atoi(v), ++i;
         else if (!strcmp(a, "--nolog")) logging = 0;
+        else if (!strcmp(a, "--timing")) timing = 1;
         else if (!strcmp(a, "--input-first")) input_first = 1;   /* set the inputs before the first read too */
         else if (!strcmp(a, "--fmi3")) fmi3 = 1;
         else if (!strcmp(a, "--early-return")) early = 1;
@@ -308,6 +312,11 @@ int main(int argc, char **argv) {
         if (k > 0) {
             for (int i = 0; i < nin; ++i) check("fmi2SetReal", setr(c, &inv[i], 1, &inx[i]));
             fmi2Status s = dostep(c, (k - 1) * H, H, 1);
+            if (timing && k == 1) {
+                struct timespec ts;
+                clock_gettime(CLOCK_MONOTONIC, &ts);
+                printf("first_dostep_monotonic %.9f\n", ts.tv_sec + 1e-9 * ts.tv_nsec);
+            }
             check("fmi2DoStep", s);
             if (s > fmi2Warning) break;
         }

@@ -1,0 +1,50 @@
+"""The one place where the core (and the FMU's steppers) meet numba (docs/design.md §4.3).
+
+Every compiled function of the core is decorated with :func:`njit` from here, and the
+FMU's steppers take :func:`cfunc` and :func:`carray` from here. Two modes:
+
+* **compiled** (``NUMBA`` true): the names are numba's own (``fmu_sync`` as installed);
+* **plain Python** (``NUMBA`` false): the decorators return the function unchanged, so
+  the same modules import and run with numpy alone. This is the mode of the code an
+  FMU carries: the carried package's ``__init__`` sets ``PLAIN_PYTHON = True``
+  (``fmu_sync.export``), so its configuration code runs as Python and nothing is ever
+  compiled (nor numba imported) on the machine that runs the FMU -- its stepper is the
+  native code compiled at export into the FMU's binary. Without numba at all, the mode
+  is plain Python as well.
+"""
+from __future__ import annotations
+
+import sys
+
+__all__ = ["NUMBA", "njit", "cfunc", "carray", "prange"]
+
+
+def _plain_requested() -> bool:
+    top = sys.modules.get(__name__.split(".")[0])
+    return bool(getattr(top, "PLAIN_PYTHON", False))
+
+
+NUMBA = False
+if not _plain_requested():
+    try:
+        from numba import carray, cfunc, njit, prange  # noqa: F401
+        NUMBA = True
+    except ImportError:
+        pass
+
+if not NUMBA:
+    prange = range
+
+    def njit(*args, **options):
+        """``@njit`` or ``@njit(**options)``: the function itself."""
+        if len(args) == 1 and callable(args[0]) and not options:
+            return args[0]
+        return lambda func: func
+
+    def cfunc(signature, **options):
+        """``@cfunc(signature, ...)``: the Python function itself (its compiled form is the
+        FMU binary's native code)."""
+        return lambda func: func
+
+    def carray(ptr, shape, dtype=None):
+        raise RuntimeError("carray needs numba: a cfunc body runs only as compiled code")

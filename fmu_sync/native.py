@@ -1,0 +1,187 @@
+"""The FMU's stepper as native code, compiled at export (docs/design.md §4.3, docs/fmu.md).
+
+An FMU's hot path is one numba ``cfunc`` (``fmus/stepper.py``, ``fmus/coupling_stepper.py``).
+At export, :func:`stepper_object` turns it into an ELF object for the baseline x86-64
+instruction set, which :func:`fmu_sync.export.build_binary` links into the FMU's binary as
+the function ``fsr_native_step`` (``fmus/c/fmu_sync_runtime.c`` calls it per doStep). The
+machine that runs the FMU compiles nothing and needs no numba.
+
+How (numba and llvmlite internals, hence the pinned versions of :data:`TESTED`):
+
+1. the cfunc's LLVM module *for linking* (``_library._get_module_for_linking()``: the cfunc
+   wrapper, its callee and every numba function it reaches -- numba links the libraries of
+   all callees into it, so a function the stepper calls, a user's force law included, is in
+   it whether it is inlined or not; from a fresh compile or from numba's cache alike);
+2. every definition made internal but the entry, renamed ``fsr_native_step``;
+3. object code from a target machine for ``cpu="x86-64"`` (SSE2: any x86-64 CPU),
+   position-independent (it goes into a shared library);
+4. its undefined symbols classified (:func:`link_names`): C library functions (``cos``,
+   ``exp``, ``memcpy`` ...) bound to their oldest glibc version, so that the binary needs no
+   newer glibc than the exporting one's 2.2.5 symbols; numba's runtime functions and the
+   CPython calls of the cfunc wrapper's error path renamed ``fsrx_<name>``, provided by
+   ``fmus/c/fmu_sync_native.c`` (allocation: a small runtime of our own; error path:
+   stubs that flag the call so that the step fails with fmi2Error instead of reporting
+   success); anything else fails the export (:class:`NativeCodeError`) naming the symbol.
+"""
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+__all__ = ["ENTRY", "CPU", "TRIPLE", "GLIBC_BASE", "LIBC", "RUNTIME", "TESTED", "NativeCodeError",
+           "check_versions", "stepper_object", "link_names"]
+
+#: the C name of the stepper in the binary (fmus/c/fmu_sync_runtime.c)
+ENTRY = "fsr_native_step"
+#: the instruction set of the object code: baseline x86-64 (SSE2), on any x86-64 CPU
+CPU = "x86-64"
+TRIPLE = "x86_64-unknown-linux-gnu"
+#: the glibc version every C library function of the object binds to (x86-64's first)
+GLIBC_BASE = "GLIBC_2.2.5"
+#: C library functions the compiled code may call (libm's and the memory functions)
+LIBC = frozenset("""
+    acos acosh asin asinh atan atan2 atanh cbrt ceil copysign cos cosh erf erfc exp exp2 expm1
+    fabs floor fma fmax fmin fmod frexp hypot ldexp lgamma log log10 log1p log2 nextafter pow
+    round sin sincos sinh sqrt tan tanh tgamma trunc memcpy memmove memset memcmp
+""".split())
+#: numba runtime and CPython functions (and the exception objects) the compiled code may
+#: reference, provided under ``fsrx_<name>`` by fmus/c/fmu_sync_native.c
+RUNTIME = frozenset("""
+    NRT_Allocate NRT_Free NRT_MemInfo_alloc NRT_MemInfo_alloc_aligned NRT_MemInfo_call_dtor
+    NRT_MemInfo_new_varsize_dtor NRT_MemInfo_varsize_realloc NRT_MemInfo_varsize_alloc
+    NRT_MemInfo_varsize_free
+    numba_gil_ensure numba_gil_release numba_unpickle numba_do_raise
+    numba_runtime_build_excinfo_struct
+    PyErr_Clear PyErr_SetNone PyErr_SetString PyErr_WriteUnraisable PyErr_Occurred
+    PyUnicode_FromString PyUnicode_FromKindAndData PyBytes_FromStringAndSize PyObject_Hash
+    PyTuple_Pack Py_DecRef Py_IncRef
+    PyExc_RuntimeError PyExc_StopIteration PyExc_SystemError PyExc_ValueError
+    PyExc_ZeroDivisionError PyExc_IndexError PyExc_TypeError PyExc_OverflowError
+    PyExc_AssertionError
+""".split())
+#: numba and llvmlite versions the emission was tested with ([first, last] minor releases,
+#: as pinned in pyproject.toml): the module access above uses their internals
+TESTED = {"numba": ((0, 68), (0, 68)), "llvmlite": ((0, 50), (0, 50))}
+
+
+class NativeCodeError(RuntimeError):
+    """The stepper cannot be compiled to native code for the FMU (the export fails)."""
+
+
+def _minor(version: str) -> tuple[int, int]:
+    m = re.match(r"(\d+)\.(\d+)", version)
+    return (int(m.group(1)), int(m.group(2))) if m else (0, 0)
+
+
+def check_versions() -> dict:
+    """{"numba": version, "llvmlite": version}; NativeCodeError outside :data:`TESTED`."""
+    try:
+        import llvmlite
+        import numba
+    except ImportError as exc:
+        raise NativeCodeError(f"exporting an FMU compiles its stepper with numba: {exc}") from None
+    found = {"numba": numba.__version__, "llvmlite": llvmlite.__version__}
+    for dist, (lo, hi) in TESTED.items():
+        if not lo <= _minor(found[dist]) <= hi:
+            raise NativeCodeError(
+                f"{dist} {found[dist]} is installed; the FMU's native stepper is emitted with "
+                f"{dist} {lo[0]}.{lo[1]}.x to {hi[0]}.{hi[1]}.x only (it reads numba's compiled "
+                f"module; pyproject.toml pins the tested range): install {dist} in that range")
+    return found
+
+
+def _target_machine():
+    import llvmlite.binding as llvm
+    try:
+        llvm.initialize_native_target()
+        llvm.initialize_native_asmprinter()
+    except Exception:   # pragma: no cover (llvmlite versions that initialise by themselves)
+        pass
+    target = llvm.Target.from_triple(TRIPLE)
+    return target.create_target_machine(cpu=CPU, features="", opt=3, reloc="pic", codemodel="default")
+
+
+def _tool(name: str) -> str:
+    path = shutil.which(name)
+    if path is None:
+        raise NativeCodeError(f"cannot link the FMU's native stepper: the binutils tool {name!r} is not on "
+                              f"PATH (install binutils, which the C compiler uses too)")
+    return path
+
+
+def _undefined(obj: Path) -> list[str]:
+    p = subprocess.run([_tool("nm"), "-u", "--format=posix", str(obj)], capture_output=True, text=True)
+    if p.returncode != 0:
+        raise NativeCodeError(f"cannot read the symbols of the stepper's object code: {p.stderr.strip()}")
+    return sorted({line.split()[0] for line in p.stdout.splitlines() if line.strip()})
+
+
+def link_names(undefined) -> dict[str, str]:
+    """{symbol: the name it is linked as} for the undefined symbols of the stepper's object;
+    NativeCodeError naming every symbol the binary cannot provide."""
+    out, unknown = {}, []
+    for name in undefined:
+        if name == "_GLOBAL_OFFSET_TABLE_":
+            continue
+        if name in LIBC:
+            out[name] = f"{name}@{GLIBC_BASE}"
+        elif name in RUNTIME:
+            out[name] = f"fsrx_{name}"
+        else:
+            unknown.append(name)
+    if unknown:
+        raise NativeCodeError(
+            f"the stepper's compiled code calls {', '.join(unknown)}, which the FMU binary does not provide "
+            f"(it provides the C library's maths and memory functions and numba's allocation runtime): "
+            f"the stepper, or a function it calls, uses a numba feature outside what a native FMU "
+            f"supports; write it with numpy arrays, scalars and math functions (docs/fmu.md)")
+    return out
+
+
+def stepper_object(stepper, out: Path) -> Path:
+    """Write the native object of the numba cfunc ``stepper`` (entry :data:`ENTRY`) to ``out``."""
+    check_versions()
+    if not hasattr(stepper, "_library") or not hasattr(stepper, "native_name"):
+        raise NativeCodeError(f"{stepper!r} is not a compiled numba cfunc (was numba imported in plain mode?)")
+    try:
+        module = stepper._library._get_module_for_linking().clone()
+        entry = module.get_function(stepper.native_name)
+    except Exception as exc:
+        raise NativeCodeError(f"cannot read the compiled module of the stepper from numba: {exc!r}") from None
+    fixed = re.search(r"inttoptr \(i64 ([1-9]\d{4,})", str(module))
+    if fixed:
+        raise NativeCodeError(
+            f"the stepper calls or reads something through an address of this process "
+            f"({int(fixed.group(1)):#x}: a ctypes/cffi function, a function passed as a first-class "
+            f"value, or an array baked in as a constant), which does not exist in the FMU's process: "
+            f"call numba functions by name (a global or a closure variable of the stepper) and pass "
+            f"data through the work array")
+    for fn in module.functions:
+        if not fn.is_declaration:
+            fn.linkage = "internal"
+    for gv in module.global_variables:
+        if not gv.is_declaration:
+            gv.linkage = "internal"
+    entry.linkage = "external"
+    entry.visibility = "hidden"
+    entry.name = ENTRY
+    module.triple = TRIPLE
+    try:
+        module.verify()
+        code = _target_machine().emit_object(module)
+    except Exception as exc:
+        raise NativeCodeError(f"LLVM could not emit the stepper for {CPU}: {exc}") from None
+    out = Path(out)
+    out.write_bytes(code)
+    names = link_names(_undefined(out))
+    with tempfile.TemporaryDirectory(prefix="fmu-sync-native-") as tmp:
+        table = os.path.join(tmp, "names")
+        Path(table).write_text("".join(f"{a} {b}\n" for a, b in names.items()))
+        p = subprocess.run([_tool("objcopy"), f"--redefine-syms={table}", str(out)], capture_output=True, text=True)
+    if p.returncode != 0:
+        raise NativeCodeError(f"cannot rename the symbols of the stepper's object code: {p.stderr.strip()}")
+    return out

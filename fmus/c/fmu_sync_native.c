@@ -1,0 +1,139 @@
+/* fmu-sync native stepper support: what the stepper's object code (compiled from numba at
+ * export, fmu_sync/native.py) needs besides the C library.
+ *
+ * Written for fmu-sync (MIT). The export renames the object's references to numba's runtime
+ * and to CPython to fsrx_<name> (fmu_sync.native.RUNTIME); they are defined here:
+ *
+ * - allocation (numba's NRT API, same MemInfo layout: the object's inlined reference counting
+ *   reads refct and data): malloc-backed meminfos, freed when their count drops to zero;
+ * - the error path of the cfunc wrapper (an exception raised in compiled code): numba would
+ *   take the GIL and print the exception; here nothing of Python is touched, the call is
+ *   flagged (fsr_native_raised) so that the step fails with a logged error instead of being
+ *   taken for a success.
+ */
+#include <stddef.h>
+#include <stdint.h>
+#include <stdlib.h>
+
+#include "fmu_sync_native.h"
+
+typedef void (*dtor_fn)(void *ptr, size_t size, void *info);
+typedef struct {
+    size_t refct;               /* first field: the compiled code updates it atomically */
+    dtor_fn dtor;
+    void *dtor_info;
+    void *data;                 /* fourth field: the compiled code reads it */
+    size_t size;
+    void *external_allocator;   /* unused */
+} meminfo;
+
+static __thread int g_raised;
+
+int fsr_native_raised(void) {
+    int r = g_raised;
+    g_raised = 0;
+    return r;
+}
+
+int32_t fsr_python_step(double *x, double *work, double t, double H) {
+    int32_t rc = fsr_native_step(x, work, t, H);
+    return fsr_native_raised() ? -1 : rc;
+}
+
+static void free_data(void *ptr, size_t size, void *info) {
+    (void)size;
+    (void)info;
+    free(ptr);
+}
+
+static meminfo *new_meminfo(void *data, size_t size, dtor_fn dtor, void *info) {
+    if (!data) return NULL;
+    meminfo *mi = malloc(sizeof *mi);
+    if (!mi) {
+        free(data);
+        return NULL;
+    }
+    mi->refct = 1;
+    mi->dtor = dtor;
+    mi->dtor_info = info;
+    mi->data = data;
+    mi->size = size;
+    mi->external_allocator = NULL;
+    return mi;
+}
+
+void *fsrx_NRT_Allocate(size_t size) { return malloc(size ? size : 1); }
+void fsrx_NRT_Free(void *ptr) { free(ptr); }
+
+meminfo *fsrx_NRT_MemInfo_alloc(size_t size) {
+    return new_meminfo(malloc(size ? size : 1), size, free_data, NULL);
+}
+
+meminfo *fsrx_NRT_MemInfo_alloc_aligned(size_t size, unsigned align) {
+    size_t a = sizeof(void *);
+    while (a < align) a <<= 1;           /* a power of two, a multiple of sizeof(void *) */
+    void *data = NULL;
+    if (posix_memalign(&data, a, size ? size : 1) != 0) return NULL;
+    return new_meminfo(data, size, free_data, NULL);
+}
+
+void fsrx_NRT_MemInfo_call_dtor(meminfo *mi) {
+    if (mi->dtor) mi->dtor(mi->data, mi->size, mi->dtor_info);
+    free(mi);
+}
+
+/* variable-size data (lists, strings): the element destructor in dtor_info */
+static void varsize_dtor(void *ptr, size_t size, void *info) {
+    (void)size;
+    if (info && ptr) ((void (*)(void *))info)(ptr);
+    free(ptr);
+}
+
+meminfo *fsrx_NRT_MemInfo_new_varsize_dtor(size_t size, dtor_fn dtor) {
+    return new_meminfo(malloc(size ? size : 1), size, varsize_dtor, (void *)dtor);
+}
+
+void *fsrx_NRT_MemInfo_varsize_alloc(meminfo *mi, size_t size) {
+    mi->data = malloc(size ? size : 1);
+    if (mi->data) mi->size = size;
+    return mi->data;
+}
+
+void *fsrx_NRT_MemInfo_varsize_realloc(meminfo *mi, size_t size) {
+    void *data = realloc(mi->data, size ? size : 1);
+    if (!data) return NULL;
+    mi->data = data;
+    mi->size = size;
+    return data;
+}
+
+void fsrx_NRT_MemInfo_varsize_free(meminfo *mi, void *ptr) {
+    free(ptr);
+    if (ptr == mi->data) mi->data = NULL;
+}
+
+/* the exception path: flagged, no Python touched (results: NULL, 0 or nothing) */
+#define FLAGGED(name) void *fsrx_##name(void) { g_raised = 1; return NULL; }
+#define QUIET(name) void *fsrx_##name(void) { return NULL; }
+FLAGGED(numba_gil_ensure)
+FLAGGED(numba_do_raise)
+FLAGGED(numba_runtime_build_excinfo_struct)
+FLAGGED(PyErr_SetString)
+FLAGGED(PyErr_SetNone)
+QUIET(numba_gil_release)
+QUIET(numba_unpickle)
+QUIET(PyErr_Clear)
+QUIET(PyErr_WriteUnraisable)
+QUIET(PyErr_Occurred)
+QUIET(PyUnicode_FromString)
+QUIET(PyUnicode_FromKindAndData)
+QUIET(PyBytes_FromStringAndSize)
+QUIET(PyObject_Hash)
+QUIET(PyTuple_Pack)
+QUIET(Py_DecRef)
+QUIET(Py_IncRef)
+#undef FLAGGED
+#undef QUIET
+void *fsrx_PyExc_RuntimeError, *fsrx_PyExc_StopIteration, *fsrx_PyExc_SystemError, *fsrx_PyExc_ValueError,
+    *fsrx_PyExc_ZeroDivisionError, *fsrx_PyExc_IndexError, *fsrx_PyExc_TypeError, *fsrx_PyExc_OverflowError,
+    *fsrx_PyExc_AssertionError;

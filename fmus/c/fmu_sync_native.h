@@ -1,0 +1,18 @@
+/* fmu-sync native stepper (fmu_sync_native.c; compiled at export by fmu_sync/native.py).
+ *
+ *   fsr_native_step(x, work, t, H)   the FMU's stepper: numba cfunc compiled to baseline x86-64
+ *                                    object code and linked into this binary (no Python, no GIL)
+ *   fsr_native_raised()              1 if the last call on this thread took the compiled code's
+ *                                    exception path (then cleared); its result is not a status
+ *   fsr_python_step(x, work, t, H)   the stepper for the Python slave (ctypes): its code, or -1
+ *                                    if it raised
+ */
+#ifndef FMU_SYNC_NATIVE_H
+#define FMU_SYNC_NATIVE_H
+#include <stdint.h>
+
+int32_t fsr_native_step(double *x, double *work, double t, double H);
+int fsr_native_raised(void);
+int32_t fsr_python_step(double *x, double *work, double t, double H);
+
+#endif
