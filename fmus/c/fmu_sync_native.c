@@ -29,6 +29,14 @@ typedef struct {
 
 static __thread int g_raised;
 
+fsr_native_fn fsr_native_step = fsr_native_step_base;
+
+__attribute__((constructor)) static void choose_variant(void) {
+    const char *base = getenv("FMU_SYNC_NATIVE_BASELINE");
+    __builtin_cpu_init();
+    if (!(base && base[0] == '1') && __builtin_cpu_supports("x86-64-v3")) fsr_native_step = fsr_native_step_v3;
+}
+
 int fsr_native_raised(void) {
     int r = g_raised;
     g_raised = 0;
