@@ -8,7 +8,7 @@
  *   reads refct and data): malloc-backed meminfos, freed when their count drops to zero;
  * - the error path of the cfunc wrapper (an exception raised in compiled code): numba would
  *   take the GIL and print the exception; here nothing of Python is touched, the call is
- *   flagged (fsr_native_raised) so that the step fails with a logged error instead of being
+ *   counted (fsr_native_errors) so that the step fails with a logged error instead of being
  *   taken for a success.
  */
 #include <stddef.h>
@@ -27,7 +27,8 @@ typedef struct {
     void *external_allocator;   /* unused */
 } meminfo;
 
-static __thread int g_raised;
+/* calls of the exception path, every thread (a plain counter: no TLS access per step) */
+volatile unsigned fsr_native_errors;
 
 fsr_native_fn fsr_native_step = fsr_native_step_base;
 
@@ -37,15 +38,10 @@ __attribute__((constructor)) static void choose_variant(void) {
     if (!(base && base[0] == '1') && __builtin_cpu_supports("x86-64-v3")) fsr_native_step = fsr_native_step_v3;
 }
 
-int fsr_native_raised(void) {
-    int r = g_raised;
-    g_raised = 0;
-    return r;
-}
-
 int32_t fsr_python_step(double *x, double *work, double t, double H) {
+    unsigned errors = fsr_native_errors;
     int32_t rc = fsr_native_step(x, work, t, H);
-    return fsr_native_raised() ? -1 : rc;
+    return fsr_native_errors != errors ? -1 : rc;
 }
 
 static void free_data(void *ptr, size_t size, void *info) {
@@ -121,7 +117,7 @@ void fsrx_NRT_MemInfo_varsize_free(meminfo *mi, void *ptr) {
 }
 
 /* the exception path: flagged, no Python touched (results: NULL, 0 or nothing) */
-#define FLAGGED(name) void *fsrx_##name(void) { g_raised = 1; return NULL; }
+#define FLAGGED(name) void *fsrx_##name(void) { __atomic_add_fetch(&fsr_native_errors, 1u, __ATOMIC_RELAXED); return NULL; }
 #define QUIET(name) void *fsrx_##name(void) { return NULL; }
 FLAGGED(numba_gil_ensure)
 FLAGGED(numba_do_raise)

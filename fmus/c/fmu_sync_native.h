@@ -2,8 +2,9 @@
  *
  *   fsr_native_step(x, work, t, H)   the FMU's stepper: numba cfunc compiled to x86-64 object
  *                                    code and linked into this binary (no Python, no GIL)
- *   fsr_native_raised()              1 if the last call on this thread took the compiled code's
- *                                    exception path (then cleared); its result is not a status
+ *   fsr_native_errors                how many calls took the compiled code's exception path (all
+ *                                    threads): a call during which it changed raised, and its
+ *                                    result is not a status
  *   fsr_python_step(x, work, t, H)   the stepper for the Python slave (ctypes): its code, or -1
  *                                    if it raised
  */
@@ -18,7 +19,7 @@ typedef int32_t (*fsr_native_fn)(double *x, double *work, double t, double H);
 int32_t fsr_native_step_base(double *x, double *work, double t, double H);
 int32_t fsr_native_step_v3(double *x, double *work, double t, double H);
 extern fsr_native_fn fsr_native_step;
-int fsr_native_raised(void);
+extern volatile unsigned fsr_native_errors;
 int32_t fsr_python_step(double *x, double *work, double t, double H);
 
 #endif
