@@ -165,8 +165,8 @@ class MechanicalSystem:
         return self.M.shape[0]
 
     @property
-    def m(self) -> int:
-        """Number of inputs (columns of B)."""
+    def n_inputs(self) -> int:
+        """Number of inputs tau (columns of B). (There is no ``.m``: the mass is ``M``.)"""
         return self.B.shape[1]
 
     def arrays(self) -> SystemArrays:
@@ -191,14 +191,20 @@ class MechanicalSystem:
 
 def ImpactOscillator(m: float = 1.0, k: float = 0.0, c: float = 0.0, f0: float = 0.0,
                      F: float = 0.0, Omega: float = 0.0, e: float = 0.0,
-                     phi: float = 0.0) -> MechanicalSystem:
-    """1-DOF impact oscillator ``m q'' + c q' + k q = f0 + F cos(Omega t + phi) + tau``, q >= 0."""
+                     phi: float = 0.0, g0: float = 0.0) -> MechanicalSystem:
+    """1-DOF impact oscillator ``m q'' + c q' + k q = f0 + F cos(Omega t + phi) + tau`` with the
+    wall ``g(q) = q + g0 >= 0`` (w = 1; the wall stands at q = -g0, default 0).
+
+    Positions stay in the user's coordinates: the spring is relaxed at q = 0 whatever g0 is.
+    The same motion in gap coordinates x = q + g0 is the oscillator with g0 = 0, constant
+    force f0 + k g0 and start position q0 + g0 (docs/design.md §2.1).
+    """
     m = _scalar("m", m)
     if m <= 0.0:
         raise ValueError(f"m (mass) must be > 0, got {m}")
     forcing = ((F, Omega, phi),) if _scalar("F", F) != 0.0 else ()
     return MechanicalSystem(M=[[m]], K=[[_scalar("k", k)]], C=[[_scalar("c", c)]],
-                            f0=[_scalar("f0", f0)], w=[1.0], g0=0.0, e=e, forcing=forcing)
+                            f0=[_scalar("f0", f0)], w=[1.0], g0=g0, e=e, forcing=forcing)
 
 
 def as_state(system: MechanicalSystem, x, name: str = "x0"):

@@ -297,7 +297,7 @@ class FmuModel:
 def _io_system(p: dict) -> MechanicalSystem:
     from ..core.model import ImpactOscillator
     return ImpactOscillator(m=p["m"], k=p["k"], c=p["c"], f0=p["f0"], F=p["F"],
-                            Omega=p["Omega"], e=p["e"], phi=p["phi"])
+                            Omega=p["Omega"], e=p["e"], phi=p["phi"], g0=p["g0"])
 
 
 def _forcing_values(system: MechanicalSystem, n: int) -> tuple:
@@ -312,28 +312,30 @@ def _forcing_values(system: MechanicalSystem, n: int) -> tuple:
 def _io_values(s: MechanicalSystem) -> dict:
     if s.n != 1:
         raise ContractError(f"the impact-oscillator FMU has 1 degree of freedom, the system has {s.n}")
-    if float(s.w[0]) != 1.0 or s.g0 != 0.0:
-        raise ContractError(f"the impact-oscillator FMU has its wall at q = 0 (w = 1, g0 = 0), "
-                            f"the system has w = {s.w.tolist()}, g0 = {s.g0}")
+    if float(s.w[0]) != 1.0:
+        raise ContractError(f"the impact-oscillator FMU has the wall g(q) = q + g0 (w = 1), "
+                            f"the system has w = {s.w.tolist()}")
     F, Om, ph = _forcing_values(s, 1)
     out = {"m": float(s.M[0, 0]), "k": float(s.K[0, 0]), "c": float(s.C[0, 0]),
            "f0": float(s.f0[0]), "F": F[0]}
     if Om is not None:
         out.update(Omega=Om, phi=ph)
     out["e"] = float(s.e)
+    out["g0"] = float(s.g0)
     return out
 
 
 def _io_geometry(p: dict) -> MechanicalSystem:
     z = np.zeros((1, 1))
-    return MechanicalSystem(M=[[p["m"]]], K=z, C=z, f0=np.zeros(1), w=np.ones(1), g0=0.0, e=p["e"])
+    return MechanicalSystem(M=[[p["m"]]], K=z, C=z, f0=np.zeros(1), w=np.ones(1), g0=p["g0"], e=p["e"])
 
 
 # 1-DOF impact oscillator (ImpactOscillator): m q'' + c q' + k q = f0 + F cos(Omega t + phi) + tau,
-# q >= 0 (wall at q = 0), Newton restitution e. Defaults: scenes/forced-pair.toml, system 1.
+# g(q) = q + g0 >= 0 (wall at q = -g0), Newton restitution e. Defaults: scenes/forced-pair.toml,
+# system 1 (g0 = 0).
 def _io_declare() -> list[Var]:
     outputs = _outputs(1, {
-        "q": ["q_start"], "u": ["u_start"], GAP: ["q_start"],
+        "q": ["q_start"], "u": ["u_start"], GAP: ["g0", "q_start"],
         ENERGY: ["m", "k", "f0", "q_start", "u_start"],
     })
     params = [
@@ -345,7 +347,8 @@ def _io_declare() -> list[Var]:
         _param("Omega", "rad/s", "Angular frequency of the harmonic force", 2.5, min=0.0),
         _param("phi", "rad", "Phase of the harmonic force", 0.0),
         _param("e", "1", "Newton restitution coefficient at the wall", 0.9, min=0.0, max=1.0),
-        _param("q_start", "m", "Initial position (the wall is q = 0: q_start >= 0)", 1.0, min=0.0,
+        _param("g0", "m", "Wall offset g0 in g(q) = q + g0 (the wall stands at q = -g0)", 0.0),
+        _param("q_start", "m", "Initial position (g(q_start) = q_start + g0 >= 0)", 1.0, min=-STATE_BOUND,
                max=STATE_BOUND),
         _param("u_start", "m/s", "Initial velocity", 0.0, min=-STATE_BOUND, max=STATE_BOUND),
     ]
@@ -442,8 +445,8 @@ MODELS: dict[str, FmuModel] = {m.key: m for m in (
     FmuModel(
         key="impact-oscillator", identifier="ImpactOscillator", family="impact-oscillator", n=1,
         description=("1-DOF impact oscillator m q'' + c q' + k q = f0 + F cos(Omega t + phi) + tau, "
-                     "q >= 0, Newton restitution e; Moreau time-stepping (fmu-sync core)"),
-        declare=_io_declare, system=_io_system, values=_io_values, geometry=("m", "e"),
+                     "q + g0 >= 0, Newton restitution e; Moreau time-stepping (fmu-sync core)"),
+        declare=_io_declare, system=_io_system, values=_io_values, geometry=("m", "g0", "e"),
         _geometry_system=_io_geometry),
     FmuModel(
         key="mechanical-system-2", identifier="MechanicalSystem2", family="mechanical-system", n=_N2,

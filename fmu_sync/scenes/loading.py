@@ -237,7 +237,7 @@ def _make_system(cfg: dict):
     if cfg["system.model"] == "impact-oscillator":
         return ImpactOscillator(m=cfg["system.m"], k=cfg["system.k"], c=cfg["system.c"],
                                 f0=cfg["system.f0"], F=cfg["system.F"], Omega=cfg["system.Omega"],
-                                phi=cfg["system.phi"], e=cfg["system.e"])
+                                phi=cfg["system.phi"], e=cfg["system.e"], g0=cfg["system.g0"])
     M = np.array(cfg["system.M"])
     n = M.shape[0]
     zeros = np.zeros((n, n))

@@ -285,6 +285,7 @@ _IO_KEYS = {
     "F": _key(_number(), 0.0, "forcing amplitude", "N"),
     "Omega": _key(_number(), 0.0, "forcing frequency", "rad/s"),
     "phi": _key(_number(), 0.0, "forcing phase", "rad"),
+    "g0": _key(_number(), 0.0, "wall offset: g(q) = q + g0 >= 0 (the wall stands at q = -g0)", "m"),
     "e": _key(_number(ge=0, le=1), doc="Newton restitution coefficient"),
 }
 _MS_KEYS = {
