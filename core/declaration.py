@@ -12,17 +12,26 @@ a user model is the same kind of object, found by ``"path/to/model.py:name"``
 """
 from __future__ import annotations
 
-import math
+import hashlib
+import importlib.util
+import sys
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
-__all__ = ["Param", "Model", "Values", "ModelError", "POSITIVE_MIN"]
+__all__ = ["Param", "Model", "Values", "ModelError", "POSITIVE_MIN", "load_model"]
 
 #: Smallest positive normal double: the inclusive ``min`` of a parameter that must be > 0
 #: (m > 0, dt > 0), in the core's checks, the scenes and the FMU's ``min`` alike.
 POSITIVE_MIN = 2.2250738585072014e-308
+
+
+#: the parameter shapes a declaration knows, in words
+SHAPES = {(): "a finite real number", ("n",): "a list of n finite numbers",
+          ("n", "n"): "an n x n matrix (list of rows) of finite numbers",
+          ("terms",): "a list of harmonic terms (F, Omega, phi)"}
 
 
 class ModelError(ValueError):
@@ -41,7 +50,8 @@ class Param:
     ``shape``: ``()`` a real number; ``("n",)`` a vector and ``("n", "n")`` a matrix of the
     model's n degrees of freedom (``min``/``max`` bound every entry of a vector and the
     diagonal of a matrix); ``("terms",)`` a list of harmonic terms ``(F, Omega, phi)``.
-    ``default`` None: required.
+    ``default`` None: required for a number; for a vector or a matrix, None means zeros
+    unless ``required`` is set.
     """
 
     name: str
@@ -51,16 +61,17 @@ class Param:
     max: float | None = None
     description: str = ""
     shape: tuple = ()
+    required: bool = False
 
-    @property
-    def required(self) -> bool:
-        return self.default is None and self.shape == ()
+    def __post_init__(self):
+        if self.default is None and self.shape == ():
+            object.__setattr__(self, "required", True)
+        if self.shape not in SHAPES:
+            raise ModelError(f"parameter {self.name}: shape {self.shape!r} is not one of {', '.join(map(repr, SHAPES))}")
 
     def allowed(self) -> str:
         """The admissible values, in words (used in every error message)."""
-        what = {(): "a finite real number", ("n",): "a list of n finite numbers",
-                ("n", "n"): "an n x n matrix (list of rows) of finite numbers",
-                ("terms",): "a list of harmonic terms (F, Omega, phi)"}[self.shape]
+        what = SHAPES[self.shape]
         lo = None if self.min is None else ("> 0" if self.min == POSITIVE_MIN else f">= {_fmt(self.min)}")
         hi = None if self.max is None else f"<= {_fmt(self.max)}"
         if lo and hi and self.min != POSITIVE_MIN:
@@ -133,6 +144,7 @@ class Model:
     system: Callable
     n: int | None = None
     geometry: tuple = ()
+    values: Callable | None = None   #: optional inverse: system -> parameter values (built-ins)
 
     def __post_init__(self):
         names = [p.name for p in self.params]
@@ -173,7 +185,7 @@ class Model:
         for p in self.params:
             if p.name in given and given[p.name] is not None:
                 out[p.name] = p.check(given[p.name], f"model {self.name!r}")
-            elif p.required:
+            elif p.required or (p.default is None and p.shape == ()):
                 raise ModelError(f"model {self.name!r}: parameter {p.name} is required "
                                  f"({p.description or p.allowed()})")
             else:
@@ -187,3 +199,44 @@ class Model:
             raise ModelError(f"model {self.name!r} declares n = {self.n} degrees of freedom, "
                              f"its system has n = {system.n}")
         return system
+
+
+def load_model(spec, base=None) -> Model:
+    """The model of ``spec``: a :class:`Model`, a built-in name (``"impact-oscillator"``,
+    ``"mechanical-system"``) or ``"path/to/model.py:name"`` (a relative path is taken from
+    ``base``, e.g. the scene file's folder). The file is imported once per content (its
+    module name carries the content's hash). :class:`ModelError` names what is wrong."""
+    if isinstance(spec, Model):
+        return spec
+    from .model import BUILTIN_MODELS
+    if not isinstance(spec, str):
+        raise ModelError(f"a model is a Model, a built-in name or 'path/to/model.py:name', got {spec!r}")
+    if spec in BUILTIN_MODELS:
+        return BUILTIN_MODELS[spec]
+    path, sep, name = spec.rpartition(":")
+    if not sep or not path.endswith(".py") or not name.isidentifier():
+        raise ModelError(f"model {spec!r} is neither a built-in model ({', '.join(BUILTIN_MODELS)}) "
+                         f"nor 'path/to/model.py:name'")
+    file = Path(path).expanduser()
+    if not file.is_absolute() and base is not None:
+        file = Path(base) / file
+    if not file.is_file():
+        raise ModelError(f"model {spec!r}: no file {file}")
+    text = file.read_bytes()
+    modname = f"fmu_sync_user_model_{file.stem}_{hashlib.sha256(text).hexdigest()[:16]}"
+    module = sys.modules.get(modname)
+    if module is None:
+        loader_spec = importlib.util.spec_from_file_location(modname, file)
+        module = importlib.util.module_from_spec(loader_spec)
+        sys.modules[modname] = module
+        try:
+            loader_spec.loader.exec_module(module)
+        except Exception as exc:
+            del sys.modules[modname]
+            raise ModelError(f"model {spec!r}: importing {file} failed: {type(exc).__name__}: {exc}") from exc
+    obj = getattr(module, name, None)
+    if not isinstance(obj, Model):
+        found = [k for k, v in vars(module).items() if isinstance(v, Model)]
+        raise ModelError(f"model {spec!r}: {file} has no Model named {name!r}"
+                         + (f" (it has {', '.join(found)})" if found else " (it declares no Model)"))
+    return obj
