@@ -131,8 +131,11 @@ class MechanicalSystem:
         if self.w is None:
             raise ValueError("w (the wall's normal, g = w^T q + g0) is required")
         law, p, KL, CL = self._law(n)
+        object.__setattr__(self, "_metric_source", None)
         if law is not None:
-            object.__setattr__(self, "K", law.metric_stiffness(p)[0])
+            Km, source = law.metric_stiffness(p)
+            object.__setattr__(self, "_metric_source", source)
+            object.__setattr__(self, "K", Km)
             object.__setattr__(self, "C", CL)
             object.__setattr__(self, "f0", np.zeros(n))
         for name in ("K", "C", "f0"):
@@ -199,6 +202,12 @@ class MechanicalSystem:
         p = law.values(self.params)
         KL, CL = law.linear_part(p)
         return law, p, KL, CL
+
+    @property
+    def metric_source(self) -> str | None:
+        """How the metric's stiffness ``K`` of a user force law was obtained (a key of
+        ``forcelaw.METRIC_SOURCES``); None for the built-in linear law (K is its stiffness)."""
+        return self._metric_source
 
     @property
     def p(self) -> np.ndarray:
