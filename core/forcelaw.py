@@ -238,7 +238,8 @@ class ForceLaw:
             f.__module__ = law_loops.__name__
             inline = "always" if name in law_loops.INLINED else "never"
             g[name] = njit(cache=cache, inline=inline)(f)
-        ns = LawKernels(force=g["law_force"], step=g["law_step"], integrate=g["law_integrate"],
+        ns = LawKernels(force=g["law_force"], step=g["law_step"],
+                        integrate=g["_integrate1"] if self.n == 1 else g["law_integrate"],
                         advance=g["law_advance"], network=g["law_network"])
         _KERNELS[k] = ns
         return ns

@@ -134,10 +134,10 @@ def _iteration(sa, h, scheme, theta, Sinv, Sinv_w):
 
 
 def law_integrate(sa, p, q, u, t0, dt, n_steps, tau, scheme, theta, record_every, T, Qr, Ur, Pr, dt_last):
-    """:func:`fmu_sync.core.moreau.integrate` for the law (same records, same returns)."""
+    """:func:`fmu_sync.core.moreau.integrate` for the law (same records, same returns); a
+    1-DOF law runs :func:`_integrate1` instead (chosen when the law is specialised: only the
+    loop a law needs is compiled)."""
     n = q.shape[0]
-    if n == 1:
-        return _integrate1(sa, p, q, u, t0, dt, n_steps, tau, scheme, theta, record_every, T, Qr, Ur, Pr, dt_last)
     qe = np.empty(n)
     y = np.empty(n)
     uf = np.empty(n)
