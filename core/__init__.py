@@ -2,7 +2,9 @@
 
 The public API of the core (everything a user of the standalone engine needs):
 
-* models: :class:`MechanicalSystem`, :func:`ImpactOscillator`;
+* models: :class:`MechanicalSystem`, :func:`ImpactOscillator`; user force laws
+  :class:`ForceLaw` (:func:`force_law`, parameters :class:`Param`; built-in examples in
+  :mod:`.examples`: the impacting pendulum and the Duffing oscillator);
 * the impact map :func:`impact_map`;
 * runs: :func:`simulate` (one system), :func:`simulate_pair` (two coupled systems,
   identical or not), :func:`simulate_network` (N systems on a graph: :func:`ring`,
@@ -40,10 +42,14 @@ from .metrics import SyncMetrics, sync_metrics
 from .exchange import UnstableExchange, exchange_limit, hold_bound
 from .network import all_to_all, path, ring, simulate_network, star
 from .exact import ExactEvents, exact_events, simulate_exact
+from .declaration import Param
+from .forcelaw import ForceLaw, force_law
+from .errors import LawRefused
 
 __all__ = ["ImpactOscillator", "MechanicalSystem", "SystemArrays", "impact_map", "simulate", "simulate_pair",
            "quotient_distance", "coupling_forces", "energy_metric", "simulate_exact", "exact_events", "ExactEvents",
            "SimulationResult", "PairResult", "RunFailed",
            "SimulationDiverged", "NetworkResult", "simulate_network", "ring", "path", "star", "all_to_all",
            "sync_metrics", "SyncMetrics", "exchange_limit", "hold_bound", "UnstableExchange", "UnstableScheme",
-           "RunRefused", "InadmissibleState", "RecordTooLarge", "RunPlan", "plan_run"]
+           "RunRefused", "InadmissibleState", "RecordTooLarge", "RunPlan", "plan_run", "ForceLaw", "force_law", "Param",
+           "LawRefused"]

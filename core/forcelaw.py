@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import hashlib
 import inspect
+import re
 import math
 import types as pytypes
 
@@ -29,7 +30,7 @@ from numba import njit, types
 from numba.core.registry import CPUDispatcher
 
 from . import law_loops
-from ._cache import LAW_KEY
+from ._cache import LAW_KEY, depends_on_core
 from .errors import LawRefused
 
 __all__ = ["ForceLaw", "force_law", "LawKernels", "METRIC_SOURCES"]
@@ -115,7 +116,11 @@ class ForceLaw:
         else:
             self.key = None
         # inlined into the step (numba IR): no call with array arguments per step
-        self.dispatcher = njit(cache=self.key is not None, inline="always")(py)
+        if self.source is not None:   # h's own cache is stamped with the core too (our flags live there)
+            depends_on_core(self.source)
+        # error_model="numpy": 1/0 is inf (a non-finite force: refused at the start, a divergence
+        # mid-run), never a ZeroDivisionError raised out of a compiled loop
+        self.dispatcher = njit(cache=self.key is not None, inline="always", error_model="numpy")(py)
         self._returns = None
 
     def __repr__(self):
@@ -183,7 +188,7 @@ class ForceLaw:
         try:
             self.dispatcher.compile(LAW_SIGNATURE)
         except Exception as exc:   # numba's typing/lowering errors have no common public base
-            first = str(exc).strip().splitlines()
+            first = re.sub(r"\x1b\[[0-9;]*m", "", str(exc)).strip().splitlines()   # numba's colours
             raise LawRefused(f"force law {self.name!r} is not numba-compilable in nopython mode as "
                              f"h(q, u, tau, t, p) with float64 arrays q, u, tau, p and a float t: "
                              f"{type(exc).__name__}: {' '.join(first[:6])}") from None
@@ -201,8 +206,12 @@ class ForceLaw:
     def evaluate(self, q, u, tau, t, p) -> np.ndarray:
         """h at one point, as an (n,) array (compiled; for checks and the metric)."""
         self.compile()
-        r = self.dispatcher(*(np.ascontiguousarray(x, dtype=np.float64).reshape(-1) for x in (q, u, tau)),
-                            float(t), np.ascontiguousarray(p, dtype=np.float64))
+        args = [np.ascontiguousarray(x, dtype=np.float64).reshape(-1) for x in (q, u, tau)]
+        try:
+            r = self.dispatcher(*args, float(t), np.ascontiguousarray(p, dtype=np.float64))
+        except Exception as exc:   # an exception the law raises itself (numba: raise ...)
+            raise LawRefused(f"force law {self.name!r} raised {type(exc).__name__}: {exc} at q = "
+                             f"{args[0].tolist()}, u = {args[1].tolist()}, t = {float(t):g}") from None
         return np.array(r, dtype=np.float64, ndmin=1).reshape(-1)
 
     def check(self, p, q, u, tau=None, t: float = 0.0, where: str = "the start state"):
@@ -237,7 +246,7 @@ class ForceLaw:
             f.__qualname__ = f"{name}_{kind}"
             f.__module__ = law_loops.__name__
             inline = "always" if name in law_loops.INLINED else "never"
-            g[name] = njit(cache=cache, inline=inline)(f)
+            g[name] = njit(cache=cache, inline=inline, error_model="numpy")(f)
         ns = LawKernels(force=g["law_force"], step=g["law_step"],
                         integrate=g["_integrate1"] if self.n == 1 else g["law_integrate"],
                         advance=g["law_advance"], network=g["law_network"])

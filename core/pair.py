@@ -36,11 +36,8 @@ PAIR_WEIGHTS = np.ones((1, 2))
 def network_loop(systems):
     """The coupled loop of these systems: :func:`~fmu_sync.core.loop.integrate_network` for
     the built-in linear law, the law's own copy (:meth:`ForceLaw.kernels`, the same arguments)
-    for a user force law, which every node must share (its parameters may differ)."""
-    laws = {id(s.force): s.force for s in systems}
-    if len(laws) > 1:
-        names = [s.force.name if s.force is not None else "the built-in linear law" for s in systems]
-        raise ValueError(f"coupled systems must share one force law (its parameters may differ), got {names}")
+    for a user force law, which every node shares (its parameters may differ; checked by the run
+    plan, :func:`~fmu_sync.core.plan.check_common_geometry`)."""
     law = systems[0].force
     return integrate_network if law is None else law.kernels().network
 

@@ -66,6 +66,10 @@ def check_common_geometry(systems, names=None) -> None:
         if b.n != a.n:
             raise ValueError(f"coupled systems must have the same number of degrees of freedom: "
                              f"{names[0]} has n = {a.n}, {name} has n = {b.n}")
+        if b.force is not a.force:   # one compiled loop: one law (its parameters may differ per system)
+            what = [s.force.name if s.force is not None else "the built-in linear law" for s in (a, b)]
+            raise ValueError(f"coupled systems must share one force law (its parameters may differ): "
+                             f"{names[0]} has {what[0]}, {name} has {what[1]}")
         for key in ("M", "w", "g0", "e"):
             va, vb = getattr(a, key), getattr(b, key)
             if not np.array_equal(va, vb):
