@@ -4,7 +4,9 @@ The public API of the core (everything a user of the standalone engine needs):
 
 * models: :class:`MechanicalSystem`, :func:`ImpactOscillator`, and the one model declaration
   :class:`Model` / :class:`Param` (built-ins :data:`IMPACT_OSCILLATOR`, :data:`MECHANICAL_SYSTEM`;
-  a user's ``"model.py:name"`` by :func:`load_model`);
+  a user's ``"model.py:name"`` by :func:`load_model`); user force laws
+  :class:`ForceLaw` (:func:`force_law`; built-in examples in
+  :mod:`.examples`: the impacting pendulum and the Duffing oscillator);
 * the impact map :func:`impact_map`;
 * runs: :func:`simulate` (one system), :func:`simulate_pair` (two coupled systems,
   identical or not), :func:`simulate_network` (N systems on a graph: :func:`ring`,
@@ -43,6 +45,8 @@ from .metrics import SyncMetrics, sync_metrics
 from .exchange import UnstableExchange, exchange_limit, hold_bound
 from .network import all_to_all, path, ring, simulate_network, star
 from .exact import ExactEvents, exact_events, simulate_exact
+from .forcelaw import ForceLaw, force_law
+from .errors import LawRefused
 
 __all__ = ["Model", "Param", "ModelError", "load_model", "IMPACT_OSCILLATOR", "MECHANICAL_SYSTEM",
            "ImpactOscillator", "MechanicalSystem", "SystemArrays", "impact_map", "simulate", "simulate_pair",
@@ -50,4 +54,5 @@ __all__ = ["Model", "Param", "ModelError", "load_model", "IMPACT_OSCILLATOR", "M
            "SimulationResult", "PairResult", "RunFailed",
            "SimulationDiverged", "NetworkResult", "simulate_network", "ring", "path", "star", "all_to_all",
            "sync_metrics", "SyncMetrics", "exchange_limit", "hold_bound", "UnstableExchange", "UnstableScheme",
-           "RunRefused", "InadmissibleState", "RecordTooLarge", "RunPlan", "plan_run"]
+           "RunRefused", "InadmissibleState", "RecordTooLarge", "RunPlan", "plan_run", "ForceLaw", "force_law", "Param",
+           "LawRefused"]

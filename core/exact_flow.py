@@ -61,6 +61,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from .checks import refuse_nonlinear
 from .model import MechanicalSystem
 
 __all__ = ["EPS", "NT", "TOLF", "NPRM", "FlowModel", "flow_model", "derivs", "force", "sticks", "phases"]
@@ -328,6 +329,7 @@ def _series(a, b, forcing):
 def flow_model(system: MechanicalSystem, tau) -> FlowModel:
     """The flow of a 1-DOF system in the gap coordinate with the constant input ``tau``
     (``None``: 0; length ``system.n_inputs``, checked by the caller). ValueError for n != 1."""
+    refuse_nonlinear(system)   # a user law: the run plan's refusal
     if not isinstance(system, MechanicalSystem):
         raise ValueError(f"system must be a MechanicalSystem, got {type(system).__name__}")
     if system.n != 1:

@@ -98,17 +98,28 @@ class MechanicalSystem:
         Harmonic forces ``F cos(Omega t + phi)`` with ``F`` of shape (n,).
     B : (n, m) array_like, optional
         Input matrix of the control forces tau (default identity, m = n).
+    force : ForceLaw, optional
+        A user force law ``h(q, u, tau, t, p)`` (:class:`fmu_sync.core.forcelaw.ForceLaw`,
+        docs/user-model.md) in place of the built-in linear law; K, C, f0, forcing and B are
+        then left out: ``K`` becomes the stiffness of the metric (the law's, docs/design.md
+        §2.7.2), ``C`` its declared linear damping (zeros if none), B = I, and the packed
+        arrays carry the law's linear part (the θ-scheme's implicit part).
+    params : mapping, optional
+        The law's parameter values (missing names take their defaults; each is checked
+        against its declared range). ``system.p`` is the checked parameter array.
     """
 
     M: np.ndarray
-    K: np.ndarray
-    C: np.ndarray
-    f0: np.ndarray
-    w: np.ndarray
+    K: np.ndarray | None = None
+    C: np.ndarray | None = None
+    f0: np.ndarray | None = None
+    w: np.ndarray | None = None
     g0: float = 0.0
     e: float = 0.0
     forcing: tuple = ()
     B: np.ndarray | None = None
+    force: object = None
+    params: object = None
     _arrays: SystemArrays = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
@@ -120,6 +131,19 @@ class MechanicalSystem:
         if eig[0] <= 0.0:
             raise ValueError(
                 f"M must be positive definite, got smallest eigenvalue {eig[0]:.6g} for M = {M.tolist()}")
+        if self.w is None:
+            raise ValueError("w (the wall's normal, g = w^T q + g0) is required")
+        law, p, KL, CL = self._law(n)
+        object.__setattr__(self, "_metric_source", None)
+        if law is not None:
+            Km, source = law.metric_stiffness(p)
+            object.__setattr__(self, "_metric_source", source)
+            object.__setattr__(self, "K", Km)
+            object.__setattr__(self, "C", CL)
+            object.__setattr__(self, "f0", np.zeros(n))
+        for name in ("K", "C", "f0"):
+            if getattr(self, name) is None:
+                raise ValueError(f"{name} is required for the built-in linear law (or give force=ForceLaw)")
         K = _matrix("K", self.K, n)
         C = _matrix("C", self.C, n)
         f0 = _vector("f0", self.f0, n)
@@ -158,8 +182,40 @@ class MechanicalSystem:
                           ("e", e), ("B", B)):
             object.__setattr__(self, name, val)
         object.__setattr__(self, "forcing", tuple(zip(map(tuple, F), Om, ph)))
+        object.__setattr__(self, "_p", p)
         object.__setattr__(self, "_arrays", SystemArrays(
-            M, Minv, K, C, f0, F, Omega, phi, B, w, g0, e, Minv_w, W))
+            M, Minv, K if law is None else KL, C, f0, F, Omega, phi, B, w, g0, e, Minv_w, W))
+
+    def _law(self, n):
+        """``(law, p, K_L, C_L)`` of a user force law (None, empty, None, None without one)."""
+        law = self.force
+        if law is None:
+            if self.params is not None:
+                raise ValueError("params= gives a force law's parameter values: pass force= too")
+            return None, np.zeros(0), None, None
+        from .forcelaw import ForceLaw   # the user-law machinery (numba typing) only when used
+        if not isinstance(law, ForceLaw):
+            raise ValueError(f"force must be a ForceLaw (fmu_sync.core.ForceLaw), got {law!r}")
+        if law.n != n:
+            raise ValueError(f"force law {law.name!r} has n = {law.n} degrees of freedom, M is {n}x{n}")
+        given = [k for k in ("K", "C", "f0", "B") if getattr(self, k) is not None]
+        if given or self.forcing:
+            raise ValueError(f"with force law {law.name!r}, leave out {given or ['forcing']}: the law is the "
+                             f"whole force (its linear part: ForceLaw(linear=...))")
+        p = law.values(self.params)
+        KL, CL = law.linear_part(p)
+        return law, p, KL, CL
+
+    @property
+    def metric_source(self) -> str | None:
+        """How the metric's stiffness ``K`` of a user force law was obtained (a key of
+        ``forcelaw.METRIC_SOURCES``); None for the built-in linear law (K is its stiffness)."""
+        return self._metric_source
+
+    @property
+    def p(self) -> np.ndarray:
+        """The force law's checked parameter array (empty for the built-in linear law)."""
+        return self._p
 
     # ------------------------------------------------------------------ views
     @property
