@@ -123,6 +123,11 @@ class ForceLaw:
         self.dispatcher = njit(cache=self.key is not None, inline="always", error_model="numpy")(py)
         self._returns = None
 
+    @property
+    def names(self) -> tuple:
+        """The parameter names, in the order of ``p``."""
+        return tuple(prm.name for prm in self.params)
+
     def __repr__(self):
         return f"ForceLaw({self.name!r}, n={self.n}, params={[p.name for p in self.params]})"
 
