@@ -172,12 +172,12 @@ def _solve1(system, q0, u0, t0, t_end, tau, max_events, zeno_ttol, zeno_vtol, cu
 
 
 def _inputs(system, name, value):
-    """``tau`` / ``taudot``: None or ``system.m`` finite numbers (float64 array)."""
+    """``tau`` / ``taudot``: None or ``system.n_inputs`` finite numbers (float64 array)."""
     if value is None:
         return None
     a = np.array(value, dtype=np.float64, ndmin=1).reshape(-1)
-    if a.shape != (system.m,) or not np.all(np.isfinite(a)):
-        raise ValueError(f"{name} must be {system.m} finite numbers, got {a.tolist()}")
+    if a.shape != (system.n_inputs,) or not np.all(np.isfinite(a)):
+        raise ValueError(f"{name} must be {system.n_inputs} finite numbers, got {a.tolist()}")
     return a
 
 

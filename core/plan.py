@@ -262,7 +262,7 @@ def plan_run(systems, starts, t_end, step, *, scheme="midpoint", theta: float = 
         from .coupling import SWITCHING, UNCOUPLED   # coupled runs only (see coupled_weights)
         n = s0.n
         for s in systems:
-            if s.m != n or not np.array_equal(s.B, np.eye(n)):
+            if s.n_inputs != n or not np.array_equal(s.B, np.eye(n)):
                 raise ValueError(f"coupled systems take the forces through B = I (tau has n = {n} entries); "
                                  f"got B of shape {s.B.shape}")
         if laws is None:   # every edge of the graph (default: the pair) switching

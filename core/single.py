@@ -37,9 +37,9 @@ def simulate(system: MechanicalSystem, x0, t_end: float, dt: float, scheme: str 
                     exact=True)   # every check, once (docs/design.md §5.1.1)
     grid, dt, record_every, rows, n = plan.grid, plan.dt, plan.record_every, plan.rows, system.n
     q0, u0 = plan.q[0], plan.u[0]
-    tau = np.zeros(system.m) if tau is None else np.array(tau, dtype=np.float64, ndmin=1).reshape(-1)
-    if tau.shape != (system.m,) or not np.all(np.isfinite(tau)):
-        raise ValueError(f"tau must be {system.m} finite numbers, got {tau.tolist()}")
+    tau = np.zeros(system.n_inputs) if tau is None else np.array(tau, dtype=np.float64, ndmin=1).reshape(-1)
+    if tau.shape != (system.n_inputs,) or not np.all(np.isfinite(tau)):
+        raise ValueError(f"tau must be {system.n_inputs} finite numbers, got {tau.tolist()}")
     if scheme == "exact":
         return simulate_exact(system, (q0, u0), t_end, dt, tau=tau, record_every=record_every, t0=t0)
     code, theta = plan.code, plan.theta
