@@ -22,7 +22,6 @@ from __future__ import annotations
 import hashlib
 import inspect
 import re
-import math
 import types as pytypes
 
 import numpy as np
@@ -102,6 +101,10 @@ class ForceLaw:
         if self.n < 1:
             raise ValueError(f"force law {self.name!r}: n must be >= 1, got {n}")
         names = [prm.name for prm in self.params]
+        shaped = [prm.name for prm in self.params if tuple(getattr(prm, "shape", ())) != ()]
+        if shaped:
+            raise ValueError(f"force law {self.name!r}: the parameters of h are scalars (p is a float array), "
+                             f"got shaped parameters {shaped}")
         if len(set(names)) != len(names):
             raise ValueError(f"force law {self.name!r}: parameter names repeat: {names}")
         self.linear = linear
@@ -142,21 +145,11 @@ class ForceLaw:
             raise LawRefused(f"force law {self.name!r} has no parameter {unknown[0]!r}; "
                              f"its parameters: {sorted(known)}")
         p = np.empty(len(self.params))
-        for i, prm in enumerate(self.params):
-            v = given.get(prm.name, prm.default)
+        for i, prm in enumerate(self.params):   # the declaration's own check (Param.check)
             try:
-                x = float(v)
-            except (TypeError, ValueError):
-                raise LawRefused(f"force law {self.name!r}: parameter {prm.name!r} must be a real number, "
-                                 f"got {v!r}") from None
-            lo = getattr(prm, "min", None)
-            hi = getattr(prm, "max", None)
-            if not math.isfinite(x) or (lo is not None and x < lo) or (hi is not None and x > hi):
-                rng = f"[{'-inf' if lo is None else lo}, {'inf' if hi is None else hi}]"
-                unit = getattr(prm, "unit", "")
-                raise LawRefused(f"force law {self.name!r}: parameter {prm.name!r} = {x!r} {unit} is outside "
-                                 f"its declared range {rng}")
-            p[i] = x
+                p[i] = prm.check(given.get(prm.name, prm.default), f"force law {self.name!r}")
+            except ValueError as exc:
+                raise LawRefused(str(exc)) from None
         return p
 
     def linear_part(self, p):
