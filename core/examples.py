@@ -7,7 +7,7 @@
   (``g(q) = q + g0 >= 0``, as :func:`ImpactOscillator`).
 
 Both laws return a float (n = 1: the fast scalar path), declare their linear part (the
-θ-scheme treats it implicitly) and the stiffness of their metric (docs/design.md §2.7.2).
+θ-scheme treats it implicitly) and the stiffness of their metric (docs/design.md §2.8.2).
 They are ordinary user laws: a user file written the same way behaves the same.
 """
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""User force laws ``h(q, u, tau, t, p)`` (docs/design.md §2.7, docs/user-model.md).
+"""User force laws ``h(q, u, tau, t, p)`` (docs/design.md §2.8, docs/user-model.md).
 
 A :class:`ForceLaw` is a Python function written for numba's nopython mode, with its
 parameters declared once (:class:`fmu_sync.core.declaration.Param`: name, default, unit,
@@ -88,7 +88,7 @@ class ForceLaw:
         (S = M + θ dt C_L + θ² dt² K_L) and the rest explicitly; it is also the default
         stiffness of the metric.
     stiffness : callable ``stiffness(p) -> K_m``, optional
-        The stiffness of the synchronization metric (Q = K_m + 2 Kp, docs/design.md §2.7.2).
+        The stiffness of the synchronization metric (Q = K_m + 2 Kp, docs/design.md §2.8.2).
     """
 
     def __init__(self, h, params=(), n: int = 1, name: str | None = None, linear=None, stiffness=None):
@@ -161,7 +161,7 @@ class ForceLaw:
         return (np.array(KL, dtype=np.float64).reshape(n, n), np.array(CL, dtype=np.float64).reshape(n, n))
 
     def metric_stiffness(self, p):
-        """``(K_m, source)``: the metric's stiffness (:data:`METRIC_SOURCES`, docs/design.md §2.7.2)."""
+        """``(K_m, source)``: the metric's stiffness (:data:`METRIC_SOURCES`, docs/design.md §2.8.2)."""
         n = self.n
         if self.stiffness is not None:
             return np.array(self.stiffness(p), dtype=np.float64).reshape(n, n), "declared"

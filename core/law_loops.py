@@ -1,4 +1,4 @@
-"""The loops of a user force law (docs/design.md §2.7): templates, specialised per law.
+"""The loops of a user force law (docs/design.md §2.8): templates, specialised per law.
 
 A user law ``h(q, u, tau, t, p)`` (:class:`fmu_sync.core.forcelaw.ForceLaw`) is compiled into
 its own copies of the functions below: :meth:`ForceLaw.kernels` copies each template with a

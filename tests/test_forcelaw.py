@@ -114,6 +114,27 @@ def test_examples_synchronize_under_the_switching_law(case):
     assert "linearized" in r.info["metric_note"]
 
 
+def test_metric_growth_bound_on_random_pendulum_pairs():
+    """docs/design.md §2.8.2: on branch E (PD law, wall out of reach) V = 1/2 (dq Q dq + du M du)
+    with Q = m g l + 2 Kp grows at most as exp(gamma t), gamma = m g l (1 - cos q_max) / sqrt(M Q)."""
+    rng = np.random.default_rng(27)
+    for _ in range(8):
+        m, l, c = rng.uniform(0.5, 2.0), rng.uniform(0.3, 1.5), rng.uniform(0.0, 0.3)
+        Kp, Kd = rng.uniform(0.1, 20.0), rng.uniform(0.0, 2.0)
+        s = Pendulum(m=m, l=l, c=c, q_w=3.1, e=0.5)
+        x1, x2 = (rng.uniform(-1.2, 1.2), rng.uniform(-1, 1)), (rng.uniform(-1.2, 1.2), rng.uniform(-1, 1))
+        r = simulate_pair(s, x1, x2, 5.0, 1e-3, coupling="euclidean", Kp=Kp, Kd=Kd, record_every=10)
+        assert r.impacts1 == 0 and r.impacts2 == 0
+        Q, M = float(np.asarray(r.info["Q"])[0, 0]), m * l * l
+        assert Q == pytest.approx(m * 9.81 * l + 2 * Kp)
+        dq, du = r.q1[:, 0] - r.q2[:, 0], r.u1[:, 0] - r.u2[:, 0]
+        V = 0.5 * (Q * dq ** 2 + M * du ** 2)
+        q_max = max(np.max(np.abs(r.q1)), np.max(np.abs(r.q2)))
+        gamma = m * 9.81 * l * (1 - np.cos(q_max)) / np.sqrt(M * Q)
+        assert np.all(V <= V[0] * np.exp(gamma * r.t) * (1 + 1e-3) + 1e-12)
+        assert r.metric == "linearized"
+
+
 # ------------------------------------------------------------------ a user's own file
 def test_user_pendulum_file_runs_and_synchronizes(tmp_path):
     mod = load(tmp_path, "my_pendulum", PENDULUM_SRC)
