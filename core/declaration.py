@@ -21,7 +21,7 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["Param", "Model", "Values", "ModelError", "POSITIVE_MIN", "load_model"]
+__all__ = ["Param", "Model", "Values", "ModelError", "POSITIVE_MIN", "load_model", "builtin_models"]
 
 #: Smallest positive normal double: the inclusive ``min`` of a parameter that must be > 0
 #: (m > 0, dt > 0), in the core's checks, the scenes and the FMU's ``min`` alike.
@@ -118,6 +118,10 @@ class Param:
 class Values(dict):
     """Checked parameter values of a model: a dict that also reads as attributes (``p.m``)."""
 
+    def of(self, law) -> dict:
+        """The values of a force law's own parameters (``MechanicalSystem(force=law, params=p.of(law))``)."""
+        return {prm.name: self[prm.name] for prm in law.params}
+
     def __getattr__(self, name):
         try:
             return self[name]
@@ -132,7 +136,10 @@ class Model:
     ``system(p)`` receives the checked :class:`Values` (every declared parameter, defaults
     filled) and returns the :class:`~fmu_sync.core.MechanicalSystem` (M, w, g0, e, force law).
     ``n`` is the number of degrees of freedom when fixed (None: it follows from a shaped
-    parameter, e.g. the mass matrix). ``geometry`` names the parameters that fix the impact
+    parameter, e.g. the mass matrix). ``force``: the model's force law (a
+    :class:`~fmu_sync.core.ForceLaw`); its declared parameters join the model's (a name the
+    model declares itself, e.g. a mass both in M and in h, is the model's), and
+    ``system`` passes them on as ``MechanicalSystem(..., force=law, params=p.of(law))``. ``geometry`` names the parameters that fix the impact
     geometry (M, w, g0, e): common to every node of a network, and all an importer of the
     FMU needs for the distance and the coupling. Calling the model checks the values and
     builds the system: ``IMPACT_OSCILLATOR(m=2, k=50, e=0.7, g0=0.05)``.
@@ -145,8 +152,15 @@ class Model:
     n: int | None = None
     geometry: tuple = ()
     values: Callable | None = None   #: optional inverse: system -> parameter values (built-ins)
+    force: object = None             #: the force law (a ForceLaw; None: the built-in linear law)
 
     def __post_init__(self):
+        if self.force is not None:   # the law's parameters are the model's too, declared once (in the law)
+            own = [p.name for p in self.params]
+            object.__setattr__(self, "params", tuple(self.params) + tuple(
+                p for p in self.force.params if p.name not in own))
+            if self.n is None:
+                object.__setattr__(self, "n", self.force.n)
         names = [p.name for p in self.params]
         dup = sorted({x for x in names if names.count(x) > 1})
         if dup:
@@ -201,14 +215,21 @@ class Model:
         return system
 
 
+def builtin_models() -> dict:
+    """name -> :class:`Model` of the built-in models: the linear ones (core/model.py) and the
+    nonlinear examples (core/examples.py)."""
+    from .examples import DUFFING, PENDULUM
+    from .model import IMPACT_OSCILLATOR, MECHANICAL_SYSTEM
+    return {m.name: m for m in (IMPACT_OSCILLATOR, MECHANICAL_SYSTEM, PENDULUM, DUFFING)}
+
+
 def load_model(spec, base=None) -> Model:
-    """The model of ``spec``: a :class:`Model`, a built-in name (``"impact-oscillator"``,
-    ``"mechanical-system"``) or ``"path/to/model.py:name"`` (a relative path is taken from
+    """The model of ``spec``: a :class:`Model`, a built-in name (:func:`builtin_models`) or ``"path/to/model.py:name"`` (a relative path is taken from
     ``base``, e.g. the scene file's folder). The file is imported once per content (its
     module name carries the content's hash). :class:`ModelError` names what is wrong."""
     if isinstance(spec, Model):
         return spec
-    from .model import BUILTIN_MODELS
+    BUILTIN_MODELS = builtin_models()
     if not isinstance(spec, str):
         raise ModelError(f"a model is a Model, a built-in name or 'path/to/model.py:name', got {spec!r}")
     if spec in BUILTIN_MODELS:

@@ -14,11 +14,11 @@ from __future__ import annotations
 
 import math
 
-from .declaration import POSITIVE_MIN, Param
+from .declaration import POSITIVE_MIN, Model, Param
 from .forcelaw import ForceLaw
 from .model import MechanicalSystem
 
-__all__ = ["pendulum_law", "duffing_law", "Pendulum", "DuffingOscillator"]
+__all__ = ["pendulum_law", "duffing_law", "Pendulum", "DuffingOscillator", "PENDULUM", "DUFFING"]
 
 
 def pendulum(q, u, tau, t, p):
@@ -67,3 +67,27 @@ def DuffingOscillator(m: float = 1.0, k: float = 1.0, k3: float = 1.0, c: float 
     """The Duffing oscillator against a wall at ``q = -g0``."""
     return MechanicalSystem(M=[[m]], w=[1.0], g0=g0, e=e, force=duffing_law,
                             params=dict(k=k, k3=k3, c=c, F=F, Omega=Omega, phi=phi))
+
+
+# ---------------------------------------------------------------- the declarations (docs/design.md §2.1.1)
+# The same two systems as Model declarations: the scenes' `model = "pendulum"` / `"duffing"`, and
+# the pattern of a user's model file (a Model with force=law; the law's parameters are its own).
+_E = Param("e", 0.8, "1", 0.0, 1.0, "Newton restitution coefficient at the wall")
+
+#: the impacting pendulum (:func:`Pendulum`) as a declaration
+PENDULUM = Model(
+    name="pendulum", description="impacting pendulum m l^2 q'' = -m g l sin q - c q' + tau, wall q <= q_w",
+    params=(Param("q_w", 0.2, "rad", None, None, "wall angle: g(q) = q_w - q >= 0"), _E),
+    force=pendulum_law, geometry=("m", "l", "q_w", "e"),
+    system=lambda p: MechanicalSystem(M=[[p.m * p.l ** 2]], w=[-1.0], g0=p.q_w, e=p.e, force=pendulum_law,
+                                      params=p.of(pendulum_law)))
+
+#: the Duffing oscillator against a wall (:func:`DuffingOscillator`) as a declaration
+DUFFING = Model(
+    name="duffing", description="Duffing oscillator m q'' = -k q - k3 q^3 - c q' + F cos(Omega t + phi) + tau, "
+                                "wall q + g0 >= 0",
+    params=(Param("m", 1.0, "kg", 1e-12, None, "mass"),
+            Param("g0", 0.0, "m", None, None, "wall offset: g(q) = q + g0 >= 0"), _E),
+    force=duffing_law, geometry=("m", "g0", "e"),
+    system=lambda p: MechanicalSystem(M=[[p.m]], w=[1.0], g0=p.g0, e=p.e, force=duffing_law,
+                                      params=p.of(duffing_law)))

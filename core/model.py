@@ -23,7 +23,7 @@ import numpy as np
 from .declaration import POSITIVE_MIN, Model, ModelError, Param
 
 __all__ = ["MechanicalSystem", "ImpactOscillator", "SystemArrays", "as_state", "IMPACT_OSCILLATOR",
-           "MECHANICAL_SYSTEM", "BUILTIN_MODELS"]
+           "MECHANICAL_SYSTEM"]
 
 
 class SystemArrays(NamedTuple):
@@ -344,7 +344,6 @@ MECHANICAL_SYSTEM = Model(
             _E),
     system=_ms_system, geometry=("M", "w", "g0", "e"), values=_ms_values)
 
-BUILTIN_MODELS = {m.name: m for m in (IMPACT_OSCILLATOR, MECHANICAL_SYSTEM)}
 
 
 def as_state(system: MechanicalSystem, x, name: str = "x0"):

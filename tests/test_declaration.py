@@ -131,7 +131,7 @@ def test_a_user_model_runs_in_a_scene_with_its_declared_parameters(user_scene):
     ('model = "models/stop.py:stop"\ngap0 = 2.0', ["gap0 = 2.0", "[0, 1]"]),
     ('model = "models/none.py:stop"', ["system.model", "no file"]),
     ('model = "models/stop.py:pendulum"', ["no Model named 'pendulum'", "(it has stop)"]),
-    ('model = "pendulum"', ["system.model", "path/to/model.py:name"]),
+    ('model = "swing"', ["system.model", "path/to/model.py:name"]),
 ])
 def test_a_bad_user_model_is_refused_naming_it(user_scene, text, words):
     src = user_scene.read_text().replace('model = "models/stop.py:stop"\nk = 40.0', text)
@@ -152,3 +152,19 @@ def test_scenes_show_prints_the_user_model_and_loads_back(user_scene, tmp_path):
     again.write_text(p.stdout)
     cfg = lambda path: {k: x for k, x in load_scene(path).variants[0].cfg.items() if not k.startswith("plot.")}  # noqa: E731
     assert cfg(again) == cfg(user_scene)
+
+
+def test_the_builtin_nonlinear_models_are_declarations_and_the_pendulum_scene_synchronizes():
+    from fmu_sync.core import simulate_pair
+    from fmu_sync.core.examples import DUFFING, PENDULUM, DuffingOscillator, Pendulum, pendulum_law
+    assert set(pendulum_law.params) <= set(PENDULUM.params) and PENDULUM.n == 1
+    _arrays_equal(PENDULUM(m=2.0, l=0.5, q_w=0.3, e=0.6), Pendulum(m=2.0, l=0.5, q_w=0.3, e=0.6))
+    _arrays_equal(DUFFING(k3=2.0, g0=0.1, F=0.5), DuffingOscillator(k3=2.0, g0=0.1, F=0.5))
+    with pytest.raises(ModelError, match=r"model 'pendulum': parameter l = -1.0 .*below"):
+        PENDULUM(l=-1.0)
+    v = load_scene("pendulum").variants[0]
+    assert v.system.force is pendulum_law and v.system.g0 == v.cfg["system.q_w"] == 0.2
+    r = simulate_pair(v.system, v.x1, v.x2, v.cfg["run.t_end"], v.cfg["solver.dt"], coupling=v.law, Kp=v.Kp, Kd=v.Kd)
+    assert r.impacts1 > 3 and r.d[-1] < 1e-5 * r.d[0]
+    with pytest.raises(SceneError, match="there is no FMU for a pendulum"):
+        load_scene("pendulum", {"run.mode": "cosim"})

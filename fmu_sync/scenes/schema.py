@@ -17,13 +17,14 @@ import numpy as np
 from ..core import MechanicalSystem
 from ..core.coupling import LAWS as COUPLING_LAWS
 from ..core.declaration import POSITIVE_MIN, Model, Param
-from ..core.model import BUILTIN_MODELS
+from ..core.declaration import builtin_models
 
 __all__ = ["SceneError", "Key", "Variant", "PLOTS", "DEFAULT_OUT", "KEYS", "SYSTEM_KEYS", "BadValue", "REQUIRED",
            "MODELS", "LAWS", "SCHEMES", "MODES", "METHODS", "TABLES", "VARIANT_TABLES", "SINGLE_PLOTS",
            "DISTANCE_PLOTS", "plots_for", "system_keys", "NAME_RE", "show_value", "choice", "GRAPHS", "NETWORK_PLOTS", "NetworkSpec"]
 
 #: the built-in models' names (a scene may also name a user model "path/to/model.py:name")
+BUILTIN_MODELS = builtin_models()
 MODELS = tuple(BUILTIN_MODELS)
 #: the scenes' coupling.law values: the core's coupling laws, "none" first
 LAWS = ("none",) + tuple(k for k in COUPLING_LAWS if k != "none")
