@@ -226,3 +226,16 @@ def test_the_law_key_follows_the_file(tmp_path):
     assert c.law.key != a.key                        # an edit: a new key, new kernels
     interactive = ForceLaw(eval("lambda q, u, tau, t, p: -q[0]"), (), n=1)
     assert interactive.key is None                   # no source file: compiled, not cached
+
+
+def test_the_guide_example_file_runs(tmp_path, monkeypatch):
+    """docs/user-model.md: its model file and its usage block, as written, run and synchronize."""
+    from pathlib import Path
+    text = (Path(__file__).resolve().parent.parent / "docs" / "user-model.md").read_text()
+    blocks = [b.split("```", 1)[0] for b in text.split("```python\n")[1:]]
+    (tmp_path / "my_pendulum.py").write_text(blocks[0])
+    monkeypatch.chdir(tmp_path)
+    ns = {}
+    exec(compile(blocks[1].replace("print(", "(lambda *a: None)("), "user-model.md", "exec"), ns)
+    assert ns["p"].d[-1] < 1e-6 * ns["p"].d[0] and ns["p"].impacts1 > 0
+    assert ns["r"].impacts > 0 and ns["p"].metric == "linearized"
