@@ -32,7 +32,7 @@ import numpy as np
 from .coupling import BRANCH_NONE, UNCOUPLED
 from .loop import network_forces, sample_d
 from .model import SystemArrays
-from .steps import DIVERGED, OK, THETA, _contact, flush, flush1, theta_matrices
+from .steps import DIVERGED, OK, THETA, contact, flush, flush1, theta_matrices
 
 #: the names of the templates, in the order they are specialised (each sees all the others)
 TEMPLATES = ("_finite", "_iteration", "_node_arrays", "law_step", "law_step1", "_integrate1", "law_integrate",
@@ -104,7 +104,7 @@ def law_step(sa, X, iw, WX, a, q, u, tau, t, dt, p, qe, y, uf):
         for j in range(1, n):
             s += (dt * X[i, j]) * y[j]
         uf[i] = u[i] + s
-    P = _contact(sa, g, uf, u, WX, iw)
+    P = contact(sa, g, uf, u, WX, iw)
     for i in range(n):
         s = (a * (dt * X[i, 0])) * y[0]
         for j in range(1, n):

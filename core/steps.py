@@ -74,7 +74,7 @@ def _hc_cos(sa, tau, tf, hc):
 
 
 @njit(cache=True, inline="always")
-def _contact(sa, g, uf, u, W_, iw):
+def contact(sa, g, uf, u, W_, iw):
     """The scalar contact problem of one step, in place on ``uf``; returns P >= 0.
 
     If the gap g (at the contact-detection point) is closed and Newton's law
@@ -124,7 +124,7 @@ def step_h(sa, X, iw, WX, a, q, u, hc, dt, y, uf):
         for j in range(1, n):
             s += (dt * X[i, j]) * y[j]
         uf[i] = u[i] + s
-    P = _contact(sa, g, uf, u, WX, iw)
+    P = contact(sa, g, uf, u, WX, iw)
     for i in range(n):
         s = (a * (dt * X[i, 0])) * y[0]
         for j in range(1, n):
