@@ -364,7 +364,7 @@ def law_metric(Q, K, Kp, A=None, coupled: bool = True, stiffness: str | None = N
 
     ``stiffness``: for a user force law, how its metric stiffness K was obtained (a key of
     :data:`fmu_sync.core.forcelaw.METRIC_SOURCES`): the energy metric is then the energy of the
-    relative motion *linearized* at the synchronized motion (docs/design.md §2.7.2): metric
+    relative motion *linearized* at the synchronized motion (docs/design.md §2.8.2): metric
     ``"linearized"``, not a Lyapunov function of the law in general (a local one)."""
     lm = _law_metric(Q, K, Kp, A, coupled)
     if stiffness is None or lm.metric != "energy":
@@ -374,7 +374,7 @@ def law_metric(Q, K, Kp, A=None, coupled: bool = True, stiffness: str | None = N
                      f"the energy metric with the law's stiffness K_m = {METRIC_SOURCES[stiffness]} in place of K: "
                      "V = d^2/2 is the energy of the relative motion "
                      "linearized at the synchronized motion; it decreases near synchrony (locally), "
-                     "not in general for a nonlinear law (docs/design.md §2.7.2)")
+                     "not in general for a nonlinear law (docs/design.md §2.8.2)")
 
 
 def _law_metric(Q, K, Kp, A=None, coupled: bool = True) -> LawMetric:

@@ -7,14 +7,14 @@
   (``g(q) = q + g0 >= 0``, as :func:`ImpactOscillator`).
 
 Both laws return a float (n = 1: the fast scalar path), declare their linear part (the
-θ-scheme treats it implicitly) and the stiffness of their metric (docs/design.md §2.7.2).
+θ-scheme treats it implicitly) and the stiffness of their metric (docs/design.md §2.8.2).
 They are ordinary user laws: a user file written the same way behaves the same.
 """
 from __future__ import annotations
 
 import math
 
-from .declaration import Model, Param
+from .declaration import POSITIVE_MIN, Model, Param
 from .forcelaw import ForceLaw
 from .model import MechanicalSystem
 
@@ -29,9 +29,9 @@ def pendulum(q, u, tau, t, p):
 
 pendulum_law = ForceLaw(
     pendulum, n=1, name="pendulum",
-    params=(Param("m", 1.0, "kg", 1e-12, None, "bob mass"),
+    params=(Param("m", 1.0, "kg", POSITIVE_MIN, None, "bob mass"),
             Param("g", 9.81, "m/s2", 0.0, None, "gravity"),
-            Param("l", 1.0, "m", 1e-12, None, "rod length"),
+            Param("l", 1.0, "m", POSITIVE_MIN, None, "rod length"),
             Param("c", 0.0, "N.m.s/rad", 0.0, None, "viscous damping at the pivot")),
     linear=lambda p: ([[0.0]], [[p[3]]]),                  # the damping; gravity stays explicit
     stiffness=lambda p: [[p[0] * p[1] * p[2]]])            # -dh/dq at the bottom, q = 0

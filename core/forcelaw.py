@@ -1,4 +1,4 @@
-"""User force laws ``h(q, u, tau, t, p)`` (docs/design.md §2.7, docs/user-model.md).
+"""User force laws ``h(q, u, tau, t, p)`` (docs/design.md §2.8, docs/user-model.md).
 
 A :class:`ForceLaw` is a Python function written for numba's nopython mode, with its
 parameters declared once (:class:`fmu_sync.core.declaration.Param`: name, default, unit,
@@ -22,7 +22,6 @@ from __future__ import annotations
 import hashlib
 import inspect
 import re
-import math
 import types as pytypes
 
 import numpy as np
@@ -89,7 +88,7 @@ class ForceLaw:
         (S = M + θ dt C_L + θ² dt² K_L) and the rest explicitly; it is also the default
         stiffness of the metric.
     stiffness : callable ``stiffness(p) -> K_m``, optional
-        The stiffness of the synchronization metric (Q = K_m + 2 Kp, docs/design.md §2.7.2).
+        The stiffness of the synchronization metric (Q = K_m + 2 Kp, docs/design.md §2.8.2).
     """
 
     def __init__(self, h, params=(), n: int = 1, name: str | None = None, linear=None, stiffness=None):
@@ -102,6 +101,10 @@ class ForceLaw:
         if self.n < 1:
             raise ValueError(f"force law {self.name!r}: n must be >= 1, got {n}")
         names = [prm.name for prm in self.params]
+        shaped = [prm.name for prm in self.params if tuple(getattr(prm, "shape", ())) != ()]
+        if shaped:
+            raise ValueError(f"force law {self.name!r}: the parameters of h are scalars (p is a float array), "
+                             f"got shaped parameters {shaped}")
         if len(set(names)) != len(names):
             raise ValueError(f"force law {self.name!r}: parameter names repeat: {names}")
         self.linear = linear
@@ -123,6 +126,11 @@ class ForceLaw:
         self.dispatcher = njit(cache=self.key is not None, inline="always", error_model="numpy")(py)
         self._returns = None
 
+    @property
+    def names(self) -> tuple:
+        """The parameter names, in the order of ``p``."""
+        return tuple(prm.name for prm in self.params)
+
     def __repr__(self):
         return f"ForceLaw({self.name!r}, n={self.n}, params={[p.name for p in self.params]})"
 
@@ -137,21 +145,11 @@ class ForceLaw:
             raise LawRefused(f"force law {self.name!r} has no parameter {unknown[0]!r}; "
                              f"its parameters: {sorted(known)}")
         p = np.empty(len(self.params))
-        for i, prm in enumerate(self.params):
-            v = given.get(prm.name, prm.default)
+        for i, prm in enumerate(self.params):   # the declaration's own check (Param.check)
             try:
-                x = float(v)
-            except (TypeError, ValueError):
-                raise LawRefused(f"force law {self.name!r}: parameter {prm.name!r} must be a real number, "
-                                 f"got {v!r}") from None
-            lo = getattr(prm, "min", None)
-            hi = getattr(prm, "max", None)
-            if not math.isfinite(x) or (lo is not None and x < lo) or (hi is not None and x > hi):
-                rng = f"[{'-inf' if lo is None else lo}, {'inf' if hi is None else hi}]"
-                unit = getattr(prm, "unit", "")
-                raise LawRefused(f"force law {self.name!r}: parameter {prm.name!r} = {x!r} {unit} is outside "
-                                 f"its declared range {rng}")
-            p[i] = x
+                p[i] = prm.check(given.get(prm.name, prm.default), f"force law {self.name!r}")
+            except ValueError as exc:
+                raise LawRefused(str(exc)) from None
         return p
 
     def linear_part(self, p):
@@ -163,7 +161,7 @@ class ForceLaw:
         return (np.array(KL, dtype=np.float64).reshape(n, n), np.array(CL, dtype=np.float64).reshape(n, n))
 
     def metric_stiffness(self, p):
-        """``(K_m, source)``: the metric's stiffness (:data:`METRIC_SOURCES`, docs/design.md §2.7.2)."""
+        """``(K_m, source)``: the metric's stiffness (:data:`METRIC_SOURCES`, docs/design.md §2.8.2)."""
         n = self.n
         if self.stiffness is not None:
             return np.array(self.stiffness(p), dtype=np.float64).reshape(n, n), "declared"

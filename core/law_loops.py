@@ -1,4 +1,4 @@
-"""The loops of a user force law (docs/design.md §2.7): templates, specialised per law.
+"""The loops of a user force law (docs/design.md §2.8): templates, specialised per law.
 
 A user law ``h(q, u, tau, t, p)`` (:class:`fmu_sync.core.forcelaw.ForceLaw`) is compiled into
 its own copies of the functions below: :meth:`ForceLaw.kernels` copies each template with a
@@ -32,7 +32,8 @@ import numpy as np
 from .coupling import BRANCH_NONE, UNCOUPLED
 from .loop import network_forces, sample_d
 from .model import SystemArrays
-from .steps import DIVERGED, OK, THETA, _contact, flush, flush1, theta_matrices
+from .moreau import substeps
+from .steps import DIVERGED, OK, THETA, flush, flush1, step_y, theta_matrices
 
 #: the names of the templates, in the order they are specialised (each sees all the others)
 TEMPLATES = ("_finite", "_iteration", "_node_arrays", "law_step", "law_step1", "_integrate1", "law_integrate",
@@ -95,26 +96,7 @@ def law_step(sa, X, iw, WX, a, q, u, tau, t, dt, p, qe, y, uf):
     for i in range(n):
         qe[i] = q[i] + a * u[i]
     law_force(qe, u, tau, t + a, p, y)
-    hd = 0.5 * dt
-    g = sa.g0
-    for i in range(n):
-        g += sa.w[i] * (q[i] + hd * u[i])
-    for i in range(n):
-        s = (dt * X[i, 0]) * y[0]
-        for j in range(1, n):
-            s += (dt * X[i, j]) * y[j]
-        uf[i] = u[i] + s
-    P = _contact(sa, g, uf, u, WX, iw)
-    for i in range(n):
-        s = (a * (dt * X[i, 0])) * y[0]
-        for j in range(1, n):
-            s += (a * (dt * X[i, j])) * y[j]
-        qn = q[i] + (dt * u[i] + s)
-        if P > 0.0:
-            qn = qn + (a * iw[i]) * P
-        q[i] = qn
-        u[i] = uf[i]
-    return P, g
+    return step_y(sa, X, iw, WX, a, q, u, dt, y, uf)
 
 
 def _finite(q, u):
@@ -256,11 +238,7 @@ def law_advance(sa, p, q, u, t0, H, dt, tau, scheme, theta):
     uf = np.empty(n)
     Sinv = np.empty((n, n))
     Sinv_w = np.empty(n)
-    r = H / dt
-    k_steps = math.floor(r + 1e-9)   # moreau.substeps
-    if r - k_steps > 1e-9:
-        k_steps += 1
-    k_steps = max(k_steps, 1)
+    k_steps = substeps(H, dt)
     X, iw, WX, a = _iteration(sa, dt, scheme, theta, Sinv, Sinv_w)
     Psum = 0.0
     impacts = 0

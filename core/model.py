@@ -193,8 +193,8 @@ class MechanicalSystem:
             if self.params is not None:
                 raise ValueError("params= gives a force law's parameter values: pass force= too")
             return None, np.zeros(0), None, None
-        from .forcelaw import ForceLaw   # the user-law machinery (numba typing) only when used
-        if not isinstance(law, ForceLaw):
+        if not all(hasattr(law, a) for a in ("values", "kernels", "linear_part", "metric_stiffness")):
+            # a ForceLaw (core/forcelaw.py, not imported here: it compiles into loops that use this module)
             raise ValueError(f"force must be a ForceLaw (fmu_sync.core.ForceLaw), got {law!r}")
         if law.n != n:
             raise ValueError(f"force law {law.name!r} has n = {law.n} degrees of freedom, M is {n}x{n}")

@@ -114,6 +114,27 @@ def test_examples_synchronize_under_the_switching_law(case):
     assert "linearized" in r.info["metric_note"]
 
 
+def test_metric_growth_bound_on_random_pendulum_pairs():
+    """docs/design.md §2.8.2: on branch E (PD law, wall out of reach) V = 1/2 (dq Q dq + du M du)
+    with Q = m g l + 2 Kp grows at most as exp(gamma t), gamma = m g l (1 - cos q_max) / sqrt(M Q)."""
+    rng = np.random.default_rng(27)
+    for _ in range(8):
+        m, l, c = rng.uniform(0.5, 2.0), rng.uniform(0.3, 1.5), rng.uniform(0.0, 0.3)
+        Kp, Kd = rng.uniform(0.1, 20.0), rng.uniform(0.0, 2.0)
+        s = Pendulum(m=m, l=l, c=c, q_w=3.1, e=0.5)
+        x1, x2 = (rng.uniform(-1.2, 1.2), rng.uniform(-1, 1)), (rng.uniform(-1.2, 1.2), rng.uniform(-1, 1))
+        r = simulate_pair(s, x1, x2, 5.0, 1e-3, coupling="euclidean", Kp=Kp, Kd=Kd, record_every=10)
+        assert r.impacts1 == 0 and r.impacts2 == 0
+        Q, M = float(np.asarray(r.info["Q"])[0, 0]), m * l * l
+        assert Q == pytest.approx(m * 9.81 * l + 2 * Kp)
+        dq, du = r.q1[:, 0] - r.q2[:, 0], r.u1[:, 0] - r.u2[:, 0]
+        V = 0.5 * (Q * dq ** 2 + M * du ** 2)
+        q_max = max(np.max(np.abs(r.q1)), np.max(np.abs(r.q2)))
+        gamma = m * 9.81 * l * (1 - np.cos(q_max)) / np.sqrt(M * Q)
+        assert np.all(V <= V[0] * np.exp(gamma * r.t) * (1 + 1e-3) + 1e-12)
+        assert r.metric == "linearized"
+
+
 # ------------------------------------------------------------------ a user's own file
 def test_user_pendulum_file_runs_and_synchronizes(tmp_path):
     mod = load(tmp_path, "my_pendulum", PENDULUM_SRC)
@@ -185,7 +206,7 @@ def test_errors_name_the_law_and_the_offence():
             s = MechanicalSystem(M=[[1.0]], w=[1.0], g0=0.0, e=0.5, force=_law(fn, stiffness=lambda p: [[1.0]]))
             simulate(s, (0.0, 0.0), 0.1, 1e-3)
         assert repr(fn.__name__) in str(exc.value)
-    with pytest.raises(LawRefused, match=r"'a' = 3.0 1 is outside its declared range \[0.0, 2.0\]"):
+    with pytest.raises(LawRefused, match=r"force law 'wrong_shape': parameter a = 3.0 is above .* in \[0, 2\]"):
         MechanicalSystem(M=[[1.0]], w=[1.0], force=_law(wrong_shape), params={"a": 3.0})
     with pytest.raises(LawRefused, match="has no parameter 'b'"):
         MechanicalSystem(M=[[1.0]], w=[1.0], force=_law(wrong_shape), params={"b": 1.0})
@@ -205,3 +226,16 @@ def test_the_law_key_follows_the_file(tmp_path):
     assert c.law.key != a.key                        # an edit: a new key, new kernels
     interactive = ForceLaw(eval("lambda q, u, tau, t, p: -q[0]"), (), n=1)
     assert interactive.key is None                   # no source file: compiled, not cached
+
+
+def test_the_guide_example_file_runs(tmp_path, monkeypatch):
+    """docs/user-model.md: its model file and its usage block, as written, run and synchronize."""
+    from pathlib import Path
+    text = (Path(__file__).resolve().parent.parent / "docs" / "user-model.md").read_text()
+    blocks = [b.split("```", 1)[0] for b in text.split("```python\n")[1:]]
+    (tmp_path / "my_pendulum.py").write_text(blocks[0])
+    monkeypatch.chdir(tmp_path)
+    ns = {}
+    exec(compile(blocks[1].replace("print(", "(lambda *a: None)("), "user-model.md", "exec"), ns)
+    assert ns["p"].d[-1] < 1e-6 * ns["p"].d[0] and ns["p"].impacts1 > 0
+    assert ns["r"].impacts > 0 and ns["p"].metric == "linearized"
