@@ -30,16 +30,11 @@ from numba.core.registry import CPUDispatcher
 
 from . import law_loops
 from ._cache import LAW_KEY, depends_on_core
+from .coupling import METRIC_SOURCES  # noqa: F401 (re-exported: how a law's K_m was obtained)
 from .errors import LawRefused
 
 __all__ = ["ForceLaw", "force_law", "LawKernels", "METRIC_SOURCES"]
 
-#: How the stiffness of a law's metric was obtained (result.info["metric_stiffness"]).
-METRIC_SOURCES = {
-    "declared": "the stiffness the law declares (stiffness(p))",
-    "linear": "the law's declared linear part K_L",
-    "jacobian": "-dh/dq at q = 0, u = 0, tau = 0, t = 0 (central differences)",
-}
 
 _ARR = types.Array(types.float64, 1, "C")
 #: the signature every law is compiled for: h(q, u, tau, t, p)
