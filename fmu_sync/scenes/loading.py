@@ -14,7 +14,7 @@ from ..core.checks import check_start
 from ..fmus import contract
 from . import SCENE_DIR, builtin_names
 from .schema import (DISTANCE_PLOTS, KEYS, MODELS, NAME_RE, NETWORK_PLOTS, REQUIRED, SINGLE_PLOTS,
-                     TABLES, VARIANT_TABLES, BadValue, NetworkSpec, SceneError, Variant, _model_name,
+                     TABLES, VARIANT_TABLES, BadValue, NetworkSpec, SceneError, Variant, model_name,
                      plots_for, show_value, system_keys)
 
 __all__ = ["Scene", "load_scene", "as_scene", "list_scenes", "parse_override", "model_of"]
@@ -205,7 +205,7 @@ def _validate(flat: dict, where: dict, ctx: str, base=".") -> dict:
         raise SceneError(f"{ctx}: system.model is missing; allowed: one of "
                          + ", ".join(f'"{m}"' for m in MODELS) + ', or "path/to/model.py:name"')
     try:
-        _model_name(model)
+        model_name(model)
         declared = load_model(model, base)
     except BadValue as b:
         fail("system.model", model, b.problem, b.allowed)

@@ -12,7 +12,7 @@ from .schema import KEYS, MODELS, REQUIRED, SYSTEM_KEYS, TABLES, BadValue
 
 __all__ = ["key_rows", "keys_markdown", "scene_toml", "toml_value"]
 
-_TYPES = {"_number": "number", "_integer": "integer", "_boolean": "boolean", "choice": "string", "_text": "string", "_model_name": "string",
+_TYPES = {"_number": "number", "_integer": "integer", "_boolean": "boolean", "choice": "string", "_text": "string", "model_name": "string",
           "_vector": "array of numbers", "_matrix": "matrix (array of rows)", "_gain": "number or matrix",
           "_weight": "number or matrix", "_state": "[q, u]", "_plots": "array of strings",
           "_formats": "array of strings", "_graph": "string or matrix", "_states": "array of [q, u]",

@@ -280,7 +280,7 @@ def _key(check, default=REQUIRED, doc="", unit=""):
     return Key(check, default, doc, unit)
 
 
-def _model_name(v):
+def model_name(v):
     allowed = "one of " + ", ".join(f'"{m}"' for m in MODELS) + ', or "path/to/model.py:name" (a user model)'
     if not isinstance(v, str):
         raise BadValue(f"is a {type(v).__name__}, not a string", allowed)
@@ -305,7 +305,7 @@ def _param_check(p: Param):
 def system_keys(model: Model) -> dict:
     """The ``[system]`` keys of a model, from its declaration: ``model`` and one key per parameter
     (checker, default, unit and meaning as declared; a vector/matrix without default: zero)."""
-    keys = {"model": _key(_model_name, doc="the system: a built-in model or a user model 'path/to/model.py:name'")}
+    keys = {"model": _key(model_name, doc="the system: a built-in model or a user model 'path/to/model.py:name'")}
     for p in model.params:
         default = REQUIRED if p.required else list(p.default) if isinstance(p.default, tuple) else p.default
         keys[p.name] = _key(_param_check(p), default, p.description, "" if p.unit == "1" else p.unit)
