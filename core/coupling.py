@@ -39,7 +39,7 @@ from numba import njit
 
 from .distance import BRANCH_E, resolve_geometry, geometry_state, distance1, distance_kernel
 
-__all__ = ["SWITCHING", "EUCLIDEAN", "UNCOUPLED", "LAWS", "BRANCH_NONE",
+__all__ = ["SWITCHING", "EUCLIDEAN", "UNCOUPLED", "COMPENSATED", "QUOTIENT_LAWS", "LAWS", "BRANCH_NONE",
            "switching_coupling", "euclidean_coupling", "coupling_kernel",
            "switching_coupling1", "euclidean_coupling1", "coupling_kernel1",
            "gain_matrix", "chain_work", "law_code", "coupling_forces", "energy_metric", "laplacian_factor",
@@ -48,7 +48,13 @@ __all__ = ["SWITCHING", "EUCLIDEAN", "UNCOUPLED", "LAWS", "BRANCH_NONE",
 SWITCHING = 0
 EUCLIDEAN = 1
 UNCOUPLED = 2
-LAWS = {"switching": SWITCHING, "euclidean": EUCLIDEAN, "none": UNCOUPLED}
+#: The compensated switching law (:mod:`.compensation`, docs/design.md §2.5.2): the switching law
+#: on branch E, and on a jump branch blended toward the chain law that cancels each system's
+#: force at its chain end whenever the switching law would let the chain grow (1-DOF).
+COMPENSATED = 3
+LAWS = {"switching": SWITCHING, "euclidean": EUCLIDEAN, "none": UNCOUPLED, "switching-compensated": COMPENSATED}
+#: The laws whose forces come from the quotient distance (a run records d with them).
+QUOTIENT_LAWS = (SWITCHING, COMPENSATED)
 #: Branch code returned for the laws that compute no quotient distance.
 BRANCH_NONE = -1
 

@@ -26,7 +26,8 @@ import math
 import numpy as np
 from numba import njit
 
-from .coupling import (BRANCH_NONE, SWITCHING, UNCOUPLED, coupling_kernel, coupling_kernel1,
+from .compensation import compensated_coupling1, forcing1
+from .coupling import (BRANCH_NONE, COMPENSATED, SWITCHING, UNCOUPLED, coupling_kernel, coupling_kernel1,
                        euclidean_coupling1, p_norm_diff)
 from .distance import distance1, distance_value
 from .metrics import decimator_push
@@ -311,7 +312,17 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
                 ia = E2[e_, 0]
                 ib = E2[e_, 1]
                 lw = law0 if uniform else laws[e_]
-                f1, f2, d_, b_, e1 = coupling_step1(lw, sg, kp0, kd0, q1d[ia], u1d[ia], q1d[ib], u1d[ib], need_d)
+                if lw == COMPENSATED:   # the nodes' own forces at the time of the states (design.md §2.5.2)
+                    tn = t0 + (k0 + k) * dt if k <= n_steps else t0 + (k0 + n_steps) * dt + dt_last
+                    fa = forcing1(f01[ia], F1d, Om1d, ph1d, ia * nf, nf, tn)
+                    fb = forcing1(f01[ib], F1d, Om1d, ph1d, ib * nf, nf, tn)
+                    f1, f2, d_, b_, _ = compensated_coupling1(sg, kp0, kd0, q1d[ia], u1d[ia], q1d[ib], u1d[ib],
+                                                              K[ia, 0, 0], C[ia, 0, 0], fa, K[ib, 0, 0], C[ib, 0, 0],
+                                                              fb)
+                    e1 = euclidean_coupling1(sg, kp0, kd0, q1d[ia], u1d[ia], q1d[ib], u1d[ib])[2]
+                else:
+                    f1, f2, d_, b_, e1 = coupling_step1(lw, sg, kp0, kd0, q1d[ia], u1d[ia], q1d[ib], u1d[ib],
+                                                        need_d)
                 if need_d:   # the record is read at rows only
                     dk[e_] = d_
                     bk[e_] = b_

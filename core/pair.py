@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from .coupling import LAWS as COUPLING_LAWS
-from .coupling import BRANCH_NONE, SWITCHING, UNCOUPLED, gain_matrix, law_metric, metric_info
+from .coupling import BRANCH_NONE, QUOTIENT_LAWS, UNCOUPLED, gain_matrix, law_metric, metric_info
 from .distance import geometry
 from .loop import coupling_step, integrate_network, no_decimator
 from .steps import OK
@@ -92,7 +92,7 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
     systems = as_systems(system, 2)
     s1, s2 = systems
     n = s1.n
-    record_d = bool(record_distance) or law == SWITCHING
+    record_d = bool(record_distance) or law in QUOTIENT_LAWS
     plan = plan_run(systems, (x1, x2), t_end, dt, scheme=scheme, theta=theta, laws=[law], Kp=Kp, Kd=Kd,
                     record_every=record_every, t0=t0, allow_unstable=allow_unstable,
                     record_values=None if sink is not None else 4 * n + 2 * n + (4 if record_d else 1),
