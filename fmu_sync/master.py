@@ -135,6 +135,10 @@ class NetworkMaster:
         self.A = weights(A, N)
         self.edges = edges_of(self.A)
         self.laws = edge_laws(coupling, self.edges)  # one law per edge
+        if np.any(self.laws == LAWS["switching-compensated"]):
+            raise ValueError("coupling 'switching-compensated' runs in the core (simulate_pair, simulate_network, "
+                             "1-DOF) only: the master does not yet pass the instances' force laws to the coupling "
+                             "(docs/design.md §2.5.2); use 'switching' in co-simulation")
         self.coupled = bool(np.any(self.laws != LAWS[None]))
         if start_values is None or isinstance(start_values, dict):
             self.start_values = [dict(start_values or {})] * N
