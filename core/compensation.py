@@ -19,7 +19,8 @@ whenever its rate is already <= 0). The rate is affine in kappa, so kappa is exp
 
 The system's force ``h(q, u, t)`` is evaluated in one place, :func:`force1`, from the node's
 affine force law at the current time (``f = f0 + sum_j F_j cos(Omega_j t + phi_j)``,
-:func:`forcing1`): a user force law plugs in there.
+:func:`node_force1`, from the nodes' force table :func:`force_table`): a user force law plugs in
+there.
 
 1-DOF kernels on floats (``sg = geo.scalar``), nopython, allocation-free.
 """
@@ -27,12 +28,13 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit
 
-from .coupling import _pull1
+from .coupling import pull1
 from .distance import BRANCH_E, distance1
 
-__all__ = ["MU", "REST_TOL", "force1", "forcing1", "chain_rate1", "compensated_coupling1"]
+__all__ = ["MU", "REST_TOL", "force1", "node_force1", "force_table", "chain_rate1", "compensated_coupling1"]
 
 #: The blended law brings a growing chain's rate down to MU times the rate of the fully
 #: compensated law (<= 0): MU = 0 would only stop the growth (then the discrete step's own
@@ -51,13 +53,34 @@ def force1(k, c, f, q, u):
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def forcing1(f0, F, Om, ph, j0, nf, t):
-    """``f0 + sum_j F_j cos(Omega_j t + phi_j)`` of a 1-DOF node whose ``nf`` terms start at
-    index ``j0`` of the flat arrays ``F, Om, ph``."""
+def node_force1(hp, i, t):
+    """``(k, c, f)`` of 1-DOF node i at time t from its row of the force table ``hp``
+    (:func:`force_table`): ``f = f0 + sum_j F_j cos(Omega_j t + phi_j)``."""
+    nf = (hp.shape[1] - 3) // 3
     s = 0.0
     for j in range(nf):
-        s += F[j0 + j] * math.cos(Om[j0 + j] * t + ph[j0 + j])
-    return f0 + s
+        s += hp[i, 3 + j] * math.cos(hp[i, 3 + nf + j] * t + hp[i, 3 + 2 * nf + j])
+    return hp[i, 0], hp[i, 1], hp[i, 2] + s
+
+
+@njit(cache=True)
+def force_table(K, C, f0, F, Omega, phi):
+    """The nodes' 1-DOF force laws as one (N, 3 + 3 nf) table, row i = (k, c, f0, F_1.., Omega_1..,
+    phi_1..) (zeros for n > 1, where the compensated law is refused): what the coupling needs of
+    each system's h (one array through the loops instead of six)."""
+    N = K.shape[0]
+    nf = Omega.shape[1]
+    hp = np.zeros((N, 3 + 3 * nf))
+    if K.shape[1] == 1:
+        for i in range(N):
+            hp[i, 0] = K[i, 0, 0]
+            hp[i, 1] = C[i, 0, 0]
+            hp[i, 2] = f0[i, 0]
+            for j in range(nf):
+                hp[i, 3 + j] = F[i, j, 0]
+                hp[i, 3 + nf + j] = Omega[i, j]
+                hp[i, 3 + 2 * nf + j] = phi[i, j]
+    return hp
 
 
 @njit(cache=True, inline="always", error_model="numpy")
@@ -105,8 +128,8 @@ def compensated_coupling1(sg, kp, kd, q1, u1, q2, u2, k1, c1, f1, k2, c2, f2):
         a1u = 0.0
         a2u = 0.0
     else:
-        t1 = _pull1(sg, kp, kd, d, q1 - a1q, u1 - a1u)
-        t2 = _pull1(sg, kp, kd, d, q2 - a2q, u2 - a2u)
+        t1 = pull1(sg, kp, kd, d, q1 - a1q, u1 - a1u)
+        t2 = pull1(sg, kp, kd, d, q2 - a2q, u2 - a2u)
         h1 = force1(k1, c1, f1, q1, u1)
         h2 = force1(k2, c2, f2, q2, u2)
     r0 = chain_rate1(sg, q1, u1, a1q, a1u, h1 + t1) + chain_rate1(sg, q2, u2, a2q, a2u, h2 + t2)

@@ -39,7 +39,7 @@ from numba import njit
 
 from .distance import BRANCH_E, resolve_geometry, geometry_state, distance1, distance_kernel
 
-__all__ = ["SWITCHING", "EUCLIDEAN", "UNCOUPLED", "COMPENSATED", "QUOTIENT_LAWS", "LAWS", "BRANCH_NONE",
+__all__ = ["SWITCHING", "EUCLIDEAN", "UNCOUPLED", "COMPENSATED", "QUOTIENT_LAWS", "LAWS", "pull1", "BRANCH_NONE",
            "switching_coupling", "euclidean_coupling", "coupling_kernel",
            "switching_coupling1", "euclidean_coupling1", "coupling_kernel1",
            "gain_matrix", "chain_work", "law_code", "coupling_forces", "energy_metric", "laplacian_factor",
@@ -61,7 +61,7 @@ BRANCH_NONE = -1
 
 # ------------------------------------------------------------ scalar (1-DOF)
 @njit(cache=True, inline="always", error_model="numpy")
-def _pull1(sg, kp, kd, d, dq, du):
+def pull1(sg, kp, kd, d, dq, du):
     """-kp E^q - kd E^u with E = d (dq, du) / ||(dq, du)||_P (0 if that is 0)."""
     acc = dq * (sg.Q11 * dq) + du * (sg.M11 * du)
     nrm = math.sqrt(max(acc, 0.0))
@@ -78,8 +78,8 @@ def switching_coupling1(sg, kp, kd, q1, u1, q2, u2):
     if branch == BRANCH_E:
         s = kp * (q1 - q2) + kd * (u1 - u2)
         return -s, s, d, branch
-    return (_pull1(sg, kp, kd, d, q1 - c1q, u1 - c1u),
-            _pull1(sg, kp, kd, d, q2 - c2q, u2 - c2u), d, branch)
+    return (pull1(sg, kp, kd, d, q1 - c1q, u1 - c1u),
+            pull1(sg, kp, kd, d, q2 - c2q, u2 - c2u), d, branch)
 
 
 @njit(cache=True, error_model="numpy")
@@ -167,8 +167,8 @@ def switching_coupling(geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c
             tau1[0] = -s
             tau2[0] = s
         else:
-            tau1[0] = _pull1(sg, kp, kd, d, x1q - a1q, x1u - a1u)
-            tau2[0] = _pull1(sg, kp, kd, d, x2q - a2q, x2u - a2u)
+            tau1[0] = pull1(sg, kp, kd, d, x1q - a1q, x1u - a1u)
+            tau2[0] = pull1(sg, kp, kd, d, x2q - a2q, x2u - a2u)
         return d, branch
     d, branch = distance_kernel(geo, q1, u1, q2, u2, c1q, c1u, c2q, c2u)
     if branch == BRANCH_E:

@@ -39,13 +39,14 @@ from pathlib import Path
 import numpy as np
 
 from .core.checks import check_record_size, check_run, check_step, record_rows
+from .core.compensation import force_table
 from .core.coupling import chain_work, law_metric, metric_info
 from .core.distance import geometry
 from .core.errors import RunFailed, SimulationDiverged, UnstableScheme
 from .core.exchange import exchange_limit
 from .core.model import MechanicalSystem
 from .core.network import edge_arrays, edge_laws, edges_of, weights
-from .core.pair import LAWS
+from .core.pair import LAWS, stack_nodes
 from .core.plan import RunPlan, plan_run
 from .core.result import NetworkResult, PairResult
 from .fmi3_bridge import element_names, open_host
@@ -135,10 +136,6 @@ class NetworkMaster:
         self.A = weights(A, N)
         self.edges = edges_of(self.A)
         self.laws = edge_laws(coupling, self.edges)  # one law per edge
-        if np.any(self.laws == LAWS["switching-compensated"]):
-            raise ValueError("coupling 'switching-compensated' runs in the core (simulate_pair, simulate_network, "
-                             "1-DOF) only: the master does not yet pass the instances' force laws to the coupling "
-                             "(docs/design.md §2.5.2); use 'switching' in co-simulation")
         self.coupled = bool(np.any(self.laws != LAWS[None]))
         if start_values is None or isinstance(start_values, dict):
             self.start_values = [dict(start_values or {})] * N
@@ -200,6 +197,7 @@ class NetworkMaster:
         self.metric = law_metric(self.Q, [s.K for s in plan.systems], self.Kp_m,
                                  self.A_coupled if self.coupled else None, coupled=self.coupled)
         self.geo = geometry(system, self.metric.Q)
+        self.hp = force_table(*stack_nodes(*plan.systems)[1:])   # each instance's h (the compensated law)
         E, rows = len(self.edges), record_rows(self.n_steps, self.record_every)
         self.T = np.full(rows, np.nan)
         self.Qr, self.Ur, self.TAU = (np.full((rows, N, n), np.nan) for _ in range(3))
@@ -288,7 +286,7 @@ class NetworkMaster:
         self.held = (self.vr_out, self.vr_tau, self.vr_imp, np.ones(n, dtype=np.int32), self.tau, w[9], w[10],
                      keep[6], saved)
         ptr = np.array([a.ctypes.data for a in self.held], dtype=np.int64)
-        self.loop_args = (ptr, self.fn, self.comp, self.laws, self.geo, self.Kp_m, self.Kd_m, E2, W2, flags,
+        self.loop_args = (ptr, self.fn, self.comp, self.laws, self.geo, self.Kp_m, self.Kd_m, E2, W2, flags, self.hp,
                           float(self.H), float(self.grid.dt_last), float(self.grid.t_end))
         self.loop_state = (self.q, self.u, self.tau, z(), z(), np.zeros(1), self.imp, self.ctl, saved, keep, self.T,
                            self.Qr, self.Ur, self.TAU, self.D, self.BR, self.EU, w, self.FAIL, self.fail_t)
