@@ -135,7 +135,7 @@ def test_far_from_the_wall_it_is_the_switching_law_bit_for_bit():
         assert np.array_equal(x, y)
 
 
-def test_n_dof_and_cosimulation_are_refused_with_a_clear_error():
+def test_n_dof_is_refused_with_a_clear_error_and_a_1dof_network_runs_it():
     s2 = MechanicalSystem(M=np.eye(2), K=np.eye(2), C=np.zeros((2, 2)), f0=[0.0, -1.0], w=[0.0, 1.0], e=0.5)
     x = (np.array([0.0, 1.0]), np.zeros(2))
     with pytest.raises(ValueError, match="1-DOF systems.*n = 2"):
@@ -156,3 +156,42 @@ def test_the_issues_bouncing_balls_synchronize_without_V_growing():
             r = simulate_pair(s, x1, x2, 20.0, 1e-4, coupling=LAW, Kp=kp, Kd=kd, record_every=10)
             assert r.V.max() <= 1.02 * r.V[0]
             assert np.any(np.asarray(r.d) < 1e-6)
+
+
+# ------------------------------------------------ co-simulation: the master at H = dt is the core
+@pytest.fixture(scope="module")
+def ball_fmu(tmp_path_factory):
+    from fmu_sync.export import export_fmu
+    return export_fmu("impact-oscillator", tmp_path_factory.mktemp("fmu") / "ball.fmu",
+                      dict(m=1.0, k=0.0, c=0.0, f0=-9.81, F=0.0, e=0.8))
+
+
+def test_cosimulation_at_H_dt_is_the_core(ball_fmu):
+    from fmu_sync.master import cosimulate
+    dt = 1e-3
+    start = {"solver.dt": dt, "k": 0.5, "c": 0.1, "F": 1.0, "Omega": 1.7}     # harmonic forcing: h depends on t
+    s = ImpactOscillator(m=1.0, k=0.5, c=0.1, e=0.8, f0=-9.81, F=1.0, Omega=1.7)
+    c = simulate_pair(s, (1.0, 0.0), (0.5, 0.0), 3.0, dt, coupling=LAW, Kp=0.1, Kd=0.1)
+    r = cosimulate(ball_fmu, (1.0, 0.0), (0.5, 0.0), 3.0, dt, coupling=LAW, Kp=0.1, Kd=0.1, start_values=start)
+    assert r.error is None and np.any(np.asarray(c.branch) != 0)
+    np.testing.assert_allclose(r.d, c.d, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(r.tau1, c.tau1, rtol=0, atol=1e-9)
+    assert r.V.max() <= 1.02 * r.V[0]
+
+
+@settings(max_examples=4, deadline=None,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+@given(k=st.floats(0.0, 3.0), c=st.floats(0.0, 0.3), e=st.floats(0.0, 0.95), f0=st.floats(-10.0, -0.5),
+       lkp=st.integers(-1, 2), lkd=st.floats(-1.0, 1.0), x1=start, x2=start)
+def test_V_never_grows_in_cosimulation_at_H_dt(ball_fmu, k, c, e, f0, lkp, lkd, x1, x2):
+    from fmu_sync.master import cosimulate
+    kp, kd = 10.0 ** lkp, 10.0 ** lkd
+    dt = _dt_for(k, kp, kd)
+    start = {"solver.dt": dt, "k": k, "c": c, "e": e, "f0": f0}
+    res = cosimulate(ball_fmu, x1, x2, 0.5, dt, coupling=LAW, Kp=kp, Kd=kd, start_values=start)
+    assert res.error is None
+    u_max = max(np.abs(res.u1).max(), np.abs(res.u2).max())
+    q_max = max(np.abs(res.q1).max(), np.abs(res.q2).max())
+    tau_max = max(np.abs(res.tau1).max(), np.abs(res.tau2).max())
+    x_speed = math.sqrt(k + 2 * kp) * u_max + abs(f0) + k * q_max + c * u_max + tau_max
+    assert _V_ok(res, dt, x_speed), (res.V.max() / max(res.V[0], 1e-300))
