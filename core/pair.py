@@ -58,7 +58,9 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
     and e (the impact geometry of the quotient distance) and may differ in K,
     C, f0 and forcing.
     ``coupling``: None (uncoupled), ``"euclidean"`` (PD baseline) or
-    ``"switching"`` (the quotient coupling of docs/design.md §2.5), gains ``Kp``, ``Kd``
+    ``"switching"`` (the quotient coupling of docs/design.md §2.5) or ``"switching-compensated"``
+    (1-DOF: V = d^2/2 non-increasing on every branch under a force toward the wall,
+    docs/design.md §2.5.2), gains ``Kp``, ``Kd``
     (scalars or n×n), position weight ``Q`` of the norm: by default (None or "energy") the
     law's own metric ``energy_metric`` (Q = K + 2 Kp: V = d^2/2 is the energy of the relative
     motion, docs/design.md §2.5.1); an explicit Q is used as given and the result says that V is

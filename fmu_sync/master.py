@@ -421,7 +421,8 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
         unpacked FMU folder (used in place and kept: a sweep worker unpacks once for all its runs).
     x1, x2 : start states (q, u) of the two instances (set as ``q_start``/``u_start``).
     t_end, H : stop time (reached exactly: the last step shortened) and communication step.
-    coupling : None, ``"switching"`` (quotient coupling) or ``"euclidean"`` (PD baseline).
+    coupling : None, ``"switching"`` (quotient coupling), ``"switching-compensated"`` (1-DOF, V
+        non-increasing on every branch, docs/design.md §2.5.2) or ``"euclidean"`` (PD baseline).
     Kp, Kd : gains (scalars or n×n).  Q : position weight of the norm (default: ``energy_metric``).
     method : ``"jacobi"`` (both slaves get inputs computed from the same states) or
         ``"gauss-seidel"`` (slave 2's input uses slave 1's updated state).
