@@ -148,7 +148,7 @@ class EarlyReturnMaster(NetworkMaster):
             self.read()
             self.imp = [s.get_integer(contract.IMPACTS) for s in self.slaves]
             if self.coupled:
-                self.forces(self.tau, False, tc)
+                self.forces(self.tau, False, 0.0)
             n_steps, H = self.n_steps, self.H
             if self.record(0, 0.0):
                 row = 1
