@@ -255,14 +255,15 @@ def _coupling_call(law, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, 
     return coupling_kernel(law, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u)
 
 
-def coupling_forces(system, x1, x2, law, Kp, Kd, Q=None):
+def coupling_forces(system, x1, x2, law, Kp, Kd, Q=None, t=0.0):
     """Coupling forces ``(tau1, tau2)`` of docs/design.md §2.5: two (n,) arrays, B = I.
 
     Parameters
     ----------
     system : MechanicalSystem, SystemArrays or DistanceGeometry
     x1, x2 : states (q, u), floats for 1-DOF or arrays
-    law : "switching", "euclidean" or "none"
+    law : "switching", "euclidean", "none" or "switching-compensated" (1-DOF, a system with its
+        force law -- not a bare DistanceGeometry -- and the time ``t`` of the states, §2.5.2)
     Kp, Kd : gains, scalars >= 0 or n x n matrices (positive semidefinite)
     Q : position weight of the distance (positive scalar or n x n SPD); default: the law's own
         metric :func:`energy_metric` (Q = K + 2 Kp) when ``system`` has a stiffness K, else I
@@ -283,6 +284,17 @@ def coupling_forces(system, x1, x2, law, Kp, Kd, Q=None):
     Kd = gain_matrix(Kd, n, "Kd")
     tau1 = np.zeros(n)
     tau2 = np.zeros(n)
+    if code == COMPENSATED:
+        sa = system.arrays() if hasattr(system, "arrays") else system
+        if n != 1 or not hasattr(sa, "Omega"):
+            raise ValueError(f"law 'switching-compensated' needs a 1-DOF system with its force law (it evaluates "
+                             f"h at the chain ends), got n = {n} and {type(system).__name__}")
+        from .compensation import compensated_coupling1, force_table, node_force1
+        hp = force_table(sa.K[None], sa.C[None], sa.f0[None], sa.F[None], sa.Omega[None], sa.phi[None])
+        k, c, f = node_force1(hp, 0, float(t))
+        tau1[0], tau2[0] = compensated_coupling1(geo.scalar, Kp[0, 0], Kd[0, 0], q1[0], u1[0], q2[0], u2[0],
+                                                 k, c, f, k, c, f)[:2]
+        return tau1, tau2
     c1q, c1u, c2q, c2u = chain_work(n)
     _coupling_call(code, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u)
     return tau1, tau2
