@@ -31,10 +31,9 @@ import math
 import numpy as np
 from numba import njit
 
-from .coupling import pull1
 from .distance import BRANCH_E, distance1
 
-__all__ = ["MU", "REST_TOL", "force1", "node_force1", "force_table", "chain_rate1", "compensated_coupling1"]
+__all__ = ["MU", "REST_TOL", "pull1", "force1", "node_force1", "force_table", "chain_rate1", "compensated_coupling1"]
 
 #: The blended law brings a growing chain's rate down to MU times the rate of the fully
 #: compensated law (<= 0): MU = 0 would only stop the growth (then the discrete step's own
@@ -93,6 +92,16 @@ def chain_rate1(sg, q, u, cq, cu, a):
     if r > 0.0:
         return (dq * (sg.Q11 * u) + du * a) / r
     return 0.0
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def pull1(sg, kp, kd, d, dq, du):
+    """The switching law's pull toward a chain end (docs/design.md §2.5): -kp E^q - kd E^u with
+    E = d (dq, du) / ||(dq, du)||_P (0 if that is 0); used by both quotient laws."""
+    acc = dq * (sg.Q11 * dq) + du * (sg.M11 * du)
+    nrm = math.sqrt(max(acc, 0.0))
+    scale = d / nrm if nrm > 0.0 else 0.0
+    return 0.0 - scale * (kp * dq + kd * du)
 
 
 @njit(cache=True, inline="always", error_model="numpy")

@@ -37,9 +37,10 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from .compensation import compensated_coupling1, force_table, node_force1, pull1
 from .distance import BRANCH_E, resolve_geometry, geometry_state, distance1, distance_kernel
 
-__all__ = ["SWITCHING", "EUCLIDEAN", "UNCOUPLED", "COMPENSATED", "QUOTIENT_LAWS", "LAWS", "pull1", "BRANCH_NONE",
+__all__ = ["SWITCHING", "EUCLIDEAN", "UNCOUPLED", "COMPENSATED", "QUOTIENT_LAWS", "LAWS", "BRANCH_NONE",
            "switching_coupling", "euclidean_coupling", "coupling_kernel",
            "switching_coupling1", "euclidean_coupling1", "coupling_kernel1",
            "gain_matrix", "chain_work", "law_code", "coupling_forces", "energy_metric", "laplacian_factor",
@@ -60,15 +61,6 @@ BRANCH_NONE = -1
 
 
 # ------------------------------------------------------------ scalar (1-DOF)
-@njit(cache=True, inline="always", error_model="numpy")
-def pull1(sg, kp, kd, d, dq, du):
-    """-kp E^q - kd E^u with E = d (dq, du) / ||(dq, du)||_P (0 if that is 0)."""
-    acc = dq * (sg.Q11 * dq) + du * (sg.M11 * du)
-    nrm = math.sqrt(max(acc, 0.0))
-    scale = d / nrm if nrm > 0.0 else 0.0
-    return 0.0 - scale * (kp * dq + kd * du)
-
-
 @njit(cache=True, error_model="numpy")
 def switching_coupling1(sg, kp, kd, q1, u1, q2, u2):
     """Switching quotient coupling, 1-DOF, floats: ``sg = geo.scalar``.
@@ -289,7 +281,6 @@ def coupling_forces(system, x1, x2, law, Kp, Kd, Q=None, t=0.0):
         if n != 1 or not hasattr(sa, "Omega"):
             raise ValueError(f"law 'switching-compensated' needs a 1-DOF system with its force law (it evaluates "
                              f"h at the chain ends), got n = {n} and {type(system).__name__}")
-        from .compensation import compensated_coupling1, force_table, node_force1
         hp = force_table(sa.K[None], sa.C[None], sa.f0[None], sa.F[None], sa.Omega[None], sa.phi[None])
         k, c, f = node_force1(hp, 0, float(t))
         tau1[0], tau2[0] = compensated_coupling1(geo.scalar, Kp[0, 0], Kd[0, 0], q1[0], u1[0], q2[0], u2[0],
