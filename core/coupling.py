@@ -37,9 +37,10 @@ from typing import NamedTuple
 import numpy as np
 from .jit import njit
 
+from .compensation import compensated_coupling1, force_table, node_force1, pull1
 from .distance import BRANCH_E, resolve_geometry, geometry_state, distance1, distance_kernel
 
-__all__ = ["SWITCHING", "EUCLIDEAN", "UNCOUPLED", "LAWS", "BRANCH_NONE",
+__all__ = ["SWITCHING", "EUCLIDEAN", "UNCOUPLED", "COMPENSATED", "QUOTIENT_LAWS", "LAWS", "BRANCH_NONE",
            "switching_coupling", "euclidean_coupling", "coupling_kernel",
            "switching_coupling1", "euclidean_coupling1", "coupling_kernel1",
            "gain_matrix", "chain_work", "law_code", "coupling_forces", "energy_metric", "laplacian_factor",
@@ -48,21 +49,18 @@ __all__ = ["SWITCHING", "EUCLIDEAN", "UNCOUPLED", "LAWS", "BRANCH_NONE",
 SWITCHING = 0
 EUCLIDEAN = 1
 UNCOUPLED = 2
-LAWS = {"switching": SWITCHING, "euclidean": EUCLIDEAN, "none": UNCOUPLED}
+#: The compensated switching law (:mod:`.compensation`, docs/design.md §2.5.2): the switching law
+#: on branch E, and on a jump branch blended toward the chain law that cancels each system's
+#: force at its chain end whenever the switching law would let the chain grow (1-DOF).
+COMPENSATED = 3
+LAWS = {"switching": SWITCHING, "euclidean": EUCLIDEAN, "none": UNCOUPLED, "switching-compensated": COMPENSATED}
+#: The laws whose forces come from the quotient distance (a run records d with them).
+QUOTIENT_LAWS = (SWITCHING, COMPENSATED)
 #: Branch code returned for the laws that compute no quotient distance.
 BRANCH_NONE = -1
 
 
 # ------------------------------------------------------------ scalar (1-DOF)
-@njit(cache=True, inline="always", error_model="numpy")
-def _pull1(sg, kp, kd, d, dq, du):
-    """-kp E^q - kd E^u with E = d (dq, du) / ||(dq, du)||_P (0 if that is 0)."""
-    acc = dq * (sg.Q11 * dq) + du * (sg.M11 * du)
-    nrm = math.sqrt(max(acc, 0.0))
-    scale = d / nrm if nrm > 0.0 else 0.0
-    return 0.0 - scale * (kp * dq + kd * du)
-
-
 @njit(cache=True, error_model="numpy")
 def switching_coupling1(sg, kp, kd, q1, u1, q2, u2):
     """Switching quotient coupling, 1-DOF, floats: ``sg = geo.scalar``.
@@ -72,8 +70,8 @@ def switching_coupling1(sg, kp, kd, q1, u1, q2, u2):
     if branch == BRANCH_E:
         s = kp * (q1 - q2) + kd * (u1 - u2)
         return -s, s, d, branch
-    return (_pull1(sg, kp, kd, d, q1 - c1q, u1 - c1u),
-            _pull1(sg, kp, kd, d, q2 - c2q, u2 - c2u), d, branch)
+    return (pull1(sg, kp, kd, d, q1 - c1q, u1 - c1u),
+            pull1(sg, kp, kd, d, q2 - c2q, u2 - c2u), d, branch)
 
 
 @njit(cache=True, error_model="numpy")
@@ -161,8 +159,8 @@ def switching_coupling(geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c
             tau1[0] = -s
             tau2[0] = s
         else:
-            tau1[0] = _pull1(sg, kp, kd, d, x1q - a1q, x1u - a1u)
-            tau2[0] = _pull1(sg, kp, kd, d, x2q - a2q, x2u - a2u)
+            tau1[0] = pull1(sg, kp, kd, d, x1q - a1q, x1u - a1u)
+            tau2[0] = pull1(sg, kp, kd, d, x2q - a2q, x2u - a2u)
         return d, branch
     d, branch = distance_kernel(geo, q1, u1, q2, u2, c1q, c1u, c2q, c2u)
     if branch == BRANCH_E:
@@ -249,14 +247,15 @@ def _coupling_call(law, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, 
     return coupling_kernel(law, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u)
 
 
-def coupling_forces(system, x1, x2, law, Kp, Kd, Q=None):
+def coupling_forces(system, x1, x2, law, Kp, Kd, Q=None, t=0.0):
     """Coupling forces ``(tau1, tau2)`` of docs/design.md §2.5: two (n,) arrays, B = I.
 
     Parameters
     ----------
     system : MechanicalSystem, SystemArrays or DistanceGeometry
     x1, x2 : states (q, u), floats for 1-DOF or arrays
-    law : "switching", "euclidean" or "none"
+    law : "switching", "euclidean", "none" or "switching-compensated" (1-DOF, a system with its
+        force law -- not a bare DistanceGeometry -- and the time ``t`` of the states, §2.5.2)
     Kp, Kd : gains, scalars >= 0 or n x n matrices (positive semidefinite)
     Q : position weight of the distance (positive scalar or n x n SPD); default: the law's own
         metric :func:`energy_metric` (Q = K + 2 Kp) when ``system`` has a stiffness K, else I
@@ -277,6 +276,16 @@ def coupling_forces(system, x1, x2, law, Kp, Kd, Q=None):
     Kd = gain_matrix(Kd, n, "Kd")
     tau1 = np.zeros(n)
     tau2 = np.zeros(n)
+    if code == COMPENSATED:
+        sa = system.arrays() if hasattr(system, "arrays") else system
+        if n != 1 or not hasattr(sa, "Omega"):
+            raise ValueError(f"law 'switching-compensated' needs a 1-DOF system with its force law (it evaluates "
+                             f"h at the chain ends), got n = {n} and {type(system).__name__}")
+        hp = force_table(sa.K[None], sa.C[None], sa.f0[None], sa.F[None], sa.Omega[None], sa.phi[None])
+        k, c, f = node_force1(hp, 0, float(t))
+        tau1[0], tau2[0] = compensated_coupling1(geo.scalar, Kp[0, 0], Kd[0, 0], q1[0], u1[0], q2[0], u2[0],
+                                                 k, c, f, k, c, f)[:2]
+        return tau1, tau2
     c1q, c1u, c2q, c2u = chain_work(n)
     _coupling_call(code, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u)
     return tau1, tau2

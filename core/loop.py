@@ -26,7 +26,8 @@ import math
 import numpy as np
 from .jit import njit
 
-from .coupling import (BRANCH_NONE, SWITCHING, UNCOUPLED, coupling_kernel, coupling_kernel1,
+from .compensation import compensated_coupling1, force_table, node_force1
+from .coupling import (BRANCH_NONE, COMPENSATED, SWITCHING, UNCOUPLED, coupling_kernel, coupling_kernel1,
                        euclidean_coupling1, p_norm_diff)
 from .distance import distance1, distance_value
 from .metrics import decimator_push
@@ -61,10 +62,17 @@ def coupling_step(law, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c
 
 
 @njit(cache=True, inline="always")
-def coupling_step1(law, sg, kp, kd, q1, u1, q2, u2, need_d):
+def coupling_step1(law, sg, kp, kd, q1, u1, q2, u2, need_d, hp, ia, ib, t):
     """:func:`coupling_step` for 1-DOF on floats (``sg = geo.scalar``, scalar
     gains): ``(tau1, tau2, d, branch, euclidean)``, the same arithmetic as the
-    array kernels (which hand n = 1 to the same float kernels)."""
+    array kernels (which hand n = 1 to the same float kernels). The compensated law
+    (docs/design.md §2.5.2) takes the nodes' ``ia``, ``ib`` force laws from the table ``hp``
+    (:func:`fmu_sync.core.compensation.force_table`) at time ``t``."""
+    if law == COMPENSATED:
+        k1, c1, f1 = node_force1(hp, ia, t)
+        k2, c2, f2 = node_force1(hp, ib, t)
+        tau1, tau2, d, branch, _ = compensated_coupling1(sg, kp, kd, q1, u1, q2, u2, k1, c1, f1, k2, c2, f2)
+        return tau1, tau2, d, branch, euclidean_coupling1(sg, kp, kd, q1, u1, q2, u2)[2]
     tau1, tau2, value, branch = coupling_kernel1(law, sg, kp, kd, q1, u1, q2, u2)
     if law == SWITCHING:
         return tau1, tau2, value, branch, euclidean_coupling1(sg, kp, kd, q1, u1, q2, u2)[2]
@@ -75,20 +83,20 @@ def coupling_step1(law, sg, kp, kd, q1, u1, q2, u2, need_d):
 
 
 @njit(cache=True, inline="always")
-def _edge(law, geo, Kp, Kd, q, u, a, b, t1, t2, c1q, c1u, c2q, c2u, need_d):
+def _edge(law, geo, Kp, Kd, q, u, a, b, t1, t2, c1q, c1u, c2q, c2u, need_d, hp, t):
     """:func:`coupling_step` of the edge (a, b) (its 1-DOF float form
     :func:`coupling_step1` for n = 1, the same arithmetic): forces into t1, t2; returns
     ``(d, branch, euclidean)``."""
     if q.shape[1] == 1:
         t1[0], t2[0], d, br, eu = coupling_step1(law, geo.scalar, Kp[0, 0], Kd[0, 0], q[a, 0], u[a, 0], q[b, 0],
-                                                 u[b, 0], need_d)
+                                                 u[b, 0], need_d, hp, a, b, t)
         return d, br, eu
     return coupling_step(law, geo, Kp, Kd, q[a], u[a], q[b], u[b], t1, t2, c1q, c1u, c2q, c2u, need_d)
 
 
 # ------------------------------------------------------------------ all edges
 @njit(cache=True, inline="always")
-def _forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, need_d, dk, bk, ek):
+def _forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, need_d, dk, bk, ek, hp, t):
     n = q.shape[1]
     for i in range(q.shape[0]):
         for c in range(n):
@@ -96,7 +104,7 @@ def _forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, ne
     for e_ in range(E2.shape[0]):
         a = E2[e_, 0]
         b = E2[e_, 1]
-        d, br, eu = _edge(laws[e_], geo, Kp, Kd, q, u, a, b, t1, t2, c1q, c1u, c2q, c2u, need_d)
+        d, br, eu = _edge(laws[e_], geo, Kp, Kd, q, u, a, b, t1, t2, c1q, c1u, c2q, c2u, need_d, hp, t)
         if laws[e_] != UNCOUPLED:
             if W2[e_, 0] > 0.0:
                 for c in range(n):
@@ -110,17 +118,19 @@ def _forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, ne
 
 
 @njit(cache=True)
-def network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, need_d, dk, bk, ek):
+def network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, need_d, dk, bk, ek, hp, t):
     """Every node's input ``tau_i = sum_j a_ij tau_i^(j)`` at the states ``q, u`` (N, n), each
     edge's law evaluated once (:func:`coupling_step`), and each edge's distance record into
     ``dk, bk, ek`` (E,). ``E2`` (E, 2) edges (i, j); ``W2`` (E, 2) weights (a_ij, a_ji);
-    ``t1, t2, c1q, c1u, c2q, c2u``: (n,) scratch. The forces of :func:`integrate_network`
+    ``t1, t2, c1q, c1u, c2q, c2u``: (n,) scratch; ``hp`` the nodes' force table
+    (:func:`fmu_sync.core.compensation.force_table`) and ``t`` the time of the states (the
+    compensated law evaluates each system's force at its chain end). The forces of :func:`integrate_network`
     (called there for n > 1) and, per communication step, of the master's exchange loop."""
-    _forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, need_d, dk, bk, ek)
+    _forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, need_d, dk, bk, ek, hp, t)
 
 
 @njit(cache=True)
-def node_force(i, laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u):
+def node_force(i, laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, hp, t):
     """Node i's input alone at the states ``q, u`` (the Gauss–Seidel exchange: each node's
     input from the newest states of the others); arguments as :func:`network_forces`."""
     n = q.shape[1]
@@ -133,7 +143,7 @@ def node_force(i, laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c
             continue
         w = W2[e_, 0] if i == a else W2[e_, 1]
         if w > 0.0:
-            _edge(laws[e_], geo, Kp, Kd, q, u, a, b, t1, t2, c1q, c1u, c2q, c2u, False)
+            _edge(laws[e_], geo, Kp, Kd, q, u, a, b, t1, t2, c1q, c1u, c2q, c2u, False, hp, t)
             for c in range(n):
                 tau[i, c] += w * (t1[c] if i == a else t2[c])
 
@@ -253,6 +263,7 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
     WS = np.zeros(N)
     co = np.zeros((N, 11))
     _matrices(base, K, C, f0, F, Omega, phi, scheme, theta, dt, Sinv, Sinv_w, WS, co)
+    hp = force_table(K, C, f0, F, Omega, phi)
     B0 = base.B[0, 0]
     sg = geo.scalar
     sqQ = math.sqrt(sg.Q11)
@@ -301,6 +312,7 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
             countdown = record_every
             is_row = True
         need_d = is_row and record_d
+        tk = t0 + (k0 + k) * dt if k <= n_steps else t0 + (k0 + n_steps) * dt + dt_last   # the states' time
         # forces from the states at the start of the step (Jacobi, zero-order hold)
         if (coupled or need_d) and scalar:
             # network_forces for n = 1 on floats, written out here: the arrays an inlined or called
@@ -311,7 +323,8 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
                 ia = E2[e_, 0]
                 ib = E2[e_, 1]
                 lw = law0 if uniform else laws[e_]
-                f1, f2, d_, b_, e1 = coupling_step1(lw, sg, kp0, kd0, q1d[ia], u1d[ia], q1d[ib], u1d[ib], need_d)
+                f1, f2, d_, b_, e1 = coupling_step1(lw, sg, kp0, kd0, q1d[ia], u1d[ia], q1d[ib], u1d[ib], need_d,
+                                                    hp, ia, ib, tk)
                 if need_d:   # the record is read at rows only
                     dk[e_] = d_
                     bk[e_] = b_
@@ -322,14 +335,15 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
                     if W2[e_, 1] > 0.0:
                         tau1d[ib] += W2[e_, 1] * f2
         elif coupled or need_d:
-            network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, need_d, dk, bk, ek)
+            network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, need_d, dk, bk, ek, hp,
+                           tk)
         r = 0 if dec else row
         if k == 0 and k0 == 0:
             for i in range(N):
                 for c in range(n):
                     TAU[0, i, c] = tau[i, c]
         if is_row:
-            T[r] = t0 + (k0 + k) * dt if k <= n_steps else t0 + (k0 + n_steps) * dt + dt_last
+            T[r] = tk
             # the states (then flushed, as moreau.finish_step) and the edges' distance records, on the
             # 1-D views (no array views or calls: with the decimating recorder this is every few steps)
             ok = True

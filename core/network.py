@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .coupling import BRANCH_NONE, law_metric, metric_info
+from .coupling import BRANCH_NONE, QUOTIENT_LAWS, law_metric, metric_info
 from .distance import geometry
 from .checks import divergence_message
 from .errors import SimulationDiverged
@@ -143,7 +143,7 @@ def simulate_network(system, states, A, t_end: float, dt: float, coupling="switc
     A = weights(A, N)
     edges = edges_of(A)
     laws = edge_laws(coupling, edges)
-    record_d = bool(record_distance) or bool(np.any(laws == LAWS["switching"]))
+    record_d = bool(record_distance) or bool(np.any(np.isin(laws, QUOTIENT_LAWS)))
     E = len(edges)
     plan = plan_run(systems, states, t_end, dt, scheme=scheme, theta=theta, A=A, laws=laws, Kp=Kp, Kd=Kd,
                     record_every=record_every, t0=t0, allow_unstable=allow_unstable,

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from .coupling import LAWS as COUPLING_LAWS
-from .coupling import BRANCH_NONE, SWITCHING, UNCOUPLED, gain_matrix, law_metric, metric_info
+from .coupling import BRANCH_NONE, QUOTIENT_LAWS, UNCOUPLED, gain_matrix, law_metric, metric_info
 from .distance import geometry
 from .loop import coupling_step, integrate_network, no_decimator
 from .steps import OK
@@ -72,7 +72,9 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
     and e (the impact geometry of the quotient distance) and may differ in K,
     C, f0 and forcing.
     ``coupling``: None (uncoupled), ``"euclidean"`` (PD baseline) or
-    ``"switching"`` (the quotient coupling of docs/design.md §2.5), gains ``Kp``, ``Kd``
+    ``"switching"`` (the quotient coupling of docs/design.md §2.5) or ``"switching-compensated"``
+    (1-DOF: V = d^2/2 non-increasing on every branch under a force toward the wall,
+    docs/design.md §2.5.2), gains ``Kp``, ``Kd``
     (scalars or n×n), position weight ``Q`` of the norm: by default (None or "energy") the
     law's own metric ``energy_metric`` (Q = K + 2 Kp: V = d^2/2 is the energy of the relative
     motion, docs/design.md §2.5.1); an explicit Q is used as given and the result says that V is
@@ -106,7 +108,7 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
     systems = as_systems(system, 2)
     s1, s2 = systems
     n = s1.n
-    record_d = bool(record_distance) or law == SWITCHING
+    record_d = bool(record_distance) or law in QUOTIENT_LAWS
     plan = plan_run(systems, (x1, x2), t_end, dt, scheme=scheme, theta=theta, laws=[law], Kp=Kp, Kd=Kd,
                     record_every=record_every, t0=t0, allow_unstable=allow_unstable,
                     record_values=None if sink is not None else 4 * n + 2 * n + (4 if record_d else 1),

@@ -259,7 +259,7 @@ def plan_run(systems, starts, t_end, step, *, scheme="midpoint", theta: float = 
     laws_a = Kp_m = Kd_m = Ac = limit = None
     coupled = False
     if N > 1:                                                           # 5. the coupling
-        from .coupling import SWITCHING, UNCOUPLED   # coupled runs only (see coupled_weights)
+        from .coupling import COMPENSATED, SWITCHING, UNCOUPLED   # coupled runs only (see coupled_weights)
         n = s0.n
         for s in systems:
             if s.n_inputs != n or not np.array_equal(s.B, np.eye(n)):
@@ -269,6 +269,10 @@ def plan_run(systems, starts, t_end, step, *, scheme="midpoint", theta: float = 
             laws_a = np.full(1 if A is None else len(edges_of(weights(A, N))), SWITCHING, dtype=np.int64)
         else:
             laws_a = np.asarray(laws, dtype=np.int64)
+        if n > 1 and np.any(laws_a == COMPENSATED):
+            raise ValueError(f"coupling 'switching-compensated' is implemented for 1-DOF systems (n = 1), got "
+                             f"n = {n}: in n-DOF its guarantee does not carry over as it is (docs/design.md "
+                             f"§2.5.2); use 'switching'")
         Kp_m, Kd_m, Ac, limit = held_exchange(s0.M, Kp, Kd, step, A, laws_a, hold, allow_unstable, step_name)
         coupled = bool(np.any(laws_a != UNCOUPLED))
     if record_values is not None and grid is not None:                  # 6. the record budget

@@ -202,7 +202,7 @@ def _give(ptr, fn, comp, i, t, h, foh, no_prior, tau, hist_tau, hist_t, hist_val
 
 @njit(cache=True, inline="always")
 def _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau, tau_next, hist_tau,
-              hist, ctl, w, FAIL, fail_t):
+              hist, ctl, w, FAIL, fail_t, hp):
     """One exchange over [t, t + h]: Jacobi (every input from the same states, then all
     step), Gauss–Seidel (in index order, each input from the newest states) or delayed
     (as Jacobi, but every instance steps with the forces transferred after the previous
@@ -216,7 +216,7 @@ def _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau, 
     no_prior = 0 if flags[EVENT_AWARE] else 1
     if flags[GAUSS_SEIDEL]:
         for i in range(N):
-            node_force(i, laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u)
+            node_force(i, laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, hp, t)
             if _give(ptr, fn, comp, i, t, h, foh, no_prior, tau, hist_tau, hist[0], ctl[HIST_VALID],
                      slope, FAIL, fail_t):
                 return True
@@ -229,9 +229,9 @@ def _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau, 
                 ctl[ZERO_STEPS] -= 1
             else:
                 network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau_next, t1, t2, c1q, c1u, c2q, c2u, False, dk, bk,
-                               ek)
+                               ek, hp, t)
         elif fresh == 0:
-            _forces_inline(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, False, dk, bk, ek)
+            _forces_inline(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, False, dk, bk, ek, hp, t)
         for i in range(N):
             for c in range(tau.shape[1]):
                 if not abs(tau[i, c]) <= INPUT_BOUND:
@@ -251,7 +251,7 @@ def _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau, 
 
 @njit(cache=True, inline="always")
 def _record(row, t, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, jacobi, ctl, T, Qr, Ur, TAU, D, BR, EU, scratch,
-            w):
+            w, hp):
     """Row ``row`` at time t: the states, the inputs held over the step that ended here, and
     each edge's distance (returns False if a distance is not finite). Jacobi: the forces
     of the next step come with the distances (the same states), into ``tau`` (FRESH)."""
@@ -265,10 +265,10 @@ def _record(row, t, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, jacobi, ctl, T
     if not need_d:
         return True
     if jacobi:
-        _forces_inline(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, True, dk, bk, ek)
+        _forces_inline(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, True, dk, bk, ek, hp, t)
         ctl[FRESH] = 1
     else:
-        network_forces(laws, geo, Kp, Kd, E2, W2, q, u, scratch, t1, t2, c1q, c1u, c2q, c2u, True, dk, bk, ek)
+        network_forces(laws, geo, Kp, Kd, E2, W2, q, u, scratch, t1, t2, c1q, c1u, c2q, c2u, True, dk, bk, ek, hp, t)
     ok = True
     for e_ in range(E2.shape[0]):
         D[row, e_] = dk[e_]
@@ -280,7 +280,7 @@ def _record(row, t, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, jacobi, ctl, T
 
 
 @njit(cache=True)
-def exchange_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, H, H_last, t_last, k0, k1, q, u,
+def exchange_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, H, H_last, t_last, k0, k1, q, u,
                    tau, tau_next, hist_tau, hist, imp, ctl, saved, keep, T, Qr, Ur, TAU, D, BR, EU, w, FAIL, fail_t):
     """Communication steps ``k0 .. k1 - 1`` (time ``k H``); ``k0 = -1`` first reads the start
     states and impact counters and records row 0.
@@ -301,9 +301,9 @@ def exchange_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, H, H_last, t
     state handles; ``keep``: copies for the retake (q, u, hist_tau, hist, ctl). The record
     arrays are preallocated for the whole run. Returns the outcome code (also ``FAIL[0]``)
     and the last step done."""
-    (ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, q, u, tau, tau_next, hist_tau, hist, imp, ctl, saved, keep,
-     T, Qr, Ur, TAU, D, BR, EU, w, FAIL, fail_t) = unmanaged((ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, q, u,
-                                                              tau, tau_next, hist_tau, hist, imp, ctl, saved, keep,
+    (ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, q, u, tau, tau_next, hist_tau, hist, imp, ctl, saved, keep,
+     T, Qr, Ur, TAU, D, BR, EU, w, FAIL, fail_t) = unmanaged((ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, q,
+                                                              u, tau, tau_next, hist_tau, hist, imp, ctl, saved, keep,
                                                               T, Qr, Ur, TAU, D, BR, EU, w, FAIL, fail_t))
     N = q.shape[0]
     need_d = flags[NEED_D] != 0
@@ -318,7 +318,7 @@ def exchange_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, H, H_last, t
             return FAIL[0], 0
         if flags[COUPLED]:
             network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, w[0], w[1], w[2], w[3], w[4], w[5], False,
-                           w[6], w[7], w[8])
+                           w[6], w[7], w[8], hp, 0.0)
         if flags[DELAY] == DELAYED_ZERO:   # the first two steps are held at 0
             for i in range(N):
                 for c in range(q.shape[1]):
@@ -327,7 +327,7 @@ def exchange_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, H, H_last, t
         if flags[DELAY]:
             _copy(tau, tau_next)
         _record(0, 0.0, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, jacobi, ctl, T, Qr, Ur, TAU, D, BR, EU, scratch,
-                w)
+                w, hp)
         ctl[ROW] = 1
         k0 = 0
     every = flags[RECORD_EVERY]
@@ -354,7 +354,7 @@ def exchange_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, H, H_last, t
             hs[0] = hist[0]
             hs[1] = ctl[HIST_VALID]
         if _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau,
-                     tau_next, hist_tau, hist, ctl, w, FAIL, fail_t):
+                     tau_next, hist_tau, hist, ctl, w, FAIL, fail_t, hp):
             return FAIL[0], k
         if _impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + h):
             return FAIL[0], k
@@ -377,9 +377,9 @@ def exchange_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, H, H_last, t
                 _copy(us, u)
                 for p in range(pieces):
                     tp = t + p * (h / pieces)
-                    hp = (t + h) - tp if p == pieces - 1 else h / pieces
-                    if _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, tp, hp, q,
-                                 u, tau, tau_next, hist_tau, hist, ctl, w, FAIL, fail_t):
+                    hpc = (t + h) - tp if p == pieces - 1 else h / pieces
+                    if _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, tp, hpc, q,
+                                 u, tau, tau_next, hist_tau, hist, ctl, w, FAIL, fail_t, hp):
                         return FAIL[0], k
                 if _impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + h):
                     return FAIL[0], k
@@ -398,7 +398,7 @@ def exchange_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, H, H_last, t
         if (k + 1) % every == 0 or k == last:   # the final state is always a row
             row = ctl[ROW]
             if not _record(row, t_next, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, jacobi, ctl, T, Qr, Ur, TAU, D,
-                           BR, EU, scratch, w):
+                           BR, EU, scratch, w, hp):
                 _failed(FAIL, fail_t, DISTANCE_DIVERGED, -1, -1, 0, t_next)
                 return FAIL[0], k
             ctl[ROW] = row + 1

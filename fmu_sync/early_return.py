@@ -67,10 +67,10 @@ class EarlyReturnMaster(NetworkMaster):
         self.work = (np.zeros(n), np.zeros(n), *chain_work(n))
         self.dk, self.bk, self.ek = np.zeros(E), np.zeros(E, dtype=np.int64), np.zeros(E)
 
-    def forces(self, tau, need_d: bool) -> None:
-        """The Jacobi forces at the current states into ``tau`` (and each edge's distance)."""
+    def forces(self, tau, need_d: bool, t: float) -> None:
+        """The Jacobi forces at the current states (time t) into ``tau`` (and each edge's distance)."""
         network_forces(self.laws, self.geo, self.Kp_m, self.Kd_m, self.E2, self.W2, self.q, self.u, tau,
-                       *self.work, need_d, self.dk, self.bk, self.ek)
+                       *self.work, need_d, self.dk, self.bk, self.ek, self.hp, float(t))
 
     def read(self) -> None:
         n = self.model.n
@@ -90,7 +90,7 @@ class EarlyReturnMaster(NetworkMaster):
         tc = t
         while True:
             if self.coupled:
-                self.forces(self.tau, False)
+                self.forces(self.tau, False, tc)
                 for i in range(self.N):
                     if not np.all(np.abs(self.tau[i]) <= contract.INPUT_BOUND):   # also catches NaN
                         raise self.force_bound(i, tc)
@@ -135,7 +135,7 @@ class EarlyReturnMaster(NetworkMaster):
         self.T[row], self.Qr[row], self.Ur[row], self.TAU[row] = t, self.q, self.u, self.tau
         if not self.need_d:
             return True
-        self.forces(self.scratch, True)
+        self.forces(self.scratch, True, t)
         self.D[row], self.BR[row], self.EU[row] = self.dk, self.bk, self.ek
         return bool(np.all(np.isfinite(self.dk)))
 
@@ -148,7 +148,7 @@ class EarlyReturnMaster(NetworkMaster):
             self.read()
             self.imp = [s.get_integer(contract.IMPACTS) for s in self.slaves]
             if self.coupled:
-                self.forces(self.tau, False)
+                self.forces(self.tau, False, 0.0)
             n_steps, H = self.n_steps, self.H
             if self.record(0, 0.0):
                 row = 1

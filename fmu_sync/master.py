@@ -39,13 +39,14 @@ from pathlib import Path
 import numpy as np
 
 from .core.checks import check_record_size, check_run, check_step, record_rows
+from .core.compensation import force_table
 from .core.coupling import chain_work, law_metric, metric_info
 from .core.distance import geometry
 from .core.errors import RunFailed, SimulationDiverged, UnstableScheme
 from .core.exchange import exchange_limit
 from .core.model import MechanicalSystem
 from .core.network import edge_arrays, edge_laws, edges_of, weights
-from .core.pair import LAWS
+from .core.pair import LAWS, stack_nodes
 from .core.plan import RunPlan, plan_run
 from .core.result import NetworkResult, PairResult
 from .fmi3_bridge import element_names, open_host
@@ -197,6 +198,7 @@ class NetworkMaster:
                                  self.A_coupled if self.coupled else None, coupled=self.coupled,
                                  stiffness=plan.systems[0].metric_source)   # a user force law: "linearized"
         self.geo = geometry(system, self.metric.Q)
+        self.hp = force_table(*stack_nodes(*plan.systems)[1:])   # each instance's h (the compensated law)
         E, rows = len(self.edges), record_rows(self.n_steps, self.record_every)
         self.T = np.full(rows, np.nan)
         self.Qr, self.Ur, self.TAU = (np.full((rows, N, n), np.nan) for _ in range(3))
@@ -285,7 +287,7 @@ class NetworkMaster:
         self.held = (self.vr_out, self.vr_tau, self.vr_imp, np.ones(n, dtype=np.int32), self.tau, w[9], w[10],
                      keep[6], saved)
         ptr = np.array([a.ctypes.data for a in self.held], dtype=np.int64)
-        self.loop_args = (ptr, self.fn, self.comp, self.laws, self.geo, self.Kp_m, self.Kd_m, E2, W2, flags,
+        self.loop_args = (ptr, self.fn, self.comp, self.laws, self.geo, self.Kp_m, self.Kd_m, E2, W2, flags, self.hp,
                           float(self.H), float(self.grid.dt_last), float(self.grid.t_end))
         self.loop_state = (self.q, self.u, self.tau, z(), z(), np.zeros(1), self.imp, self.ctl, saved, keep, self.T,
                            self.Qr, self.Ur, self.TAU, self.D, self.BR, self.EU, w, self.FAIL, self.fail_t)
@@ -420,7 +422,8 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
         unpacked FMU folder (used in place and kept: a sweep worker unpacks once for all its runs).
     x1, x2 : start states (q, u) of the two instances (set as ``q_start``/``u_start``).
     t_end, H : stop time (reached exactly: the last step shortened) and communication step.
-    coupling : None, ``"switching"`` (quotient coupling) or ``"euclidean"`` (PD baseline).
+    coupling : None, ``"switching"`` (quotient coupling), ``"switching-compensated"`` (1-DOF, V
+        non-increasing on every branch, docs/design.md §2.5.2) or ``"euclidean"`` (PD baseline).
     Kp, Kd : gains (scalars or n×n).  Q : position weight of the norm (default: ``energy_metric``).
     method : ``"jacobi"`` (both slaves get inputs computed from the same states) or
         ``"gauss-seidel"`` (slave 2's input uses slave 1's updated state).

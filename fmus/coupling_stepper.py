@@ -135,9 +135,10 @@ def _evaluate(x, w):
     ek = s[E:2 * E]
     bk = s[2 * E:3 * E].view(np.int64)
     j = 3 * E
+    # no force table (an empty view) and t = 0: this FMU's laws (LAW_ITEMS) never evaluate h
     network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, s[j:j + n], s[j + n:j + 2 * n],
                    s[j + 2 * n:j + 3 * n], s[j + 3 * n:j + 4 * n], s[j + 4 * n:j + 5 * n],
-                   s[j + 5 * n:j + 6 * n], True, dk, bk, ek)
+                   s[j + 5 * n:j + 6 * n], True, dk, bk, ek, mat(w, 0, 0, 3), 0.0)
     ok = True
     i_d = int(w[C_ID])
     i_v = int(w[C_IV])

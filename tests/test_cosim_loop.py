@@ -145,7 +145,7 @@ def test_the_other_masters_orders_are_bitwise_the_python_loop(fmu, method):
         F = np.zeros_like(m.Qr[0])
         for k in range(len(m.T) - 1):   # row k + 1 holds the force over step k
             network_forces(laws, geo, Kp, Kd, E2, W2, m.Qr[max(k - 1, 0)], m.Ur[max(k - 1, 0)], F, *w[:6], False,
-                           *w[6:9])
+                           *w[6:9], m.hp, m.T[max(k - 1, 0)])
             want = 0.0 * F if method == "delayed-zero" and k < 2 else F
             assert np.array_equal(m.TAU[k + 1], want), k
         assert np.array_equal(m.TAU[0], 0.0 * F if method == "delayed-zero" else m.TAU[1])

@@ -282,7 +282,7 @@ def test_coupling_forces_api():
 
 
 @pytest.mark.parametrize("kwargs, match", [
-    (dict(law="pd"), r"law must be one of \['euclidean', 'none', 'switching'\], got 'pd'"),
+    (dict(law="pd"), r"law must be one of \['euclidean', 'none', 'switching', 'switching-compensated'\], got 'pd'"),
     (dict(Kp=-1.0), r"Kp must be a finite gain >= 0, got -1.0"),
     (dict(Kd=float("nan")), r"Kd must be a finite gain >= 0, got nan"),
     (dict(Kp=[[1.0, 0.0]]), r"Kp must be a scalar or 1x1, got shape \(1, 2\)"),
