@@ -296,6 +296,7 @@ def law_network(base, K, C, P, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, q, u, t
     imp[:] = 0
     ep[:] = 0
     last = np.full(N, -2, dtype=np.int64)
+    hp = np.zeros((N, 3))   # no built-in force table: the plan refuses 'switching-compensated' with a law
     v_imp = 0.0
     tau_max = 0.0
     coupled = False
@@ -318,7 +319,8 @@ def law_network(base, K, C, P, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, q, u, t
             is_row = True
         need_d = is_row and record_d
         if coupled or need_d:
-            network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, need_d, dk, bk, ek)
+            network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, need_d, dk, bk, ek,
+                           hp, t0 + (k0 + k) * dt)
         r = 0 if dec else row
         if k == 0 and k0 == 0:
             for i in range(N):

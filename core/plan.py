@@ -30,7 +30,7 @@ import numpy as np
 from .checks import refuse_nonlinear  # noqa: F401 (re-exported: a run check)
 from .checks import RunSteps, check_record_size, check_run, check_stable, check_start, check_step, record_rows, \
     scheme_code
-from .errors import UnstableScheme
+from .errors import LawRefused, UnstableScheme
 from .exchange import ExchangeLimit, check_exchange
 from .model import MechanicalSystem, as_state
 
@@ -273,6 +273,10 @@ def plan_run(systems, starts, t_end, step, *, scheme="midpoint", theta: float = 
             raise ValueError(f"coupling 'switching-compensated' is implemented for 1-DOF systems (n = 1), got "
                              f"n = {n}: in n-DOF its guarantee does not carry over as it is (docs/design.md "
                              f"§2.5.2); use 'switching'")
+        if s0.force is not None and np.any(laws_a == COMPENSATED):
+            raise LawRefused(f"coupling 'switching-compensated' compensates the built-in linear law's force "
+                             f"(docs/design.md §2.5.2); the systems use the force law {s0.force.name!r}: "
+                             f"use 'switching'")
         Kp_m, Kd_m, Ac, limit = held_exchange(s0.M, Kp, Kd, step, A, laws_a, hold, allow_unstable, step_name)
         coupled = bool(np.any(laws_a != UNCOUPLED))
     if record_values is not None and grid is not None:                  # 6. the record budget
