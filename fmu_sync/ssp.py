@@ -211,7 +211,7 @@ def write_ssp(scene, path, variant: str | None = None, overrides: dict | None = 
     path.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="fmu-sync-ssp-") as tmp:
         oscs = [export_fmu(model.key, Path(tmp) / f"osc{i}.fmu", {**vals, contract.SOLVER_SCHEME:
-                                                                  solver[contract.SOLVER_SCHEME]}, warm=i == 0)
+                                                                  solver[contract.SOLVER_SCHEME]})
                 for i, vals in enumerate(comp_values)]
         cpl = export_coupling(Path(tmp) / "coupling.fmu", A, n, {**coupling_real, **coupling_enum})
         files = [(SSD, _ssd(sc.name, v, model, edges, N, n, osc_names, cfg))]

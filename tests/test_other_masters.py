@@ -157,7 +157,7 @@ def test_each_system_fmu_starts_where_the_scene_does_and_our_master_refuses_two_
                 s = json.loads(fz.read("resources/fmu_sync_start.json"))["start"]
             starts.append((s["q_start"], s["u_start"]))
     assert starts == [tuple(map(float, v.x1)), tuple(map(float, v.x2))] and starts[0] != starts[1]
-    other = export_fmu("impact-oscillator", tmp_path / "theta.fmu", {"solver.scheme": "theta"}, warm=False)
+    other = export_fmu("impact-oscillator", tmp_path / "theta.fmu", {"solver.scheme": "theta"})
     bad = tmp_path / "two-models.ssp"
     with zipfile.ZipFile(pair[1]) as zin, zipfile.ZipFile(bad, "w") as zout:
         for item in zin.namelist():
