@@ -2,7 +2,11 @@
 
 The public API of the core (everything a user of the standalone engine needs):
 
-* models: :class:`MechanicalSystem`, :func:`ImpactOscillator`;
+* models: :class:`MechanicalSystem`, :func:`ImpactOscillator`, and the one model declaration
+  :class:`Model` / :class:`Param` (built-ins :data:`IMPACT_OSCILLATOR`, :data:`MECHANICAL_SYSTEM`;
+  a user's ``"model.py:name"`` by :func:`load_model`); user force laws
+  :class:`ForceLaw` (:func:`force_law`; built-in examples in
+  :mod:`.examples`: the impacting pendulum and the Duffing oscillator);
 * the impact map :func:`impact_map`;
 * runs: :func:`simulate` (one system), :func:`simulate_pair` (two coupled systems,
   identical or not), :func:`simulate_network` (N systems on a graph: :func:`ring`,
@@ -26,7 +30,8 @@ The raw compiled kernels (for benchmarks and custom loops) are in :mod:`.kernels
 Where each concept lives: docs/design.md §3. Kernels compile lazily, on first use.
 """
 from . import _cache  # noqa: F401  (first: every core kernel's cache is keyed on the whole core)
-from .model import ImpactOscillator, MechanicalSystem, SystemArrays
+from .model import IMPACT_OSCILLATOR, MECHANICAL_SYSTEM, ImpactOscillator, MechanicalSystem, SystemArrays
+from .declaration import Model, ModelError, Param, load_model
 from .impact import impact_map
 from .errors import RunFailed, RunRefused, SimulationDiverged, UnstableScheme
 from .checks import InadmissibleState, RecordTooLarge
@@ -40,10 +45,14 @@ from .metrics import SyncMetrics, sync_metrics
 from .exchange import UnstableExchange, exchange_limit, hold_bound
 from .network import all_to_all, path, ring, simulate_network, star
 from .exact import ExactEvents, exact_events, simulate_exact
+from .forcelaw import ForceLaw, force_law
+from .errors import LawRefused
 
-__all__ = ["ImpactOscillator", "MechanicalSystem", "SystemArrays", "impact_map", "simulate", "simulate_pair",
+__all__ = ["Model", "Param", "ModelError", "load_model", "IMPACT_OSCILLATOR", "MECHANICAL_SYSTEM",
+           "ImpactOscillator", "MechanicalSystem", "SystemArrays", "impact_map", "simulate", "simulate_pair",
            "quotient_distance", "coupling_forces", "energy_metric", "simulate_exact", "exact_events", "ExactEvents",
            "SimulationResult", "PairResult", "RunFailed",
            "SimulationDiverged", "NetworkResult", "simulate_network", "ring", "path", "star", "all_to_all",
            "sync_metrics", "SyncMetrics", "exchange_limit", "hold_bound", "UnstableExchange", "UnstableScheme",
-           "RunRefused", "InadmissibleState", "RecordTooLarge", "RunPlan", "plan_run"]
+           "RunRefused", "InadmissibleState", "RecordTooLarge", "RunPlan", "plan_run", "ForceLaw", "force_law", "Param",
+           "LawRefused"]

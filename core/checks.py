@@ -8,7 +8,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .errors import RunRefused, UnstableScheme
+from .errors import LawRefused, RunRefused, UnstableScheme
 from .model import MechanicalSystem
 
 __all__ = ["check_step", "check_run", "n_steps", "RunSteps", "run_steps", "record_rows", "record_times",
@@ -165,6 +165,15 @@ def scheme_code(scheme: str, theta: float) -> tuple[int, float]:
     if not 0.5 <= theta <= 1.0:
         raise ValueError(f"theta must lie in [0.5, 1] (unconditional stability needs theta >= 1/2), got {theta}")
     return SCHEMES[scheme], theta
+
+
+def refuse_nonlinear(system, what: str = "the exact solvers") -> None:
+    """The exact solvers integrate the built-in linear law in closed form: a user force law is
+    refused (:class:`~fmu_sync.core.errors.LawRefused`, naming it and what to use instead)."""
+    if getattr(system, "force", None) is not None:
+        raise LawRefused(f"{what} integrate the linear law h = -K q - C u + f0 + forcing in closed form; "
+                         f"force law {system.force.name!r} is a user law (nonlinear in general): use "
+                         f"scheme='midpoint' or scheme='theta'")
 
 
 def check_stable(system: MechanicalSystem, scheme: str, dt: float) -> None:

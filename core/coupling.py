@@ -288,7 +288,7 @@ def coupling_forces(system, x1, x2, law, Kp, Kd, Q=None):
 #: motion (a Lyapunov function of the law); "user" -- an explicit Q (V is then not a
 #: Lyapunov function of the law unless Q happens to equal the energy metric); "identity" -- the
 #: fallback Q = I of a run with no coupling whose K + 2 Kp is not positive definite.
-METRICS = ("energy", "user", "identity")
+METRICS = ("energy", "linearized", "user", "identity")
 
 
 def laplacian_factor(A=None):
@@ -359,7 +359,25 @@ class LawMetric(NamedTuple):
     note: str            # one sentence for summaries
 
 
-def law_metric(Q, K, Kp, A=None, coupled: bool = True) -> LawMetric:
+def law_metric(Q, K, Kp, A=None, coupled: bool = True, stiffness: str | None = None) -> LawMetric:
+    """Choose the position weight of a run (docs/design.md §2.5.1; :func:`_law_metric`).
+
+    ``stiffness``: for a user force law, how its metric stiffness K was obtained (a key of
+    :data:`fmu_sync.core.forcelaw.METRIC_SOURCES`): the energy metric is then the energy of the
+    relative motion *linearized* at the synchronized motion (docs/design.md §2.8.2): metric
+    ``"linearized"``, not a Lyapunov function of the law in general (a local one)."""
+    lm = _law_metric(Q, K, Kp, A, coupled)
+    if stiffness is None or lm.metric != "energy":
+        return lm
+    from .forcelaw import METRIC_SOURCES
+    return LawMetric(lm.Q, "linearized", False,
+                     f"the energy metric with the law's stiffness K_m = {METRIC_SOURCES[stiffness]} in place of K: "
+                     "V = d^2/2 is the energy of the relative motion "
+                     "linearized at the synchronized motion; it decreases near synchrony (locally), "
+                     "not in general for a nonlinear law (docs/design.md §2.8.2)")
+
+
+def _law_metric(Q, K, Kp, A=None, coupled: bool = True) -> LawMetric:
     """Choose the position weight of a run (docs/design.md §2.5.1).
 
     ``Q``: None or "energy" (the default: :func:`energy_metric`) or an explicit weight (positive

@@ -14,7 +14,7 @@
 """
 from __future__ import annotations
 
-__all__ = ["RunFailed", "SimulationDiverged", "RunRefused", "UnstableScheme"]
+__all__ = ["RunFailed", "SimulationDiverged", "RunRefused", "UnstableScheme", "LawRefused"]
 
 
 class RunFailed(RuntimeError):
@@ -37,3 +37,9 @@ class RunRefused(ValueError):
 class UnstableScheme(RunRefused):
     """Refused before the first step: the explicit midpoint scheme diverges for
     omega_max*dt >= 2 (:func:`fmu_sync.core.checks.check_stable`)."""
+
+
+class LawRefused(RunRefused):
+    """Refused before the first step: a user force law (:class:`fmu_sync.core.forcelaw.ForceLaw`)
+    that numba cannot compile, that returns the wrong shape or non-finite values, or a
+    parameter outside its declared range; the message names the law and the offending value."""

@@ -41,7 +41,7 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 
 from . import exact_nd
-from .checks import check_record_size, check_run, check_start, record_rows, record_times
+from .checks import refuse_nonlinear, check_record_size, check_run, check_start, record_rows, record_times
 from .exact_flow import flow_model
 from .exact_run import CONTACT, IMPACT_EV, ZENO_EV, run_events, sample
 from .exact_step import STEP_NO_PROGRESS, STEP_OK, STEP_TOO_MANY_EVENTS, exact_model, exact_step, exact_step_early
@@ -172,12 +172,12 @@ def _solve1(system, q0, u0, t0, t_end, tau, max_events, zeno_ttol, zeno_vtol, cu
 
 
 def _inputs(system, name, value):
-    """``tau`` / ``taudot``: None or ``system.m`` finite numbers (float64 array)."""
+    """``tau`` / ``taudot``: None or ``system.n_inputs`` finite numbers (float64 array)."""
     if value is None:
         return None
     a = np.array(value, dtype=np.float64, ndmin=1).reshape(-1)
-    if a.shape != (system.m,) or not np.all(np.isfinite(a)):
-        raise ValueError(f"{name} must be {system.m} finite numbers, got {a.tolist()}")
+    if a.shape != (system.n_inputs,) or not np.all(np.isfinite(a)):
+        raise ValueError(f"{name} must be {system.n_inputs} finite numbers, got {a.tolist()}")
     return a
 
 
@@ -186,6 +186,7 @@ def _solve(system, x0, t_end, tau, t0, taudot, t_c, max_events, zeno_ttol, zeno_
     constant input, the n-DOF matrix-flow solver otherwise."""
     if not isinstance(system, MechanicalSystem):
         raise ValueError(f"system must be a MechanicalSystem, got {type(system).__name__}")
+    refuse_nonlinear(system)
     t0 = float(t0)
     if not math.isfinite(t0):
         raise ValueError(f"t0 must be finite, got {t0}")

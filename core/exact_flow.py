@@ -61,6 +61,7 @@ from dataclasses import dataclass
 import numpy as np
 from .jit import njit
 
+from .checks import refuse_nonlinear
 from .model import MechanicalSystem
 
 __all__ = ["EPS", "NT", "TOLF", "NPRM", "FlowModel", "flow_model", "derivs", "force", "sticks", "phases"]
@@ -327,7 +328,8 @@ def _series(a, b, forcing):
 
 def flow_model(system: MechanicalSystem, tau) -> FlowModel:
     """The flow of a 1-DOF system in the gap coordinate with the constant input ``tau``
-    (``None``: 0; length ``system.m``, checked by the caller). ValueError for n != 1."""
+    (``None``: 0; length ``system.n_inputs``, checked by the caller). ValueError for n != 1."""
+    refuse_nonlinear(system)   # a user law: the run plan's refusal
     if not isinstance(system, MechanicalSystem):
         raise ValueError(f"system must be a MechanicalSystem, got {type(system).__name__}")
     if system.n != 1:
@@ -341,7 +343,7 @@ def flow_model(system: MechanicalSystem, tau) -> FlowModel:
     w = float(sa.w[0])
     g0 = float(sa.g0)
     e = float(sa.e)
-    tau = np.zeros(system.m) if tau is None else np.array(tau, dtype=np.float64, ndmin=1).reshape(-1)
+    tau = np.zeros(system.n_inputs) if tau is None else np.array(tau, dtype=np.float64, ndmin=1).reshape(-1)
     a = c / m
     b = k / m
     ext = float(sa.f0[0] + sa.B[0] @ tau)

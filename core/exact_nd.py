@@ -84,8 +84,8 @@ class _Aug:
         sa = system.arrays()
         n = system.n
         nf = sa.Omega.shape[0]
-        tau = np.zeros(system.m) if tau is None else np.asarray(tau, dtype=float).reshape(-1)
-        taudot = np.zeros(system.m) if taudot is None else np.asarray(taudot, dtype=float).reshape(-1)
+        tau = np.zeros(system.n_inputs) if tau is None else np.asarray(tau, dtype=float).reshape(-1)
+        taudot = np.zeros(system.n_inputs) if taudot is None else np.asarray(taudot, dtype=float).reshape(-1)
         self.ramp = bool(np.any(taudot != 0.0))
         self.n, self.nf = n, nf
         self.i1 = 2 * n

@@ -31,16 +31,16 @@ STEP_OK, STEP_TOO_MANY_EVENTS, STEP_NO_PROGRESS = 0, 1, 2
 def exact_model(system: MechanicalSystem) -> np.ndarray:
     """The 1-DOF system packed into one float64 array for :func:`exact_step`.
 
-    Layout: ``[nh, m, w, g0, prm (16), rc (28), roots (re, im, re, im), sB (m),
+    Layout: ``[nh, n_inputs, w, g0, prm (16), rc (28), roots (re, im, re, im), sB (n_inputs),
     then per harmonic term j < nh: s_j, Omega_j, phi_j, Yc series (28), Ys series (28)]``
     with ``prm`` for ``tau = 0`` and ``sB = w B / m`` (the gap acceleration per
     unit input). Raises ValueError for n != 1.
     """
-    md = flow_model(system, np.zeros(system.m))
+    md = flow_model(system, np.zeros(system.n_inputs))
     sa = system.arrays()
     nh = md.hs.size
     sB = md.w * sa.B[0, :] / float(sa.M[0, 0])
-    parts = [np.array([nh, system.m, md.w, md.g0], dtype=np.float64), md.prm, md.rc,
+    parts = [np.array([nh, system.n_inputs, md.w, md.g0], dtype=np.float64), md.prm, md.rc,
              np.array([md.roots[0].real, md.roots[0].imag, md.roots[1].real, md.roots[1].imag]),
              sB.astype(np.float64)]
     for j in range(nh):

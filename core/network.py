@@ -22,9 +22,9 @@ from .coupling import BRANCH_NONE, law_metric, metric_info
 from .distance import geometry
 from .checks import divergence_message
 from .errors import SimulationDiverged
-from .loop import integrate_network, network_forces, no_decimator, node_force
+from .loop import network_forces, no_decimator, node_force
 from .steps import OK
-from .pair import LAWS, stack_nodes
+from .pair import LAWS, network_loop, stack_nodes
 from .plan import as_systems, coupled_weights, edges_of, held_exchange, plan_run, weights
 from .result import NetworkResult
 
@@ -155,7 +155,7 @@ def simulate_network(system, states, A, t_end: float, dt: float, coupling="switc
     code, theta, q, u, rows = plan.code, plan.theta, plan.q.copy(), plan.u.copy(), plan.rows
     coupled, Kp_m, Kd_m, limit = plan.coupled, plan.Kp, plan.Kd, plan.limit
     lm = law_metric(Q, [s.K for s in systems], Kp_m, coupled_weights(A, edges, laws) if coupled else None,
-                    coupled=coupled)
+                    coupled=coupled, stiffness=s0.metric_source)
     geo = geometry(s0, lm.Q)
     T = np.full(rows, np.nan)
     Qr, Ur, TAU = (np.full((rows, N, n), np.nan) for _ in range(3))
@@ -163,6 +163,7 @@ def simulate_network(system, states, A, t_end: float, dt: float, coupling="switc
     BR = np.full((rows, E), BRANCH_NONE, dtype=np.int64)
     E2, W2 = edge_arrays(A, edges)
     nodes = stack_nodes(*systems)
+    loop = network_loop(systems)
     dec = no_decimator()
     if progress is None:
         chunks = [n_steps]
@@ -178,7 +179,7 @@ def simulate_network(system, states, A, t_end: float, dt: float, coupling="switc
     for c, steps in enumerate(chunks):
         last = c == len(chunks) - 1
         sl = slice(row0, rows)
-        status, done, written, _, _ = integrate_network(
+        status, done, written, _, _ = loop(
             *nodes, geo, laws, E2, W2, Kp_m, Kd_m, q, u, float(t0), k0, dt, steps,
             code, theta, record_every, record_d, T[sl], Qr[sl], Ur[sl], TAU[sl], D[sl], BR[sl], EU[sl],
             dt_last if last else 0.0, False, *dec, i_, ep)

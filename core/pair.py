@@ -33,10 +33,24 @@ PAIR_EDGES = np.array([[0, 1]], dtype=np.int64)
 PAIR_WEIGHTS = np.ones((1, 2))
 
 
+def network_loop(systems):
+    """The coupled loop of these systems: :func:`~fmu_sync.core.loop.integrate_network` for
+    the built-in linear law, the law's own copy (:meth:`ForceLaw.kernels`, the same arguments)
+    for a user force law, which every node shares (its parameters may differ; checked by the run
+    plan, :func:`~fmu_sync.core.plan.check_common_geometry`)."""
+    law = systems[0].force
+    return integrate_network if law is None else law.kernels().network
+
+
 def stack_nodes(*systems):
     """``(base, K, C, f0, F, Omega, phi)`` of the loop: the common geometry (the first
-    system's arrays) and the nodes' forces stacked, forcing padded with F = 0 terms."""
+    system's arrays) and the nodes' forces stacked, forcing padded with F = 0 terms. For a user
+    force law: K, C the nodes' linear parts and, in the slot of f0, their parameters (N, n_p)."""
     arrays = [s.arrays() for s in systems]
+    if systems[0].force is not None:
+        return (arrays[0], np.stack([a.K for a in arrays]), np.stack([a.C for a in arrays]),
+                np.stack([s.p for s in systems]), np.zeros((len(arrays), 0, arrays[0].M.shape[0])),
+                np.zeros((len(arrays), 0)), np.zeros((len(arrays), 0)))
     N, n, nf = len(arrays), arrays[0].M.shape[0], max(a.Omega.shape[0] for a in arrays)
     K, C, f0 = np.zeros((N, n, n)), np.zeros((N, n, n)), np.zeros((N, n))
     F, Om, ph = np.zeros((N, nf, n)), np.zeros((N, nf)), np.zeros((N, nf))
@@ -102,7 +116,7 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
     n_steps, dt_last, code, theta = plan.whole_steps, plan.dt_last, plan.code, plan.theta
     q1, q2, u1, u2 = (a.copy() for a in (plan.q[0], plan.q[1], plan.u[0], plan.u[1]))
     Kp_m, Kd_m, limit = plan.Kp, plan.Kd, plan.limit
-    lm = law_metric(Q, [s.K for s in systems], Kp_m, coupled=law != UNCOUPLED)
+    lm = law_metric(Q, [s.K for s in systems], Kp_m, coupled=law != UNCOUPLED, stiffness=s1.metric_source)
     geo = geometry(s1, lm.Q)
     if sink is not None:
         chunk_rows = int(chunk_rows)
@@ -132,6 +146,7 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
     BR2 = np.full((cap, 1), BRANCH_NONE, dtype=np.int64)
     D, EU, BR = D2[:, 0], EU2[:, 0], BR2[:, 0]
     nodes = stack_nodes(s1, s2)
+    loop = network_loop(systems)
     q, u = np.stack((q1, q2)), np.stack((u1, u2))
     laws = np.full(1, law, dtype=np.int64)
     dec = no_decimator()
@@ -160,7 +175,7 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
             row0 = 0
         sl = slice(row0, cap)
         # a chunk records its start row; the next chunk starts on the row it ended on
-        status, done, written, v, _ = integrate_network(
+        status, done, written, v, _ = loop(
             *nodes, geo, laws, PAIR_EDGES, PAIR_WEIGHTS, Kp_m, Kd_m, q, u, float(t0), k0, dt, steps, code,
             theta, record_every, record_d, T[sl], Qr[sl], Ur[sl], TAU[sl], D2[sl], BR2[sl], EU2[sl],
             dt_last if last else 0.0, False, *dec, imp, ep)

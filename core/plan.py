@@ -27,13 +27,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .checks import refuse_nonlinear  # noqa: F401 (re-exported: a run check)
 from .checks import RunSteps, check_record_size, check_run, check_stable, check_start, check_step, record_rows, \
     scheme_code
 from .errors import UnstableScheme
 from .exchange import ExchangeLimit, check_exchange
 from .model import MechanicalSystem, as_state
 
-__all__ = ["RunPlan", "plan_run", "held_exchange", "check_common_geometry", "as_systems", "weights",
+__all__ = ["RunPlan", "plan_run", "refuse_nonlinear", "held_exchange", "check_common_geometry", "as_systems", "weights",
            "edges_of", "coupled_weights"]
 
 
@@ -65,6 +66,10 @@ def check_common_geometry(systems, names=None) -> None:
         if b.n != a.n:
             raise ValueError(f"coupled systems must have the same number of degrees of freedom: "
                              f"{names[0]} has n = {a.n}, {name} has n = {b.n}")
+        if b.force is not a.force:   # one compiled loop: one law (its parameters may differ per system)
+            what = [s.force.name if s.force is not None else "the built-in linear law" for s in (a, b)]
+            raise ValueError(f"coupled systems must share one force law (its parameters may differ): "
+                             f"{names[0]} has {what[0]}, {name} has {what[1]}")
         for key in ("M", "w", "g0", "e"):
             va, vb = getattr(a, key), getattr(b, key)
             if not np.array_equal(va, vb):
@@ -224,6 +229,9 @@ def plan_run(systems, starts, t_end, step, *, scheme="midpoint", theta: float = 
         rows = record_rows(grid.steps, record_every)
     schemes = _per_system(scheme, N, "scheme")                          # 3. scheme and its limit
     dts = tuple(step if d is None else check_step(d, "dt") for d in _per_system(dt, N, "dt"))
+    if "exact" in schemes:
+        for s in systems:
+            refuse_nonlinear(s)
     code = None
     for s in dict.fromkeys(schemes):
         if s is not None and not (exact and s == "exact"):
@@ -246,13 +254,15 @@ def plan_run(systems, starts, t_end, step, *, scheme="midpoint", theta: float = 
     for i, (s, x) in enumerate(zip(systems, starts)):
         q[i], u[i] = as_state(s, x, names[i])
         check_start(s, q[i], names[i])
+        if s.force is not None:   # compilable, the right shape, finite at the start (LawRefused)
+            s.force.check(s.p, q[i], u[i], t=float(t0) if t_end is not None else 0.0, where=f"{names[i]}:")
     laws_a = Kp_m = Kd_m = Ac = limit = None
     coupled = False
     if N > 1:                                                           # 5. the coupling
         from .coupling import SWITCHING, UNCOUPLED   # coupled runs only (see coupled_weights)
         n = s0.n
         for s in systems:
-            if s.m != n or not np.array_equal(s.B, np.eye(n)):
+            if s.n_inputs != n or not np.array_equal(s.B, np.eye(n)):
                 raise ValueError(f"coupled systems take the forces through B = I (tau has n = {n} entries); "
                                  f"got B of shape {s.B.shape}")
         if laws is None:   # every edge of the graph (default: the pair) switching

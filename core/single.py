@@ -37,9 +37,9 @@ def simulate(system: MechanicalSystem, x0, t_end: float, dt: float, scheme: str 
                     exact=True)   # every check, once (docs/design.md §5.1.1)
     grid, dt, record_every, rows, n = plan.grid, plan.dt, plan.record_every, plan.rows, system.n
     q0, u0 = plan.q[0], plan.u[0]
-    tau = np.zeros(system.m) if tau is None else np.array(tau, dtype=np.float64, ndmin=1).reshape(-1)
-    if tau.shape != (system.m,) or not np.all(np.isfinite(tau)):
-        raise ValueError(f"tau must be {system.m} finite numbers, got {tau.tolist()}")
+    tau = np.zeros(system.n_inputs) if tau is None else np.array(tau, dtype=np.float64, ndmin=1).reshape(-1)
+    if tau.shape != (system.n_inputs,) or not np.all(np.isfinite(tau)):
+        raise ValueError(f"tau must be {system.n_inputs} finite numbers, got {tau.tolist()}")
     if scheme == "exact":
         return simulate_exact(system, (q0, u0), t_end, dt, tau=tau, record_every=record_every, t0=t0)
     code, theta = plan.code, plan.theta
@@ -49,9 +49,14 @@ def simulate(system: MechanicalSystem, x0, t_end: float, dt: float, scheme: str 
     P = np.empty(rows)
     sa = system.arrays()
     full = grid.steps - 1 if grid.short else grid.steps
-    status, done, written = kernels_for(sa)(sa, q0.copy(), u0.copy(), float(t0), dt, full, tau, code, theta,
-                                            record_every, T, Q, U, P, bool(phasor),
-                                            grid.dt_last if grid.short else 0.0)
+    dt_last = grid.dt_last if grid.short else 0.0
+    if system.force is not None:   # a user force law: its own compiled loop (core/law_loops.py)
+        status, done, written = system.force.kernels().integrate(
+            sa, system.p, q0.copy(), u0.copy(), float(t0), dt, full, tau, code, theta, record_every, T, Q, U, P,
+            dt_last)
+    else:
+        status, done, written = kernels_for(sa)(sa, q0.copy(), u0.copy(), float(t0), dt, full, tau, code, theta,
+                                                record_every, T, Q, U, P, bool(phasor), dt_last)
     if status == DIVERGED:
         raise SimulationDiverged(divergence_message(system, scheme, dt, t0 + done * dt))
     return SimulationResult(T, Q, U, P, scheme, dt)

@@ -74,7 +74,7 @@ def _hc_cos(sa, tau, tf, hc):
 
 
 @njit(cache=True, inline="always")
-def _contact(sa, g, uf, u, W_, iw):
+def contact(sa, g, uf, u, W_, iw):
     """The scalar contact problem of one step, in place on ``uf``; returns P >= 0.
 
     If the gap g (at the contact-detection point) is closed and Newton's law
@@ -110,12 +110,20 @@ def step_h(sa, X, iw, WX, a, q, u, hc, dt, y, uf):
     the contact-detection point ``q0 + dt/2 u0``.
     """
     n = q.shape[0]
-    hd = 0.5 * dt
     for i in range(n):
         lin = sa.K[i, 0] * q[0] + (sa.C[i, 0] + a * sa.K[i, 0]) * u[0]
         for j in range(1, n):
             lin += sa.K[i, j] * q[j] + (sa.C[i, j] + a * sa.K[i, j]) * u[j]
         y[i] = hc[i] - lin
+    return step_y(sa, X, iw, WX, a, q, u, dt, y, uf)
+
+
+@njit(cache=True, inline="always")
+def step_y(sa, X, iw, WX, a, q, u, dt, y, uf):
+    """The rest of a step once the force ``y`` at the force point is known (:func:`step_h`;
+    a user force law's step, core/law_loops.py): contact, then (q, u) in place; returns (P, g)."""
+    n = q.shape[0]
+    hd = 0.5 * dt
     g = sa.g0
     for i in range(n):
         g += sa.w[i] * (q[i] + hd * u[i])
@@ -124,7 +132,7 @@ def step_h(sa, X, iw, WX, a, q, u, hc, dt, y, uf):
         for j in range(1, n):
             s += (dt * X[i, j]) * y[j]
         uf[i] = u[i] + s
-    P = _contact(sa, g, uf, u, WX, iw)
+    P = contact(sa, g, uf, u, WX, iw)
     for i in range(n):
         s = (a * (dt * X[i, 0])) * y[0]
         for j in range(1, n):

@@ -26,7 +26,8 @@ from typing import Callable
 
 import numpy as np
 
-from ..core.model import MechanicalSystem
+from ..core.declaration import POSITIVE_MIN, Model, ModelError, Param
+from ..core.model import IMPACT_OSCILLATOR, MECHANICAL_SYSTEM, MechanicalSystem
 from ..core.moreau import MIDPOINT, THETA
 
 __all__ = ["Var", "FmuModel", "ContractError", "MODELS", "POSITIVE_MIN", "INPUT_BOUND", "STATE_BOUND",
@@ -38,9 +39,6 @@ __all__ = ["Var", "FmuModel", "ContractError", "MODELS", "POSITIVE_MIN", "INPUT_
 SOLVER_DT, SOLVER_SCHEME, SOLVER_THETA = "solver.dt", "solver.scheme", "solver.theta"
 GAP, IMPACTS, PERCUSSION, ENERGY = "gap", "impacts", "percussion", "energy"
 
-#: Smallest positive normal double: the inclusive FMI ``min`` of quantities that
-#: must be strictly positive (m > 0, dt > 0).
-POSITIVE_MIN = 2.2250738585072014e-308
 #: Inputs must lie in [-INPUT_BOUND, INPUT_BOUND] (the min/max of every input in
 #: modelDescription.xml; the FMU's binary refuses other values at fmi2SetReal).
 #: Larger forces are far outside any mechanical model and overflow the energy.
@@ -222,28 +220,75 @@ def _outputs(n: int, depends: dict) -> list[Var]:
 
 
 # ---------------------------------------------------------------- the registry
+def _model_params(decl: Model, n: int, start: dict) -> list[Var]:
+    """The FMU parameters of a model declaration with n degrees of freedom (docs/design.md §4.2):
+    a number as itself, a vector as ``name[i]``, a matrix as ``name[i,j]`` (min/max on the
+    diagonal), harmonic terms as the one term ``F[i]``, ``Omega``, ``phi``. Start values:
+    ``start``, else the declared default."""
+    out = []
+    for p in decl.params:
+        v = start.get(p.name, p.default)
+        if p.shape == ():
+            out.append(_param(p.name, p.unit, p.description, v, min=p.min, max=p.max))
+        elif p.shape == ("n",):
+            v = [0.0] * n if v is None else v
+            out += [_param(x, p.unit, f"{p.description}, component {i + 1}" if n > 1 else p.description, v[i],
+                           min=p.min, max=p.max) for i, x in enumerate(indexed(p.name, n))]
+        elif p.shape == ("n", "n"):
+            v = [[0.0] * n] * n if v is None else v
+            out += [_param(f"{p.name}[{i + 1},{j + 1}]", p.unit, f"{p.description}, row {i + 1}, column {j + 1}",
+                           v[i][j], min=p.min if i == j else None, max=p.max if i == j else None)
+                    for i in range(n) for j in range(n)]
+        else:   # ("terms",): the FMU takes one harmonic term
+            F, Om, ph = v[0] if v else ([0.0] * n, 0.0, 0.0)
+            out += [_param(x, "N", f"{_HARMONIC}, component {i + 1}" if n > 1 else _HARMONIC, F[i])
+                    for i, x in enumerate(indexed("F", n))]
+            out += [_param("Omega", "rad/s", "Angular frequency of the harmonic force", Om, min=0.0),
+                    _param("phi", "rad", "Phase of the harmonic force", ph)]
+    return out
+
+
+_HARMONIC = "Amplitude of the harmonic force F cos(Omega t + phi)"
+
+
+def _flat_names(p: Param, n: int) -> list[str]:
+    """The FMU variable names of a declared parameter."""
+    if p.shape == ():
+        return [p.name]
+    if p.shape == ("n",):
+        return indexed(p.name, n)
+    if p.shape == ("n", "n"):
+        return matrix(p.name, n)
+    return indexed("F", n) + ["Omega", "phi"]
+
+
 @dataclass(frozen=True)
 class FmuModel:
-    """One model of the registry: its FMU interface and its link to the core (the one
-    model object: :class:`.slave.MechanicalSlave` and the instance behind the binary are
-    generic and take everything model-specific from it).
+    """One model of the registry: the FMU of a model declaration (:class:`~fmu_sync.core.Model`,
+    docs/design.md §2.1.1) with n degrees of freedom. The one slave of every model
+    (:class:`.slave.MechanicalSlave`) and the instance behind the binary are generic and take
+    everything model-specific from it, and it takes everything from the declaration.
 
-    ``declare()`` returns the interface (a fresh :class:`Var` list, in
-    value-reference order); ``system(values)`` builds the core system from
-    parameter values; ``values(system)`` is the inverse; ``geometry`` names the
-    parameters from which an importer rebuilds M, w, g0 and e.
+    :meth:`declare` returns the interface (a fresh :class:`Var` list, in value-reference
+    order); :meth:`system` builds the core system from parameter values; :meth:`values` is the
+    inverse; :attr:`geometry` names the parameters from which an importer rebuilds M, w, g0, e.
+    ``start`` holds the FMU's start values where they differ from the declared defaults (the
+    FMU runs as exported); ``energy_params`` the parameters the energy output depends on.
     """
 
     key: str                 # export key (fmu_sync.export_fmu(model=...))
     identifier: str          # FMI modelIdentifier
-    family: str              # the scenes' system.model
     n: int
     description: str
-    declare: Callable[[], list]
-    system: Callable[[dict], MechanicalSystem]
-    values: Callable[[MechanicalSystem], dict]
-    geometry: tuple
-    _geometry_system: Callable[[dict], MechanicalSystem] = field(repr=False, default=None)
+    declaration: Model
+    start: dict = field(default_factory=dict)
+    energy_params: tuple = ()
+    q_start_default: tuple = (1.0,)
+
+    @property
+    def family(self) -> str:
+        """The scenes' ``system.model``: the declaration's name."""
+        return self.declaration.name
 
     # names of the state and input variables
     @property
@@ -266,6 +311,76 @@ class FmuModel:
     def u_start(self) -> list[str]:
         return indexed("u_start", self.n)
 
+    def _names(self, params) -> list[str]:
+        return [x for name in params for x in _flat_names(self.declaration.param(name), self.n)]
+
+    @property
+    def geometry(self) -> tuple:
+        """The FMU parameters of the declaration's impact geometry (M, w, g0, e)."""
+        return tuple(self._names(self.declaration.geometry))
+
+    def declare(self) -> list[Var]:
+        """inputs, outputs, the declaration's parameters, q_start, u_start, solver.*"""
+        n, qs, us = self.n, self.q_start, self.u_start
+        wall = [x for x in ("w", "g0") if x in self.declaration.names]
+        depends = {**{q: [s] for q, s in zip(self.q + self.u, qs + us)},
+                   GAP: self._names(wall) + qs, ENERGY: self._names(self.energy_params) + qs + us}
+        suffix = (lambda i: "") if n == 1 else (lambda i: f", component {i + 1}")
+        states = ([_param(x, "m", "Initial position (g(q_start) >= 0)" + suffix(i), self.q_start_default[i],
+                          min=-STATE_BOUND, max=STATE_BOUND) for i, x in enumerate(qs)]
+                  + [_param(x, "m/s", "Initial velocity" + suffix(i), 0.0, min=-STATE_BOUND, max=STATE_BOUND)
+                     for i, x in enumerate(us)])
+        return (_inputs(n) + _outputs(n, depends) + _model_params(self.declaration, n, self.start)
+                + states + _solver_variables())
+
+    def _declared(self, values: dict, names) -> dict:
+        out = {}
+        for name in names:
+            p = self.declaration.param(name)
+            flat = _flat_names(p, self.n)
+            if p.shape == ():
+                out[name] = values[name]
+            elif p.shape == ("n",):
+                out[name] = [values[x] for x in flat]
+            elif p.shape == ("n", "n"):
+                out[name] = [[values[flat[i * self.n + j]] for j in range(self.n)] for i in range(self.n)]
+            else:
+                F = [values[x] for x in flat[:self.n]]
+                out[name] = ((F, values["Omega"], values["phi"]),) if any(x != 0.0 for x in F) else ()
+        return out
+
+    def system(self, values: dict) -> MechanicalSystem:
+        """The core system of the FMU's parameter values (the declaration checks and builds it)."""
+        return self.declaration(self._declared(values, self.declaration.names))
+
+    def values(self, system: MechanicalSystem) -> dict:
+        """The FMU's parameter values of a core system (ContractError if it cannot hold it)."""
+        if system.n != self.n:
+            raise ContractError(f"the {self.key} FMU has {self.n} degree{'s' if self.n > 1 else ''} of "
+                                f"freedom, the system has {system.n}")
+        try:
+            declared = self.declaration.values(system)
+        except ModelError as exc:
+            raise ContractError(str(exc)) from None
+        out = {}
+        for p in self.declaration.params:
+            if p.name not in declared:
+                continue
+            v = declared[p.name]
+            if p.shape == ():
+                out[p.name] = float(v)
+            elif p.shape == ("n",):
+                out.update(zip(indexed(p.name, self.n), (float(x) for x in v)))
+            elif p.shape == ("n", "n"):
+                out.update(zip(matrix(p.name, self.n), (float(x) for r in v for x in r)))
+            else:
+                if len(v) > 1:
+                    raise ContractError(f"the FMU takes one forcing term, the system has {len(v)}")
+                F, Om, ph = v[0] if v else ([0.0] * self.n, 0.0, 0.0)
+                out.update(zip(indexed("F", self.n), (float(x) for x in F)))
+                out.update(Omega=float(Om), phi=float(ph))
+        return out
+
     def required(self) -> list[str]:
         """What an importer (the master) needs from an FMU of this model."""
         return self.q + self.u + self.tau + self.q_start + self.u_start + [IMPACTS] + list(self.geometry)
@@ -286,173 +401,31 @@ class FmuModel:
         return out
 
     def geometry_system(self, values: dict) -> MechanicalSystem:
-        """M, w, g0, e from the values of :attr:`geometry` (K = C = f0 = 0: the
-        distance and the coupling need only the geometry)."""
+        """M, w, g0, e from the values of :attr:`geometry`, every other parameter at its declared
+        default (the distance and the coupling need only the geometry)."""
         missing = [k for k in self.geometry if k not in values]
         if missing:
             raise ContractError(f"{self.identifier}: missing geometry values {', '.join(missing)}")
-        return self._geometry_system(values)
+        return self.declaration(self._declared(values, self.declaration.geometry))
 
 
-def _io_system(p: dict) -> MechanicalSystem:
-    from ..core.model import ImpactOscillator
-    return ImpactOscillator(m=p["m"], k=p["k"], c=p["c"], f0=p["f0"], F=p["F"],
-                            Omega=p["Omega"], e=p["e"], phi=p["phi"])
-
-
-def _forcing_values(system: MechanicalSystem, n: int) -> tuple:
-    if len(system.forcing) > 1:
-        raise ContractError(f"the FMU takes one forcing term, the system has {len(system.forcing)}")
-    if system.forcing:
-        F, Om, ph = system.forcing[0]
-        return [float(x) for x in F], float(Om), float(ph)
-    return [0.0] * n, None, None
-
-
-def _io_values(s: MechanicalSystem) -> dict:
-    if s.n != 1:
-        raise ContractError(f"the impact-oscillator FMU has 1 degree of freedom, the system has {s.n}")
-    if float(s.w[0]) != 1.0 or s.g0 != 0.0:
-        raise ContractError(f"the impact-oscillator FMU has its wall at q = 0 (w = 1, g0 = 0), "
-                            f"the system has w = {s.w.tolist()}, g0 = {s.g0}")
-    F, Om, ph = _forcing_values(s, 1)
-    out = {"m": float(s.M[0, 0]), "k": float(s.K[0, 0]), "c": float(s.C[0, 0]),
-           "f0": float(s.f0[0]), "F": F[0]}
-    if Om is not None:
-        out.update(Omega=Om, phi=ph)
-    out["e"] = float(s.e)
-    return out
-
-
-def _io_geometry(p: dict) -> MechanicalSystem:
-    z = np.zeros((1, 1))
-    return MechanicalSystem(M=[[p["m"]]], K=z, C=z, f0=np.zeros(1), w=np.ones(1), g0=0.0, e=p["e"])
-
-
-# 1-DOF impact oscillator (ImpactOscillator): m q'' + c q' + k q = f0 + F cos(Omega t + phi) + tau,
-# q >= 0 (wall at q = 0), Newton restitution e. Defaults: scenes/forced-pair.toml, system 1.
-def _io_declare() -> list[Var]:
-    outputs = _outputs(1, {
-        "q": ["q_start"], "u": ["u_start"], GAP: ["q_start"],
-        ENERGY: ["m", "k", "f0", "q_start", "u_start"],
-    })
-    params = [
-        _param("m", "kg", "Mass (> 0)", 1.0, min=POSITIVE_MIN),
-        _param("k", "N/m", "Spring stiffness", 1.0, min=0.0),
-        _param("c", "N.s/m", "Viscous damping", 0.0, min=0.0),
-        _param("f0", "N", "Constant force", 0.2),
-        _param("F", "N", "Amplitude of the harmonic force F cos(Omega t + phi)", 0.5),
-        _param("Omega", "rad/s", "Angular frequency of the harmonic force", 2.5, min=0.0),
-        _param("phi", "rad", "Phase of the harmonic force", 0.0),
-        _param("e", "1", "Newton restitution coefficient at the wall", 0.9, min=0.0, max=1.0),
-        _param("q_start", "m", "Initial position (the wall is q = 0: q_start >= 0)", 1.0, min=0.0,
-               max=STATE_BOUND),
-        _param("u_start", "m/s", "Initial velocity", 0.0, min=-STATE_BOUND, max=STATE_BOUND),
-    ]
-    return _inputs(1) + outputs + params + _solver_variables()
-
-
-# 2-DOF defaults: scenes/two-dof.toml, system 1 (the project's own choice)
-_N2 = 2
-_M2 = ((2.0, 0.5), (0.5, 1.0))
-_K2 = ((3.0, -1.0), (-1.0, 2.0))
-_C2 = ((0.02, 0.0), (0.0, 0.02))
-
-
-def _matrix_params(sym, unit, what, values, diag_min, n=_N2):
-    return [_param(f"{sym}[{i + 1},{j + 1}]", unit, f"{what}, row {i + 1}, column {j + 1}",
-                   values[i][j], min=diag_min if i == j else None) for i in range(n) for j in range(n)]
-
-
-def _vector_params(sym, unit, what, values, min=None, n=_N2, max=None):
-    return [_param(f"{sym}[{i + 1}]", unit, f"{what}, component {i + 1}", values[i], min=min, max=max)
-            for i in range(n)]
-
-
-def _ms2_declare() -> list[Var]:
-    n = _N2
-    qs, us = indexed("q_start", n), indexed("u_start", n)
-    outputs = _outputs(n, {
-        "q[1]": ["q_start[1]"], "q[2]": ["q_start[2]"],
-        "u[1]": ["u_start[1]"], "u[2]": ["u_start[2]"],
-        GAP: indexed("w", n) + ["g0"] + qs,
-        ENERGY: matrix("M", n) + matrix("K", n) + indexed("f0", n) + qs + us,
-    })
-    params = (
-        _matrix_params("M", "kg", "Mass matrix (symmetric positive definite)", _M2, POSITIVE_MIN)
-        + _matrix_params("K", "N/m", "Stiffness matrix", _K2, 0.0)
-        + _matrix_params("C", "N.s/m", "Damping matrix", _C2, 0.0)
-        + _vector_params("f0", "N", "Constant force", (0.1, 0.2))
-        + _vector_params("F", "N", "Amplitude of the harmonic force F cos(Omega t + phi)", (0.6, 0.0))
-        + [_param("Omega", "rad/s", "Angular frequency of the harmonic force", 1.3, min=0.0),
-           _param("phi", "rad", "Phase of the harmonic force", 0.0)]
-        + _vector_params("w", "1", "Wall normal w in g(q) = w^T q + g0 (not zero)", (1.0, 0.5))
-        + [_param("g0", "m", "Wall offset g0 in g(q) = w^T q + g0", 0.0),
-           _param("e", "1", "Newton restitution coefficient at the wall", 0.7, min=0.0, max=1.0)]
-        + _vector_params("q_start", "m", "Initial position (g(q_start) >= 0)", (0.6, 0.2),
-                         min=-STATE_BOUND, max=STATE_BOUND)
-        + _vector_params("u_start", "m/s", "Initial velocity", (0.0, 0.0), min=-STATE_BOUND, max=STATE_BOUND)
-    )
-    return _inputs(n) + outputs + params + _solver_variables()
-
-
-def _mat(p: dict, sym: str, n: int):
-    names = matrix(sym, n)
-    return [[p[names[i * n + j]] for j in range(n)] for i in range(n)]
-
-
-def _vec(p: dict, sym: str, n: int):
-    return [p[k] for k in indexed(sym, n)]
-
-
-def _ms2_system(p: dict) -> MechanicalSystem:
-    n = _N2
-    F = _vec(p, "F", n)
-    forcing = ((F, p["Omega"], p["phi"]),) if any(x != 0.0 for x in F) else ()
-    return MechanicalSystem(M=_mat(p, "M", n), K=_mat(p, "K", n), C=_mat(p, "C", n), f0=_vec(p, "f0", n),
-                            w=_vec(p, "w", n), g0=p["g0"], e=p["e"], forcing=forcing)
-
-
-def _ms2_values(s: MechanicalSystem) -> dict:
-    n = _N2
-    if s.n != n:
-        raise ContractError(f"the mechanical-system-2 FMU has {n} degrees of freedom, the system has {s.n}")
-    out = {}
-    for sym, a in (("M", s.M), ("K", s.K), ("C", s.C)):
-        out.update(zip(matrix(sym, n), (float(x) for x in a.reshape(-1))))
-    for sym, a in (("f0", s.f0), ("w", s.w)):
-        out.update(zip(indexed(sym, n), (float(x) for x in a)))
-    out["g0"] = float(s.g0)
-    out["e"] = float(s.e)
-    F, Om, ph = _forcing_values(s, n)
-    out.update(zip(indexed("F", n), F))
-    out.update(Omega=0.0 if Om is None else Om, phi=0.0 if ph is None else ph)
-    return out
-
-
-def _ms2_geometry(p: dict) -> MechanicalSystem:
-    n = _N2
-    z = np.zeros((n, n))
-    return MechanicalSystem(M=_mat(p, "M", n), K=z, C=z, f0=np.zeros(n), w=_vec(p, "w", n),
-                            g0=p["g0"], e=p["e"])
-
-
-#: The model registry: export key -> :class:`FmuModel`.
+#: The model registry: export key -> :class:`FmuModel`. Start values: the 1-DOF FMU runs the
+#: forced-pair scene's system 1, the 2-DOF FMU the two-dof scene's system 1 (our own choices).
 MODELS: dict[str, FmuModel] = {m.key: m for m in (
     FmuModel(
-        key="impact-oscillator", identifier="ImpactOscillator", family="impact-oscillator", n=1,
-        description=("1-DOF impact oscillator m q'' + c q' + k q = f0 + F cos(Omega t + phi) + tau, "
-                     "q >= 0, Newton restitution e; Moreau time-stepping (fmu-sync core)"),
-        declare=_io_declare, system=_io_system, values=_io_values, geometry=("m", "e"),
-        _geometry_system=_io_geometry),
+        key="impact-oscillator", identifier="ImpactOscillator", n=1,
+        description=IMPACT_OSCILLATOR.description + "; Moreau time-stepping (fmu-sync core)",
+        declaration=IMPACT_OSCILLATOR, start=dict(k=1.0, f0=0.2, F=0.5, Omega=2.5, e=0.9),
+        energy_params=("m", "k", "f0")),
     FmuModel(
-        key="mechanical-system-2", identifier="MechanicalSystem2", family="mechanical-system", n=_N2,
+        key="mechanical-system-2", identifier="MechanicalSystem2", n=2,
         description=("2-DOF mechanical system M q'' + C q' + K q = f0 + F cos(Omega t + phi) + tau "
                      "with the unilateral constraint w^T q + g0 >= 0 and Newton restitution e; "
                      "Moreau time-stepping (fmu-sync core)"),
-        declare=_ms2_declare, system=_ms2_system, values=_ms2_values,
-        geometry=tuple(matrix("M", _N2) + indexed("w", _N2) + ["g0", "e"]),
-        _geometry_system=_ms2_geometry),
+        declaration=MECHANICAL_SYSTEM,
+        start=dict(M=((2.0, 0.5), (0.5, 1.0)), K=((3.0, -1.0), (-1.0, 2.0)), C=((0.02, 0.0), (0.0, 0.02)),
+                   f0=(0.1, 0.2), forcing=(((0.6, 0.0), 1.3, 0.0),), w=(1.0, 0.5), e=0.7),
+        energy_params=("M", "K", "f0"), q_start_default=(0.6, 0.2)),
 )}
 
 

@@ -15,8 +15,8 @@ def reference(system, x0, t_eval, tau=None, taudot=None, t_c=0.0, v_cut=1e-6, rt
     n = system.n
     Minv, K, C, w, g0, e, W = sa.Minv, sa.K, sa.C, sa.w, sa.g0, sa.e, sa.W
     iw = sa.Minv_w
-    tau = np.zeros(system.m) if tau is None else np.asarray(tau, float)
-    taudot = np.zeros(system.m) if taudot is None else np.asarray(taudot, float)
+    tau = np.zeros(system.n_inputs) if tau is None else np.asarray(tau, float)
+    taudot = np.zeros(system.n_inputs) if taudot is None else np.asarray(taudot, float)
 
     def h(t, q, u):
         f = sa.f0 + sa.B @ (tau + taudot * (t - t_c)) - K @ q - C @ u

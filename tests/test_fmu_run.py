@@ -231,7 +231,7 @@ def scenario_errors(a):
     # the start value is kept and the run goes on with it
     out = {}
     for name, value in (("e", 1.5), ("e", math.nan), ("m", -1.0), ("m", 0.0), ("solver.dt", 0.0),
-                        ("solver.theta", 0.3), ("k", -2.0), ("q_start", -0.1), ("solver.scheme", 7)):
+                        ("solver.theta", 0.3), ("k", -2.0), ("u_start", 2e12), ("solver.scheme", 7)):
         h, st = fresh(starts={name: value})
         out[f"{name}={value}"] = {"init": st, "value": h.get([name])[0], "step": h.do_step(0.0, 0.01),
                                   "q": h.get(["q"])[0], "errors": h.errors()}
@@ -241,15 +241,16 @@ def scenario_errors(a):
         h.close()
     R["params"] = out
 
-    # --- g(q_start) < 0 and an invalid mass matrix (2-DOF: only the whole model can tell):
-    # fmi2ExitInitializationMode returns fmi2Error and stays in initialization mode;
-    # fixing the parameter and calling it again works
+    # --- g(q_start) < 0 and an invalid mass matrix (only the whole model can tell: q_start
+    # and g0 together, M as a whole): fmi2ExitInitializationMode returns fmi2Error and stays
+    # in initialization mode; fixing the parameter and calling it again works
     out = {}
-    for label, starts, fix in (("gap", {"q_start[1]": -1.0}, {"q_start[1]": 0.6}),
-                               ("asymmetric", {"M[1,2]": 0.7}, {"M[1,2]": 0.5}),
-                               ("not_pd", {"M[1,2]": 3.0, "M[2,1]": 3.0}, {"M[1,2]": 0.5, "M[2,1]": 0.5}),
-                               ("w_zero", {"w[1]": 0.0, "w[2]": 0.0}, {"w[1]": 1.0})):
-        h, st = fresh("ms2", starts)
+    for label, fmu, starts, fix in (("gap", "ms2", {"q_start[1]": -1.0}, {"q_start[1]": 0.6}),
+                                    ("gap_1dof", "io", {"q_start": -0.1, "g0": 0.05}, {"g0": 0.1}),
+                                    ("asymmetric", "ms2", {"M[1,2]": 0.7}, {"M[1,2]": 0.5}),
+                                    ("not_pd", "ms2", {"M[1,2]": 3.0, "M[2,1]": 3.0}, {"M[1,2]": 0.5, "M[2,1]": 0.5}),
+                                    ("w_zero", "ms2", {"w[1]": 0.0, "w[2]": 0.0}, {"w[1]": 1.0})):
+        h, st = fresh(fmu, starts)
         r = {"init": st, "step": h.do_step(0.0, 0.01), "gap": h.get(["gap"])[0], "errors": h.errors()}
         r["fix"] = [h.set(fix), h.call("exitInitializationMode")[0], h.do_step(0.0, 0.01)]
         out[label] = r
@@ -632,7 +633,7 @@ def test_refusals_are_logged_with_logging_off(runs):
 @pytest.mark.parametrize("case, words", [
     ("e=1.5", ["e", "<= 1"]), ("e=nan", ["e", "finite"]), ("m=-1.0", ["m", "> 0"]), ("m=0.0", ["m", "> 0"]),
     ("solver.dt=0.0", ["solver.dt", "> 0"]), ("solver.theta=0.3", ["solver.theta", ">= 0.5"]),
-    ("k=-2.0", ["k", ">= 0"]), ("q_start=-0.1", ["q_start", ">= 0"]),
+    ("k=-2.0", ["k", ">= 0"]), ("u_start=2000000000000.0", ["u_start", "<= 1e+12"]),
     ("solver.scheme=7", ["solver.scheme", "midpoint"]),
 ])
 def test_parameter_out_of_bounds(runs, case, words):
@@ -647,7 +648,8 @@ def test_parameter_out_of_bounds(runs, case, words):
 
 
 @pytest.mark.parametrize("case, words", [
-    ("gap", ["q_start violates the constraint: g(q)", "< 0"]), ("asymmetric", ["symmetric"]), ("not_pd", ["positive definite"]),
+    ("gap", ["q_start violates the constraint: g(q)", "< 0"]),
+    ("gap_1dof", ["q_start violates the constraint: g(q)", "< 0"]), ("asymmetric", ["symmetric"]), ("not_pd", ["positive definite"]),
     ("w_zero", ["nonzero"]),
 ])
 def test_invalid_model_is_refused(runs, case, words):

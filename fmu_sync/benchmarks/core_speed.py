@@ -6,6 +6,7 @@ run, interleaved with the measured code (C, numba, C, numba, ...).
 """
 from __future__ import annotations
 
+import math
 import shutil
 import statistics
 import subprocess
@@ -87,6 +88,54 @@ def simulate_vs_c(repeats: int = 5, n_steps: int = 20_000_000, dt: float = 1e-5)
     return out
 
 
+def _osc_law(q, u, tau, t, p):
+    """The forced oscillator OSC as a user force law (h = f0 + F cos(Omega t) - k q - c u + tau)."""
+    return (p[2] + p[3] * math.cos(p[4] * t)) - (p[0] * q[0] + p[1] * u[0]) + tau[0]
+
+
+def _spring_law(q, u, tau, t, p):
+    """The unforced oscillator as a user force law (h = f0 - k q - c u + tau)."""
+    return p[2] - (p[0] * q[0] + p[1] * u[0]) + tau[0]
+
+
+def law_vs_linear(repeats: int = 5, n_steps: int = 5_000_000, dt: float = 1e-5):
+    """Seconds per step of the forced oscillator OSC written as a user force law (its own compiled
+    loop, core/law_loops.py) against the built-in linear law on the same system, interleaved:
+    the built-in cos path (the same arithmetic) and its default phasor path."""
+    from fmu_sync.core import ForceLaw, ImpactOscillator, MechanicalSystem, Param, simulate
+
+    law = ForceLaw(_osc_law, n=1, name="forced_oscillator",
+                   params=tuple(Param(k, OSC[k]) for k in ("k", "c", "f0", "F", "Omega")),
+                   linear=lambda p: ([[p[0]]], [[p[1]]]))
+    builtin = ImpactOscillator(**OSC)
+    user = MechanicalSystem(M=[[OSC["m"]]], w=[1.0], g0=0.0, e=OSC["e"], force=law)
+    spring = ForceLaw(_spring_law, n=1, name="oscillator", params=tuple(Param(k, OSC[k]) for k in ("k", "c", "f0")),
+                      linear=lambda p: ([[p[0]]], [[p[1]]]))
+    free = ImpactOscillator(**{k: OSC[k] for k in ("m", "k", "c", "f0", "e")})
+    free_user = MechanicalSystem(M=[[OSC["m"]]], w=[1.0], g0=0.0, e=OSC["e"], force=spring)
+    t_end = n_steps * dt
+    runs = {"cos": lambda: simulate(builtin, X0, t_end, dt, record_every=100_000, phasor=False),
+            "phasor": lambda: simulate(builtin, X0, t_end, dt, record_every=100_000, phasor=True),
+            "law": lambda: simulate(user, X0, t_end, dt, record_every=100_000),
+            "free": lambda: simulate(free, X0, t_end, dt, record_every=100_000),
+            "free_law": lambda: simulate(free_user, X0, t_end, dt, record_every=100_000)}
+    for run_ in runs.values():
+        run_()   # compile / load cache
+    sec = {name: [] for name in runs}
+    final = {}
+    for _ in range(repeats):
+        for name, run_ in runs.items():
+            t = time.perf_counter()
+            r = run_()
+            sec[name].append(time.perf_counter() - t)
+            final[name] = (r.q[-1, 0], r.u[-1, 0])
+    return dict(steps=n_steps, ns={k: 1e9 * statistics.median(v) / n_steps for k, v in sec.items()},
+                ratio_cos=statistics.median(a / b for a, b in zip(sec["law"], sec["cos"])),
+                ratio_phasor=statistics.median(a / b for a, b in zip(sec["law"], sec["phasor"])),
+                ratio_free=statistics.median(a / b for a, b in zip(sec["free_law"], sec["free"])),
+                state_diff=max(abs(a - b) for a, b in zip(final["law"], final["cos"])))
+
+
 def pair_speed(repeats: int = 5, t_end: float = 100.0, dt: float = 1e-5):
     """Steps per second of simulate_pair with the switching coupling (forced pair)."""
     from fmu_sync.core import ImpactOscillator
@@ -113,6 +162,7 @@ def run(quick: bool = False) -> str:
     from .distance_cost import measure
     dist = measure(n_calls=50_000 if quick else 200_000, repeats=reps)
     pair = pair_speed(repeats=reps, t_end=20.0 if quick else 100.0)
+    law = law_vs_linear(repeats=reps, n_steps=2_000_000 if quick else 5_000_000)
     cos, ph = sim["cos"], sim["phasor"]
     lines = ["## Core speed", "", "Medians of %d interleaved repeats." % reps, "",
              f"C baseline `fmu_sync/benchmarks/moreau_loop.c`: the same operations in the same order as "
@@ -140,6 +190,13 @@ def run(quick: bool = False) -> str:
     lines.append(f"| `simulate_pair`, switching coupling, record_every=1000 | "
                  f"{pair['Msteps_median']:.2f} Msteps/s ({pair['Msteps_min']:.2f}–{pair['Msteps_max']:.2f}) "
                  f"| ≥ 2 Msteps/s |")
+    lines += [f"| user force law (the same forced oscillator as `h(q, u, tau, t, p)`), `simulate` | "
+              f"{law['ns']['law']:.1f} ns/step | |",
+              f"| user law / built-in law, cos path (same arithmetic; median) | {law['ratio_cos']:.2f} | ≤ 2 |",
+              f"| user law / built-in law, phasor path (the built-in default; median) | "
+              f"{law['ratio_phasor']:.2f} | |",
+              f"| final state, user law vs built-in cos path, max abs difference | {law['state_diff']:.1e} | |",
+              f"| unforced oscillator: user law / built-in law (median) | {law['ratio_free']:.2f} | ≤ 2 |"]
     return "\n".join(lines) + "\n"
 
 

@@ -9,15 +9,15 @@ from typing import Any
 
 import numpy as np
 
-from ..core import ImpactOscillator, InadmissibleState, MechanicalSystem
+from ..core import InadmissibleState, ModelError, load_model
 from ..core.checks import check_start
 from ..fmus import contract
 from . import SCENE_DIR, builtin_names
 from .schema import (DISTANCE_PLOTS, KEYS, MODELS, NAME_RE, NETWORK_PLOTS, REQUIRED, SINGLE_PLOTS,
-                     SYSTEM_KEYS, TABLES, VARIANT_TABLES, BadValue, NetworkSpec, SceneError, Variant, choice,
-                     plots_for, show_value)
+                     TABLES, VARIANT_TABLES, BadValue, NetworkSpec, SceneError, Variant, _model_name,
+                     plots_for, show_value, system_keys)
 
-__all__ = ["Scene", "load_scene", "as_scene", "list_scenes", "parse_override"]
+__all__ = ["Scene", "load_scene", "as_scene", "list_scenes", "parse_override", "model_of"]
 
 
 @dataclass(frozen=True)
@@ -175,7 +175,7 @@ def load_scene(name_or_path, overrides: dict | None = None, variants=None) -> Sc
     for head, flat, orig in raw_variants:
         merged = {**base, **flat}
         where = {**origin, **orig}
-        cfg = _validate(merged, where, ctx)
+        cfg = _validate(merged, where, ctx, path.parent)
         built.append(_build_variant(head["name"], head["description"], cfg, where, ctx, merged))
 
     plots, compare = _resolve_plots(origin, ctx, built)
@@ -195,7 +195,7 @@ def as_scene(scene, overrides: dict | None = None, variants=None) -> Scene:
     return scene
 
 
-def _validate(flat: dict, where: dict, ctx: str) -> dict:
+def _validate(flat: dict, where: dict, ctx: str, base=".") -> dict:
     """Check every dotted key against the schema of its table; return them with defaults filled."""
     def fail(key, value, problem, allowed):
         raise SceneError(f"{ctx}: {where.get(key, key)} = {show_value(value)}: {problem}; allowed: {allowed}")
@@ -203,12 +203,17 @@ def _validate(flat: dict, where: dict, ctx: str) -> dict:
     model = flat.get("system.model", REQUIRED)
     if model is REQUIRED:
         raise SceneError(f"{ctx}: system.model is missing; allowed: one of "
-                         + ", ".join(f'"{m}"' for m in MODELS))
+                         + ", ".join(f'"{m}"' for m in MODELS) + ', or "path/to/model.py:name"')
     try:
-        choice(*MODELS)(model)
+        _model_name(model)
+        declared = load_model(model, base)
     except BadValue as b:
         fail("system.model", model, b.problem, b.allowed)
-    schema = {f"system.{k}": s for k, s in SYSTEM_KEYS[model].items()}
+    except ModelError as exc:
+        fail("system.model", model, str(exc), "a built-in model or a file declaring that Model")
+    if model not in MODELS:   # a user model: its path as found (the scene may be run from elsewhere)
+        flat = {**flat, "system.model": f"{Path(base, model.rpartition(':')[0]).resolve()}:{model.rpartition(':')[2]}"}
+    schema = {f"system.{k}": s for k, s in system_keys(declared).items()}
     for table, keys in KEYS.items():
         schema.update({f"{table}.{k}": s for k, s in keys.items()})
 
@@ -232,20 +237,16 @@ def _validate(flat: dict, where: dict, ctx: str) -> dict:
     return cfg
 
 
+def model_of(cfg: dict):
+    """The declaration (:class:`~fmu_sync.core.Model`) of a variant's ``system.model``."""
+    return load_model(cfg["system.model"])
+
+
 def _make_system(cfg: dict):
-    """The MechanicalSystem of the (validated) ``system.*`` keys of ``cfg``."""
-    if cfg["system.model"] == "impact-oscillator":
-        return ImpactOscillator(m=cfg["system.m"], k=cfg["system.k"], c=cfg["system.c"],
-                                f0=cfg["system.f0"], F=cfg["system.F"], Omega=cfg["system.Omega"],
-                                phi=cfg["system.phi"], e=cfg["system.e"])
-    M = np.array(cfg["system.M"])
-    n = M.shape[0]
-    zeros = np.zeros((n, n))
-    return MechanicalSystem(M=M, K=cfg["system.K"] if cfg["system.K"] is not None else zeros,
-                            C=cfg["system.C"] if cfg["system.C"] is not None else zeros,
-                            f0=cfg["system.f0"] if cfg["system.f0"] is not None else np.zeros(n),
-                            w=cfg["system.w"], g0=cfg["system.g0"], e=cfg["system.e"],
-                            forcing=tuple(cfg["system.forcing"]))
+    """The MechanicalSystem of the (validated) ``system.*`` keys of ``cfg``: the model's
+    declaration checks its parameters and builds the system (docs/design.md §2.1.1)."""
+    model = model_of(cfg)
+    return model({k: cfg[f"system.{k}"] for k in model.names})
 
 
 def _build_network(cfg: dict, system, ctx: str, fail, state_of) -> NetworkSpec:
@@ -286,7 +287,8 @@ def _build_network(cfg: dict, system, ctx: str, fail, state_of) -> NetworkSpec:
         nodes = [{}] * N
     if len(nodes) != N:
         fail("network.nodes", nodes, f"has {len(nodes)} tables for {N} nodes", f"{N} tables ({{}} for the defaults)")
-    schema = SYSTEM_KEYS[cfg["system.model"]]
+    model = model_of(cfg)
+    schema = system_keys(model)
     systems = []
     for i, t in enumerate(nodes):
         if not t:
@@ -294,9 +296,11 @@ def _build_network(cfg: dict, system, ctx: str, fail, state_of) -> NetworkSpec:
             continue
         node_cfg = dict(cfg)
         for k, v in t.items():
-            if k not in schema:
-                fail("network.nodes", nodes, f"node {i + 1} sets an unknown key {k}",
-                     "keys of [system]: " + ", ".join(x for x in schema if x not in ("model", "m", "M", "w", "g0", "e")))
+            per_node = [x for x in schema if x != "model" and x not in model.geometry]
+            if k not in per_node:
+                fail("network.nodes", nodes, f"node {i + 1} sets {k}, which is not a per-node key "
+                     f"(the impact geometry {', '.join(model.geometry)} is common)",
+                     "keys of [system]: " + ", ".join(per_node))
             try:
                 node_cfg[f"system.{k}"] = schema[k][0](v)
             except BadValue as b:

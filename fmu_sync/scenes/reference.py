@@ -7,12 +7,12 @@ from __future__ import annotations
 import json
 import math
 
-from .loading import Scene, as_scene
-from .schema import KEYS, REQUIRED, SYSTEM_KEYS, TABLES, BadValue
+from .loading import Scene, as_scene, model_of
+from .schema import KEYS, MODELS, REQUIRED, SYSTEM_KEYS, TABLES, BadValue
 
 __all__ = ["key_rows", "keys_markdown", "scene_toml", "toml_value"]
 
-_TYPES = {"_number": "number", "_integer": "integer", "_boolean": "boolean", "choice": "string", "_text": "string",
+_TYPES = {"_number": "number", "_integer": "integer", "_boolean": "boolean", "choice": "string", "_text": "string", "_model_name": "string",
           "_vector": "array of numbers", "_matrix": "matrix (array of rows)", "_gain": "number or matrix",
           "_weight": "number or matrix", "_state": "[q, u]", "_plots": "array of strings",
           "_formats": "array of strings", "_graph": "string or matrix", "_states": "array of [q, u]",
@@ -66,7 +66,11 @@ def keys_markdown() -> str:
              "the tables below, an optional `description` and optional `[[runs]]` variants (each with a `name`, "
              "a `description` and keys of the tables other than `[plot]`, written `table.key = value`). "
              "`fmu-sync scenes --show NAME` prints a built-in scene with every key; `--set table.key=value` "
-             "overrides a key from the command line.", ""]
+             "overrides a key from the command line. The `[system]` keys are the declared parameters of the "
+             "model (docs/design.md §2.1.1): the built-in models' below; a user model, "
+             "`model = \"path/to/model.py:name\"` (a path relative to the scene file), takes the parameters "
+             "its `Model` declares, with their defaults, units and ranges (`fmu-sync scenes --show` prints them).",
+             ""]
     current = None
     for table, k, typ, default, allowed, unit, doc in key_rows():
         if table != current:
@@ -136,6 +140,10 @@ def scene_toml(scene) -> str:
                 for k in common if k.split(".")[0] == table and variants[0].cfg[k] is not None]
         if table == "plot":
             body = [f"plots = {toml_value(list(sc.plots))}", f"compare = {toml_value(bool(sc.compare))}"]
+        if table == "system" and variants[0].cfg["system.model"] not in MODELS:   # a user model: its declaration
+            decl = model_of(variants[0].cfg)
+            body = [f"# {decl.name}: {decl.description}"] + [
+                f"#   {p.name} [{p.unit}]: {p.description} ({p.allowed()})" for p in decl.params] + body
         if body:
             lines += ["", f"[{table}]"] + body
     if len(variants) > 1 or variants[0].name != sc.path.stem:

@@ -16,12 +16,16 @@ import numpy as np
 
 from ..core import MechanicalSystem
 from ..core.coupling import LAWS as COUPLING_LAWS
+from ..core.declaration import POSITIVE_MIN, Model, Param
+from ..core.declaration import builtin_models
 
 __all__ = ["SceneError", "Key", "Variant", "PLOTS", "DEFAULT_OUT", "KEYS", "SYSTEM_KEYS", "BadValue", "REQUIRED",
            "MODELS", "LAWS", "SCHEMES", "MODES", "METHODS", "TABLES", "VARIANT_TABLES", "SINGLE_PLOTS",
-           "DISTANCE_PLOTS", "plots_for", "NAME_RE", "show_value", "choice", "GRAPHS", "NETWORK_PLOTS", "NetworkSpec"]
+           "DISTANCE_PLOTS", "plots_for", "system_keys", "NAME_RE", "show_value", "choice", "GRAPHS", "NETWORK_PLOTS", "NetworkSpec"]
 
-MODELS = ("impact-oscillator", "mechanical-system")
+#: the built-in models' names (a scene may also name a user model "path/to/model.py:name")
+BUILTIN_MODELS = builtin_models()
+MODELS = tuple(BUILTIN_MODELS)
 #: the scenes' coupling.law values: the core's coupling laws, "none" first
 LAWS = ("none",) + tuple(k for k in COUPLING_LAWS if k != "none")
 SCHEMES = ("midpoint", "theta", "exact")
@@ -276,29 +280,40 @@ def _key(check, default=REQUIRED, doc="", unit=""):
     return Key(check, default, doc, unit)
 
 
-_IO_KEYS = {
-    "model": _key(choice(*MODELS), doc="the system: a 1-DOF impact oscillator, or an n-DOF mechanical system"),
-    "m": _key(_number(gt=0), 1.0, "mass", "kg"),
-    "k": _key(_number(ge=0), 0.0, "stiffness", "N/m"),
-    "c": _key(_number(ge=0), 0.0, "damping", "N s/m"),
-    "f0": _key(_number(), 0.0, "constant force", "N"),
-    "F": _key(_number(), 0.0, "forcing amplitude", "N"),
-    "Omega": _key(_number(), 0.0, "forcing frequency", "rad/s"),
-    "phi": _key(_number(), 0.0, "forcing phase", "rad"),
-    "e": _key(_number(ge=0, le=1), doc="Newton restitution coefficient"),
-}
-_MS_KEYS = {
-    "model": _IO_KEYS["model"],
-    "M": _key(_matrix, doc="mass matrix, symmetric positive definite", unit="kg"),
-    "K": _key(_matrix, None, "stiffness matrix (default zero)", "N/m"),
-    "C": _key(_matrix, None, "damping matrix (default zero)", "N s/m"),
-    "f0": _key(_vector, None, "constant force (default zero)", "N"),
-    "w": _key(_vector, doc="wall normal: g(q) = w.q + g0 >= 0 (non-zero)"),
-    "g0": _key(_number(), 0.0, "wall offset", "m"),
-    "e": _IO_KEYS["e"],
-    "forcing": _key(_forcing, [], "harmonic forces F cos(Omega t + phi) (F in N, Omega in rad/s, phi in rad)"),
-}
-SYSTEM_KEYS = {"impact-oscillator": _IO_KEYS, "mechanical-system": _MS_KEYS}
+def _model_name(v):
+    allowed = "one of " + ", ".join(f'"{m}"' for m in MODELS) + ', or "path/to/model.py:name" (a user model)'
+    if not isinstance(v, str):
+        raise BadValue(f"is a {type(v).__name__}, not a string", allowed)
+    path, sep, name = v.rpartition(":")
+    if v not in MODELS and not (sep and path.endswith(".py") and name.isidentifier()):
+        raise BadValue("is not allowed", allowed)
+    return v
+
+
+def _param_check(p: Param):
+    """The scene checker of a declared parameter (docs/design.md §2.1.1): its shape and range."""
+    if p.shape == ("n",):
+        return _vector
+    if p.shape == ("n", "n"):
+        return _matrix
+    if p.shape == ("terms",):
+        return _forcing
+    positive = p.min == POSITIVE_MIN
+    return _number(gt=0 if positive else None, ge=None if positive else p.min, le=p.max)
+
+
+def system_keys(model: Model) -> dict:
+    """The ``[system]`` keys of a model, from its declaration: ``model`` and one key per parameter
+    (checker, default, unit and meaning as declared; a vector/matrix without default: zero)."""
+    keys = {"model": _key(_model_name, doc="the system: a built-in model or a user model 'path/to/model.py:name'")}
+    for p in model.params:
+        default = REQUIRED if p.required else list(p.default) if isinstance(p.default, tuple) else p.default
+        keys[p.name] = _key(_param_check(p), default, p.description, "" if p.unit == "1" else p.unit)
+    return keys
+
+
+#: the built-in models' [system] keys (a user model's: :func:`system_keys` of its declaration)
+SYSTEM_KEYS = {name: system_keys(m) for name, m in BUILTIN_MODELS.items()}
 KEYS = {
     "initial": {"x1": _key(_state, None, "start state [q, u] of system 1 (required unless a network)", "m, m/s"),
                 "x2": _key(_state, None, "start state of system 2 (leave out: a single system)", "m, m/s")},

@@ -169,7 +169,9 @@ def prepare(scene, runs: list[dict], variant_name: str | None) -> Prepared:
 
     def compiled_ok(v):
         s = v.system
-        return (v.mode == "core" and s.n == 1 and s.m == 1 and float(s.B[0, 0]) == 1.0
+        # a user force law runs run by run (simulate_pair runs the law's own loop; the batch kernel
+        # carries the built-in linear law only)
+        return (v.mode == "core" and s.force is None and s.n == 1 and s.n_inputs == 1 and float(s.B[0, 0]) == 1.0
                 and v.cfg["solver.scheme"] in ("midpoint", "theta"))
 
     comp = np.array([compiled_ok(variants[g]) for g in group], dtype=bool) if R else np.zeros(0, bool)

@@ -1,0 +1,259 @@
+"""User force laws ``h(q, u, tau, t, p)`` (docs/design.md §2.8, docs/user-model.md).
+
+A :class:`ForceLaw` is a Python function written for numba's nopython mode, with its
+parameters declared once (:class:`fmu_sync.core.declaration.Param`: name, default, unit,
+min/max, description) and, optionally, the linear part the θ-scheme treats implicitly and
+the stiffness of the synchronization metric. A system takes it as
+``MechanicalSystem(M=..., w=..., g0=..., e=..., force=law, params={...})``.
+
+Compilation: the law is compiled once per process into its own copies of the loops of
+:mod:`.law_loops` (:meth:`ForceLaw.kernels`), which call it from the compiled step; the
+copies are cached on disk (numba ``cache=True``) under the law's :attr:`ForceLaw.key`: the
+sha256 of the user's source *file* (any edit of it, helpers included, recompiles), the law's
+name, dimension, return form and whether it declares a linear part; the core's own stamp is
+added by the cache locator (core/_cache.py). A law defined where no source file exists (a
+REPL) compiles every process (no cache).
+
+The built-in linear law is not a ForceLaw: systems without ``force=`` run the fast built-in
+loops of :mod:`.moreau` and :mod:`.loop`, unchanged.
+"""
+from __future__ import annotations
+
+import hashlib
+import inspect
+import re
+import types as pytypes
+
+import numpy as np
+from numba import njit, types
+from numba.core.registry import CPUDispatcher
+
+from . import law_loops
+from ._cache import LAW_KEY, depends_on_core
+from .errors import LawRefused
+
+__all__ = ["ForceLaw", "force_law", "LawKernels", "METRIC_SOURCES"]
+
+#: How the stiffness of a law's metric was obtained (result.info["metric_stiffness"]).
+METRIC_SOURCES = {
+    "declared": "the stiffness the law declares (stiffness(p))",
+    "linear": "the law's declared linear part K_L",
+    "jacobian": "-dh/dq at q = 0, u = 0, tau = 0, t = 0 (central differences)",
+}
+
+_ARR = types.Array(types.float64, 1, "C")
+#: the signature every law is compiled for: h(q, u, tau, t, p)
+LAW_SIGNATURE = (_ARR, _ARR, _ARR, types.float64, _ARR)
+
+_KERNELS: dict = {}   # law key (or id) -> LawKernels, one compilation per process
+
+
+class LawKernels(pytypes.SimpleNamespace):
+    """The law's compiled loops: ``integrate``, ``advance``, ``network`` (and ``step``,
+    ``force``) with the signatures of :mod:`.law_loops`."""
+
+
+def _source_file(fn):
+    try:
+        path = inspect.getsourcefile(fn)
+    except TypeError:
+        return None
+    if path is None:
+        return None
+    try:
+        with open(path, "rb") as f:
+            return path, f.read()
+    except OSError:
+        return None
+
+
+class ForceLaw:
+    """A force law ``h(q, u, tau, t, p) -> (n,) array`` (or a float for n = 1).
+
+    Parameters
+    ----------
+    h : function
+        Written for numba nopython mode (a plain function, or an ``@njit`` one); q, u, tau:
+        float64 (n,) arrays, t: float, p: the float64 parameter array in the order of
+        ``params``. It is the whole generalized force (linear part included).
+    params : sequence of Param
+        The parameters (``fmu_sync.core.declaration.Param``: name, default, unit, min, max,
+        description), declared once; ``p[i]`` is ``params[i]``.
+    n : int
+        Degrees of freedom.
+    name : str
+        Used in every message (default: ``h.__name__``).
+    linear : callable ``linear(p) -> (K_L, C_L)``, optional
+        A linear part ``-K_L q - C_L u`` contained in h: the θ-scheme treats it implicitly
+        (S = M + θ dt C_L + θ² dt² K_L) and the rest explicitly; it is also the default
+        stiffness of the metric.
+    stiffness : callable ``stiffness(p) -> K_m``, optional
+        The stiffness of the synchronization metric (Q = K_m + 2 Kp, docs/design.md §2.8.2).
+    """
+
+    def __init__(self, h, params=(), n: int = 1, name: str | None = None, linear=None, stiffness=None):
+        py = h.py_func if isinstance(h, CPUDispatcher) else h
+        if not callable(py):
+            raise TypeError(f"a force law needs a function h(q, u, tau, t, p), got {h!r}")
+        self.name = str(name or getattr(py, "__name__", "law"))
+        self.params = tuple(params)
+        self.n = int(n)
+        if self.n < 1:
+            raise ValueError(f"force law {self.name!r}: n must be >= 1, got {n}")
+        names = [prm.name for prm in self.params]
+        shaped = [prm.name for prm in self.params if tuple(getattr(prm, "shape", ())) != ()]
+        if shaped:
+            raise ValueError(f"force law {self.name!r}: the parameters of h are scalars (p is a float array), "
+                             f"got shaped parameters {shaped}")
+        if len(set(names)) != len(names):
+            raise ValueError(f"force law {self.name!r}: parameter names repeat: {names}")
+        self.linear = linear
+        self.stiffness = stiffness
+        self.py_func = py
+        src = _source_file(py)
+        self.source = src[0] if src else None
+        if src:
+            hsh = hashlib.sha256(src[1])
+            hsh.update(f"{py.__qualname__}|{self.n}|{linear is not None}".encode())
+            self.key = hsh.hexdigest()
+        else:
+            self.key = None
+        # inlined into the step (numba IR): no call with array arguments per step
+        if self.source is not None:   # h's own cache is stamped with the core too (our flags live there)
+            depends_on_core(self.source)
+        # error_model="numpy": 1/0 is inf (a non-finite force: refused at the start, a divergence
+        # mid-run), never a ZeroDivisionError raised out of a compiled loop
+        self.dispatcher = njit(cache=self.key is not None, inline="always", error_model="numpy")(py)
+        self._returns = None
+
+    @property
+    def names(self) -> tuple:
+        """The parameter names, in the order of ``p``."""
+        return tuple(prm.name for prm in self.params)
+
+    def __repr__(self):
+        return f"ForceLaw({self.name!r}, n={self.n}, params={[p.name for p in self.params]})"
+
+    # ------------------------------------------------------------------ parameters
+    def values(self, values=None, **kw) -> np.ndarray:
+        """The parameter array ``p`` from a mapping and/or keywords: defaults filled, each value
+        checked against its declared range; an unknown name is refused (LawRefused naming it)."""
+        given = dict(values or {}, **kw)
+        known = {prm.name for prm in self.params}
+        unknown = sorted(set(given) - known)
+        if unknown:
+            raise LawRefused(f"force law {self.name!r} has no parameter {unknown[0]!r}; "
+                             f"its parameters: {sorted(known)}")
+        p = np.empty(len(self.params))
+        for i, prm in enumerate(self.params):   # the declaration's own check (Param.check)
+            try:
+                p[i] = prm.check(given.get(prm.name, prm.default), f"force law {self.name!r}")
+            except ValueError as exc:
+                raise LawRefused(str(exc)) from None
+        return p
+
+    def linear_part(self, p):
+        """``(K_L, C_L)`` (n x n float arrays; zeros if the law declares none)."""
+        n = self.n
+        if self.linear is None:
+            return np.zeros((n, n)), np.zeros((n, n))
+        KL, CL = self.linear(p)
+        return (np.array(KL, dtype=np.float64).reshape(n, n), np.array(CL, dtype=np.float64).reshape(n, n))
+
+    def metric_stiffness(self, p):
+        """``(K_m, source)``: the metric's stiffness (:data:`METRIC_SOURCES`, docs/design.md §2.8.2)."""
+        n = self.n
+        if self.stiffness is not None:
+            return np.array(self.stiffness(p), dtype=np.float64).reshape(n, n), "declared"
+        if self.linear is not None:
+            return self.linear_part(p)[0], "linear"
+        K = np.empty((n, n))
+        z = np.zeros(n)
+        for j in range(n):
+            hq = 1e-6
+            qp, qm = z.copy(), z.copy()
+            qp[j], qm[j] = hq, -hq
+            K[:, j] = -(self.evaluate(qp, z, z, 0.0, p) - self.evaluate(qm, z, z, 0.0, p)) / (2 * hq)
+        return 0.5 * (K + K.T), "jacobian"
+
+    # ------------------------------------------------------------------ compiling and checking
+    def compile(self):
+        """Compile h for :data:`LAW_SIGNATURE`; returns ``"array"`` or ``"scalar"`` (its
+        return form). Raises :class:`LawRefused` naming the law if numba cannot compile it or it
+        returns something else than an (n,) float array (or a float for n = 1)."""
+        if self._returns is not None:
+            return self._returns
+        try:
+            self.dispatcher.compile(LAW_SIGNATURE)
+        except Exception as exc:   # numba's typing/lowering errors have no common public base
+            first = re.sub(r"\x1b\[[0-9;]*m", "", str(exc)).strip().splitlines()   # numba's colours
+            raise LawRefused(f"force law {self.name!r} is not numba-compilable in nopython mode as "
+                             f"h(q, u, tau, t, p) with float64 arrays q, u, tau, p and a float t: "
+                             f"{type(exc).__name__}: {' '.join(first[:6])}") from None
+        rt = self.dispatcher.overloads[LAW_SIGNATURE].signature.return_type
+        if isinstance(rt, types.Array) and rt.ndim == 1 and isinstance(rt.dtype, types.Float):
+            self._returns = "array"
+        elif isinstance(rt, (types.Float, types.Integer)) and self.n == 1:
+            self._returns = "scalar"
+        else:
+            allowed = "a float64 (n,) array" + (" or a float" if self.n == 1 else "")
+            raise LawRefused(f"force law {self.name!r} must return {allowed} (n = {self.n}), "
+                             f"it returns {rt}")
+        return self._returns
+
+    def evaluate(self, q, u, tau, t, p) -> np.ndarray:
+        """h at one point, as an (n,) array (compiled; for checks and the metric)."""
+        self.compile()
+        args = [np.ascontiguousarray(x, dtype=np.float64).reshape(-1) for x in (q, u, tau)]
+        try:
+            r = self.dispatcher(*args, float(t), np.ascontiguousarray(p, dtype=np.float64))
+        except Exception as exc:   # an exception the law raises itself (numba: raise ...)
+            raise LawRefused(f"force law {self.name!r} raised {type(exc).__name__}: {exc} at q = "
+                             f"{args[0].tolist()}, u = {args[1].tolist()}, t = {float(t):g}") from None
+        return np.array(r, dtype=np.float64, ndmin=1).reshape(-1)
+
+    def check(self, p, q, u, tau=None, t: float = 0.0, where: str = "the start state"):
+        """Before a run: compilable, the right shape, finite at ``(q, u, tau, t)``."""
+        n = self.n
+        tau = np.zeros(n) if tau is None else tau
+        r = self.evaluate(q, u, tau, t, p)
+        if r.shape != (n,):
+            raise LawRefused(f"force law {self.name!r} returned shape {r.shape} at {where}, expected ({n},)")
+        if not np.all(np.isfinite(r)):
+            vals = ", ".join(f"{prm.name} = {v:g}" for prm, v in zip(self.params, p))
+            raise LawRefused(f"force law {self.name!r} returned non-finite values {r.tolist()} at {where} "
+                             f"q = {np.asarray(q).tolist()}, u = {np.asarray(u).tolist()}, t = {t:g} "
+                             f"({vals})")
+
+    def kernels(self) -> LawKernels:
+        """The law's loops (:mod:`.law_loops` specialised to it), compiled once per process and
+        cached on disk under :attr:`key` (lazily compiled on first call)."""
+        k = self.key or id(self)
+        if k in _KERNELS:
+            return _KERNELS[k]
+        kind = self.compile()
+        g = {name: val for name, val in vars(law_loops).items()}
+        g[LAW_KEY] = self.key
+        g["law_h"] = self.dispatcher
+        cache = self.key is not None
+        tmpl = [("law_force", law_loops._force_scalar if kind == "scalar" else law_loops._force_array),
+                ("law_force1", law_loops._force1_scalar if kind == "scalar" else law_loops._force1_array)]
+        tmpl += [(name, getattr(law_loops, name)) for name in law_loops.TEMPLATES]
+        for name, fn in tmpl:
+            f = pytypes.FunctionType(fn.__code__, g, name, fn.__defaults__, fn.__closure__)
+            f.__qualname__ = f"{name}_{kind}"
+            f.__module__ = law_loops.__name__
+            inline = "always" if name in law_loops.INLINED else "never"
+            g[name] = njit(cache=cache, inline=inline, error_model="numpy")(f)
+        ns = LawKernels(force=g["law_force"], step=g["law_step"],
+                        integrate=g["_integrate1"] if self.n == 1 else g["law_integrate"],
+                        advance=g["law_advance"], network=g["law_network"])
+        _KERNELS[k] = ns
+        return ns
+
+
+def force_law(params=(), n: int = 1, name: str | None = None, linear=None, stiffness=None):
+    """Decorator: ``@force_law(params=(...), n=1) def h(q, u, tau, t, p): ...`` -> :class:`ForceLaw`."""
+    def wrap(h):
+        return ForceLaw(h, params=params, n=n, name=name, linear=linear, stiffness=stiffness)
+    return wrap
