@@ -31,7 +31,8 @@ Where each concept lives: docs/design.md §3. Kernels compile lazily, on first u
 """
 from . import _cache  # noqa: F401  (first: every core kernel's cache is keyed on the whole core)
 from .model import IMPACT_OSCILLATOR, MECHANICAL_SYSTEM, ImpactOscillator, MechanicalSystem, SystemArrays
-from .declaration import Model, ModelError, Param, load_model
+from .declaration import Model, ModelError, Param
+from .registry import load_model
 from .impact import impact_map
 from .errors import RunFailed, RunRefused, SimulationDiverged, UnstableScheme
 from .checks import InadmissibleState, RecordTooLarge

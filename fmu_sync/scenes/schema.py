@@ -17,7 +17,7 @@ import numpy as np
 from ..core import MechanicalSystem
 from ..core.coupling import LAWS as COUPLING_LAWS
 from ..core.declaration import POSITIVE_MIN, Model, Param
-from ..core.declaration import builtin_models
+from ..core.registry import builtin_models
 
 __all__ = ["SceneError", "Key", "Variant", "PLOTS", "DEFAULT_OUT", "KEYS", "SYSTEM_KEYS", "BadValue", "REQUIRED",
            "MODELS", "LAWS", "SCHEMES", "MODES", "METHODS", "TABLES", "VARIANT_TABLES", "SINGLE_PLOTS",
