@@ -31,6 +31,7 @@ from pathlib import Path
 from .core.declaration import Model, ModelError
 from .core.registry import builtin_models, load_model
 from .fmus import contract
+from .fmus._xml import unit_exponents
 
 __all__ = ["resolve", "rewrite_imports", "declaration_of"]
 #: where the built-in declarations live (module of the package, relative to the carried core)
@@ -157,6 +158,11 @@ def resolve(model) -> tuple[str, dict, dict]:
         record = {"file": path.name, "name": attr, "sha256": hashlib.sha256(text).hexdigest(),
                   "source": text.decode("utf-8")}
     files["user/runtime.py"] = runtime
+    for p in decl.params:   # each unit readable for <UnitDefinitions> before anything is compiled
+        try:
+            unit_exponents(p.unit)
+        except ValueError as exc:
+            raise ModelError(f"model {decl.name!r}, parameter {p.name}: {exc}") from None
     fm = contract.declared(decl, key)
     fm.declaration.force.compile()      # LawRefused (a ValueError) names the law numba cannot compile
     return key, files, record
