@@ -141,7 +141,8 @@ def test_two_instances_synchronize_under_the_switching_law(pend):
 
 def test_builtin_duffing_exports_and_runs(tmp_path):
     from fmpy import simulate_fmu
-    fmu = export_fmu("duffing", tmp_path / "duffing.fmu", {"F": 0.5, "Omega": 1.3, "g0": 0.5, "c": 0.05})
+    fmu = export_fmu("duffing", tmp_path / "duffing.fmu", {"F": 0.5, "Omega": 1.3, "g0": 0.5, "c": 0.05,
+                                                              "q_start": 0.5})
     r = simulate_fmu(str(fmu), stop_time=5.0, output_interval=0.01, output=["q", "impacts"])
     c = simulate(DUFFING(F=0.5, Omega=1.3, g0=0.5, c=0.05), ([0.5], [0.0]), 5.0, 1e-3, record_every=10)
     assert r["impacts"][-1] >= 1
