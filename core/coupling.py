@@ -290,6 +290,13 @@ def coupling_forces(system, x1, x2, law, Kp, Kd, Q=None):
 #: fallback Q = I of a run with no coupling whose K + 2 Kp is not positive definite.
 METRICS = ("energy", "linearized", "user", "identity")
 
+#: How the stiffness of a law's metric was obtained (result.info["metric_stiffness"]).
+METRIC_SOURCES = {
+    "declared": "the stiffness the law declares (stiffness(p))",
+    "linear": "the law's declared linear part K_L",
+    "jacobian": "-dh/dq at q = 0, u = 0, tau = 0, t = 0 (central differences)",
+}
+
 
 def laplacian_factor(A=None):
     """``(lam, exact)`` for the weights ``A`` (N x N, a_ij >= 0; None: a pair with weight 1).
@@ -369,7 +376,6 @@ def law_metric(Q, K, Kp, A=None, coupled: bool = True, stiffness: str | None = N
     lm = _law_metric(Q, K, Kp, A, coupled)
     if stiffness is None or lm.metric != "energy":
         return lm
-    from .forcelaw import METRIC_SOURCES
     return LawMetric(lm.Q, "linearized", False,
                      f"the energy metric with the law's stiffness K_m = {METRIC_SOURCES[stiffness]} in place of K: "
                      "V = d^2/2 is the energy of the relative motion "

@@ -27,6 +27,7 @@ import types as pytypes
 import numpy as np
 
 from . import law_loops
+from .coupling import METRIC_SOURCES  # noqa: F401 (re-exported: how a law's K_m was obtained)
 from .errors import LawRefused
 from .jit import NUMBA, njit
 
@@ -36,12 +37,6 @@ if NUMBA:   # compiled mode; the code an FMU carries runs h as plain Python (cor
 
 __all__ = ["ForceLaw", "force_law", "LawKernels", "METRIC_SOURCES"]
 
-#: How the stiffness of a law's metric was obtained (result.info["metric_stiffness"]).
-METRIC_SOURCES = {
-    "declared": "the stiffness the law declares (stiffness(p))",
-    "linear": "the law's declared linear part K_L",
-    "jacobian": "-dh/dq at q = 0, u = 0, tau = 0, t = 0 (central differences)",
-}
 
 #: the signature every law is compiled for: h(q, u, tau, t, p) (None in plain Python)
 LAW_SIGNATURE = None

@@ -194,7 +194,8 @@ class NetworkMaster:
         n = model.n
         self.Kp_m, self.Kd_m, self.A_coupled, self.limit = plan.Kp, plan.Kd, plan.A_coupled, plan.limit
         self.metric = law_metric(self.Q, [s.K for s in plan.systems], self.Kp_m,
-                                 self.A_coupled if self.coupled else None, coupled=self.coupled)
+                                 self.A_coupled if self.coupled else None, coupled=self.coupled,
+                                 stiffness=plan.systems[0].metric_source)   # a user force law: "linearized"
         self.geo = geometry(system, self.metric.Q)
         E, rows = len(self.edges), record_rows(self.n_steps, self.record_every)
         self.T = np.full(rows, np.nan)

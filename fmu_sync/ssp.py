@@ -127,7 +127,7 @@ def _coupling_values(variant, systems, A, edges, laws, n: int) -> tuple[dict, di
         if law in (None, "none"):
             Ac[i, j] = Ac[j, i] = 0.0
     metric = law_metric(variant.Q, [s.K for s in systems], gain_matrix(variant.Kp, n, "Kp"),
-                        Ac if coupled else None, coupled=coupled)
+                        Ac if coupled else None, coupled=coupled, stiffness=systems[0].metric_source)
     geo = geometry(systems[0], metric.Q)
     for sym, mat in (("Kp", gain_matrix(variant.Kp, n, "Kp")), ("Kd", gain_matrix(variant.Kd, n, "Kd")),
                      ("Q", geo.Q), ("M", geo.M)):

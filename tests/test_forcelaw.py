@@ -63,6 +63,7 @@ def load(tmp_path, name, src):
 
 
 # ------------------------------------------------------------------ the linear law as a user law
+@pytest.mark.slow   # compiles the built-in and a user law's loops (cached afterwards)
 @pytest.mark.parametrize("scheme", ["midpoint", "theta"])
 def test_linear_user_law_is_the_builtin_step(tmp_path, scheme):
     """h = -k q - c u + tau written by the user runs the very arithmetic of the built-in law
@@ -102,6 +103,7 @@ def test_examples_against_event_restarting_dop853(case, scheme):
     assert err[0] / err[1] > 5.0, err   # first order (10x smaller dt: ~10x smaller error)
 
 
+@pytest.mark.slow   # compiles a law's coupled loop (cached afterwards)
 @pytest.mark.parametrize("case", sorted(CASES))
 def test_examples_synchronize_under_the_switching_law(case):
     make, x0 = CASES[case]

@@ -103,7 +103,7 @@ def write(tmp_path, text, name="my-scene.toml"):
     ("Kp = 1.0", "Kp = -1.0", "coupling.Kp", "-1.0", ">= 0"),
     ("x2 = [0.5, 0.0]", "x2 = [-0.5, 0.0]", "initial.x2", "[-0.5, 0.0]", "g(q) >= 0"),
     ("x2 = [0.5, 0.0]", "x2 = [0.5]", "initial.x2", "[0.5]", "[q, u]"),
-    ('model = "impact-oscillator"', 'model = "pendulum"', "system.model", '"pendulum"', "impact-oscillator"),
+    ('model = "impact-oscillator"', 'model = "rocket"', "system.model", '"rocket"', "impact-oscillator"),
     ("t_end = 1.0", "t_end = 1.0\n[solver]\ntheta = 0.2", "solver.theta", "0.2", "[0.5, 1]"),
     ("t_end = 1.0", 't_end = 1.0\n[plot]\nplots = ["positions", "spectrum"]', "plot.plots", "spectrum",
      '"positions"'),
