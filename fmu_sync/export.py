@@ -323,9 +323,9 @@ def build_binary(out: Path, guid: str, boot_module: str, max_substeps: int = MAX
         raise RuntimeError(f"cannot build the FMU binary: C compiler {cc!r} not found (install gcc or set CC)")
     with tempfile.TemporaryDirectory(prefix="fmu-sync-h-") as inc:
         Path(inc, _CONSTANTS_H).write_bytes(constants_header(guid, boot_module, max_substeps))
-        obj = native.stepper_object(stepper_cfunc(model), Path(inc) / "fmu_sync_stepper.o")
+        objs = native.stepper_objects(stepper_cfunc(model), Path(inc))
         cmd = [cc, "-std=gnu11", "-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-s", f"-I{inc}",
-               "-Wl,--no-undefined", "-o", str(out), *srcs, str(obj), *_LIBS]
+               "-Wl,--no-undefined", "-o", str(out), *srcs, *map(str, objs), *_LIBS]
         p = subprocess.run(cmd, capture_output=True, text=True)
     if p.returncode != 0:
         raise RuntimeError(f"cannot build the FMU binary ({' '.join(cmd)}):\n{p.stderr[-3000:]}")
@@ -385,7 +385,7 @@ def target_requires(model: str = "impact-oscillator") -> dict[str, str]:
 
 def _native_record() -> dict:
     """How the native stepper was made (informative: the target needs none of it)."""
-    return {**native.check_versions(), "cpu": native.CPU, "triple": native.TRIPLE, "entry": native.ENTRY}
+    return {**native.check_versions(), "cpu": [cpu for cpu, _ in native.VARIANTS], "triple": native.TRIPLE}
 
 
 def _model_description_xml(cls, starts: dict, guid: str, fmi_version: int = 2) -> bytes:

@@ -13,8 +13,11 @@ How (numba and llvmlite internals, hence the pinned versions of :data:`TESTED`):
    all callees into it, so a function the stepper calls, a user's force law included, is in
    it whether it is inlined or not; from a fresh compile or from numba's cache alike);
 2. every definition made internal but the entry, renamed ``fsr_native_step``;
-3. object code from a target machine for ``cpu="x86-64"`` (SSE2: any x86-64 CPU),
-   position-independent (it goes into a shared library);
+3. object code from a target machine for each of :data:`VARIANTS`, position-independent
+   (it goes into a shared library): ``cpu="x86-64"`` (SSE2: any x86-64 CPU), and
+   ``x86-64-v3`` (AVX2), which the binary picks when it is loaded on a CPU that has it
+   (the baseline code costs ~10% more per step; both give the same numbers: no fused
+   multiply-add without numba's fastmath, tested bit for bit);
 4. its undefined symbols classified (:func:`link_names`): C library functions (``cos``,
    ``exp``, ``memcpy`` ...) bound to their oldest glibc version, so that the binary needs no
    newer glibc than the exporting one's 2.2.5 symbols; numba's runtime functions and the
@@ -32,13 +35,16 @@ import subprocess
 import tempfile
 from pathlib import Path
 
-__all__ = ["ENTRY", "CPU", "TRIPLE", "GLIBC_BASE", "LIBC", "RUNTIME", "TESTED", "NativeCodeError",
-           "check_versions", "stepper_object", "link_names"]
+__all__ = ["ENTRY", "CPU", "VARIANTS", "TRIPLE", "GLIBC_BASE", "LIBC", "RUNTIME", "TESTED", "NativeCodeError",
+           "check_versions", "stepper_object", "stepper_objects", "link_names"]
 
-#: the C name of the stepper in the binary (fmus/c/fmu_sync_runtime.c)
+#: the C name of the stepper in the binary (fmus/c/fmu_sync_native.h: the variant the CPU runs)
 ENTRY = "fsr_native_step"
-#: the instruction set of the object code: baseline x86-64 (SSE2), on any x86-64 CPU
+#: the instruction set every x86-64 CPU runs (SSE2): the stepper's baseline
 CPU = "x86-64"
+#: (LLVM cpu, C name) of each compiled variant of the stepper; fmus/c/fmu_sync_native.c
+#: chooses one when the binary is loaded (__builtin_cpu_supports)
+VARIANTS = ((CPU, "fsr_native_step_base"), ("x86-64-v3", "fsr_native_step_v3"))
 TRIPLE = "x86_64-unknown-linux-gnu"
 #: the glibc version every C library function of the object binds to (x86-64's first)
 GLIBC_BASE = "GLIBC_2.2.5"
@@ -94,7 +100,7 @@ def check_versions() -> dict:
     return found
 
 
-def _target_machine():
+def _target_machine(cpu: str):
     import llvmlite.binding as llvm
     try:
         llvm.initialize_native_target()
@@ -102,7 +108,7 @@ def _target_machine():
     except Exception:   # pragma: no cover (llvmlite versions that initialise by themselves)
         pass
     target = llvm.Target.from_triple(TRIPLE)
-    return target.create_target_machine(cpu=CPU, features="", opt=3, reloc="pic", codemodel="default")
+    return target.create_target_machine(cpu=cpu, features="", opt=3, reloc="pic", codemodel="default")
 
 
 def _tool(name: str) -> str:
@@ -142,14 +148,20 @@ def link_names(undefined) -> dict[str, str]:
     return out
 
 
-def stepper_object(stepper, out: Path) -> Path:
-    """Write the native object of the numba cfunc ``stepper`` (entry :data:`ENTRY`) to ``out``."""
+def stepper_objects(stepper, folder: Path) -> list[Path]:
+    """The native objects of the numba cfunc ``stepper``, one per :data:`VARIANTS`, in ``folder``."""
+    return [stepper_object(stepper, Path(folder) / f"{name}.o", cpu, name) for cpu, name in VARIANTS]
+
+
+def stepper_object(stepper, out: Path, cpu: str = CPU, entry: str = VARIANTS[0][1]) -> Path:
+    """Write the native object of the numba cfunc ``stepper`` for ``cpu`` (its function named
+    ``entry``) to ``out``."""
     check_versions()
     if not hasattr(stepper, "_library") or not hasattr(stepper, "native_name"):
         raise NativeCodeError(f"{stepper!r} is not a compiled numba cfunc (was numba imported in plain mode?)")
     try:
         module = stepper._library._get_module_for_linking().clone()
-        entry = module.get_function(stepper.native_name)
+        wrapper = module.get_function(stepper.native_name)
     except Exception as exc:
         raise NativeCodeError(f"cannot read the compiled module of the stepper from numba: {exc!r}") from None
     fixed = re.search(r"inttoptr \(i64 ([1-9]\d{4,})", str(module))
@@ -166,15 +178,15 @@ def stepper_object(stepper, out: Path) -> Path:
     for gv in module.global_variables:
         if not gv.is_declaration:
             gv.linkage = "internal"
-    entry.linkage = "external"
-    entry.visibility = "hidden"
-    entry.name = ENTRY
+    wrapper.linkage = "external"
+    wrapper.visibility = "hidden"
+    wrapper.name = entry
     module.triple = TRIPLE
     try:
         module.verify()
-        code = _target_machine().emit_object(module)
+        code = _target_machine(cpu).emit_object(module)
     except Exception as exc:
-        raise NativeCodeError(f"LLVM could not emit the stepper for {CPU}: {exc}") from None
+        raise NativeCodeError(f"LLVM could not emit the stepper for {cpu}: {exc}") from None
     out = Path(out)
     out.write_bytes(code)
     names = link_names(_undefined(out))

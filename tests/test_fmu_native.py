@@ -125,11 +125,11 @@ from fmu_sync import native  # noqa: E402
 from fmu_sync.export import export_coupling, export_fmu  # noqa: E402
 
 
-def _child(name, args, tmp, timeout=600):
+def _child(name, args, tmp, timeout=600, env=None):
     a, o = tmp / f"{name}.args.json", tmp / f"{name}.{len(list(tmp.iterdir()))}.out.json"
     a.write_text(json.dumps(args))
     p = subprocess.run([sys.executable, __file__, name, str(a), str(o)], capture_output=True, text=True,
-                       timeout=timeout)
+                       timeout=timeout, env=None if env is None else {**os.environ, **env})
     assert p.returncode == 0, p.stderr[-3000:]
     return json.loads(o.read_text())
 
@@ -149,9 +149,13 @@ def fmus(tmp_path_factory):
     }
 
 
-def test_native_stepper_equals_numba_stepper_bit_for_bit(fmus):
+@pytest.mark.parametrize("variant", ["the CPU's", "baseline"])
+def test_native_stepper_equals_numba_stepper_bit_for_bit(fmus, variant):
+    """Both compiled variants (x86-64-v3 where the CPU has AVX2, and the baseline every x86-64
+    runs, forced by FMU_SYNC_NATIVE_BASELINE) give numba's numbers."""
     tmp, paths = fmus
-    r = _child("compare", {"fmus": paths, "tmp": str(tmp), "H": 0.01, "steps": 400, "amp": 0.3}, tmp)
+    env = {"FMU_SYNC_NATIVE_BASELINE": "1"} if variant == "baseline" else None
+    r = _child("compare", {"fmus": paths, "tmp": str(tmp), "H": 0.01, "steps": 400, "amp": 0.3}, tmp, env=env)
     for key in paths:
         assert r[key]["values"] >= 400 * 3, key
         assert r[key]["mismatches"] == 0, (key, r[key])
@@ -173,7 +177,7 @@ def test_binary_carries_the_stepper_and_binds_libm_to_the_oldest_glibc(fmus):
         so = tmp / "exact.so"
         so.write_bytes(zf.read(next(n for n in zf.namelist() if n.endswith(".so"))))
         build = json.loads(zf.read("resources/fmu_sync_build.json"))
-    assert build["native_stepper"]["cpu"] == "x86-64" and "numba" not in build["built_with"]
+    assert build["native_stepper"]["cpu"] == ["x86-64", "x86-64-v3"] and "numba" not in build["built_with"]
     dyn = subprocess.run(["objdump", "-T", str(so)], capture_output=True, text=True, check=True).stdout
     libm = {m.group(2): m.group(1) for m in re.finditer(r"\((GLIBC_[\d.]+)\)\s+(\w+)$", dyn, re.M)}
     for f in ("exp", "cos", "sin", "expm1"):       # the exact flow's functions

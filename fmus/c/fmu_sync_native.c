@@ -5,10 +5,11 @@
  * and to CPython to fsrx_<name> (fmu_sync.native.RUNTIME); they are defined here:
  *
  * - allocation (numba's NRT API, same MemInfo layout: the object's inlined reference counting
- *   reads refct and data): malloc-backed meminfos, freed when their count drops to zero;
+ *   reads refct and data): one malloc'd block per array (meminfo, then the aligned data),
+ *   freed when its count drops to zero; variable-size data (lists, strings) apart;
  * - the error path of the cfunc wrapper (an exception raised in compiled code): numba would
  *   take the GIL and print the exception; here nothing of Python is touched, the call is
- *   flagged (fsr_native_raised) so that the step fails with a logged error instead of being
+ *   counted (fsr_native_errors) so that the step fails with a logged error instead of being
  *   taken for a success.
  */
 #include <stddef.h>
@@ -27,23 +28,21 @@ typedef struct {
     void *external_allocator;   /* unused */
 } meminfo;
 
-static __thread int g_raised;
+/* calls of the exception path, every thread (a plain counter: no TLS access per step) */
+volatile unsigned fsr_native_errors;
 
-int fsr_native_raised(void) {
-    int r = g_raised;
-    g_raised = 0;
-    return r;
+fsr_native_fn fsr_native_step = fsr_native_step_base;
+
+__attribute__((constructor)) static void choose_variant(void) {
+    const char *base = getenv("FMU_SYNC_NATIVE_BASELINE");
+    __builtin_cpu_init();
+    if (!(base && base[0] == '1') && __builtin_cpu_supports("x86-64-v3")) fsr_native_step = fsr_native_step_v3;
 }
 
 int32_t fsr_python_step(double *x, double *work, double t, double H) {
+    unsigned errors = fsr_native_errors;
     int32_t rc = fsr_native_step(x, work, t, H);
-    return fsr_native_raised() ? -1 : rc;
-}
-
-static void free_data(void *ptr, size_t size, void *info) {
-    (void)size;
-    (void)info;
-    free(ptr);
+    return fsr_native_errors != errors ? -1 : rc;
 }
 
 static meminfo *new_meminfo(void *data, size_t size, dtor_fn dtor, void *info) {
@@ -65,17 +64,26 @@ static meminfo *new_meminfo(void *data, size_t size, dtor_fn dtor, void *info) {
 void *fsrx_NRT_Allocate(size_t size) { return malloc(size ? size : 1); }
 void fsrx_NRT_Free(void *ptr) { free(ptr); }
 
-meminfo *fsrx_NRT_MemInfo_alloc(size_t size) {
-    return new_meminfo(malloc(size ? size : 1), size, free_data, NULL);
+/* meminfo and data in one block (one malloc per array, as numba's own runtime): the data
+ * aligned to `align` after the header; freed with the meminfo (no destructor) */
+static meminfo *alloc_block(size_t size, unsigned align) {
+    size_t a = 16;
+    while (a < align) a <<= 1;           /* a power of two, at least malloc's 16 */
+    char *base = malloc(sizeof(meminfo) + a + size);
+    if (!base) return NULL;
+    meminfo *mi = (meminfo *)base;
+    uintptr_t data = ((uintptr_t)(base + sizeof(meminfo)) + a - 1) & ~(uintptr_t)(a - 1);
+    mi->refct = 1;
+    mi->dtor = NULL;
+    mi->dtor_info = NULL;
+    mi->data = (void *)data;
+    mi->size = size;
+    mi->external_allocator = NULL;
+    return mi;
 }
 
-meminfo *fsrx_NRT_MemInfo_alloc_aligned(size_t size, unsigned align) {
-    size_t a = sizeof(void *);
-    while (a < align) a <<= 1;           /* a power of two, a multiple of sizeof(void *) */
-    void *data = NULL;
-    if (posix_memalign(&data, a, size ? size : 1) != 0) return NULL;
-    return new_meminfo(data, size, free_data, NULL);
-}
+meminfo *fsrx_NRT_MemInfo_alloc(size_t size) { return alloc_block(size, 16); }
+meminfo *fsrx_NRT_MemInfo_alloc_aligned(size_t size, unsigned align) { return alloc_block(size, align); }
 
 void fsrx_NRT_MemInfo_call_dtor(meminfo *mi) {
     if (mi->dtor) mi->dtor(mi->data, mi->size, mi->dtor_info);
@@ -113,7 +121,7 @@ void fsrx_NRT_MemInfo_varsize_free(meminfo *mi, void *ptr) {
 }
 
 /* the exception path: flagged, no Python touched (results: NULL, 0 or nothing) */
-#define FLAGGED(name) void *fsrx_##name(void) { g_raised = 1; return NULL; }
+#define FLAGGED(name) void *fsrx_##name(void) { __atomic_add_fetch(&fsr_native_errors, 1u, __ATOMIC_RELAXED); return NULL; }
 #define QUIET(name) void *fsrx_##name(void) { return NULL; }
 FLAGGED(numba_gil_ensure)
 FLAGGED(numba_do_raise)

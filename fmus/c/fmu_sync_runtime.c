@@ -615,8 +615,9 @@ int fsr_step(fsr_instance *inst, double t, double H) {
                         "more than the limit %.0f (fmu_sync.export.MAX_SUBSTEPS); this step can never complete: use "
                         "a smaller H or a larger solver.dt", G(t), G(H), G(now), count, G(dt),
                         (double)FSR_MAX_SUBSTEPS);
+    unsigned errors = fsr_native_errors;
     int32_t rc = fsr_native_step(inst->x, w, now, H);
-    if (fsr_native_raised())
+    if (fsr_native_errors != errors)
         return native_raised(inst, "doStep");
     switch (rc) {
     case FSR_R_OK:
@@ -658,8 +659,9 @@ int fsr_feedthrough(const fsr_instance *inst) {
 
 int fsr_outputs(fsr_instance *inst, const char *call) {
     double *w = inst->work;
+    unsigned errors = fsr_native_errors;
     int32_t rc = fsr_native_step(inst->x, w, w[FSR_H_TIME], 0.0);
-    if (fsr_native_raised())
+    if (fsr_native_errors != errors)
         return native_raised(inst, call);
     if (rc != 0)
         return fsr_logf(inst, FSR_ERROR, "%s: the outputs computed from the current inputs are not finite "
