@@ -31,9 +31,9 @@ from pathlib import Path
 from .core.declaration import Model, ModelError
 from .core.registry import builtin_models, load_model
 from .fmus import contract
-from .fmus._xml import unit_exponents
+from .fmus.slave import unit_exponents
 
-__all__ = ["resolve", "rewrite_imports", "declaration_of"]
+__all__ = ["resolve", "rewrite_imports", "declaration_of", "register_from"]
 #: where the built-in declarations live (module of the package, relative to the carried core)
 _BUILTIN_MODULES = ("fmu_sync.core.examples", "fmu_sync.core.model")
 
@@ -176,8 +176,32 @@ def declaration_of(build: dict) -> Model:
         raise ModelError("the FMU's build record names no model declaration")
     if "builtin" in rec:
         return load_model(rec["builtin"])
+    import os
     import tempfile
-    with tempfile.TemporaryDirectory(prefix="fmu-sync-model-") as tmp:
-        path = Path(tmp) / rec["file"]
+    # kept (numba's cache of the law reads its file): one folder per content, under the temp folder
+    folder = Path(tempfile.gettempdir()) / f"fmu-sync-models-{os.getuid()}" / rec["sha256"][:32]
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / Path(rec["file"]).name
+    if not path.is_file() or path.read_text(encoding="utf-8") != rec["source"]:
         path.write_text(rec["source"], encoding="utf-8")
-        return load_model(f"{path}:{rec['name']}")
+    return load_model(f"{path}:{rec['name']}")
+
+
+def register_from(fmu) -> bool:
+    """Register in the FMU contract the declaration an fmu-sync FMU (an .fmu or its folder) was
+    exported from, if its build record names one; False if it names none (not such an FMU)."""
+    import json
+    import zipfile
+    name = "resources/fmu_sync_build.json"
+    try:
+        if Path(fmu).is_dir():
+            build = json.loads((Path(fmu) / name).read_text(encoding="utf-8"))
+        else:
+            with zipfile.ZipFile(fmu) as zf:
+                build = json.loads(zf.read(name))
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile):
+        return False
+    if not isinstance(build, dict) or not isinstance(build.get("declaration"), dict):
+        return False
+    contract.declared(declaration_of(build), build.get("model"))
+    return True

@@ -26,11 +26,11 @@ import math
 import numpy as np
 
 from ..core.plan import plan_run
-from ._xml import generation_tool, model_description, model_description3, model_guid
+from ._xml import generation_tool, model_description, model_description3, model_guid, unit_exponents
 from .contract import INPUT_BOUND, SCHEME_ITEMS, STATE_BOUND, FmuModel, Var, model
 
 __all__ = ["Slave", "MechanicalSlave", "slave", "STATE_FORMAT", "START_FILE", "Configuration", "PHASES", "RUNNING_PHASES",
-           "INPUT_BOUND", "generation_tool", "model_guid", "seal", "unseal"]
+           "INPUT_BOUND", "generation_tool", "model_guid", "seal", "unseal", "unit_exponents"]
 
 #: Name of the start-value file in the FMU's resources/ (written by fmu_sync.export).
 START_FILE = "fmu_sync_start.json"

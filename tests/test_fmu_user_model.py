@@ -3,6 +3,7 @@ pendulum written in a file and the built-in Duffing oscillator; fmpy, the plain 
 fmu-sync master, and the export's refusals."""
 import os
 import subprocess
+import sys
 import zipfile
 from xml.etree import ElementTree as ET
 
@@ -167,3 +168,16 @@ def test_export_refusals_name_what_is_wrong(tmp_path, capsys):
     err = _refused(capsys, f"{bad}:pendulum", "-o", out)
     assert "force law 'my_pendulum' is not numba-compilable" in err
     assert not os.path.exists(out)
+
+
+def test_a_fresh_master_process_finds_the_declaration(pend):
+    """cosimulate in a process that did not export: the declaration comes from the FMU's build record."""
+    code = ("import sys, numpy as np\n"
+            "from fmu_sync import cosimulate\n"
+            f"r = cosimulate({str(pend['fmu'])!r}, ([-0.6], [0.0]), ([-0.1], [1.2]), 2.0, 1e-2, "
+            "coupling='switching', Kp=5.0, Kd=1.0)\n"
+            "print(float(np.asarray(r.d)[0]), float(np.asarray(r.d)[-1]))\n")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr[-2000:]
+    d0, d1 = map(float, p.stdout.split()[-2:])
+    assert d1 < d0
