@@ -138,6 +138,10 @@ def test_two_instances_synchronize_under_the_switching_law(pend):
     assert d[0] > 0.1 and np.max(np.abs(d[-100:])) < 1e-3 * d[0]
     unc = cosimulate(str(pend["fmu"]), X1, X2, 20.0, 1e-2, coupling=None)
     assert np.max(np.abs(np.asarray(unc.d)[-100:])) > 1e-2      # without the law they stay apart
+    # the first-order hold (input derivatives: the law's step takes the input at each force point)
+    foh = cosimulate(str(pend["fmu"]), X1, X2, 20.0, 1e-2, coupling="switching", Kp=5.0, Kd=1.0, hold="foh")
+    d2 = np.asarray(foh.d)
+    assert np.max(np.abs(d2[-100:])) < 1e-3 * d2[0] and not np.array_equal(d2, d)
 
 
 def test_builtin_duffing_exports_and_runs(tmp_path):
