@@ -140,15 +140,19 @@ def _kind(model: str) -> dict:
     return _KINDS[COUPLING if model == COUPLING else "mechanical"]
 
 
-def _read(rel: str, model: str | None = None) -> bytes:
-    """A source file of the package by its path relative to it: "core/exact.py", "fmus/slave.py"
-    (or a file generated for the declared ``model``: "user/runtime.py", "user/model.py")."""
-    if rel in _GENERATED.get(model, {}):
-        return _GENERATED[model][rel]
+def _read(rel: str) -> bytes:
+    """A source file of the package by its path relative to it: "core/exact.py", "fmus/slave.py"."""
     top, name = rel.split("/")
     if top not in ("core", "fmus"):
         raise OSError(f"no package file {rel}")
     return ((_core_dir() if top == "core" else _fmus_dir()) / name).read_bytes()
+
+
+def _source(rel: str, model: str | None = None) -> bytes:
+    """:func:`_read`, or a file generated for the declared ``model`` ("user/runtime.py", "user/model.py")."""
+    if rel in _GENERATED.get(model, {}):
+        return _GENERATED[model][rel]
+    return _read(rel)
 
 
 def _nodes(tree):
@@ -171,7 +175,7 @@ def _imported_modules(rel: str, model: str | None = None) -> list[str]:
     import ast
     out = []
     pkg = rel.split("/")[0]
-    for node in _nodes(ast.parse(_read(rel, model), rel)):
+    for node in _nodes(ast.parse(_source(rel, model), rel)):
         if isinstance(node, ast.Import) and any(a.name.split(".")[0] == "fmu_sync" for a in node.names):
             raise ValueError(f"{rel} imports the host package fmu_sync: an FMU's code imports its own modules "
                              f"relatively")
@@ -190,7 +194,7 @@ def _imported_modules(rel: str, model: str | None = None) -> list[str]:
             for a in node.names:
                 sub = f"{target[0]}/{a.name}.py"
                 try:
-                    _read(sub, model)
+                    _source(sub, model)
                 except OSError:
                     raise ValueError(f"{rel} imports {a.name} from the package {target[0]}: import it from "
                                      f"its module (the FMU carries only the modules it imports)") from None
@@ -221,7 +225,7 @@ def carried_files(model: str = "impact-oscillator") -> list[tuple[str, bytes]]:
     inits = dict(_CARRIED_INITS)
     if model in _GENERATED:
         inits["user/__init__.py"] = _USER_INIT
-    return sorted(inits.items()) + [(rel, _read(rel, model)) for rel in carried_modules(model)]
+    return sorted(inits.items()) + [(rel, _source(rel, model)) for rel in carried_modules(model)]
 
 
 def bytecode(files: list[tuple[str, bytes]]) -> list[tuple[str, bytes]]:
@@ -374,7 +378,7 @@ def target_requires(model: str = "impact-oscillator") -> dict[str, str]:
                 visit(node.body)
 
     for rel in carried_modules(model):
-        visit(ast.parse(_read(rel, model), rel).body)
+        visit(ast.parse(_source(rel, model), rel).body)
     names -= set(sys.stdlib_module_names) | {"__future__"}
     unknown = names - set(TARGET_REQUIRES)
     if unknown:
