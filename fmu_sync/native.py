@@ -16,7 +16,7 @@ How (numba and llvmlite internals, hence the pinned versions of :data:`TESTED`):
 3. object code from a target machine for each of :data:`VARIANTS`, position-independent
    (it goes into a shared library): ``cpu="x86-64"`` (SSE2: any x86-64 CPU), and
    ``x86-64-v3`` (AVX2), which the binary picks when it is loaded on a CPU that has it
-   (the baseline code costs ~10% more per step; both give the same numbers: no fused
+   (the baseline code measured 3-8% slower per call; both give the same numbers: no fused
    multiply-add without numba's fastmath, tested bit for bit);
 4. its undefined symbols classified (:func:`link_names`): C library functions (``cos``,
    ``exp``, ``memcpy`` ...) bound to their oldest glibc version, so that the binary needs no
