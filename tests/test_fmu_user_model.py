@@ -185,3 +185,33 @@ def test_a_fresh_master_process_finds_the_declaration(pend):
     assert p.returncode == 0, p.stderr[-2000:]
     d0, d1 = map(float, p.stdout.split()[-2:])
     assert d1 < d0
+
+
+def test_carried_code_configures_without_numba(pend, tmp_path):
+    """The FMU's carried code (the user's file included) imports and configures a parameter set
+    with numba unimportable: the law's checks run as plain Python."""
+    pkg = tmp_path / "fmu_sync_mtest"
+    with zipfile.ZipFile(pend["fmu"]) as zf:
+        for name in zf.namelist():
+            if name.startswith("resources/fmu_sync_code/") and name.endswith(".py"):
+                target = pkg / name[len("resources/fmu_sync_code/"):]
+                target.parent.mkdir(parents=True, exist_ok=True)
+                target.write_bytes(zf.read(name))
+    code = ("import sys\n"
+            "sys.modules['numba'] = None\n"
+            f"sys.path.insert(0, {str(tmp_path)!r})\n"
+            "import fmu_sync_mtest.user.runtime as rt\n"
+            "from fmu_sync_mtest.fmus.slave import MechanicalSlave\n"
+            "from fmu_sync_mtest.fmus.contract import model\n"
+            "s = MechanicalSlave(model(rt.KEY))\n"
+            "cfg = s.configure(s.start_parameters({'c': 0.2, 'q_start': -0.5}))\n"
+            "print(type(cfg.system.force).__module__, cfg.system.p.tolist(), s.N_P)\n"
+            "try:\n"
+            "    s.configure(s.start_parameters({'q_start': 0.5}))\n"
+            "except ValueError as exc:\n"
+            "    print('refused:', exc)\n")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr[-2000:]
+    first, second = p.stdout.strip().splitlines()[-2:]
+    assert first == "fmu_sync_mtest.core.forcelaw [1.0, 9.81, 0.5, 0.2] 4"
+    assert second.startswith("refused:") and "q_start" in second
