@@ -370,6 +370,10 @@ class FmuModel:
         if system.n != self.n:
             raise ContractError(f"the {self.key} FMU has {self.n} degree{'s' if self.n > 1 else ''} of "
                                 f"freedom, the system has {system.n}")
+        if self.declaration.values is None:
+            raise ContractError(f"model {self.declaration.name!r} gives no parameter values of a system (its "
+                                f"declaration has no inverse): set the FMU's declared parameters "
+                                f"({', '.join(self.declaration.names)}) themselves")
         try:
             declared = self.declaration.values(system)
         except ModelError as exc:

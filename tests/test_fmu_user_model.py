@@ -78,6 +78,9 @@ def test_declared_parameters_are_fmu_parameters(pend):
     # the target needs numpy only (the law runs as native code, the configuration as plain Python)
     key = resolve(pend["spec"])[0]
     assert set(target_requires(key)) == {"numpy"}
+    from fmu_sync.fmus.contract import ContractError, model
+    with pytest.raises(ContractError, match="no inverse"):   # a system does not give the declared values back
+        model(key).values(pend["decl"]())
 
 
 def test_guid_follows_the_user_code(pend, tmp_path):
