@@ -49,10 +49,12 @@ def _relative(module: str, spec: str) -> str:
 
 def _home(obj, name: str, package: str, spec: str) -> str:
     """The core module defining ``obj``, imported as ``name`` from the package ``package``."""
-    mod = getattr(obj, "__module__", None) if isinstance(obj, type) or callable(obj) and hasattr(obj, "__code__") \
-        else None
+    defined = isinstance(obj, type) or hasattr(obj, "__code__")     # a class or a function: its own module
+    mod = getattr(obj, "__module__", None) if defined else None
     if mod and mod.startswith("fmu_sync.core.") and getattr(importlib.import_module(mod), name, None) is obj:
         return mod
+    if mod and mod.startswith("fmu_sync") and not mod.startswith("fmu_sync.core"):
+        _relative(mod, spec)       # outside the core: refused, naming it
     core = importlib.import_module("fmu_sync.core")
     for sub in sorted(vars(core)):
         m = getattr(core, sub)

@@ -218,3 +218,17 @@ def test_carried_code_configures_without_numba(pend, tmp_path):
     first, second = p.stdout.strip().splitlines()[-2:]
     assert first == "fmu_sync_mtest.core.forcelaw [1.0, 9.81, 0.5, 0.2] 4"
     assert second.startswith("refused:") and "q_start" in second
+
+
+def test_the_carried_file_imports_the_carried_core_line_for_line():
+    from fmu_sync.core.declaration import ModelError
+    from fmu_sync.user_export import rewrite_imports
+    src = (b"from fmu_sync.core import (ForceLaw,\n    Model)\n"
+           b"from fmu_sync.core.examples import PENDULUM as P\nx = 1\n")
+    out = rewrite_imports(src, "t.py").decode().splitlines()
+    assert out == ["from ..core.forcelaw import ForceLaw; from ..core.declaration import Model", "",
+                   "from ..core.examples import PENDULUM as P", "x = 1"]
+    for bad, why in ((b"import fmu_sync\n", "cannot travel"), (b"from fmu_sync import cosimulate\n", "fmu_sync.master"),
+                     (b"from fmu_sync.core import *\n", "name what you import")):
+        with pytest.raises(ModelError, match=why):
+            rewrite_imports(bad, "t.py")
