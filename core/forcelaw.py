@@ -25,20 +25,24 @@ import re
 import types as pytypes
 
 import numpy as np
-from numba import njit, types
-from numba.core.registry import CPUDispatcher
 
 from . import law_loops
-from ._cache import LAW_KEY, depends_on_core
 from .coupling import METRIC_SOURCES  # noqa: F401 (re-exported: how a law's K_m was obtained)
 from .errors import LawRefused
+from .jit import NUMBA, njit
+
+if NUMBA:   # compiled mode; the code an FMU carries runs h as plain Python (core/jit.py)
+    from numba import types
+    from ._cache import LAW_KEY, depends_on_core
 
 __all__ = ["ForceLaw", "force_law", "LawKernels", "METRIC_SOURCES"]
 
 
-_ARR = types.Array(types.float64, 1, "C")
-#: the signature every law is compiled for: h(q, u, tau, t, p)
-LAW_SIGNATURE = (_ARR, _ARR, _ARR, types.float64, _ARR)
+#: the signature every law is compiled for: h(q, u, tau, t, p) (None in plain Python)
+LAW_SIGNATURE = None
+if NUMBA:
+    _ARR = types.Array(types.float64, 1, "C")
+    LAW_SIGNATURE = (_ARR, _ARR, _ARR, types.float64, _ARR)
 
 _KERNELS: dict = {}   # law key (or id) -> LawKernels, one compilation per process
 
@@ -87,7 +91,7 @@ class ForceLaw:
     """
 
     def __init__(self, h, params=(), n: int = 1, name: str | None = None, linear=None, stiffness=None):
-        py = h.py_func if isinstance(h, CPUDispatcher) else h
+        py = getattr(h, "py_func", h)    # an @njit function: its Python function
         if not callable(py):
             raise TypeError(f"a force law needs a function h(q, u, tau, t, p), got {h!r}")
         self.name = str(name or getattr(py, "__name__", "law"))
@@ -114,7 +118,7 @@ class ForceLaw:
         else:
             self.key = None
         # inlined into the step (numba IR): no call with array arguments per step
-        if self.source is not None:   # h's own cache is stamped with the core too (our flags live there)
+        if self.source is not None and NUMBA:   # h's own cache is stamped with the core too (our flags live there)
             depends_on_core(self.source)
         # error_model="numpy": 1/0 is inf (a non-finite force: refused at the start, a divergence
         # mid-run), never a ZeroDivisionError raised out of a compiled loop
@@ -177,6 +181,9 @@ class ForceLaw:
         return form). Raises :class:`LawRefused` naming the law if numba cannot compile it or it
         returns something else than an (n,) float array (or a float for n = 1)."""
         if self._returns is not None:
+            return self._returns
+        if not NUMBA:   # plain Python (an FMU's carried code): h runs as written, its result checked by check()
+            self._returns = "plain"
             return self._returns
         try:
             self.dispatcher.compile(LAW_SIGNATURE)

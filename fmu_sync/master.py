@@ -88,10 +88,21 @@ def model_description(fmu: str):
     return _read_description(str(fmu), (st.st_mtime_ns, st.st_size))
 
 
-def fmu_model(md):
+def fmu_model(md, fmu: str | None = None):
     """The contract's model of an FMU (from its model description); a foreign FMU
-    raises :class:`fmu_sync.fmus.contract.ContractError` naming the missing variables."""
-    return contract.identify(element_names(md), md.modelName)
+    raises :class:`fmu_sync.fmus.contract.ContractError` naming the missing variables.
+    The FMU of a model declaration with a force law not registered in this process is
+    registered from the declaration its build record names (``fmu``: the .fmu or its folder;
+    :func:`fmu_sync.user_export.declaration_of`)."""
+    try:
+        return contract.identify(element_names(md), md.modelName)
+    except contract.ContractError:
+        if fmu is None:
+            raise
+        from .user_export import register_from
+        if not register_from(fmu):
+            raise
+        return contract.identify(element_names(md), md.modelName)
 
 
 def system_from_fmu(instance: FmuInstance, model=None) -> MechanicalSystem:
@@ -151,7 +162,7 @@ class NetworkMaster:
                                     f"with its modelDescription.xml)")
         self.md = model_description(self.fmu)
         self.check_fmi_version()
-        self.model = fmu_model(self.md)  # a foreign FMU fails here, naming what it lacks
+        self.model = fmu_model(self.md, self.fmu)  # a foreign FMU fails here, naming what it lacks
         self.hold = check_hold(hold, self.md, self.fmu)
         self.record_values = 1 + 3 * N * self.model.n + 3 * len(self.edges)
         check_record_size(record_rows(n_steps, record_every), self.record_values,

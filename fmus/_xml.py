@@ -15,7 +15,7 @@ from xml.etree.ElementTree import Element, SubElement
 from .contract import ENUM_TYPES, POSITIVE_MIN, SCHEME_ITEMS, SCHEME_TYPE, Var
 
 __all__ = ["Var", "UNITS", "SCHEME_TYPE", "SCHEME_ITEMS", "model_description", "fmt_real",
-           "POSITIVE_MIN", "generation_tool", "model_guid", "model_description3", "fmi3_groups",
+           "POSITIVE_MIN", "unit_exponents", "generation_tool", "model_guid", "model_description3", "fmi3_groups",
            "FMI3_TYPES"]
 
 #: SI units used by the slaves: name -> exponents of the SI base units
@@ -61,13 +61,41 @@ def fmt_real(x: float) -> str:
     return repr(float(x))
 
 
+#: the unit symbols a declared unit may be written with (FMI/Modelica spelling: factors joined by
+#: ".", a "/" divides by what follows, an integer exponent after a symbol: "N.m.s/rad", "m/s2")
+_SYMBOLS: dict[str, dict[str, int]] = {
+    "m": {"m": 1}, "s": {"s": 1}, "kg": {"kg": 1}, "rad": {"rad": 1}, "A": {"A": 1}, "K": {"K": 1},
+    "mol": {"mol": 1}, "cd": {"cd": 1}, "N": {"kg": 1, "m": 1, "s": -2},
+    "J": {"kg": 1, "m": 2, "s": -2}, "W": {"kg": 1, "m": 2, "s": -3}, "Pa": {"kg": 1, "m": -1, "s": -2},
+    "Hz": {"s": -1},
+}
+
+
+def unit_exponents(name: str) -> dict[str, int]:
+    """The SI base-unit exponents of a unit written as declared (:data:`UNITS`, else parsed from
+    :data:`_SYMBOLS`: "N.m.s/rad" -> kg m^2 s^-1 rad^-1); ValueError naming an unknown symbol."""
+    if name in UNITS:
+        return UNITS[name]
+    out: dict[str, int] = {}
+    for i, part in enumerate(name.split("/")):
+        for factor in part.split("."):
+            m = re.fullmatch(r"([A-Za-z]+)(-?\d+)?", factor)
+            if m is None or m.group(1) not in _SYMBOLS:
+                raise ValueError(f"unit {name!r}: cannot read {factor!r} (write SI symbols "
+                                 f"{', '.join(_SYMBOLS)} joined by '.', '/' and integer "
+                                 f"exponents, e.g. 'N.m.s/rad', 'm/s2', or '1')")
+            power = int(m.group(2) or 1) * (-1 if i > 0 else 1)
+            for base, e in _SYMBOLS[m.group(1)].items():
+                out[base] = out.get(base, 0) + e * power
+    return {k: v for k, v in out.items() if v != 0}
+
+
 def _unit_definitions(root: Element, used: set[str]) -> None:
     defs = SubElement(root, "UnitDefinitions")
-    for name, exps in UNITS.items():
-        if name not in used:
-            continue
+    names = [n for n in UNITS if n in used] + sorted(used - set(UNITS))
+    for name in names:
         u = SubElement(defs, "Unit", name=name)
-        SubElement(u, "BaseUnit", {k: str(v) for k, v in exps.items()})
+        SubElement(u, "BaseUnit", {k: str(v) for k, v in unit_exponents(name).items()})
 
 
 def _type_definitions(root: Element, used: set[str], fmi3: bool = False) -> None:

@@ -33,7 +33,8 @@ from ..core.moreau import MIDPOINT, THETA
 __all__ = ["Var", "FmuModel", "ContractError", "MODELS", "POSITIVE_MIN", "INPUT_BOUND", "STATE_BOUND",
            "SCHEME_TYPE", "SCHEME_ITEMS", "SCHEME_EXACT", "LAW_TYPE", "LAW_ITEMS", "ENUM_TYPES",
            "SOLVER_DT", "SOLVER_SCHEME", "SOLVER_THETA", "GAP", "IMPACTS", "PERCUSSION", "ENERGY",
-           "model", "model_for", "identify", "indexed", "scheme_value", "scheme_name"]
+           "model", "model_for", "identify", "declared", "DECLARED", "identifier_of", "indexed", "scheme_value",
+           "scheme_name"]
 
 # ---------------------------------------------------------------- names
 SOLVER_DT, SOLVER_SCHEME, SOLVER_THETA = "solver.dt", "solver.scheme", "solver.theta"
@@ -190,7 +191,12 @@ def _inputs(n: int) -> list[Var]:
                 unit="N", start=0.0, min=-INPUT_BOUND, max=INPUT_BOUND) for i, name in enumerate(indexed("tau", n))]
 
 
-def _outputs(n: int, depends: dict) -> list[Var]:
+_ENERGY = "Mechanical energy 1/2 u^T M u + 1/2 q^T K q - f0^T q (without forcing and input)"
+_ENERGY_LAW = ("Energy 1/2 u^T M u + 1/2 q^T K_L q of the force law's declared linear part K_L (the rest of "
+               "h(q, u, tau, t, p) has no declared potential: not conserved in general)")
+
+
+def _outputs(n: int, depends: dict, energy: str = _ENERGY) -> list[Var]:
     """Outputs q, u, gap, impacts, percussion, energy (q[i], u[i] for n > 1)."""
     out = []
     for i, name in enumerate(indexed("q", n)):
@@ -213,8 +219,7 @@ def _outputs(n: int, depends: dict) -> list[Var]:
             "Contact percussion (impulse) summed over the last communication step",
             initial="calculated", unit="N.s", min=0.0),
         Var(ENERGY, "Real", "output", "continuous",
-            "Mechanical energy 1/2 u^T M u + 1/2 q^T K q - f0^T q (without forcing and input)",
-            initial="calculated", unit="J", initial_depends=tuple(depends[ENERGY])),
+            energy, initial="calculated", unit="J", initial_depends=tuple(depends[ENERGY])),
     ]
     return out
 
@@ -286,6 +291,12 @@ class FmuModel:
     q_start_default: tuple = (1.0,)
 
     @property
+    def n_params(self) -> int:
+        """Number of parameters of the declaration's force law (0: the built-in linear law)."""
+        law = self.declaration.force
+        return 0 if law is None else len(law.params)
+
+    @property
     def family(self) -> str:
         """The scenes' ``system.model``: the declaration's name."""
         return self.declaration.name
@@ -330,7 +341,8 @@ class FmuModel:
                           min=-STATE_BOUND, max=STATE_BOUND) for i, x in enumerate(qs)]
                   + [_param(x, "m/s", "Initial velocity" + suffix(i), 0.0, min=-STATE_BOUND, max=STATE_BOUND)
                      for i, x in enumerate(us)])
-        return (_inputs(n) + _outputs(n, depends) + _model_params(self.declaration, n, self.start)
+        energy = _ENERGY if self.declaration.force is None else _ENERGY_LAW
+        return (_inputs(n) + _outputs(n, depends, energy) + _model_params(self.declaration, n, self.start)
                 + states + _solver_variables())
 
     def _declared(self, values: dict, names) -> dict:
@@ -358,6 +370,10 @@ class FmuModel:
         if system.n != self.n:
             raise ContractError(f"the {self.key} FMU has {self.n} degree{'s' if self.n > 1 else ''} of "
                                 f"freedom, the system has {system.n}")
+        if self.declaration.values is None:
+            raise ContractError(f"model {self.declaration.name!r} gives no parameter values of a system (its "
+                                f"declaration has no inverse): set the FMU's declared parameters "
+                                f"({', '.join(self.declaration.names)}) themselves")
         try:
             declared = self.declaration.values(system)
         except ModelError as exc:
@@ -429,10 +445,54 @@ MODELS: dict[str, FmuModel] = {m.key: m for m in (
 )}
 
 
+#: FMUs of model declarations with a force law (the built-in pendulum and Duffing, a user's model
+#: file): export key -> FmuModel, registered by :func:`declared` (at export, in a master that reads
+#: such an FMU, and by the carried code of the FMU itself: the build's generated runtime module)
+DECLARED: dict[str, FmuModel] = {}
+
+
+def identifier_of(name: str) -> str:
+    """The FMI modelIdentifier of a declaration's name: "my-pendulum" -> "MyPendulum" (a C name)."""
+    parts = [p for p in "".join(c if c.isalnum() else " " for c in name).split() if p]
+    ident = "".join(p[:1].upper() + p[1:] for p in parts)
+    if not ident or not ident.isascii() or not ident[0].isalpha():
+        raise ContractError(f"model name {name!r} gives no C identifier for the FMU (start it with an ASCII "
+                            f"letter)")
+    return ident
+
+
+def declared(decl: Model, key: str | None = None) -> FmuModel:
+    """The FMU of a model declaration with a force law (docs/user-model.md "Export"), registered
+    under ``key`` (default the declaration's name): its declared parameters are the FMU's, with
+    their units and ranges; the default start state is the point on the wall's normal at gap 1
+    of the default system (q_start = w (1 - g0) / |w|^2)."""
+    key = key or decl.name
+    if decl.force is None:
+        raise ContractError(f"model {decl.name!r} has no force law: its FMU is a registered model "
+                            f"({', '.join(MODELS)})")
+    if key in MODELS:
+        raise ContractError(f"model key {key!r} is a registered built-in model")
+    if decl.n is None:
+        raise ContractError(f"model {decl.name!r} does not fix its degrees of freedom (Model(n=...))")
+    try:
+        s = decl()
+    except ValueError as exc:
+        raise ContractError(f"model {decl.name!r}: its declared defaults make no system: {exc}") from None
+    q0 = s.w * (1.0 - s.g0) / float(s.w @ s.w)
+    fm = FmuModel(key=key, identifier=identifier_of(decl.name), n=int(decl.n),
+                  description=f"{decl.description}; force law {decl.force.name!r}; Moreau time-stepping "
+                              f"(fmu-sync core)",
+                  declaration=decl, energy_params=decl.names, q_start_default=tuple(float(x) for x in q0))
+    DECLARED[key] = fm
+    return fm
+
+
 def model(key: str) -> FmuModel:
     """The registered model of an export key (ValueError names the registered ones)."""
+    if key in DECLARED:
+        return DECLARED[key]
     if key not in MODELS:
-        raise ValueError(f"unknown model {key!r}; choose one of {', '.join(MODELS)}")
+        raise ValueError(f"unknown model {key!r}; choose one of {', '.join([*MODELS, *DECLARED])}")
     return MODELS[key]
 
 
@@ -452,7 +512,7 @@ def identify(variables, model_name: str = "") -> FmuModel:
     """
     names = set(variables)
     best, best_missing = None, None
-    for m in MODELS.values():
+    for m in [*MODELS.values(), *DECLARED.values()]:
         missing = [k for k in m.required() if k not in names]
         if not missing and (best is None or best_missing or m.identifier == model_name):
             best, best_missing = m, missing

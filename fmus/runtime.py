@@ -203,7 +203,7 @@ class FMUInstance(InstanceBase):
         n, m = slave.N, self.m
         qn, un = _q_u_names(n)
         self.n = n
-        self.work = np.zeros(S.work_size(n, m, slave.NF_MAX, nv))
+        self.work = np.zeros(S.work_size(n, m, slave.NF_MAX, nv, slave.N_P))
         w = self.work
         w[S.H_LEN] = w.shape[0]
         w[S.H_VERSION] = S.WORK_VERSION
@@ -242,7 +242,7 @@ class FMUInstance(InstanceBase):
         if cfg.scheme == S.EXACT:
             from ..core.exact_step import exact_model
             exact = exact_model(cfg.system)
-        S.pack(self.work, cfg.system.arrays(), cfg.dt, cfg.scheme, cfg.theta, exact)
+        S.pack(self.work, cfg.system.arrays(), cfg.dt, cfg.scheme, cfg.theta, exact, cfg.system.p)
         self.work[S.H_CONFIGURED] = 1.0
         self.cfg = cfg
 

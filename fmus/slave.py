@@ -26,11 +26,11 @@ import math
 import numpy as np
 
 from ..core.plan import plan_run
-from ._xml import generation_tool, model_description, model_description3, model_guid
+from ._xml import generation_tool, model_description, model_description3, model_guid, unit_exponents
 from .contract import INPUT_BOUND, SCHEME_ITEMS, STATE_BOUND, FmuModel, Var, model
 
 __all__ = ["Slave", "MechanicalSlave", "slave", "STATE_FORMAT", "START_FILE", "Configuration", "PHASES", "RUNNING_PHASES",
-           "INPUT_BOUND", "generation_tool", "model_guid", "seal", "unseal"]
+           "INPUT_BOUND", "generation_tool", "model_guid", "seal", "unseal", "unit_exponents"]
 
 #: Name of the start-value file in the FMU's resources/ (written by fmu_sync.export).
 START_FILE = "fmu_sync_start.json"
@@ -93,6 +93,8 @@ class Slave:
     N = 1
     #: most harmonic forcing terms a parameter set can make (sizes the work array)
     NF_MAX = 1
+    #: parameters of the model's force law in the work array (0: the built-in linear law)
+    N_P = 0
     DESCRIPTION = ""
     DEFAULT_EXPERIMENT = {"startTime": 0.0, "stopTime": 10.0, "stepSize": 1e-2}
     LOG_CATEGORIES = {
@@ -206,6 +208,7 @@ class MechanicalSlave(Slave):
         self.MODEL_IDENTIFIER = fmu_model.identifier
         self.N = fmu_model.n
         self.DESCRIPTION = fmu_model.description
+        self.N_P = fmu_model.n_params
 
     # ------------------------------------------------------------ model (from the contract)
     def declare(self) -> list[Var]:
@@ -256,7 +259,10 @@ class MechanicalSlave(Slave):
         a = s.arrays()
         q = np.asarray(q, dtype=np.float64)
         u = np.asarray(u, dtype=np.float64)
-        h = a.f0 - a.K @ q - a.C @ u + a.B @ np.asarray(tau, dtype=np.float64)
+        if s.force is not None:   # a user force law: h itself (plain Python on the target)
+            h = s.force.evaluate(q, u, tau, 0.0, s.p)
+        else:
+            h = a.f0 - a.K @ q - a.C @ u + a.B @ np.asarray(tau, dtype=np.float64)
         speed = math.sqrt(max(a.W * float(u @ a.M @ u), 0.0))
         acc = abs(float(a.Minv_w @ h)) + float(np.sum(np.abs(a.F @ a.Minv_w)))
         return 2.0 * (cfg.dt * speed + cfg.dt * cfg.dt * acc)

@@ -60,7 +60,7 @@ from .workarray import mat, put, put_wall, wall
 
 __all__ = ["step", "STEP_SIGNATURE", "pack", "work_size", "H_LEN", "H_VERSION", "H_TIME", "H_PHASE", "H_DT",
            "H_CONFIGURED", "WORK_VERSION", "H_FEEDTHROUGH", "H_VREF", "H_ITAUDOT", "H_IEXACT", "H_MAXEV", "H_BOUND",
-           "EXACT", "exact_size",
+           "EXACT", "exact_size", "law_params",
            "EXACT_MAX_EVENTS", "R_OK", "R_ROLLED_BACK", "R_EXACT_TAUDOT", "R_EXACT_EVENTS", "R_EXACT_STALL",
            "H_MODE", "H_REACHED", "H_PEND_U", "H_PEND_P", "H_ICOUNT", "MODE_FULL", "MODE_EARLY",
            "MODE_EARLY_EVENT", "MODE_APPLY_EVENT"]
@@ -107,17 +107,28 @@ def _scratch(n, m, nf):
     return 6 * n + n * n + 4 * nf + m
 
 
-def work_size(n: int, m: int, nf: int, nx: int = 0) -> int:
+def work_size(n: int, m: int, nf: int, nx: int = 0, n_p: int = 0) -> int:
     """Length of the work array for n DOF, m inputs, nf harmonic forces (and the nx
-    FMI 3.0 variable sizes, placed just before the m input derivatives)."""
+    FMI 3.0 variable sizes, placed just before the m input derivatives; and the n_p
+    parameters of a user force law, just before those: :func:`law_params`)."""
     system = H_DATA + 4 * n * n + n + nf * n + 2 * nf + n * m + n + 2 + n + 1
-    return system + 2 * n + _scratch(n, m, nf) + exact_size(n, m, nf) + nx + m
+    return system + 2 * n + _scratch(n, m, nf) + exact_size(n, m, nf) + n_p + nx + m
 
 
-def pack(work: np.ndarray, sa: SystemArrays, dt: float, scheme: int, theta: float, exact=None) -> None:
+@njit(cache=True, inline="always")
+def law_params(w, n_p):
+    """The n_p parameters p of a user force law in the work array (just before the FMI 3.0
+    variable sizes at ``H_ICOUNT``; packed by :func:`pack`)."""
+    i = int(w[H_ICOUNT])
+    return w[i - n_p:i]
+
+
+def pack(work: np.ndarray, sa: SystemArrays, dt: float, scheme: int, theta: float, exact=None,
+         p=None) -> None:
     """Write the system ``sa`` and the solver data into ``work`` (header slots
     H_N.. and the data part; the index slots are set by the runtime);
-    ``exact``: the packed exact model (``core.exact.exact_model``) for the exact scheme."""
+    ``exact``: the packed exact model (``core.exact.exact_model``) for the exact scheme;
+    ``p``: a user force law's parameter array (:func:`law_params`)."""
     n, m = sa.B.shape
     nf = sa.Omega.shape[0]
     need = work_size(n, m, nf)
@@ -131,8 +142,12 @@ def pack(work: np.ndarray, sa: SystemArrays, dt: float, scheme: int, theta: floa
     k = put_wall(work, k, sa.w, sa.g0, sa.e, sa.Minv_w, sa.W)
     k += 2 * n + _scratch(n, m, nf)   # the save area and the scratch
     work[H_IEXACT] = 0.0
+    n_p = 0 if p is None else len(p)
+    if n_p:
+        i = int(work[H_ICOUNT])
+        work[i - n_p:i] = p
     if exact is not None:
-        if k + exact.size > int(work[H_ICOUNT]):
+        if k + exact.size > int(work[H_ICOUNT]) - n_p:
             raise ValueError(f"the exact model needs {exact.size} slots, the work array has "
                              f"{int(work[H_ICOUNT]) - k}")
         work[k:k + exact.size] = exact
@@ -188,13 +203,14 @@ def _outputs(sa, q, u):
 
 
 @njit(cache=True, inline="always")
-def _advance(sa, q, u, t, H, dt, tau, taudot, scheme, theta, s):
+def _advance(sa, q, u, t, H, dt, tau, taudot, scheme, theta, s, w):
     """One communication step with a Moreau scheme; (status, percussion, impacts).
 
     ``scheme`` is the core's scheme code (``solver.scheme`` item -> code in
     ``MechanicalSlave.configure`` via ``core.checks.scheme_code``); ``taudot``
     the input slope (zeros: bit for bit the zero-order hold); ``s`` the scratch
-    (:func:`_scratch` slots). The exact scheme is dispatched in :func:`step`.
+    (:func:`_scratch` slots); ``w`` the work array (unused here: a user force law's stepper,
+    :mod:`.law_stepper`, reads its parameters there). The exact scheme is dispatched in :func:`step`.
     The place for more schemes: a new item in ``contract.SCHEME_ITEMS`` and a
     branch here."""
     n = q.shape[0]
@@ -278,7 +294,7 @@ def step(x_ptr, w_ptr, t, H):
         status = OK
     else:
         sc = w[k + 2 * n:k + 2 * n + _scratch(n, m, int(w[H_NF]))]
-        status, P, hits = _advance(sa, q, u, t, H, w[H_DT], tau, taudot, scheme, w[H_THETA], sc)
+        status, P, hits = _advance(sa, q, u, t, H, w[H_DT], tau, taudot, scheme, w[H_THETA], sc, w)
         if early and hits > 0 and status == OK:
             # redo it internal step by internal step (the same arithmetic: advance_in's t and
             # last-step rules) up to the end of the first internal step with a percussion
@@ -292,7 +308,7 @@ def step(x_ptr, w_ptr, t, H):
                 hk = dt
                 if kk == ks - 1:
                     hk = (t + H) - tk if kk > 0 else H
-                status, P, hits = _advance(sa, q, u, tk, hk, dt, tau, taudot, scheme, w[H_THETA], sc)
+                status, P, hits = _advance(sa, q, u, tk, hk, dt, tau, taudot, scheme, w[H_THETA], sc, w)
                 if status != OK or P > 0.0:
                     if kk < ks - 1:
                         t_stop = tk + hk

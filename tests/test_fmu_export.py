@@ -90,7 +90,9 @@ def test_impact_oscillator_interface(fmus):
     assert 0.0 < float(v["solver.dt"].min) < 1e-300
     assert (float(v["e"].min), float(v["e"].max)) == (0.0, 1.0)
     assert (float(v["solver.theta"].min), float(v["solver.theta"].max)) == (0.5, 1.0)
-    assert float(v["q_start"].min) == 0.0          # the wall: g(q) = q >= 0
+    # the wall moves with g0 (g(q) = q + g0 >= 0): q_start's bounds are the state bound, the wall is
+    # checked on the parameter set (configure: g(q_start) >= 0)
+    assert (float(v["q_start"].min), float(v["q_start"].max)) == (-1e12, 1e12)
     assert v["solver.scheme"].type == "Enumeration"
     items = {i.name: int(i.value) for i in v["solver.scheme"].declaredType.items}
     assert items == {"midpoint": 0, "theta": 1, "exact": 2}     # the core's scheme codes
@@ -178,8 +180,8 @@ def test_main_export(tmp_path, capsys):
     assert main_export(["mechanical-system-2", "-o", str(tmp_path / "m.fmu"), "--set", "M[1,2]=9"]) == 2
     assert "symmetric" in capsys.readouterr().err
     assert main_export(["impact-oscillator", "--set", "e"]) == 2
-    with pytest.raises(SystemExit):
-        main_export(["no-such-model"])
+    assert main_export(["no-such-model"]) == 2      # a model is a key, a declaration or 'file.py:name'
+    assert "model 'no-such-model' is neither a built-in model" in capsys.readouterr().err
 
 
 
