@@ -684,8 +684,12 @@ int fsr_step(fsr_instance *inst, double t, double H) {
                         "a smaller H or a larger solver.dt", G(t), G(H), G(now), count, G(dt),
                         (double)FSR_MAX_SUBSTEPS);
     int32_t rc = inst->stepper(inst->x, w, now, H);
+    int warned = FSR_OK;
     switch (rc) {
     case FSR_R_OK:
+        break;
+    case FSR_R_INADMISSIBLE:   /* the coupling: outputs computed, an input state inside the wall (reason logged) */
+        warned = fsr_call(inst, "inadmissible", NULL);
         break;
     case FSR_R_EXACT_TAUDOT:
         return fsr_logf(inst, FSR_ERROR, REFUSED "solver.scheme = exact holds the input constant over a "
@@ -715,7 +719,7 @@ int fsr_step(fsr_instance *inst, double t, double H) {
 #undef REFUSED
 #undef G
     w[FSR_H_TIME] = t1;
-    return FSR_OK;
+    return warned;
 }
 
 int fsr_feedthrough(const fsr_instance *inst) {
@@ -724,7 +728,10 @@ int fsr_feedthrough(const fsr_instance *inst) {
 
 int fsr_outputs(fsr_instance *inst, const char *call) {
     double *w = inst->work;
-    if (inst->stepper(inst->x, w, w[FSR_H_TIME], 0.0) != 0)
+    int32_t rc = inst->stepper(inst->x, w, w[FSR_H_TIME], 0.0);
+    if (rc == FSR_R_INADMISSIBLE)         /* the coupling: outputs computed, an input state inside the wall */
+        return fsr_call(inst, "inadmissible", NULL);
+    if (rc != 0)
         return fsr_logf(inst, FSR_ERROR, "%s: the outputs computed from the current inputs are not finite "
                         "(or the parameters are not a valid set)", call);
     return FSR_OK;
