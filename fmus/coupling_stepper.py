@@ -114,6 +114,21 @@ def pack(work: np.ndarray, cfg, edges) -> None:
 
 
 @njit(cache=True)
+def _normal(q, u, M, wv, g0, W):
+    """(g(q), w^T u, sqrt(W u^T M u)) of one system: its gap, normal velocity and the bound of
+    |w^T u| over its kinetic energy."""
+    g = g0
+    wu = 0.0
+    uMu = 0.0
+    for a in range(q.shape[0]):
+        g += wv[a] * q[a]
+        wu += wv[a] * u[a]
+        for b in range(q.shape[0]):
+            uMu += u[a] * M[a, b] * u[b]
+    return g, wu, math.sqrt(max(W * uMu, 0.0))
+
+
+@njit(cache=True)
 def _evaluate(x, w):
     N = int(w[C_NODES])
     n = int(w[C_DOF])
@@ -182,15 +197,7 @@ def _evaluate(x, w):
     spd = w[rep - 2 * N:rep - N]
     floor = w[rep - N:rep]
     for i in range(N):
-        g = g0
-        wu = 0.0
-        uMu = 0.0
-        for a in range(n):
-            g += wv[a] * q[i, a]
-            wu += wv[a] * u[i, a]
-            for b in range(n):
-                uMu += u[i, a] * M[a, b] * u[i, b]
-        s_now = math.sqrt(max(W * uMu, 0.0))
+        g, wu, s_now = _normal(q[i], u[i], M, wv, g0, W)
         speed = max(s_now / e if e > 0.0 else s_now, spd[i])
         kept = min(floor[i], 0.0) if wu >= 0.0 else 0.0    # a contact (w^T u >= 0) keeps its depth
         bound = penetration_bound(w[C_HLAST], speed, 0.0) - kept
@@ -213,13 +220,7 @@ def _remember(x, w, H, rc):
     u = mat(x, int(w[C_IU]), N, n)
     q = mat(x, int(w[C_IQ]), N, n)
     for i in range(N):
-        uMu = 0.0
-        g = g0
-        for a in range(n):
-            g += wv[a] * q[i, a]
-            for b in range(n):
-                uMu += u[i, a] * M[a, b] * u[i, b]
-        w[rep - 2 * N + i] = math.sqrt(max(W * uMu, 0.0))
+        g, wu, w[rep - 2 * N + i] = _normal(q[i], u[i], M, wv, g0, W)
         if not (rc == R_INADMISSIBLE and w[rep] == i + 1):
             w[rep - N + i] = g
     w[C_HLAST] = H
