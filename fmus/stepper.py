@@ -61,7 +61,8 @@ from .workarray import mat, put, put_wall, wall
 __all__ = ["step", "pack", "work_size", "H_LEN", "H_VERSION", "H_TIME", "H_PHASE", "H_DT",
            "H_CONFIGURED", "WORK_VERSION", "H_FEEDTHROUGH", "H_VREF", "H_ITAUDOT", "H_IEXACT", "H_MAXEV", "H_BOUND",
            "EXACT", "exact_size",
-           "EXACT_MAX_EVENTS", "R_OK", "R_ROLLED_BACK", "R_EXACT_TAUDOT", "R_EXACT_EVENTS", "R_EXACT_STALL", "R_INADMISSIBLE",
+           "EXACT_MAX_EVENTS", "R_OK", "R_ROLLED_BACK", "R_EXACT_TAUDOT", "R_EXACT_EVENTS", "R_EXACT_STALL",
+           "R_INADMISSIBLE",
            "H_MODE", "H_REACHED", "H_PEND_U", "H_PEND_P", "H_ICOUNT", "MODE_FULL", "MODE_EARLY",
            "MODE_EARLY_EVENT", "MODE_APPLY_EVENT"]
 
