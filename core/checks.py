@@ -7,13 +7,14 @@ import os
 from typing import NamedTuple
 
 import numpy as np
+from .jit import njit
 
 from .errors import LawRefused, RunRefused, UnstableScheme
 from .model import MechanicalSystem
 
 __all__ = ["check_step", "check_run", "n_steps", "RunSteps", "run_steps", "record_rows", "record_times",
            "check_record_size", "RecordTooLarge", "StepTooLarge", "record_budget", "GAP_TOL", "InadmissibleState",
-           "check_admissible", "scheme_code", "check_stable", "coupling_omega",
+           "check_admissible", "penetration_bound", "scheme_code", "check_stable", "coupling_omega",
            "divergence_message", "check_start"]
 
 
@@ -138,11 +139,28 @@ class StepTooLarge(RunRefused):
     :func:`check_run` (the run plan, step 2: core and co-simulation alike)."""
 
 
+@njit(cache=True)
+def penetration_bound(dt: float, speed: float, acc: float = 0.0) -> float:
+    """How deep inside the wall (-g) a state the Moreau scheme produced can be: the one rule of
+    a state's admissibility (docs/design.md §5.1.1), g(q) >= -penetration_bound(...).
+
+    A contact step (midpoint or theta scheme) starts from a state the previous step left
+    at g >= -dt |w^T u-| / 2 and tests the wall once, at its midpoint (theta point), so it
+    ends at most dt |w^T u-| inside the wall, u- the normal velocity entering it, plus
+    dt^2 |w^T M^-1 h| of the force over the step; ``speed`` bounds |w^T u-| (the caller's
+    estimate, e.g. sqrt(W u^T M u) >= |w^T u|), ``acc`` bounds |w^T M^-1 h|. Twice that is
+    allowed: 2 (dt speed + dt^2 acc). A start state has had no step: dt = 0, bound 0
+    (:func:`check_start`). Compiled (numba) so the coupling FMU's stepper applies the same rule.
+    """
+    return 2.0 * (dt * speed + dt * dt * acc)
+
+
 def check_start(system: MechanicalSystem, q, name: str = "x0") -> None:
     """Refuse (:class:`InadmissibleState`) a start position outside the admissible set g(q) >= 0
-    (step 4 of the run plan, :func:`fmu_sync.core.plan.plan_run`)."""
+    (step 4 of the run plan, :func:`fmu_sync.core.plan.plan_run`): the admissibility rule
+    g >= -:func:`penetration_bound` with no step taken yet (bound 0)."""
     g = system.gap(q)
-    if not g >= 0.0:
+    if not g >= -penetration_bound(0.0, 0.0):
         raise InadmissibleState(f"{name} violates the constraint: g(q) = {g:.6g} < 0 (need g >= 0)")
 
 

@@ -266,7 +266,7 @@ def _code_hash(files: list[tuple[str, bytes]]) -> str:
 _C_SLOTS = ("H_LEN", "H_VERSION", "H_TIME", "H_PHASE", "H_DT", "H_CONFIGURED", "H_M", "H_SCHEME", "H_ITAU",
             "H_ITAUDOT", "H_FEEDTHROUGH", "H_MAXEV", "H_BOUND", "H_MODE", "H_REACHED", "H_PEND_U", "H_PEND_P",
             "H_ICOUNT")
-_C_CODES = ("R_OK", "R_ROLLED_BACK", "R_EXACT_TAUDOT", "R_EXACT_EVENTS", "R_EXACT_STALL",
+_C_CODES = ("R_OK", "R_ROLLED_BACK", "R_EXACT_TAUDOT", "R_EXACT_EVENTS", "R_EXACT_STALL", "R_INADMISSIBLE",
             "MODE_FULL", "MODE_EARLY", "MODE_EARLY_EVENT", "MODE_APPLY_EVENT")
 _CONSTANTS_H = "fmu_sync_constants.h"
 

@@ -16,7 +16,8 @@ from . import coupling_stepper as CS
 from .coupling import CouplingSlave, CouplingSpec
 from .runtime import InstanceBase, create_instance
 from .slave import PHASES
-from .stepper import H_CONFIGURED
+from . import stepper as S
+from .stepper import H_CONFIGURED, R_INADMISSIBLE
 
 __all__ = ["CouplingInstance", "create", "STATE_FORMAT"]
 
@@ -42,11 +43,37 @@ class CouplingInstance(InstanceBase):
 
     def _reset_values(self) -> None:
         self._clear()
+        self._set_memory([0.0] * (2 * self.spec.N + 1))
         self.refresh()
 
-    def _evaluate(self) -> None:
-        """The outputs from the current inputs, by the stepper's own code (H = 0)."""
-        self._step(self.x.ctypes.data, self.work.ctypes.data, 0.0, 0.0)
+    def _memory(self) -> list:
+        """What the admissibility check remembers of the last doStep: [H, N speeds, N gaps]."""
+        r = CS.report_slot(self.work)
+        return [float(self.work[CS.C_HLAST])] + self.work[r - 2 * self.spec.N:r].tolist()
+
+    def _set_memory(self, m) -> None:
+        r = CS.report_slot(self.work)
+        self.work[CS.C_HLAST] = m[0]
+        self.work[r - 2 * self.spec.N:r] = m[1:]
+
+    def _evaluate(self) -> str:
+        """The outputs from the current inputs, by the stepper's own code (H = 0); the
+        warning reply if an input state is inside the wall (:meth:`inadmissible`)."""
+        rc = self._step(self.x.ctypes.data, self.work.ctypes.data, 0.0, 0.0)
+        return self.inadmissible() if rc == R_INADMISSIBLE else ""
+
+    def inadmissible(self) -> str:
+        """The reason of the stepper's R_INADMISSIBLE (called by the binary): which system is
+        inside the wall, its gap and the allowed bound (fmi2Warning: docs/fmu.md)."""
+        r = CS.report_slot(self.work)
+        i, g, bound, H = int(self.work[r]), float(self.work[r + 1]), float(self.work[r + 2]), float(self.work[r + 3])
+        rule = (f"2 H v with H = {H:g} s, the last communication step, and v the largest normal speed the "
+                f"inputs allow, below the depth of a contact that lasts (core.checks.penetration_bound)" if H > 0 else
+                "no step taken yet: a start state must satisfy g >= 0")
+        return (f"W:t = {self.work[S.H_TIME]:g}: the inputs put system {i} inside the wall: g(q) = w^T q + g0 = "
+                f"{g:.6g} m is below the allowed Moreau penetration -{bound:.3g} m ({rule}); tau, d, V computed "
+                f"from it are outside the quotient distance's domain (g >= 0): check the systems' wall "
+                f"parameters (w, g0 must equal theirs) and their solver.dt")
 
     def _install(self, cfg) -> None:
         CS.pack(self.work, cfg, self.spec.edges)
@@ -62,22 +89,22 @@ class CouplingInstance(InstanceBase):
             self.x[self.outputs] = math.nan
             return reply
         self._install(cfg)
-        self._evaluate()
-        return ""
+        return self._evaluate()
 
     def refresh(self) -> str:
         """Outputs in initialization mode; NaN while the parameters are not a valid set, said
         with a warning (the reason :meth:`exit_initialization` would refuse with)."""
         reply = self.exit_initialization()
-        if not reply:
-            return ""
+        if not reply or not self.work[S.H_CONFIGURED] == 0.0:
+            return reply
         why = reply[2:].split("invalid configuration: ", 1)[-1].split("; the instance stays", 1)[0]
         return (f"W:the coupling's outputs are NaN in initialization mode: the parameters are not a valid set "
                 f"yet ({why}); set valid parameters before {self.calls['exit']}")
 
     # ------------------------------------------------------------ FMU state
     def _state(self) -> dict:
-        return {"spec": self.spec.as_dict(), "inputs": self.x[self.i_in:self.i_in + self.m].tolist()}
+        return {"spec": self.spec.as_dict(), "inputs": self.x[self.i_in:self.i_in + self.m].tolist(),
+                "memory": self._memory()}
 
     def state_reason(self, s) -> tuple[str | None, object]:
         if not isinstance(s, dict) or s.get("format") != STATE_FORMAT:
@@ -98,6 +125,13 @@ class CouplingInstance(InstanceBase):
                 r = v.check(a)
                 if r:
                     return f"input {r}", None
+            N = self.spec.N
+            mem = s.get("memory", [0.0] * (2 * N + 1))
+            if (not isinstance(mem, list) or len(mem) != 2 * N + 1
+                    or not all(isinstance(a, (int, float)) and math.isfinite(a) for a in mem)
+                    or not all(a >= 0.0 for a in mem[:N + 1])):
+                return (f"memory must be [H, N speeds, N gaps], {2 * N + 1} finite numbers (H and the speeds "
+                        f">= 0), got {mem!r}"), None
             p = s["parameters"]
             if not isinstance(p, dict) or set(p) != {v.name for v in self.params}:
                 return "parameters do not match this FMU's parameters", None
@@ -114,6 +148,7 @@ class CouplingInstance(InstanceBase):
 
     def _restore(self, s: dict, cfg) -> None:
         self.x[self.i_in:self.i_in + self.m] = s["inputs"]
+        self._set_memory(s.get("memory", [0.0] * (2 * self.spec.N + 1)))
         self._install(cfg)
         self._evaluate()
 

@@ -9,13 +9,24 @@ H_ITAUDOT, H_FEEDTHROUGH). The coupling has no state: every call, at doStep
 all outputs from the current inputs with one call of the core's
 :func:`fmu_sync.core.network.network_forces` (which calls
 :func:`fmu_sync.core.pair.coupling_step` per edge), then V per edge. Returns 0,
-or 1 if an output is not finite.
+1 if an output is not finite, or R_INADMISSIBLE (outputs computed) if a system's
+state lies inside the wall deeper than the Moreau penetration a step can leave,
+:func:`fmu_sync.core.checks.penetration_bound` with dt = the last doStep's H (the
+systems' own solver steps are at most H; 0 before the first step: a start state
+must satisfy g >= 0) and speed = max(sqrt(W u^T M u) / e, the same at the last
+doStep) (the normal velocity entering the contact step: e times it is left after
+a Newton impact, and a plastic one leaves 0), below the gap at the last doStep if
+that was inside the wall and admissible and w^T u >= 0 now (the scheme constrains
+velocities, not positions: a contact keeps the depth it entered with while it
+lasts, and its velocity does not approach the wall). The first such system, its gap and
+its bound (and H) are written at :func:`report_slot` for the reason the FMU logs.
 
 Work array: the header, then (at H_DATA) the laws, the edges and the weights
 (E, 2E, 2E slots; laws and edges as int64 bit patterns), the symmetric weights
 (E), Kp, Kd (n*n each), the distance geometry (:class:`DistanceGeometry`
-fields and its scalar part), the scratch of the call, and last the m input
-derivative slots the binary writes (unused: the coupling does not interpolate).
+fields and its scalar part), the scratch of the call, the N speeds at the last
+doStep and the report (system, gap, bound), and last the m input derivative slots
+the binary writes (unused: the coupling does not interpolate).
 """
 from __future__ import annotations
 
@@ -24,18 +35,21 @@ import math
 import numpy as np
 from ..core.jit import carray, cfunc, njit
 
+from ..core.checks import penetration_bound
 from ..core.distance import DistanceGeometry, ScalarGeometry
 from ..core.network import network_forces
 from .stepper import (H_CONFIGURED, H_DATA, H_DT, H_FEEDTHROUGH, H_ITAU, H_ITAUDOT, H_LEN, H_M, H_NX,
-                      H_SCHEME, H_VERSION, STEP_SIGNATURE, WORK_VERSION)
+                      H_SCHEME, H_VERSION, R_INADMISSIBLE, STEP_SIGNATURE, WORK_VERSION)
 from .workarray import mat, put, put_wall, wall
 
 __all__ = ["step", "pack", "work_size", "H_FEEDTHROUGH", "C_NODES", "C_DOF", "C_EDGES", "C_IQ", "C_IU",
-           "C_ITAU", "C_ID", "C_IV", "C_IEU", "C_IBR", "NO_SCHEME"]
+           "C_ITAU", "C_ID", "C_IV", "C_IEU", "C_IBR", "C_HLAST", "NO_SCHEME", "report_slot"]
 
 #: the coupling's own header slots (free in the mechanical layout's header)
 C_NODES, C_DOF, C_EDGES = 6, 8, 10
 C_IQ, C_IU, C_ITAU, C_ID, C_IV, C_IEU, C_IBR = 12, 13, 15, 16, 17, 18, 19
+#: H of the last doStep (0 before the first): the step that produced the current inputs
+C_HLAST = 21
 #: H_SCHEME of a coupling: no solver (not the binary's exact-scheme code)
 NO_SCHEME = -1.0
 _NSCALAR = 12   # fields of ScalarGeometry
@@ -49,7 +63,13 @@ def work_size(N: int, n: int, E: int, m: int) -> int:
     """Slots for N nodes of n DOF, E edges, m inputs."""
     data = 5 * E + E + 2 * n * n + _geo_size(n)
     scratch = 3 * N * n + 3 * E + 6 * n
-    return H_DATA + data + scratch + m
+    return H_DATA + data + scratch + 2 * N + 4 + m
+
+
+def report_slot(work) -> int:
+    """First of the 4 slots (system 1-based, gap, bound, the step H it allowed for) of the last
+    inadmissible input state; the N speeds and the N gaps at the last doStep precede it."""
+    return int(work[H_ITAUDOT]) - 4
 
 
 def init_header(work: np.ndarray, N: int, n: int, E: int, m: int, nx: int, index: dict) -> None:
@@ -63,6 +83,7 @@ def init_header(work: np.ndarray, N: int, n: int, E: int, m: int, nx: int, index
     work[H_SCHEME] = NO_SCHEME
     work[H_FEEDTHROUGH] = 1.0
     work[C_NODES], work[C_DOF], work[C_EDGES] = N, n, E
+    work[C_HLAST] = 0.0
     for slot, key in ((C_IQ, "q"), (C_IU, "u"), (C_ITAU, "tau"), (C_ID, "d"), (C_IV, "V"), (C_IEU, "euclidean"),
                       (C_IBR, "branch")):
         work[slot] = index[key]
@@ -90,6 +111,21 @@ def pack(work: np.ndarray, cfg, edges) -> None:
     k += n + 3
     work[k:k + _NSCALAR] = np.array(tuple(g.scalar), dtype=np.float64)
     work[H_CONFIGURED] = 1.0
+
+
+@njit(cache=True)
+def _normal(q, u, M, wv, g0, W):
+    """(g(q), w^T u, sqrt(W u^T M u)) of one system: its gap, normal velocity and the bound of
+    |w^T u| over its kinetic energy."""
+    g = g0
+    wu = 0.0
+    uMu = 0.0
+    for a in range(q.shape[0]):
+        g += wv[a] * q[a]
+        wu += wv[a] * u[a]
+        for b in range(q.shape[0]):
+            uMu += u[a] * M[a, b] * u[b]
+    return g, wu, math.sqrt(max(W * uMu, 0.0))
 
 
 @njit(cache=True)
@@ -155,7 +191,40 @@ def _evaluate(x, w):
         for c in range(n):
             if not math.isfinite(tau[i, c]):
                 ok = False
-    return 0 if ok else 1
+    if not ok:
+        return 1
+    # admissibility of the inputs (core.checks.penetration_bound, the one rule)
+    rep = int(w[H_ITAUDOT]) - 4
+    spd = w[rep - 2 * N:rep - N]
+    floor = w[rep - N:rep]
+    for i in range(N):
+        g, wu, s_now = _normal(q[i], u[i], M, wv, g0, W)
+        speed = max(s_now / e if e > 0.0 else s_now, spd[i])
+        kept = min(floor[i], 0.0) if wu >= 0.0 else 0.0    # a contact (w^T u >= 0) keeps its depth
+        bound = penetration_bound(w[C_HLAST], speed, 0.0) - kept
+        if not g >= -bound:
+            w[rep], w[rep + 1], w[rep + 2], w[rep + 3] = i + 1, g, bound, w[C_HLAST]
+            return R_INADMISSIBLE
+    return 0
+
+
+@njit(cache=True)
+def _remember(x, w, H, rc):
+    """After a doStep of H: the speeds sqrt(W u^T M u) of the inputs it started from, their
+    gaps (those found admissible: a Moreau contact keeps the depth it reached while it lasts), and H."""
+    N = int(w[C_NODES])
+    n = int(w[C_DOF])
+    rep = int(w[H_ITAUDOT]) - 4
+    k = H_DATA + 6 * int(w[C_EDGES]) + 3 * n * n
+    M = mat(w, k, n, n)
+    wv, g0, e, Minv_w, W, k = wall(w, k + n * n, n)
+    u = mat(x, int(w[C_IU]), N, n)
+    q = mat(x, int(w[C_IQ]), N, n)
+    for i in range(N):
+        g, wu, w[rep - 2 * N + i] = _normal(q[i], u[i], M, wv, g0, W)
+        if not (rc == R_INADMISSIBLE and w[rep] == i + 1):
+            w[rep - N + i] = g
+    w[C_HLAST] = H
 
 
 @cfunc(STEP_SIGNATURE, cache=True, nopython=True)
@@ -164,4 +233,7 @@ def step(x_ptr, w_ptr, t, H):
     x = carray(x_ptr, (int(w[H_NX]),))
     if w[H_CONFIGURED] == 0.0:
         return 1
-    return _evaluate(x, w)
+    rc = _evaluate(x, w)
+    if H > 0.0 and rc != 1:
+        _remember(x, w, H, rc)
+    return rc

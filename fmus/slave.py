@@ -25,6 +25,7 @@ import math
 
 import numpy as np
 
+from ..core.checks import penetration_bound
 from ..core.plan import plan_run
 from ._xml import generation_tool, model_description, model_description3, model_guid, unit_exponents
 from .contract import INPUT_BOUND, SCHEME_ITEMS, STATE_BOUND, FmuModel, Var, model
@@ -253,7 +254,8 @@ class MechanicalSlave(Slave):
         by at most dt times the velocity along w, plus dt^2 times the
         acceleration along w:  |g| <= dt sqrt(W u^T M u) + dt^2 (|w^T M^-1 h| +
         sum_j |w^T M^-1 F_j|), h = f0 - K q - C u + B tau (sqrt(W u^T M u) bounds
-        |w^T u| over the kinetic energy). Twice that is allowed.
+        |w^T u| over the kinetic energy). Twice that is allowed: the one rule,
+        :func:`fmu_sync.core.checks.penetration_bound`.
         """
         s = cfg.system
         a = s.arrays()
@@ -265,7 +267,7 @@ class MechanicalSlave(Slave):
             h = a.f0 - a.K @ q - a.C @ u + a.B @ np.asarray(tau, dtype=np.float64)
         speed = math.sqrt(max(a.W * float(u @ a.M @ u), 0.0))
         acc = abs(float(a.Minv_w @ h)) + float(np.sum(np.abs(a.F @ a.Minv_w)))
-        return 2.0 * (cfg.dt * speed + cfg.dt * cfg.dt * acc)
+        return penetration_bound(cfg.dt, speed, acc)
 
     def check_state(self, s, params: list[Var], inputs: list[Var]) -> tuple[str | None, Configuration | None]:
         """(reason, None) if ``s`` is not a valid saved state of this model, else (None, cfg)."""

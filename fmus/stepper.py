@@ -62,6 +62,7 @@ __all__ = ["step", "STEP_SIGNATURE", "pack", "work_size", "H_LEN", "H_VERSION", 
            "H_CONFIGURED", "WORK_VERSION", "H_FEEDTHROUGH", "H_VREF", "H_ITAUDOT", "H_IEXACT", "H_MAXEV", "H_BOUND",
            "EXACT", "exact_size", "law_params",
            "EXACT_MAX_EVENTS", "R_OK", "R_ROLLED_BACK", "R_EXACT_TAUDOT", "R_EXACT_EVENTS", "R_EXACT_STALL",
+           "R_INADMISSIBLE",
            "H_MODE", "H_REACHED", "H_PEND_U", "H_PEND_P", "H_ICOUNT", "MODE_FULL", "MODE_EARLY",
            "MODE_EARLY_EVENT", "MODE_APPLY_EVENT"]
 
@@ -82,13 +83,16 @@ H_MODE, H_REACHED, H_PEND_U, H_PEND_P, H_ICOUNT = 25, 26, 27, 28, 29
 H_DATA = 30
 #: the one version of what the binary and the Python side share (work array header,
 #: layout, codes): fmu_sync_constants.h, generated at export, carries it
-WORK_VERSION = 5
+WORK_VERSION = 6   # 5: the native stepper (no stepper in the layout); 6: + the coupling's admissibility memory
 #: work guard of the exact scheme: most events (impacts, contact changes, flow
 #: pieces) in one doStep; more makes the step fail (rolled back, fmi2Error) in
 #: well under a second instead of running for minutes (H = 1e9)
 EXACT_MAX_EVENTS = 100_000
 #: return codes of :func:`step` (read by fmus/c/fmu_sync_runtime.c)
 R_OK, R_ROLLED_BACK, R_EXACT_TAUDOT, R_EXACT_EVENTS, R_EXACT_STALL = 0, 1, 2, 3, 4
+#: return code of the coupling FMU's stepper (fmus/coupling_stepper.py): outputs computed, but an
+#: input state lies inside the wall beyond the Moreau penetration (core.checks.penetration_bound)
+R_INADMISSIBLE = 5
 #: step modes (H_MODE): to the end of the step (FMI 2.0; FMI 3.0 without early return);
 #: stop at the first impact with the impact handled (early return, no event mode); stop
 #: at the first impact before it (early return in event mode: the exact scheme keeps the

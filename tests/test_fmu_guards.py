@@ -143,6 +143,74 @@ def scenario_init_outputs(fmu):
     return out
 
 
+def _coupling_slave(fmu, calls, messages):
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
+    md = read_model_description(str(fmu))
+    s = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(fmu)), modelIdentifier=md.coSimulation.modelIdentifier,
+                  instanceName="wall", fmiCallLogger=calls.append)
+
+    def log(env, name, status, category, message):
+        messages.append([int(status), message.decode()])
+    cb = fmi2CallbackFunctions()
+    cb.logger = fmi2CallbackLoggerTYPE(log)
+    s.instantiate(callbacks=cb, loggingOn=True)
+    s._keep = cb
+    s.setupExperiment(startTime=0.0)
+    s.enterInitializationMode()
+    s.exitInitializationMode()
+    return s, {v.name: v.valueReference for v in md.modelVariables}
+
+
+def scenario_coupling_wall(fmu):
+    """The coupling FMU given system states inside the wall: the status of each call (fmpy's
+    call log) and the warnings; a state deep inside (q[1] = -0.5), then a Moreau-sized one."""
+    calls, messages, out = [], [], {}
+    s, vr = _coupling_slave(fmu, calls, messages)
+    ins = [vr[k] for k in ("q[1]", "u[1]", "q[2]", "u[2]")]
+    outs = [vr[k] for k in ("tau[1]", "tau[2]", "d[1]")]
+
+    def status(label, f):
+        n = len(calls)
+        value = f()
+        out[label] = {"status": calls[n:][-1].rsplit("-> ", 1)[-1], "value": value,
+                      "log": [m for st, m in messages if st == 1]}
+        messages.clear()
+    s.setReal(ins, [-0.5, 0.0, 0.3, 0.0])
+    status("deep_get", lambda: list(s.getReal(outs)))
+    status("deep_step", lambda: s.doStep(0.0, 0.01))
+    # after a step of H = 0.01: 1 mm inside at 0.5 m/s outward (an impact at e = 0.9 from ~0.56 m/s)
+    s.setReal(ins, [-1e-3, 0.5, 0.3, 0.0])
+    status("moreau_get", lambda: list(s.getReal(outs)))
+    status("moreau_step", lambda: s.doStep(0.01, 0.01))
+    s.setReal(ins, [-0.5, 0.5, 0.3, 0.0])
+    status("deep_again", lambda: list(s.getReal(outs)))
+    s.terminate()
+    s.freeInstance()
+    return out
+
+
+def scenario_natural_cosim(package):
+    """fmpy's SSP runner over a package (two oscillator FMUs through the coupling FMU): the
+    status of every FMI call and the states' deepest penetration."""
+    import fmpy.ssp.simulation as sim
+    from fmu_sync.ssp import fmpy_parameter_set, read_ssp
+    calls = []
+    make = sim.FMU2Slave
+    sim.FMU2Slave = lambda **kw: make(fmiCallLogger=calls.append, **kw)
+    H = read_ssp(package).H
+    r = sim.simulate_ssp(str(package), stop_time=100.0 - H / 2, step_size=H,
+                         parameter_set=fmpy_parameter_set(package))
+    statuses = {}
+    for c in calls:
+        if " -> " in c and c.startswith("fmi2") and not c.startswith(("fmi2Instantiate", "fmi2FreeInstance")):
+            key = c.rsplit(" -> ", 1)[-1]
+            statuses[key] = statuses.get(key, 0) + 1
+    q = [float(min(r["system1.q"].min(), r["system2.q"].min())), int((r["system1.q"] < 0).sum()
+                                                                    + (r["system2.q"] < 0).sum())]
+    return {"statuses": statuses, "min_q": q[0], "inside": q[1]}
+
+
 def _child_main(argv):
     name, fmu = argv
     print(json.dumps(globals()[f"scenario_{name}"](fmu)))
@@ -329,3 +397,33 @@ def test_outputs_in_initialization_mode_with_invalid_parameters_warn_with_the_re
     assert r["status"] == 1 and r["values"] == ["nan", "nan"], r
     assert "not a valid system yet" in r["log"] and "symmetric" in r["log"], r["log"]
     assert r["valid_status"] == 0 and all(math.isfinite(v) for v in r["valid_values"]), r
+
+
+def test_coupling_fmu_warns_of_states_inside_the_wall_beyond_the_moreau_penetration(tmp_path):
+    """q[1] = -0.5 with the wall at 0 was fmi2OK, tau = +-0.5, no word (issue 28): now fmi2Warning
+    (tau and d still computed) with the reason naming the system, its gap and the allowed bound; a
+    penetration a Moreau step of H can leave (1 mm at 0.5 m/s, H = 0.01 s: bound 11 mm) stays fmi2OK."""
+    from fmu_sync.export import export_coupling
+    fmu = export_coupling(tmp_path / "c.fmu", n=1, start_values={"M": 1.0, "e": 0.9})
+    r = _child("coupling_wall", fmu)
+    for key in ("deep_get", "deep_step", "deep_again"):
+        assert r[key]["status"] == "WARNING", (key, r[key])
+        (msg,) = r[key]["log"]
+        assert "system 1 inside the wall" in msg and "g(q) = w^T q + g0 = -0.5 m" in msg, msg
+    assert "-0 m (no step taken yet" in r["deep_get"]["log"][0]
+    # 2 H v = 2 (0.01) (0.5 / 0.9) = 0.0111, below the kept 1 mm of the contact before
+    assert "-0.0121 m (2 H v with H = 0.01 s" in r["deep_again"]["log"][0]
+    assert r["deep_get"]["value"][:2] == [0.8, -0.8] and math.isfinite(r["deep_get"]["value"][2])
+    for key in ("moreau_get", "moreau_step"):
+        assert r[key]["status"] == "OK" and not r[key]["log"], (key, r[key])
+
+
+@pytest.mark.parametrize("scene, variant", [("forced-pair", "switching"), ("plastic", "plastic")])
+def test_a_real_cosimulation_through_the_coupling_fmu_has_no_false_alarm(tmp_path, scene, variant):
+    """Two oscillator FMUs through the coupling FMU in fmpy's SSP runner over 100 s: the Moreau
+    penetrations the systems really have (e = 0.9 impacts; e = 0 contacts that last) are there
+    and every FMI call returns fmi2OK."""
+    from fmu_sync.ssp import write_ssp
+    r = _child("natural_cosim", write_ssp(scene, tmp_path / f"{scene}.ssp", variant=variant))
+    assert set(r["statuses"]) == {"OK"} and r["statuses"]["OK"] > 100_000, r
+    assert r["inside"] >= 2 and -1e-3 < r["min_q"] < 0.0, r

@@ -300,6 +300,7 @@ static fmi2Status refresh_if_dirty(Instance *c) {
     if (c->outputs_stale && c->state != ST_INIT) {
         fmi2Status s = (fmi2Status)fsr_outputs(&c->rt, "fmi2GetReal/fmi2GetInteger");
         if (s >= fmi2Error) return s;
+        if (s == fmi2Warning) return s;   /* inputs inside the wall: stays stale, every read warns (reason logged) */
         c->outputs_stale = 0;
     }
     return fmi2OK;
@@ -323,7 +324,8 @@ EXPORT fmi2Status fmi2GetInteger(fmi2Component comp, const fmi2ValueReference vr
     Instance *c;
     if (invalid(comp, F_GetInteger, &c)) return fmi2Error;
     if (nvr && (!vr || !value)) return refuse(c, fmi2Error, "fmi2GetInteger: NULL vr or value array");
-    if (refresh_if_dirty(c) >= fmi2Error) return fmi2Error;
+    fmi2Status s = refresh_if_dirty(c);
+    if (s >= fmi2Error) return fmi2Error;
     for (size_t i = 0; i < nvr; ++i) {
         if (!check_vr(c, F_GetInteger, vr[i], 1)) return fmi2Error;
         double v = c->rt.x[vr[i]];
@@ -332,7 +334,7 @@ EXPORT fmi2Status fmi2GetInteger(fmi2Component comp, const fmi2ValueReference vr
                           c->rt.name_of[vr[i]], G(v));
         value[i] = (fmi2Integer)v;
     }
-    return fmi2OK;
+    return s;
 }
 
 static fmi2Status set_value(Instance *c, int call, fmi2ValueReference vr, double v, int is_int) {
@@ -546,7 +548,7 @@ EXPORT fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real t, fmi2Real H, fmi2Boo
     (void)noSetPrior;
     if (invalid(comp, F_DoStep, &c)) return fmi2Error;
     fmi2Status s = (fmi2Status)fsr_step(&c->rt, t, H);
-    if (s == fmi2OK) {
+    if (s <= fmi2Warning) {              /* warning: the step is taken, its reason logged */
         c->last_successful_time = c->rt.work[FSR_H_TIME];
         c->outputs_stale = 0;            /* the step computed the outputs from the current inputs */
     }

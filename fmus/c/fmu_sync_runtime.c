@@ -619,8 +619,12 @@ int fsr_step(fsr_instance *inst, double t, double H) {
     int32_t rc = fsr_native_step(inst->x, w, now, H);
     if (fsr_native_errors != errors)
         return native_raised(inst, "doStep");
+    int warned = FSR_OK;
     switch (rc) {
     case FSR_R_OK:
+        break;
+    case FSR_R_INADMISSIBLE:   /* the coupling: outputs computed, an input state inside the wall (reason logged) */
+        warned = fsr_call(inst, "inadmissible", NULL);
         break;
     case FSR_R_EXACT_TAUDOT:
         return fsr_logf(inst, FSR_ERROR, REFUSED "solver.scheme = exact holds the input constant over a "
@@ -650,7 +654,7 @@ int fsr_step(fsr_instance *inst, double t, double H) {
 #undef REFUSED
 #undef G
     w[FSR_H_TIME] = t1;
-    return FSR_OK;
+    return warned;
 }
 
 int fsr_feedthrough(const fsr_instance *inst) {
@@ -663,6 +667,8 @@ int fsr_outputs(fsr_instance *inst, const char *call) {
     int32_t rc = fsr_native_step(inst->x, w, w[FSR_H_TIME], 0.0);
     if (fsr_native_errors != errors)
         return native_raised(inst, call);
+    if (rc == FSR_R_INADMISSIBLE)         /* the coupling: outputs computed, an input state inside the wall */
+        return fsr_call(inst, "inadmissible", NULL);
     if (rc != 0)
         return fsr_logf(inst, FSR_ERROR, "%s: the outputs computed from the current inputs are not finite "
                         "(or the parameters are not a valid set)", call);
