@@ -110,8 +110,15 @@ def _g(x: float, fmt: str = ".3g") -> str:
 
 
 def _demo_table(sr) -> str:
+    """The demo's summary table and, below it, its ensemble table (fmu_sync.ensemble)."""
+    from .ensemble import HEADER, table_rows
     from .report import md_table, rows
-    return "\n".join(md_table(*rows(sr.runs, demo=True)))
+    text = "\n".join(md_table(*rows(sr.runs, demo=True)))
+    if sr.ensembles:
+        n = sr.ensembles[0][3].n_starts
+        text += (f"\n\nThe decay rate over {n} start states (`fmu-sync demo` writes it too; `fmu-sync run SCENE "
+                 f"--starts {n}`):\n\n" + "\n".join(md_table(list(HEADER), table_rows(sr.ensembles))))
+    return text
 
 
 def _demo_impact(sr) -> str:
