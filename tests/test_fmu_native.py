@@ -86,7 +86,9 @@ def scenario_compare(a):
                 got = list(s.getReal(reals)) + [float(v) for v in s.getInteger(ints)]
             inst.x[ins] = tau
             now = float(inst.work[S.H_TIME])              # as fsr_step: the slave's own time
-            assert inst._step(inst.x.ctypes.data, inst.work.ctypes.data, now, H) == 0
+            # random inputs of the coupling FMU put systems inside the wall: R_INADMISSIBLE (outputs
+            # computed, fmi2Warning) is a completed step too
+            assert inst._step(inst.x.ctypes.data, inst.work.ctypes.data, now, H) in (0, S.R_INADMISSIBLE)
             inst.work[S.H_TIME] = now + H
             want = [float(inst.x[i]) for i in reals + ints]
             n += len(want)
