@@ -28,7 +28,7 @@ def bench(tmp_path_factory):
     code = "import sys\nfrom fmu_sync.cli import main\nsys.exit(main(sys.argv[1:]))\n"
     p = subprocess.run([sys.executable, "-c", code, "bench", "--quick", "--smoke", "-o", str(out),
                         "--publish", str(page)],
-                       capture_output=True, text=True, env=ENV, timeout=240, cwd=out)
+                       capture_output=True, text=True, env=ENV, timeout=900, cwd=out)   # a hang guard: a cold cache compiles everything
     assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-4000:]
     return out, p
 

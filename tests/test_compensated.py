@@ -129,7 +129,7 @@ def test_at_the_steps_resolution_d_grows_by_at_most_a_few_h_f():
 def test_coupling_forces_gives_the_loops_forces_and_refuses_what_it_cannot_evaluate():
     from fmu_sync.core import coupling_forces
     s = ImpactOscillator(m=1.0, k=0.0, c=0.0, e=0.8, f0=-9.81)
-    r = simulate_pair(s, (0.17, -1.89), (0.23, 0.15), 1e-3, 1e-3, coupling=LAW, Kp=0.1, Kd=0.1)
+    r = simulate_pair(s, (0.17, -1.89), (0.23, 0.15), 2e-3, 1e-3, coupling=LAW, Kp=0.1, Kd=0.1)
     t1, t2 = coupling_forces(s, (0.17, -1.89), (0.23, 0.15), LAW, 0.1, 0.1)
     assert (t1[0], t2[0]) == (r.tau1[0, 0], r.tau2[0, 0]) and abs(t1[0]) > 1.0    # compensating here
     from fmu_sync.core.distance import geometry
