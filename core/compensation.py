@@ -32,8 +32,9 @@ import numpy as np
 from .jit import njit
 
 from .distance import BRANCH_E, distance1
+from .errors import LawRefused
 
-__all__ = ["MU", "REST_TOL", "pull1", "force1", "node_force1", "force_table", "chain_rate1", "compensated_coupling1"]
+__all__ = ["MU", "REST_TOL", "check_compensated", "pull1", "force1", "node_force1", "force_table", "chain_rate1", "compensated_coupling1"]
 
 #: The blended law brings a growing chain's rate down to MU times the rate of the fully
 #: compensated law (<= 0): MU = 0 would only stop the growth (then the discrete step's own
@@ -42,6 +43,21 @@ MU = 0.5
 #: A system rests on the wall (the contact chain on branch E) when its normal coordinates
 #: (X, Y) = (g / sqrt(w^T Q^-1 w), w^T u / sqrt(W)) satisfy X <= REST_TOL d and |Y| <= REST_TOL d.
 REST_TOL = 1e-9
+
+
+def check_compensated(n: int, force=None) -> None:
+    """The one rule of what the compensated law is implemented for: 1-DOF systems (n = 1) with
+    the built-in linear force law (``force`` None; else the user :class:`ForceLaw`). Raises
+    ValueError for n > 1 and :class:`.errors.LawRefused` for a user force law, naming what to use
+    instead (the core's run plan, the master and the coupling FMU all refuse by it)."""
+    if n > 1:
+        raise ValueError(f"coupling 'switching-compensated' is implemented for 1-DOF systems (n = 1), got "
+                         f"n = {n}: in n-DOF its guarantee does not carry over as it is (docs/design.md "
+                         f"§2.5.2); use 'switching'")
+    if force is not None:
+        raise LawRefused(f"coupling 'switching-compensated' compensates the built-in linear law's force "
+                         f"(docs/design.md §2.5.2); the systems use the force law {force.name!r}: "
+                         f"use 'switching'")
 
 
 @njit(cache=True, inline="always", error_model="numpy")

@@ -30,7 +30,7 @@ import numpy as np
 from .checks import refuse_nonlinear  # noqa: F401 (re-exported: a run check)
 from .checks import RunSteps, check_record_size, check_run, check_stable, check_start, check_step, record_rows, \
     scheme_code
-from .errors import LawRefused, UnstableScheme
+from .errors import UnstableScheme
 from .exchange import ExchangeLimit, check_exchange
 from .model import MechanicalSystem, as_state
 
@@ -260,6 +260,7 @@ def plan_run(systems, starts, t_end, step, *, scheme="midpoint", theta: float = 
     coupled = False
     if N > 1:                                                           # 5. the coupling
         from .coupling import COMPENSATED, SWITCHING, UNCOUPLED   # coupled runs only (see coupled_weights)
+        from .compensation import check_compensated
         n = s0.n
         for s in systems:
             if s.n_inputs != n or not np.array_equal(s.B, np.eye(n)):
@@ -269,14 +270,8 @@ def plan_run(systems, starts, t_end, step, *, scheme="midpoint", theta: float = 
             laws_a = np.full(1 if A is None else len(edges_of(weights(A, N))), SWITCHING, dtype=np.int64)
         else:
             laws_a = np.asarray(laws, dtype=np.int64)
-        if n > 1 and np.any(laws_a == COMPENSATED):
-            raise ValueError(f"coupling 'switching-compensated' is implemented for 1-DOF systems (n = 1), got "
-                             f"n = {n}: in n-DOF its guarantee does not carry over as it is (docs/design.md "
-                             f"§2.5.2); use 'switching'")
-        if s0.force is not None and np.any(laws_a == COMPENSATED):
-            raise LawRefused(f"coupling 'switching-compensated' compensates the built-in linear law's force "
-                             f"(docs/design.md §2.5.2); the systems use the force law {s0.force.name!r}: "
-                             f"use 'switching'")
+        if np.any(laws_a == COMPENSATED):
+            check_compensated(n, s0.force)
         Kp_m, Kd_m, Ac, limit = held_exchange(s0.M, Kp, Kd, step, A, laws_a, hold, allow_unstable, step_name)
         coupled = bool(np.any(laws_a != UNCOUPLED))
     if record_values is not None and grid is not None:                  # 6. the record budget

@@ -72,6 +72,8 @@ LAW_ITEMS = (
     ("switching", 0, "Switching quotient coupling (forces from the quotient distance and its chain ends)"),
     ("euclidean", 1, "Euclidean PD coupling tau_i = -Kp (q_i - q_j) - Kd (u_i - u_j)"),
     ("none", 2, "No force on this edge (d, V and the Euclidean error are still computed)"),
+    ("switching-compensated", 3, "Compensated switching law (1-DOF; V non-increasing on every branch): "
+                                 "evaluates the systems' force law h, the parameters k[i] .. phi[i]"),
 )
 #: declared enumeration types: name -> (description, items)
 ENUM_TYPES = {

@@ -14,9 +14,13 @@ the coupled system as a package of FMUs (:mod:`fmu_sync.ssp`):
   depends directly on every input (ModelStructure) and is computed from the
   current inputs whenever it is read;
 * parameters: ``law[e]`` (enumeration ``fmu_sync.Law``: switching, euclidean,
-  none), the weights ``a[i,j]`` and ``a[j,i]`` of each edge, the gains ``Kp``,
+  none, switching-compensated), the weights ``a[i,j]`` and ``a[j,i]`` of each edge, the gains ``Kp``,
   ``Kd`` and the metric ``Q`` (n x n for n > 1), the impact geometry ``M``,
-  ``w``, ``g0``, ``e`` (which must equal the systems').
+  ``w``, ``g0``, ``e`` (which must equal the systems') and, for n = 1, each system's
+  force law h, ``k[i]``, ``c[i]``, ``f0[i]``, ``F[i]``, ``Omega[i]``, ``phi[i]``
+  (:func:`force_vars`: the 1-DOF mechanical FMU's own declaration of them, which the
+  compensated law evaluates at the chain ends, docs/design.md §2.5.2; they must equal
+  the systems').
 
 The structure (N, n and the edges) is fixed at export (:class:`CouplingSpec`,
 stored in the FMU's start file); the values are parameters. The numbers come
@@ -25,22 +29,43 @@ from one compiled call per evaluation of the core's
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..core.coupling import gain_matrix
+from ..core.compensation import check_compensated, force_table
+from ..core.coupling import COMPENSATED, gain_matrix
 from ..core.distance import make_geometry
-from .contract import INPUT_BOUND, LAW_ITEMS, LAW_TYPE, POSITIVE_MIN, Var, matrix
+from ..core.pair import stack_nodes
+from .contract import INPUT_BOUND, LAW_ITEMS, LAW_TYPE, POSITIVE_MIN, Var, matrix, model
 from .slave import Slave
 
 __all__ = ["CouplingSpec", "CouplingSlave", "node_names", "edge_names", "MODEL",
-           "IDENTIFIER", "BRANCH_CODES"]
+           "IDENTIFIER", "BRANCH_CODES", "SYSTEM_MODEL", "force_names", "force_vars"]
 
 MODEL = "coupling"
 IDENTIFIER = "SyncCoupling"
 #: values of the branch[e] output (fmu_sync.core.distance's codes; -1: no distance computed)
 BRANCH_CODES = "0 = E, 1 = J12, 2 = J21, 3 = J2"
+#: the mechanical FMU (fmus/contract.py's registry) whose force law h the compensated law evaluates
+SYSTEM_MODEL = "impact-oscillator"
+
+
+def force_names() -> tuple:
+    """The parameters of the systems' force law h: :data:`SYSTEM_MODEL`'s declared parameters
+    other than its impact geometry (k, c, f0, F, Omega, phi)."""
+    decl = model(SYSTEM_MODEL).declaration
+    return tuple(name for name in decl.names if name not in decl.geometry)
+
+
+def force_vars(N: int) -> list[Var]:
+    """The coupling FMU's copy of each system's force-law parameters, ``k[i]`` .. ``phi[i]``:
+    the mechanical FMU's own variables (unit, range, start) renamed per system."""
+    own = {v.name: v for v in model(SYSTEM_MODEL).declare()}
+    return [replace(own[name], name=f"{name}[{i + 1}]",
+                    description=f"{own[name].description}: system {i + 1}'s force law h, evaluated by "
+                                f"law switching-compensated (must equal the system's {name})")
+            for i in range(N) for name in force_names()]
 
 
 @dataclass(frozen=True)
@@ -129,6 +154,8 @@ def declare(spec: CouplingSpec) -> list[Var]:
                + [_param("g0", "m", "Wall offset g0 in g(q) = w^T q + g0 (must equal the systems')", 0.0),
                   _param("e", "1", "Newton restitution coefficient (must equal the systems')", 0.9, min=0.0,
                          max=1.0)])
+    if n == 1:   # the compensated law's h (1-DOF only: check_compensated)
+        params += force_vars(N)
     pnames = tuple(v.name for v in params)
     outs = []
     for i in range(N):
@@ -149,8 +176,8 @@ def declare(spec: CouplingSpec) -> list[Var]:
 class CouplingConfiguration:
     """A validated parameter set: laws, weights, gains and the distance geometry."""
 
-    def __init__(self, laws, W2, Kp, Kd, geo):
-        self.laws, self.W2, self.Kp, self.Kd, self.geo = laws, W2, Kp, Kd, geo
+    def __init__(self, laws, W2, Kp, Kd, geo, hp):
+        self.laws, self.W2, self.Kp, self.Kd, self.geo, self.hp = laws, W2, Kp, Kd, geo, hp
 
 
 class CouplingSlave(Slave):
@@ -165,8 +192,8 @@ class CouplingSlave(Slave):
         edges = ", ".join(f"({i + 1},{j + 1})" for i, j in spec.edges)
         self.DESCRIPTION = (
             f"Synchronizing coupling of {spec.N} mechanical systems with {spec.n} degree(s) of freedom on "
-            f"the edges {edges}: forces tau_i = sum_j a_ij tau_i^(j) of the switching quotient or "
-            f"Euclidean PD law per edge, quotient distance d and V per edge (fmu-sync core)")
+            f"the edges {edges}: forces tau_i = sum_j a_ij tau_i^(j) of the switching quotient, compensated "
+            f"switching or Euclidean PD law per edge, quotient distance d and V per edge (fmu-sync core)")
 
     def declare(self) -> list[Var]:
         return declare(self.SPEC)
@@ -194,7 +221,28 @@ class CouplingSlave(Slave):
         Kd = gain_matrix(self._square(p, "Kd"), n, "Kd")
         w = [p["w"]] if n == 1 else [p[f"w[{k + 1}]"] for k in range(n)]
         geo = make_geometry(self._square(p, "M"), w, p["g0"], p["e"], self._square(p, "Q"))
-        return CouplingConfiguration(laws, W2, Kp, Kd, geo)
+        if np.any(laws == COMPENSATED):
+            check_compensated(n)
+        return CouplingConfiguration(laws, W2, Kp, Kd, geo, self.force_table(p))
+
+    def force_table(self, p: dict) -> np.ndarray:
+        """The systems' force laws as the core's table (:func:`fmu_sync.core.compensation.force_table`,
+        the table the master builds from its systems): each system made by the mechanical FMU's
+        declaration from its ``k[i]`` .. ``phi[i]`` (an empty (N, 3) table for n > 1)."""
+        N = self.SPEC.N
+        if self.SPEC.n > 1:
+            return np.zeros((N, 3))
+        fm = model(SYSTEM_MODEL)
+        base = {v.name: v.start for v in fm.declare() if v.causality == "parameter"}
+        systems = []
+        for i in range(N):
+            own = {name: p[f"{name}[{i + 1}]"] for name in force_names()}
+            try:
+                systems.append(fm.system({**base, **own}))
+            except ValueError as exc:
+                raise ValueError(f"the force law of system {i + 1} ({', '.join(f'{k}[{i + 1}]' for k in own)}): "
+                                 f"{exc}") from None
+        return force_table(*stack_nodes(*systems)[1:])
 
     def input_names(self) -> list[str]:
         return [v.name for v in self.declare() if v.causality == "input"]

@@ -24,7 +24,9 @@ its bound (and H) are written at :func:`report_slot` for the reason the FMU logs
 Work array: the header, then (at H_DATA) the laws, the edges and the weights
 (E, 2E, 2E slots; laws and edges as int64 bit patterns), the symmetric weights
 (E), Kp, Kd (n*n each), the distance geometry (:class:`DistanceGeometry`
-fields and its scalar part), the scratch of the call, the N speeds at the last
+fields and its scalar part), the nodes' force table (its column count, then N rows of at most
+HP_COLS: :func:`fmu_sync.core.compensation.force_table` of the systems' force laws, which the
+compensated law evaluates at time t), the scratch of the call, the N speeds at the last
 doStep and the report (system, gap, bound), and last the m input derivative slots
 the binary writes (unused: the coupling does not interpolate).
 """
@@ -53,6 +55,8 @@ C_HLAST = 21
 #: H_SCHEME of a coupling: no solver (not the binary's exact-scheme code)
 NO_SCHEME = -1.0
 _NSCALAR = 12   # fields of ScalarGeometry
+#: the force table's widest row: k, c, f0 and one harmonic term (F, Omega, phi), as the FMU takes
+HP_COLS = 6
 
 
 def _geo_size(n: int) -> int:
@@ -61,7 +65,7 @@ def _geo_size(n: int) -> int:
 
 def work_size(N: int, n: int, E: int, m: int) -> int:
     """Slots for N nodes of n DOF, E edges, m inputs."""
-    data = 5 * E + E + 2 * n * n + _geo_size(n)
+    data = 5 * E + E + 2 * n * n + _geo_size(n) + 1 + N * HP_COLS
     scratch = 3 * N * n + 3 * E + 6 * n
     return H_DATA + data + scratch + 2 * N + 4 + m
 
@@ -110,6 +114,13 @@ def pack(work: np.ndarray, cfg, edges) -> None:
     work[k + n], work[k + n + 1], work[k + n + 2] = g.WQ, g.sqrtW, g.sqrtWQ
     k += n + 3
     work[k:k + _NSCALAR] = np.array(tuple(g.scalar), dtype=np.float64)
+    k += _NSCALAR
+    N, cols = cfg.hp.shape
+    if cols > HP_COLS:
+        raise ValueError(f"the coupling FMU takes one harmonic term per system, the force table has "
+                         f"{(cols - 3) // 3}")
+    work[k] = cols
+    work[k + 1:k + 1 + N * cols] = cfg.hp.reshape(-1)
     work[H_CONFIGURED] = 1.0
 
 
@@ -129,7 +140,7 @@ def _normal(q, u, M, wv, g0, W):
 
 
 @njit(cache=True)
-def _evaluate(x, w):
+def _evaluate(x, w, t):
     N = int(w[C_NODES])
     n = int(w[C_DOF])
     E = int(w[C_EDGES])
@@ -159,6 +170,9 @@ def _evaluate(x, w):
     sg = ScalarGeometry(w[k], w[k + 1], w[k + 2], w[k + 3], w[k + 4], w[k + 5], w[k + 6], w[k + 7], w[k + 8],
                         w[k + 9], w[k + 10], w[k + 11])
     k += _NSCALAR
+    cols = int(w[k])
+    hp = mat(w, k + 1, N, cols)
+    k += 1 + N * HP_COLS
     geo = DistanceGeometry(Q, M, wv, g0, e, Minv_w, W, Qinv_w, WQ, sqrtW, sqrtWQ, sg)
     iq = int(w[C_IQ])
     iu = int(w[C_IU])
@@ -171,10 +185,10 @@ def _evaluate(x, w):
     ek = s[E:2 * E]
     bk = s[2 * E:3 * E].view(np.int64)
     j = 3 * E
-    # no force table (an empty view) and t = 0: this FMU's laws (LAW_ITEMS) never evaluate h
+    # the states' time t: the compensated law evaluates each system's h(t) at its chain end
     network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, s[j:j + n], s[j + n:j + 2 * n],
                    s[j + 2 * n:j + 3 * n], s[j + 3 * n:j + 4 * n], s[j + 4 * n:j + 5 * n],
-                   s[j + 5 * n:j + 6 * n], True, dk, bk, ek, mat(w, 0, 0, 3), 0.0)
+                   s[j + 5 * n:j + 6 * n], True, dk, bk, ek, hp, t)
     ok = True
     i_d = int(w[C_ID])
     i_v = int(w[C_IV])
@@ -233,7 +247,7 @@ def step(x_ptr, w_ptr, t, H):
     x = carray(x_ptr, (int(w[H_NX]),))
     if w[H_CONFIGURED] == 0.0:
         return 1
-    rc = _evaluate(x, w)
+    rc = _evaluate(x, w, t)
     if H > 0.0 and rc != 1:
         _remember(x, w, H, rc)
     return rc
