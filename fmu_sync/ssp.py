@@ -16,7 +16,11 @@ The package (a zip archive) holds:
 * ``resources/<model>.fmu`` and ``resources/coupling.fmu``;
 * ``resources/<component>.ssv``: each component's parameter values (a system's
   parameters and start state, the coupling's weights, gains, metric Q and the
-  impact geometry). Only Real values are bound: the enumerations (the solver
+  impact geometry). With the law ``switching-compensated`` the coupling's copy of each
+  system's force law (``k[i]`` .. ``phi[i]``) is bound from that system's own ``.ssv``
+  through a parameter mapping ``resources/coupling-<system>.ssm`` (``k`` -> ``k[i]``, ..):
+  one set of numbers for both, and :func:`run_ssp` refuses a package whose coupling
+  holds another. Only Real values are bound: the enumerations (the solver
   scheme, the law of each edge) are the FMUs' start values, since libcosim
   cannot set FMI enumerations and fmpy's runner cannot read SSV enumeration names.
 
@@ -46,6 +50,7 @@ SSD = "SystemStructure.ssd"
 NS = {"ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
       "ssc": "http://ssp-standard.org/SSP1/SystemStructureCommon",
       "ssv": "http://ssp-standard.org/SSP1/SystemStructureParameterValues",
+      "ssm": "http://ssp-standard.org/SSP1/SystemStructureParameterMapping",
       "osp": "http://opensimulationplatform.com/SSP/OSPAnnotations",
       "oms": "https://raw.githubusercontent.com/OpenModelica/OMSimulator/master/schema/oms.xsd"}
 #: the annotation types of the two masters that read a step from a package (SSP 1.0 has none):
@@ -101,13 +106,26 @@ def _connector(parent, name: str, kind: str, typ: str = "Real", unit: str | None
     ET.SubElement(c, _q("ssc", typ), {"unit": unit} if unit else {})
 
 
-def _component(elements, name: str, source: str, connectors, ssv: str):
+def _ssm(mapping: dict) -> bytes:
+    """An SSP parameter mapping (source name -> target name)."""
+    root = ET.Element(_q("ssm", "ParameterMapping"), {"version": "1.0"})
+    for a, b in mapping.items():
+        ET.SubElement(root, _q("ssm", "MappingEntry"), {"source": a, "target": b})
+    return _xml_bytes(root)
+
+
+def _component(elements, name: str, source: str, connectors, ssv: str, mapped=()):
+    """A component bound to its own ``ssv`` after the ``mapped`` (ssv, ssm) bindings (the later
+    binding takes priority, SSP 1.0)."""
     comp = ET.SubElement(elements, _q("ssd", "Component"),
                          {"name": name, "type": "application/x-fmu-sharedlibrary", "source": source})
     cons = ET.SubElement(comp, _q("ssd", "Connectors"))
     for args in connectors:
         _connector(cons, *args)
     binds = ET.SubElement(comp, _q("ssd", "ParameterBindings"))
+    for src, ssm in mapped:
+        b = ET.SubElement(binds, _q("ssd", "ParameterBinding"), {"source": src})
+        ET.SubElement(b, _q("ssd", "ParameterMapping"), {"source": ssm})
     ET.SubElement(binds, _q("ssd", "ParameterBinding"), {"source": ssv})
     _oms_annotation(comp)
     return comp
@@ -205,6 +223,8 @@ def write_ssp(scene, path, variant: str | None = None, overrides: dict | None = 
         comp_values.append(_real_values(decl, {**model.values(s), **model.state_values(q0, u0), **solver}))
     coupling_real, coupling_enum = _coupling_values(v, systems, A, edges, laws, n)
     N = len(comp_values)
+    maps = _force_maps(laws, N, n)   # the compensated law's h: bound from the systems' own values
+    h_starts = {b: comp_values[i][a] for i, m in enumerate(maps) for a, b in m.items()}
     # one FMU file per system, whose start values are that system's bound values: a master that
     # ignores the bindings (fmpy's simulate_ssp without parameter_set) still runs the scene
     osc_names = [f"resources/{system_component(i, N)}.fmu" for i in range(N)]
@@ -213,18 +233,33 @@ def write_ssp(scene, path, variant: str | None = None, overrides: dict | None = 
         oscs = [export_fmu(model.key, Path(tmp) / f"osc{i}.fmu", {**vals, contract.SOLVER_SCHEME:
                                                                   solver[contract.SOLVER_SCHEME]})
                 for i, vals in enumerate(comp_values)]
-        cpl = export_coupling(Path(tmp) / "coupling.fmu", A, n, {**coupling_real, **coupling_enum})
-        files = [(SSD, _ssd(sc.name, v, model, edges, N, n, osc_names, cfg))]
+        cpl = export_coupling(Path(tmp) / "coupling.fmu", A, n, {**coupling_real, **coupling_enum, **h_starts})
+        files = [(SSD, _ssd(sc.name, v, model, edges, N, n, osc_names, cfg, bool(maps)))]
         files += [(name, osc.read_bytes()) for name, osc in zip(osc_names, oscs)]
         files.append((_COUPLING_FMU, cpl.read_bytes()))
     files += [(f"resources/{system_component(i, N)}.ssv", _ssv(system_component(i, N), vals))
               for i, vals in enumerate(comp_values)]
+    files += [(_ssm_name(i, N), _ssm(m)) for i, m in enumerate(maps)]
     files.append((f"resources/{COUPLING_COMPONENT}.ssv", _ssv(COUPLING_COMPONENT, coupling_real)))
     write_archive(path, files)
     return path
 
 
-def _ssd(scene_name, v, model, edges, N, n, osc_names, cfg) -> bytes:
+def _force_maps(laws, N: int, n: int) -> list[dict]:
+    """Per system, the names of its force law h -> the coupling's copy (``k`` -> ``k[i]``, ..):
+    what the law switching-compensated evaluates (none for the other laws, none for n > 1,
+    where the coupling FMU refuses that law)."""
+    from .fmus.coupling import force_names
+    if n > 1 or "switching-compensated" not in laws:
+        return []
+    return [{a: f"{a}[{i + 1}]" for a in force_names()} for i in range(N)]
+
+
+def _ssm_name(i: int, N: int) -> str:
+    return f"resources/{COUPLING_COMPONENT}-{system_component(i, N)}.ssm"
+
+
+def _ssd(scene_name, v, model, edges, N, n, osc_names, cfg, mapped=False) -> bytes:
     from .fmus.coupling import edge_names, node_names
     root = ET.Element(_q("ssd", "SystemStructureDescription"),
                       {"version": "1.0", "name": f"{scene_name}-{v.name}",
@@ -243,7 +278,8 @@ def _ssd(scene_name, v, model, edges, N, n, osc_names, cfg) -> bytes:
     cons += [(a, "output", "Real", "N") for i in range(N) for a in node_names("tau", i, n)]
     cons += [(a, "output", "Real", None) for base in ("d", "V", "euclidean") for a in edge_names(base, E)]
     cons += [(a, "output", "Integer", None) for a in edge_names("branch", E)]
-    _component(elements, COUPLING_COMPONENT, _COUPLING_FMU, cons, f"resources/{COUPLING_COMPONENT}.ssv")
+    _component(elements, COUPLING_COMPONENT, _COUPLING_FMU, cons, f"resources/{COUPLING_COMPONENT}.ssv",
+               [(f"resources/{system_component(i, N)}.ssv", _ssm_name(i, N)) for i in range(N)] if mapped else ())
     conns = ET.SubElement(system, _q("ssd", "Connections"))
     for i in range(N):
         for mine, theirs in list(zip(qn, node_names("q", i, n))) + list(zip(un, node_names("u", i, n))):
@@ -293,6 +329,21 @@ def _read_ssv(zf: zipfile.ZipFile, name: str) -> dict:
     return out
 
 
+def _mapped(zf: zipfile.ZipFile, values: dict, mapping) -> dict:
+    """A binding's values under its parameter mapping (an ``.ssm`` source or inline entries):
+    the mapped names renamed, the others dropped (the binding is meant for those it maps)."""
+    if mapping is None:
+        return values
+    root = mapping
+    if mapping.get("source"):
+        try:
+            root = ET.fromstring(zf.read(mapping.get("source")))
+        except KeyError:
+            raise SsdError(f"the package maps parameters by {mapping.get('source')}, which it does not hold") from None
+    entries = {e.get("source"): e.get("target") for e in root.iter(_q("ssm", "MappingEntry"))}
+    return {entries[k]: v for k, v in values.items() if k in entries}
+
+
 def read_ssp(path) -> SspPackage:
     """Read a package's structure, bindings and experiment (ValueError naming what is wrong)."""
     path = Path(path)
@@ -317,7 +368,7 @@ def read_ssp(path) -> SspPackage:
             params[name] = {}
             for b in comp.iter(_q("ssd", "ParameterBinding")):
                 if b.get("source"):
-                    params[name].update(_read_ssv(zf, b.get("source")))
+                    params[name].update(_mapped(zf, _read_ssv(zf, b.get("source")), b.find(_q("ssd", "ParameterMapping"))))
                 for ps in b.iter(_q("ssv", "ParameterSet")):
                     for p in ps.iter(_q("ssv", "Parameter")):
                         real = p.find(_q("ssv", "Real"))
@@ -422,7 +473,8 @@ def run_ssp(path, method: str = "jacobi", t_end: float | None = None, H: float |
         names = [nodes[i] for i in range(spec.N)]
         fmu = Path(tmp) / "system.fmu"
         fmu.write_bytes(_one_model(pkg, zf, names))
-        return _run_master(pkg, fmu, names, spec, cfg, t_end, H, method, record_every, progress, allow_unstable)
+        return _run_master(pkg, fmu, names, spec, cfg, t_end, H, method, record_every, progress, allow_unstable,
+                           cvals)
 
 
 def _one_model(pkg: SspPackage, zf: zipfile.ZipFile, names: list[str]) -> bytes:
@@ -461,7 +513,7 @@ def _one_model(pkg: SspPackage, zf: zipfile.ZipFile, names: list[str]) -> bytes:
     return blobs[srcs[0]]
 
 
-def _run_master(pkg, fmu, names, spec, cfg, t_end, H, method, record_every, progress, allow_unstable):
+def _run_master(pkg, fmu, names, spec, cfg, t_end, H, method, record_every, progress, allow_unstable, cvals):
     from fmpy import read_model_description
 
     from .core.coupling import LAWS
@@ -488,6 +540,8 @@ def _run_master(pkg, fmu, names, spec, cfg, t_end, H, method, record_every, prog
     z = np.zeros((spec.n, spec.n))
     mine = MechanicalSystem(M=geo.M, K=z, C=z, f0=np.zeros(spec.n), w=geo.w, g0=geo.g0, e=geo.e)
     check_common_geometry(systems + [mine], names + ["the coupling component"])
+    if "switching-compensated" in laws:   # and the force law h it evaluates must be theirs
+        _check_force_laws(pkg, names, cvals, [{**declared, **p} for p in starts])
     master = SspMaster(fmu, states, A, t_end, H, [None if x == "none" else x for x in laws], cfg.Kp, cfg.Kd,
                            geo.Q, method=method, record_every=record_every, start_values=starts,
                            allow_unstable=allow_unstable)
@@ -501,6 +555,19 @@ def _run_master(pkg, fmu, names, spec, cfg, t_end, H, method, record_every, prog
         raise
     res.info.update(about)
     return res
+
+
+def _check_force_laws(pkg, names, cvals, values) -> None:
+    """The coupling's copy of each system's force law (``k[i]`` .. ``phi[i]``) must be that
+    system's (SsdError naming the first parameter that differs)."""
+    from .fmus.coupling import force_names
+    for i, (c, p) in enumerate(zip(names, values)):
+        for a in force_names():
+            mine, theirs = cvals.get(f"{a}[{i + 1}]"), p.get(a)
+            if mine != theirs:
+                raise SsdError(f"{pkg.path}: the law switching-compensated evaluates each system's force law, "
+                               f"but the coupling component's {a}[{i + 1}] = {mine!r} differs from {c}'s "
+                               f"{a} = {theirs!r} (bind it from {c}'s parameters, as fmu-sync ssp writes it)")
 
 
 def save_result(res, out, formats=("csv", "npz"), plots: bool = True, method: str | None = None) -> Path:
