@@ -218,3 +218,8 @@ def test_a_configuration_the_core_refuses_is_fmi2Error_at_initialization(tmp_pat
     got = child(__file__, "refused", {"fmu": str(fmu)}, tmp_path)
     assert got["status"] == 3, got
     assert "implemented for 1-DOF systems (n = 1), got n = 2" in got["log"][-1]
+    from fmu_sync.core.compensation import check_compensated   # the one rule, its other refusal
+    from fmu_sync.core.errors import LawRefused
+    from fmu_sync.core.examples import Pendulum
+    with pytest.raises(LawRefused, match="force law 'pendulum'"):
+        check_compensated(1, Pendulum().force)
