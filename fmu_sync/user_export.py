@@ -33,7 +33,7 @@ from .core.registry import builtin_models, load_model
 from .fmus import contract
 from .fmus.slave import unit_exponents
 
-__all__ = ["resolve", "rewrite_imports", "declaration_of", "register_from"]
+__all__ = ["resolve", "rewrite_imports", "declaration_of", "register_from", "fmu_model_of"]
 #: where the built-in declarations live (module of the package, relative to the carried core)
 _BUILTIN_MODULES = ("fmu_sync.core.examples", "fmu_sync.core.model")
 
@@ -129,6 +129,33 @@ def _user_home(decl: Model) -> tuple[Path, str] | None:
                 if obj is decl:
                     return Path(mod.__file__), attr
     return None
+
+
+def _key(decl: Model) -> str | None:
+    """The export key of a declaration: a built-in's name, ``"file.py:name"`` of a user's file
+    (None: neither, e.g. a Model made in a session)."""
+    if _builtin_home(decl) is not None:
+        return decl.name
+    found = _user_home(decl)
+    return None if found is None else f"{found[0].name}:{found[1]}"
+
+
+def fmu_model_of(family: str, n: int):
+    """The FMU contract's model of a scene's ``system.model`` with n degrees of freedom: a
+    registered model, or the FMU of a declaration with a force law (a built-in one or a user's
+    file, registered under the key :func:`resolve` exports it by); None if it has no FMU."""
+    found = contract.model_for(family, n)
+    if found is not None:
+        return found
+    try:
+        decl = load_model(family)
+    except ModelError:
+        return None
+    key = _key(decl)
+    if decl.force is None or decl.n != n or key is None or key in contract.MODELS:
+        return None
+    have = contract.DECLARED.get(key)
+    return have if have is not None and have.declaration is decl else contract.declared(decl, key)
 
 
 def resolve(model) -> tuple[str, dict, dict]:

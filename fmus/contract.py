@@ -378,6 +378,11 @@ class FmuModel:
             declared = self.declaration.values(system)
         except ModelError as exc:
             raise ContractError(str(exc)) from None
+        return self.flat(declared)
+
+    def flat(self, declared: dict) -> dict:
+        """The FMU's parameter values of declared values (name -> value as the declaration takes
+        it, e.g. a scene's ``[system]`` keys): a vector as ``name[i]``, a matrix as ``name[i,j]``."""
         out = {}
         for p in self.declaration.params:
             if p.name not in declared:

@@ -49,11 +49,13 @@ def _coupling_arg(law: str):
     return None if law == "none" else law
 
 
-def fmu_start_values(fmu_path, variant: Variant, system=None) -> dict:
+def fmu_start_values(fmu_path, variant: Variant, system=None, node: dict | None = None) -> dict:
     """Start values for the FMU's parameters from the scene, as the FMU contract names them.
 
     The FMU must be the contract's model of the variant's system family
-    (:func:`fmu_sync.fmus.contract.identify`); anything else raises :class:`SceneError`.
+    (:func:`fmu_model_of`); anything else raises :class:`SceneError`. A declaration without
+    an inverse (a force law's: the pendulum, a user's file) takes the scene's ``[system]`` values
+    themselves, with a network node's table ``node`` laid over them.
     """
     from fmpy import read_model_description  # cosim branch only
 
@@ -62,24 +64,48 @@ def fmu_start_values(fmu_path, variant: Variant, system=None) -> dict:
     try:
         md = read_model_description(str(fmu_path))
         model = contract.identify([v.name for v in md.modelVariables], md.modelName)
-        want = contract.model_for(cfg["system.model"], variant.system.n)
-        if model is not want:
+        want = fmu_model_of(cfg["system.model"], variant.system.n)
+        if want is None or not (model is want or (model.key == want.key and model.declaration is want.declaration)):
             raise contract.ContractError(f"it is the {model.key} model, the scene needs "
                                          f"{want.key if want else 'a model the registry does not have'}")
-        return {**model.values(variant.system if system is None else system),
-                **model.solver_values(cfg["solver.dt"], cfg["solver.scheme"], cfg["solver.theta"])}
+        if model.declaration.values is None:
+            values = model.flat(_declared_values(variant, node))
+        else:
+            values = model.values(variant.system if system is None else system)
+        return {**values, **model.solver_values(cfg["solver.dt"], cfg["solver.scheme"], cfg["solver.theta"])}
     except contract.ContractError as exc:
         raise SceneError(f"{name}: cannot take the scene's values: {exc}") from None
     except ValueError as exc:  # an unknown scheme
         raise SceneError(f"{name}: {exc}") from None
 
 
+def _declared_values(variant: Variant, node: dict | None = None) -> dict:
+    """The declared parameter values of the variant's ``[system]`` (a network node's table over them)."""
+    from .loading import model_of
+    from .schema import system_keys
+    decl = model_of(variant.cfg)
+    values = {k: variant.cfg[f"system.{k}"] for k in decl.names}
+    keys = system_keys(decl)
+    values.update({k: keys[k][0](v) for k, v in (node or {}).items()})
+    return decl.check(values)
+
+
+def fmu_model_of(family: str, n: int):
+    """The FMU contract's model of a scene's ``system.model`` (:func:`fmu_sync.user_export.fmu_model_of`)."""
+    from ..user_export import fmu_model_of as find
+    return find(family, n)
+
+
 def export_for(variant: Variant, out_dir) -> Path:
-    """Export the FMU of the variant's model family into ``out_dir`` (cosim only)."""
+    """Export the FMU of the variant's model into ``out_dir`` (cosim only): a registered model by
+    its key, a declaration with a force law by the scene's ``system.model`` (its file, for a user's)."""
     from ..export import export_fmu  # cosim branch only
 
-    model = contract.model_for(variant.cfg["system.model"], variant.system.n).key
-    return Path(export_fmu(model, Path(out_dir) / f"{model.replace('-', '_')}.fmu", None))
+    family = variant.cfg["system.model"]
+    model = fmu_model_of(family, variant.system.n)
+    spec = model.key if model.key in contract.MODELS else family
+    name = model.identifier if spec == family else model.key.replace("-", "_")
+    return Path(export_fmu(spec, Path(out_dir) / f"{name}.fmu", None))
 
 
 def _label(variant: Variant, scene_name: str = "") -> str:
@@ -206,7 +232,7 @@ def _run_network(variant: Variant, fmu_path, progress, label, extra):
     from ..master import cosimulate_network
     if fmu_path is None:
         raise ValueError(f"{label}: mode = cosim needs an exported FMU (fmu_path)")
-    starts = [fmu_start_values(fmu_path, variant, s) for s in spec.systems]
+    starts = [fmu_start_values(fmu_path, variant, s, t) for s, t in zip(spec.systems, spec.nodes)]
     result = cosimulate_network(fmu_path, list(spec.states), spec.A, cfg["run.t_end"], cfg["run.H"],
                                 coupling=_laws_arg(variant), Kp=variant.Kp, Kd=variant.Kd, Q=variant.Q,
                                 method=cfg["run.method"], record_every=cfg["run.record_every"],
