@@ -187,11 +187,12 @@ def resolve(model) -> tuple[str, dict, dict]:
         record = {"file": path.name, "name": attr, "sha256": hashlib.sha256(text).hexdigest(),
                   "source": text.decode("utf-8")}
     files["user/runtime.py"] = runtime
-    for p in decl.params:   # each unit readable for <UnitDefinitions> before anything is compiled
+    units = [(f"parameter {p.name}", p.unit) for p in decl.params] + [(f"{k}_unit", u) for k, u in decl.units.items()]
+    for what, unit in units:   # each unit readable for <UnitDefinitions> before anything is compiled
         try:
-            unit_exponents(p.unit)
+            unit_exponents(unit)
         except ValueError as exc:
-            raise ModelError(f"model {decl.name!r}, parameter {p.name}: {exc}") from None
+            raise ModelError(f"model {decl.name!r}, {what}: {exc}") from None
     fm = contract.declared(decl, key)
     fm.declaration.force.compile()      # LawRefused (a ValueError) names the law numba cannot compile
     return key, files, record

@@ -26,7 +26,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..core.declaration import POSITIVE_MIN, Model, ModelError, Param
+from ..core.declaration import DEFAULT_UNITS, POSITIVE_MIN, Model, ModelError, Param
 from ..core.model import IMPACT_OSCILLATOR, MECHANICAL_SYSTEM, MechanicalSystem
 from ..core.moreau import MIDPOINT, THETA
 
@@ -182,13 +182,13 @@ def _solver_variables(dt: float = 1e-3) -> list[Var]:
     ]
 
 
-def _inputs(n: int) -> list[Var]:
+def _inputs(n: int, unit: str = "N") -> list[Var]:
     if n == 1:
         return [Var("tau", "Real", "input", "continuous", "Control force (held over each communication step)",
-                    unit="N", start=0.0, min=-INPUT_BOUND, max=INPUT_BOUND)]
+                    unit=unit, start=0.0, min=-INPUT_BOUND, max=INPUT_BOUND)]
     return [Var(name, "Real", "input", "continuous",
                 f"Control force on coordinate {i + 1} (B = I; held over each communication step)",
-                unit="N", start=0.0, min=-INPUT_BOUND, max=INPUT_BOUND) for i, name in enumerate(indexed("tau", n))]
+                unit=unit, start=0.0, min=-INPUT_BOUND, max=INPUT_BOUND) for i, name in enumerate(indexed("tau", n))]
 
 
 _ENERGY = "Mechanical energy 1/2 u^T M u + 1/2 q^T K q - f0^T q (without forcing and input)"
@@ -196,28 +196,30 @@ _ENERGY_LAW = ("Energy 1/2 u^T M u + 1/2 q^T K_L q of the force law's declared l
                "h(q, u, tau, t, p) has no declared potential: not conserved in general)")
 
 
-def _outputs(n: int, depends: dict, energy: str = _ENERGY) -> list[Var]:
-    """Outputs q, u, gap, impacts, percussion, energy (q[i], u[i] for n > 1)."""
+def _outputs(n: int, depends: dict, energy: str = _ENERGY, units: dict | None = None) -> list[Var]:
+    """Outputs q, u, gap, impacts, percussion, energy (q[i], u[i] for n > 1), in the model's
+    ``units`` (:attr:`fmu_sync.core.Model.units`; the gap in q's)."""
+    units = units or DEFAULT_UNITS
     out = []
     for i, name in enumerate(indexed("q", n)):
         out.append(Var(name, "Real", "output", "continuous",
                        "Generalized position" + ("" if n == 1 else f" {i + 1}"), initial="calculated",
-                       unit="m", initial_depends=tuple(depends[name])))
+                       unit=units["q"], initial_depends=tuple(depends[name])))
     for i, name in enumerate(indexed("u", n)):
         out.append(Var(name, "Real", "output", "continuous",
                        "Generalized velocity" + ("" if n == 1 else f" {i + 1}")
                        + " (right limit after an impact)", initial="calculated",
-                       unit="m/s", initial_depends=tuple(depends[name])))
+                       unit=units["u"], initial_depends=tuple(depends[name])))
     out += [
         Var(GAP, "Real", "output", "continuous",
             "Gap g(q) = w^T q + g0 to the wall (>= 0 up to the scheme's O(dt) penetration)",
-            initial="calculated", unit="m", initial_depends=tuple(depends[GAP])),
+            initial="calculated", unit=units["q"], initial_depends=tuple(depends[GAP])),
         Var(IMPACTS, "Integer", "output", "discrete",
             "Number of internal steps with a positive contact percussion since the start",
             initial="calculated", min=0),
         Var(PERCUSSION, "Real", "output", "discrete",
             "Contact percussion (impulse) summed over the last communication step",
-            initial="calculated", unit="N.s", min=0.0),
+            initial="calculated", unit=f"{units['tau']}.s", min=0.0),
         Var(ENERGY, "Real", "output", "continuous",
             energy, initial="calculated", unit="J", initial_depends=tuple(depends[ENERGY])),
     ]
@@ -337,12 +339,13 @@ class FmuModel:
         depends = {**{q: [s] for q, s in zip(self.q + self.u, qs + us)},
                    GAP: self._names(wall) + qs, ENERGY: self._names(self.energy_params) + qs + us}
         suffix = (lambda i: "") if n == 1 else (lambda i: f", component {i + 1}")
-        states = ([_param(x, "m", "Initial position (g(q_start) >= 0)" + suffix(i), self.q_start_default[i],
+        units = self.declaration.units
+        states = ([_param(x, units["q"], "Initial position (g(q_start) >= 0)" + suffix(i), self.q_start_default[i],
                           min=-STATE_BOUND, max=STATE_BOUND) for i, x in enumerate(qs)]
-                  + [_param(x, "m/s", "Initial velocity" + suffix(i), 0.0, min=-STATE_BOUND, max=STATE_BOUND)
+                  + [_param(x, units["u"], "Initial velocity" + suffix(i), 0.0, min=-STATE_BOUND, max=STATE_BOUND)
                      for i, x in enumerate(us)])
         energy = _ENERGY if self.declaration.force is None else _ENERGY_LAW
-        return (_inputs(n) + _outputs(n, depends, energy) + _model_params(self.declaration, n, self.start)
+        return (_inputs(n, units["tau"]) + _outputs(n, depends, energy, units) + _model_params(self.declaration, n, self.start)
                 + states + _solver_variables())
 
     def _declared(self, values: dict, names) -> dict:

@@ -167,6 +167,32 @@ def run_variant(variant: Variant, fmu_path=None, progress: Callable | None = Non
     :class:`~fmu_sync.core.RunFailed` naming the scene and variant, with the
     record up to the failure in ``.partial`` (None where there is none).
     """
+    try:
+        return _with_units(_run_variant(variant, fmu_path, progress, scene_name, sink, chunk_rows), variant)
+    except RunFailed as exc:
+        _with_units(exc.partial, variant)
+        raise
+
+
+def declared_units(variant: Variant) -> dict:
+    """``{"units": ...}`` of the variant's model when it declares units other than m, m/s, N
+    (:func:`fmu_sync.core.views.units_info`), else ``{}``."""
+    from ..core.views import units_info
+    from .loading import model_of
+    return units_info(model_of(variant.cfg))
+
+
+def _with_units(result, variant: Variant):
+    """The result with its model's declared units in ``info`` (its files' headers, meta and plots say them)."""
+    own = declared_units(variant)
+    if result is not None and own:
+        if getattr(result, "info", None) is None:
+            result.info = {}
+        result.info.update(own)
+    return result
+
+
+def _run_variant(variant: Variant, fmu_path, progress, scene_name, sink, chunk_rows):
     cfg = variant.cfg
     label = _label(variant, scene_name)
     extra = {"allow_unstable": True} if cfg["run.allow_unstable"] else {}
@@ -290,11 +316,16 @@ def record_interval(variant: Variant) -> tuple[float, str]:
 def _stream_run(v: Variant, out_dir: Path, fmu_path, progress, scene_name, formats, est, max_memory, extra):
     """A core pair whose whole record exceeds the memory budget: written in chunks while it runs."""
     from .. import report
+    from types import SimpleNamespace
+
+    from ..core.views import units_of
     from ..output import RecordWriter, pair_columns
     per_row = 8.0 * est.values_per_row
     chunk_rows = max(16, min(1 << 18, int(max_memory / (per_row * 8))))  # the chunk, its copies, the CSV block
     plot_rows = max(1000, min(20000, int(max_memory / (per_row * 8))))
-    lay = dict(kind="pair", N=2, n=v.system.n, edges=[[0, 1]], distance=v.has_distance)
+    own = declared_units(v)
+    lay = dict(kind="pair", N=2, n=v.system.n, edges=[[0, 1]], distance=v.has_distance,
+               **({"units": units_of(SimpleNamespace(info=own))} if own else {}))
     writer = RecordWriter(out_dir / v.name, pair_columns(v.system.n, v.has_distance), formats, layout=lay)
     from ..stream import StreamRecord
     sink = StreamRecord(writer, v.system, est.rows, plot_rows)
@@ -304,7 +335,7 @@ def _stream_run(v: Variant, out_dir: Path, fmu_path, progress, scene_name, forma
         if sink.rows == 0:
             writer.abort()
             raise
-        result = sink.thinned()
+        result = _with_units(sink.thinned(), v)
         result.error = str(exc)
         writer.meta = report.record_meta(_counted(result, sink), extra)
         files = writer.close(partial=True)
@@ -314,7 +345,7 @@ def _stream_run(v: Variant, out_dir: Path, fmu_path, progress, scene_name, forma
     except BaseException:
         writer.abort()
         raise
-    result = sink.thinned()
+    result = _with_units(sink.thinned(), v)
     writer.meta = report.record_meta(_counted(result, sink, last), extra)
     files = writer.close()
     metrics = sink.metrics(last)
@@ -541,6 +572,11 @@ def settings_table(scene: Scene, variants, names=None) -> list[tuple[str, str]]:
             rows.append((k, values.pop()))
         else:
             rows.append((k, "; ".join(f"{n}: {v.cfg[k]!r}" for n, v in zip(names, variants))))
+    units = {str(declared_units(v).get("units")) for v in variants}
+    if units != {"None"}:
+        own = declared_units(variants[0]).get("units") or {}
+        rows.append(("units", ", ".join(f"{k} [{u}]" for k, u in own.items()) if len(units) == 1 else
+                     "; ".join(f"{n}: {declared_units(v).get('units')}" for n, v in zip(names, variants))))
     every = [record_interval(v)[1] for v in variants]
     rows.append(("record interval", every[0] if len(set(every)) == 1 else
                  "; ".join(f"{n}: {x}" for n, x in zip(names, every))))
