@@ -126,7 +126,8 @@ def _network_positions(result, path, system=None, title=None) -> Path:
     for i in range(N):
         ax.plot(t, q[:, i] @ w + g0, color=cmap(i / max(N - 1, 1)), lw=0.9, label=f"node {i + 1}")
     _wall_band(ax)
-    ax.set_ylabel(f"gap g(q) = w·q + g0 [{_u(result, 'q')}]" if n > 1 or g0 != 0.0 else f"position q [{_u(result, 'q')}]")
+    unit = _u(result, "q")
+    ax.set_ylabel(f"gap g(q) = w·q + g0 [{unit}]" if n > 1 or g0 != 0.0 else f"position q [{unit}]")
     ax.set_xlabel("time t [s]")
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8.5)
     _title(ax, title, f"positions of the {N} nodes")
@@ -181,7 +182,8 @@ def plot_positions(result, path, system=None, title=None) -> Path:
                     color=COLORS[k], mec="k", mew=0.5, label=f"contact episodes {label.split()[-1]} ({hits.size})"
                     if len(parts) > 1 else f"contact episodes ({hits.size})")
     _wall_band(ax)
-    ax.set_ylabel(f"gap g(q) = w·q + g0 [{_u(result, 'q')}]" if n > 1 or g0 != 0.0 else f"position q [{_u(result, 'q')}]")
+    unit = _u(result, "q")
+    ax.set_ylabel(f"gap g(q) = w·q + g0 [{unit}]" if n > 1 or g0 != 0.0 else f"position q [{unit}]")
     ax.set_xlabel("time t [s]")
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0))
     if n == 1 and g0 == 0.0:

@@ -120,6 +120,7 @@ def _from_npz(path: Path):
 def _from_csv(path: Path):
     from .core.result import NetworkResult, PairResult, SimulationResult
     from .core.views import UNITS, branch_code, parse_header
+    from .fmus.slave import unit_exponents
     with open(path, encoding="ascii") as fh:
         header = fh.readline().rstrip("\r\n").split(",")
     try:
@@ -129,6 +130,11 @@ def _from_csv(path: Path):
     own = {}   # a model's declared units of q, u, tau (Model.units): read back into info["units"]
     for (name, _, _, unit), h in zip(cols, header):
         if unit is not None and name in ("q", "u", "tau"):
+            try:
+                unit_exponents(unit)     # a unit a model can declare (its FMU's spelling)
+            except ValueError as exc:
+                raise ValueError(f"{path.name}: column {h!r} is in {unit}; fmu-sync writes {name} in {UNITS[name]} "
+                                 f"or in the unit its model declares ({exc})") from None
             if own.setdefault(name, unit) != unit:
                 raise ValueError(f"{path.name}: column {h!r} is in {unit}, another {name} column in {own[name]}")
         elif unit is not None and unit != UNITS[name] and not (name == "percussion" and unit.endswith(" s")):

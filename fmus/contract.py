@@ -373,6 +373,11 @@ class FmuModel:
         if system.n != self.n:
             raise ContractError(f"the {self.key} FMU has {self.n} degree{'s' if self.n > 1 else ''} of "
                                 f"freedom, the system has {system.n}")
+        law = getattr(system, "force", None)
+        if law is not None and law is not self.declaration.force:
+            raise ContractError(f"the system has the force law {getattr(law, 'name', law)!r}, the {self.key} FMU "
+                                f"{'the built-in linear law' if self.declaration.force is None else 'another'}: "
+                                f"export the system's own model declaration (docs/user-model.md)")
         if self.declaration.values is None:
             raise ContractError(f"model {self.declaration.name!r} gives no parameter values of a system (its "
                                 f"declaration has no inverse): set the FMU's declared parameters "
@@ -391,6 +396,8 @@ class FmuModel:
             if p.name not in declared:
                 continue
             v = declared[p.name]
+            if v is None and p.shape in (("n",), ("n", "n")):   # a declared vector/matrix left out: zeros
+                v = np.zeros((self.n,) * len(p.shape))
             if p.shape == ():
                 out[p.name] = float(v)
             elif p.shape == ("n",):
