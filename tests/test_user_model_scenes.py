@@ -13,7 +13,7 @@ import pytest
 import fmu_sync
 from fmu_sync import report
 from fmu_sync.cli import main
-from fmu_sync.core import simulate_pair
+from fmu_sync.core import IMPACT_OSCILLATOR, ImpactOscillator, simulate_pair
 from fmu_sync.core.examples import DUFFING, PENDULUM, DuffingOscillator, Pendulum
 from fmu_sync.core.views import figure
 from fmu_sync.fmus import contract
@@ -172,9 +172,11 @@ def test_the_declared_units_reach_the_records_plots_and_summary(runs):
 
 
 def test_a_model_that_declares_no_units_keeps_m(tmp_path):
-    """The built-in linear models and Duffing: m, m/s, N, and no units entry in the record."""
-    r = simulate_pair(DuffingOscillator(k=1.0, F=0.2, Omega=1.3, g0=0.5), ([0.1], [0.0]),
-                                    ([0.3], [0.0]), 0.05, 1e-3, coupling="switching", Kp=1.0)
+    """A model that declares no units (the linear built-ins; Duffing's FMU above): m, m/s, N, and
+    no units entry in the record."""
+    assert IMPACT_OSCILLATOR.units == {"q": "m", "u": "m/s", "tau": "N"} and DUFFING.units["q"] == "m"
+    r = simulate_pair(ImpactOscillator(k=1.0, e=0.8), ([0.1], [0.0]), ([0.3], [0.0]), 0.05, 1e-3,
+                      coupling="switching", Kp=1.0, Kd=0.5)
     files = report.write_data(r, tmp_path / "d", ("csv",))
     assert files[0].read_text().startswith("t [s],q1 [m],u1 [m/s],q2 [m],u2 [m/s],tau1 [N],tau2 [N]")
     assert "units" not in fmu_sync.load(files[0]).info
