@@ -201,3 +201,21 @@ def test_sync_rate_in_cosim_refuses_a_force_law_system_naming_the_way():
                            dt=1e-3, mode="cosim", H=1e-2)
     with pytest.raises(contract.ContractError, match="force law 'duffing'"):
         contract.MODELS["impact-oscillator"].values(DuffingOscillator(g0=0.5))
+
+
+def test_a_network_node_starts_its_fmu_instance_with_its_own_values(runs):
+    """A network of the user's pendulums: each instance's start values are the scene's [system]
+    values with the node's table laid over them (the declaration has no inverse of a system)."""
+    from fmu_sync.scenes.loading import load_scene
+    from fmu_sync.scenes.running import fmu_start_values
+    net = runs["tmp"] / "net.toml"
+    net.write_text(SCENE.split("[initial]")[0].replace("models/", str(runs["tmp"] / "models") + "/")
+                   + '[network]\ngraph = "ring"\nstates = [[-0.6, 0.0], [-0.1, 1.2], [0.0, 0.0]]\n'
+                   + 'nodes = [{}, {c = 0.2}, {g = 9.7}]\n\n[coupling]\nlaw = "switching"\nKp = 5.0\nKd = 1.0\n\n'
+                   + '[run]\nt_end = 0.1\nmode = "cosim"\n')
+    v = load_scene(net).variants[0]
+    fmu = next(runs["cosim"].out_dir.glob("*.fmu"))
+    starts = [fmu_start_values(fmu, v, s, t) for s, t in zip(v.network.systems, v.network.nodes)]
+    assert [(x["c"], x["g"], x["l"], x["q_w"]) for x in starts] == \
+        [(0.1, 9.81, 0.8, 0.25), (0.2, 9.81, 0.8, 0.25), (0.1, 9.7, 0.8, 0.25)]
+    assert all(x["solver.dt"] == 1e-3 for x in starts)
