@@ -220,3 +220,15 @@ def test_a_network_node_starts_its_fmu_instance_with_its_own_values(runs):
     assert [(x["c"], x["g"], x["l"], x["q_w"]) for x in starts] == \
         [(0.1, 9.81, 0.8, 0.25), (0.2, 9.81, 0.8, 0.25), (0.1, 9.7, 0.8, 0.25)]
     assert all(x["solver.dt"] == 1e-3 for x in starts)
+
+
+def test_a_cosim_scene_of_a_model_without_an_fmu_is_refused_at_load(tmp_path):
+    """Refused when the scene is read, naming why: a declaration whose defaults make no system
+    (a required q_w: its FMU, whose start values are the defaults, cannot be made)."""
+    from fmu_sync.scenes.loading import load_scene
+    from fmu_sync.scenes.schema import SceneError
+    (tmp_path / "m.py").write_text(PENDULUM_FILE.replace('Param("q_w", 0.3,', 'Param("q_w", None,'))
+    (tmp_path / "s.toml").write_text(SCENE.replace("models/my_pendulum.py", "m.py"))
+    assert load_scene(tmp_path / "s.toml").variants[0].mode == "core"
+    with pytest.raises(SceneError, match=r"run.mode = \"cosim\": the FMU of .*m.py:pendulum cannot be made: .*q_w"):
+        load_scene(tmp_path / "s.toml", {"run.mode": "cosim"})
