@@ -16,11 +16,16 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["Param", "Model", "Values", "ModelError", "POSITIVE_MIN"]
+__all__ = ["Param", "Model", "Values", "ModelError", "POSITIVE_MIN", "DEFAULT_UNITS"]
 
 #: Smallest positive normal double: the inclusive ``min`` of a parameter that must be > 0
 #: (m > 0, dt > 0), in the core's checks, the scenes and the FMU's ``min`` alike.
 POSITIVE_MIN = 2.2250738585072014e-308
+
+#: The units of q, u and tau of a model that declares none (SI, a translational coordinate): the
+#: record's units (core/views.py), the FMU's variables (fmus/contract.py) and the plots read them
+#: through :attr:`Model.units`.
+DEFAULT_UNITS = {"q": "m", "u": "m/s", "tau": "N"}
 
 
 #: the parameter shapes a declaration knows, in words
@@ -137,7 +142,8 @@ class Model:
     ``system`` passes them on as ``MechanicalSystem(..., force=law, params=p.of(law))``. ``geometry`` names the parameters that fix the impact
     geometry (M, w, g0, e): common to every node of a network, and all an importer of the
     FMU needs for the distance and the coupling. Calling the model checks the values and
-    builds the system: ``IMPACT_OSCILLATOR(m=2, k=50, e=0.7, g0=0.05)``.
+    builds the system: ``IMPACT_OSCILLATOR(m=2, k=50, e=0.7, g0=0.05)``. ``q_unit``, ``u_unit``,
+    ``tau_unit``: the units of q, u and tau (:attr:`units`; default m, m/s, N).
     """
 
     name: str
@@ -148,6 +154,9 @@ class Model:
     geometry: tuple = ()
     values: Callable | None = None   #: optional inverse: system -> parameter values (built-ins)
     force: object = None             #: the force law (a ForceLaw; None: the built-in linear law)
+    q_unit: str = DEFAULT_UNITS["q"]  #: unit of the coordinates q (and of the gap g(q)), e.g. "rad"
+    u_unit: str | None = None        #: unit of the velocities u (None: q_unit + "/s")
+    tau_unit: str = DEFAULT_UNITS["tau"]   #: unit of the generalized forces tau (e.g. "N.m" for an angle)
 
     def __post_init__(self):
         if self.force is not None:   # the law's parameters are the model's too, declared once (in the law)
@@ -166,6 +175,12 @@ class Model:
         if not callable(self.system):
             raise ModelError(f"model {self.name!r}: system must be a callable p -> MechanicalSystem, "
                              f"got {self.system!r}")
+
+    @property
+    def units(self) -> dict:
+        """``{"q": ..., "u": ..., "tau": ...}``: the units this model declares (:data:`DEFAULT_UNITS`
+        where it declares none), carried into its FMU, its results and their plots."""
+        return {"q": self.q_unit, "u": self.u_unit or f"{self.q_unit}/s", "tau": self.tau_unit}
 
     def param(self, name: str) -> Param:
         for p in self.params:

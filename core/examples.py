@@ -78,7 +78,7 @@ _E = Param("e", 0.8, "1", 0.0, 1.0, "Newton restitution coefficient at the wall"
 PENDULUM = Model(
     name="pendulum", description="impacting pendulum m l^2 q'' = -m g l sin q - c q' + tau, wall q <= q_w",
     params=(Param("q_w", 0.2, "rad", None, None, "wall angle: g(q) = q_w - q >= 0"), _E),
-    force=pendulum_law, geometry=("m", "l", "q_w", "e"),
+    force=pendulum_law, geometry=("m", "l", "q_w", "e"), q_unit="rad", tau_unit="N.m",
     system=lambda p: MechanicalSystem(M=[[p.m * p.l ** 2]], w=[-1.0], g0=p.q_w, e=p.e, force=pendulum_law,
                                       params=p.of(pendulum_law)))
 

@@ -16,6 +16,7 @@ import re
 
 import numpy as np
 
+from .declaration import DEFAULT_UNITS
 from .distance import BRANCH_NAMES
 
 __all__ = ["BRANCH_LABELS", "branch_label", "branch_code", "UNITS", "LONG_NAMES", "layout", "column_headers", "parse_header", "csv_lines", "record_arrays",
@@ -48,7 +49,7 @@ def branch_code(label: str) -> int:
 
 #: units of the record's quantities (SI, docs/design.md §5.3); d, V and the Euclidean
 #: error are P-norms (q^T Q q + u^T M u)^(1/2): their unit is that of the norm
-UNITS = {"t": "s", "q": "m", "u": "m/s", "tau": "N", "percussion": "N s", "d": "P-norm",
+UNITS = {"t": "s", **DEFAULT_UNITS, "percussion": "N s", "d": "P-norm",
          "euclidean": "P-norm", "V": "P-norm^2", "d_max": "P-norm", "branch": ""}
 LONG_NAMES = {
     "t": "time",
@@ -64,6 +65,20 @@ LONG_NAMES = {
 }
 
 
+def units_info(model) -> dict:
+    """``{"units": {"q": .., "u": .., "tau": ..}}`` for a run's ``info`` when its model (a
+    :class:`~fmu_sync.core.Model`) declares units other than the defaults, else ``{}``."""
+    return {} if model.units == DEFAULT_UNITS else {"units": dict(model.units)}
+
+
+def units_of(result) -> dict:
+    """:data:`UNITS` with the run's declared units of q, u and tau (``result.info["units"]``,
+    :func:`units_info`; the percussion in tau's unit times s)."""
+    info = getattr(result, "info", None) or {}
+    own = info.get("units") or {}
+    return {**UNITS, **own, **({"percussion": f"{own['tau']} s"} if "tau" in own else {})}
+
+
 def _kind(result) -> str:
     if hasattr(result, "edges"):
         return "network"
@@ -75,19 +90,20 @@ def layout(result) -> dict:
     ``edges`` (network) and ``distance`` (whether d was recorded) of a result."""
     kind = _kind(result)
     rows = len(result.t)
+    own = {"units": units_of(result)} if (getattr(result, "info", None) or {}).get("units") else {}
     if kind == "network":
         q = np.asarray(result.q)
         return dict(kind=kind, N=int(q.shape[1]), n=int(q.shape[2]),
-                    edges=[[int(i), int(j)] for i, j in result.edges], distance=result.d is not None)
+                    edges=[[int(i), int(j)] for i, j in result.edges], distance=result.d is not None, **own)
     if kind == "pair":
         return dict(kind=kind, N=2, n=int(np.asarray(result.q1).reshape(rows, -1).shape[1]), edges=[[0, 1]],
-                    distance=result.d is not None)
+                    distance=result.d is not None, **own)
     return dict(kind=kind, N=1, n=int(np.asarray(result.q).reshape(rows, -1).shape[1]), edges=[],
-                distance=False)
+                distance=False, **own)
 
 
-def _unit(base: str) -> str:
-    u = UNITS.get(base, "")
+def _unit(base: str, units: dict | None = None) -> str:
+    u = (units or UNITS).get(base, "")
     return f" [{u}]" if u and u not in ("P-norm", "P-norm^2") else ""
 
 
@@ -95,7 +111,7 @@ def column_headers(name: str, width: int, lay: dict) -> list[str]:
     """CSV names of one record array (``name`` of width ``width``) in a record of layout ``lay``."""
     n = lay["n"]
     base = name.rstrip("12") if lay["kind"] == "pair" and name[:-1] in ("q", "u", "tau") else name
-    unit = _unit(base)
+    unit = _unit(base, lay.get("units"))
     if lay["kind"] == "network" and name in ("q", "u", "tau"):
         return [f"{name}{i + 1}{'' if n == 1 else f'[{j + 1}]'}{unit}" for i in range(lay["N"]) for j in range(n)]
     if lay["kind"] == "network" and name in ("d", "euclidean", "branch"):
@@ -198,6 +214,7 @@ def to_xarray(result, settings: dict | None = None):
     import xarray as xr
 
     lay = layout(result)
+    units = units_of(result)
     rows = len(result.t)
     n = lay["n"]
     coords = {"t": ("t", np.asarray(result.t), {"units": "s", "long_name": "time"}),
@@ -205,7 +222,7 @@ def to_xarray(result, settings: dict | None = None):
     data = {}
 
     def var(name, dims, values):
-        data[name] = (dims, values, {"units": UNITS[name], "long_name": LONG_NAMES[name]})
+        data[name] = (dims, values, {"units": units[name], "long_name": LONG_NAMES[name]})
 
     kind = lay["kind"]
     if kind == "single":
@@ -288,7 +305,7 @@ def figure(result):
     else:
         for i in range(lay["N"]):
             ax.plot(t, np.asarray(result.q)[:, i, 0], lw=0.8, label=f"q{i + 1}")
-    ax.set_ylabel("position q [m]" + ("" if lay["n"] == 1 else " (first coordinate)"))
+    ax.set_ylabel(f"position q [{units_of(result)['q']}]" + ("" if lay["n"] == 1 else " (first coordinate)"))
     ax.legend(loc="upper right", fontsize=8, ncol=2 if lay["N"] > 4 else 1)
     ax.set_title(short_repr(result), fontsize=10)
     if two:

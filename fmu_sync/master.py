@@ -49,6 +49,7 @@ from .core.network import edge_arrays, edge_laws, edges_of, weights
 from .core.pair import LAWS, stack_nodes
 from .core.plan import RunPlan, plan_run
 from .core.result import NetworkResult, PairResult
+from .core.views import units_info
 from .fmi3_bridge import element_names, open_host
 from .fmi_bridge import FMUHost, SlaveError
 from .fmus import contract
@@ -248,6 +249,7 @@ class NetworkMaster:
             info=dict(mode="cosim", H=self.H, method=self.method, event_aware=self.event_aware, fmu=self.fmu,
                       H_min=self.H_min if self.event_aware else None, retaken_steps=self.retakes,
                       steps=self.n_steps, coupling=self.coupling, hold=self.hold, **metric_info(self.metric, self.geo),
+                      **units_info(self.model.declaration),
                       **({} if self.limit is None else dict(
                           omega_c_H=self.limit.h, exchange_bound=self.limit.bound,
                           zeta=self.limit.zeta, H_max=self.limit.H_max))),

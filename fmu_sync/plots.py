@@ -35,6 +35,12 @@ WALL = "#555555"
 DPI = 130
 
 
+def _u(result, name: str) -> str:
+    """The unit of ``name`` (q, u, tau) in the result's record: its model's declared units."""
+    from .core.views import units_of
+    return units_of(result)[name]
+
+
 def _figure(nrows=1, height=4.2, width=8.0, sharex=True):
     with matplotlib.rc_context(STYLE):
         fig = Figure(figsize=(width, height), layout="constrained")
@@ -120,7 +126,8 @@ def _network_positions(result, path, system=None, title=None) -> Path:
     for i in range(N):
         ax.plot(t, q[:, i] @ w + g0, color=cmap(i / max(N - 1, 1)), lw=0.9, label=f"node {i + 1}")
     _wall_band(ax)
-    ax.set_ylabel("gap g(q) = w·q + g0 [m]" if n > 1 or g0 != 0.0 else "position q [m]")
+    unit = _u(result, "q")
+    ax.set_ylabel(f"gap g(q) = w·q + g0 [{unit}]" if n > 1 or g0 != 0.0 else f"position q [{unit}]")
     ax.set_xlabel("time t [s]")
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8.5)
     _title(ax, title, f"positions of the {N} nodes")
@@ -163,7 +170,7 @@ def plot_positions(result, path, system=None, title=None) -> Path:
         for k, (label, q, _, _) in enumerate(parts):
             for j in range(n):
                 ax.plot(t, q[:, j], color=COLORS[k], ls=styles[j % 4], label=f"{label}: q[{j + 1}]")
-        ax.set_ylabel("position q [m]")
+        ax.set_ylabel(f"position q [{_u(result, 'q')}]")
         ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0))
         _title(ax, title, "positions")
     ax = axes[-1]
@@ -175,7 +182,8 @@ def plot_positions(result, path, system=None, title=None) -> Path:
                     color=COLORS[k], mec="k", mew=0.5, label=f"contact episodes {label.split()[-1]} ({hits.size})"
                     if len(parts) > 1 else f"contact episodes ({hits.size})")
     _wall_band(ax)
-    ax.set_ylabel("gap g(q) = w·q + g0 [m]" if n > 1 or g0 != 0.0 else "position q [m]")
+    unit = _u(result, "q")
+    ax.set_ylabel(f"gap g(q) = w·q + g0 [{unit}]" if n > 1 or g0 != 0.0 else f"position q [{unit}]")
     ax.set_xlabel("time t [s]")
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0))
     if n == 1 and g0 == 0.0:
@@ -309,7 +317,7 @@ def plot_impact_zoom(result, path, system=None, title=None) -> Path:
             axq.plot(t[h], np.zeros(h.size), ls="none", marker="v" if c == 0 else "^", ms=7,
                      color=COLORS[c], mec="k", mew=0.5, label=f"contact episode begins ({label})")
     _wall_band(axq)
-    axq.set_ylabel("gap g(q) [m]" if n > 1 else "position q [m]")
+    axq.set_ylabel(f"gap g(q) [{_u(result, 'q')}]" if n > 1 else f"position q [{_u(result, 'q')}]")
     axq.legend(loc="upper center", ncol=2, fontsize=8.5)
     axq.set_ylim(top=axq.get_ylim()[1] * 1.35)
     E, d = np.asarray(result.euclidean), np.asarray(result.d)
@@ -368,10 +376,10 @@ def plot_forces(result, path, system=None, title=None) -> Path:
         for k, name in enumerate(("τ1", "τ2")):
             _zero_note(axl, t, norms[k], COLORS[k], f"|{name}|")
     ax.axhline(0.0, color="k", lw=0.6)
-    ax.set_ylabel("coupling force τ [N]")
+    ax.set_ylabel(f"coupling force τ [{_u(result, 'tau')}]")
     _legend(ax)
     axl.set_xlabel("time t [s]")
-    axl.set_ylabel("|τ| [N] (log)")
+    axl.set_ylabel(f"|τ| [{_u(result, 'tau')}] (log)")
     _legend(axl)
     _title(ax, title, f"coupling forces ({getattr(result, 'coupling', None) or 'none'})")
     return _save(fig, path)
@@ -417,8 +425,8 @@ def plot_phase(result, path, system=None, title=None) -> Path:
     if start > 0:
         ax.plot([], [], color="0.6", lw=0.5, label=f"before t = {t[start]:.4g} s (faint)")
     _wall_band(ax, horizontal=False)
-    ax.set_xlabel("gap g = w·q + g0 [m]" if n > 1 else "position q [m]")
-    ax.set_ylabel("normal velocity w·u [m/s]" if n > 1 else "velocity u [m/s]")
+    ax.set_xlabel(f"gap g = w·q + g0 [{_u(result, 'q')}]" if n > 1 else f"position q [{_u(result, 'q')}]")
+    ax.set_ylabel(f"normal velocity w·u [{_u(result, 'u')}]" if n > 1 else f"velocity u [{_u(result, 'u')}]")
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=3, frameon=False)
     what = "phase portrait" if start == 0 else \
         f"phase portrait, last {PHASE_TURNS} turns (t ≥ {t[start]:.4g} s)"

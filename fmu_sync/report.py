@@ -413,7 +413,10 @@ def rows(runs, demo: bool = False) -> tuple[list[str], list[list[str]]]:
             m.update(t_sync="FAILED", rate=None, bound=None, final_d=None)
         table.append([format_value(f(m)) if (single or network or m.get("kind") == "pair" or i == 0) else "—"
                       for i, (_, f) in enumerate(cols)])
-    return [h for h, _ in cols], table
+    from .core.views import units_of
+    tau = {units_of(r.result)["tau"] for r in runs if getattr(r, "result", None) is not None}
+    unit = tau.pop() if len(tau) == 1 else "N"   # the runs' declared unit of tau (one model's)
+    return [h.replace("|tau| [N]", f"|tau| [{unit}]") for h, _ in cols], table
 
 
 def print_table(header, table, file=None) -> None:

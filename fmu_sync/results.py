@@ -120,15 +120,26 @@ def _from_npz(path: Path):
 def _from_csv(path: Path):
     from .core.result import NetworkResult, PairResult, SimulationResult
     from .core.views import UNITS, branch_code, parse_header
+    from .fmus.slave import unit_exponents
     with open(path, encoding="ascii") as fh:
         header = fh.readline().rstrip("\r\n").split(",")
     try:
         cols = [parse_header(h) for h in header]
     except ValueError as exc:
         raise ValueError(f"{path.name}: {exc}") from None
+    own = {}   # a model's declared units of q, u, tau (Model.units): read back into info["units"]
     for (name, _, _, unit), h in zip(cols, header):
-        if unit is not None and unit != UNITS[name]:
+        if unit is not None and name in ("q", "u", "tau"):
+            try:
+                unit_exponents(unit)     # a unit a model can declare (its FMU's spelling)
+            except ValueError as exc:
+                raise ValueError(f"{path.name}: column {h!r} is in {unit}; fmu-sync writes {name} in {UNITS[name]} "
+                                 f"or in the unit its model declares ({exc})") from None
+            if own.setdefault(name, unit) != unit:
+                raise ValueError(f"{path.name}: column {h!r} is in {unit}, another {name} column in {own[name]}")
+        elif unit is not None and unit != UNITS[name] and not (name == "percussion" and unit.endswith(" s")):
             raise ValueError(f"{path.name}: column {h!r} is in {unit}; fmu-sync writes {name} in {UNITS[name]}")
+    info = {"loaded_from": "csv", **({"units": own} if any(own[k] != UNITS[k] for k in own) else {})}
     bcols = [i for i, c in enumerate(cols) if c[0] == "branch"]
     try:
         data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2, dtype=np.float64,
@@ -161,7 +172,7 @@ def _from_csv(path: Path):
         arrays = [data[:, pick(k[:-1], int(k[-1]))] for k in _PAIR]
         d = one("d")
         return PairResult(t, *arrays, d, None if d is None else one("branch").astype(np.int64),
-                          one("euclidean"), impacts1=None, impacts2=None, info={"loaded_from": "csv"})
+                          one("euclidean"), impacts1=None, impacts2=None, info=info)
     N = max(c[1] for c in cols if c[0] == "q")
     n = len(pick("q", 1))
     node = lambda k: np.stack([data[:, pick(k, i)] for i in range(1, N + 1)], axis=1)  # noqa: E731
@@ -171,7 +182,7 @@ def _from_csv(path: Path):
     edge_cols = lambda k: data[:, [i for i, c in enumerate(cols) if c[0] == k and c[2] in subs]]  # noqa: E731
     return NetworkResult(t, node("q"), node("u"), node("tau"), edges, d,
                          None if d is None else edge_cols("branch").astype(np.int64),
-                         None if d is None else edge_cols("euclidean"), one("V"), None, info={"loaded_from": "csv"})
+                         None if d is None else edge_cols("euclidean"), one("V"), None, info=info)
 
 
 def _bad_row(path: Path, width: int) -> str:

@@ -33,7 +33,7 @@ from .core.registry import builtin_models, load_model
 from .fmus import contract
 from .fmus.slave import unit_exponents
 
-__all__ = ["resolve", "rewrite_imports", "declaration_of", "register_from"]
+__all__ = ["resolve", "rewrite_imports", "declaration_of", "register_from", "fmu_model_of"]
 #: where the built-in declarations live (module of the package, relative to the carried core)
 _BUILTIN_MODULES = ("fmu_sync.core.examples", "fmu_sync.core.model")
 
@@ -131,6 +131,33 @@ def _user_home(decl: Model) -> tuple[Path, str] | None:
     return None
 
 
+def _key(decl: Model) -> str | None:
+    """The export key of a declaration: a built-in's name, ``"file.py:name"`` of a user's file
+    (None: neither, e.g. a Model made in a session)."""
+    if _builtin_home(decl) is not None:
+        return decl.name
+    found = _user_home(decl)
+    return None if found is None else f"{found[0].name}:{found[1]}"
+
+
+def fmu_model_of(family: str, n: int):
+    """The FMU contract's model of a scene's ``system.model`` with n degrees of freedom: a
+    registered model, or the FMU of a declaration with a force law (a built-in one or a user's
+    file, registered under the key :func:`resolve` exports it by); None if it has no FMU."""
+    found = contract.model_for(family, n)
+    if found is not None:
+        return found
+    try:
+        decl = load_model(family)
+    except ModelError:
+        return None
+    key = _key(decl)
+    if decl.force is None or decl.n != n or key is None or key in contract.MODELS:
+        return None
+    have = contract.DECLARED.get(key)
+    return have if have is not None and have.declaration is decl else contract.declared(decl, key)
+
+
 def resolve(model) -> tuple[str, dict, dict]:
     """(export key, generated files of the carried package, the build record's ``declaration``)
     of ``model``: a built-in declaration's name ("pendulum", "duffing"), ``"path/to/model.py:name"``
@@ -160,11 +187,12 @@ def resolve(model) -> tuple[str, dict, dict]:
         record = {"file": path.name, "name": attr, "sha256": hashlib.sha256(text).hexdigest(),
                   "source": text.decode("utf-8")}
     files["user/runtime.py"] = runtime
-    for p in decl.params:   # each unit readable for <UnitDefinitions> before anything is compiled
+    units = [(f"parameter {p.name}", p.unit) for p in decl.params] + [(f"{k}_unit", u) for k, u in decl.units.items()]
+    for what, unit in units:   # each unit readable for <UnitDefinitions> before anything is compiled
         try:
-            unit_exponents(p.unit)
+            unit_exponents(unit)
         except ValueError as exc:
-            raise ModelError(f"model {decl.name!r}, parameter {p.name}: {exc}") from None
+            raise ModelError(f"model {decl.name!r}, {what}: {exc}") from None
     fm = contract.declared(decl, key)
     fm.declaration.force.compile()      # LawRefused (a ValueError) names the law numba cannot compile
     return key, files, record

@@ -26,7 +26,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..core.declaration import POSITIVE_MIN, Model, ModelError, Param
+from ..core.declaration import DEFAULT_UNITS, POSITIVE_MIN, Model, ModelError, Param
 from ..core.model import IMPACT_OSCILLATOR, MECHANICAL_SYSTEM, MechanicalSystem
 from ..core.moreau import MIDPOINT, THETA
 
@@ -184,13 +184,13 @@ def _solver_variables(dt: float = 1e-3) -> list[Var]:
     ]
 
 
-def _inputs(n: int) -> list[Var]:
+def _inputs(n: int, unit: str = "N") -> list[Var]:
     if n == 1:
         return [Var("tau", "Real", "input", "continuous", "Control force (held over each communication step)",
-                    unit="N", start=0.0, min=-INPUT_BOUND, max=INPUT_BOUND)]
+                    unit=unit, start=0.0, min=-INPUT_BOUND, max=INPUT_BOUND)]
     return [Var(name, "Real", "input", "continuous",
                 f"Control force on coordinate {i + 1} (B = I; held over each communication step)",
-                unit="N", start=0.0, min=-INPUT_BOUND, max=INPUT_BOUND) for i, name in enumerate(indexed("tau", n))]
+                unit=unit, start=0.0, min=-INPUT_BOUND, max=INPUT_BOUND) for i, name in enumerate(indexed("tau", n))]
 
 
 _ENERGY = "Mechanical energy 1/2 u^T M u + 1/2 q^T K q - f0^T q (without forcing and input)"
@@ -198,28 +198,30 @@ _ENERGY_LAW = ("Energy 1/2 u^T M u + 1/2 q^T K_L q of the force law's declared l
                "h(q, u, tau, t, p) has no declared potential: not conserved in general)")
 
 
-def _outputs(n: int, depends: dict, energy: str = _ENERGY) -> list[Var]:
-    """Outputs q, u, gap, impacts, percussion, energy (q[i], u[i] for n > 1)."""
+def _outputs(n: int, depends: dict, energy: str = _ENERGY, units: dict | None = None) -> list[Var]:
+    """Outputs q, u, gap, impacts, percussion, energy (q[i], u[i] for n > 1), in the model's
+    ``units`` (:attr:`fmu_sync.core.Model.units`; the gap in q's)."""
+    units = units or DEFAULT_UNITS
     out = []
     for i, name in enumerate(indexed("q", n)):
         out.append(Var(name, "Real", "output", "continuous",
                        "Generalized position" + ("" if n == 1 else f" {i + 1}"), initial="calculated",
-                       unit="m", initial_depends=tuple(depends[name])))
+                       unit=units["q"], initial_depends=tuple(depends[name])))
     for i, name in enumerate(indexed("u", n)):
         out.append(Var(name, "Real", "output", "continuous",
                        "Generalized velocity" + ("" if n == 1 else f" {i + 1}")
                        + " (right limit after an impact)", initial="calculated",
-                       unit="m/s", initial_depends=tuple(depends[name])))
+                       unit=units["u"], initial_depends=tuple(depends[name])))
     out += [
         Var(GAP, "Real", "output", "continuous",
             "Gap g(q) = w^T q + g0 to the wall (>= 0 up to the scheme's O(dt) penetration)",
-            initial="calculated", unit="m", initial_depends=tuple(depends[GAP])),
+            initial="calculated", unit=units["q"], initial_depends=tuple(depends[GAP])),
         Var(IMPACTS, "Integer", "output", "discrete",
             "Number of internal steps with a positive contact percussion since the start",
             initial="calculated", min=0),
         Var(PERCUSSION, "Real", "output", "discrete",
             "Contact percussion (impulse) summed over the last communication step",
-            initial="calculated", unit="N.s", min=0.0),
+            initial="calculated", unit=f"{units['tau']}.s", min=0.0),
         Var(ENERGY, "Real", "output", "continuous",
             energy, initial="calculated", unit="J", initial_depends=tuple(depends[ENERGY])),
     ]
@@ -339,12 +341,13 @@ class FmuModel:
         depends = {**{q: [s] for q, s in zip(self.q + self.u, qs + us)},
                    GAP: self._names(wall) + qs, ENERGY: self._names(self.energy_params) + qs + us}
         suffix = (lambda i: "") if n == 1 else (lambda i: f", component {i + 1}")
-        states = ([_param(x, "m", "Initial position (g(q_start) >= 0)" + suffix(i), self.q_start_default[i],
+        units = self.declaration.units
+        states = ([_param(x, units["q"], "Initial position (g(q_start) >= 0)" + suffix(i), self.q_start_default[i],
                           min=-STATE_BOUND, max=STATE_BOUND) for i, x in enumerate(qs)]
-                  + [_param(x, "m/s", "Initial velocity" + suffix(i), 0.0, min=-STATE_BOUND, max=STATE_BOUND)
+                  + [_param(x, units["u"], "Initial velocity" + suffix(i), 0.0, min=-STATE_BOUND, max=STATE_BOUND)
                      for i, x in enumerate(us)])
         energy = _ENERGY if self.declaration.force is None else _ENERGY_LAW
-        return (_inputs(n) + _outputs(n, depends, energy) + _model_params(self.declaration, n, self.start)
+        return (_inputs(n, units["tau"]) + _outputs(n, depends, energy, units) + _model_params(self.declaration, n, self.start)
                 + states + _solver_variables())
 
     def _declared(self, values: dict, names) -> dict:
@@ -372,6 +375,11 @@ class FmuModel:
         if system.n != self.n:
             raise ContractError(f"the {self.key} FMU has {self.n} degree{'s' if self.n > 1 else ''} of "
                                 f"freedom, the system has {system.n}")
+        law = getattr(system, "force", None)
+        if law is not None and law is not self.declaration.force:
+            raise ContractError(f"the system has the force law {getattr(law, 'name', law)!r}, the {self.key} FMU "
+                                f"{'the built-in linear law' if self.declaration.force is None else 'another'}: "
+                                f"export the system's own model declaration (docs/user-model.md)")
         if self.declaration.values is None:
             raise ContractError(f"model {self.declaration.name!r} gives no parameter values of a system (its "
                                 f"declaration has no inverse): set the FMU's declared parameters "
@@ -380,11 +388,18 @@ class FmuModel:
             declared = self.declaration.values(system)
         except ModelError as exc:
             raise ContractError(str(exc)) from None
+        return self.flat(declared)
+
+    def flat(self, declared: dict) -> dict:
+        """The FMU's parameter values of declared values (name -> value as the declaration takes
+        it, e.g. a scene's ``[system]`` keys): a vector as ``name[i]``, a matrix as ``name[i,j]``."""
         out = {}
         for p in self.declaration.params:
             if p.name not in declared:
                 continue
             v = declared[p.name]
+            if v is None and p.shape in (("n",), ("n", "n")):   # a declared vector/matrix left out: zeros
+                v = np.zeros((self.n,) * len(p.shape))
             if p.shape == ():
                 out[p.name] = float(v)
             elif p.shape == ("n",):

@@ -166,5 +166,5 @@ def test_the_builtin_nonlinear_models_are_declarations_and_the_pendulum_scene_sy
     assert v.system.force is pendulum_law and v.system.g0 == v.cfg["system.q_w"] == 0.2
     r = simulate_pair(v.system, v.x1, v.x2, v.cfg["run.t_end"], v.cfg["solver.dt"], coupling=v.law, Kp=v.Kp, Kd=v.Kd)
     assert r.impacts1 > 3 and r.d[-1] < 1e-5 * r.d[0]
-    with pytest.raises(SceneError, match="there is no FMU for a pendulum"):
-        load_scene("pendulum", {"run.mode": "cosim"})
+    # its FMU is the declaration's (issue 27; run in tests/test_user_model_scenes.py)
+    assert load_scene("pendulum", {"run.mode": "cosim"}).variants[0].mode == "cosim"

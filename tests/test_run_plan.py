@@ -22,7 +22,8 @@ FOH = ["run", "forced-pair", "--variant", "switching", "--set", "run.mode=cosim"
 def fmus(tmp_path_factory):
     from fmu_sync.export import export_fmu
     d = tmp_path_factory.mktemp("fmus")
-    return {key: export_fmu(key, d / f"{key}.fmu", None) for key in tuple(contract.MODELS)}
+    # the registered models and the built-in pendulum scene's declared model (a force law's FMU)
+    return {key: export_fmu(key, d / f"{key}.fmu", None) for key in (*contract.MODELS, "pendulum")}
 
 
 def _variants():
@@ -54,8 +55,8 @@ def _master_verdict(fmus, v):
     """The master's own decision: a NetworkMaster for the variant, its plan from the values
     each instance would report (the declared defaults with the scene's start values)."""
     from fmu_sync.master import NetworkMaster
-    from fmu_sync.scenes.running import fmu_start_values
-    model = contract.model_for(v.cfg["system.model"], v.system.n)
+    from fmu_sync.scenes.running import fmu_model_of, fmu_start_values
+    model = fmu_model_of(v.cfg["system.model"], v.system.n)
     fmu = fmus[model.key]
     states = list(v.network.states) if v.is_network else [v.x1, v.x2]
     systems = list(v.network.systems) if v.is_network else [v.system, v.system]

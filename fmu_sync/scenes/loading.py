@@ -11,7 +11,7 @@ import numpy as np
 
 from ..core import InadmissibleState, ModelError, load_model
 from ..core.checks import check_start
-from ..fmus import contract
+from ..user_export import fmu_model_of
 from . import SCENE_DIR, builtin_names
 from .schema import (DISTANCE_PLOTS, KEYS, MODELS, NAME_RE, NETWORK_PLOTS, REQUIRED, SINGLE_PLOTS,
                      TABLES, VARIANT_TABLES, BadValue, NetworkSpec, SceneError, Variant, model_name,
@@ -249,6 +249,21 @@ def _make_system(cfg: dict):
     return model({k: cfg[f"system.{k}"] for k in model.names})
 
 
+#: what run.mode = "cosim" allows, in words (the models with an FMU)
+_WITH_FMU = ('"core", or a model with an FMU: impact-oscillator, mechanical-system with n = 2, or a declaration '
+             'with a force law (pendulum, duffing, a user\'s model file)')
+
+
+def _check_fmu(cfg: dict, n: int, fail) -> None:
+    """run.mode = "cosim" needs an FMU of the variant's model (a declaration's: made from its defaults)."""
+    try:
+        found = fmu_model_of(cfg["system.model"], n)
+    except ValueError as exc:
+        fail("run.mode", "cosim", f"the FMU of {cfg['system.model']} cannot be made: {exc}", _WITH_FMU)
+    if found is None:
+        fail("run.mode", "cosim", f"there is no FMU for a {cfg['system.model']} with n = {n}", _WITH_FMU)
+
+
 def _build_network(cfg: dict, system, ctx: str, fail, state_of) -> NetworkSpec:
     """The [network] table of a variant -> :class:`NetworkSpec` (graph, node systems, states)."""
     from ..core import network as net   # the core's graphs (ring, path, star, all-to-all)
@@ -380,9 +395,8 @@ def _build_variant(name: str, description: str, cfg: dict, where: dict, ctx: str
         if scheme == "exact":
             fail("solver.scheme", scheme, "the exact solver runs single 1-DOF systems only",
                  '"midpoint" or "theta" for networks')
-        if mode == "cosim" and contract.model_for(cfg["system.model"], n) is None:
-            fail("run.mode", mode, f"there is no FMU for a {cfg['system.model']} with n = {n}",
-                 '"core", or a model with an FMU: impact-oscillator, mechanical-system with n = 2')
+        if mode == "cosim":
+            _check_fmu(cfg, n, fail)
     elif x2 is None:
         if law != "none":
             fail("coupling.law", law, "a coupling needs two systems: this scene has no initial.x2",
@@ -398,9 +412,8 @@ def _build_variant(name: str, description: str, cfg: dict, where: dict, ctx: str
         if scheme == "exact":
             fail("solver.scheme", scheme, "the exact solver runs single 1-DOF systems only",
                  '"midpoint" or "theta" for pairs')
-        if mode == "cosim" and contract.model_for(cfg["system.model"], n) is None:
-            fail("run.mode", mode, f"there is no FMU for a {cfg['system.model']} with n = {n}",
-                 '"core", or a model with an FMU: impact-oscillator, mechanical-system with n = 2')
+        if mode == "cosim":
+            _check_fmu(cfg, n, fail)
     if scheme == "exact" and (n != 1):
         fail("solver.scheme", scheme, "the exact solver is for 1-DOF systems", '"midpoint" or "theta"')
     return Variant(name=name, description=description, cfg=cfg, system=system, x1=x1, x2=x2,

@@ -69,7 +69,12 @@ def keys_markdown() -> str:
              "overrides a key from the command line. The `[system]` keys are the declared parameters of the "
              "model (docs/design.md §2.1.1): the built-in models' below; a user model, "
              "`model = \"path/to/model.py:name\"` (a path relative to the scene file), takes the parameters "
-             "its `Model` declares, with their defaults, units and ranges (`fmu-sync scenes --show` prints them).",
+             "its `Model` declares, with their defaults, units and ranges (`fmu-sync scenes --show` prints them, "
+             "and the units of q, u and tau the model declares: `Model(q_unit=..., u_unit=..., tau_unit=...)`, "
+             "default m, m/s, N; the pendulum's q is in rad). Such a scene runs in both modes: `run.mode = "
+             "\"core\"` (the default) or `\"cosim\"` (`--set run.mode=cosim`: the model's FMU is exported "
+             "once for the scene run, into the output folder, and two instances or a network of them are "
+             "co-simulated by the master; docs/user-model.md).",
              ""]
     current = None
     for table, k, typ, default, allowed, unit, doc in key_rows():
@@ -140,9 +145,11 @@ def scene_toml(scene) -> str:
                 for k in common if k.split(".")[0] == table and variants[0].cfg[k] is not None]
         if table == "plot":
             body = [f"plots = {toml_value(list(sc.plots))}", f"compare = {toml_value(bool(sc.compare))}"]
-        if table == "system" and variants[0].cfg["system.model"] not in MODELS:   # a user model: its declaration
-            decl = model_of(variants[0].cfg)
-            body = [f"# {decl.name}: {decl.description}"] + [
+        decl = model_of(variants[0].cfg) if table == "system" else None
+        if decl is not None and (variants[0].cfg["system.model"] not in MODELS or decl.force is not None):
+            # a user model or a force law's declaration: its parameters and units
+            body = [f"# {decl.name}: {decl.description}",
+                    "# units: " + ", ".join(f"{k} [{u}]" for k, u in decl.units.items())] + [
                 f"#   {p.name} [{p.unit}]: {p.description} ({p.allowed()})" for p in decl.params] + body
         if body:
             lines += ["", f"[{table}]"] + body

@@ -49,11 +49,13 @@ def _coupling_arg(law: str):
     return None if law == "none" else law
 
 
-def fmu_start_values(fmu_path, variant: Variant, system=None) -> dict:
+def fmu_start_values(fmu_path, variant: Variant, system=None, node: dict | None = None) -> dict:
     """Start values for the FMU's parameters from the scene, as the FMU contract names them.
 
     The FMU must be the contract's model of the variant's system family
-    (:func:`fmu_sync.fmus.contract.identify`); anything else raises :class:`SceneError`.
+    (:func:`fmu_model_of`); anything else raises :class:`SceneError`. A declaration without
+    an inverse (a force law's: the pendulum, a user's file) takes the scene's ``[system]`` values
+    themselves, with a network node's table ``node`` laid over them.
     """
     from fmpy import read_model_description  # cosim branch only
 
@@ -62,24 +64,48 @@ def fmu_start_values(fmu_path, variant: Variant, system=None) -> dict:
     try:
         md = read_model_description(str(fmu_path))
         model = contract.identify([v.name for v in md.modelVariables], md.modelName)
-        want = contract.model_for(cfg["system.model"], variant.system.n)
-        if model is not want:
+        want = fmu_model_of(cfg["system.model"], variant.system.n)
+        if want is None or not (model is want or (model.key == want.key and model.declaration is want.declaration)):
             raise contract.ContractError(f"it is the {model.key} model, the scene needs "
                                          f"{want.key if want else 'a model the registry does not have'}")
-        return {**model.values(variant.system if system is None else system),
-                **model.solver_values(cfg["solver.dt"], cfg["solver.scheme"], cfg["solver.theta"])}
+        if model.declaration.values is None:
+            values = model.flat(_declared_values(variant, node))
+        else:
+            values = model.values(variant.system if system is None else system)
+        return {**values, **model.solver_values(cfg["solver.dt"], cfg["solver.scheme"], cfg["solver.theta"])}
     except contract.ContractError as exc:
         raise SceneError(f"{name}: cannot take the scene's values: {exc}") from None
     except ValueError as exc:  # an unknown scheme
         raise SceneError(f"{name}: {exc}") from None
 
 
+def _declared_values(variant: Variant, node: dict | None = None) -> dict:
+    """The declared parameter values of the variant's ``[system]`` (a network node's table over them)."""
+    from .loading import model_of
+    from .schema import system_keys
+    decl = model_of(variant.cfg)
+    values = {k: variant.cfg[f"system.{k}"] for k in decl.names}
+    keys = system_keys(decl)
+    values.update({k: keys[k][0](v) for k, v in (node or {}).items()})
+    return decl.check(values)
+
+
+def fmu_model_of(family: str, n: int):
+    """The FMU contract's model of a scene's ``system.model`` (:func:`fmu_sync.user_export.fmu_model_of`)."""
+    from ..user_export import fmu_model_of as find
+    return find(family, n)
+
+
 def export_for(variant: Variant, out_dir) -> Path:
-    """Export the FMU of the variant's model family into ``out_dir`` (cosim only)."""
+    """Export the FMU of the variant's model into ``out_dir`` (cosim only): a registered model by
+    its key, a declaration with a force law by the scene's ``system.model`` (its file, for a user's)."""
     from ..export import export_fmu  # cosim branch only
 
-    model = contract.model_for(variant.cfg["system.model"], variant.system.n).key
-    return Path(export_fmu(model, Path(out_dir) / f"{model.replace('-', '_')}.fmu", None))
+    family = variant.cfg["system.model"]
+    model = fmu_model_of(family, variant.system.n)
+    spec = model.key if model.key in contract.MODELS else family
+    name = model.identifier if spec == family else model.key.replace("-", "_")
+    return Path(export_fmu(spec, Path(out_dir) / f"{name}.fmu", None))
 
 
 def _label(variant: Variant, scene_name: str = "") -> str:
@@ -141,6 +167,32 @@ def run_variant(variant: Variant, fmu_path=None, progress: Callable | None = Non
     :class:`~fmu_sync.core.RunFailed` naming the scene and variant, with the
     record up to the failure in ``.partial`` (None where there is none).
     """
+    try:
+        return _with_units(_run_variant(variant, fmu_path, progress, scene_name, sink, chunk_rows), variant)
+    except RunFailed as exc:
+        _with_units(exc.partial, variant)
+        raise
+
+
+def declared_units(variant: Variant) -> dict:
+    """``{"units": ...}`` of the variant's model when it declares units other than m, m/s, N
+    (:func:`fmu_sync.core.views.units_info`), else ``{}``."""
+    from ..core.views import units_info
+    from .loading import model_of
+    return units_info(model_of(variant.cfg))
+
+
+def _with_units(result, variant: Variant):
+    """The result with its model's declared units in ``info`` (its files' headers, meta and plots say them)."""
+    own = declared_units(variant)
+    if result is not None and own:
+        if getattr(result, "info", None) is None:
+            result.info = {}
+        result.info.update(own)
+    return result
+
+
+def _run_variant(variant: Variant, fmu_path, progress, scene_name, sink, chunk_rows):
     cfg = variant.cfg
     label = _label(variant, scene_name)
     extra = {"allow_unstable": True} if cfg["run.allow_unstable"] else {}
@@ -206,7 +258,7 @@ def _run_network(variant: Variant, fmu_path, progress, label, extra):
     from ..master import cosimulate_network
     if fmu_path is None:
         raise ValueError(f"{label}: mode = cosim needs an exported FMU (fmu_path)")
-    starts = [fmu_start_values(fmu_path, variant, s) for s in spec.systems]
+    starts = [fmu_start_values(fmu_path, variant, s, t) for s, t in zip(spec.systems, spec.nodes)]
     result = cosimulate_network(fmu_path, list(spec.states), spec.A, cfg["run.t_end"], cfg["run.H"],
                                 coupling=_laws_arg(variant), Kp=variant.Kp, Kd=variant.Kd, Q=variant.Q,
                                 method=cfg["run.method"], record_every=cfg["run.record_every"],
@@ -264,11 +316,16 @@ def record_interval(variant: Variant) -> tuple[float, str]:
 def _stream_run(v: Variant, out_dir: Path, fmu_path, progress, scene_name, formats, est, max_memory, extra):
     """A core pair whose whole record exceeds the memory budget: written in chunks while it runs."""
     from .. import report
+    from types import SimpleNamespace
+
+    from ..core.views import units_of
     from ..output import RecordWriter, pair_columns
     per_row = 8.0 * est.values_per_row
     chunk_rows = max(16, min(1 << 18, int(max_memory / (per_row * 8))))  # the chunk, its copies, the CSV block
     plot_rows = max(1000, min(20000, int(max_memory / (per_row * 8))))
-    lay = dict(kind="pair", N=2, n=v.system.n, edges=[[0, 1]], distance=v.has_distance)
+    own = declared_units(v)
+    lay = dict(kind="pair", N=2, n=v.system.n, edges=[[0, 1]], distance=v.has_distance,
+               **({"units": units_of(SimpleNamespace(info=own))} if own else {}))
     writer = RecordWriter(out_dir / v.name, pair_columns(v.system.n, v.has_distance), formats, layout=lay)
     from ..stream import StreamRecord
     sink = StreamRecord(writer, v.system, est.rows, plot_rows)
@@ -278,7 +335,7 @@ def _stream_run(v: Variant, out_dir: Path, fmu_path, progress, scene_name, forma
         if sink.rows == 0:
             writer.abort()
             raise
-        result = sink.thinned()
+        result = _with_units(sink.thinned(), v)
         result.error = str(exc)
         writer.meta = report.record_meta(_counted(result, sink), extra)
         files = writer.close(partial=True)
@@ -288,7 +345,7 @@ def _stream_run(v: Variant, out_dir: Path, fmu_path, progress, scene_name, forma
     except BaseException:
         writer.abort()
         raise
-    result = sink.thinned()
+    result = _with_units(sink.thinned(), v)
     writer.meta = report.record_meta(_counted(result, sink, last), extra)
     files = writer.close()
     metrics = sink.metrics(last)
@@ -515,6 +572,11 @@ def settings_table(scene: Scene, variants, names=None) -> list[tuple[str, str]]:
             rows.append((k, values.pop()))
         else:
             rows.append((k, "; ".join(f"{n}: {v.cfg[k]!r}" for n, v in zip(names, variants))))
+    units = {str(declared_units(v).get("units")) for v in variants}
+    if units != {"None"}:
+        own = declared_units(variants[0]).get("units") or {}
+        rows.append(("units", ", ".join(f"{k} [{u}]" for k, u in own.items()) if len(units) == 1 else
+                     "; ".join(f"{n}: {declared_units(v).get('units')}" for n, v in zip(names, variants))))
     every = [record_interval(v)[1] for v in variants]
     rows.append(("record interval", every[0] if len(set(every)) == 1 else
                  "; ".join(f"{n}: {x}" for n, x in zip(names, every))))
