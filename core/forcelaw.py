@@ -6,16 +6,17 @@ min/max, description) and, optionally, the linear part the θ-scheme treats impl
 the stiffness of the synchronization metric. A system takes it as
 ``MechanicalSystem(M=..., w=..., g0=..., e=..., force=law, params={...})``.
 
-Compilation: the law is compiled once per process into its own copies of the loops of
-:mod:`.law_loops` (:meth:`ForceLaw.kernels`), which call it from the compiled step; the
+Compilation: the law is compiled once per process into its own copies of the loop templates
+of :mod:`.moreau` (:data:`.moreau.TEMPLATES`) with its force (:mod:`.law_loops`) in place of
+the built-in law's (:meth:`ForceLaw.kernels`), which call it from the compiled step; the
 copies are cached on disk (numba ``cache=True``) under the law's :attr:`ForceLaw.key`: the
 sha256 of the user's source *file* (any edit of it, helpers included, recompiles), the law's
-name, dimension, return form and whether it declares a linear part; the core's own stamp is
+name, dimension, return form and whether it declares a linear part and a forcing; the core's own stamp is
 added by the cache locator (core/_cache.py). A law defined where no source file exists (a
 REPL) compiles every process (no cache).
 
-The built-in linear law is not a ForceLaw: systems without ``force=`` run the fast built-in
-loops of :mod:`.moreau` and :mod:`.loop`, unchanged.
+The built-in linear law is not a ForceLaw: systems without ``force=`` run the same templates
+compiled with the built-in force (:func:`.moreau.force`) and the network loop of :mod:`.loop`.
 """
 from __future__ import annotations
 

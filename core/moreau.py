@@ -316,9 +316,10 @@ def integrate1_with(sa, p, q_, u_, t0, dt, n_steps, tau_, scheme, theta, record_
     tau = tau_[0]
     q = q_[0]
     u = u_[0]
-    qa = np.empty(1)   # a user law's argument arrays (core/law_loops.py)
-    ua = np.empty(1)
-    ta = np.empty(1)
+    qut = np.empty(3)   # a user law's argument arrays (core/law_loops.py): views of one buffer, so
+    qa = qut[0:1]       # the compiler sees they do not overlap and keeps q, u in registers
+    ua = qut[1:2]
+    ta = qut[2:3]
     _, _, _, Sinv, Sinv_w, WS = step_workspace(sa, dt, scheme, theta)
     if scheme == THETA:
         a = theta * dt
