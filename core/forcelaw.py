@@ -7,7 +7,7 @@ the stiffness of the synchronization metric. A system takes it as
 ``MechanicalSystem(M=..., w=..., g0=..., e=..., force=law, params={...})``.
 
 Compilation: the law is compiled once per process into its own copies of the loop templates
-of :mod:`.moreau` (:data:`.moreau.TEMPLATES`) with its force (:mod:`.law_loops`) in place of
+of :mod:`.moreau` and :mod:`.loop` (their ``TEMPLATES``) with its force (:mod:`.law_loops`) in place of
 the built-in law's (:meth:`ForceLaw.kernels`), which call it from the compiled step; the
 copies are cached on disk (numba ``cache=True``) under the law's :attr:`ForceLaw.key`: the
 sha256 of the user's source *file* (any edit of it, helpers included, recompiles), the law's
@@ -16,7 +16,7 @@ added by the cache locator (core/_cache.py). A law defined where no source file 
 REPL) compiles every process (no cache).
 
 The built-in linear law is not a ForceLaw: systems without ``force=`` run the same templates
-compiled with the built-in force (:func:`.moreau.force`) and the network loop of :mod:`.loop`.
+compiled with the built-in force (:func:`.moreau.force`, :func:`.loop.net_force`).
 """
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ import types as pytypes
 
 import numpy as np
 
-from . import law_loops, moreau
+from . import law_loops, loop, moreau
 from .coupling import METRIC_SOURCES  # noqa: F401 (re-exported: how a law's K_m was obtained)
 from .errors import LawRefused
 from .jit import NUMBA, njit
@@ -51,7 +51,7 @@ _KERNELS: dict = {}   # law key (or id) -> LawKernels, one compilation per proce
 class LawKernels(pytypes.SimpleNamespace):
     """The law's compiled loops: ``integrate`` (:func:`.moreau.integrate_with` or, n = 1,
     ``integrate1_with``), ``advance`` (:func:`.moreau.advance_with`), ``advance_in`` (the FMU
-    stepper's), ``network`` (:func:`.law_loops.law_network`) and its ``force``, ``force1``."""
+    stepper's), ``network`` (:func:`.loop.integrate_network`) and its ``force``, ``force1``."""
 
 
 def _source_file(fn):
@@ -277,9 +277,13 @@ class ForceLaw:
         loops = dict(vars(moreau), force=own["force"], force1=own["force1"], **{LAW_KEY: self.key})
         for name, inline in moreau.TEMPLATES.items():
             specialise(getattr(moreau, name), loops, name, inline)
+        net = dict(vars(loop), net_force=own["net_force"], net_force1=own["net_force1"], **{LAW_KEY: self.key})
+        for name, inline in loop.TEMPLATES.items():
+            specialise(getattr(loop, name), net, name, inline)
         ns = LawKernels(force=own["force"], force1=own["force1"],
                         integrate=loops["integrate1_with"] if self.n == 1 else loops["integrate_with"],
-                        advance=loops["advance_with"], advance_in=loops["advance_in"], network=own["law_network"])
+                        advance=loops["advance_with"], advance_in=loops["advance_in"],
+                        network=net["integrate_network"])
         _KERNELS[k] = ns
         return ns
 

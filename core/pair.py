@@ -54,8 +54,10 @@ def stack_nodes(*systems):
     for i, sa in enumerate(arrays):
         m = sa.Omega.shape[0]
         K[i], C[i], f0[i], F[i, :m], Om[i, :m], ph[i, :m] = sa.K, sa.C, sa.f0, sa.F, sa.Omega, sa.phi
-    if systems[0].force is not None:   # the law's parameters in the slot of f0
-        f0 = np.stack([s.p for s in systems]).reshape(N, -1)
+    if systems[0].force is not None:   # the law's parameters in the slot of f0 (at least one column:
+        n_p = systems[0].p.shape[0]     # the loop reads a column 0 it leaves unused for a law)
+        f0 = np.zeros((N, max(n_p, 1)))
+        f0[:, :n_p] = np.stack([s.p for s in systems]).reshape(N, n_p)
     return arrays[0], K, C, f0, F, Om, ph
 
 
