@@ -376,6 +376,11 @@ def integrate1_with(sa, p, q_, u_, t0, dt, n_steps, tau_, scheme, theta, record_
                 y = force1(c, p, q, u, tau, hb, fc, (t0 + i * dt) + a, a, qa, ua, ta)
                 q, u, P = step1_y(c, q, u, y, dt)
                 Psum += P
+        elif Omega.shape[0] == 0:   # unforced: fc = -0.0 (x + -0.0 is x exactly: no add on the chain)
+            for i in range(k, k + m):
+                y = force1(c, p, q, u, tau, hb, -0.0, (t0 + i * dt) + a, a, qa, ua, ta)
+                q, u, P = step1_y(c, q, u, y, dt)
+                Psum += P
         else:
             for i in range(k, k + m):
                 tf = (t0 + i * dt) + a
