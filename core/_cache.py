@@ -49,18 +49,44 @@ def depends_on_core(py_file: str) -> None:
     _DEPENDENTS.add(os.path.abspath(py_file))
 
 
+#: the global of a user force law's specialised kernels that holds the law's key (core/forcelaw.py)
+LAW_KEY = "__fmu_sync_law_key__"
+
+
 class _CoreStamp:
+    """The locator of every kernel built on the core, three kinds told apart by one key:
+
+    * a core file's kernel: the package-wide stamp;
+    * a kernel of a registered dependent file (:func:`depends_on_core`): the core's stamp and
+      the file's own;
+    * a user force law's copy of the core's loop templates (its globals carry :data:`LAW_KEY`,
+      core/forcelaw.py): its own index file per law (the key in the disambiguator) and the stamp
+      ``(core stamp, key)`` (the hash of the user's file), so an edit of either recompiles and two
+      laws never share an entry."""
+
+    _law_key = None
+
     def get_source_stamp(self):
+        if self._law_key is not None:
+            return (core_stamp(), self._law_key)
         if os.path.abspath(self._py_file) in _DEPENDENTS:
             return (core_stamp(), super().get_source_stamp())
         return core_stamp()
 
+    def get_disambiguator(self):
+        d = super().get_disambiguator()
+        return d if self._law_key is None else f"{d}_{self._law_key[:20]}"
+
     @classmethod
     def from_function(cls, py_func, py_file):
+        key = getattr(py_func, "__globals__", {}).get(LAW_KEY)
         path = os.path.abspath(py_file)
-        if os.path.dirname(path) != CORE_DIR and path not in _DEPENDENTS:
+        if key is None and os.path.dirname(path) != CORE_DIR and path not in _DEPENDENTS:
             return None
-        return super().from_function(py_func, py_file)
+        self = super().from_function(py_func, py_file)
+        if self is not None:
+            self._law_key = key
+        return self
 
 
 class CoreUserProvidedLocator(_CoreStamp, caching.UserProvidedCacheLocator):
@@ -84,54 +110,3 @@ def install() -> None:
 
 
 install()
-
-
-# ------------------------------------------------------------------ user force laws
-#: the global of a law's specialised kernels that holds the law's key (core/forcelaw.py)
-LAW_KEY = "__fmu_sync_law_key__"
-
-
-class _LawStamp:
-    """The kernels of one user force law (copies of core/law_loops.py's templates whose
-    globals carry :data:`LAW_KEY`): their own index file per law (the key in the
-    disambiguator) and a source stamp of the core and the law's key (the hash of the user's
-    file), so an edit of either recompiles, and two laws never share an entry."""
-
-    def get_source_stamp(self):
-        return (core_stamp(), self._law_key)
-
-    def get_disambiguator(self):
-        return f"{super().get_disambiguator()}_{self._law_key[:20]}"
-
-    @classmethod
-    def from_function(cls, py_func, py_file):
-        key = getattr(py_func, "__globals__", {}).get(LAW_KEY)
-        if key is None:
-            return None
-        self = super().from_function(py_func, py_file)
-        if self is not None:
-            self._law_key = key
-        return self
-
-
-class LawUserProvidedLocator(_LawStamp, caching.UserProvidedCacheLocator):
-    """NUMBA_CACHE_DIR set: a law's kernels, keyed by the law."""
-
-
-class LawInTreeLocator(_LawStamp, caching.InTreeCacheLocator):
-    """``core/__pycache__``: a law's kernels, keyed by the law."""
-
-
-class LawUserWideLocator(_LawStamp, caching.UserWideCacheLocator):
-    """Read-only install: a law's kernels, keyed by the law."""
-
-
-def install_law_locators() -> None:
-    """Put the law locators before every other (a law's kernel is a core file's code)."""
-    classes = caching.CacheImpl._locator_classes
-    for cls in (LawUserWideLocator, LawInTreeLocator, LawUserProvidedLocator):
-        if cls not in classes:
-            classes.insert(0, cls)
-
-
-install_law_locators()

@@ -7,7 +7,9 @@
   (``g(q) = q + g0 >= 0``, as :func:`ImpactOscillator`).
 
 Both laws return a float (n = 1: the fast scalar path), declare their linear part (the
-θ-scheme treats it implicitly) and the stiffness of their metric (docs/design.md §2.8.2).
+θ-scheme treats it implicitly) and the stiffness of their metric (docs/design.md §2.8.2); the
+Duffing law declares its harmonic forcing (``forcing=``: the loops add it by the built-in
+law's phasor recurrence, so the forced law costs what the built-in forced law costs).
 They are ordinary user laws: a user file written the same way behaves the same.
 """
 from __future__ import annotations
@@ -38,10 +40,10 @@ pendulum_law = ForceLaw(
 
 
 def duffing(q, u, tau, t, p):
-    """h = -k q - k3 q^3 - c u + F cos(Omega t + phi) + tau."""
-    k, k3, c, F, Om, ph = p[0], p[1], p[2], p[3], p[4], p[5]
+    """h = -k q - k3 q^3 - c u + tau (+ the declared forcing F cos(Omega t + phi), added by the loops)."""
+    k, k3, c = p[0], p[1], p[2]
     x = q[0]
-    return -k * x - k3 * x * x * x - c * u[0] + F * math.cos(Om * t + ph) + tau[0]
+    return -k * x - k3 * x * x * x - c * u[0] + tau[0]
 
 
 duffing_law = ForceLaw(
@@ -52,7 +54,8 @@ duffing_law = ForceLaw(
             Param("F", 0.0, "N", None, None, "forcing amplitude"),
             Param("Omega", 1.0, "rad/s", 0.0, None, "forcing angular frequency"),
             Param("phi", 0.0, "rad", None, None, "forcing phase")),
-    linear=lambda p: ([[p[0]]], [[p[2]]]))                 # k and c implicit (theta), k3 q^3 explicit
+    linear=lambda p: ([[p[0]]], [[p[2]]]),                 # k and c implicit (theta), k3 q^3 explicit
+    forcing=lambda p: ((p[3], p[4], p[5]),))               # F cos(Omega t + phi): the loops' phasor
 
 
 def Pendulum(m: float = 1.0, l: float = 1.0, g: float = 9.81, c: float = 0.0, q_w: float = 0.2,

@@ -6,16 +6,17 @@ min/max, description) and, optionally, the linear part the θ-scheme treats impl
 the stiffness of the synchronization metric. A system takes it as
 ``MechanicalSystem(M=..., w=..., g0=..., e=..., force=law, params={...})``.
 
-Compilation: the law is compiled once per process into its own copies of the loops of
-:mod:`.law_loops` (:meth:`ForceLaw.kernels`), which call it from the compiled step; the
+Compilation: the law is compiled once per process into its own copies of the loop templates
+of :mod:`.moreau` and :mod:`.loop` (their ``TEMPLATES``) with its force (:mod:`.law_loops`) in place of
+the built-in law's (:meth:`ForceLaw.kernels`), which call it from the compiled step; the
 copies are cached on disk (numba ``cache=True``) under the law's :attr:`ForceLaw.key`: the
 sha256 of the user's source *file* (any edit of it, helpers included, recompiles), the law's
-name, dimension, return form and whether it declares a linear part; the core's own stamp is
+name, dimension, return form and whether it declares a linear part and a forcing; the core's own stamp is
 added by the cache locator (core/_cache.py). A law defined where no source file exists (a
 REPL) compiles every process (no cache).
 
-The built-in linear law is not a ForceLaw: systems without ``force=`` run the fast built-in
-loops of :mod:`.moreau` and :mod:`.loop`, unchanged.
+The built-in linear law is not a ForceLaw: systems without ``force=`` run the same templates
+compiled with the built-in force (:func:`.moreau.force`, :func:`.loop.net_force`).
 """
 from __future__ import annotations
 
@@ -26,7 +27,7 @@ import types as pytypes
 
 import numpy as np
 
-from . import law_loops
+from . import law_loops, loop, moreau
 from .coupling import METRIC_SOURCES  # noqa: F401 (re-exported: how a law's K_m was obtained)
 from .errors import LawRefused
 from .jit import NUMBA, njit
@@ -48,8 +49,9 @@ _KERNELS: dict = {}   # law key (or id) -> LawKernels, one compilation per proce
 
 
 class LawKernels(pytypes.SimpleNamespace):
-    """The law's compiled loops: ``integrate``, ``advance``, ``network`` (and ``step``,
-    ``force``) with the signatures of :mod:`.law_loops`."""
+    """The law's compiled loops: ``integrate`` (:func:`.moreau.integrate_with` or, n = 1,
+    ``integrate1_with``), ``advance`` (:func:`.moreau.advance_with`), ``advance_in`` (the FMU
+    stepper's), ``network`` (:func:`.loop.integrate_network`) and its ``force``, ``force1``."""
 
 
 def _source_file(fn):
@@ -88,9 +90,15 @@ class ForceLaw:
         stiffness of the metric.
     stiffness : callable ``stiffness(p) -> K_m``, optional
         The stiffness of the synchronization metric (Q = K_m + 2 Kp, docs/design.md §2.8.2).
+    forcing : callable ``forcing(p) -> [(F, Omega, phi), ...]``, optional
+        Harmonic forcing ``sum_j F_j cos(Omega_j t + phi_j)`` (``F_j``: n numbers, or one for
+        n = 1) *not* written in h: the loops add it to h at each step's force point, by the
+        built-in law's phasor recurrence (``simulate(phasor=True)``, the default) or a cos per
+        step, so a forced law costs what the built-in forced law costs (docs/design.md §2.8).
     """
 
-    def __init__(self, h, params=(), n: int = 1, name: str | None = None, linear=None, stiffness=None):
+    def __init__(self, h, params=(), n: int = 1, name: str | None = None, linear=None, stiffness=None,
+                 forcing=None):
         py = getattr(h, "py_func", h)    # an @njit function: its Python function
         if not callable(py):
             raise TypeError(f"a force law needs a function h(q, u, tau, t, p), got {h!r}")
@@ -108,12 +116,13 @@ class ForceLaw:
             raise ValueError(f"force law {self.name!r}: parameter names repeat: {names}")
         self.linear = linear
         self.stiffness = stiffness
+        self.forcing = forcing
         self.py_func = py
         src = _source_file(py)
         self.source = src[0] if src else None
         if src:
             hsh = hashlib.sha256(src[1])
-            hsh.update(f"{py.__qualname__}|{self.n}|{linear is not None}".encode())
+            hsh.update(f"{py.__qualname__}|{self.n}|{linear is not None}|{forcing is not None}".encode())
             self.key = hsh.hexdigest()
         else:
             self.key = None
@@ -158,6 +167,22 @@ class ForceLaw:
             return np.zeros((n, n)), np.zeros((n, n))
         KL, CL = self.linear(p)
         return (np.array(KL, dtype=np.float64).reshape(n, n), np.array(CL, dtype=np.float64).reshape(n, n))
+
+    def forcing_terms(self, p) -> tuple:
+        """The declared harmonic forcing at parameters ``p``: ``((F, Omega, phi), ...)`` with ``F``
+        a tuple of n floats (empty without ``forcing``); a malformed term is refused naming the law."""
+        if self.forcing is None:
+            return ()
+        terms = []
+        for j, term in enumerate(self.forcing(p)):
+            try:
+                F, Om, ph = term
+                F = np.array(F, dtype=np.float64, ndmin=1).reshape(self.n)
+                terms.append((tuple(float(x) for x in F), float(Om), float(ph)))
+            except (TypeError, ValueError):
+                raise LawRefused(f"force law {self.name!r}: forcing term {j} must be (F, Omega, phi) with F "
+                                 f"{self.n} number(s), got {term!r}") from None
+        return tuple(terms)
 
     def metric_stiffness(self, p):
         """``(K_m, source)``: the metric's stiffness (:data:`METRIC_SOURCES`, docs/design.md §2.8.2)."""
@@ -228,34 +253,43 @@ class ForceLaw:
                              f"({vals})")
 
     def kernels(self) -> LawKernels:
-        """The law's loops (:mod:`.law_loops` specialised to it), compiled once per process and
-        cached on disk under :attr:`key` (lazily compiled on first call)."""
+        """The law's loops: the built-in loops' templates (:data:`.moreau.TEMPLATES`) with the
+        law's force (:mod:`.law_loops`), compiled once per process and cached on disk under
+        :attr:`key` (lazily compiled on first call)."""
         k = self.key or id(self)
         if k in _KERNELS:
             return _KERNELS[k]
         kind = self.compile()
-        g = {name: val for name, val in vars(law_loops).items()}
-        g[LAW_KEY] = self.key
-        g["law_h"] = self.dispatcher
         cache = self.key is not None
-        tmpl = [("law_force", law_loops._force_scalar if kind == "scalar" else law_loops._force_array),
-                ("law_force1", law_loops._force1_scalar if kind == "scalar" else law_loops._force1_array)]
-        tmpl += [(name, getattr(law_loops, name)) for name in law_loops.TEMPLATES]
-        for name, fn in tmpl:
-            f = pytypes.FunctionType(fn.__code__, g, name, fn.__defaults__, fn.__closure__)
+
+        def specialise(fn, g, name, inline):
+            py = getattr(fn, "py_func", fn)
+            f = pytypes.FunctionType(py.__code__, g, name, py.__defaults__, py.__closure__)
             f.__qualname__ = f"{name}_{kind}"
-            f.__module__ = law_loops.__name__
-            inline = "always" if name in law_loops.INLINED else "never"
+            f.__module__ = py.__module__
             g[name] = njit(cache=cache, inline=inline, error_model="numpy")(f)
-        ns = LawKernels(force=g["law_force"], step=g["law_step"],
-                        integrate=g["_integrate1"] if self.n == 1 else g["law_integrate"],
-                        advance=g["law_advance"], network=g["law_network"])
+
+        own = dict(vars(law_loops), law_h=self.dispatcher, **{LAW_KEY: self.key})
+        for name, inline in law_loops.OWN.items():
+            src = {"law_into": "_h_scalar" if kind == "scalar" else "_h_array",
+                   "law_h1": "_h1_scalar" if kind == "scalar" else "_h1_array"}.get(name, name)
+            specialise(getattr(law_loops, src), own, name, inline)
+        loops = dict(vars(moreau), force=own["force"], force1=own["force1"], **{LAW_KEY: self.key})
+        for name, inline in moreau.TEMPLATES.items():
+            specialise(getattr(moreau, name), loops, name, inline)
+        net = dict(vars(loop), net_force=own["net_force"], net_force1=own["net_force1"], **{LAW_KEY: self.key})
+        for name, inline in loop.TEMPLATES.items():
+            specialise(getattr(loop, name), net, name, inline)
+        ns = LawKernels(force=own["force"], force1=own["force1"],
+                        integrate=loops["integrate1_with"] if self.n == 1 else loops["integrate_with"],
+                        advance=loops["advance_with"], advance_in=loops["advance_in"],
+                        network=net["integrate_network"])
         _KERNELS[k] = ns
         return ns
 
 
-def force_law(params=(), n: int = 1, name: str | None = None, linear=None, stiffness=None):
+def force_law(params=(), n: int = 1, name: str | None = None, linear=None, stiffness=None, forcing=None):
     """Decorator: ``@force_law(params=(...), n=1) def h(q, u, tau, t, p): ...`` -> :class:`ForceLaw`."""
     def wrap(h):
-        return ForceLaw(h, params=params, n=n, name=name, linear=linear, stiffness=stiffness)
+        return ForceLaw(h, params=params, n=n, name=name, linear=linear, stiffness=stiffness, forcing=forcing)
     return wrap

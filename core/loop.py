@@ -30,10 +30,12 @@ from .compensation import compensated_coupling1, force_table, node_force1
 from .coupling import (BRANCH_NONE, COMPENSATED, SWITCHING, UNCOUPLED, coupling_kernel, coupling_kernel1,
                        euclidean_coupling1, p_norm_diff)
 from .distance import distance1, distance_value
+from .harmonic import hsum_cos
 from .metrics import decimator_push
 from .model import SystemArrays
-from .steps import (DIVERGED, OK, THETA, finish_step, flush1, midpoint_step, scalar_params, step1_h,
-                    step_coeffs1, theta_matrices, theta_step)
+from .moreau import force, force1
+from .steps import (DIVERGED, OK, THETA, finish_step, flush1, hbase, scalar_params, step1_y, step_coeffs1, step_y,
+                    theta_matrices)
 
 __all__ = ["coupling_step", "coupling_step1", "network_forces", "node_force", "integrate_network",
            "sample_d", "no_decimator"]
@@ -205,17 +207,42 @@ def _impact(i, k, imp, ep, last, v, v_imp):
     return v if v > v_imp else v_imp
 
 
+@njit(cache=True, inline="always")
+def net_force(sa, f0, i, q, u, tau, hf, tf, a, y, qe):
+    """The force of node i (n > 1) at its force point, into y: the built-in law's
+    (:func:`.moreau.force`, ``hb = f0 + B tau`` in ``qe``); a user law's copy of the loop takes
+    its own (:func:`fmu_sync.core.law_loops.net_force`, parameters ``f0[i]``)."""
+    for r in range(q.shape[0]):
+        qe[r] = hbase(sa, tau, r)
+    force(sa, f0, q, u, tau, qe, hf, tf, a, y, qe)
+
+
+@njit(cache=True, inline="always")
+def net_force1(cf, f0, f01, i, q, u, tau, B0, fc, tf, a, qa, ua, ta):
+    """:func:`net_force` for n = 1 on floats (:func:`.moreau.force1`, ``hb = f0 + B tau``)."""
+    return force1(cf, f0, q, u, tau, f01[i] + B0 * tau, fc, tf, a, qa, ua, ta)
+
+
+#: the loop's templates, as :data:`.moreau.TEMPLATES`: a user law's copy has its ``net_force``,
+#: ``net_force1`` (core/law_loops.py)
+TEMPLATES = {"_step_node": "never", "integrate_network": "never"}
+
+
 @njit(cache=True)
-def _step_node(base, K, C, f0, F, Omega, phi, i, q, u, tau, t, hk, scheme, theta, Sinv, Sinv_w, WS, qM, h, uf, ua):
+def _step_node(base, K, C, f0, F, Omega, phi, i, q, u, tau, t, hk, scheme, theta, Sinv, Sinv_w, WS, y, hf, uf, ua,
+               qe):
     """One Moreau step of node i (n > 1) in place, its start velocity into ``ua``; returns P.
     (A call, not inlined: the loop's body stays the small 1-DOF path.)"""
     for c in range(q.shape[1]):
         ua[c] = u[i, c]
     sa = _node(base, K, C, f0, F, Omega, phi, i)
+    a = theta * hk if scheme == THETA else 0.5 * hk
+    hsum_cos(sa.F, sa.Omega, sa.phi, t + a, hf)
+    net_force(sa, f0, i, q[i], u[i], tau[i], hf, t + a, a, y, qe)
     if scheme == THETA:
-        P = theta_step(sa, q[i], u[i], tau[i], t, hk, theta, Sinv[i], Sinv_w[i], WS[i], qM, h, uf)
+        P = step_y(sa, Sinv[i], Sinv_w[i], WS[i], a, q[i], u[i], hk, y, uf)[0]
     else:
-        P = midpoint_step(sa, q[i], u[i], tau[i], t, hk, qM, h, uf)
+        P = step_y(sa, sa.Minv, sa.Minv_w, sa.W, a, q[i], u[i], hk, y, uf)[0]
     finish_step(q[i], u[i])
     return P
 
@@ -257,6 +284,11 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
     h = np.empty(n)
     uf = np.empty(n)
     ua = np.empty(n)
+    qe = np.empty(n)
+    qut = np.empty(3)   # a user law's 1-DOF argument arrays (views of one buffer, as moreau.integrate1_with)
+    qa = qut[0:1]
+    uta = qut[1:2]
+    ta = qut[2:3]
     zero = np.zeros(n)
     Sinv = np.zeros((N, n, n))
     Sinv_w = np.zeros((N, n))
@@ -274,7 +306,7 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
     q1d = q.reshape(N * n)
     u1d = u.reshape(N * n)
     tau1d = tau.reshape(N * n)
-    f01 = f0.reshape(N * n)
+    f01 = np.ascontiguousarray(f0[:, 0])   # (a user law's parameters: at least one column, core/pair.py)
     nf = Omega.shape[1]
     F1d = np.ascontiguousarray(F).reshape(N * nf * n)
     Om1d = np.ascontiguousarray(Omega).reshape(N * nf)
@@ -395,10 +427,10 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
                     fc = F1d[i * nf] * math.cos(Om1d[i * nf] * (t + a) + ph1d[i * nf])
                     for j in range(1, nf):
                         fc += F1d[i * nf + j] * math.cos(Om1d[i * nf + j] * (t + a) + ph1d[i * nf + j])
-                hc = (f01[i] + B0 * tau1d[i]) + fc
                 cf = (co[i, 0], co[i, 1], co[i, 2], co[i, 3], co[i, 4], co[i, 5], co[i, 6], co[i, 7], co[i, 8],
                       co[i, 9], co[i, 10])
-                qn, un, P = step1_h(cf, q1d[i], u0, hc, hk)
+                y = net_force1(cf, f0, f01, i, q1d[i], u0, tau1d[i], B0, fc, t + a, a, qa, uta, ta)
+                qn, un, P = step1_y(cf, q1d[i], u0, y, hk)
                 q1d[i] = flush1(qn)
                 u1d[i] = flush1(un)
                 if P > 0.0:
@@ -412,7 +444,7 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
         else:
             for i in range(N):
                 P = _step_node(base, K, C, f0, F, Omega, phi, i, q, u, tau, t, hk, scheme, theta, Sinv, Sinv_w, WS,
-                               qM, h, uf, ua)
+                               qM, h, uf, ua, qe)
                 if P > 0.0:
                     v_imp = _impact(i, k, imp, ep, last, p_norm_diff(geo.Q, geo.Q, zero, ua, zero, zero), v_imp)
         k += 1

@@ -141,6 +141,7 @@ class MechanicalSystem:
             object.__setattr__(self, "K", Km)
             object.__setattr__(self, "C", CL)
             object.__setattr__(self, "f0", np.zeros(n))
+            object.__setattr__(self, "forcing", law.forcing_terms(p))   # the law's declared forcing
         for name in ("K", "C", "f0"):
             if getattr(self, name) is None:
                 raise ValueError(f"{name} is required for the built-in linear law (or give force=ForceLaw)")

@@ -29,10 +29,40 @@ from .jit import njit
 from .harmonic import PHASOR_SYNC, harmonic_table  # noqa: F401 (re-exported: the loops' forcing)
 from .harmonic import harmonic_workspace, hsum1_cos, hsum1_ph, hsum_cos, hsum_ph, ph_rot, ph_sync
 from .steps import MIDPOINT, SCHEMES  # noqa: F401 (re-exported: the scheme codes)
-from .steps import (DIVERGED, OK, THETA, all_finite, flush, flush1, hbase, scalar_params, step1_h, step_coeffs1,
-                    step_h, step_workspace, theta_matrices)
+from .steps import (DIVERGED, OK, THETA, all_finite, flush, flush1, hbase, scalar_params, step1_y, step_coeffs1,
+                    step_workspace, step_y, theta_matrices)
 
 
+# ------------------------------------------------------------------ the force: the one injected part
+@njit(cache=True, inline="always")
+def force(sa, p, q, u, tau, hb, hf, tf, a, y, qe):
+    """The built-in linear law's force at the step's force point, into ``y`` (:func:`step_h`'s
+    arithmetic): ``y = (f0 + B tau + hf) - (K q + (C + a K) u)``, ``hb = f0 + B tau`` and
+    ``hf`` the harmonic forcing at ``tf``. ``p, tau, tf, qe`` serve a user law
+    (core/law_loops.py :func:`~fmu_sync.core.law_loops.force`), unused here."""
+    n = q.shape[0]
+    for i in range(n):
+        lin = sa.K[i, 0] * q[0] + (sa.C[i, 0] + a * sa.K[i, 0]) * u[0]
+        for j in range(1, n):
+            lin += sa.K[i, j] * q[j] + (sa.C[i, j] + a * sa.K[i, j]) * u[j]
+        y[i] = (hb[i] + hf[i]) - lin
+
+
+@njit(cache=True, inline="always")
+def force1(c, p, q, u, tau, hb, fc, tf, a, qa, ua, ta):
+    """:func:`force` for n = 1 on floats (:func:`~fmu_sync.core.steps.step1_h`'s arithmetic,
+    ``c`` from :func:`step_coeffs1`); ``p, tau, tf, a, qa, ua, ta`` serve a user law."""
+    return (hb + fc) - (c[0] * q + c[1] * u)
+
+
+#: the loops below are templates: the built-in law compiles them as they stand, a user force law
+#: into its own copies whose ``force``, ``force1`` are the law's (:meth:`ForceLaw.kernels`,
+#: core/law_loops.py); the name of each and its numba ``inline`` option
+TEMPLATES = {"advance_in": "always", "_advance": "never", "advance_with": "never", "integrate_with": "never",
+             "integrate1_with": "never"}
+
+
+# ------------------------------------------------------------------ the loops
 @njit(cache=True)
 def integrate(sa, q, u, t0, dt, n_steps, tau, scheme, theta, record_every, T, Qr, Ur, Pr,
               phasor=False, dt_last=0.0):
@@ -49,6 +79,13 @@ def integrate(sa, q, u, t0, dt, n_steps, tau, scheme, theta, record_every, T, Qr
     if the state became non-finite (checked at the end of each block of steps,
     i.e. at least at every record; rows written so far are valid).
     """
+    return integrate_with(sa, sa.f0, q, u, t0, dt, n_steps, tau, scheme, theta, record_every, T, Qr, Ur, Pr,
+                          phasor, dt_last)
+
+
+@njit(cache=True)
+def integrate_with(sa, p, q, u, t0, dt, n_steps, tau, scheme, theta, record_every, T, Qr, Ur, Pr, phasor, dt_last):
+    """:func:`integrate` of the law ``force`` with parameters ``p`` (the template)."""
     n = q.shape[0]
     y, hf, uf, Sinv, Sinv_w, WS = step_workspace(sa, dt, scheme, theta)
     if scheme == THETA:
@@ -59,7 +96,7 @@ def integrate(sa, q, u, t0, dt, n_steps, tau, scheme, theta, record_every, T, Qr
     phi = sa.phi
     F = sa.F
     cv, sv, cr, sr = harmonic_workspace(Omega, dt)
-    hc = np.zeros(n)
+    qe = np.zeros(n)
     hb = np.empty(n)
     for i in range(n):
         hb[i] = hbase(sa, tau, i)
@@ -83,14 +120,14 @@ def integrate(sa, q, u, t0, dt, n_steps, tau, scheme, theta, record_every, T, Qr
         if use_ph:
             m = min(m, to_sync)
         for i in range(k, k + m):
+            tf = (t0 + i * dt) + a
             if use_ph:
                 hsum_ph(F, c0, cv, hf)
                 c0, s0 = ph_rot(c0, s0, cr, sr, cv, sv)
             else:
-                hsum_cos(F, Omega, phi, (t0 + i * dt) + a, hf)
-            for j in range(n):
-                hc[j] = hb[j] + hf[j]
-            P, g = step_h(sa, X, iw, WX, a, q, u, hc, dt, y, uf)
+                hsum_cos(F, Omega, phi, tf, hf)
+            force(sa, p, q, u, tau, hb, hf, tf, a, y, qe)
+            P, g = step_y(sa, X, iw, WX, a, q, u, dt, y, uf)
             if g <= 0.0:
                 flush(q, u)
             Psum += P
@@ -117,9 +154,8 @@ def integrate(sa, q, u, t0, dt, n_steps, tau, scheme, theta, record_every, T, Qr
         else:
             a = 0.5 * dt_last
         hsum_cos(F, Omega, phi, t + a, hf)
-        for j in range(n):
-            hc[j] = hb[j] + hf[j]
-        P, g = step_h(sa, X, iw, WX, a, q, u, hc, dt_last, y, uf)
+        force(sa, p, q, u, tau, hb, hf, t + a, a, y, qe)
+        P, g = step_y(sa, X, iw, WX, a, q, u, dt_last, y, uf)
         Psum += P
         flush(q, u)
         if not all_finite(q, u):
@@ -159,33 +195,40 @@ def advance(sa, q, u, t0, H, dt, tau, scheme, theta, taudot=None, phasor=False):
     phasor recurrence (re-synchronised at ``t0``; a shortened last step uses
     cos). Returns ``(status, percussion_sum, steps_with_impact)``.
     """
+    return advance_with(sa, sa.f0, q, u, t0, H, dt, tau, scheme, theta, taudot, phasor)
+
+
+@njit(cache=True)
+def advance_with(sa, p, q, u, t0, H, dt, tau, scheme, theta, taudot=None, phasor=False):
+    """:func:`advance` of the law ``force`` with parameters ``p`` (the template; a user law's
+    ``kernels().advance``)."""
     if taudot is None:
-        return _advance(sa, q, u, t0, H, dt, tau, tau, False, scheme, theta, phasor)
+        return _advance(sa, p, q, u, t0, H, dt, tau, tau, False, scheme, theta, phasor)
     else:
         foh = False
         for j in range(taudot.shape[0]):
             if taudot[j] != 0.0:
                 foh = True
-        return _advance(sa, q, u, t0, H, dt, tau, taudot, foh, scheme, theta, phasor)
+        return _advance(sa, p, q, u, t0, H, dt, tau, taudot, foh, scheme, theta, phasor)
 
 
 @njit(cache=True)
-def _advance(sa, q, u, t0, H, dt, tau, taudot, foh, scheme, theta, phasor):
+def _advance(sa, p, q, u, t0, H, dt, tau, taudot, foh, scheme, theta, phasor):
     n = q.shape[0]
     nf = sa.Omega.shape[0]
-    return advance_in(sa, q, u, t0, H, dt, tau, taudot, foh, scheme, theta, phasor,
+    return advance_in(sa, p, q, u, t0, H, dt, tau, taudot, foh, scheme, theta, phasor,
                       np.empty(n), np.empty(n), np.empty(n), np.empty((n, n)), np.empty(n),
                       np.empty(nf), np.empty(nf), np.empty(nf), np.empty(nf),
                       np.empty(n), np.empty(n), np.empty(tau.shape[0]))
 
 
 @njit(cache=True, inline="always")
-def advance_in(sa, q, u, t0, H, dt, tau, taudot, foh, scheme, theta, phasor,
-               y, hf, uf, Sinv, Sinv_w, cv, sv, cr, sr, hc, hb, tk):
-    """:func:`advance` in caller-provided scratch arrays (nothing is allocated: the
-    FMU's stepper calls it once per doStep): ``y, hf, uf, Sinv_w, hc, hb`` (n,),
+def advance_in(sa, p, q, u, t0, H, dt, tau, taudot, foh, scheme, theta, phasor,
+               y, hf, uf, Sinv, Sinv_w, cv, sv, cr, sr, qe, hb, tk):
+    """:func:`advance_with` in caller-provided scratch arrays (nothing is allocated: the
+    FMU's stepper calls it once per doStep): ``y, hf, uf, Sinv_w, qe, hb`` (n,),
     ``Sinv`` (n, n), ``cv, sv, cr, sr`` (nf,), ``tk`` like ``tau``. Bit for bit
-    :func:`advance`."""
+    :func:`advance_with`."""
     n = q.shape[0]
     WS = 0.0
     if scheme == THETA:
@@ -199,7 +242,7 @@ def advance_in(sa, q, u, t0, H, dt, tau, taudot, foh, scheme, theta, phasor,
         cv[j] = 0.0
         sv[j] = 0.0
     for i in range(n):
-        hc[i] = 0.0
+        qe[i] = 0.0
         hb[i] = hbase(sa, tau, i)
     use_ph = phasor and Omega.shape[0] > 0
     c0 = 0.0
@@ -235,9 +278,8 @@ def advance_in(sa, q, u, t0, H, dt, tau, taudot, foh, scheme, theta, phasor,
                 tk[j] = tau[j] + taudot[j] * ((t + a) - t0)
             for i in range(n):
                 hb[i] = hbase(sa, tk, i)
-        for i in range(n):
-            hc[i] = hb[i] + hf[i]
-        P, g = step_h(sa, X, iw, WX, a, q, u, hc, hk, y, uf)
+        force(sa, p, q, u, tk, hb, hf, t + a, a, y, qe)
+        P, g = step_y(sa, X, iw, WX, a, q, u, hk, y, uf)
         if g <= 0.0:
             flush(q, u)
         if P > 0.0:
@@ -259,21 +301,33 @@ def integrate1(sa, q_, u_, t0, dt, n_steps, tau_, scheme, theta, record_every, T
     happen between blocks of steps; a single harmonic term's phasor and
     coefficients live in registers.
     """
-    p = scalar_params(sa)
+    return integrate1_with(sa, sa.f0, q_, u_, t0, dt, n_steps, tau_, scheme, theta, record_every, T, Qr, Ur, Pr,
+                           phasor, dt_last)
+
+
+@njit(cache=True)
+def integrate1_with(sa, p, q_, u_, t0, dt, n_steps, tau_, scheme, theta, record_every, T, Qr, Ur, Pr, phasor,
+                    dt_last):
+    """:func:`integrate1` of the law ``force1`` with parameters ``p`` (the template)."""
+    sp = scalar_params(sa)
     F = sa.F
     Omega = sa.Omega
     phi = sa.phi
     tau = tau_[0]
     q = q_[0]
     u = u_[0]
+    qut = np.empty(3)   # a user law's argument arrays (core/law_loops.py): views of one buffer, so
+    qa = qut[0:1]       # the compiler sees they do not overlap and keeps q, u in registers
+    ua = qut[1:2]
+    ta = qut[2:3]
     _, _, _, Sinv, Sinv_w, WS = step_workspace(sa, dt, scheme, theta)
     if scheme == THETA:
         a = theta * dt
-        c = step_coeffs1(p, Sinv[0, 0], Sinv_w[0], WS, a, dt)
+        c = step_coeffs1(sp, Sinv[0, 0], Sinv_w[0], WS, a, dt)
     else:
         a = 0.5 * dt
-        c = step_coeffs1(p, p[0], p[8], p[9], a, dt)
-    hb = p[3] + p[4] * tau            # f0 + B tau (as hbase)
+        c = step_coeffs1(sp, sp[0], sp[8], sp[9], a, dt)
+    hb = sp[3] + sp[4] * tau            # f0 + B tau (as hbase)
     cv, sv, cr, sr = harmonic_workspace(Omega, dt)
     use_ph = phasor and Omega.shape[0] > 0
     one = Omega.shape[0] == 1
@@ -302,26 +356,36 @@ def integrate1(sa, q_, u_, t0, dt, n_steps, tau_, scheme, theta, record_every, T
             m = min(m, to_sync)
         if one:   # a single harmonic term: phasor and coefficients in registers
             if use_ph:
-                for i in range(m):
+                for i in range(k, k + m):
                     fc = F00 * c0
                     c0, s0 = c0 * cr0 - s0 * sr0, s0 * cr0 + c0 * sr0
-                    q, u, P = step1_h(c, q, u, hb + fc, dt)
+                    y = force1(c, p, q, u, tau, hb, fc, (t0 + i * dt) + a, a, qa, ua, ta)
+                    q, u, P = step1_y(c, q, u, y, dt)
                     Psum += P
             else:
                 for i in range(k, k + m):
-                    fc = F00 * math.cos(Om0 * ((t0 + i * dt) + a) + phi0)
-                    q, u, P = step1_h(c, q, u, hb + fc, dt)
+                    tf = (t0 + i * dt) + a
+                    fc = F00 * math.cos(Om0 * tf + phi0)
+                    y = force1(c, p, q, u, tau, hb, fc, tf, a, qa, ua, ta)
+                    q, u, P = step1_y(c, q, u, y, dt)
                     Psum += P
         elif use_ph:
-            for i in range(m):
+            for i in range(k, k + m):
                 fc = hsum1_ph(F, c0, cv)
                 c0, s0 = ph_rot(c0, s0, cr, sr, cv, sv)
-                q, u, P = step1_h(c, q, u, hb + fc, dt)
+                y = force1(c, p, q, u, tau, hb, fc, (t0 + i * dt) + a, a, qa, ua, ta)
+                q, u, P = step1_y(c, q, u, y, dt)
+                Psum += P
+        elif Omega.shape[0] == 0:   # unforced: fc = -0.0 (x + -0.0 is x exactly: no add on the chain)
+            for i in range(k, k + m):
+                y = force1(c, p, q, u, tau, hb, -0.0, (t0 + i * dt) + a, a, qa, ua, ta)
+                q, u, P = step1_y(c, q, u, y, dt)
                 Psum += P
         else:
             for i in range(k, k + m):
-                fc = hsum1_cos(F, Omega, phi, (t0 + i * dt) + a)
-                q, u, P = step1_h(c, q, u, hb + fc, dt)
+                tf = (t0 + i * dt) + a
+                y = force1(c, p, q, u, tau, hb, hsum1_cos(F, Omega, phi, tf), tf, a, qa, ua, ta)
+                q, u, P = step1_y(c, q, u, y, dt)
                 Psum += P
         k += m
         to_rec -= m
@@ -345,11 +409,12 @@ def integrate1(sa, q_, u_, t0, dt, n_steps, tau_, scheme, theta, record_every, T
         if scheme == THETA:
             _, _, _, Sinv, Sinv_w, WS = step_workspace(sa, dt_last, scheme, theta)
             a = theta * dt_last
-            c = step_coeffs1(p, Sinv[0, 0], Sinv_w[0], WS, a, dt_last)
+            c = step_coeffs1(sp, Sinv[0, 0], Sinv_w[0], WS, a, dt_last)
         else:
             a = 0.5 * dt_last
-            c = step_coeffs1(p, p[0], p[8], p[9], a, dt_last)
-        q, u, P = step1_h(c, q, u, hb + hsum1_cos(F, Omega, phi, t + a), dt_last)
+            c = step_coeffs1(sp, sp[0], sp[8], sp[9], a, dt_last)
+        y = force1(c, p, q, u, tau, hb, hsum1_cos(F, Omega, phi, t + a), t + a, a, qa, ua, ta)
+        q, u, P = step1_y(c, q, u, y, dt_last)
         Psum += P
         q = flush1(q)
         u = flush1(u)

@@ -45,18 +45,19 @@ def network_loop(systems):
 def stack_nodes(*systems):
     """``(base, K, C, f0, F, Omega, phi)`` of the loop: the common geometry (the first
     system's arrays) and the nodes' forces stacked, forcing padded with F = 0 terms. For a user
-    force law: K, C the nodes' linear parts and, in the slot of f0, their parameters (N, n_p)."""
+    force law: K, C the nodes' linear parts, the forcing its declared terms and, in the slot of
+    f0, the parameters (N, n_p)."""
     arrays = [s.arrays() for s in systems]
-    if systems[0].force is not None:
-        return (arrays[0], np.stack([a.K for a in arrays]), np.stack([a.C for a in arrays]),
-                np.stack([s.p for s in systems]), np.zeros((len(arrays), 0, arrays[0].M.shape[0])),
-                np.zeros((len(arrays), 0)), np.zeros((len(arrays), 0)))
     N, n, nf = len(arrays), arrays[0].M.shape[0], max(a.Omega.shape[0] for a in arrays)
     K, C, f0 = np.zeros((N, n, n)), np.zeros((N, n, n)), np.zeros((N, n))
     F, Om, ph = np.zeros((N, nf, n)), np.zeros((N, nf)), np.zeros((N, nf))
     for i, sa in enumerate(arrays):
         m = sa.Omega.shape[0]
         K[i], C[i], f0[i], F[i, :m], Om[i, :m], ph[i, :m] = sa.K, sa.C, sa.f0, sa.F, sa.Omega, sa.phi
+    if systems[0].force is not None:   # the law's parameters in the slot of f0 (at least one column:
+        n_p = systems[0].p.shape[0]     # the loop reads a column 0 it leaves unused for a law)
+        f0 = np.zeros((N, max(n_p, 1)))
+        f0[:, :n_p] = np.stack([s.p for s in systems]).reshape(N, n_p)
     return arrays[0], K, C, f0, F, Om, ph
 
 

@@ -50,10 +50,10 @@ def simulate(system: MechanicalSystem, x0, t_end: float, dt: float, scheme: str 
     sa = system.arrays()
     full = grid.steps - 1 if grid.short else grid.steps
     dt_last = grid.dt_last if grid.short else 0.0
-    if system.force is not None:   # a user force law: its own compiled loop (core/law_loops.py)
+    if system.force is not None:   # a user force law: its copy of the loop, the law's force (core/law_loops.py)
         status, done, written = system.force.kernels().integrate(
             sa, system.p, q0.copy(), u0.copy(), float(t0), dt, full, tau, code, theta, record_every, T, Q, U, P,
-            dt_last)
+            bool(phasor), dt_last)
     else:
         status, done, written = kernels_for(sa)(sa, q0.copy(), u0.copy(), float(t0), dt, full, tau, code, theta,
                                                 record_every, T, Q, U, P, bool(phasor), dt_last)

@@ -121,7 +121,7 @@ def step_h(sa, X, iw, WX, a, q, u, hc, dt, y, uf):
 @njit(cache=True, inline="always")
 def step_y(sa, X, iw, WX, a, q, u, dt, y, uf):
     """The rest of a step once the force ``y`` at the force point is known (:func:`step_h`;
-    a user force law's step, core/law_loops.py): contact, then (q, u) in place; returns (P, g)."""
+    the loops' step after their force, core/moreau.py): contact, then (q, u) in place; returns (P, g)."""
     n = q.shape[0]
     hd = 0.5 * dt
     g = sa.g0
@@ -309,10 +309,17 @@ def step_coeffs1(p, X, iw, WX, a, dt):
 def step1_h(c, q, u, hc, dt):
     """:func:`step_h` on scalars (same operation order), flushing would-be
     subnormals after a contact step; ``c`` from :func:`step_coeffs1`.
-    Returns (q, u, P). (The contact correction sits inside the contact branch, so
-    that the free-flight path carries no select on its dependency chain.)"""
+    Returns (q, u, P)."""
+    return step1_y(c, q, u, hc - (c[0] * q + c[1] * u), dt)
+
+
+@njit(cache=True, inline="always")
+def step1_y(c, q, u, y, dt):
+    """:func:`step_y` on scalars: the rest of :func:`step1_h` once the force ``y`` at the
+    force point is known (the one-DOF loops' step after their force, core/moreau.py). (The
+    contact correction sits inside the contact branch, so that the free-flight path carries no
+    select on its dependency chain.)"""
     K, CK, G1, G2, w, g0, e, iw, aiw, WX, hd = c
-    y = hc - (K * q + CK * u)
     g = g0
     g += w * (q + hd * u)
     uf = u + G1 * y

@@ -119,6 +119,11 @@ def work_size(n: int, m: int, nf: int, nx: int = 0, n_p: int = 0) -> int:
     return system + 2 * n + _scratch(n, m, nf) + exact_size(n, m, nf) + n_p + nx + m
 
 
+#: the parameters of the stepper's force law in the work array (0: the built-in linear law; a
+#: user law's stepper, :mod:`.law_stepper`, is compiled with its own)
+N_P = 0
+
+
 @njit(cache=True, inline="always")
 def law_params(w, n_p):
     """The n_p parameters p of a user force law in the work array (just before the FMI 3.0
@@ -213,8 +218,9 @@ def _advance(sa, q, u, t, H, dt, tau, taudot, scheme, theta, s, w):
     ``scheme`` is the core's scheme code (``solver.scheme`` item -> code in
     ``MechanicalSlave.configure`` via ``core.checks.scheme_code``); ``taudot``
     the input slope (zeros: bit for bit the zero-order hold); ``s`` the scratch
-    (:func:`_scratch` slots); ``w`` the work array (unused here: a user force law's stepper,
-    :mod:`.law_stepper`, reads its parameters there). The exact scheme is dispatched in :func:`step`.
+    (:func:`_scratch` slots); ``w`` the work array (where a user force law's stepper,
+    :mod:`.law_stepper`: this function with the law's ``advance_in`` and ``N_P``, reads its
+    parameters). The exact scheme is dispatched in :func:`step`.
     The place for more schemes: a new item in ``contract.SCHEME_ITEMS`` and a
     branch here."""
     n = q.shape[0]
@@ -225,9 +231,10 @@ def _advance(sa, q, u, t, H, dt, tau, taudot, scheme, theta, s, w):
         for j in range(m):
             if taudot[j] != 0.0:
                 foh = True
-        # scratch: y, hf, uf, Sinv_w, hc, hb (n each), Sinv (n*n), cv, sv, cr, sr (nf each), tk (m)
+        # scratch: y, hf, uf, Sinv_w, qe, hb (n each), Sinv (n*n), cv, sv, cr, sr (nf each), tk (m)
         k = 6 * n + n * n
-        return advance_in(sa, q, u, t, H, dt, tau, taudot, foh, scheme, theta, False,
+        p = law_params(w, N_P) if N_P > 0 else sa.f0   # a user law's parameters (the built-in law: unused)
+        return advance_in(sa, p, q, u, t, H, dt, tau, taudot, foh, scheme, theta, False,
                           s[0:n], s[n:2 * n], s[2 * n:3 * n], mat(s, 6 * n, n, n), s[3 * n:4 * n],
                           s[k:k + nf], s[k + nf:k + 2 * nf], s[k + 2 * nf:k + 3 * nf],
                           s[k + 3 * nf:k + 4 * nf], s[4 * n:5 * n], s[5 * n:6 * n],

@@ -1,5 +1,5 @@
 """Independent reference for a 1-DOF user force law (tests only): scipy DOP853 (rtol 1e-12)
-of ``M q'' = h(q, q', 0, t, p)`` with a terminal event at g(q) = 0 and a restart after
+of ``M q'' = h(q, q', 0, t, p) + sum_j F_j cos(Omega_j t + phi_j)`` (the law's declared forcing) with a terminal event at g(q) = 0 and a restart after
 Newton's impact law u+ = -e u-. The law is evaluated by its plain Python function (not the
 compiled loops). Scenarios must impact transversally (no accumulation, no contact phase)."""
 from __future__ import annotations
@@ -13,9 +13,11 @@ def reference(system, x0, t_end, rtol=1e-12, max_impacts=10000):
     law, p = system.force, system.p
     M, w, g0, e = float(system.M[0, 0]), float(system.w[0]), float(system.g0), float(system.e)
     zero = np.zeros(1)
+    terms = [(F[0], Om, ph) for F, Om, ph in law.forcing_terms(p)]   # the law's declared forcing
 
     def f(t, y):
-        return [y[1], float(np.ravel(law.py_func(np.array([y[0]]), np.array([y[1]]), zero, t, p))[0]) / M]
+        h = float(np.ravel(law.py_func(np.array([y[0]]), np.array([y[1]]), zero, t, p))[0])
+        return [y[1], (h + sum(F * np.cos(Om * t + ph) for F, Om, ph in terms)) / M]
 
     def gap(t, y):
         return w * y[0] + g0

@@ -92,8 +92,12 @@ def test_guid_follows_the_user_code(pend, tmp_path):
 
 
 def test_fmpy_run_equals_the_core(pend):
-    """q of the FMU in fmpy = the core's simulate and the law's own compiled communication step
-    (the code compiled into the binary, here JIT-compiled for this CPU) to round-off."""
+    """q of the FMU in fmpy = the core's simulate to round-off, and bit for bit the law's own
+    compiled communication step (the code compiled into the binary, here JIT-compiled for this
+    CPU) called with fmpy's communication points: fmpy steps from t_k = k H by
+    ``t_(k+1) - t_k`` (not H: ``(k+1) H - k H`` differs from H by round-off), which moves the
+    end ``t_k + H_k`` of each step's shortened last internal step -- the round-off by which the
+    FMU differed from ``advance(.., k H, H, ..)``."""
     from fmpy import simulate_fmu
     dt, H, T = 1e-3, 1e-2, 4.0
     r = simulate_fmu(str(pend["fmu"]), stop_time=T, output_interval=H, output=["q", "u", "impacts"],
@@ -105,9 +109,35 @@ def test_fmpy_run_equals_the_core(pend):
     adv = system.force.kernels().advance
     q, u, tau, out = np.array(X1[0]), np.array(X1[1]), np.zeros(1), [X1[0][0]]
     for k in range(len(r) - 1):
-        adv(system.arrays(), system.p, q, u, k * H, H, dt, tau, 0, 0.5)
+        adv(system.arrays(), system.p, q, u, k * H, (k + 1) * H - k * H, dt, tau, 0, 0.5)
         out.append(q[0])
-    assert np.max(np.abs(r["q"] - np.array(out))) <= 1e-12
+    assert np.array_equal(r["q"], np.array(out))
+
+
+@pytest.mark.parametrize("scheme", [0, 1])
+def test_the_fmu_step_is_the_laws_advance_bit_for_bit(pend, scheme):
+    """The law's FMU steps with the law's own ``advance`` (fmus/law_stepper.py: the stepper's
+    communication step with the law's ``advance_in``): zero-order and first-order hold of the
+    input (fmi2SetRealInputDerivatives), both schemes, bit for bit."""
+    from fmu_sync.fmi_bridge import FMUHost
+    system = pend["decl"]()
+    adv = system.force.kernels().advance
+    host = FMUHost(pend["fmu"])
+    try:
+        name = next(v.name for v in host.md.modelVariables if v.causality == "input")
+        host.initialize(0.0, {"q_start": X1[0][0], "solver.dt": 1e-3, "solver.scheme": scheme,
+                              "solver.theta": 0.5 if scheme == 0 else 0.7})
+        q, u, H = np.array(X1[0]), np.array(X1[1]), 0.05
+        for k in range(40):
+            tau, slope = np.array([0.3 * np.sin(k)]), np.array([2.0 * np.cos(k)]) if k % 2 else np.zeros(1)
+            host.set({name: tau[0]})
+            host.set_input_derivatives({name: slope[0]})
+            assert host.do_step(k * H, H) == 0
+            adv(system.arrays(), system.p, q, u, k * H, H, 1e-3, tau, scheme, 0.5 if scheme == 0 else 0.7, slope)
+            assert host.get(["q", "u"]) == [q[0], u[0]], k
+        assert host.get(["impacts"])[0] > 0
+    finally:
+        host.close()
 
 
 def test_c_host_runs_it(pend):

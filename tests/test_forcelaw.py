@@ -241,3 +241,22 @@ def test_the_guide_example_file_runs(tmp_path, monkeypatch):
     exec(compile(blocks[1].replace("print(", "(lambda *a: None)("), "user-model.md", "exec"), ns)
     assert ns["p"].d[-1] < 1e-6 * ns["p"].d[0] and ns["p"].impacts1 > 0
     assert ns["r"].impacts > 0 and ns["p"].metric == "linearized"
+
+
+def test_the_declared_forcing_is_checked_and_reaches_the_loops_arrays():
+    """ForceLaw(forcing=...): a malformed term is refused naming the law; a good one becomes the
+    system's forcing (the loops' F, Omega, phi: added to h by their cos or phasor path)."""
+    def h(q, u, tau, t, p):
+        return -p[0] * q[0] + tau[0]
+
+    prm = (Param("k", 1.0, "N/m", 0.0),)
+    bad = ForceLaw(h, prm, n=1, name="bad_forcing", linear=lambda p: ([[p[0]]], [[0.0]]),
+                   forcing=lambda p: ((1.0, 2.0),))
+    with pytest.raises(LawRefused, match="'bad_forcing': forcing term 0 must be"):
+        MechanicalSystem(M=[[1.0]], w=[1.0], g0=0.0, e=0.5, force=bad)
+    good = ForceLaw(h, prm, n=1, linear=lambda p: ([[p[0]]], [[0.0]]), forcing=lambda p: ((0.5 * p[0], 2.0, 0.1),))
+    s = MechanicalSystem(M=[[1.0]], w=[1.0], g0=0.0, e=0.5, force=good, params={"k": 3.0})
+    assert s.forcing == (((1.5,), 2.0, 0.1),)
+    sa = s.arrays()
+    assert sa.F.tolist() == [[1.5]] and sa.Omega.tolist() == [2.0] and sa.phi.tolist() == [0.1]
+    assert duffing_law.forcing_terms(np.array([1.0, 0.5, 0.0, 0.7, 1.3, 0.2])) == (((0.7,), 1.3, 0.2),)
