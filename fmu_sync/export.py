@@ -169,13 +169,36 @@ def _nodes(tree):
         todo.extend(ast.iter_child_nodes(node))
 
 
+#: (rel, sha256 of its source) -> its import statements (:func:`_imports`): parsed once per process
+_IMPORTS: dict = {}
+
+
+def _imports(rel: str, source: bytes) -> tuple[list, list]:
+    """(the import statements of ``source`` that :func:`_nodes` walks, those of its top level and its
+    classes' bodies); memoised on the source's content (an export parses ~40 files twice)."""
+    import ast
+    key = (rel, hashlib.sha256(source).digest())
+    if key not in _IMPORTS:
+        tree = ast.parse(source, rel)
+        walked = [n for n in _nodes(tree) if isinstance(n, (ast.Import, ast.ImportFrom))]
+        top, todo = [], list(tree.body)
+        while todo:
+            node = todo.pop(0)
+            if isinstance(node, (ast.Import, ast.ImportFrom)):
+                top.append(node)
+            elif isinstance(node, ast.ClassDef):
+                todo[:0] = node.body
+        _IMPORTS[key] = (walked, top)
+    return _IMPORTS[key]
+
+
 def _imported_modules(rel: str, model: str | None = None) -> list[str]:
     """The core/fmus modules that module ``rel`` imports, deferred imports included
     (ValueError for an import of the host package ``fmu_sync`` or of a package)."""
     import ast
     out = []
     pkg = rel.split("/")[0]
-    for node in _nodes(ast.parse(_source(rel, model), rel)):
+    for node in _imports(rel, _source(rel, model))[0]:
         if isinstance(node, ast.Import) and any(a.name.split(".")[0] == "fmu_sync" for a in node.names):
             raise ValueError(f"{rel} imports the host package fmu_sync: an FMU's code imports its own modules "
                              f"relatively")
@@ -368,17 +391,12 @@ def target_requires(model: str = "impact-oscillator") -> dict[str, str]:
     import ast
     names = set()
 
-    def visit(body):
-        for node in body:
+    for rel in carried_modules(model):
+        for node in _imports(rel, _source(rel, model))[1]:
             if isinstance(node, ast.Import):
                 names.update(a.name.split(".")[0] for a in node.names)
-            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            elif node.level == 0 and node.module:
                 names.add(node.module.split(".")[0])
-            elif isinstance(node, ast.ClassDef):
-                visit(node.body)
-
-    for rel in carried_modules(model):
-        visit(ast.parse(_source(rel, model), rel).body)
     names -= set(sys.stdlib_module_names) | {"__future__"}
     unknown = names - set(TARGET_REQUIRES)
     if unknown:

@@ -252,3 +252,48 @@ def test_cli_export_reports_native_failure(monkeypatch, tmp_path, capsys):
     assert main_export(["impact-oscillator", "-o", str(tmp_path / "x.fmu")]) == 2
     assert "llvmlite" in capsys.readouterr().err
 
+
+
+def test_the_stepper_is_emitted_once_per_machine_and_the_fmu_is_the_same_bit_for_bit(monkeypatch, tmp_path):
+    """The native objects are cached on disk (native.cached_object) for the next process: a cached
+    FMU is byte for byte the one emitted afresh."""
+    folder = tmp_path / "cache"
+    folder.mkdir()
+    monkeypatch.setattr(native, "cache_dir", lambda: folder)
+    emitted, emit = [], native._emit
+    monkeypatch.setattr(native, "_emit", lambda *a: emitted.append(a[3]) or emit(*a))
+    every = [cpu for cpu, _ in native.VARIANTS]
+
+    def new_process(name):
+        monkeypatch.setattr(native, "_OBJECTS", {})
+        return export_coupling(tmp_path / name).read_bytes()
+
+    a = new_process("a.fmu")
+    assert emitted == every
+    assert sorted(p.name for p in folder.iterdir()) == sorted(
+        f"fmu_sync.fmus.coupling_stepper.step-{entry}.o" for _, entry in native.VARIANTS)
+    assert new_process("b.fmu") == a and emitted == every
+
+
+def test_the_object_cache_keeps_one_entry_per_key(monkeypatch, tmp_path):
+    """In the process, then on disk; an entry of another key (a changed stepper, llvmlite, native.py)
+    is made again and replaced; no writable cache folder only means no disk cache."""
+    monkeypatch.setattr(native, "cache_dir", lambda: tmp_path)
+    monkeypatch.setattr(native, "_OBJECTS", {})
+    made = []
+
+    def make(code):
+        return lambda: made.append(code) or code
+
+    k1, k2 = "1" * 64, "2" * 64
+    assert native.cached_object(k1, "s.o", make(b"one")) == b"one" and made == [b"one"]
+    assert native.cached_object(k1, "s.o", make(b"not made")) == b"one" and made == [b"one"]
+    assert (tmp_path / "s.o").read_bytes() == k1.encode() + b"one"
+    monkeypatch.setattr(native, "_OBJECTS", {})
+    assert native.cached_object(k1, "s.o", make(b"not made")) == b"one" and made == [b"one"]
+    assert native.cached_object(k2, "s.o", make(b"two")) == b"two" and made == [b"one", b"two"]
+    assert (tmp_path / "s.o").read_bytes() == k2.encode() + b"two"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.o"]       # no temporary left behind
+    monkeypatch.setattr(native, "cache_dir", lambda: None)
+    monkeypatch.setattr(native, "_OBJECTS", {})
+    assert native.cached_object(k2, "s.o", make(b"three")) == b"three" and made[-1] == b"three"
