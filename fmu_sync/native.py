@@ -34,6 +34,9 @@ on disk beside numba's own cache (the folder numba's cache locators choose for t
 stepper's LLVM module (so any change of the code it compiles, and of numba, invalidates it,
 as numba's stamp does), the variant's CPU and entry name, the triple, the llvmlite version
 and this file's own source. A ring of N systems exports N FMUs and emits its stepper once.
+The binary's C sources are compiled the same way (:func:`c_objects`), keyed by the source as
+preprocessed, so only a file whose text changes with the export (the glue, which holds the
+GUID) is compiled again.
 """
 from __future__ import annotations
 
@@ -46,7 +49,8 @@ import tempfile
 from pathlib import Path
 
 __all__ = ["ENTRY", "CPU", "VARIANTS", "TRIPLE", "GLIBC_BASE", "LIBC", "RUNTIME", "TESTED", "NativeCodeError",
-           "check_versions", "stepper_object", "stepper_objects", "link_names", "cached_object", "cache_dir"]
+           "check_versions", "stepper_object", "stepper_objects", "link_names", "cached_object", "cache_dir",
+           "c_objects"]
 
 #: the C name of the stepper in the binary (fmus/c/fmu_sync_native.h: the variant the CPU runs)
 ENTRY = "fsr_native_step"
@@ -295,3 +299,41 @@ def _emit(stepper, module, out: Path, cpu: str, entry: str) -> bytes:
     if p.returncode != 0:
         raise NativeCodeError(f"cannot rename the symbols of the stepper's object code: {p.stderr.strip()}")
     return out.read_bytes()
+
+
+_CC_ID: dict[str, bytes] = {}
+
+
+def _cc_identity(cc: str) -> bytes:
+    """The compiler's path and ``--version`` (a cached object of another compiler is not this one's)."""
+    if cc not in _CC_ID:
+        p = subprocess.run([cc, "--version"], capture_output=True)
+        _CC_ID[cc] = (shutil.which(cc) or cc).encode() + b"\0" + p.stdout
+    return _CC_ID[cc]
+
+
+def c_objects(cc: str, flags: list[str], sources: list[str], folder: Path) -> list[Path]:
+    """The object of each C source, ``cc flags -I folder -c`` (``folder``: the export's generated
+    header), in ``folder``; each made once per machine (:func:`cached_object`), keyed by the source
+    as preprocessed (``-E -P``: every header it includes, the export's constants included), the
+    flags and the compiler. RuntimeError with the compiler's message if one fails."""
+    out = []
+    for src in sources:
+        obj = Path(folder) / f"{Path(src).stem}.o"
+        pre = subprocess.run([cc, *flags, f"-I{folder}", "-E", "-P", src], capture_output=True)
+        if pre.returncode != 0:
+            raise RuntimeError(f"cannot build the FMU binary ({cc} -E {src}):\n{pre.stderr.decode()[-3000:]}")
+        h = hashlib.sha256()
+        for part in (_cc_identity(cc), "\0".join(flags).encode(), pre.stdout, _self_source()):
+            h.update(hashlib.sha256(part).digest())
+
+        def compile_(src=src, obj=obj):
+            cmd = [cc, *flags, f"-I{folder}", "-c", src, "-o", str(obj)]
+            p = subprocess.run(cmd, capture_output=True, text=True)
+            if p.returncode != 0:
+                raise RuntimeError(f"cannot build the FMU binary ({' '.join(cmd)}):\n{p.stderr[-3000:]}")
+            return obj.read_bytes()
+
+        obj.write_bytes(cached_object(h.hexdigest(), f"c-{Path(src).stem}.o", compile_))
+        out.append(obj)
+    return out
