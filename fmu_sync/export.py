@@ -169,13 +169,36 @@ def _nodes(tree):
         todo.extend(ast.iter_child_nodes(node))
 
 
+#: (rel, sha256 of its source) -> its import statements (:func:`_imports`): parsed once per process
+_IMPORTS: dict = {}
+
+
+def _imports(rel: str, source: bytes) -> tuple[list, list]:
+    """(the import statements of ``source`` that :func:`_nodes` walks, those of its top level and its
+    classes' bodies); memoised on the source's content (an export parses ~40 files twice)."""
+    import ast
+    key = (rel, hashlib.sha256(source).digest())
+    if key not in _IMPORTS:
+        tree = ast.parse(source, rel)
+        walked = [n for n in _nodes(tree) if isinstance(n, (ast.Import, ast.ImportFrom))]
+        top, todo = [], list(tree.body)
+        while todo:
+            node = todo.pop(0)
+            if isinstance(node, (ast.Import, ast.ImportFrom)):
+                top.append(node)
+            elif isinstance(node, ast.ClassDef):
+                todo[:0] = node.body
+        _IMPORTS[key] = (walked, top)
+    return _IMPORTS[key]
+
+
 def _imported_modules(rel: str, model: str | None = None) -> list[str]:
     """The core/fmus modules that module ``rel`` imports, deferred imports included
     (ValueError for an import of the host package ``fmu_sync`` or of a package)."""
     import ast
     out = []
     pkg = rel.split("/")[0]
-    for node in _nodes(ast.parse(_source(rel, model), rel)):
+    for node in _imports(rel, _source(rel, model))[0]:
         if isinstance(node, ast.Import) and any(a.name.split(".")[0] == "fmu_sync" for a in node.names):
             raise ValueError(f"{rel} imports the host package fmu_sync: an FMU's code imports its own modules "
                              f"relatively")
@@ -300,7 +323,11 @@ def constants_header(guid: str = "", boot_module: str = "", max_substeps: int = 
     for name, value, _ in contract.SCHEME_ITEMS:
         define(f"FSR_SCHEME_{name.upper()}", value)
     define("FSR_MAX_SUBSTEPS", f"{float(max_substeps)!r}")
+    # the GUID: a string constant of its own translation unit in the binary (build_binary), so that
+    # the glue's text, hence its cached object (fmu_sync.native.c_objects), does not change with it
+    lines += ["#ifdef FMU_SYNC_GUID", "extern const char FMU_SYNC_GUID[];", "#else"]
     define("FMU_SYNC_GUID", json.dumps(guid))
+    lines.append("#endif")
     define("FMU_SYNC_BOOT", json.dumps(boot_module))
     return ("\n".join(lines + ["#endif", ""])).encode()
 
@@ -318,8 +345,8 @@ def stepper_cfunc(model: str = "impact-oscillator"):
 def build_binary(out: Path, guid: str, boot_module: str, max_substeps: int = MAX_SUBSTEPS,
                  glue: str | None = None, fmi_version: int = 2, model: str = "impact-oscillator") -> Path:
     """Compile the FMI binary (``glue``, by default the FMI version's, the runtime with the
-    generated constants header, and ``model``'s stepper as native object code,
-    :func:`fmu_sync.native.stepper_object`) with gcc (``$CC`` overrides) into ``out``;
+    generated constants header, :func:`fmu_sync.native.c_objects`, and ``model``'s stepper as
+    native object code, :func:`fmu_sync.native.stepper_object`) with gcc (``$CC`` overrides) into ``out``;
     every symbol resolved at link time (libc, libm, libdl, libpthread; Python is looked up at run time)."""
     srcs = [str(_fmus_dir() / (glue or _C_GLUE[fmi_version]))] + [str(_fmus_dir() / c) for c in _C_RUNTIME]
     cc = os.environ.get("CC", "gcc")
@@ -327,9 +354,12 @@ def build_binary(out: Path, guid: str, boot_module: str, max_substeps: int = MAX
         raise RuntimeError(f"cannot build the FMU binary: C compiler {cc!r} not found (install gcc or set CC)")
     with tempfile.TemporaryDirectory(prefix="fmu-sync-h-") as inc:
         Path(inc, _CONSTANTS_H).write_bytes(constants_header(guid, boot_module, max_substeps))
-        objs = native.stepper_objects(stepper_cfunc(model), Path(inc))
-        cmd = [cc, "-std=gnu11", "-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-s", f"-I{inc}",
-               "-Wl,--no-undefined", "-o", str(out), *srcs, *map(str, objs), *_LIBS]
+        Path(inc, "fmu_sync_guid.c").write_text(f"const char fsr_guid[] = {json.dumps(guid)};\n")
+        objs = native.c_objects(cc, ["-std=gnu11", "-O2", "-fPIC", "-fvisibility=hidden", "-DFMU_SYNC_GUID=fsr_guid"],
+                                srcs + [str(Path(inc, "fmu_sync_guid.c"))], Path(inc))
+        objs += native.stepper_objects(stepper_cfunc(model), Path(inc))
+        cmd = [cc, "-std=gnu11", "-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-s",
+               "-Wl,--no-undefined", "-o", str(out), *map(str, objs), *_LIBS]
         p = subprocess.run(cmd, capture_output=True, text=True)
     if p.returncode != 0:
         raise RuntimeError(f"cannot build the FMU binary ({' '.join(cmd)}):\n{p.stderr[-3000:]}")
@@ -368,17 +398,12 @@ def target_requires(model: str = "impact-oscillator") -> dict[str, str]:
     import ast
     names = set()
 
-    def visit(body):
-        for node in body:
+    for rel in carried_modules(model):
+        for node in _imports(rel, _source(rel, model))[1]:
             if isinstance(node, ast.Import):
                 names.update(a.name.split(".")[0] for a in node.names)
-            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            elif node.level == 0 and node.module:
                 names.add(node.module.split(".")[0])
-            elif isinstance(node, ast.ClassDef):
-                visit(node.body)
-
-    for rel in carried_modules(model):
-        visit(ast.parse(_source(rel, model), rel).body)
     names -= set(sys.stdlib_module_names) | {"__future__"}
     unknown = names - set(TARGET_REQUIRES)
     if unknown:

@@ -25,9 +25,22 @@ How (numba and llvmlite internals, hence the pinned versions of :data:`TESTED`):
    ``fmus/c/fmu_sync_native.c`` (allocation: a small runtime of our own; error path:
    stubs that flag the call so that the step fails with fmi2Error instead of reporting
    success); anything else fails the export (:class:`NativeCodeError`) naming the symbol.
+
+Steps 2-4 (LLVM's code generation, ~3 s a variant) are done once per machine for a given
+compiled stepper: the finished object is cached (:func:`cached_object`), in this process and
+on disk beside numba's own cache (the folder numba's cache locators choose for this file:
+``NUMBA_CACHE_DIR``, else ``fmu_sync/__pycache__``, else the user-wide cache), one file per
+(stepper, variant), keyed by the sha256 of everything the object is a function of: the
+stepper's LLVM module (so any change of the code it compiles, and of numba, invalidates it,
+as numba's stamp does), the variant's CPU and entry name, the triple, the llvmlite version
+and this file's own source. A ring of N systems exports N FMUs and emits its stepper once.
+The binary's C sources are compiled the same way (:func:`c_objects`), keyed by the source as
+preprocessed, so only a file whose text changes with the export (the glue, which holds the
+GUID) is compiled again.
 """
 from __future__ import annotations
 
+import hashlib
 import os
 import re
 import shutil
@@ -36,7 +49,8 @@ import tempfile
 from pathlib import Path
 
 __all__ = ["ENTRY", "CPU", "VARIANTS", "TRIPLE", "GLIBC_BASE", "LIBC", "RUNTIME", "TESTED", "NativeCodeError",
-           "check_versions", "stepper_object", "stepper_objects", "link_names"]
+           "check_versions", "stepper_object", "stepper_objects", "link_names", "cached_object", "cache_dir",
+           "c_objects"]
 
 #: the C name of the stepper in the binary (fmus/c/fmu_sync_native.h: the variant the CPU runs)
 ENTRY = "fsr_native_step"
@@ -153,18 +167,87 @@ def stepper_objects(stepper, folder: Path) -> list[Path]:
     return [stepper_object(stepper, Path(folder) / f"{name}.o", cpu, name) for cpu, name in VARIANTS]
 
 
+#: finished objects of this process: cache key -> object bytes
+_OBJECTS: dict[str, bytes] = {}
+_SELF: bytes | None = None
+
+
+def _self_source() -> bytes:
+    global _SELF
+    if _SELF is None:
+        _SELF = Path(__file__).read_bytes()
+    return _SELF
+
+
+def _anchor():  # pragma: no cover (never called: numba's cache locators take a function of this file)
+    pass
+
+
+def cache_dir() -> Path | None:
+    """The folder of the on-disk object cache: the one numba's cache locators choose for this file
+    (``NUMBA_CACHE_DIR``, else ``__pycache__`` beside it, else the user-wide cache), its
+    ``fmu_sync_native`` subfolder; None if none of them can be written."""
+    from numba.core import caching
+    for cls in caching.CacheImpl._locator_classes:
+        try:
+            loc = cls.from_function(_anchor, __file__)
+            if loc is None:
+                continue
+            loc.ensure_cache_path()
+            folder = Path(loc.get_cache_path()) / "fmu_sync_native"
+            folder.mkdir(exist_ok=True)
+            return folder
+        except OSError:
+            continue
+    return None
+
+
+def cached_object(key: str, name: str, make) -> bytes:
+    """The object for ``key`` (hex sha256): this process's, else the disk cache's file ``name``
+    when it holds ``key``, else ``make()`` (then kept in both). The file is the key's 64 characters
+    followed by the object; written whole (a temporary file renamed), so a reader never sees half
+    of one; a folder that cannot be written only means no disk cache."""
+    if key in _OBJECTS:
+        return _OBJECTS[key]
+    folder = cache_dir()
+    path = folder / name if folder is not None else None
+    tag = key.encode()
+    if path is not None:
+        try:
+            data = path.read_bytes()
+        except OSError:
+            data = b""
+        if data[:len(tag)] == tag and len(data) > len(tag):
+            _OBJECTS[key] = data[len(tag):]
+            return _OBJECTS[key]
+    code = make()
+    _OBJECTS[key] = code
+    if path is not None:
+        tmp = None
+        try:
+            fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{name}.")
+            with os.fdopen(fd, "wb") as f:
+                f.write(tag + code)
+            os.chmod(tmp, 0o644)
+            os.replace(tmp, path)
+        except OSError:
+            if tmp is not None and os.path.exists(tmp):
+                os.unlink(tmp)
+    return code
+
+
 def stepper_object(stepper, out: Path, cpu: str = CPU, entry: str = VARIANTS[0][1]) -> Path:
     """Write the native object of the numba cfunc ``stepper`` for ``cpu`` (its function named
-    ``entry``) to ``out``."""
-    check_versions()
+    ``entry``) to ``out`` (made once per machine, :func:`cached_object`)."""
+    versions = check_versions()
     if not hasattr(stepper, "_library") or not hasattr(stepper, "native_name"):
         raise NativeCodeError(f"{stepper!r} is not a compiled numba cfunc (was numba imported in plain mode?)")
     try:
-        module = stepper._library._get_module_for_linking().clone()
-        wrapper = module.get_function(stepper.native_name)
+        module = stepper._library._get_module_for_linking()
+        text = str(module)
     except Exception as exc:
         raise NativeCodeError(f"cannot read the compiled module of the stepper from numba: {exc!r}") from None
-    fixed = re.search(r"inttoptr \(i64 ([1-9]\d{4,})", str(module))
+    fixed = re.search(r"inttoptr \(i64 ([1-9]\d{4,})", text)
     if fixed:
         raise NativeCodeError(
             f"the stepper calls or reads something through an address of this process "
@@ -172,6 +255,26 @@ def stepper_object(stepper, out: Path, cpu: str = CPU, entry: str = VARIANTS[0][
             f"value, or an array baked in as a constant), which does not exist in the FMU's process: "
             f"call numba functions by name (a global or a closure variable of the stepper) and pass "
             f"data through the work array")
+    h = hashlib.sha256()
+    for part in (text.encode(), cpu.encode(), entry.encode(), TRIPLE.encode(), versions["llvmlite"].encode(),
+                 _self_source()):
+        h.update(hashlib.sha256(part).digest())
+    py = getattr(stepper, "_pyfunc", None)
+    who = f"{py.__module__}.{py.__qualname__}" if py is not None else stepper.native_name
+    name = f"{who}-{entry}.o"
+    out = Path(out)
+    out.write_bytes(cached_object(h.hexdigest(), name, lambda: _emit(stepper, module, out, cpu, entry)))
+    return out
+
+
+def _emit(stepper, module, out: Path, cpu: str, entry: str) -> bytes:
+    """Steps 2-4: the object code of ``module`` (the stepper's, for linking) for ``cpu``, written to
+    ``out`` with its symbols renamed; its bytes."""
+    try:
+        module = module.clone()
+        wrapper = module.get_function(stepper.native_name)
+    except Exception as exc:
+        raise NativeCodeError(f"cannot read the compiled module of the stepper from numba: {exc!r}") from None
     for fn in module.functions:
         if not fn.is_declaration:
             fn.linkage = "internal"
@@ -187,7 +290,6 @@ def stepper_object(stepper, out: Path, cpu: str = CPU, entry: str = VARIANTS[0][
         code = _target_machine(cpu).emit_object(module)
     except Exception as exc:
         raise NativeCodeError(f"LLVM could not emit the stepper for {cpu}: {exc}") from None
-    out = Path(out)
     out.write_bytes(code)
     names = link_names(_undefined(out))
     with tempfile.TemporaryDirectory(prefix="fmu-sync-native-") as tmp:
@@ -196,4 +298,42 @@ def stepper_object(stepper, out: Path, cpu: str = CPU, entry: str = VARIANTS[0][
         p = subprocess.run([_tool("objcopy"), f"--redefine-syms={table}", str(out)], capture_output=True, text=True)
     if p.returncode != 0:
         raise NativeCodeError(f"cannot rename the symbols of the stepper's object code: {p.stderr.strip()}")
+    return out.read_bytes()
+
+
+_CC_ID: dict[str, bytes] = {}
+
+
+def _cc_identity(cc: str) -> bytes:
+    """The compiler's path and ``--version`` (a cached object of another compiler is not this one's)."""
+    if cc not in _CC_ID:
+        p = subprocess.run([cc, "--version"], capture_output=True)
+        _CC_ID[cc] = (shutil.which(cc) or cc).encode() + b"\0" + p.stdout
+    return _CC_ID[cc]
+
+
+def c_objects(cc: str, flags: list[str], sources: list[str], folder: Path) -> list[Path]:
+    """The object of each C source, ``cc flags -I folder -c`` (``folder``: the export's generated
+    header), in ``folder``; each made once per machine (:func:`cached_object`), keyed by the source
+    as preprocessed (``-E -P``: every header it includes, the export's constants included), the
+    flags and the compiler. RuntimeError with the compiler's message if one fails."""
+    out = []
+    for src in sources:
+        obj = Path(folder) / f"{Path(src).stem}.o"
+        pre = subprocess.run([cc, *flags, f"-I{folder}", "-E", "-P", src], capture_output=True)
+        if pre.returncode != 0:
+            raise RuntimeError(f"cannot build the FMU binary ({cc} -E {src}):\n{pre.stderr.decode()[-3000:]}")
+        h = hashlib.sha256()
+        for part in (_cc_identity(cc), "\0".join(flags).encode(), pre.stdout, _self_source()):
+            h.update(hashlib.sha256(part).digest())
+
+        def compile_(src=src, obj=obj):
+            cmd = [cc, *flags, f"-I{folder}", "-c", src, "-o", str(obj)]
+            p = subprocess.run(cmd, capture_output=True, text=True)
+            if p.returncode != 0:
+                raise RuntimeError(f"cannot build the FMU binary ({' '.join(cmd)}):\n{p.stderr[-3000:]}")
+            return obj.read_bytes()
+
+        obj.write_bytes(cached_object(h.hexdigest(), f"c-{Path(src).stem}.o", compile_))
+        out.append(obj)
     return out

@@ -17,3 +17,26 @@ def child(module: str, name: str, args: dict, tmp: Path, timeout: float = 900.0)
                        capture_output=True, text=True, timeout=timeout)
     assert p.returncode == 0, f"child {name} exited with {p.returncode}:\n{p.stderr[-3000:]}"
     return json.loads(out_path.read_text())
+
+
+#: the plain C importer of tests/test_fmu_c_host.py and tests/test_fmu_travel.py
+HOST_SRC = Path(__file__).parent / "c" / "fmu_host.c"
+
+
+def compile_c_host(folder: Path) -> Path:
+    """:data:`HOST_SRC` compiled into ``folder``."""
+    host = folder / "fmu_host"
+    p = subprocess.run(["gcc", "-O2", "-Wall", "-o", str(host), str(HOST_SRC), "-ldl"], capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    return host
+
+
+def unpack_fmu(fmu: Path, folder: Path) -> Path:
+    """The FMU ``fmu`` unpacked into ``folder``, its binary executable (as an importer leaves it)."""
+    import os
+    import zipfile
+    with zipfile.ZipFile(fmu) as zf:
+        zf.extractall(folder)
+    for so in folder.glob("binaries/*/*.so"):
+        os.chmod(so, 0o755)
+    return folder

@@ -13,6 +13,7 @@ from fmu_sync.core import (IMPACT_OSCILLATOR, MECHANICAL_SYSTEM, ImpactOscillato
                            load_model)
 from fmu_sync.fmus import contract
 from fmu_sync.scenes.schema import REQUIRED, SYSTEM_KEYS, SceneError
+from test_scenes import write
 
 USER_MODEL = '''
 from fmu_sync.core import MechanicalSystem, Model, Param
@@ -95,8 +96,7 @@ def test_the_scene_keys_are_the_declaration(name):
 def user_scene(tmp_path):
     (tmp_path / "models").mkdir()
     (tmp_path / "models" / "stop.py").write_text(USER_MODEL)
-    scene = tmp_path / "stop.toml"
-    scene.write_text(textwrap.dedent('''
+    scene = write(tmp_path, textwrap.dedent('''
         description = "a user model"
         [system]
         model = "models/stop.py:stop"
@@ -112,7 +112,7 @@ def user_scene(tmp_path):
         t_end = 2.0
         [solver]
         dt = 1e-3
-        '''))
+        '''), "stop.toml")
     return scene
 
 

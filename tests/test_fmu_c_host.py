@@ -20,9 +20,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from _children import unpack_fmu
 from fmu_sync.export import export_fmu
 
-HOST_SRC = Path(__file__).parent / "c" / "fmu_host.c"
 FRESH = 50
 #: value references of the 1-DOF FMU: tau 0, q 1, u 2, gap 3, impacts 4, percussion 5, energy 6
 VR_Q, VR_U, VR_GAP, VR_ENERGY, VR_TAU = 1, 2, 3, 6, 0
@@ -39,18 +39,10 @@ def _clean_env(**extra):
 
 
 @pytest.fixture(scope="module")
-def setup(tmp_path_factory):
+def setup(tmp_path_factory, shared_fmu, c_host):
     tmp = tmp_path_factory.mktemp("chost")
-    fmu = export_fmu("impact-oscillator", tmp / "io.fmu")
-    host = tmp / "fmu_host"
-    p = subprocess.run(["gcc", "-O2", "-Wall", "-o", str(host), str(HOST_SRC), "-ldl"],
-                       capture_output=True, text=True)
-    assert p.returncode == 0, p.stderr
-    unz = tmp / "io"
-    with zipfile.ZipFile(fmu) as zf:
-        zf.extractall(unz)
-    os.chmod(next(unz.glob("binaries/linux64/*.so")), 0o755)
-    return {"tmp": tmp, "fmu": fmu, "host": host, "dir": unz}
+    fmu = shared_fmu("impact-oscillator")
+    return {"tmp": tmp, "fmu": fmu, "host": c_host, "dir": unpack_fmu(fmu, tmp / "io")}
 
 
 def _run_host(setup, *args, env=None, dir=None, timeout=120):
@@ -103,9 +95,9 @@ def test_c_host_fresh_processes_match_fmpy(setup):
     assert np.ptp(first[:, 1]) > 0.1 and first[:, 3].min() >= -1e-3   # it moved and hit the wall
 
 
-def test_c_host_two_dof_matches_fmpy(setup):
+def test_c_host_two_dof_matches_fmpy(setup, shared_fmu):
     """The 2-DOF FMU (oblique wall) in the C host, against fmpy."""
-    fmu = export_fmu("mechanical-system-2", setup["tmp"] / "ms2.fmu")
+    fmu = shared_fmu("mechanical-system-2")
     d = setup["tmp"] / "ms2"
     with zipfile.ZipFile(fmu) as zf:
         zf.extractall(d)

@@ -230,10 +230,10 @@ def _child(name, fmu, timeout=300):
 
 
 @pytest.fixture(scope="module")
-def fmus(tmp_path_factory):
+def fmus(tmp_path_factory, shared_fmu):
     tmp = tmp_path_factory.mktemp("guards")
-    return {"io": export_fmu("impact-oscillator", tmp / "io.fmu"),
-            "exact": export_fmu("impact-oscillator", tmp / "exact.fmu", {"solver.scheme": "exact"}),
+    return {"io": shared_fmu("impact-oscillator"),
+            "exact": shared_fmu(start_values={"solver.scheme": "exact"}),
             "tmp": tmp}
 
 

@@ -137,17 +137,17 @@ def _child(name, args, tmp, timeout=600, env=None):
 
 
 @pytest.fixture(scope="module")
-def fmus(tmp_path_factory):
+def fmus(tmp_path_factory, shared_fmu):
     tmp = tmp_path_factory.mktemp("native")
     return tmp, {
-        "midpoint": str(export_fmu("impact-oscillator", tmp / "io.fmu")),
+        "midpoint": str(shared_fmu("impact-oscillator")),
         "theta": str(export_fmu("impact-oscillator", tmp / "io_theta.fmu",
                                 {"solver.scheme": "theta", "solver.theta": 0.75, "e": 0.6})),
         "exact": str(export_fmu("impact-oscillator", tmp / "io_exact.fmu",
                                 {"solver.scheme": "exact", "k": 0.0, "f0": -9.81, "F": 0.0, "e": 0.8})),
-        "ms2": str(export_fmu("mechanical-system-2", tmp / "ms2.fmu")),
-        "fmi3": str(export_fmu("impact-oscillator", tmp / "io3.fmu", fmi_version=3)),
-        "coupling": str(export_coupling(tmp / "coupling.fmu")),
+        "ms2": str(shared_fmu("mechanical-system-2")),
+        "fmi3": str(shared_fmu("impact-oscillator", 3)),
+        "coupling": str(shared_fmu("coupling")),
     }
 
 
@@ -252,3 +252,78 @@ def test_cli_export_reports_native_failure(monkeypatch, tmp_path, capsys):
     assert main_export(["impact-oscillator", "-o", str(tmp_path / "x.fmu")]) == 2
     assert "llvmlite" in capsys.readouterr().err
 
+
+
+def test_the_stepper_is_emitted_once_per_machine_and_the_fmu_is_the_same_bit_for_bit(monkeypatch, tmp_path):
+    """The native objects are cached on disk (native.cached_object) for the next process: a cached
+    FMU is byte for byte the one emitted afresh."""
+    folder = tmp_path / "cache"
+    folder.mkdir()
+    monkeypatch.setattr(native, "cache_dir", lambda: folder)
+    emitted, emit = [], native._emit
+    monkeypatch.setattr(native, "_emit", lambda *a: emitted.append(a[3]) or emit(*a))
+    every = [cpu for cpu, _ in native.VARIANTS]
+
+    def new_process(name):
+        monkeypatch.setattr(native, "_OBJECTS", {})
+        return export_coupling(tmp_path / name).read_bytes()
+
+    a = new_process("a.fmu")
+    assert emitted == every
+    assert {f"fmu_sync.fmus.coupling_stepper.step-{entry}.o" for _, entry in native.VARIANTS} <= {
+        p.name for p in folder.iterdir()}
+    assert new_process("b.fmu") == a and emitted == every
+
+
+def test_the_object_cache_keeps_one_entry_per_key(monkeypatch, tmp_path):
+    """In the process, then on disk; an entry of another key (a changed stepper, llvmlite, native.py)
+    is made again and replaced; no writable cache folder only means no disk cache."""
+    monkeypatch.setattr(native, "cache_dir", lambda: tmp_path)
+    monkeypatch.setattr(native, "_OBJECTS", {})
+    made = []
+
+    def make(code):
+        return lambda: made.append(code) or code
+
+    k1, k2 = "1" * 64, "2" * 64
+    assert native.cached_object(k1, "s.o", make(b"one")) == b"one" and made == [b"one"]
+    assert native.cached_object(k1, "s.o", make(b"not made")) == b"one" and made == [b"one"]
+    assert (tmp_path / "s.o").read_bytes() == k1.encode() + b"one"
+    monkeypatch.setattr(native, "_OBJECTS", {})
+    assert native.cached_object(k1, "s.o", make(b"not made")) == b"one" and made == [b"one"]
+    assert native.cached_object(k2, "s.o", make(b"two")) == b"two" and made == [b"one", b"two"]
+    assert (tmp_path / "s.o").read_bytes() == k2.encode() + b"two"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.o"]       # no temporary left behind
+    monkeypatch.setattr(native, "cache_dir", lambda: None)
+    monkeypatch.setattr(native, "_OBJECTS", {})
+    assert native.cached_object(k2, "s.o", make(b"three")) == b"three" and made[-1] == b"three"
+
+
+def test_the_c_sources_are_compiled_again_only_when_their_text_changes(monkeypatch, tmp_path):
+    """native.c_objects: keyed by the preprocessed source; fmu_sync_python.c does not use the boot
+    module's name, fmu_sync_runtime.c does."""
+    from fmu_sync import export as E
+    (tmp_path / "cache").mkdir()
+    monkeypatch.setattr(native, "cache_dir", lambda: tmp_path / "cache")
+    monkeypatch.setattr(native, "_OBJECTS", {})
+    compiled, run = [], subprocess.run
+
+    def spy(cmd, *a, **k):
+        if "-c" in cmd:
+            compiled.append(Path(cmd[cmd.index("-c") + 1]).name)
+        return run(cmd, *a, **k)
+
+    monkeypatch.setattr(native.subprocess, "run", spy)
+    srcs = [str(E._fmus_dir() / "c" / f) for f in ("fmu_sync_runtime.c", "fmu_sync_python.c")]
+
+    def build(boot):
+        d = tmp_path / f"inc{len(list(tmp_path.iterdir()))}"
+        d.mkdir()
+        (d / E._CONSTANTS_H).write_bytes(E.constants_header("{guid}", boot))
+        return [p.read_bytes() for p in native.c_objects("gcc", ["-O2", "-fPIC"], srcs, d)]
+
+    a = build("boot_a")
+    assert compiled == ["fmu_sync_runtime.c", "fmu_sync_python.c"]
+    assert build("boot_a") == a and len(compiled) == 2
+    b = build("boot_b")
+    assert compiled[2:] == ["fmu_sync_runtime.c"] and b[1] == a[1] and b[0] != a[0]

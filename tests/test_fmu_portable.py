@@ -12,7 +12,6 @@ import zipfile
 
 import pytest
 
-from fmu_sync.export import export_coupling, export_fmu
 from fmu_sync.fmu_docs import ENTRY
 
 #: the newest glibc symbol version the binary may need
@@ -21,11 +20,10 @@ NEEDS_OBJDUMP = pytest.mark.skipif(shutil.which("objdump") is None, reason="objd
 
 
 @pytest.fixture(scope="module")
-def binaries(tmp_path_factory):
+def binaries(tmp_path_factory, shared_fmu):
     tmp = tmp_path_factory.mktemp("portable")
-    fmus = {"fmi2": export_fmu("impact-oscillator", tmp / "io.fmu"),
-            "fmi3": export_fmu("impact-oscillator", tmp / "io3.fmu", fmi_version=3),
-            "coupling": export_coupling(tmp / "coupling.fmu")}
+    fmus = {"fmi2": shared_fmu("impact-oscillator"), "fmi3": shared_fmu("impact-oscillator", 3),
+            "coupling": shared_fmu("coupling")}
     out = {"fmus": fmus}
     for kind, fmu in fmus.items():
         with zipfile.ZipFile(fmu) as zf:

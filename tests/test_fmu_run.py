@@ -489,14 +489,14 @@ def _child(name: str, args_path: Path, tmp: Path, timeout: float = 300.0):
 
 
 @pytest.fixture(scope="module")
-def runs(tmp_path_factory):
+def runs(tmp_path_factory, shared_fmu):
     """Export the FMUs and run all scenario children, two at a time (2 cores)."""
     tmp = tmp_path_factory.mktemp("fmu_run")
     a = {
-        "io": str(export_fmu("impact-oscillator", tmp / "io.fmu")),
+        "io": str(shared_fmu("impact-oscillator")),
         "io_theta": str(export_fmu("impact-oscillator", tmp / "io_theta.fmu",
                                    {"solver.scheme": "theta", "solver.theta": 0.75, "e": 0.6})),
-        "ms2": str(export_fmu("mechanical-system-2", tmp / "ms2.fmu")),
+        "ms2": str(shared_fmu("mechanical-system-2")),
         "cosim_steps": 3000,
     }
     args_path = tmp / "args.json"

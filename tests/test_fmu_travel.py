@@ -14,15 +14,14 @@ import os
 import re
 import subprocess
 import sys
-import zipfile
 from importlib import metadata
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from fmu_sync.export import export_fmu
-from test_fmu_c_host import HOST_SRC, VR_Q, VR_TAU, _fmpy_reference, _read_csv
+from _children import unpack_fmu
+from test_fmu_c_host import VR_Q, VR_TAU, _fmpy_reference, _read_csv
 
 TARGET_PYTHON = os.environ.get("FMU_SYNC_TEST_TARGET_PYTHON") or getattr(sys, "_base_executable", sys.executable)
 
@@ -57,24 +56,17 @@ def _venv(path: Path, expose=()) -> Path:
 
 
 @pytest.fixture(scope="module")
-def travel(tmp_path_factory):
+def travel(tmp_path_factory, shared_fmu, c_host):
     """An exported FMU whose recorded interpreter (an exporting venv) was removed, and the C host."""
     tmp = tmp_path_factory.mktemp("travel")
-    fmu = export_fmu("impact-oscillator", tmp / "io.fmu")
-    d = tmp / "io"
-    with zipfile.ZipFile(fmu) as zf:
-        zf.extractall(d)
-        build = json.loads(zf.read("resources/fmu_sync_build.json"))
-    os.chmod(next(d.glob("binaries/linux64/*.so")), 0o755)
+    fmu = shared_fmu("impact-oscillator")
+    d = unpack_fmu(fmu, tmp / "io")
+    build = json.loads((d / "resources" / "fmu_sync_build.json").read_text())
     gone = _venv(tmp / "exporting-venv")                  # existed at export, removed since
     record = d / "resources" / "fmu_sync_python.txt"
     record.write_text(re.sub(r"(?m)^program=.*$", f"program={gone}/bin/python", record.read_text()))
     subprocess.run(["rm", "-rf", str(gone)], check=True)
-    host = tmp / "fmu_host"
-    p = subprocess.run(["gcc", "-O2", "-Wall", "-o", str(host), str(HOST_SRC), "-ldl"], capture_output=True,
-                       text=True)
-    assert p.returncode == 0, p.stderr
-    return {"tmp": tmp, "fmu": fmu, "dir": d, "host": host, "build": build, "gone": gone}
+    return {"tmp": tmp, "fmu": fmu, "dir": d, "host": c_host, "build": build, "gone": gone}
 
 
 def _run_empty_env(travel, path_dirs, *args, home=None, timeout=900):

@@ -140,20 +140,15 @@ def test_the_fmu_step_is_the_laws_advance_bit_for_bit(pend, scheme):
         host.close()
 
 
-def test_c_host_runs_it(pend):
+def test_c_host_runs_it(pend, c_host):
     """The plain C host (no Python in the host, a clean environment) runs the user's FMU and
     reproduces fmpy's numbers."""
+    from _children import unpack_fmu
     from fmpy import simulate_fmu
-    from tests.test_fmu_c_host import HOST_SRC, _clean_env, _read_csv
+    from tests.test_fmu_c_host import _clean_env, _read_csv
     tmp = pend["tmp"]
-    host = tmp / "fmu_host"
-    p = subprocess.run(["gcc", "-O2", "-Wall", "-o", str(host), str(HOST_SRC), "-ldl"], capture_output=True,
-                       text=True)
-    assert p.returncode == 0, p.stderr
-    unz = tmp / "unz"
-    with zipfile.ZipFile(pend["fmu"]) as zf:
-        zf.extractall(unz)
-    os.chmod(next(unz.glob("binaries/linux64/*.so")), 0o755)
+    host = c_host
+    unz = unpack_fmu(pend["fmu"], tmp / "unz")
     vr = {v.get("name"): v.get("valueReference") for v in _description(pend["fmu"]).iter("ScalarVariable")}
     out = tmp / "host.csv"
     p = subprocess.run([str(host), str(unz), "--stop", "3", "--step", "0.01", "--var", vr["q"], "--var", vr["u"],

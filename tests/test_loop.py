@@ -59,7 +59,7 @@ def test_the_loops_1dof_path_is_the_general_single_system_step(scheme):
         rows = net.t.size
         rec = (np.empty(rows), np.empty((rows, 1)), np.empty((rows, 1)), np.empty(rows))
         moreau.integrate(sa, np.array([x[0]]), np.array([x[1]]), 0.0, 1e-3, rows - 1, np.zeros(1), code, 0.7, 1,
-                         *rec)
+                         *rec, False, 0.0)
         assert np.array_equal(rec[1], net.q[:, i]) and np.array_equal(rec[2], net.u[:, i])
         assert net.impacts[i] > 0
 

@@ -122,7 +122,7 @@ def test_scalar_fast_path_is_bitwise_identical(code, phasor, terms):
         rows = record_rows(n, every)   # the final state is always a row (40000 = 7 * 5714 + 2)
         rec = (np.empty(rows), np.empty((rows, 1)), np.empty((rows, 1)), np.empty(rows))
         kernel(sa, np.array([1.0]), np.array([0.0]), 0.25, 1e-3, n, np.array([0.05]), code, 0.7,
-               every, *rec, phasor)
+               every, *rec, phasor, 0.0)
         outs.append(rec)
     assert np.count_nonzero(outs[0][3]) > 3
     for a, b in zip(*outs):
@@ -139,7 +139,7 @@ def test_advance_matches_integrate():
     tau = np.zeros(1)
     qs = [q[0]]
     for k in range(3000):
-        status, P, imp = moreau.advance(sa, q, u, k * H, H, dt, tau, moreau.MIDPOINT, 0.5)
+        status, P, imp = moreau.advance(sa, q, u, k * H, H, dt, tau, moreau.MIDPOINT, 0.5, None, False)
         assert status == moreau.OK
         qs.append(q[0])
     assert np.max(np.abs(np.array(qs) - ref.q[:, 0])) < 1e-12
@@ -209,7 +209,7 @@ def test_advance_shortens_last_substep():
     s = ImpactOscillator(m=1, f0=-1.0)
     q, u = np.array([10.0]), np.array([0.0])
     # H = 2.5 dt: steps dt, dt, 0.5 dt; constant force: exact quadratic
-    moreau.advance(s.arrays(), q, u, 0.0, 0.25, 0.1, np.zeros(1), moreau.MIDPOINT, 0.5)
+    moreau.advance(s.arrays(), q, u, 0.0, 0.25, 0.1, np.zeros(1), moreau.MIDPOINT, 0.5, None, False)
     assert abs(q[0] - (10.0 - 0.5 * 0.25**2)) < 1e-14 and abs(u[0] + 0.25) < 1e-14
 
 

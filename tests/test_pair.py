@@ -34,7 +34,7 @@ def test_uncoupled_pair_equals_two_single_runs_bitwise(paper):
         rows = r.t.size
         rec = (np.empty(rows), np.empty((rows, 1)), np.empty((rows, 1)), np.empty(rows))
         moreau.integrate(sa, np.array([x[0]]), np.array([x[1]]), 0.0, 1e-3, rows - 1, np.zeros(1),
-                         moreau.MIDPOINT, 0.5, 1, *rec)
+                         moreau.MIDPOINT, 0.5, 1, *rec, False, 0.0)
         assert np.array_equal(rec[1], q) and np.array_equal(rec[2], u)
 
 

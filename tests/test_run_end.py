@@ -50,7 +50,8 @@ def test_simulate_ends_at_t_end_on_the_advance_arithmetic(scheme, system, x0):
     r = simulate(system, x0, t_end=1.0, dt=0.3, scheme=scheme, theta=0.6, phasor=False)
     assert r.t.tolist() == pytest.approx([0.0, 0.3, 0.6, 0.9, 1.0], abs=1e-15) and r.t[-1] == 1.0
     q, u = (np.array(v, dtype=float).reshape(-1) for v in x0)
-    status, P, _ = advance(system.arrays(), q, u, 0.0, 1.0, 0.3, np.zeros(system.n_inputs), SCHEMES[scheme], 0.6)
+    status, P, _ = advance(system.arrays(), q, u, 0.0, 1.0, 0.3, np.zeros(system.n_inputs), SCHEMES[scheme], 0.6,
+                           None, False)
     assert status == 0
     assert np.array_equal(r.q[-1], q) and np.array_equal(r.u[-1], u)
 

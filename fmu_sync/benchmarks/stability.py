@@ -129,7 +129,7 @@ def _chunks(system, x0, t_end, dt, chunk=1_000_000):
         Q = np.empty((k + 1, 1))
         U = np.empty((k + 1, 1))
         P = np.empty(k + 1)
-        status, _, _ = kern(sa, q, u, done * dt, dt, k, tau, MIDPOINT, 0.5, 1, T, Q, U, P)
+        status, _, _ = kern(sa, q, u, done * dt, dt, k, tau, MIDPOINT, 0.5, 1, T, Q, U, P, False, 0.0)
         if status == DIVERGED:
             raise SimulationDiverged(divergence_message(system, "midpoint", dt, (done + k) * dt))
         done += k

@@ -1,0 +1,31 @@
+"""Session fixtures shared by test modules (one build per session instead of one per module)."""
+from __future__ import annotations
+
+import pytest
+
+from _children import compile_c_host
+
+
+@pytest.fixture(scope="session")
+def shared_fmu(tmp_path_factory):
+    """``shared_fmu(model="impact-oscillator", fmi_version=2, start_values=None)``: the FMU
+    ``export_fmu`` makes of these (``"coupling"``: the pair's coupling FMU), exported once per
+    session. Shared by every module that asks: read it, unpack it, never change the file."""
+    folder = tmp_path_factory.mktemp("shared-fmus")
+    made = {}
+    names = {"impact-oscillator": "io", "mechanical-system-2": "ms2", "coupling": "coupling"}
+
+    def fmu(model: str = "impact-oscillator", fmi_version: int = 2, start_values: dict | None = None):
+        key = (model, fmi_version, tuple(sorted((start_values or {}).items())))
+        if key not in made:
+            from fmu_sync.export import export_fmu
+            name = f"{names.get(model, model)}{'' if fmi_version == 2 else fmi_version}"
+            made[key] = export_fmu(model, folder / f"{name}_{len(made)}.fmu", start_values, fmi_version)
+        return made[key]
+    return fmu
+
+
+@pytest.fixture(scope="session")
+def c_host(tmp_path_factory):
+    """tests/c/fmu_host.c compiled once per session: the plain C importer."""
+    return compile_c_host(tmp_path_factory.mktemp("c-host"))
