@@ -39,10 +39,10 @@ def sync_rate(system, law: str | None = "switching", n_starts: int = N_STARTS, *
         return core_sync_rate(system, law, n_starts, **common, **options)
     if H is None or not H > 0:
         raise ValueError(f"mode = cosim needs a positive communication step H, got {H}")
-    law = getattr(system, "force", None)
-    if law is not None:
+    force = getattr(system, "force", None)
+    if force is not None:
         raise ValueError(f"sync_rate(mode='cosim') builds the FMU's parameters from the system, which a system with "
-                         f"the force law {law.name!r} cannot give (its model declaration has the parameters): run "
+                         f"the force law {force.name!r} cannot give (its model declaration has the parameters): run "
                          f"its scene in co-simulation with --starts N (fmu-sync run SCENE --set run.mode=cosim "
                          f"--starts {n_starts}, docs/user-model.md), or mode='core'")
     from .fmus import contract
