@@ -19,31 +19,9 @@ from fmu_sync.core.views import figure
 from fmu_sync.fmus import contract
 from fmu_sync.scenes.running import run_scene
 
-PENDULUM_FILE = '''"""A user's impacting pendulum: h = -m g l sin q - c u + tau, wall at q = q_w; q in rad."""
-import math
+from _user_files import pendulum_file
 
-from fmu_sync.core import ForceLaw, MechanicalSystem, Model, Param
-
-
-def h(q, u, tau, t, p):
-    m, g, l, c = p[0], p[1], p[2], p[3]
-    return -m * g * l * math.sin(q[0]) - c * u[0] + tau[0]
-
-
-law = ForceLaw(h, n=1, name="scene_pendulum",
-               params=(Param("m", 1.0, "kg", 1e-9, None, "bob mass"),
-                       Param("g", 9.81, "m/s2", 0.0, None, "gravity"),
-                       Param("l", 0.5, "m", 1e-9, None, "rod length"),
-                       Param("c", 0.05, "N.m.s/rad", 0.0, None, "damping at the pivot")),
-               linear=lambda p: ([[0.0]], [[p[3]]]))
-
-pendulum = Model("scene-pendulum", "a user's impacting pendulum",
-                 params=(Param("q_w", 0.3, "rad", None, None, "wall angle"),
-                         Param("e", 0.7, "1", 0.0, 1.0, "restitution")),
-                 force=law, geometry=("m", "l", "q_w", "e"), q_unit="rad", tau_unit="N.m",
-                 system=lambda p: MechanicalSystem(M=[[p.m * p.l ** 2]], w=[-1.0], g0=p.q_w, e=p.e,
-                                                   force=law, params=p.of(law)))
-'''
+PENDULUM_FILE = pendulum_file("scene_pendulum", "scene-pendulum", units=True)
 
 SCENE = '''description = "two user pendulums (tests/test_user_model_scenes.py)"
 

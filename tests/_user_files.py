@@ -1,0 +1,35 @@
+"""A user's model file, as a user would write it (tests only): the impacting pendulum of
+docs/user-model.md, under the law and model names a test gives it."""
+
+_PENDULUM = '''"""A user's impacting pendulum: h = -m g l sin q - c u + tau, wall at q = q_w{doc_units}."""
+import math
+
+from fmu_sync.core import ForceLaw, MechanicalSystem, Model, Param
+
+
+def h(q, u, tau, t, p):
+    m, g, l, c = p[0], p[1], p[2], p[3]
+    return -m * g * l * math.sin(q[0]) - c * u[0] + tau[0]
+
+
+law = ForceLaw(h, n=1, name="{law}",
+               params=(Param("m", 1.0, "kg", 1e-9, None, "bob mass"),
+                       Param("g", 9.81, "m/s2", 0.0, None, "gravity"),
+                       Param("l", 0.5, "m", 1e-9, None, "rod length"),
+                       Param("c", 0.05, "N.m.s/rad", 0.0, None, "damping at the pivot")),
+               linear=lambda p: ([[0.0]], [[p[3]]]))
+
+pendulum = Model("{model}", "a user's impacting pendulum",
+                 params=(Param("q_w", 0.3, "rad", None, None, "wall angle"),
+                         Param("e", 0.7, "1", 0.0, 1.0, "restitution")),
+                 force=law, geometry=("m", "l", "q_w", "e"),{units}
+                 system=lambda p: MechanicalSystem(M=[[p.m * p.l ** 2]], w=[-1.0], g0=p.q_w, e=p.e,
+                                                   force=law, params=p.of(law)))
+'''
+
+
+def pendulum_file(law: str, model: str, units: bool = False) -> str:
+    """The source of the pendulum file; ``units``: it declares q in rad and tau in N.m (else the
+    default units, m and N)."""
+    return _PENDULUM.format(law=law, model=model, doc_units="; q in rad" if units else "",
+                            units=' q_unit="rad", tau_unit="N.m",' if units else "")
