@@ -301,6 +301,17 @@ class FmuModel:
         return 0 if law is None else len(law.params)
 
     @property
+    def nf_max(self) -> int:
+        """Most harmonic forcing terms the FMU's work array holds: one for the built-in linear
+        law; a force law's declared forcing (``ForceLaw(forcing=...)``) counted at its parameters'
+        defaults (a required parameter counted as 0.0)."""
+        law = self.declaration.force
+        if law is None or law.forcing is None:
+            return 1
+        p = np.array([0.0 if q.default is None else float(q.default) for q in law.params], dtype=np.float64)
+        return max(1, len(law.forcing_terms(p)))
+
+    @property
     def family(self) -> str:
         """The scenes' ``system.model``: the declaration's name."""
         return self.declaration.name

@@ -210,6 +210,7 @@ class MechanicalSlave(Slave):
         self.N = fmu_model.n
         self.DESCRIPTION = fmu_model.description
         self.N_P = fmu_model.n_params
+        self.NF_MAX = fmu_model.nf_max
 
     # ------------------------------------------------------------ model (from the contract)
     def declare(self) -> list[Var]:
@@ -227,6 +228,10 @@ class MechanicalSlave(Slave):
     def configure(self, p: dict) -> Configuration:
         """Validate a complete parameter set; raises ValueError naming what is wrong."""
         system = self.build_system(p)
+        if len(system.forcing) > self.NF_MAX:
+            raise ValueError(f"the force law makes {len(system.forcing)} harmonic forcing terms at these parameters; "
+                             f"this FMU holds at most {self.NF_MAX} (the number its declaration makes at the "
+                             f"parameters' defaults)")
         scheme_name = _SCHEME_BY_VALUE.get(p["solver.scheme"])
         if scheme_name is None:
             raise ValueError(f"solver.scheme must be one of {sorted(_SCHEME_BY_VALUE)}, got {p['solver.scheme']!r}")

@@ -234,3 +234,45 @@ def test_the_carried_file_imports_the_carried_core_line_for_line():
                      (b"from fmu_sync.core import *\n", "name what you import")):
         with pytest.raises(ModelError, match=why):
             rewrite_imports(bad, "t.py")
+
+
+TWO_TERMS_FILE = '''"""A user's oscillator with nt declared harmonic forcing terms (default 2)."""
+from fmu_sync.core import ForceLaw, MechanicalSystem, Model, Param
+
+
+def h(q, u, tau, t, p):
+    return -p[0] * q[0] - 0.1 * u[0] + tau[0]
+
+
+law = ForceLaw(h, n=1, name="two_terms",
+               params=(Param("k", 1.0, "N/m", 0.0, None, "stiffness"),
+                       Param("nt", 2.0, "1", 0.0, 3.0, "number of forcing terms")),
+               forcing=lambda p: tuple((0.4 / (j + 1), 1.3 * (j + 1), 0.2 * j) for j in range(int(p[1]))))
+
+model = Model("two-terms", "an oscillator forced by nt harmonic terms",
+              params=(Param("g0", 0.5, "m", None, None, "wall offset"),
+                      Param("e", 0.8, "1", 0.0, 1.0, "restitution")),
+              force=law, geometry=("g0", "e"),
+              system=lambda p: MechanicalSystem(M=[[1.0]], w=[1.0], g0=p.g0, e=p.e, force=law, params=p.of(law)))
+'''
+
+
+def test_a_law_with_two_forcing_terms_exports_runs_and_refuses_a_third(tmp_path):
+    """The FMU's work array holds the forcing terms the law declares at its defaults (here 2;
+    it held 1 before, and fmi2ExitInitializationMode was fmi2Fatal); a parameter set that makes
+    more is refused with fmi2Error and the reason, not packed out of bounds."""
+    from fmpy import simulate_fmu
+    src = tmp_path / "two_terms.py"
+    src.write_text(TWO_TERMS_FILE)
+    spec = f"{src}:model"
+    fmu = export_fmu(spec, tmp_path / "two.fmu")
+    system = load_model(spec)()
+    assert len(system.forcing) == 2
+    x0, dt, H, T = ([0.2], [0.0]), 1e-3, 1e-2, 4.0
+    r = simulate_fmu(str(fmu), stop_time=T, output_interval=H, output=["q", "impacts"],
+                     start_values={"q_start": x0[0][0], "solver.dt": dt})
+    c = simulate(system, x0, T, dt, record_every=10)
+    assert r["impacts"][-1] >= 1 and len(r) == c.q.shape[0]
+    assert np.max(np.abs(r["q"] - c.q[:, 0])) <= 1e-12
+    with pytest.raises(Exception, match=r"fmi2ExitInitializationMode failed with status 3 \(error\)"):
+        simulate_fmu(str(fmu), stop_time=0.1, output_interval=H, start_values={"nt": 3.0})
