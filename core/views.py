@@ -73,9 +73,13 @@ def units_info(model) -> dict:
 
 def units_of(result) -> dict:
     """:data:`UNITS` with the run's declared units of q, u and tau (``result.info["units"]``,
-    :func:`units_info`; the percussion in tau's unit times s)."""
+    :func:`units_info`)."""
     info = getattr(result, "info", None) or {}
-    own = info.get("units") or {}
+    return units_with(info.get("units") or {})
+
+
+def units_with(own: dict) -> dict:
+    """:data:`UNITS` with declared units ``own`` of q, u and tau (the percussion in tau's unit times s)."""
     return {**UNITS, **own, **({"percussion": f"{own['tau']} s"} if "tau" in own else {})}
 
 

@@ -11,6 +11,7 @@ from typing import Any, Callable
 from ..core import RunFailed, RunRefused, SimulationDiverged, UnstableExchange, UnstableScheme, simulate
 from ..fmus import contract
 from ..progress import scaled
+from ..user_export import fmu_model_of
 from .loading import Scene, as_scene
 from .schema import DEFAULT_OUT, TABLES, SceneError, Variant
 
@@ -88,12 +89,6 @@ def _declared_values(variant: Variant, node: dict | None = None) -> dict:
     keys = system_keys(decl)
     values.update({k: keys[k][0](v) for k, v in (node or {}).items()})
     return decl.check(values)
-
-
-def fmu_model_of(family: str, n: int):
-    """The FMU contract's model of a scene's ``system.model`` (:func:`fmu_sync.user_export.fmu_model_of`)."""
-    from ..user_export import fmu_model_of as find
-    return find(family, n)
 
 
 def export_for(variant: Variant, out_dir) -> Path:
@@ -316,16 +311,14 @@ def record_interval(variant: Variant) -> tuple[float, str]:
 def _stream_run(v: Variant, out_dir: Path, fmu_path, progress, scene_name, formats, est, max_memory, extra):
     """A core pair whose whole record exceeds the memory budget: written in chunks while it runs."""
     from .. import report
-    from types import SimpleNamespace
-
-    from ..core.views import units_of
+    from ..core.views import units_with
     from ..output import RecordWriter, pair_columns
     per_row = 8.0 * est.values_per_row
     chunk_rows = max(16, min(1 << 18, int(max_memory / (per_row * 8))))  # the chunk, its copies, the CSV block
     plot_rows = max(1000, min(20000, int(max_memory / (per_row * 8))))
     own = declared_units(v)
     lay = dict(kind="pair", N=2, n=v.system.n, edges=[[0, 1]], distance=v.has_distance,
-               **({"units": units_of(SimpleNamespace(info=own))} if own else {}))
+               **({"units": units_with(own["units"])} if own else {}))
     writer = RecordWriter(out_dir / v.name, pair_columns(v.system.n, v.has_distance), formats, layout=lay)
     from ..stream import StreamRecord
     sink = StreamRecord(writer, v.system, est.rows, plot_rows)
@@ -572,11 +565,10 @@ def settings_table(scene: Scene, variants, names=None) -> list[tuple[str, str]]:
             rows.append((k, values.pop()))
         else:
             rows.append((k, "; ".join(f"{n}: {v.cfg[k]!r}" for n, v in zip(names, variants))))
-    units = {str(declared_units(v).get("units")) for v in variants}
-    if units != {"None"}:
-        own = declared_units(variants[0]).get("units") or {}
-        rows.append(("units", ", ".join(f"{k} [{u}]" for k, u in own.items()) if len(units) == 1 else
-                     "; ".join(f"{n}: {declared_units(v).get('units')}" for n, v in zip(names, variants))))
+    units = [declared_units(v).get("units") for v in variants]
+    if any(units):
+        rows.append(("units", ", ".join(f"{k} [{u}]" for k, u in units[0].items()) if units.count(units[0]) == len(units)
+                     else "; ".join(f"{n}: {u}" for n, u in zip(names, units))))
     every = [record_interval(v)[1] for v in variants]
     rows.append(("record interval", every[0] if len(set(every)) == 1 else
                  "; ".join(f"{n}: {x}" for n, x in zip(names, every))))
