@@ -29,6 +29,7 @@ from one compiled call per evaluation of the core's
 """
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -180,6 +181,18 @@ class CouplingConfiguration:
         self.laws, self.W2, self.Kp, self.Kd, self.geo, self.hp = laws, W2, Kp, Kd, geo, hp
 
 
+@contextmanager
+def _overflow(what: str):
+    """numpy's floating-point errors (overflow, invalid, division by zero) raised inside, refused
+    as a ValueError naming ``what`` (the parameters that were being combined), never printed."""
+    try:
+        with np.errstate(over="raise", invalid="raise", divide="raise", under="ignore"):
+            yield
+    except FloatingPointError as exc:
+        raise ValueError(f"{what}: computing with these values overflows the float range ({exc}); "
+                         f"use values of a physical magnitude") from None
+
+
 class CouplingSlave(Slave):
     """The slave of the coupling FMU of one structure: ``CouplingSlave(spec)``."""
 
@@ -205,7 +218,10 @@ class CouplingSlave(Slave):
         return np.array([p[k] for k in matrix(sym, n)], dtype=np.float64).reshape(n, n)
 
     def configure(self, p: dict) -> CouplingConfiguration:
-        """Validate a complete parameter set; raises ValueError naming what is wrong."""
+        """Validate a complete parameter set; raises ValueError naming what is wrong: a value out of
+        its range, an arithmetic overflow (numpy's floating-point errors raise here and are refused
+        naming the parameters, never printed as warnings on the host's stderr) and forces beyond
+        what the systems accept (:meth:`check_force_bound`)."""
         spec = self.SPEC
         n, E = spec.n, len(spec.edges)
         codes = {v for _, v, _ in LAW_ITEMS}
@@ -217,13 +233,50 @@ class CouplingSlave(Slave):
                       dtype=np.float64).reshape(E, 2)
         if not (np.all(np.isfinite(W2)) and np.all(W2 >= 0.0)):
             raise ValueError(f"the weights a[i,j] must be finite and >= 0, got {W2.tolist()}")
-        Kp = gain_matrix(self._square(p, "Kp"), n, "Kp")
-        Kd = gain_matrix(self._square(p, "Kd"), n, "Kd")
         w = [p["w"]] if n == 1 else [p[f"w[{k + 1}]"] for k in range(n)]
-        geo = make_geometry(self._square(p, "M"), w, p["g0"], p["e"], self._square(p, "Q"))
+        with _overflow("Kp"):
+            Kp = gain_matrix(self._square(p, "Kp"), n, "Kp")
+        with _overflow("Kd"):
+            Kd = gain_matrix(self._square(p, "Kd"), n, "Kd")
+        with _overflow("the impact geometry M, w, g0, e and the metric Q"):
+            geo = make_geometry(self._square(p, "M"), w, p["g0"], p["e"], self._square(p, "Q"))
         if np.any(laws == COMPENSATED):
             check_compensated(n)
-        return CouplingConfiguration(laws, W2, Kp, Kd, geo, self.force_table(p))
+        with _overflow("the force laws k[i], c[i], f0[i], F[i], Omega[i], phi[i]"):
+            hp = self.force_table(p)
+        self.check_force_bound(p, laws, W2, Kp, Kd)
+        return CouplingConfiguration(laws, W2, Kp, Kd, geo, hp)
+
+    def check_force_bound(self, p: dict, laws, W2, Kp, Kd) -> None:
+        """The coupling's forces must stay within what the systems accept as their input tau,
+        |tau| <= INPUT_BOUND (contract.INPUT_BOUND): refused (ValueError naming the parameters) when the
+        force on a system at a unit state difference (1 in every coordinate of q and u) could exceed it,
+        ``sum_j a_ij (2 |Kp| + 2 |Kd| + |h_i|)`` (|.| the largest row sum; 2: the compensated law's
+        whole relative gain; ``|h_i| = |k[i]| + |c[i]| + |f0[i]| + |F[i]|`` on a switching-compensated
+        edge, the force law it cancels). During a run, inputs that make a force exceed the bound
+        make the call fail (the stepper's check, :mod:`.coupling_stepper`)."""
+        gains = 2.0 * float(np.max(np.sum(np.abs(Kp), axis=1))) + 2.0 * float(np.max(np.sum(np.abs(Kd), axis=1)))
+        total = [0.0] * self.SPEC.N
+        names = [[] for _ in range(self.SPEC.N)]
+        for (i, j), law, (aij, aji) in zip(self.SPEC.edges, laws, W2):
+            for node, other, a in ((i, j, aij), (j, i, aji)):
+                h = 0.0
+                if int(law) == COMPENSATED:
+                    h = sum(abs(p[f"{x}[{node + 1}]"]) for x in ("k", "c", "f0", "F"))
+                total[node] += float(a) * (gains + h)
+                names[node].append(f"a[{node + 1},{other + 1}] = {float(a):g}"
+                                   + (f", its force law k, c, f0, F = " + ", ".join(
+                                       f"{p[f'{x}[{node + 1}]']:g}" for x in ("k", "c", "f0", "F"))
+                                      if int(law) == COMPENSATED else ""))
+        for node, f in enumerate(total):
+            if not f <= INPUT_BOUND:
+                gain = ", ".join(f"{k} = {float(v[0, 0]):g}" if self.SPEC.n == 1 else f"{k} = {v.tolist()}"
+                                 for k, v in (("Kp", Kp), ("Kd", Kd)))
+                raise ValueError(
+                    f"the coupling force on system {node + 1} at a unit state difference (1 in every coordinate "
+                    f"of q and u) reaches {f:.3g} (sum_j a_ij (2 |Kp| + 2 |Kd| + |h_i|) with {gain}, "
+                    f"{'; '.join(names[node])}), beyond |tau| <= {INPUT_BOUND:g}, what the systems accept as "
+                    f"their input tau (contract.INPUT_BOUND): lower the gains, the weights or the force law")
 
     def force_table(self, p: dict) -> np.ndarray:
         """The systems' force laws as the core's table (:func:`fmu_sync.core.compensation.force_table`,
