@@ -272,9 +272,12 @@ def write_ssp(scene, path, variant: str | None = None, overrides: dict | None = 
     its name (required when the scene has several). Raises ValueError
     (:class:`fmu_sync.scenes.SceneError`) for a single-system variant or an
     unknown variant, naming the choices."""
+    from .core.compensation import check_compensated
+    from .core.model import as_state
     from .core.network import edges_of
     from .export import export_coupling, export_fmu, write_archive
     from .scenes.loading import as_scene
+    from .scenes.running import export_spec, scene_values
     from .scenes.schema import SceneError
 
     sc = as_scene(scene, overrides)
@@ -295,23 +298,29 @@ def write_ssp(scene, path, variant: str | None = None, overrides: dict | None = 
     if v.is_network:
         spec = v.network
         A, systems, states = np.array(spec.A, dtype=np.float64), list(spec.systems), list(spec.states)
-        names = spec.laws
+        names, nodes = spec.laws, list(spec.nodes)
     else:
         A, systems, states, names = np.array([[0.0, 1.0], [1.0, 0.0]]), [v.system] * 2, [v.x1, v.x2], None
+        nodes = [None, None]
     edges = edges_of(A)
     laws = list(names) if names is not None else [v.law] * len(edges)
     system = systems[0]
     n = system.n
-    model = contract.model_for(cfg["system.model"], n)
+    model, export_key, _ = export_spec(v)   # a registered model, or a declaration with a force law
     if model is None:
         raise SceneError(f"no FMU model for system.model = {cfg['system.model']!r} with n = {n}")
+    if "switching-compensated" in laws:     # the coupling FMU evaluates the built-in linear law's h only
+        check_compensated(n, system.force)
     solver = model.solver_values(cfg["solver.dt"], cfg["solver.scheme"], cfg["solver.theta"])
     decl = model.declare()
     comp_values = []
-    for s, x in zip(systems, states):
-        from .core.model import as_state
+    for s, x, node in zip(systems, states, nodes):
         q0, u0 = as_state(s, x, "x")
-        comp_values.append(_real_values(decl, {**model.values(s), **model.state_values(q0, u0), **solver}))
+        try:
+            values = scene_values(model, v, s, node)
+        except contract.ContractError as exc:
+            raise SceneError(f"scene {sc.name!r}, variant {v.name!r}: {exc}") from None
+        comp_values.append(_real_values(decl, {**values, **model.state_values(q0, u0)}))
     coupling_real, coupling_enum = _coupling_values(v, systems, A, edges, laws, n)
     N = len(comp_values)
     maps = _force_maps(laws, N, n)   # the compensated law's h: bound from the systems' own values
@@ -321,10 +330,11 @@ def write_ssp(scene, path, variant: str | None = None, overrides: dict | None = 
     osc_names = [f"resources/{system_component(i, N)}.fmu" for i in range(N)]
     path.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="fmu-sync-ssp-") as tmp:
-        oscs = [export_fmu(model.key, Path(tmp) / f"osc{i}.fmu", {**vals, contract.SOLVER_SCHEME:
+        oscs = [export_fmu(export_key, Path(tmp) / f"osc{i}.fmu", {**vals, contract.SOLVER_SCHEME:
                                                                   solver[contract.SOLVER_SCHEME]})
                 for i, vals in enumerate(comp_values)]
-        cpl = export_coupling(Path(tmp) / "coupling.fmu", A, n, {**coupling_real, **coupling_enum, **h_starts})
+        cpl = export_coupling(Path(tmp) / "coupling.fmu", A, n, {**coupling_real, **coupling_enum, **h_starts},
+                              units=model.declaration.units)
         files = [(SSD, _ssd(sc.name, v, model, edges, N, n, osc_names, cfg, bool(maps)))]
         files += [(name, osc.read_bytes()) for name, osc in zip(osc_names, oscs)]
         files.append((_COUPLING_FMU, cpl.read_bytes()))
@@ -358,15 +368,16 @@ def _ssd(scene_name, v, model, edges, N, n, osc_names, cfg, mapped=False) -> byt
     system = ET.SubElement(root, _q("ssd", "System"), {"name": scene_name, "description": v.description or ""})
     elements = ET.SubElement(system, _q("ssd", "Elements"))
     qn, un, tn = model.q, model.u, model.tau
+    units = model.declaration.units          # the system FMU's own (rad, rad/s, N.m for the pendulum)
     for i in range(N):
-        cons = [(a, "output", "Real", "m") for a in qn] + [(a, "output", "Real", "m/s") for a in un] + \
-               [(a, "input", "Real", "N") for a in tn]
+        cons = [(a, "output", "Real", units["q"]) for a in qn] + [(a, "output", "Real", units["u"]) for a in un] + \
+               [(a, "input", "Real", units["tau"]) for a in tn]
         _component(elements, system_component(i, N), osc_names[i], cons, f"resources/{system_component(i, N)}.ssv")
     E = len(edges)
     cons = []
-    for base, unit in (("q", "m"), ("u", "m/s")):
-        cons += [(a, "input", "Real", unit) for i in range(N) for a in node_names(base, i, n)]
-    cons += [(a, "output", "Real", "N") for i in range(N) for a in node_names("tau", i, n)]
+    for base in ("q", "u"):
+        cons += [(a, "input", "Real", units[base]) for i in range(N) for a in node_names(base, i, n)]
+    cons += [(a, "output", "Real", units["tau"]) for i in range(N) for a in node_names("tau", i, n)]
     cons += [(a, "output", "Real", None) for base in ("d", "V", "euclidean") for a in edge_names(base, E)]
     cons += [(a, "output", "Integer", None) for a in edge_names("branch", E)]
     _component(elements, COUPLING_COMPONENT, _COUPLING_FMU, cons, f"resources/{COUPLING_COMPONENT}.ssv",

@@ -36,6 +36,7 @@ import numpy as np
 
 from ..core.compensation import check_compensated, force_table
 from ..core.coupling import COMPENSATED, gain_matrix
+from ..core.declaration import DEFAULT_UNITS
 from ..core.distance import make_geometry
 from ..core.pair import stack_nodes
 from .contract import INPUT_BOUND, LAW_ITEMS, LAW_TYPE, POSITIVE_MIN, Var, matrix, model
@@ -71,13 +72,27 @@ def force_vars(N: int) -> list[Var]:
 
 @dataclass(frozen=True)
 class CouplingSpec:
-    """The structure of a coupling FMU: N nodes of n DOF and the coupled edges (0-based i < j)."""
+    """The structure of a coupling FMU: N nodes of n DOF and the coupled edges (0-based i < j);
+    ``units``: the systems' units of q, u and tau (``(("q", "rad"), ...)``; empty: m, m/s, N), which
+    its inputs, its outputs tau and its gains take (an importer such as OMSimulator refuses a
+    connection between variables of different units)."""
 
     N: int
     n: int
     edges: tuple
+    units: tuple = ()
+
+    def unit(self, key: str) -> str:
+        """The unit of ``q``, ``u`` or ``tau``."""
+        return dict(self.units).get(key, DEFAULT_UNITS[key])
 
     def __post_init__(self):
+        if self.units:
+            from .slave import unit_exponents
+            if set(dict(self.units)) != set(DEFAULT_UNITS):
+                raise ValueError(f"units must name q, u and tau, got {dict(self.units)!r}")
+            for key, unit in self.units:
+                unit_exponents(unit)      # ValueError naming a unit it cannot read
         if not (isinstance(self.N, int) and self.N >= 2):
             raise ValueError(f"a coupling FMU couples N >= 2 systems, got N = {self.N!r}")
         if not (isinstance(self.n, int) and self.n >= 1):
@@ -92,17 +107,28 @@ class CouplingSpec:
             raise ValueError(f"edges must be distinct, got {list(self.edges)}")
 
     @classmethod
-    def from_weights(cls, A, n: int = 1) -> "CouplingSpec":
+    def from_weights(cls, A, n: int = 1, units: dict | None = None) -> "CouplingSpec":
         from ..core.network import edges_of, weights
         a = weights(A)
-        return cls(a.shape[0], int(n), tuple(tuple(int(x) for x in e) for e in edges_of(a)))
+        return cls(a.shape[0], int(n), tuple(tuple(int(x) for x in e) for e in edges_of(a)), _units(units))
 
     def as_dict(self) -> dict:
-        return {"N": self.N, "n": self.n, "edges": [list(e) for e in self.edges]}
+        out = {"N": self.N, "n": self.n, "edges": [list(e) for e in self.edges]}
+        if self.units:      # the default units are not written (an FMU without units is in m, m/s, N)
+            out["units"] = dict(self.units)
+        return out
 
     @classmethod
     def from_dict(cls, d: dict) -> "CouplingSpec":
-        return cls(int(d["N"]), int(d["n"]), tuple(tuple(int(x) for x in e) for e in d["edges"]))
+        return cls(int(d["N"]), int(d["n"]), tuple(tuple(int(x) for x in e) for e in d["edges"]),
+                   _units(d.get("units")))
+
+
+def _units(units: dict | None) -> tuple:
+    """The units of q, u, tau as :attr:`CouplingSpec.units` (empty for the default m, m/s, N)."""
+    if not units or dict(units) == DEFAULT_UNITS:
+        return ()
+    return tuple(sorted(dict(units).items()))
 
 
 def node_names(base: str, i: int, n: int) -> list[str]:
@@ -130,8 +156,10 @@ def _square(sym, unit, what, n, start_diag, diag_min):
 def declare(spec: CouplingSpec) -> list[Var]:
     """The interface of a coupling FMU, in value-reference order."""
     N, n, E = spec.N, spec.n, len(spec.edges)
+    uq, uu, ut = spec.unit("q"), spec.unit("u"), spec.unit("tau")
+    own = bool(spec.units)        # the systems' own units: the gains' follow (tau per q, ...)
     inputs = []
-    for base, unit, what in (("q", "m", "Position"), ("u", "m/s", "Velocity")):
+    for base, unit, what in (("q", uq, "Position"), ("u", uu, "Velocity")):
         for i in range(N):
             inputs += [Var(name, "Real", "input", "continuous", f"{what} of system {i + 1}"
                            + ("" if n == 1 else f", coordinate {k + 1}"), unit=unit, start=0.0,
@@ -144,15 +172,17 @@ def declare(spec: CouplingSpec) -> list[Var]:
         for a, b in ((i, j), (j, i)):
             params.append(_param(f"a[{a + 1},{b + 1}]", "1", f"Weight a_ij of the force on system {a + 1} "
                                  f"from its edge with system {b + 1} (>= 0)", 1.0, min=0.0))
-    params += (_square("Kp", "N/m", "Proportional gain Kp", n, 1.0, 0.0)
-               + _square("Kd", "N.s/m", "Derivative gain Kd", n, 0.5, 0.0)
-               + _square("Q", "N/m", "Position weight Q of the norm ||x||^2 = q^T Q q + u^T M u (SPD)", n, 1.0,
+    stiff = f"{ut}/{uq}" if own else "N/m"
+    params += (_square("Kp", stiff, "Proportional gain Kp", n, 1.0, 0.0)
+               + _square("Kd", f"{ut}.s/{uq}" if own else "N.s/m", "Derivative gain Kd", n, 0.5, 0.0)
+               + _square("Q", stiff, "Position weight Q of the norm ||x||^2 = q^T Q q + u^T M u (SPD)", n, 1.0,
                          POSITIVE_MIN)
-               + _square("M", "kg", "Mass matrix M of the systems (SPD; must equal theirs)", n, 1.0, POSITIVE_MIN)
+               + _square("M", f"{ut}.s2/{uq}" if own else "kg", "Mass matrix M of the systems (SPD; must equal "
+                         "theirs)", n, 1.0, POSITIVE_MIN)
                + ([_param("w", "1", "Wall normal w in g(q) = w^T q + g0 (must equal the systems')", 1.0)]
                   if n == 1 else [_param(f"w[{k + 1}]", "1", f"Wall normal w, component {k + 1} (must equal "
                                          f"the systems')", 1.0 if k == 0 else 0.0) for k in range(n)])
-               + [_param("g0", "m", "Wall offset g0 in g(q) = w^T q + g0 (must equal the systems')", 0.0),
+               + [_param("g0", uq, "Wall offset g0 in g(q) = w^T q + g0 (must equal the systems')", 0.0),
                   _param("e", "1", "Newton restitution coefficient (must equal the systems')", 0.9, min=0.0,
                          max=1.0)])
     if n == 1:   # the compensated law's h (1-DOF only: check_compensated)
@@ -161,7 +191,7 @@ def declare(spec: CouplingSpec) -> list[Var]:
     outs = []
     for i in range(N):
         outs += [Var(name, "Real", "output", "continuous", f"Coupling force on system {i + 1}"
-                     + ("" if n == 1 else f", coordinate {k + 1}") + " (B = I)", initial="calculated", unit="N",
+                     + ("" if n == 1 else f", coordinate {k + 1}") + " (B = I)", initial="calculated", unit=ut,
                      depends=ins, initial_depends=ins + pnames) for k, name in enumerate(node_names("tau", i, n))]
     for base, typ, unit, what in (
             ("d", "Real", None, "Quotient distance d of edge {e} (sqrt(J): the norm ||.||_P with Q in N/m)"),
