@@ -285,27 +285,26 @@ class CouplingSlave(Slave):
         whole relative gain; ``|h_i| = |k[i]| + |c[i]| + |f0[i]| + |F[i]|`` on a switching-compensated
         edge, the force law it cancels). During a run, inputs that make a force exceed the bound
         make the call fail (the stepper's check, :mod:`.coupling_stepper`)."""
-        gains = 2.0 * float(np.max(np.sum(np.abs(Kp), axis=1))) + 2.0 * float(np.max(np.sum(np.abs(Kd), axis=1)))
-        total = [0.0] * self.SPEC.N
-        names = [[] for _ in range(self.SPEC.N)]
+        with np.errstate(over="ignore"):     # an overflowing sum is inf: refused below
+            gains = 2.0 * float(np.max(np.sum(np.abs(Kp), axis=1))) + 2.0 * float(np.max(np.sum(np.abs(Kd), axis=1)))
+        h_names = ("k", "c", "f0", "F")
+        total, terms = [0.0] * self.SPEC.N, [[] for _ in range(self.SPEC.N)]
         for (i, j), law, (aij, aji) in zip(self.SPEC.edges, laws, W2):
             for node, other, a in ((i, j, aij), (j, i, aji)):
-                h = 0.0
+                h, said = 0.0, f"a[{node + 1},{other + 1}] = {float(a):g}"
                 if int(law) == COMPENSATED:
-                    h = sum(abs(p[f"{x}[{node + 1}]"]) for x in ("k", "c", "f0", "F"))
+                    h = sum(abs(p[f"{x}[{node + 1}]"]) for x in h_names)
+                    said += ", its force law k, c, f0, F = " + ", ".join(f"{p[f'{x}[{node + 1}]']:g}" for x in h_names)
                 total[node] += float(a) * (gains + h)
-                names[node].append(f"a[{node + 1},{other + 1}] = {float(a):g}"
-                                   + (f", its force law k, c, f0, F = " + ", ".join(
-                                       f"{p[f'{x}[{node + 1}]']:g}" for x in ("k", "c", "f0", "F"))
-                                      if int(law) == COMPENSATED else ""))
+                terms[node].append(said)
+        gain = ", ".join(f"{k} = {float(v[0, 0]):g}" if self.SPEC.n == 1 else f"{k} = {v.tolist()}"
+                         for k, v in (("Kp", Kp), ("Kd", Kd)))
         for node, f in enumerate(total):
             if not f <= INPUT_BOUND:
-                gain = ", ".join(f"{k} = {float(v[0, 0]):g}" if self.SPEC.n == 1 else f"{k} = {v.tolist()}"
-                                 for k, v in (("Kp", Kp), ("Kd", Kd)))
                 raise ValueError(
                     f"the coupling force on system {node + 1} at a unit state difference (1 in every coordinate "
                     f"of q and u) reaches {f:.3g} (sum_j a_ij (2 |Kp| + 2 |Kd| + |h_i|) with {gain}, "
-                    f"{'; '.join(names[node])}), beyond |tau| <= {INPUT_BOUND:g}, what the systems accept as "
+                    f"{'; '.join(terms[node])}), beyond |tau| <= {INPUT_BOUND:g}, what the systems accept as "
                     f"their input tau (contract.INPUT_BOUND): lower the gains, the weights or the force law")
 
     def force_table(self, p: dict) -> np.ndarray:

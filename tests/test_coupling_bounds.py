@@ -208,6 +208,7 @@ def test_outputs_never_exceed_the_bound_and_equal_the_core_within_it(forces):
                 assert got["get"] == ERROR and got["step"] == ERROR and got["tau"] is None, got
                 assert any("exceeds |tau| <= 1e+12" in m for m in got["log"]), got["log"]
                 seen["beyond"] += 1
+    print(f"\nrandom cases: {seen}")
     assert min(seen.values()) >= 5, seen          # every outcome drawn
     assert "RuntimeWarning" not in stderr, stderr[-2000:]
 
