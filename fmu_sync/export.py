@@ -463,20 +463,22 @@ def export_fmu(model: str = "impact-oscillator", path=None, start_values: dict |
     return _export(model_slave(model), model, path, start_values, extra, fmi_version)
 
 
-def export_coupling(path=None, A=None, n: int = 1, start_values: dict | None = None, K=1.0) -> Path:
+def export_coupling(path=None, A=None, n: int = 1, start_values: dict | None = None, K=1.0,
+                    units: dict | None = None) -> Path:
     """Build the coupling FMU (:mod:`fmu_sync.fmus.coupling`) of the graph ``A``
     (N x N weights; default the pair ``[[0, 1], [1, 0]]``) for systems with ``n``
     degrees of freedom. The weights of ``A`` are the start values of ``a[i,j]``;
     ``start_values`` sets any parameter (``"law[1]": "euclidean"``, ``"Kp": 2`` ...).
     Without a start value for Q, Q is the law's own metric
     :func:`fmu_sync.core.coupling.energy_metric` of the systems' stiffness ``K``
-    (default 1.0, the impact-oscillator FMU's k), Kp and the graph."""
+    (default 1.0, the impact-oscillator FMU's k), Kp and the graph. ``units``: the systems' units of
+    q, u, tau (a model declaration's ``units``; default m, m/s, N), which its variables take."""
     from .core.coupling import energy_metric
     from .core.network import weights
     from .fmus.contract import matrix
     from .fmus.coupling import CouplingSlave, CouplingSpec
     A = weights([[0.0, 1.0], [1.0, 0.0]] if A is None else A)
-    spec = CouplingSpec.from_weights(A, n)
+    spec = CouplingSpec.from_weights(A, n, units)
     cls = CouplingSlave(spec)
     starts = {f"a[{a + 1},{b + 1}]": float(A[a, b]) for i, j in spec.edges for a, b in ((i, j), (j, i))}
     starts.update(cls.normalize_start_values(dict(start_values or {})))

@@ -32,6 +32,9 @@ coupling component's parameters become the master's graph, laws and gains
 from __future__ import annotations
 
 import io
+import json
+import math
+import re
 import tempfile
 import zipfile
 from dataclasses import dataclass, field
@@ -43,7 +46,7 @@ import numpy as np
 
 from .fmus import contract
 
-__all__ = ["write_ssp", "read_ssp", "run_ssp", "save_result", "SspPackage", "fmpy_parameter_set", "SSD", "SsdError",
+__all__ = ["write_ssp", "read_ssp", "run_ssp", "save_result", "SspPackage", "fmpy_parameter_set", "SSD", "SspError", "SsdError",
            "COUPLING_COMPONENT", "system_component"]
 
 SSD = "SystemStructure.ssd"
@@ -65,8 +68,96 @@ for _p, _u in NS.items():
     ET.register_namespace(_p, _u)
 
 
-class SsdError(ValueError):
-    """A package that is not an fmu-sync coupled system (names what is missing)."""
+class SspError(ValueError):
+    """A package that cannot be read or run: the one refusal of this module's checking layer, naming
+    the ``package``, the ``file`` inside it, the ``element`` and what is wrong (``reason``); either
+    of ``file`` and ``element`` may be None where the fault has none (a package that is not a zip)."""
+
+    def __init__(self, package, file: str | None = None, element: str | None = None, reason: str = ""):
+        self.package, self.file, self.element, self.reason = str(package), file, element, reason
+        where = "".join(f", {x}" for x in (file, element) if x)
+        super().__init__(f"SSP package {package}{where}: {reason}")
+
+
+#: the former name of :class:`SspError` (the same class)
+SsdError = SspError
+_PREFIX = {uri: prefix for prefix, uri in NS.items()}
+
+
+def _tag(tag: str) -> str:
+    """``ssd:Component`` of ``{uri}Component``."""
+    uri, _, local = tag[1:].partition("}") if tag.startswith("{") else ("", "", tag)
+    return f"{_PREFIX.get(uri, uri)}:{local}" if uri else local
+
+
+def _element(el, *attrs: str) -> str:
+    """An element as the message names it: ``<ssv:Parameter name="m">`` (the given attributes that it has)."""
+    shown = "".join(f' {a}="{el.get(a)}"' for a in attrs if el.get(a) is not None)
+    return f"<{_tag(el.tag)}{shown}>"
+
+
+class _Archive:
+    """The open package behind every check of a read or a run: each refusal is an :class:`SspError`
+    naming the package, the file inside it and the element."""
+
+    def __init__(self, path: Path, zf: zipfile.ZipFile):
+        self.path, self.zf = path, zf
+        self.names = set(zf.namelist())
+
+    def fail(self, file: str | None, element: str | None, reason: str) -> SspError:
+        return SspError(self.path, file, element, reason)
+
+    def data(self, name: str | None, file: str, element: str) -> bytes:
+        """The entry ``name`` that ``element`` of ``file`` refers to."""
+        if not name:
+            raise self.fail(file, element, "names no file (its source attribute is missing or empty)")
+        if name not in self.names:
+            held = ", ".join(sorted(self.names)[:12]) + (", ..." if len(self.names) > 12 else "")
+            raise self.fail(file, element, f"refers to {name}, which the package does not hold (it holds: {held})")
+        return self.zf.read(name)
+
+    def xml(self, name: str, root: str, file: str, element: str):
+        """The root of the XML entry ``name`` (referred to by ``element`` of ``file``), which must be ``root``."""
+        raw = self.data(name, file, element)
+        try:
+            tree = ET.fromstring(raw)
+        except ET.ParseError as exc:
+            line, col = exc.position
+            raise self.fail(name, f"line {line}, column {col}",
+                            f"not well-formed XML ({str(exc).split(':')[0]})") from None
+        if tree.tag != root:
+            raise self.fail(name, f"root element <{_tag(tree.tag)}>", f"not an SSP file of this kind: its root "
+                                                                     f"element must be <{_tag(root)}>")
+        return tree
+
+    def number(self, file: str, element: str, text, what: str = "value", positive: bool = False) -> float:
+        """``text`` as a finite float (> 0 if ``positive``)."""
+        if text is None:
+            raise self.fail(file, element, f"has no {what} attribute")
+        try:
+            x = float(text)
+        except ValueError:
+            raise self.fail(file, element, f"{what} {text!r} is not a number") from None
+        if not math.isfinite(x):
+            raise self.fail(file, element, f"{what} {text!r} is not a finite number")
+        if positive and not x > 0.0:
+            raise self.fail(file, element, f"{what} {text!r} must be > 0")
+        return x
+
+    def fmu_json(self, src: str, entry: str, component: str):
+        """The JSON file ``entry`` of the component FMU ``src`` (an fmu-sync FMU)."""
+        element = f'<ssd:Component name="{component}">'
+        try:
+            with zipfile.ZipFile(io.BytesIO(self.data(src, SSD, element))) as fz:
+                raw = fz.read(entry)
+        except zipfile.BadZipFile:
+            raise self.fail(src, element, "not an FMU (not a zip archive)") from None
+        except KeyError:
+            raise self.fail(src, entry, f"not an fmu-sync FMU: it has no {entry}") from None
+        try:
+            return json.loads(raw)
+        except ValueError as exc:
+            raise self.fail(src, entry, f"not valid JSON ({exc})") from None
 
 
 def system_component(i: int, N: int = 9) -> str:
@@ -181,9 +272,12 @@ def write_ssp(scene, path, variant: str | None = None, overrides: dict | None = 
     its name (required when the scene has several). Raises ValueError
     (:class:`fmu_sync.scenes.SceneError`) for a single-system variant or an
     unknown variant, naming the choices."""
+    from .core.compensation import check_compensated
+    from .core.model import as_state
     from .core.network import edges_of
     from .export import export_coupling, export_fmu, write_archive
     from .scenes.loading import as_scene
+    from .scenes.running import export_spec, scene_values
     from .scenes.schema import SceneError
 
     sc = as_scene(scene, overrides)
@@ -204,23 +298,29 @@ def write_ssp(scene, path, variant: str | None = None, overrides: dict | None = 
     if v.is_network:
         spec = v.network
         A, systems, states = np.array(spec.A, dtype=np.float64), list(spec.systems), list(spec.states)
-        names = spec.laws
+        names, nodes = spec.laws, list(spec.nodes)
     else:
         A, systems, states, names = np.array([[0.0, 1.0], [1.0, 0.0]]), [v.system] * 2, [v.x1, v.x2], None
+        nodes = [None, None]
     edges = edges_of(A)
     laws = list(names) if names is not None else [v.law] * len(edges)
     system = systems[0]
     n = system.n
-    model = contract.model_for(cfg["system.model"], n)
+    model, export_key, _ = export_spec(v)   # a registered model, or a declaration with a force law
     if model is None:
         raise SceneError(f"no FMU model for system.model = {cfg['system.model']!r} with n = {n}")
+    if "switching-compensated" in laws:     # the coupling FMU evaluates the built-in linear law's h only
+        check_compensated(n, system.force)
     solver = model.solver_values(cfg["solver.dt"], cfg["solver.scheme"], cfg["solver.theta"])
     decl = model.declare()
     comp_values = []
-    for s, x in zip(systems, states):
-        from .core.model import as_state
+    for s, x, node in zip(systems, states, nodes):
         q0, u0 = as_state(s, x, "x")
-        comp_values.append(_real_values(decl, {**model.values(s), **model.state_values(q0, u0), **solver}))
+        try:
+            values = scene_values(model, v, s, node)
+        except contract.ContractError as exc:
+            raise SceneError(f"scene {sc.name!r}, variant {v.name!r}: {exc}") from None
+        comp_values.append(_real_values(decl, {**values, **model.state_values(q0, u0)}))
     coupling_real, coupling_enum = _coupling_values(v, systems, A, edges, laws, n)
     N = len(comp_values)
     maps = _force_maps(laws, N, n)   # the compensated law's h: bound from the systems' own values
@@ -230,10 +330,11 @@ def write_ssp(scene, path, variant: str | None = None, overrides: dict | None = 
     osc_names = [f"resources/{system_component(i, N)}.fmu" for i in range(N)]
     path.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="fmu-sync-ssp-") as tmp:
-        oscs = [export_fmu(model.key, Path(tmp) / f"osc{i}.fmu", {**vals, contract.SOLVER_SCHEME:
+        oscs = [export_fmu(export_key, Path(tmp) / f"osc{i}.fmu", {**vals, contract.SOLVER_SCHEME:
                                                                   solver[contract.SOLVER_SCHEME]})
                 for i, vals in enumerate(comp_values)]
-        cpl = export_coupling(Path(tmp) / "coupling.fmu", A, n, {**coupling_real, **coupling_enum, **h_starts})
+        cpl = export_coupling(Path(tmp) / "coupling.fmu", A, n, {**coupling_real, **coupling_enum, **h_starts},
+                              units=model.declaration.units)
         files = [(SSD, _ssd(sc.name, v, model, edges, N, n, osc_names, cfg, bool(maps)))]
         files += [(name, osc.read_bytes()) for name, osc in zip(osc_names, oscs)]
         files.append((_COUPLING_FMU, cpl.read_bytes()))
@@ -267,15 +368,16 @@ def _ssd(scene_name, v, model, edges, N, n, osc_names, cfg, mapped=False) -> byt
     system = ET.SubElement(root, _q("ssd", "System"), {"name": scene_name, "description": v.description or ""})
     elements = ET.SubElement(system, _q("ssd", "Elements"))
     qn, un, tn = model.q, model.u, model.tau
+    units = model.declaration.units          # the system FMU's own (rad, rad/s, N.m for the pendulum)
     for i in range(N):
-        cons = [(a, "output", "Real", "m") for a in qn] + [(a, "output", "Real", "m/s") for a in un] + \
-               [(a, "input", "Real", "N") for a in tn]
+        cons = [(a, "output", "Real", units["q"]) for a in qn] + [(a, "output", "Real", units["u"]) for a in un] + \
+               [(a, "input", "Real", units["tau"]) for a in tn]
         _component(elements, system_component(i, N), osc_names[i], cons, f"resources/{system_component(i, N)}.ssv")
     E = len(edges)
     cons = []
-    for base, unit in (("q", "m"), ("u", "m/s")):
-        cons += [(a, "input", "Real", unit) for i in range(N) for a in node_names(base, i, n)]
-    cons += [(a, "output", "Real", "N") for i in range(N) for a in node_names("tau", i, n)]
+    for base in ("q", "u"):
+        cons += [(a, "input", "Real", units[base]) for i in range(N) for a in node_names(base, i, n)]
+    cons += [(a, "output", "Real", units["tau"]) for i in range(N) for a in node_names("tau", i, n)]
     cons += [(a, "output", "Real", None) for base in ("d", "V", "euclidean") for a in edge_names(base, E)]
     cons += [(a, "output", "Integer", None) for a in edge_names("branch", E)]
     _component(elements, COUPLING_COMPONENT, _COUPLING_FMU, cons, f"resources/{COUPLING_COMPONENT}.ssv",
@@ -304,7 +406,8 @@ def _ssd(scene_name, v, model, edges, N, n, osc_names, cfg, mapped=False) -> byt
 class SspPackage:
     """What :func:`read_ssp` finds in a package: components (name -> FMU source inside
     the archive), their bound Real parameter values, the connections
-    ((start element, start connector, end element, end connector)), t_end and H."""
+    ((start element, start connector, end element, end connector)), t_end and H;
+    ``origins``: per component, where each bound value was read (file inside the package, element)."""
 
     path: Path
     name: str
@@ -314,90 +417,131 @@ class SspPackage:
     t_end: float | None
     H: float | None
     extra: dict = field(default_factory=dict)
+    origins: dict = field(default_factory=dict)
+    bindings: dict = field(default_factory=dict)   #: per component, the files its bindings read
+
+    def fail(self, file: str | None, element: str | None, reason: str) -> SspError:
+        return SspError(self.path, file, element, reason)
+
+    def origin(self, component: str, name: str) -> tuple[str, str]:
+        """(file, element) that bound ``name`` of ``component`` (its FMU's start value if none did)."""
+        return self.origins.get(component, {}).get(name) or (self.sources.get(component),
+                                                              f"start value of {name!r}")
 
 
-def _read_ssv(zf: zipfile.ZipFile, name: str) -> dict:
-    try:
-        root = ET.fromstring(zf.read(name))
-    except KeyError:
-        raise SsdError(f"the package binds {name}, which it does not hold") from None
+def _parameters(arc: _Archive, file: str, root) -> dict:
+    """name -> (value, element) of the Real parameters of an ``ssv:ParameterSet`` (in ``file``)."""
     out = {}
     for p in root.iter(_q("ssv", "Parameter")):
+        name = p.get("name")
+        if not name:
+            raise arc.fail(file, _element(p), "has no name attribute")
         real = p.find(_q("ssv", "Real"))
         if real is not None:
-            out[p.get("name")] = float(real.get("value"))
+            element = f'<ssv:Parameter name="{name}"> <ssv:Real>'
+            out[name] = (arc.number(file, element, real.get("value")), element)
     return out
 
 
-def _mapped(zf: zipfile.ZipFile, values: dict, mapping) -> dict:
-    """A binding's values under its parameter mapping (an ``.ssm`` source or inline entries):
-    the mapped names renamed, the others dropped (the binding is meant for those it maps)."""
+def _mapped(arc: _Archive, values: dict, mapping, file: str, element: str) -> dict:
+    """A binding's values under its parameter mapping (an ``.ssm`` source or inline entries, the
+    ``ssd:ParameterMapping`` ``element`` of ``file``): the mapped names renamed, the others dropped
+    (the binding is meant for those it maps)."""
     if mapping is None:
         return values
-    root = mapping
+    root, where = mapping, file
     if mapping.get("source"):
-        try:
-            root = ET.fromstring(zf.read(mapping.get("source")))
-        except KeyError:
-            raise SsdError(f"the package maps parameters by {mapping.get('source')}, which it does not hold") from None
-    entries = {e.get("source"): e.get("target") for e in root.iter(_q("ssm", "MappingEntry"))}
+        where = mapping.get("source")
+        root = arc.xml(where, _q("ssm", "ParameterMapping"), file, element)
+    entries = {}
+    for e in root.iter(_q("ssm", "MappingEntry")):
+        if not (e.get("source") and e.get("target")):
+            raise arc.fail(where, _element(e, "source", "target"), "needs both a source and a target attribute")
+        entries[e.get("source")] = e.get("target")
     return {entries[k]: v for k, v in values.items() if k in entries}
 
 
 def read_ssp(path) -> SspPackage:
-    """Read a package's structure, bindings and experiment (ValueError naming what is wrong)."""
+    """Read a package's structure, bindings and experiment: every refusal is an :class:`SspError`
+    naming the package, the file inside it, the element and what is wrong (not a zip, an .ssd that
+    is not SSP XML, a component FMU, .ssv or .ssm it does not hold, a value that is not a finite number)."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"SSP package not found: {path}")
     try:
         zf = zipfile.ZipFile(path)
     except zipfile.BadZipFile:
-        raise SsdError(f"{path} is not an SSP package (not a zip archive)") from None
+        raise SspError(path, None, None, "not an SSP package (not a zip archive)") from None
     with zf:
-        try:
-            root = ET.fromstring(zf.read(SSD))
-        except KeyError:
-            raise SsdError(f"{path} has no {SSD} at its root (entries: {', '.join(zf.namelist()[:8])})") from None
+        arc = _Archive(path, zf)
+        if SSD not in arc.names:
+            raise arc.fail(SSD, None, "missing: an SSP package holds it at its root (the package holds: "
+                           f"{', '.join(sorted(arc.names)[:8]) or 'nothing'})")
+        root = arc.xml(SSD, _q("ssd", "SystemStructureDescription"), SSD, None)
         system = root.find(_q("ssd", "System"))
         if system is None:
-            raise SsdError(f"{path}: {SSD} has no ssd:System")
-        sources, params = {}, {}
+            raise arc.fail(SSD, _element(root, "name"), "has no <ssd:System>")
+        sources, params, origins, bindings = {}, {}, {}, {}
         for comp in system.iter(_q("ssd", "Component")):
-            name = comp.get("name")
-            sources[name] = comp.get("source")
-            params[name] = {}
+            name, src = comp.get("name"), comp.get("source")
+            here = _element(comp, "name", "source")
+            if not name:
+                raise arc.fail(SSD, here, "has no name attribute")
+            if name in sources:
+                raise arc.fail(SSD, here, f"a second component named {name!r}")
+            arc.data(src, SSD, here)           # the component's FMU is in the package
+            sources[name], params[name], origins[name], bindings[name] = src, {}, {}, []
             for b in comp.iter(_q("ssd", "ParameterBinding")):
+                found = {}
                 if b.get("source"):
-                    params[name].update(_mapped(zf, _read_ssv(zf, b.get("source")), b.find(_q("ssd", "ParameterMapping"))))
-                for ps in b.iter(_q("ssv", "ParameterSet")):
-                    for p in ps.iter(_q("ssv", "Parameter")):
-                        real = p.find(_q("ssv", "Real"))
-                        if real is not None:
-                            params[name][p.get("name")] = float(real.get("value"))
-        conns = [(c.get("startElement"), c.get("startConnector"), c.get("endElement"), c.get("endConnector"))
-                 for c in system.iter(_q("ssd", "Connection"))]
+                    ssv = b.get("source")
+                    bind = _element(b, "source")
+                    found = _parameters(arc, ssv, arc.xml(ssv, _q("ssv", "ParameterSet"), SSD, bind))
+                    found = _mapped(arc, found, b.find(_q("ssd", "ParameterMapping")), SSD, bind)
+                    bindings[name].append(ssv)
+                for ps in b.iter(_q("ssv", "ParameterSet")):     # inline values
+                    found.update({k: (v, f"{e} (inline, component {name!r})")
+                                  for k, (v, e) in _parameters(arc, SSD, ps).items()})
+                for k, (v, e) in found.items():
+                    params[name][k] = v
+                    origins[name][k] = (b.get("source") or SSD, e)
+        conns = []
+        for c in system.iter(_q("ssd", "Connection")):
+            ends = tuple(c.get(a) for a in ("startElement", "startConnector", "endElement", "endConnector"))
+            here = _element(c, "startElement", "startConnector", "endElement", "endConnector")
+            if not (ends[1] and ends[3]):
+                raise arc.fail(SSD, here, "needs a startConnector and an endConnector")
+            for el in (ends[0], ends[2]):
+                if el and el not in sources:
+                    raise arc.fail(SSD, here, f"names the element {el!r}, which is not a component "
+                                              f"({', '.join(sources)})")
+            conns.append(ends)
         exp = root.find(_q("ssd", "DefaultExperiment"))
-        t_end = float(exp.get("stopTime")) if exp is not None and exp.get("stopTime") else None
-        H = _package_step(path, root, system)
-    return SspPackage(path, root.get("name"), sources, params, conns, t_end, H)
+        t_end = None
+        if exp is not None:
+            for a in ("startTime", "stopTime"):
+                if exp.get(a) is not None:
+                    x = arc.number(SSD, "<ssd:DefaultExperiment>", exp.get(a), a, positive=a == "stopTime")
+                    t_end = x if a == "stopTime" else t_end
+        H = _package_step(arc, root, system)
+    return SspPackage(path, root.get("name"), sources, params, conns, t_end, H, origins=origins, bindings=bindings)
 
 
-def _package_step(path, root, system) -> float | None:
+def _package_step(arc: _Archive, root, system) -> float | None:
     """The communication step the package gives: libcosim's (``osp:FixedStepAlgorithm``) and
-    OMSimulator's (the system's ``oms:SimulationInformation fixedStepSize``), which must agree
-    when both are there (a package edited in one tool only is refused, naming both)."""
+    OMSimulator's (the system's ``oms:SimulationInformation fixedStepSize``), each a finite number > 0,
+    which must agree when both are there (a package edited in one tool only is refused, naming both)."""
     fs = root.find(f".//{_q('osp', 'FixedStepAlgorithm')}")
-    steps = {"osp:FixedStepAlgorithm baseStepSize": fs.get("baseStepSize") if fs is not None else None}
+    steps = {}
+    if fs is not None and fs.get("baseStepSize") is not None:
+        steps["<osp:FixedStepAlgorithm> baseStepSize"] = fs.get("baseStepSize")
     for ann in system.findall(f"{_q('ssd', 'Annotations')}/{_q('ssc', 'Annotation')}"):
         info = ann.find(f".//{_q('oms', 'SimulationInformation')}") if ann.get("type") == OMS else None
-        if info is not None and info.get("fixedStepSize"):
-            steps["oms:SimulationInformation fixedStepSize"] = info.get("fixedStepSize")
-    try:
-        given = {k: float(v) for k, v in steps.items() if v is not None}
-    except ValueError:
-        raise SsdError(f"{path}: a step size is not a number: {steps}") from None
+        if info is not None and info.get("fixedStepSize") is not None:
+            steps["<oms:SimulationInformation> fixedStepSize"] = info.get("fixedStepSize")
+    given = {k: arc.number(SSD, k.split()[0], v, k.split()[1], positive=True) for k, v in steps.items()}
     if len(set(given.values())) > 1:
-        raise SsdError(f"{path}: the package gives two different communication steps: "
+        raise arc.fail(SSD, " and ".join(given), "the package gives two different communication steps: "
                        + ", ".join(f"{k} = {v!r}" for k, v in given.items()) + " (edit both, or give H)")
     return next(iter(given.values()), None)
 
@@ -418,27 +562,76 @@ def fmpy_parameter_set(path):
 
 
 # ------------------------------------------------------------------ running in our master
-def _coupling_setup(pkg: SspPackage, zf: zipfile.ZipFile, tmp: Path):
-    """(coupling slave class, its parameter values): the FMU's start values under the bindings."""
-    import json
+_START = "resources/fmu_sync_start.json"
+_BUILD = "resources/fmu_sync_build.json"
+#: a coupling input connector: q[i] (n = 1) or q[i,k]
+_COUPLING_Q = re.compile(r"q\[(\d+)(?:,\d+)?\]")
 
+
+def _checked_values(pkg: SspPackage, component: str, slave, start: dict):
+    """(values, configuration) of a component: its FMU's ``start`` values under the package's
+    bindings, each bound value checked as the FMU checks it (name, type, range) and the whole set
+    configured as the FMU's exitInitializationMode configures it; SspError naming where a value was
+    read (the .ssv and its element) or, for a set that is not valid as a whole, the bindings' files."""
+    src = pkg.sources[component]
+    try:
+        own = slave.normalize_start_values(start)
+    except ValueError as exc:
+        raise pkg.fail(src, _START, f"component {component!r}: {exc}") from None
+    bound = {}
+    for k, v in pkg.parameters.get(component, {}).items():
+        try:
+            bound.update(slave.normalize_start_values({k: v}))
+        except ValueError as exc:
+            raise pkg.fail(*pkg.origin(component, k), f"component {component!r}: {exc}") from None
+    values = slave.start_parameters({**own, **bound})
+    try:
+        return values, slave.configure(values)
+    except ValueError as exc:
+        raise pkg.fail(", ".join(pkg.bindings.get(component) or [src]), f'<ssd:Component name="{component}">',
+                       f"its parameters are not a valid set: {exc}") from None
+
+
+def _coupling_setup(pkg: SspPackage, arc: _Archive):
+    """(coupling slave, its parameter values, its configuration): the coupling FMU's start values
+    under the bindings, checked as the FMU checks them."""
     from .fmus.coupling import CouplingSlave, CouplingSpec
     src = pkg.sources.get(COUPLING_COMPONENT)
     if src is None:
-        raise SsdError(f"{pkg.path}: no component {COUPLING_COMPONENT!r} (the coupling FMU); components: "
-                       f"{', '.join(pkg.sources)}")
-    with zipfile.ZipFile(io.BytesIO(zf.read(src))) as fz:
-        try:
-            start = json.loads(fz.read("resources/fmu_sync_start.json"))
-        except KeyError:
-            raise SsdError(f"{pkg.path}: {src} is not an fmu-sync coupling FMU (no resources/"
-                           f"fmu_sync_start.json)") from None
-    if start.get("model") != "coupling":
-        raise SsdError(f"{pkg.path}: {src} is the {start.get('model')!r} model, not the coupling FMU")
-    cls = CouplingSlave(CouplingSpec.from_dict(start["structure"]))
-    values = cls.start_parameters(cls.normalize_start_values(start["start"]))
-    values.update(cls.normalize_start_values(pkg.parameters.get(COUPLING_COMPONENT, {})))
-    return cls, values
+        raise pkg.fail(SSD, "<ssd:System> <ssd:Elements>", f"no component {COUPLING_COMPONENT!r} (the coupling "
+                       f"FMU); components: {', '.join(pkg.sources) or 'none'}")
+    start = arc.fmu_json(src, _START, COUPLING_COMPONENT)
+    if not isinstance(start, dict) or start.get("model") != "coupling":
+        got = start.get("model") if isinstance(start, dict) else start
+        raise pkg.fail(src, _START, f"the {got!r} model, not the coupling FMU")
+    try:
+        cls = CouplingSlave(CouplingSpec.from_dict(start["structure"]))
+        own = dict(start["start"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise pkg.fail(src, _START, f"no valid coupling structure and start values ({exc!r})") from None
+    values, cfg = _checked_values(pkg, COUPLING_COMPONENT, cls, own)
+    return cls, values, cfg
+
+
+def _system_components(pkg: SspPackage, N: int) -> list[str]:
+    """The components connected to the coupling's inputs q[1] .. q[N], in that order."""
+    nodes = {}
+    for a, ac, b, bc in pkg.connections:
+        if b != COUPLING_COMPONENT or not bc.startswith("q["):
+            continue
+        m = _COUPLING_Q.fullmatch(bc)
+        here = f'<ssd:Connection endElement="{b}" endConnector="{bc}">'
+        if m is None or not 1 <= int(m.group(1)) <= N:
+            raise pkg.fail(SSD, here, f"the coupling has no input {bc!r} (q[1] .. q[{N}])")
+        if not a or a == COUPLING_COMPONENT:
+            raise pkg.fail(SSD, here, f"must start at a system component, starts at {a!r}")
+        i = int(m.group(1)) - 1
+        if nodes.setdefault(i, a) != a:
+            raise pkg.fail(SSD, here, f"connects {a!r} to q[{i + 1}], which {nodes[i]!r} is connected to already")
+    if sorted(nodes) != list(range(N)):
+        raise pkg.fail(SSD, "<ssd:Connections>", f"the coupling's inputs q[1]..q[{N}] must each be connected to a "
+                       f"system's q, found {', '.join(f'q[{i + 1}] <- {c}' for i, c in sorted(nodes.items())) or 'none'}")
+    return [nodes[i] for i in range(N)]
 
 
 def run_ssp(path, method: str = "jacobi", t_end: float | None = None, H: float | None = None,
@@ -450,50 +643,40 @@ def run_ssp(path, method: str = "jacobi", t_end: float | None = None, H: float |
     the coupling component's parameters; t_end and H the package's DefaultExperiment
     (overridable). ``method``: the master's exchange order ("jacobi", "gauss-seidel",
     or another master's (:class:`fmu_sync.ssp_master.SspMaster`): "delayed" = libcosim,
-    "delayed-zero" = fmpy's SSP runner; docs/ssp.md). Returns a :class:`~fmu_sync.core.result.NetworkResult`; a package
-    whose coupling geometry differs from the systems' is refused (ValueError).
+    "delayed-zero" = fmpy's SSP runner; docs/ssp.md). Returns a :class:`~fmu_sync.core.result.NetworkResult`.
+    Every fault of the package is refused before the run with an :class:`SspError` naming the
+    package, the file inside it, the element and what is wrong: the checks of :func:`read_ssp`, every
+    component's values as its FMU checks them, a coupling geometry that differs from the systems'.
     """
     pkg = read_ssp(path)
     t_end = pkg.t_end if t_end is None else t_end
     H = pkg.H if H is None else H
     if t_end is None or H is None:
-        raise SsdError(f"{pkg.path}: no stopTime or no step size (osp:FixedStepAlgorithm baseStepSize in "
-                       f"its DefaultExperiment, or OMSimulator's fixedStepSize in its system): give t_end and H")
+        raise pkg.fail(SSD, "<ssd:DefaultExperiment>", "no stopTime or no step size (osp:FixedStepAlgorithm "
+                       "baseStepSize in its DefaultExperiment, or OMSimulator's fixedStepSize in its system): "
+                       "give t_end and H")
     with zipfile.ZipFile(pkg.path) as zf, tempfile.TemporaryDirectory(prefix="fmu-sync-ssp-") as tmp:
-        ccls, cvals = _coupling_setup(pkg, zf, Path(tmp))
-        spec = ccls.SPEC
-        cfg = ccls.configure(cvals)
-        nodes = {}
-        for a, ac, b, bc in pkg.connections:
-            if b == COUPLING_COMPONENT and bc.startswith("q["):
-                nodes[int(bc[2:].split(",")[0].rstrip("]")) - 1] = a
-        if sorted(nodes) != list(range(spec.N)):
-            raise SsdError(f"{pkg.path}: the coupling's inputs q[1]..q[{spec.N}] must each be connected to a "
-                           f"system's q, found {', '.join(f'q[{i + 1}] <- {c}' for i, c in sorted(nodes.items()))}")
-        names = [nodes[i] for i in range(spec.N)]
+        arc = _Archive(pkg.path, zf)
+        ccls, cvals, cfg = _coupling_setup(pkg, arc)
+        names = _system_components(pkg, ccls.SPEC.N)
         fmu = Path(tmp) / "system.fmu"
-        fmu.write_bytes(_one_model(pkg, zf, names))
-        return _run_master(pkg, fmu, names, spec, cfg, t_end, H, method, record_every, progress, allow_unstable,
-                           cvals)
+        fmu.write_bytes(_one_model(pkg, arc, names))
+        return _run_master(pkg, arc, fmu, names, ccls.SPEC, cfg, t_end, H, method, record_every, progress,
+                           allow_unstable, cvals)
 
 
-def _one_model(pkg: SspPackage, zf: zipfile.ZipFile, names: list[str]) -> bytes:
+def _one_model(pkg: SspPackage, arc: _Archive, names: list[str]) -> bytes:
     """The FMU our master instantiates N times: the systems' FMU files (one per system, as
     :func:`write_ssp` writes them, or one shared) must be one model whose start values differ
     only in what each component's bindings set (refused otherwise, naming the first difference)."""
-    import json
     srcs = list(dict.fromkeys(pkg.sources[c] for c in names))
-    blobs = {s: zf.read(s) for s in srcs}
+    first_of = {pkg.sources[c]: c for c in reversed(names)}
 
     def identity(src):
-        with zipfile.ZipFile(io.BytesIO(blobs[src])) as fz:
-            try:
-                build = json.loads(fz.read("resources/fmu_sync_build.json"))
-                start = json.loads(fz.read("resources/fmu_sync_start.json"))["start"]
-            except KeyError:
-                raise SsdError(f"{pkg.path}: {src} is not an fmu-sync FMU (no resources/fmu_sync_build.json "
-                               f"or fmu_sync_start.json)") from None
-        return (build.get("model"), build.get("code_hash")), start
+        build, start = (arc.fmu_json(src, entry, first_of[src]) for entry in (_BUILD, _START))
+        if not (isinstance(build, dict) and isinstance(start, dict) and isinstance(start.get("start"), dict)):
+            raise pkg.fail(src, f"{_BUILD}, {_START}", "not the build record and start values of an fmu-sync FMU")
+        return (build.get("model"), build.get("code_hash")), start["start"]
 
     seen = {src: identity(src) for src in srcs}
     first, start0 = seen[srcs[0]]
@@ -501,31 +684,35 @@ def _one_model(pkg: SspPackage, zf: zipfile.ZipFile, names: list[str]) -> bytes:
         src = pkg.sources[c]
         ident, start = seen[src]
         if ident != first:
-            raise SsdError(f"{pkg.path}: our master runs N instances of one model; {srcs[0]} is {first[0]!r} "
-                           f"(code {first[1][:12]}) but {src} is {ident[0]!r} (code {str(ident[1])[:12]})")
+            raise pkg.fail(src, f'<ssd:Component name="{c}">', f"our master runs N instances of one model; "
+                           f"{srcs[0]} is {first[0]!r} (code {str(first[1])[:12]}) but {src} is {ident[0]!r} "
+                           f"(code {str(ident[1])[:12]})")
         bound = pkg.parameters.get(c, {})
         diff = sorted(k for k in set(start) | set(start0) if k not in bound and start.get(k) != start0.get(k))
         if diff:
             k = diff[0]
-            raise SsdError(f"{pkg.path}: the systems' FMUs differ in {k!r}, which the bindings of {c!r} do not "
-                           f"set ({srcs[0]}: {start0.get(k)!r}, {src}: {start.get(k)!r}): our master runs N "
-                           f"instances of one model")
-    return blobs[srcs[0]]
+            raise pkg.fail(src, f'<ssd:Component name="{c}">', f"the systems' FMUs differ in {k!r}, which the "
+                           f"bindings of {c!r} do not set ({srcs[0]}: {start0.get(k)!r}, {src}: "
+                           f"{start.get(k)!r}): our master runs N instances of one model")
+    return arc.zf.read(srcs[0])
 
 
-def _run_master(pkg, fmu, names, spec, cfg, t_end, H, method, record_every, progress, allow_unstable, cvals):
-    from fmpy import read_model_description
-
+def _run_master(pkg, arc, fmu, names, spec, cfg, t_end, H, method, record_every, progress, allow_unstable, cvals):
     from .core.coupling import LAWS
     from .core.errors import RunFailed
-    from .core.model import MechanicalSystem
     from .core.pair import check_common_geometry
+    from .fmus.slave import MechanicalSlave
+    from .master import fmu_model, model_description
     from .ssp_master import SspMaster
-    model = contract.identify([v.name for v in read_model_description(str(fmu)).modelVariables])
-    starts, states = [], []
+    model = fmu_model(model_description(str(fmu)), str(fmu))   # a force-law model: registered from its FMU
+    slave = MechanicalSlave(model)
+    own = arc.fmu_json(pkg.sources[names[0]], _START, names[0])["start"]
+    starts, states, values = [], [], []
     for c in names:
-        p = dict(pkg.parameters.get(c, {}))
-        q0, u0 = [p.pop(k) for k in model.q_start], [p.pop(k) for k in model.u_start]
+        full, _ = _checked_values(pkg, c, slave, own)
+        values.append(full)
+        p = {k: full[k] for k in pkg.parameters.get(c, {}) if k not in model.q_start + model.u_start}
+        q0, u0 = [full[k] for k in model.q_start], [full[k] for k in model.u_start]
         starts.append(p)
         states.append((np.array(q0), np.array(u0)) if model.n > 1 else (q0[0], u0[0]))
     A = np.zeros((spec.N, spec.N))
@@ -535,16 +722,19 @@ def _run_master(pkg, fmu, names, spec, cfg, t_end, H, method, record_every, prog
     laws = [code_name[int(c)] for c in cfg.laws]
     geo = cfg.geo
     # the coupling's geometry must be the systems' (the master itself reads theirs from the FMU)
-    declared = {v.name: v.start for v in model.declare() if v.start is not None}
-    systems = [model.geometry_system({**declared, **p}) for p in starts]
-    z = np.zeros((spec.n, spec.n))
-    mine = MechanicalSystem(M=geo.M, K=z, C=z, f0=np.zeros(spec.n), w=geo.w, g0=geo.g0, e=geo.e)
-    check_common_geometry(systems + [mine], names + ["the coupling component"])
+    systems = [model.geometry_system(v) for v in values]
+    # the coupling's geometry beside the systems' (their force law: only the geometry is compared)
+    mine = SimpleNamespace(n=spec.n, force=systems[0].force, M=geo.M, w=geo.w, g0=geo.g0, e=geo.e)
+    try:
+        check_common_geometry(systems + [mine], names + ["the coupling component"])
+    except ValueError as exc:
+        raise pkg.fail(", ".join(pkg.bindings.get(COUPLING_COMPONENT) or [pkg.sources[COUPLING_COMPONENT]]),
+                       "the geometry M, w, g0, e", str(exc)) from None
     if "switching-compensated" in laws:   # and the force law h it evaluates must be theirs
-        _check_force_laws(pkg, names, cvals, [{**declared, **p} for p in starts])
+        _check_force_laws(pkg, names, cvals, values)
     master = SspMaster(fmu, states, A, t_end, H, [None if x == "none" else x for x in laws], cfg.Kp, cfg.Kd,
-                           geo.Q, method=method, record_every=record_every, start_values=starts,
-                           allow_unstable=allow_unstable)
+                       geo.Q, method=method, record_every=record_every, start_values=starts,
+                       allow_unstable=allow_unstable)
     about = dict(package=str(pkg.path), components=names, method=method, H=float(H),
                  wall={"w": [float(x) for x in np.ravel(geo.w)], "g0": float(geo.g0)})
     try:
@@ -559,15 +749,16 @@ def _run_master(pkg, fmu, names, spec, cfg, t_end, H, method, record_every, prog
 
 def _check_force_laws(pkg, names, cvals, values) -> None:
     """The coupling's copy of each system's force law (``k[i]`` .. ``phi[i]``) must be that
-    system's (SsdError naming the first parameter that differs)."""
+    system's (SspError naming the first parameter that differs, where the coupling's was read)."""
     from .fmus.coupling import force_names
     for i, (c, p) in enumerate(zip(names, values)):
         for a in force_names():
             mine, theirs = cvals.get(f"{a}[{i + 1}]"), p.get(a)
             if mine != theirs:
-                raise SsdError(f"{pkg.path}: the law switching-compensated evaluates each system's force law, "
-                               f"but the coupling component's {a}[{i + 1}] = {mine!r} differs from {c}'s "
-                               f"{a} = {theirs!r} (bind it from {c}'s parameters, as fmu-sync ssp writes it)")
+                raise pkg.fail(*pkg.origin(COUPLING_COMPONENT, f"{a}[{i + 1}]"),
+                               f"the law switching-compensated evaluates each system's force law, but the "
+                               f"coupling component's {a}[{i + 1}] = {mine!r} differs from {c}'s {a} = {theirs!r} "
+                               f"(bind it from {c}'s parameters, as fmu-sync ssp writes it)")
 
 
 def save_result(res, out, formats=("csv", "npz"), plots: bool = True, method: str | None = None) -> Path:

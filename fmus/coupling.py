@@ -29,12 +29,14 @@ from one compiled call per evaluation of the core's
 """
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..core.compensation import check_compensated, force_table
 from ..core.coupling import COMPENSATED, gain_matrix
+from ..core.declaration import DEFAULT_UNITS
 from ..core.distance import make_geometry
 from ..core.pair import stack_nodes
 from .contract import INPUT_BOUND, LAW_ITEMS, LAW_TYPE, POSITIVE_MIN, Var, matrix, model
@@ -70,13 +72,27 @@ def force_vars(N: int) -> list[Var]:
 
 @dataclass(frozen=True)
 class CouplingSpec:
-    """The structure of a coupling FMU: N nodes of n DOF and the coupled edges (0-based i < j)."""
+    """The structure of a coupling FMU: N nodes of n DOF and the coupled edges (0-based i < j);
+    ``units``: the systems' units of q, u and tau (``(("q", "rad"), ...)``; empty: m, m/s, N), which
+    its inputs, its outputs tau and its gains take (an importer such as OMSimulator refuses a
+    connection between variables of different units)."""
 
     N: int
     n: int
     edges: tuple
+    units: tuple = ()
+
+    def unit(self, key: str) -> str:
+        """The unit of ``q``, ``u`` or ``tau``."""
+        return dict(self.units).get(key, DEFAULT_UNITS[key])
 
     def __post_init__(self):
+        if self.units:
+            from .slave import unit_exponents
+            if set(dict(self.units)) != set(DEFAULT_UNITS):
+                raise ValueError(f"units must name q, u and tau, got {dict(self.units)!r}")
+            for key, unit in self.units:
+                unit_exponents(unit)      # ValueError naming a unit it cannot read
         if not (isinstance(self.N, int) and self.N >= 2):
             raise ValueError(f"a coupling FMU couples N >= 2 systems, got N = {self.N!r}")
         if not (isinstance(self.n, int) and self.n >= 1):
@@ -91,17 +107,28 @@ class CouplingSpec:
             raise ValueError(f"edges must be distinct, got {list(self.edges)}")
 
     @classmethod
-    def from_weights(cls, A, n: int = 1) -> "CouplingSpec":
+    def from_weights(cls, A, n: int = 1, units: dict | None = None) -> "CouplingSpec":
         from ..core.network import edges_of, weights
         a = weights(A)
-        return cls(a.shape[0], int(n), tuple(tuple(int(x) for x in e) for e in edges_of(a)))
+        return cls(a.shape[0], int(n), tuple(tuple(int(x) for x in e) for e in edges_of(a)), _units(units))
 
     def as_dict(self) -> dict:
-        return {"N": self.N, "n": self.n, "edges": [list(e) for e in self.edges]}
+        out = {"N": self.N, "n": self.n, "edges": [list(e) for e in self.edges]}
+        if self.units:      # the default units are not written (an FMU without units is in m, m/s, N)
+            out["units"] = dict(self.units)
+        return out
 
     @classmethod
     def from_dict(cls, d: dict) -> "CouplingSpec":
-        return cls(int(d["N"]), int(d["n"]), tuple(tuple(int(x) for x in e) for e in d["edges"]))
+        return cls(int(d["N"]), int(d["n"]), tuple(tuple(int(x) for x in e) for e in d["edges"]),
+                   _units(d.get("units")))
+
+
+def _units(units: dict | None) -> tuple:
+    """The units of q, u, tau as :attr:`CouplingSpec.units` (empty for the default m, m/s, N)."""
+    if not units or dict(units) == DEFAULT_UNITS:
+        return ()
+    return tuple(sorted(dict(units).items()))
 
 
 def node_names(base: str, i: int, n: int) -> list[str]:
@@ -129,8 +156,10 @@ def _square(sym, unit, what, n, start_diag, diag_min):
 def declare(spec: CouplingSpec) -> list[Var]:
     """The interface of a coupling FMU, in value-reference order."""
     N, n, E = spec.N, spec.n, len(spec.edges)
+    uq, uu, ut = spec.unit("q"), spec.unit("u"), spec.unit("tau")
+    own = bool(spec.units)        # the systems' own units: the gains' follow (tau per q, ...)
     inputs = []
-    for base, unit, what in (("q", "m", "Position"), ("u", "m/s", "Velocity")):
+    for base, unit, what in (("q", uq, "Position"), ("u", uu, "Velocity")):
         for i in range(N):
             inputs += [Var(name, "Real", "input", "continuous", f"{what} of system {i + 1}"
                            + ("" if n == 1 else f", coordinate {k + 1}"), unit=unit, start=0.0,
@@ -143,15 +172,17 @@ def declare(spec: CouplingSpec) -> list[Var]:
         for a, b in ((i, j), (j, i)):
             params.append(_param(f"a[{a + 1},{b + 1}]", "1", f"Weight a_ij of the force on system {a + 1} "
                                  f"from its edge with system {b + 1} (>= 0)", 1.0, min=0.0))
-    params += (_square("Kp", "N/m", "Proportional gain Kp", n, 1.0, 0.0)
-               + _square("Kd", "N.s/m", "Derivative gain Kd", n, 0.5, 0.0)
-               + _square("Q", "N/m", "Position weight Q of the norm ||x||^2 = q^T Q q + u^T M u (SPD)", n, 1.0,
+    stiff = f"{ut}/{uq}" if own else "N/m"
+    params += (_square("Kp", stiff, "Proportional gain Kp", n, 1.0, 0.0)
+               + _square("Kd", f"{ut}.s/{uq}" if own else "N.s/m", "Derivative gain Kd", n, 0.5, 0.0)
+               + _square("Q", stiff, "Position weight Q of the norm ||x||^2 = q^T Q q + u^T M u (SPD)", n, 1.0,
                          POSITIVE_MIN)
-               + _square("M", "kg", "Mass matrix M of the systems (SPD; must equal theirs)", n, 1.0, POSITIVE_MIN)
+               + _square("M", f"{ut}.s2/{uq}" if own else "kg", "Mass matrix M of the systems (SPD; must equal "
+                         "theirs)", n, 1.0, POSITIVE_MIN)
                + ([_param("w", "1", "Wall normal w in g(q) = w^T q + g0 (must equal the systems')", 1.0)]
                   if n == 1 else [_param(f"w[{k + 1}]", "1", f"Wall normal w, component {k + 1} (must equal "
                                          f"the systems')", 1.0 if k == 0 else 0.0) for k in range(n)])
-               + [_param("g0", "m", "Wall offset g0 in g(q) = w^T q + g0 (must equal the systems')", 0.0),
+               + [_param("g0", uq, "Wall offset g0 in g(q) = w^T q + g0 (must equal the systems')", 0.0),
                   _param("e", "1", "Newton restitution coefficient (must equal the systems')", 0.9, min=0.0,
                          max=1.0)])
     if n == 1:   # the compensated law's h (1-DOF only: check_compensated)
@@ -160,7 +191,7 @@ def declare(spec: CouplingSpec) -> list[Var]:
     outs = []
     for i in range(N):
         outs += [Var(name, "Real", "output", "continuous", f"Coupling force on system {i + 1}"
-                     + ("" if n == 1 else f", coordinate {k + 1}") + " (B = I)", initial="calculated", unit="N",
+                     + ("" if n == 1 else f", coordinate {k + 1}") + " (B = I)", initial="calculated", unit=ut,
                      depends=ins, initial_depends=ins + pnames) for k, name in enumerate(node_names("tau", i, n))]
     for base, typ, unit, what in (
             ("d", "Real", None, "Quotient distance d of edge {e} (sqrt(J): the norm ||.||_P with Q in N/m)"),
@@ -178,6 +209,18 @@ class CouplingConfiguration:
 
     def __init__(self, laws, W2, Kp, Kd, geo, hp):
         self.laws, self.W2, self.Kp, self.Kd, self.geo, self.hp = laws, W2, Kp, Kd, geo, hp
+
+
+@contextmanager
+def _overflow(what: str):
+    """numpy's floating-point errors (overflow, invalid, division by zero) raised inside, refused
+    as a ValueError naming ``what`` (the parameters that were being combined), never printed."""
+    try:
+        with np.errstate(over="raise", invalid="raise", divide="raise", under="ignore"):
+            yield
+    except FloatingPointError as exc:
+        raise ValueError(f"{what}: computing with these values overflows the float range ({exc}); "
+                         f"use values of a physical magnitude") from None
 
 
 class CouplingSlave(Slave):
@@ -205,7 +248,10 @@ class CouplingSlave(Slave):
         return np.array([p[k] for k in matrix(sym, n)], dtype=np.float64).reshape(n, n)
 
     def configure(self, p: dict) -> CouplingConfiguration:
-        """Validate a complete parameter set; raises ValueError naming what is wrong."""
+        """Validate a complete parameter set; raises ValueError naming what is wrong: a value out of
+        its range, an arithmetic overflow (numpy's floating-point errors raise here and are refused
+        naming the parameters, never printed as warnings on the host's stderr) and forces beyond
+        what the systems accept (:meth:`check_force_bound`)."""
         spec = self.SPEC
         n, E = spec.n, len(spec.edges)
         codes = {v for _, v, _ in LAW_ITEMS}
@@ -217,13 +263,49 @@ class CouplingSlave(Slave):
                       dtype=np.float64).reshape(E, 2)
         if not (np.all(np.isfinite(W2)) and np.all(W2 >= 0.0)):
             raise ValueError(f"the weights a[i,j] must be finite and >= 0, got {W2.tolist()}")
-        Kp = gain_matrix(self._square(p, "Kp"), n, "Kp")
-        Kd = gain_matrix(self._square(p, "Kd"), n, "Kd")
         w = [p["w"]] if n == 1 else [p[f"w[{k + 1}]"] for k in range(n)]
-        geo = make_geometry(self._square(p, "M"), w, p["g0"], p["e"], self._square(p, "Q"))
+        with _overflow("Kp"):
+            Kp = gain_matrix(self._square(p, "Kp"), n, "Kp")
+        with _overflow("Kd"):
+            Kd = gain_matrix(self._square(p, "Kd"), n, "Kd")
+        with _overflow("the impact geometry M, w, g0, e and the metric Q"):
+            geo = make_geometry(self._square(p, "M"), w, p["g0"], p["e"], self._square(p, "Q"))
         if np.any(laws == COMPENSATED):
             check_compensated(n)
-        return CouplingConfiguration(laws, W2, Kp, Kd, geo, self.force_table(p))
+        with _overflow("the force laws k[i], c[i], f0[i], F[i], Omega[i], phi[i]"):
+            hp = self.force_table(p)
+        self.check_force_bound(p, laws, W2, Kp, Kd)
+        return CouplingConfiguration(laws, W2, Kp, Kd, geo, hp)
+
+    def check_force_bound(self, p: dict, laws, W2, Kp, Kd) -> None:
+        """The coupling's forces must stay within what the systems accept as their input tau,
+        |tau| <= INPUT_BOUND (contract.INPUT_BOUND): refused (ValueError naming the parameters) when the
+        force on a system at a unit state difference (1 in every coordinate of q and u) could exceed it,
+        ``sum_j a_ij (2 |Kp| + 2 |Kd| + |h_i|)`` (|.| the largest row sum; 2: the compensated law's
+        whole relative gain; ``|h_i| = |k[i]| + |c[i]| + |f0[i]| + |F[i]|`` on a switching-compensated
+        edge, the force law it cancels). During a run, inputs that make a force exceed the bound
+        make the call fail (the stepper's check, :mod:`.coupling_stepper`)."""
+        with np.errstate(over="ignore"):     # an overflowing sum is inf: refused below
+            gains = 2.0 * float(np.max(np.sum(np.abs(Kp), axis=1))) + 2.0 * float(np.max(np.sum(np.abs(Kd), axis=1)))
+        h_names = ("k", "c", "f0", "F")
+        total, terms = [0.0] * self.SPEC.N, [[] for _ in range(self.SPEC.N)]
+        for (i, j), law, (aij, aji) in zip(self.SPEC.edges, laws, W2):
+            for node, other, a in ((i, j, aij), (j, i, aji)):
+                h, said = 0.0, f"a[{node + 1},{other + 1}] = {float(a):g}"
+                if int(law) == COMPENSATED:
+                    h = sum(abs(p[f"{x}[{node + 1}]"]) for x in h_names)
+                    said += ", its force law k, c, f0, F = " + ", ".join(f"{p[f'{x}[{node + 1}]']:g}" for x in h_names)
+                total[node] += float(a) * (gains + h)
+                terms[node].append(said)
+        gain = ", ".join(f"{k} = {float(v[0, 0]):g}" if self.SPEC.n == 1 else f"{k} = {v.tolist()}"
+                         for k, v in (("Kp", Kp), ("Kd", Kd)))
+        for node, f in enumerate(total):
+            if not f <= INPUT_BOUND:
+                raise ValueError(
+                    f"the coupling force on system {node + 1} at a unit state difference (1 in every coordinate "
+                    f"of q and u) reaches {f:.3g} (sum_j a_ij (2 |Kp| + 2 |Kd| + |h_i|) with {gain}, "
+                    f"{'; '.join(terms[node])}), beyond |tau| <= {INPUT_BOUND:g}, what the systems accept as "
+                    f"their input tau (contract.INPUT_BOUND): lower the gains, the weights or the force law")
 
     def force_table(self, p: dict) -> np.ndarray:
         """The systems' force laws as the core's table (:func:`fmu_sync.core.compensation.force_table`,

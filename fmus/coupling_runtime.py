@@ -71,7 +71,8 @@ class CouplingInstance(InstanceBase):
                 f"inputs allow, below the depth of a contact that lasts (core.checks.penetration_bound)" if H > 0 else
                 "no step taken yet: a start state must satisfy g >= 0")
         return (f"W:t = {self.work[S.H_TIME]:g}: the inputs put system {i} inside the wall: g(q) = w^T q + g0 = "
-                f"{g:.6g} m is below the allowed Moreau penetration -{bound:.3g} m ({rule}); tau, d, V computed "
+                f"{g:.6g} m is below the allowed Moreau penetration {-bound if bound > 0.0 else 0.0:.3g} m ({rule}); tau, "
+                f"d, V computed "
                 f"from it are outside the quotient distance's domain (g >= 0): check the systems' wall "
                 f"parameters (w, g0 must equal theirs) and their solver.dt")
 

@@ -9,7 +9,8 @@ H_ITAUDOT, H_FEEDTHROUGH). The coupling has no state: every call, at doStep
 all outputs from the current inputs with one call of the core's
 :func:`fmu_sync.core.network.network_forces` (which calls
 :func:`fmu_sync.core.pair.coupling_step` per edge), then V per edge. Returns 0,
-1 if an output is not finite, or R_INADMISSIBLE (outputs computed) if a system's
+1 if an output is not finite or a force exceeds |tau| <= H_BOUND (contract.INPUT_BOUND, the
+systems' input bound), or R_INADMISSIBLE (outputs computed) if a system's
 state lies inside the wall deeper than the Moreau penetration a step can leave,
 :func:`fmu_sync.core.checks.penetration_bound` with dt = the last doStep's H (the
 systems' own solver steps are at most H; 0 before the first step: a start state
@@ -40,7 +41,8 @@ from ..core.jit import carray, cfunc, njit
 from ..core.checks import penetration_bound
 from ..core.distance import DistanceGeometry, ScalarGeometry
 from ..core.network import network_forces
-from .stepper import (H_CONFIGURED, H_DATA, H_DT, H_FEEDTHROUGH, H_ITAU, H_ITAUDOT, H_LEN, H_M, H_NX,
+from .contract import INPUT_BOUND
+from .stepper import (H_BOUND, H_CONFIGURED, H_DATA, H_DT, H_FEEDTHROUGH, H_ITAU, H_ITAUDOT, H_LEN, H_M, H_NX,
                       H_SCHEME, H_VERSION, R_INADMISSIBLE, STEP_SIGNATURE, WORK_VERSION)
 from .workarray import mat, put, put_wall, wall
 
@@ -86,6 +88,7 @@ def init_header(work: np.ndarray, N: int, n: int, E: int, m: int, nx: int, index
     work[H_DT] = math.inf             # no internal steps: the binary's step count is 0
     work[H_SCHEME] = NO_SCHEME
     work[H_FEEDTHROUGH] = 1.0
+    work[H_BOUND] = INPUT_BOUND       # |tau| the systems accept as input (the binary names it when exceeded)
     work[C_NODES], work[C_DOF], work[C_EDGES] = N, n, E
     work[C_HLAST] = 0.0
     for slot, key in ((C_IQ, "q"), (C_IU, "u"), (C_ITAU, "tau"), (C_ID, "d"), (C_IV, "V"), (C_IEU, "euclidean"),
@@ -201,9 +204,10 @@ def _evaluate(x, w, t):
         x[i_b + a] = bk[a]
         if not (math.isfinite(dk[a]) and math.isfinite(ek[a])):
             ok = False
+    bound = w[H_BOUND]
     for i in range(N):
         for c in range(n):
-            if not math.isfinite(tau[i, c]):
+            if not abs(tau[i, c]) <= bound:      # non-finite, or beyond what the systems accept
                 ok = False
     if not ok:
         return 1

@@ -66,11 +66,12 @@ def scenario_outputs(a):
 
 
 def scenario_overflow(a):
-    """A coupling FMU whose forces overflow (Kp = 1e300 on inputs 1e12 apart): the doStep's status and log."""
+    """A coupling FMU whose forces exceed what the systems accept (Kp = 1e6 on inputs 1e12 apart: |tau| =
+    2e18 > contract.INPUT_BOUND): the doStep's status and log."""
     from fmu_sync.fmi_bridge import FMUHost
     with FMUHost(a["fmu"], "overflow") as h:
         h.enter_initialization(0.0)
-        h.exit_initialization({"Kp": 1e300, "Kd": 0.0})
+        h.exit_initialization({"Kp": 1e6, "Kd": 0.0})
         h.set({"q[1]": 1e12, "q[2]": -1e12})
         status = h.do_step(0.0, 0.01)
         return {"status": status, "log": h.errors()}
@@ -252,13 +253,14 @@ def test_coupling_fmu_outputs_equal_the_core(fmus, key):
 
 
 def test_a_failed_coupling_step_speaks_of_the_coupling(fmus, tmp_path):
-    """A doStep whose coupling forces overflow is fmi2Error with a reason about the coupling's
-    outputs, not the mechanical models' state bounds or solver.dt."""
+    """A doStep whose coupling forces exceed the systems' input bound is fmi2Error with a reason about
+    the coupling's outputs, not the mechanical models' state bounds or solver.dt."""
     cases, _ = fmus
     got = _child("overflow", {"fmu": cases["io"]["fmu"]}, tmp_path)
     assert got["status"] == 3, got
     msg = got["log"][-1]
     assert "rolled back" in msg and "outputs computed from the current inputs are not finite" in msg
+    assert "exceeds |tau| <= 1e+12" in msg
     assert "solver.dt" not in msg and "|q|" not in msg
 
 

@@ -16,7 +16,7 @@ from .loading import Scene, as_scene
 from .schema import DEFAULT_OUT, TABLES, SceneError, Variant
 
 __all__ = ["RunRecord", "SceneRun", "RunRefused", "RunInterrupted", "preflight", "plan_variant", "run_scene", "run_variant",
-           "fmu_start_values", "export_for", "write_run", "run_extra", "record_interval", "clean_written", "error_notes", "skipped_notes", "settings_table"]
+           "fmu_start_values", "scene_values", "export_for", "export_spec", "write_run", "run_extra", "record_interval", "clean_written", "error_notes", "skipped_notes", "settings_table"]
 
 
 @dataclass
@@ -69,15 +69,24 @@ def fmu_start_values(fmu_path, variant: Variant, system=None, node: dict | None 
         if want is None or not (model is want or (model.key == want.key and model.declaration is want.declaration)):
             raise contract.ContractError(f"it is the {model.key} model, the scene needs "
                                          f"{want.key if want else 'a model the registry does not have'}")
-        if model.declaration.values is None:
-            values = model.flat(_declared_values(variant, node))
-        else:
-            values = model.values(variant.system if system is None else system)
-        return {**values, **model.solver_values(cfg["solver.dt"], cfg["solver.scheme"], cfg["solver.theta"])}
+        return scene_values(model, variant, system, node)
     except contract.ContractError as exc:
         raise SceneError(f"{name}: cannot take the scene's values: {exc}") from None
     except ValueError as exc:  # an unknown scheme
         raise SceneError(f"{name}: {exc}") from None
+
+
+def scene_values(model, variant: Variant, system=None, node: dict | None = None) -> dict:
+    """The FMU parameter values (as the contract's ``model`` names them) of the variant's system, or
+    of a network node's (``system``, its table ``node``), and the solver's: a declaration without
+    an inverse (a force law's) takes the scene's ``[system]`` values themselves, with ``node`` laid
+    over them. Raises :class:`~fmu_sync.fmus.contract.ContractError` for a system the model cannot hold."""
+    cfg = variant.cfg
+    if model.declaration.values is None:
+        values = model.flat(_declared_values(variant, node))
+    else:
+        values = model.values(variant.system if system is None else system)
+    return {**values, **model.solver_values(cfg["solver.dt"], cfg["solver.scheme"], cfg["solver.theta"])}
 
 
 def _declared_values(variant: Variant, node: dict | None = None) -> dict:
@@ -96,11 +105,20 @@ def export_for(variant: Variant, out_dir) -> Path:
     its key, a declaration with a force law by the scene's ``system.model`` (its file, for a user's)."""
     from ..export import export_fmu  # cosim branch only
 
+    model, spec, name = export_spec(variant)
+    return Path(export_fmu(spec, Path(out_dir) / f"{name}.fmu", None))
+
+
+def export_spec(variant: Variant):
+    """(the contract's model, what :func:`fmu_sync.export.export_fmu` exports it by, a file stem) of
+    the variant's system: a registered model by its key, a declaration with a force law by the
+    scene's ``system.model`` (its file, for a user's); the model is None if it has no FMU."""
     family = variant.cfg["system.model"]
     model = fmu_model_of(family, variant.system.n)
+    if model is None:
+        return None, None, None
     spec = model.key if model.key in contract.MODELS else family
-    name = model.identifier if spec == family else model.key.replace("-", "_")
-    return Path(export_fmu(spec, Path(out_dir) / f"{name}.fmu", None))
+    return model, spec, (model.identifier if spec == family else model.key.replace("-", "_"))
 
 
 def _label(variant: Variant, scene_name: str = "") -> str:

@@ -642,9 +642,10 @@ int fsr_step(fsr_instance *inst, double t, double H) {
     default:
         if (fsr_feedthrough(inst))            /* the coupling FMU: no state of its own, its outputs failed */
             return fsr_logf(inst, FSR_ERROR, "doStep(t = %s, H = %s) failed and was rolled back, state unchanged "
-                            "at t = %s: the outputs computed from the current inputs are not finite (inputs "
-                            "or gains that overflow the coupling forces, or a distance that cannot be computed)",
-                            G(t), G(H), G(now));
+                            "at t = %s: the outputs computed from the current inputs are not finite or a force "
+                            "exceeds |tau| <= %s, what the systems accept as input (inputs or gains that overflow "
+                            "the coupling forces, or a distance that cannot be computed)",
+                            G(t), G(H), G(now), G(w[FSR_H_BOUND]));
         return fsr_logf(inst, FSR_ERROR, "doStep(t = %s, H = %s) failed and was rolled back, state unchanged "
                         "at t = %s: the state became non-finite or left |q|, |u| <= %s with solver.dt = %s "
                         "(a diverging scheme or an overflowing force, e.g. an input or forcing amplitude near "
@@ -671,6 +672,7 @@ int fsr_outputs(fsr_instance *inst, const char *call) {
         return fsr_call(inst, "inadmissible", NULL);
     if (rc != 0)
         return fsr_logf(inst, FSR_ERROR, "%s: the outputs computed from the current inputs are not finite "
-                        "(or the parameters are not a valid set)", call);
+                        "or a force exceeds |tau| <= %s, what the systems accept as input (or the parameters "
+                        "are not a valid set)", call, fsr_g(w[FSR_H_BOUND]));
     return FSR_OK;
 }
