@@ -120,16 +120,10 @@ def one(k):
                     instanceName=f"i{k}")
     start.wait()
     try:
-        fmu.instantiate()
-        fmu.setupExperiment(startTime=0.0)
-        fmu.enterInitializationMode()
-        fmu.exitInitializationMode()
-        for i in range(10):
-            fmu.doStep(i * 0.01, 0.01)
-        q = fmu.getReal([1])[0]
-        fmu.terminate()
-        fmu.freeInstance()
-        out.append(q)
+        fmu.instantiate(); fmu.setupExperiment(startTime=0.0)
+        fmu.enterInitializationMode(); fmu.exitInitializationMode()
+        [fmu.doStep(i * 0.01, 0.01) for i in range(10)]
+        out.append(fmu.getReal([1])[0]); fmu.terminate(); fmu.freeInstance()
     except Exception as exc:
         out.append(repr(exc))
 threads = [threading.Thread(target=one, args=(k,)) for k in range(n)]

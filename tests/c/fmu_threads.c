@@ -7,34 +7,17 @@
  * Every FMU's binary is loaded first (dlopen, RTLD_LOCAL, as importers do); then THREADS threads per
  * FMU start together (a barrier) and each runs fmi2Instantiate, SetupExperiment, Enter/Exit
  * InitializationMode, 10 doSteps of 0.01, Terminate, FreeInstance. Prints one line per thread,
- * "thread K fmu F status S" (S the worst status, -1 if fmi2Instantiate returned NULL), the logger
- * writes to stderr. Exit code 0 when every call of every thread returned fmi2OK.
+ * "thread K fmu F status S" (S the worst status, -1 if fmi2Instantiate returned NULL); the logger
+ * (fmu_host.c's) writes to stderr. Exit code 0 when every call of every thread returned fmi2OK.
  */
-#define _GNU_SOURCE
-#include <dlfcn.h>
-#include <pthread.h>
-#include <stdarg.h>
-#include <stdio.h>
-#include <stdlib.h>
+#define main fmu_host_main      /* fmu_host.c's types, logger, sym, open_binary and uri_of; not its main */
+#include "fmu_host.c"
+#undef main
 #include <limits.h>
-#include <string.h>
-
-typedef void *fmi2Component;
-typedef struct {
-    void (*logger)(void *, const char *, int, const char *, const char *, ...);
-    void *(*allocateMemory)(size_t, size_t);
-    void (*freeMemory)(void *);
-    void (*stepFinished)(void *, int);
-    void *componentEnvironment;
-} Callbacks;
-typedef fmi2Component (*Instantiate)(const char *, int, const char *, const char *, const Callbacks *, int, int);
-typedef void (*FreeInstance)(fmi2Component);
-typedef int (*Setup)(fmi2Component, int, double, double, int, double);
-typedef int (*Simple)(fmi2Component);
-typedef int (*DoStep)(fmi2Component, double, double, int);
+#include <pthread.h>
 
 typedef struct {
-    char guid[256], uri[4200];
+    char guid[256], uri[8192];
     Instantiate inst;
     FreeInstance freei;
     Setup setup;
@@ -42,53 +25,11 @@ typedef struct {
     DoStep dostep;
 } Fmu;
 
-static void logger(void *env, const char *name, int s, const char *cat, const char *msg, ...) {
-    (void)env;
-    char buf[8192];
-    va_list ap;
-    va_start(ap, msg);
-    vsnprintf(buf, sizeof buf, msg, ap);
-    va_end(ap);
-    fprintf(stderr, "LOG %s %d %s: %s\n", name ? name : "", s, cat ? cat : "", buf);
-}
-
-static void read_attr(const char *xml, const char *attr, char *out, size_t n) {
-    static char buf[1 << 20];   /* main thread only, before the threads start */
-    FILE *f = fopen(xml, "r");
-    out[0] = '\0';
-    if (!f) return;
-    size_t len = fread(buf, 1, sizeof buf - 1, f);
-    buf[len] = '\0';
-    fclose(f);
-    char key[64];
-    snprintf(key, sizeof key, " %s=\"", attr);
-    char *p = strstr(buf, key);
-    if (!p) return;
-    p += strlen(key);
-    char *e = strchr(p, '"');
-    if (e) snprintf(out, n, "%.*s", (int)(e - p), p);
-}
-
-static void *sym(void *lib, const char *name) {
-    void *p = dlsym(lib, name);
-    if (!p) {
-        printf("missing symbol %s\n", name);
-        exit(4);
-    }
-    return p;
-}
-
 static int load(const char *dir, Fmu *f) {
-    char path[4096], ident[256];
-    snprintf(path, sizeof path, "%s/modelDescription.xml", dir);
-    read_attr(path, "modelIdentifier", ident, sizeof ident);
-    read_attr(path, "guid", f->guid, sizeof f->guid);
-    snprintf(path, sizeof path, "%s/binaries/linux64/%s.so", dir, ident);
-    void *lib = dlopen(path, RTLD_NOW | RTLD_LOCAL);
-    if (!lib) {
-        printf("dlopen failed: %s\n", dlerror());
-        return 0;
-    }
+    char abs[PATH_MAX];
+    if (!realpath(dir, abs)) snprintf(abs, sizeof abs, "%s", dir);
+    void *lib = open_binary(abs, "linux64", "guid", f->guid, sizeof f->guid);
+    if (!lib) return 0;
     f->inst = (Instantiate)sym(lib, "fmi2Instantiate");
     f->freei = (FreeInstance)sym(lib, "fmi2FreeInstance");
     f->setup = (Setup)sym(lib, "fmi2SetupExperiment");
@@ -96,9 +37,7 @@ static int load(const char *dir, Fmu *f) {
     f->exiti = (Simple)sym(lib, "fmi2ExitInitializationMode");
     f->term = (Simple)sym(lib, "fmi2Terminate");
     f->dostep = (DoStep)sym(lib, "fmi2DoStep");
-    char abs[4096];
-    if (!realpath(dir, abs)) snprintf(abs, sizeof abs, "%s", dir);
-    snprintf(f->uri, sizeof f->uri, "file://%s/resources", abs);   /* (no characters to escape in the tests' paths) */
+    uri_of(abs, f->uri, sizeof f->uri);
     return 1;
 }
 
