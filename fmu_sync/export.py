@@ -17,6 +17,9 @@ The FMU holds:
   compiled here to baseline x86-64 object code (:mod:`fmu_sync.native`) and linked
   with its support (``fmus/c/fmu_sync_native.c``), all by gcc (GUID and boot module
   compiled in). It loads libpython itself, so any C host can load the FMU;
+* ``binaries/linux64/fmu_sync_process.so.1`` — the one record per process that every
+  fmu-sync binary a host loads shares, so that one of them starts the interpreter
+  (``fmus/c/fmu_sync_process.h``);
 * ``resources/fmu_sync_code/`` — the Python code it runs (configuration, checks, state):
   only the modules its slave and stepper import (:func:`carried_modules`, the import
   closure with deferred imports), none importing ``fmu_sync``, run as plain Python
@@ -80,6 +83,10 @@ _ZIP_DATE = (2020, 1, 1, 0, 0, 0)
 FMI_VERSIONS = (2, 3)
 _C_GLUE = {2: "c/fmu_sync_fmi2.c", 3: "c/fmu_sync_fmi3.c"}
 _C_RUNTIME = ("c/fmu_sync_runtime.c", "c/fmu_sync_python.c", "c/fmu_sync_native.c", "c/fmu_sync_verify.c")
+#: the library beside the FMU's binary that holds the one record per process every fmu-sync binary shares
+#: (fmus/c/fmu_sync_process.h: who starts the interpreter); a versioned shared-object name
+PROCESS_LIB = "fmu_sync_process.so.1"
+_C_PROCESS = "c/fmu_sync_process.c"
 #: the resources that decide the FMU's behaviour, whose SHA-256 the binary checks at every instantiation
 #: (fmus/c/fmu_sync_verify.c); the build record holds the carried code's hash, checked by the boot script
 #: before it imports that code. The boot script (``fmu_sync_boot_<hash>.py``) is added per export.
@@ -333,6 +340,7 @@ def constants_header(guid: str = "", boot_module: str = "", max_substeps: int = 
     define("FMU_SYNC_GUID", json.dumps(guid))
     lines.append("#endif")
     define("FMU_SYNC_BOOT", json.dumps(boot_module))
+    define("FSR_PROCESS_LIB", json.dumps(PROCESS_LIB))
     # {name, sha256, ..., NULL} of the files the binary checks (VERIFIED), beside the GUID (build_binary)
     lines.append("extern const char *const fsr_files[];")
     return ("\n".join(lines + ["#endif", ""])).encode()
@@ -372,6 +380,21 @@ def build_binary(out: Path, guid: str, boot_module: str, max_substeps: int = MAX
         objs += native.stepper_objects(stepper_cfunc(model), Path(inc))
         cmd = [cc, "-std=gnu11", "-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-s",
                "-Wl,--no-undefined", "-o", str(out), *map(str, objs), *_LIBS]
+        p = subprocess.run(cmd, capture_output=True, text=True)
+    if p.returncode != 0:
+        raise RuntimeError(f"cannot build the FMU binary ({' '.join(cmd)}):\n{p.stderr[-3000:]}")
+    return out
+
+
+def build_process_lib(out: Path) -> Path:
+    """Compile :data:`PROCESS_LIB` (``fmus/c/fmu_sync_process.c``: it exports one symbol, the record
+    every fmu-sync binary of a process shares) into ``out``."""
+    cc = os.environ.get("CC", "gcc")
+    with tempfile.TemporaryDirectory(prefix="fmu-sync-p-") as inc:
+        objs = native.c_objects(cc, ["-std=gnu11", "-O2", "-fPIC", "-fvisibility=hidden"],
+                                [str(_fmus_dir() / _C_PROCESS)], Path(inc))
+        cmd = [cc, "-shared", "-fPIC", "-s", f"-Wl,-soname,{PROCESS_LIB}", "-Wl,--no-undefined", "-o", str(out),
+               *map(str, objs)]
         p = subprocess.run(cmd, capture_output=True, text=True)
     if p.returncode != 0:
         raise RuntimeError(f"cannot build the FMU binary ({' '.join(cmd)}):\n{p.stderr[-3000:]}")
@@ -539,12 +562,14 @@ def _export(cls, model: str, path, start_values, start_extra: dict, fmi_version:
         binary = build_binary(Path(tmp) / f"{cls.MODEL_IDENTIFIER}.so", guid, boot_module,
                               fmi_version=fmi_version, model=model,
                               files={n: resources[n] for n in (*VERIFIED, f"{boot_module}.py")}).read_bytes()
+        process_lib = build_process_lib(Path(tmp) / PROCESS_LIB).read_bytes()
     platform = "linux64" if fmi_version == 2 else "x86_64-linux"
     description = _model_description_xml(cls, starts, guid, fmi_version)
     root = ET.fromstring(description)
     files: list[tuple[str, bytes]] = [
         ("modelDescription.xml", description),
         (f"binaries/{platform}/{cls.MODEL_IDENTIFIER}.so", binary),
+        (f"binaries/{platform}/{PROCESS_LIB}", process_lib),
     ] + documentation_files(build, root.get("modelName"), root.get("description") or "", platform) + [
         (f"resources/{name}", data) for name, data in sorted(resources.items())]
     write_archive(path, files)

@@ -34,6 +34,7 @@
 #include <wchar.h>
 
 #include "fmu_sync_native.h"
+#include "fmu_sync_process.h"
 #include "fmu_sync_runtime.h"
 
 /* glibc floor (docs/fmu.md "The binary"): the binary loads on glibc 2.17 (RHEL 7/8, Ubuntu
@@ -136,44 +137,27 @@ static void py_error_text(char *out, size_t n) {
 /* ------------------------------------------------------------ one interpreter start per process
  * A host may load several fmu-sync binaries (FMUs of different models, each dlopen'ed RTLD_LOCAL:
  * each has its own statics) and instantiate them in any threads at once. They agree on who starts
- * the interpreter through one record per process, fsr_process, reached by the exported function
- * FSR_PROCESS_SYMBOL: a binary looks it up with dlsym(RTLD_DEFAULT) (the global scope first); if it
- * finds none or only its own, it makes itself global and never unloaded (dlopen of itself with
- * RTLD_NOLOAD | RTLD_GLOBAL | RTLD_NODELETE) and looks again. The global scope only grows at its
- * end, so every binary gets the record of the first binary that became global, and keeps it loaded
- * (RTLD_NODELETE) when it is another's. Under the record's lock: Py_IsInitialized, and the start. */
-#define FSR_PROCESS_SYMBOL "fmu_sync_process_v1"
-typedef struct fsr_process {
-    pthread_mutex_t lock;       /* held while the interpreter is chosen and started */
-    int embedded;               /* 1 once an fmu-sync binary started it (a plain C host) */
-    char tried[3000];           /* how fsp_find chose that interpreter */
-} fsr_process;
-
-__attribute__((visibility("default"))) fsr_process *fmu_sync_process_v1(void) {
-    static fsr_process p = {PTHREAD_MUTEX_INITIALIZER, 0, ""};
-    return &p;
-}
-
-/* the binary that holds addr made global (or not) and never unloaded */
-static void pin_binary(const void *addr, int global) {
-    Dl_info info;
-    if (dladdr(addr, &info) && info.dli_fname)
-        dlopen(info.dli_fname, RTLD_NOW | RTLD_NOLOAD | RTLD_NODELETE | (global ? RTLD_GLOBAL : 0));
-}
-
+ * the interpreter through one record per process (fmu_sync_process.h), exported by the small
+ * library FSR_PROCESS_LIB beside each binary: a binary looks the record's symbol up with
+ * dlsym(RTLD_DEFAULT) (the global scope); finding none, it loads its own copy of that library
+ * RTLD_GLOBAL | RTLD_NODELETE and looks again. The global scope only grows at its end, so every
+ * binary gets the record of the first copy made global, and it is never unloaded. Without that
+ * library (a binary copied alone), the binary's own record. Under the record's lock:
+ * Py_IsInitialized, and the start. */
 static fsr_process *the_process(void) {   /* holds g_lock */
+    static fsr_process own = {PTHREAD_MUTEX_INITIALIZER, 0, ""};
     static fsr_process *found = NULL;
     if (found) return found;
-    typedef fsr_process *(*getter)(void);
-    getter f = (getter)dlsym(RTLD_DEFAULT, FSR_PROCESS_SYMBOL);
-    if (!f || f == fmu_sync_process_v1) {
-        pin_binary((const void *)fmu_sync_process_v1, 1);
-        f = (getter)dlsym(RTLD_DEFAULT, FSR_PROCESS_SYMBOL);
-        if (!f) f = fmu_sync_process_v1;
-    } else {
-        pin_binary((const void *)f, 0);
+    fsr_process_getter f = (fsr_process_getter)dlsym(RTLD_DEFAULT, FSR_PROCESS_SYMBOL);
+    Dl_info info;
+    if (!f && dladdr((const void *)&the_process, &info) && info.dli_fname && strrchr(info.dli_fname, '/')) {
+        char lib[PATH_MAX];
+        snprintf(lib, sizeof lib, "%.*s/%s", (int)(strrchr(info.dli_fname, '/') - info.dli_fname),
+                 info.dli_fname, FSR_PROCESS_LIB);
+        if (dlopen(lib, RTLD_NOW | RTLD_GLOBAL | RTLD_NODELETE))
+            f = (fsr_process_getter)dlsym(RTLD_DEFAULT, FSR_PROCESS_SYMBOL);
     }
-    found = f();
+    found = f ? f() : &own;
     return found;
 }
 
