@@ -17,6 +17,9 @@ The FMU holds:
   compiled here to baseline x86-64 object code (:mod:`fmu_sync.native`) and linked
   with its support (``fmus/c/fmu_sync_native.c``), all by gcc (GUID and boot module
   compiled in). It loads libpython itself, so any C host can load the FMU;
+* ``binaries/linux64/fmu_sync_process.so.1`` — the one record per process that every
+  fmu-sync binary a host loads shares, so that one of them starts the interpreter
+  (``fmus/c/fmu_sync_process.h``);
 * ``resources/fmu_sync_code/`` — the Python code it runs (configuration, checks, state):
   only the modules its slave and stepper import (:func:`carried_modules`, the import
   closure with deferred imports), none importing ``fmu_sync``, run as plain Python
@@ -79,7 +82,15 @@ _ZIP_DATE = (2020, 1, 1, 0, 0, 0)
 #: the instance runtime (the Python embedding)
 FMI_VERSIONS = (2, 3)
 _C_GLUE = {2: "c/fmu_sync_fmi2.c", 3: "c/fmu_sync_fmi3.c"}
-_C_RUNTIME = ("c/fmu_sync_runtime.c", "c/fmu_sync_python.c", "c/fmu_sync_native.c")
+_C_RUNTIME = ("c/fmu_sync_runtime.c", "c/fmu_sync_python.c", "c/fmu_sync_native.c", "c/fmu_sync_verify.c")
+#: the library beside the FMU's binary that holds the one record per process every fmu-sync binary shares
+#: (fmus/c/fmu_sync_process.h: who starts the interpreter); a versioned shared-object name
+PROCESS_LIB = "fmu_sync_process.so.1"
+_C_PROCESS = "c/fmu_sync_process.c"
+#: the resources that decide the FMU's behaviour, whose SHA-256 the binary checks at every instantiation
+#: (fmus/c/fmu_sync_verify.c); the build record holds the carried code's hash, checked by the boot script
+#: before it imports that code. The boot script (``fmu_sync_boot_<hash>.py``) is added per export.
+VERIFIED = ("fmu_sync_build.json", "fmu_sync_start.json")
 #: the binary's libraries. libdl.so.2 stays a dependency (gcc links --as-needed, and -ldl is an empty
 #: archive since glibc 2.34): on glibc < 2.34 the old dlopen bound by fmu_sync_runtime.c lives there
 #: (the glibc floor, docs/fmu.md "The binary")
@@ -329,6 +340,9 @@ def constants_header(guid: str = "", boot_module: str = "", max_substeps: int = 
     define("FMU_SYNC_GUID", json.dumps(guid))
     lines.append("#endif")
     define("FMU_SYNC_BOOT", json.dumps(boot_module))
+    define("FSR_PROCESS_LIB", json.dumps(PROCESS_LIB))
+    # {name, sha256, ..., NULL} of the files the binary checks (VERIFIED), beside the GUID (build_binary)
+    lines.append("extern const char *const fsr_files[];")
     return ("\n".join(lines + ["#endif", ""])).encode()
 
 
@@ -343,23 +357,44 @@ def stepper_cfunc(model: str = "impact-oscillator"):
 
 
 def build_binary(out: Path, guid: str, boot_module: str, max_substeps: int = MAX_SUBSTEPS,
-                 glue: str | None = None, fmi_version: int = 2, model: str = "impact-oscillator") -> Path:
+                 glue: str | None = None, fmi_version: int = 2, model: str = "impact-oscillator",
+                 files: dict[str, bytes] | None = None) -> Path:
     """Compile the FMI binary (``glue``, by default the FMI version's, the runtime with the
     generated constants header, :func:`fmu_sync.native.c_objects`, and ``model``'s stepper as
     native object code, :func:`fmu_sync.native.stepper_object`) with gcc (``$CC`` overrides) into ``out``;
-    every symbol resolved at link time (libc, libm, libdl, libpthread; Python is looked up at run time)."""
+    every symbol resolved at link time (libc, libm, libdl, libpthread; Python is looked up at run time).
+    ``files``: {name in resources/: content} the binary accepts only unchanged (their SHA-256 compiled
+    in beside the GUID, checked at every instantiation, fmus/c/fmu_sync_verify.c)."""
     srcs = [str(_fmus_dir() / (glue or _C_GLUE[fmi_version]))] + [str(_fmus_dir() / c) for c in _C_RUNTIME]
     cc = os.environ.get("CC", "gcc")
     if shutil.which(cc) is None:
         raise RuntimeError(f"cannot build the FMU binary: C compiler {cc!r} not found (install gcc or set CC)")
     with tempfile.TemporaryDirectory(prefix="fmu-sync-h-") as inc:
         Path(inc, _CONSTANTS_H).write_bytes(constants_header(guid, boot_module, max_substeps))
-        Path(inc, "fmu_sync_guid.c").write_text(f"const char fsr_guid[] = {json.dumps(guid)};\n")
+        table = "".join(f"{json.dumps(name)}, \"{hashlib.sha256(data).hexdigest()}\", "
+                        for name, data in sorted((files or {}).items()))
+        Path(inc, "fmu_sync_guid.c").write_text(f"const char fsr_guid[] = {json.dumps(guid)};\n"
+                                                f"const char *const fsr_files[] = {{{table}0}};\n")
         objs = native.c_objects(cc, ["-std=gnu11", "-O2", "-fPIC", "-fvisibility=hidden", "-DFMU_SYNC_GUID=fsr_guid"],
                                 srcs + [str(Path(inc, "fmu_sync_guid.c"))], Path(inc))
         objs += native.stepper_objects(stepper_cfunc(model), Path(inc))
         cmd = [cc, "-std=gnu11", "-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-s",
                "-Wl,--no-undefined", "-o", str(out), *map(str, objs), *_LIBS]
+        p = subprocess.run(cmd, capture_output=True, text=True)
+    if p.returncode != 0:
+        raise RuntimeError(f"cannot build the FMU binary ({' '.join(cmd)}):\n{p.stderr[-3000:]}")
+    return out
+
+
+def build_process_lib(out: Path) -> Path:
+    """Compile :data:`PROCESS_LIB` (``fmus/c/fmu_sync_process.c``: it exports one symbol, the record
+    every fmu-sync binary of a process shares) into ``out``."""
+    cc = os.environ.get("CC", "gcc")
+    with tempfile.TemporaryDirectory(prefix="fmu-sync-p-") as inc:
+        objs = native.c_objects(cc, ["-std=gnu11", "-O2", "-fPIC", "-fvisibility=hidden"],
+                                [str(_fmus_dir() / _C_PROCESS)], Path(inc))
+        cmd = [cc, "-shared", "-fPIC", "-s", f"-Wl,-soname,{PROCESS_LIB}", "-Wl,--no-undefined", "-o", str(out),
+               *map(str, objs)]
         p = subprocess.run(cmd, capture_output=True, text=True)
     if p.returncode != 0:
         raise RuntimeError(f"cannot build the FMU binary ({' '.join(cmd)}):\n{p.stderr[-3000:]}")
@@ -527,13 +562,16 @@ def _export(cls, model: str, path, start_values, start_extra: dict, fmi_version:
     })
     with tempfile.TemporaryDirectory(prefix="fmu-sync-build-") as tmp:
         binary = build_binary(Path(tmp) / f"{cls.MODEL_IDENTIFIER}.so", guid, boot_module,
-                              fmi_version=fmi_version, model=model).read_bytes()
+                              fmi_version=fmi_version, model=model,
+                              files={n: resources[n] for n in (*VERIFIED, f"{boot_module}.py")}).read_bytes()
+        process_lib = build_process_lib(Path(tmp) / PROCESS_LIB).read_bytes()
     platform = "linux64" if fmi_version == 2 else "x86_64-linux"
     description = _model_description_xml(cls, starts, guid, fmi_version)
     root = ET.fromstring(description)
     files: list[tuple[str, bytes]] = [
         ("modelDescription.xml", description),
         (f"binaries/{platform}/{cls.MODEL_IDENTIFIER}.so", binary),
+        (f"binaries/{platform}/{PROCESS_LIB}", process_lib),
     ] + documentation_files(build, root.get("modelName"), root.get("description") or "", platform) + [
         (f"resources/{name}", data) for name, data in sorted(resources.items())]
     write_archive(path, files)

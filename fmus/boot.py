@@ -16,7 +16,8 @@ with the standard library only. For each fmi2Instantiate, :func:`instantiate`:
    cache folder keyed on its content, ``$FMU_SYNC_CACHE`` or
    ``$XDG_CACHE_HOME/fmu-sync`` or ``~/.cache/fmu-sync`` (else ``$TMPDIR``,
    ``/tmp`` or ``/var/tmp``/fmu-sync-<uid>; none writable: an error that names
-   them and says to set FMU_SYNC_CACHE), ``<folder>/<hash>/<package>``;
+   them and says to set FMU_SYNC_CACHE), ``<folder>/<hash>/<package>``, published whole by a
+   rename and never removed or replaced (:func:`unpack`);
 3. imports the build's ``runtime`` module (``fmus.runtime`` for a mechanical model,
    ``fmus.coupling_runtime`` for the coupling FMU) from there (a package name unique to the
    content: two FMUs of different code coexist in one process) and returns a
@@ -199,17 +200,39 @@ def cache_root(embedded: bool = False) -> str:
                      f"{'; '.join(tried)}. Set FMU_SYNC_CACHE to a writable folder {where}")
 
 
+def _complete(dest: str, digest: str, package: str) -> bool:
+    """Whether ``dest`` is a published copy of the code ``digest``: its marker, and its files hash to it."""
+    return os.path.isfile(os.path.join(dest, ".complete")) and code_hash(os.path.join(dest, package)) == digest
+
+
+def _set_aside(root: str, dest: str, digest: str) -> None:
+    """Move a damaged copy at ``dest`` out of the way by renaming it (``.damaged-<hash>-<pid>-<n>`` in
+    ``root``), never deleting it: a process may still be importing from it. Gone already: nothing to do."""
+    aside = tempfile.mkdtemp(prefix=f".damaged-{digest[:12]}-{os.getpid()}-", dir=root)
+    try:
+        os.rename(dest, os.path.join(aside, "copy"))
+    except FileNotFoundError:              # another process set it aside first
+        os.rmdir(aside)
+    except OSError as exc:
+        os.rmdir(aside)
+        raise SetupError(f"the cached copy of the FMU's code {dest} is damaged and cannot be set aside "
+                         f"({exc.strerror or exc}): remove it when no process uses it") from None
+
+
 def unpack(resources_dir: str, build: dict, embedded: bool = False) -> str:
     """The folder to put on sys.path (holds ``<package>/``): the first cache folder that holds a
-    complete copy of this code (even a read-only one), else a copy made in the first writable one."""
+    complete copy of this code (even a read-only one), else a copy made in the first writable one.
+
+    Safe under any concurrency (processes, threads, several FMUs, docs/fmu.md "The code cache"):
+    a copy is made in a temporary folder and published whole by renaming it to ``<root>/<hash>``;
+    a published copy is never removed or replaced (its name is its content's hash, so it never
+    changes); one that fails its hash is set aside by a rename (:func:`_set_aside`), not deleted."""
     digest, package = build["code_hash"], build["package"]
     for _, base in _cache_candidates():   # a complete copy is used where it is, read-only or not
-        dest = os.path.join(base, digest)
-        if os.path.isfile(os.path.join(dest, ".complete")) and code_hash(os.path.join(dest, package)) == digest:
-            return dest
+        if _complete(os.path.join(base, digest), digest, package):
+            return os.path.join(base, digest)
     root = cache_root(embedded)
     dest = os.path.join(root, digest)
-    marker = os.path.join(dest, ".complete")
     src = os.path.join(resources_dir, CODE_DIR)
     if code_hash(src) != digest:
         raise SetupError(f"the FMU's code in {src} does not match its recorded hash {digest[:12]}: "
@@ -219,17 +242,20 @@ def unpack(resources_dir: str, build: dict, embedded: bool = False) -> str:
         shutil.copytree(src, os.path.join(tmp, package))
         with open(os.path.join(tmp, ".complete"), "w") as f:
             f.write(digest + "\n")
-        if os.path.isdir(dest):            # stale or damaged copy: replace it
-            shutil.rmtree(dest, ignore_errors=True)
-        try:
-            os.rename(tmp, dest)
-        except OSError:
-            if not os.path.isfile(marker):  # another process won the race: use its copy
-                raise
+        for _ in range(3):
+            try:
+                os.rename(tmp, dest)       # atomic; refused when dest exists (not empty)
+                return dest
+            except OSError:
+                if _complete(dest, digest, package):    # another process or thread published it first
+                    return dest
+                if os.path.lexists(dest):
+                    _set_aside(root, dest, digest)
+        raise SetupError(f"cannot publish the FMU's code in {dest}: the folder keeps being replaced by "
+                         f"copies that do not match the hash {digest[:12]}")
     finally:
-        if os.path.isdir(tmp):
+        if os.path.isdir(tmp):             # not published: our own temporary copy
             shutil.rmtree(tmp, ignore_errors=True)
-    return dest
 
 
 def instantiate(resources_dir: str, instance_name: str, guid: str, embedded: int = 0, stepper: int = 0):

@@ -23,10 +23,10 @@ def child(module: str, name: str, args: dict, tmp: Path, timeout: float = 900.0)
 HOST_SRC = Path(__file__).parent / "c" / "fmu_host.c"
 
 
-def compile_c_host(folder: Path) -> Path:
-    """:data:`HOST_SRC` compiled into ``folder``."""
-    host = folder / "fmu_host"
-    p = subprocess.run(["gcc", "-O2", "-Wall", "-o", str(host), str(HOST_SRC), "-ldl"], capture_output=True, text=True)
+def compile_c_host(folder: Path, src: Path = HOST_SRC, libs: tuple = ("-ldl",)) -> Path:
+    """The C host ``src`` (by default :data:`HOST_SRC`) compiled into ``folder``, named after it."""
+    host = folder / Path(src).stem
+    p = subprocess.run(["gcc", "-O2", "-Wall", "-o", str(host), str(src), *libs], capture_output=True, text=True)
     assert p.returncode == 0, p.stderr
     return host
 

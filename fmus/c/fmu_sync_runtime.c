@@ -34,6 +34,7 @@
 #include <wchar.h>
 
 #include "fmu_sync_native.h"
+#include "fmu_sync_process.h"
 #include "fmu_sync_runtime.h"
 
 /* glibc floor (docs/fmu.md "The binary"): the binary loads on glibc 2.17 (RHEL 7/8, Ubuntu
@@ -44,6 +45,7 @@
 __asm__(".symver dlopen,dlopen@GLIBC_2.2.5");
 __asm__(".symver dlsym,dlsym@GLIBC_2.2.5");
 __asm__(".symver dlerror,dlerror@GLIBC_2.2.5");
+__asm__(".symver dladdr,dladdr@GLIBC_2.2.5");
 #endif
 
 #ifndef FMU_SYNC_BOOT
@@ -82,7 +84,6 @@ static pthread_mutex_t g_lock = PTHREAD_MUTEX_INITIALIZER;
 static int g_py_ready = 0;          /* 1 once the API and the boot module are loaded */
 static PyObject *g_boot = NULL;     /* the boot module (one per process) */
 static int g_embedded = 0;          /* 1 if this binary started the interpreter (a plain C host) */
-static char g_tried[3000];          /* how fsp_find chose that interpreter */
 
 static int load_api(void *h, char *err, size_t n) {
 #define SYM(field, name)                                                          \
@@ -133,34 +134,70 @@ static void py_error_text(char *out, size_t n) {
     if (tb) py.DecRef(tb);
 }
 
-/* Load the Python C API: the host's interpreter if it runs one, else the
- * libpython recorded at export (or FMU_SYNC_PYTHON), initialised once with
- * that interpreter's environment. Then import the boot module. Holds g_lock. */
+/* ------------------------------------------------------------ one interpreter start per process
+ * A host may load several fmu-sync binaries (FMUs of different models, each dlopen'ed RTLD_LOCAL:
+ * each has its own statics) and instantiate them in any threads at once. They agree on who starts
+ * the interpreter through one record per process (fmu_sync_process.h), exported by the small
+ * library FSR_PROCESS_LIB beside each binary: a binary looks the record's symbol up with
+ * dlsym(RTLD_DEFAULT) (the global scope); finding none, it loads its own copy of that library
+ * RTLD_GLOBAL | RTLD_NODELETE and looks again. The global scope only grows at its end, so every
+ * binary gets the record of the first copy made global, and it is never unloaded. Without that
+ * library (a binary copied alone), the binary's own record. Under the record's lock:
+ * Py_IsInitialized, and the start. */
+static fsr_process *the_process(void) {   /* holds g_lock */
+    static fsr_process own = {PTHREAD_MUTEX_INITIALIZER, 0, ""};
+    static fsr_process *found = NULL;
+    if (found) return found;
+    fsr_process_getter f = (fsr_process_getter)dlsym(RTLD_DEFAULT, FSR_PROCESS_SYMBOL);
+    Dl_info info;
+    if (!f && dladdr((const void *)&the_process, &info) && info.dli_fname && strrchr(info.dli_fname, '/')) {
+        char lib[PATH_MAX];
+        snprintf(lib, sizeof lib, "%.*s/%s", (int)(strrchr(info.dli_fname, '/') - info.dli_fname),
+                 info.dli_fname, FSR_PROCESS_LIB);
+        if (dlopen(lib, RTLD_NOW | RTLD_GLOBAL | RTLD_NODELETE))
+            f = (fsr_process_getter)dlsym(RTLD_DEFAULT, FSR_PROCESS_SYMBOL);
+    }
+    found = f ? f() : &own;
+    return found;
+}
+
+/* The interpreter of this process and its C API: the running one (the host's, or one another
+ * fmu-sync binary started), else the libpython fsp_find chooses, started with that interpreter's
+ * environment (the GIL released at once). Holds the process lock. */
+static int start_python(fsr_process *pr, const char *resdir, char *err, size_t n) {
+    int (*is_init)(void) = (int (*)(void))dlsym(RTLD_DEFAULT, "Py_IsInitialized");
+    if (is_init && is_init()) return load_api(RTLD_DEFAULT, err, n);
+    static fsp_choice choice;
+    if (!fsp_find(resdir, &choice, err, n)) return 0;
+    void *h = dlopen(choice.lib, RTLD_NOW | RTLD_GLOBAL);
+    if (!h) {
+        snprintf(err, n, "cannot load the Python library %s of %s (%s); chosen from: %s", choice.lib,
+                 choice.program, dlerror(), choice.tried);
+        return 0;
+    }
+    if (!load_api(h, err, n)) return 0;
+    if (!py.IsInitialized()) {
+        wchar_t *w = py.DecodeLocale(choice.program, NULL);
+        if (w) py.SetProgramName(w);    /* finds that interpreter's (venv's) site-packages */
+        py.InitializeEx(0);             /* no signal handlers: the host owns them */
+        py.EvalSaveThread();            /* release the GIL: every call takes it with PyGILState_Ensure */
+        pr->embedded = 1;
+        snprintf(pr->tried, sizeof pr->tried, "%s", choice.tried);
+    }
+    return 1;
+}
+
+/* The Python C API (start_python, under the process lock), then this binary's boot module
+ * imported. Holds g_lock. */
 static int ensure_python(const char *resdir, char *err, size_t n) {
     if (g_py_ready) return 1;
-    int (*is_init)(void) = (int (*)(void))dlsym(RTLD_DEFAULT, "Py_IsInitialized");
-    int own = 0;
-    if (is_init && is_init()) {
-        if (!load_api(RTLD_DEFAULT, err, n)) return 0;
-    } else {
-        static fsp_choice choice;
-        if (!fsp_find(resdir, &choice, err, n)) return 0;
-        snprintf(g_tried, sizeof g_tried, "%s", choice.tried);
-        void *h = dlopen(choice.lib, RTLD_NOW | RTLD_GLOBAL);
-        if (!h) {
-            snprintf(err, n, "cannot load the Python library %s of %s (%s); chosen from: %s", choice.lib,
-                     choice.program, dlerror(), choice.tried);
-            return 0;
-        }
-        if (!load_api(h, err, n)) return 0;
-        if (!py.IsInitialized()) {
-            wchar_t *w = py.DecodeLocale(choice.program, NULL);
-            if (w) py.SetProgramName(w);    /* finds that interpreter's (venv's) site-packages */
-            py.InitializeEx(0);             /* no signal handlers: the host owns them */
-            own = 1;
-        }
-    }
-    int gil = own ? 0 : py.GILEnsure();
+    fsr_process *pr = the_process();
+    pthread_mutex_lock(&pr->lock);
+    int started = start_python(pr, resdir, err, n);
+    int own = pr->embedded;
+    pthread_mutex_unlock(&pr->lock);
+    if (!started) return 0;
+    int gil = py.GILEnsure();
     int ok = 0;
     PyObject *sys = py.ImportModule("sys");
     PyObject *path = sys ? py.GetAttrString(sys, "path") : NULL;
@@ -170,7 +207,7 @@ static int ensure_python(const char *resdir, char *err, size_t n) {
         if (r) py.DecRef(r);
         g_boot = py.ImportModule(FMU_SYNC_BOOT);
         if (!g_boot) py_error_text(err, n);
-        PyObject *how = g_boot && own ? py.UnicodeDecodeFSDefault(g_tried) : NULL;
+        PyObject *how = g_boot && own ? py.UnicodeDecodeFSDefault(pr->tried) : NULL;
         if (how) {                      /* how this Python was chosen, for the boot's messages */
             py.SetAttrString(g_boot, "CHOSEN", how);
             py.DecRef(how);
@@ -184,10 +221,7 @@ static int ensure_python(const char *resdir, char *err, size_t n) {
     if (dir) py.DecRef(dir);
     if (path) py.DecRef(path);
     if (sys) py.DecRef(sys);
-    if (own)
-        py.EvalSaveThread();   /* release the GIL: later calls take it with PyGILState_Ensure */
-    else
-        py.GILRelease(gil);
+    py.GILRelease(gil);
     if (ok) {
         g_py_ready = 1;
         g_embedded = own;
@@ -197,6 +231,7 @@ static int ensure_python(const char *resdir, char *err, size_t n) {
 }
 
 int fsr_start(const char *resdir, char *err, size_t n) {
+    if (!fsr_verify(resdir, err, n)) return 0;   /* nothing of a foreign or edited folder runs */
     pthread_mutex_lock(&g_lock);
     int ok = ensure_python(resdir, err, n);
     pthread_mutex_unlock(&g_lock);

@@ -5,10 +5,12 @@
  * everything Python, and the communication step, is here:
  *
  *   fsr_resources_path(uri, path)   file: URI of the resources folder -> local path
- *   fsr_start(resdir)               once per process (thread-safe): the host's interpreter if it
- *                                   runs one, else the one fsp_find chooses (FMU_SYNC_PYTHON, the
- *                                   interpreter recorded at export, python3 on PATH), initialised;
- *                                   then the FMU's boot module imported
+ *   fsr_start(resdir)               per instantiation: the resources checked (fsr_verify); once per
+ *                                   process (thread-safe, agreed by every fmu-sync binary loaded):
+ *                                   the host's interpreter if it runs one, else the one fsp_find
+ *                                   chooses (FMU_SYNC_PYTHON, the interpreter recorded at export,
+ *                                   python3 on PATH), initialised; once per binary: the FMU's boot
+ *                                   module imported
  *   fsr_new(inst, resdir, name, guid)  a Python FMUInstance (fmus/runtime.py) and its layout
  *                                   (variable array x, per-variable table, work array)
  *   fsr_call(inst, method, state)   a reply method of the instance ("exit_initialization",
@@ -96,6 +98,12 @@ typedef struct fsp_choice {
 int fsp_find(const char *resdir, fsp_choice *out, char *err, size_t n);
 /* "key = value" (or KEY=value, KEY="value") of a text file; 0 if absent */
 int fsp_read_key(const char *path, const char *key, char *out, size_t n);
+
+/* An FMU knows its own files (fmu_sync_verify.c): 1 if resources/fmu_sync_build.json in resdir carries
+ * FMU_SYNC_GUID and every file of fsr_files matches its SHA-256; else 0 with err naming the file. */
+int fsr_verify(const char *resdir, char *err, size_t n);
+/* SHA-256 of a file as 64 hex digits; 0 (errno set) if it cannot be read */
+int fsr_sha256_file(const char *path, char out[65]);
 
 /* helpers for messages */
 const char *fsr_g(double v);                  /* shortest round-trip text of a double */
