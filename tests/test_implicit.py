@@ -224,3 +224,18 @@ def test_the_stiff_pair_of_issue_33():
             assert r.success and max(np.abs(r.q1).max(), np.abs(r.q2).max()) <= 2 * qmax
             assert e1 <= bound, (H, e1)
             assert np.median(r.info["iterations"]) <= 3
+
+
+def test_a_scene_runs_implicit_and_its_summary_shows_the_iterations(tmp_path):
+    """Scene key run.exchange: the forced pair co-simulated at an H the explicit exchange refuses;
+    summary.md gives the median and max FMU steps per communication step."""
+    from fmu_sync import run_scene
+    over = {"run.mode": "cosim", "run.t_end": 2.0, "run.H": 0.05, "coupling.Kp": 100.0, "coupling.Kd": 0.1,
+            "run.exchange": "implicit"}
+    sr = run_scene("forced-pair", tmp_path, plots=False, overrides=over)
+    text = (tmp_path / "summary.md").read_text()
+    coupled = [r for r in sr.runs if r.metrics.get("coupling") != "none"]
+    assert coupled and all(r.metrics["iterations_max"] >= r.metrics["iterations_median"] >= 1 for r in coupled)
+    assert "implicit exchange: FMU steps per communication step median" in text
+    with pytest.raises(UnstableExchange, match='exchange="implicit"'):
+        run_scene("forced-pair", tmp_path / "explicit", plots=False, overrides={**over, "run.exchange": "explicit"})
