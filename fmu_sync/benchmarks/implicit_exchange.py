@@ -70,7 +70,7 @@ def run(quick: bool = False, smoke: bool = False, progress=None) -> str:
         ref, rows = measure(fmu, Hs, t_end)
     if progress:
         progress(1.0)
-    lines = ["## Implicit exchange: the stiff pair of issue 33", "",
+    lines = ["## Implicit exchange on a stiff pair", "",
              f"Forced pair m = 1, k = 1, c = 0, f0 = 0.2, F = 0.5, Omega = 2.5, e = 0.9 (slaves: midpoint, "
              f"solver.dt = {DT_SLAVE:g}), Euclidean law Kp = {GAINS['Kp']:g}, Kd = {GAINS['Kd']:g}, x1 = {X1}, "
              f"x2 = {X2}, {t_end:g} s; truth: `simulate_pair` at dt = {DT_TRUTH:g} (max |q| = "
