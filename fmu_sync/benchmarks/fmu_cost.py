@@ -12,6 +12,11 @@ process. The ratio ours / minimal is the price of our FMI layer and model over
 what any FMU costs in that loop. Times are CPU time per communication step,
 best of ``--repeat`` interleaved runs of ``--steps`` steps.
 
+Rollback: fmi2GetFMUstate (+ fmi2FreeFMUstate) and fmi2SetFMUstate against a doStep of 10
+internal steps (H = 10 dt), CPU time per call through fmpy, for our oscillator FMU and our
+coupling FMU (the master's event-aware retake and any rollback pay them; target: a set costs
+at most 5 doSteps of 10 internal steps).
+
 First-step latency: fresh ``python`` processes, each with an empty cache folder
 (``FMU_SYNC_CACHE``: a first use), time instantiate -> setup/enter/exit initialization -> the
 first finished doStep; the median over ``--fresh`` processes is printed, with, for the
@@ -170,6 +175,65 @@ def per_step_costs(fmu_path: Path, minimal_path: Path, steps: int, repeat: int) 
     return best
 
 
+def state_costs(fmu_path: Path, coupling_path: Path, calls: int, repeat: int) -> dict:
+    """CPU µs per call of doStep (H = 10 dt), fmi2GetFMUstate + fmi2FreeFMUstate and fmi2SetFMUstate,
+    through fmpy, for our oscillator FMU and our coupling FMU (best of ``repeat``, interleaved)."""
+    import shutil
+
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    H = 10 * 1e-3
+    opened, states, loops = [], [], {}
+    for label, path in (("oscillator FMU", fmu_path), ("coupling FMU", coupling_path)):
+        md = read_model_description(str(path))
+        d = extract(str(path))
+        fmu = FMU2Slave(guid=md.guid, unzipDirectory=d, modelIdentifier=md.coSimulation.modelIdentifier,
+                        instanceName=label[:10])
+        fmu.instantiate()
+        fmu.setupExperiment(startTime=0.0)
+        fmu.enterInitializationMode()
+        fmu.exitInitializationMode()
+        opened.append((fmu, d))
+        clock = {"t": 0.0}
+        saved = fmu.getFMUstate()
+        states.append((fmu, saved))
+
+        def step(n, fmu=fmu, clock=clock):
+            t = clock["t"]
+            for _ in range(n):
+                fmu.doStep(t, H)
+                t += H
+            clock["t"] = t
+
+        def get(n, fmu=fmu):
+            for _ in range(n):
+                fmu.freeFMUstate(fmu.getFMUstate())
+
+        def put(n, fmu=fmu, saved=saved, clock=clock):
+            for _ in range(n):
+                fmu.setFMUstate(saved)
+            clock["t"] = 0.0
+
+        for what, fn in (("doStep (H = 10 dt)", step), ("get + free state", get), ("set state", put)):
+            loops[(label, what)] = fn
+    best = {k: float("inf") for k in loops}
+    try:
+        for _ in range(repeat):
+            for key, fn in loops.items():
+                t0 = time.process_time()
+                fn(calls)
+                best[key] = min(best[key], (time.process_time() - t0) / calls)
+    finally:
+        for fmu, saved in states:
+            fmu.freeFMUstate(saved)
+        for fmu, d in opened:
+            fmu.terminate()
+            fmu.freeInstance()
+            shutil.rmtree(d, ignore_errors=True)
+    return {f"{label}: {what}": v * 1e6 for (label, what), v in best.items()}
+
+
 def _run_child(code: str, args: list[str], timeout: float = 120.0, env: dict | None = None):
     p = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, timeout=timeout,
                        env=None if env is None else {**os.environ, **env})
@@ -210,12 +274,16 @@ def _measure(steps: int, repeat: int, fresh: int, exit_n: int = 0) -> dict:
     with tempfile.TemporaryDirectory(prefix="bench-fmu-") as tmp:
         fmu_path = export_fmu("impact-oscillator", Path(tmp) / "ImpactOscillator.fmu")
         minimal = build_minimal_fmu(fmu_path, Path(tmp) / "Minimal.fmu")
+        coupling = export_fmu("coupling", Path(tmp) / "Coupling.fmu")
         res = {"per_step_us": {k: v * 1e6 for k, v in per_step_costs(fmu_path, minimal, steps, repeat).items()},
+               "state_us": state_costs(fmu_path, coupling, max(steps // 10, 200), repeat),
                "first_step_latency_ms": {k: v * 1e3 for k, v in first_step_latency(fmu_path, fresh).items()}}
         if exit_n:
             res["exit_check"] = exit_check(fmu_path, exit_n)
-    per = res["per_step_us"]
+    per, sc = res["per_step_us"], res["state_us"]
     res["ratio_H_dt"] = per["our FMU, H = dt (1 internal step)"] / per["minimal C FMU (trivial step)"]
+    step = sc["oscillator FMU: doStep (H = 10 dt)"]
+    res["set_vs_doStep"] = {k.split(":")[0]: sc[k] / step for k in sc if k.endswith("set state")}
     return res
 
 
@@ -229,7 +297,14 @@ def run(quick: bool = False) -> str:
              "| FMU | µs per step | vs minimal C FMU |", "|---|---:|---:|"]
     base = per["minimal C FMU (trivial step)"]
     lines += [f"| {k} | {v:.2f} | ×{v / base:.2f} |" for k, v in per.items()]
-    lines += ["", f"Target: our FMU at H = dt ≤ ×1.2 the minimal C FMU; measured ×{res['ratio_H_dt']:.2f}.", "",
+    lines += ["", f"Target: our FMU at H = dt ≤ ×1.2 the minimal C FMU; measured ×{res['ratio_H_dt']:.2f}.", ""]
+    lines += [f"Rollback (CPU µs per call through fmpy, best of {repeat}; the FMU state is a native copy of "
+              f"the instance's arrays):", "", "| call | µs | vs the oscillator's doStep of 10 internal steps |",
+              "|---|---:|---:|"]
+    step = res["state_us"]["oscillator FMU: doStep (H = 10 dt)"]
+    lines += [f"| {k} | {v:.2f} | ×{v / step:.2f} |" for k, v in res["state_us"].items()]
+    worst = max(res["set_vs_doStep"].values())
+    lines += ["", f"Target: fmi2SetFMUstate ≤ ×5 a doStep of 10 internal steps; measured ×{worst:.2f} at most.", "",
               f"First doStep in a fresh process, empty cache (median of {fresh}):", "",
               "| phase | ms |", "|---|---:|"]
     lines += [f"| {k} | {v:.1f} |" for k, v in lat.items()]
@@ -256,6 +331,10 @@ def main(argv=None) -> int:
     base = results["per_step_us"]["minimal C FMU (trivial step)"]
     for k, v in results["per_step_us"].items():
         print(f"  {k:<40} {v:8.2f} us   x{v / base:.2f}")
+    print("Rollback, CPU time per call (vs the oscillator's doStep of 10 internal steps):")
+    step = results["state_us"]["oscillator FMU: doStep (H = 10 dt)"]
+    for k, v in results["state_us"].items():
+        print(f"  {k:<40} {v:8.2f} us   x{v / step:.2f}")
     print(f"First doStep in a fresh process, empty cache (median of {args.fresh}):")
     for k, v in results["first_step_latency_ms"].items():
         print(f"  {k:<40} {v:8.1f} ms")
