@@ -123,114 +123,107 @@ def _cpu_per_step(fn, steps: int, repeat: int) -> float:
     return best
 
 
-def per_step_costs(fmu_path: Path, minimal_path: Path, steps: int, repeat: int) -> dict:
-    """CPU µs per communication step (set + doStep + get), ours and the minimal C FMU, interleaved."""
-    import shutil
-
+def _started(path: Path, name: str):
+    """(fmpy FMU2Slave in step mode at t = 0, its unpacked folder, its model description)."""
     from fmpy import extract, read_model_description
     from fmpy.fmi2 import FMU2Slave
+    md = read_model_description(str(path))
+    d = extract(str(path))
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=d, modelIdentifier=md.coSimulation.modelIdentifier,
+                    instanceName=name)
+    fmu.instantiate()
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    return fmu, d, md
 
+
+def _best_interleaved(loops: dict, n: int, repeat: int) -> dict:
+    """CPU seconds per iteration of each ``loops[key](n)``, best of ``repeat`` interleaved rounds."""
+    best = {k: float("inf") for k in loops}
+    for _ in range(repeat):
+        for key, fn in loops.items():
+            t0 = time.process_time()
+            fn(n)
+            best[key] = min(best[key], (time.process_time() - t0) / n)
+    return best
+
+
+def _close(opened) -> None:
+    import shutil
+    for fmu, d in opened:
+        fmu.terminate()
+        fmu.freeInstance()
+        shutil.rmtree(d, ignore_errors=True)
+
+
+def per_step_costs(fmu_path: Path, minimal_path: Path, steps: int, repeat: int) -> dict:
+    """CPU µs per communication step (set + doStep + get), ours and the minimal C FMU, interleaved."""
     dt = 1e-3
     loops, cleanup = {}, []
-    for label, path, H in (("our FMU, H = dt (1 internal step)", fmu_path, dt),
-                           ("our FMU, H = 10 dt", fmu_path, 10 * dt),
-                           ("minimal C FMU (trivial step)", minimal_path, dt)):
-        md = read_model_description(str(path))
-        vr = {v.name: v.valueReference for v in md.modelVariables}
-        d = extract(str(path))
-        fmu = FMU2Slave(guid=md.guid, unzipDirectory=d, modelIdentifier=md.coSimulation.modelIdentifier,
-                        instanceName=label[:12])
-        fmu.instantiate()
-        fmu.setupExperiment(startTime=0.0)
-        fmu.enterInitializationMode()
-        fmu.exitInitializationMode()
-        cleanup.append((fmu, d))
-        state = {"t": 0.0}
-        vin, vout = [vr["tau"]], [vr["q"], vr["u"]]
-
-        def loop(n, fmu=fmu, H=H, state=state, vin=vin, vout=vout):
-            t = state["t"]
-            setReal, doStep, getReal = fmu.setReal, fmu.doStep, fmu.getReal
-            for _ in range(n):
-                setReal(vin, [0.1])
-                doStep(t, H)
-                getReal(vout)
-                t += H
-            state["t"] = t
-
-        loop(200)  # warm
-        loops[label] = loop
-    best = {k: float("inf") for k in loops}
     try:
-        for _ in range(repeat):
-            for label, fn in loops.items():
-                t0 = time.process_time()
-                fn(steps)
-                best[label] = min(best[label], (time.process_time() - t0) / steps)
+        for label, path, H in (("our FMU, H = dt (1 internal step)", fmu_path, dt),
+                               ("our FMU, H = 10 dt", fmu_path, 10 * dt),
+                               ("minimal C FMU (trivial step)", minimal_path, dt)):
+            fmu, d, md = _started(path, label[:12])
+            cleanup.append((fmu, d))
+            vr = {v.name: v.valueReference for v in md.modelVariables}
+            state = {"t": 0.0}
+            vin, vout = [vr["tau"]], [vr["q"], vr["u"]]
+
+            def loop(n, fmu=fmu, H=H, state=state, vin=vin, vout=vout):
+                t = state["t"]
+                setReal, doStep, getReal = fmu.setReal, fmu.doStep, fmu.getReal
+                for _ in range(n):
+                    setReal(vin, [0.1])
+                    doStep(t, H)
+                    getReal(vout)
+                    t += H
+                state["t"] = t
+
+            loop(200)  # warm
+            loops[label] = loop
+        return _best_interleaved(loops, steps, repeat)
     finally:
-        for fmu, d in cleanup:
-            fmu.terminate()
-            fmu.freeInstance()
-            shutil.rmtree(d, ignore_errors=True)
-    return best
+        _close(cleanup)
 
 
 def state_costs(fmu_path: Path, coupling_path: Path, calls: int, repeat: int) -> dict:
     """CPU µs per call of doStep (H = 10 dt), fmi2GetFMUstate + fmi2FreeFMUstate and fmi2SetFMUstate,
     through fmpy, for our oscillator FMU and our coupling FMU (best of ``repeat``, interleaved)."""
-    import shutil
-
-    from fmpy import extract, read_model_description
-    from fmpy.fmi2 import FMU2Slave
-
     H = 10 * 1e-3
     opened, states, loops = [], [], {}
-    for label, path in (("oscillator FMU", fmu_path), ("coupling FMU", coupling_path)):
-        md = read_model_description(str(path))
-        d = extract(str(path))
-        fmu = FMU2Slave(guid=md.guid, unzipDirectory=d, modelIdentifier=md.coSimulation.modelIdentifier,
-                        instanceName=label[:10])
-        fmu.instantiate()
-        fmu.setupExperiment(startTime=0.0)
-        fmu.enterInitializationMode()
-        fmu.exitInitializationMode()
-        opened.append((fmu, d))
-        clock = {"t": 0.0}
-        saved = fmu.getFMUstate()
-        states.append((fmu, saved))
-
-        def step(n, fmu=fmu, clock=clock):
-            t = clock["t"]
-            for _ in range(n):
-                fmu.doStep(t, H)
-                t += H
-            clock["t"] = t
-
-        def get(n, fmu=fmu):
-            for _ in range(n):
-                fmu.freeFMUstate(fmu.getFMUstate())
-
-        def put(n, fmu=fmu, saved=saved, clock=clock):
-            for _ in range(n):
-                fmu.setFMUstate(saved)
-            clock["t"] = 0.0
-
-        for what, fn in (("doStep (H = 10 dt)", step), ("get + free state", get), ("set state", put)):
-            loops[(label, what)] = fn
-    best = {k: float("inf") for k in loops}
     try:
-        for _ in range(repeat):
-            for key, fn in loops.items():
-                t0 = time.process_time()
-                fn(calls)
-                best[key] = min(best[key], (time.process_time() - t0) / calls)
+        for label, path in (("oscillator FMU", fmu_path), ("coupling FMU", coupling_path)):
+            fmu, d, _ = _started(path, label[:10])
+            opened.append((fmu, d))
+            clock = {"t": 0.0}
+            saved = fmu.getFMUstate()
+            states.append((fmu, saved))
+
+            def step(n, fmu=fmu, clock=clock):
+                t = clock["t"]
+                for _ in range(n):
+                    fmu.doStep(t, H)
+                    t += H
+                clock["t"] = t
+
+            def get(n, fmu=fmu):
+                for _ in range(n):
+                    fmu.freeFMUstate(fmu.getFMUstate())
+
+            def put(n, fmu=fmu, saved=saved, clock=clock):
+                for _ in range(n):
+                    fmu.setFMUstate(saved)
+                clock["t"] = 0.0
+
+            for what, fn in (("doStep (H = 10 dt)", step), ("get + free state", get), ("set state", put)):
+                loops[(label, what)] = fn
+        best = _best_interleaved(loops, calls, repeat)
     finally:
         for fmu, saved in states:
             fmu.freeFMUstate(saved)
-        for fmu, d in opened:
-            fmu.terminate()
-            fmu.freeInstance()
-            shutil.rmtree(d, ignore_errors=True)
+        _close(opened)
     return {f"{label}: {what}": v * 1e6 for (label, what), v in best.items()}
 
 
