@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import contextlib
 import functools
-import math
 import shutil
 from pathlib import Path
 
@@ -40,12 +39,12 @@ import numpy as np
 
 from .core.checks import check_record_size, check_run, check_step, record_rows
 from .core.compensation import force_table
-from .core.coupling import chain_work, law_metric, metric_info
+from .core.coupling import law_metric, metric_info
 from .core.distance import geometry
-from .core.errors import RunFailed, SimulationDiverged, UnstableScheme
-from .core.exchange import exchange_limit
+from .core.errors import ExchangeNotConverged, RunFailed, SimulationDiverged, UnstableScheme
+from .core.exchange import check_exchange_name, exchange_limit
 from .core.model import MechanicalSystem
-from .core.network import edge_arrays, edge_laws, edges_of, weights
+from .core.network import edge_laws, edges_of, weights
 from .core.pair import LAWS, stack_nodes
 from .core.plan import RunPlan, plan_run
 from .core.result import NetworkResult, PairResult
@@ -54,8 +53,8 @@ from .fmi3_bridge import element_names, open_host
 from .fmi_bridge import FMUHost, SlaveError
 from .fmus import contract
 from . import cosim_loop as loop
-from .cosim_loop import CALLS, exchange_chunk, fmi_functions
-from .hold import check_hold, check_schemes
+from .cosim_loop import CALLS, exchange_chunk
+from .hold import check_hold, check_implicit, check_schemes
 from .instance_pool import give_back, keep_instances, kept_key, take
 
 __all__ = ["cosimulate", "cosimulate_network", "keep_instances", "NetworkMaster", "NetworkResult", "SlaveError", "FmuInstance",
@@ -132,11 +131,13 @@ class NetworkMaster:
     def __init__(self, fmu, states, A, t_end: float, H: float, coupling: str | None = "switching",
                  Kp=0.0, Kd=0.0, Q=None, method: str = "jacobi", record_every: int = 1,
                  event_aware: bool = False, H_min: float | None = None, start_values=None,
-                 record_distance: bool = True, allow_unstable: bool = False, hold: str = "zoh"):
+                 record_distance: bool = True, allow_unstable: bool = False, hold: str = "zoh",
+                 exchange: str = "explicit"):
         grid, record_every = check_run(t_end, H, record_every, dt_name="H")   # ends at t_end (grid.dt_last)
         H, n_steps = grid.dt, grid.steps
         if method not in self.METHODS:
             raise ValueError(f"method must be {' or '.join(repr(m) for m in self.METHODS)}, got {method!r}")
+        self.exchange_kind = check_exchange_name(exchange)
         if event_aware:
             H_min = H / 16 if H_min is None else check_step(H_min, "H_min")
             if H_min > H:
@@ -165,6 +166,7 @@ class NetworkMaster:
         self.check_fmi_version()
         self.model = fmu_model(self.md, self.fmu)  # a foreign FMU fails here, naming what it lacks
         self.hold = check_hold(hold, self.md, self.fmu)
+        check_implicit(exchange, method, event_aware, self.md, self.fmu)
         self.record_values = 1 + 3 * N * self.model.n + 3 * len(self.edges)
         check_record_size(record_rows(n_steps, record_every), self.record_values,
                           "the record of the co-simulation")   # the plan's step 6, before any instance exists
@@ -227,7 +229,8 @@ class NetworkMaster:
         systems = [self.model.system(v) for v in values]
         try:
             return plan_run(systems, self.states, self.t_end, self.H, scheme=schemes,
-                            dt=[v[contract.SOLVER_DT] for v in values], hold=self.hold, A=self.A, laws=self.laws,
+                            dt=[v[contract.SOLVER_DT] for v in values], hold=self.hold, exchange=self.exchange_kind,
+                            A=self.A, laws=self.laws,
                             Kp=self.Kp, Kd=self.Kd, record_every=self.record_every, step_name="H", exact=True,
                             allow_unstable=self.allow_unstable, record_values=self.record_values,
                             record_what="the record of the co-simulation",
@@ -248,12 +251,17 @@ class NetworkMaster:
             self.EU[sl] if need_d else None, V, impacts=impacts,
             info=dict(mode="cosim", H=self.H, method=self.method, event_aware=self.event_aware, fmu=self.fmu,
                       H_min=self.H_min if self.event_aware else None, retaken_steps=self.retakes,
-                      steps=self.n_steps, coupling=self.coupling, hold=self.hold, **metric_info(self.metric, self.geo),
+                      steps=self.n_steps, coupling=self.coupling, hold=self.hold, exchange=self.exchange_kind,
+                      **loop.implicit_info(getattr(self, "iw", None)), **metric_info(self.metric, self.geo),
                       **units_info(self.model.declaration),
                       **({} if self.limit is None else dict(
                           omega_c_H=self.limit.h, exchange_bound=self.limit.bound,
                           zeta=self.limit.zeta, H_max=self.limit.H_max))),
             error=error)
+
+    @property
+    def implicit(self) -> bool:
+        return self.exchange_kind == "implicit"
 
     def diverged(self, t: float, what: str) -> SimulationDiverged:
         hint = f" ({self.limit.message()})" if self.limit is not None else ""
@@ -263,47 +271,8 @@ class NetworkMaster:
 
     # ------------------------------------------------------------ the run
     def _loop_arrays(self) -> None:
-        """What the compiled loop (:mod:`fmu_sync.cosim_loop`) takes: every instance's FMI
-        function addresses and component handle, the value references, the settings and
-        the loop's state between chunks."""
-        model, N, n = self.model, self.N, self.model.n
-        self.fn = np.stack([fmi_functions(s.fmu.dll) for s in self.slaves])
-        needed = (["fmi2SetRealInputDerivatives"] if self.hold == "foh" else []) + (
-            ["fmi2GetFMUstate", "fmi2SetFMUstate", "fmi2FreeFMUstate"] if self.event_aware else [])
-        for name in needed:
-            if not np.all(self.fn[:, CALLS.index(name)]):
-                why = "hold='foh'" if "Derivatives" in name else "event_aware=True"
-                raise ValueError(f"{self.fmu}: its binary does not export {name}, which {why} needs")
-        self.comp = np.array([s.fmu.component or 0 for s in self.slaves], dtype=np.int64)
-        ref = (lambda names: np.array([self.slaves[0].variables[v].valueReference for v in names], dtype=np.uint32))
-        self.vr_out, self.vr_tau, self.vr_imp = ref(model.q + model.u), ref(model.tau), ref([contract.IMPACTS])
-        E2, W2 = edge_arrays(self.A, self.edges)
-        flags = np.zeros(loop.FLAGS, dtype=np.int64)
-        flags[[loop.GAUSS_SEIDEL, loop.FOH, loop.EVENT_AWARE, loop.NEED_D, loop.COUPLED]] = [
-            self.method == "gauss-seidel", self.hold == "foh", self.event_aware, self.need_d, self.coupled]
-        flags[loop.RECORD_EVERY] = self.record_every
-        flags[loop.DELAY] = self.DELAY.get(self.method, loop.NOT_DELAYED)
-        flags[loop.STEPS] = self.n_steps   # the last one of length grid.dt_last, ending at grid.t_end
-        pieces = (lambda h: max(1, int(math.ceil(h / self.H_min - 1e-9))) if self.event_aware else 1)
-        flags[loop.PIECES], flags[loop.PIECES_LAST] = pieces(self.H), pieces(self.grid.dt_last)
-        z = (lambda: np.zeros((N, n)))
-        self.q, self.u, self.tau = z(), z(), z()
-        self.imp, self.ctl = np.zeros(N, dtype=np.int64), np.zeros(loop.CTL, dtype=np.int64)
-        E = len(self.edges)
-        work = chain_work(n)
-        w = (np.zeros(n), np.zeros(n), *work, np.zeros(E), np.zeros(E, dtype=np.int64), np.zeros(E),
-             np.zeros(2 * n), np.zeros(n))
-        keep = (z(), z(), z(), np.zeros(2), z(), np.zeros(N, dtype=np.int64), np.zeros(1, dtype=np.int32))
-        self.FAIL, self.fail_t = np.zeros(4, dtype=np.int64), np.zeros(1)
-        saved = np.zeros(N, dtype=np.int64)
-        # the arrays the FMI calls read or write, by address (cosim_loop.P_*); they live as long as the run
-        self.held = (self.vr_out, self.vr_tau, self.vr_imp, np.ones(n, dtype=np.int32), self.tau, w[9], w[10],
-                     keep[6], saved)
-        ptr = np.array([a.ctypes.data for a in self.held], dtype=np.int64)
-        self.loop_args = (ptr, self.fn, self.comp, self.laws, self.geo, self.Kp_m, self.Kd_m, E2, W2, flags, self.hp,
-                          float(self.H), float(self.grid.dt_last), float(self.grid.t_end))
-        self.loop_state = (self.q, self.u, self.tau, z(), z(), np.zeros(1), self.imp, self.ctl, saved, keep, self.T,
-                           self.Qr, self.Ur, self.TAU, self.D, self.BR, self.EU, w, self.FAIL, self.fail_t)
+        """What the compiled loop takes (:func:`fmu_sync.cosim_loop.loop_arguments`)."""
+        loop.loop_arguments(self)
 
     def _chunk(self, k0: int, k1: int) -> int:
         """Steps k0 .. k1 - 1 in the compiled loop; returns its outcome code."""
@@ -312,10 +281,11 @@ class NetworkMaster:
 
     def force_bound(self, i: int, t: float) -> SlaveError:
         """Instance i's coupling force ``self.tau[i]`` is non-finite or above the FMU's input bound."""
-        lim = exchange_limit(self.system.M, self.Kp_m, self.Kd_m, self.H, self.A_coupled, hold=self.hold)
+        lim = exchange_limit(self.system.M, self.Kp_m, self.Kd_m, self.H, self.A_coupled, hold=self.hold,
+                             exchange=self.exchange_kind)
         return SlaveError(f"system{i + 1}", t, "coupling", 3, [
             f"its coupling force became non-finite or exceeds the FMU's input bound "
-            f"{contract.INPUT_BOUND:g} ({self.tau[i].tolist()}): the explicit "
+            f"{contract.INPUT_BOUND:g} ({self.tau[i].tolist()}): the {self.exchange_kind} "
             f"exchange is unstable for these gains and this step ({lim.message()}): lower "
             f"Kp or H, or add Kd"])
 
@@ -330,6 +300,8 @@ class NetworkMaster:
             return s.failure(CALLS[call], status, t)
         if code == loop.FORCE_BOUND:
             return self.force_bound(i, t)
+        if code == loop.NOT_CONVERGED:
+            return ExchangeNotConverged(loop.not_converged(self.iw, t, self.H, call))
         return self.diverged(t, "a state" if code == loop.STATE_DIVERGED else "a distance")
 
     def run(self, progress=None) -> NetworkResult:
@@ -391,7 +363,8 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
                        Kp=0.0, Kd=0.0, Q=None, method: str = "jacobi", record_every: int = 1,
                        event_aware: bool = False, H_min: float | None = None,
                        start_values=None, progress=None,
-                       record_distance: bool = True, allow_unstable: bool = False, hold: str = "zoh") -> NetworkResult:
+                       record_distance: bool = True, allow_unstable: bool = False, hold: str = "zoh",
+                       exchange: str = "explicit") -> NetworkResult:
     """Co-simulate N instances of ``fmu`` coupled on a weighted graph (docs/design.md §2.5, §4.4).
 
     ``states``: N start states (q, u); ``A``: N×N weights a_ij >= 0 (zero
@@ -412,7 +385,7 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
     ``UnstableScheme``) are checked; both are ValueErrors, skipped with ``allow_unstable``.
     """
     return NetworkMaster(fmu, states, A, t_end, H, coupling, Kp, Kd, Q, method, record_every, event_aware,
-                         H_min, start_values, record_distance, allow_unstable, hold).run(progress)
+                         H_min, start_values, record_distance, allow_unstable, hold, exchange).run(progress)
 
 
 def pair_result(r: NetworkResult, coupling) -> PairResult:
@@ -426,7 +399,8 @@ def pair_result(r: NetworkResult, coupling) -> PairResult:
 def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None, Kp=0.0, Kd=0.0,
                Q=None, method: str = "jacobi", record_every: int = 1, event_aware: bool = False,
                H_min: float | None = None, start_values=None, progress=None,
-               record_distance: bool = True, allow_unstable: bool = False, hold: str = "zoh") -> PairResult:
+               record_distance: bool = True, allow_unstable: bool = False, hold: str = "zoh",
+               exchange: str = "explicit") -> PairResult:
     """Co-simulate two instances of ``fmu`` coupled by ``coupling`` (docs/design.md §2.5, §4.4).
 
     Parameters
@@ -450,6 +424,12 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
     allow_unstable : run even if the held exchange is unstable at ``H`` (by default
         refused before the first step with ``UnstableExchange``, a ValueError).
     hold : ``"zoh"`` (inputs held over a step) or ``"foh"`` (first-order hold, :mod:`fmu_sync.hold`).
+    exchange : ``"explicit"`` (the forces from the states at the step's start, extrapolated by the
+        hold) or ``"implicit"`` (each step iterated with FMU-state rollback until the forces agree
+        with the states at its end: the line between the two ends with ``hold="foh"``, their mean
+        held with ``"zoh"``; needs ``canGetAndSetFMUstate``; ``info["iterations"]``: FMU steps per
+        communication step; a step that does not converge raises ``ExchangeNotConverged``,
+        docs/design.md §4.4).
     progress : callable ``progress(fraction)`` or None.
 
     Returns a :class:`PairResult`. Bad arguments, or an FMU that does not follow
@@ -463,7 +443,7 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
     try:
         r = cosimulate_network(fmu, [x1, x2], [[0.0, 1.0], [1.0, 0.0]], t_end, H, coupling, Kp, Kd, Q,
                                method, record_every, event_aware, H_min, start_values, progress,
-                               record_distance, allow_unstable, hold)
+                               record_distance, allow_unstable, hold, exchange)
     except RunFailed as exc:
         if exc.partial is not None:  # None: refused before the first step
             exc.partial = pair_result(exc.partial, coupling)

@@ -16,6 +16,7 @@ import numpy as np
 
 from ..core import MechanicalSystem
 from ..core.coupling import LAWS as COUPLING_LAWS
+from ..core.exchange import EXCHANGES
 from ..core.declaration import POSITIVE_MIN, Model, Param
 from ..core.registry import builtin_models
 
@@ -338,6 +339,8 @@ KEYS = {
             "method": _key(choice(*METHODS), "jacobi", "exchange strategy of the master (cosim)"),
             "event_aware": _key(_boolean, False, "retake a communication step that contains an impact (cosim)"),
             "hold": _key(choice(*HOLDS), "zoh", "input hold over a communication step (cosim)"),
+            "exchange": _key(choice(*EXCHANGES), "explicit", "forces from the step's start, or iterated to its "
+                             "end states with FMU-state rollback (cosim)"),
             "record_every": _key(_integer(1), 1, "keep every k-th step (core: steps dt; cosim: steps H)"),
             "allow_unstable": _key(_boolean, False, "run even if the held coupling exchange is unstable at this step")},
     "record": {"distance": _key(_boolean, None, "compute d, branch, V and the Euclidean error (pairs and "
