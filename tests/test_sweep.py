@@ -480,7 +480,8 @@ def test_sweep_axes_carry_the_units_of_the_scene_and_its_model(tmp_path, monkeyp
     SP, figs = _captured(monkeypatch)
     pend, osc = load_model("pendulum"), load_model("impact-oscillator")
     assert SP.axis_label("system.l", pend) == "system.l [m]"
-    assert SP.axis_label("initial.q1", pend) == "$q_1(0)$ [rad]" and SP.axis_label("initial.u2", pend) == "$u_2(0)$ [rad/s]"
+    assert SP.axis_label("initial.q1", pend) == "$q_1(0)$ [rad]"
+    assert SP.axis_label("initial.u2", pend) == "$u_2(0)$ [rad/s]"
     assert SP.axis_label("initial.q1", osc) == "$q_1(0)$ [m]" and SP.axis_label("system.k", osc) == "system.k [N/m]"
     assert SP.axis_label("coupling.Kp") == "$K_p$ [N/m]" and SP.axis_label("run.H") == "H [s]"
     assert SP.axis_label("system.e", pend) == "restitution e"          # dimensionless: no unit
@@ -489,6 +490,7 @@ def test_sweep_axes_carry_the_units_of_the_scene_and_its_model(tmp_path, monkeyp
                      "decay_rate_err": ("system.l", [0.01] * 3), "rate_resolved": ("system.l", [True] * 3),
                      "synchronized": ("system.l", [True] * 3), "t_sync": ("system.l", [5.0, 7.0, 9.0])},
                     coords={"system.l": l},
-                    attrs={"scene": "pendulum", "scene_file": str(Path(fmu_sync.scenes.__file__).parent / "pendulum.toml")})
+                    attrs={"scene": "pendulum",
+                           "scene_file": str(Path(fmu_sync.scenes.__file__).parent / "pendulum.toml")})
     SP.line_plot(ds, "system.l", tmp_path / "line.png")
     assert [ax.get_xlabel() for ax in figs[-1].axes] == ["system.l [m]"] * 2
