@@ -110,7 +110,10 @@ def law_stepper(law, on_compile=None):
                   options={"nopython": True})
     c.on_compile, c.law_name = on_compile, law.name
     if cache_key is not None:
-        c.enable_caching()
+        try:
+            c.enable_caching()
+        except RuntimeError:   # numba finds no cache folder it can write: compiled in this process only
+            pass
     c.compile()
     _STEPPERS[key] = c
     return c
