@@ -128,7 +128,7 @@ class _Normal:
         self.w, self.g0, self.n = w, g0, n
         uq, uu = _u(result, "q"), _u(result, "u")
         if n == 1:
-            self.wall_at, self.above = -g0 / w[0], bool(w[0] < 0.0)
+            self.wall_at, self.above = -g0 / w[0] + 0.0, bool(w[0] < 0.0)     # + 0.0: no "-0"
             self.pos_label, self.vel_label = f"position q [{uq}]", f"velocity u [{uu}]"
             sign = "≥" if w[0] > 0.0 else "≤"
             self.wall_label = f"wall q = {self.wall_at:.4g} {uq} (allowed: q {sign} {self.wall_at:.4g})"
