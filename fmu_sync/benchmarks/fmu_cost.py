@@ -17,6 +17,10 @@ First-step latency: fresh ``python`` processes, each with an empty cache folder
 first finished doStep; the median over ``--fresh`` processes is printed, with, for the
 explanation, the import time of numpy alone in a fresh process. The stepper is native
 code in the binary (compiled at export): numba is neither imported nor needed.
+
+Export time (:func:`export_times`, in ``fmu-sync bench``'s section): ``fmu-sync export`` in fresh
+processes with warm caches, the built-in impact-oscillator against a user's model file (its law's
+stepper loaded from numba's cache; target: at most 3x the built-in's).
 """
 from __future__ import annotations
 
