@@ -352,8 +352,15 @@ def stepper_cfunc(model: str = "impact-oscillator"):
     import importlib
     if model in _GENERATED:
         from .fmus.law_stepper import law_stepper
-        return law_stepper(contract.model(model).declaration.force)
+        return law_stepper(contract.model(model).declaration.force, _compiling)
     return importlib.import_module(f"fmu_sync.{_kind(model)['stepper']}").step
+
+
+def _compiling(law: str) -> None:
+    """The progress line of a user force law's stepper compiling (a first export of its file)."""
+    from .progress import note
+    note(f"fmu-sync export: compiling the FMU stepper of force law {law!r} with numba (the first export "
+         f"of this model file only; it can take a minute or more; later exports load it from the cache)")
 
 
 def build_binary(out: Path, guid: str, boot_module: str, max_substeps: int = MAX_SUBSTEPS,

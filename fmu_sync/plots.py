@@ -23,7 +23,7 @@ from .report import SYNC_THRESHOLD, contact_starts, impact_records, is_network, 
 
 __all__ = ["plot_positions", "plot_distance", "plot_lyapunov", "plot_forces", "plot_phase",
            "plot_impact_zoom", "impact_window", "tail_start", "PHASE_TURNS",
-           "compare_plot", "skip_reason", "PLOTTERS", "save_figure"]
+           "compare_plot", "skip_reason", "PLOTTERS", "save_figure", "lyapunov_note"]
 
 STYLE = {
     "font.size": 11, "axes.titlesize": 12, "axes.labelsize": 11, "legend.fontsize": 9.5,
@@ -100,37 +100,72 @@ def _legend(ax, fontsize=8.5):
                   bbox_to_anchor=(1.01, 1.0), fontsize=fontsize)
 
 
-def _wall_band(ax, horizontal=True, label="wall"):
-    """Draw the wall at 0 with a hatched forbidden side (below / left)."""
+def _wall_band(ax, horizontal=True, label="wall", at=0.0, above=False):
+    """Draw the wall at ``at`` with a hatched forbidden side: below / left of it, or above / right
+    (``above``: a wall the coordinate may not exceed, w < 0)."""
+    lo, hi = ax.get_ylim() if horizontal else ax.get_xlim()
+    span = max(hi - lo, 1e-12)
+    lo, hi = min(lo, at - 0.04 * span), max(hi, at + 0.04 * span)
+    a, b = (at, hi) if above else (lo, at)
     if horizontal:
-        lo, hi = ax.get_ylim()
-        span = hi - lo
-        ax.axhspan(min(lo, -0.04 * span), 0.0, facecolor="none", edgecolor=WALL, hatch="///", alpha=0.35, lw=0)
-        ax.axhline(0.0, color=WALL, lw=2.0, label=label)
-        ax.set_ylim(min(lo, -0.04 * span), hi)
+        ax.axhspan(a, b, facecolor="none", edgecolor=WALL, hatch="///", alpha=0.35, lw=0)
+        ax.axhline(at, color=WALL, lw=2.0, label=label)
+        ax.set_ylim(lo, hi)
     else:
-        lo, hi = ax.get_xlim()
-        span = hi - lo
-        ax.axvspan(min(lo, -0.04 * span), 0.0, facecolor="none", edgecolor=WALL, hatch="///", alpha=0.35, lw=0)
-        ax.axvline(0.0, color=WALL, lw=2.0, label=label)
-        ax.set_xlim(min(lo, -0.04 * span), hi)
+        ax.axvspan(a, b, facecolor="none", edgecolor=WALL, hatch="///", alpha=0.35, lw=0)
+        ax.axvline(at, color=WALL, lw=2.0, label=label)
+        ax.set_xlim(lo, hi)
+
+
+class _Normal:
+    """What the wall plots (positions, phase portrait, impact window) draw of each system, and
+    their labels: one degree of freedom, q and u themselves with the wall at q = -g0/w (the
+    forbidden side hatched: below for w > 0, above for w < 0); n > 1, the gap g = wᵀq + g0 and
+    the normal velocity γ = wᵀu with the wall at g = 0."""
+
+    def __init__(self, result, system, n):
+        w, g0 = wall(system, n)
+        self.w, self.g0, self.n = w, g0, n
+        uq, uu = _u(result, "q"), _u(result, "u")
+        if n == 1:
+            self.wall_at, self.above = -g0 / w[0] + 0.0, bool(w[0] < 0.0)     # + 0.0: no "-0"
+            self.pos_label, self.vel_label = f"position q [{uq}]", f"velocity u [{uu}]"
+            sign = "≥" if w[0] > 0.0 else "≤"
+            self.wall_label = f"wall q = {self.wall_at:.4g} {uq} (allowed: q {sign} {self.wall_at:.4g})"
+        else:
+            self.wall_at, self.above = 0.0, False
+            self.pos_label = f"gap g = wᵀq + g0 [{uq}]"
+            self.vel_label = f"normal velocity γ = wᵀu [{uu}]"
+            self.wall_label = "wall g = 0"
+
+    def pos(self, q):
+        """q (n = 1) or the gap g = wᵀq + g0 of the records ``q`` (rows x n)."""
+        q = np.asarray(q, dtype=float)
+        return q[:, 0] if self.n == 1 else q @ self.w + self.g0
+
+    def vel(self, u):
+        """u (n = 1) or the normal velocity γ = wᵀu."""
+        u = np.asarray(u, dtype=float)
+        return u[:, 0] if self.n == 1 else u @ self.w
+
+    def band(self, ax, horizontal=True):
+        _wall_band(ax, horizontal, self.wall_label, self.wall_at, self.above)
 
 
 def _network_positions(result, path, system=None, title=None) -> Path:
     t = np.asarray(result.t)
     q = np.asarray(result.q)
     N, n = q.shape[1], q.shape[2]
-    w, g0 = wall(system, n)
+    nm = _Normal(result, system, n)
     fig, (ax,) = _figure(width=9.0)
     cmap = matplotlib.colormaps["viridis"]
     for i in range(N):
-        ax.plot(t, q[:, i] @ w + g0, color=cmap(i / max(N - 1, 1)), lw=0.9, label=f"node {i + 1}")
-    _wall_band(ax)
-    unit = _u(result, "q")
-    ax.set_ylabel(f"gap g(q) = w·q + g0 [{unit}]" if n > 1 or g0 != 0.0 else f"position q [{unit}]")
+        ax.plot(t, nm.pos(q[:, i]), color=cmap(i / max(N - 1, 1)), lw=0.9, label=f"node {i + 1}")
+    nm.band(ax)
+    ax.set_ylabel(nm.pos_label)
     ax.set_xlabel("time t [s]")
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8.5)
-    _title(ax, title, f"positions of the {N} nodes")
+    _title(ax, title, f"{'positions' if n == 1 else 'gaps'} of the {N} nodes")
     return _save(fig, path)
 
 
@@ -156,13 +191,14 @@ def _network_distance(result, path, system=None, title=None) -> Path:
 
 
 def plot_positions(result, path, system=None, title=None) -> Path:
-    """q(t) of each system with the wall and the starts of contact episodes marked (n > 1: q components and the gap g)."""
+    """q(t) of each system with the wall and the starts of contact episodes marked (n > 1: the
+    q components above, the gap g = wᵀq + g0 below)."""
     if is_network(result):
         return _network_positions(result, path, system, title)
     t = np.asarray(result.t)
     parts = _systems(result, system)
     n = parts[0][1].shape[1]
-    w, g0 = wall(system, n)
+    nm = _Normal(result, system, n)
     fig, axes = _figure(2 if n > 1 else 1, height=6.4 if n > 1 else 4.2, width=9.0)
     if n > 1:
         ax = axes[0]
@@ -172,22 +208,20 @@ def plot_positions(result, path, system=None, title=None) -> Path:
                 ax.plot(t, q[:, j], color=COLORS[k], ls=styles[j % 4], label=f"{label}: q[{j + 1}]")
         ax.set_ylabel(f"position q [{_u(result, 'q')}]")
         ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0))
-        _title(ax, title, "positions")
+        _title(ax, title, "positions q (above) and the gap g = wᵀq + g0 (below)")
     ax = axes[-1]
     for k, (label, q, u, hits) in enumerate(parts):
-        g = q @ w + g0
-        ax.plot(t, g, color=COLORS[k], ls="-" if k == 0 else "--", label=label)
+        ax.plot(t, nm.pos(q), color=COLORS[k], ls="-" if k == 0 else "--", label=label)
         if hits.size:
-            ax.plot(t[hits], np.zeros(hits.size), ls="none", marker="v" if k == 0 else "^", ms=5,
+            ax.plot(t[hits], np.full(hits.size, nm.wall_at), ls="none", marker="v" if k == 0 else "^", ms=5,
                     color=COLORS[k], mec="k", mew=0.5, label=f"contact episodes {label.split()[-1]} ({hits.size})"
                     if len(parts) > 1 else f"contact episodes ({hits.size})")
-    _wall_band(ax)
-    unit = _u(result, "q")
-    ax.set_ylabel(f"gap g(q) = w·q + g0 [{unit}]" if n > 1 or g0 != 0.0 else f"position q [{unit}]")
+    nm.band(ax)
+    ax.set_ylabel(nm.pos_label)
     ax.set_xlabel("time t [s]")
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    if n == 1 and g0 == 0.0:
-        _title(ax, title, "position vs time (wall at q = 0)")
+    if n == 1:
+        _title(ax, title, "position q vs time, with the wall")
     return _save(fig, path)
 
 
@@ -293,10 +327,10 @@ def impact_window(result, system=None, halfwidth: float | None = None):
 
 
 def plot_impact_zoom(result, path, system=None, title=None) -> Path:
-    """The paper's central point on one impact window (linear axes): the positions
-    with the wall; below, the Euclidean error jumping at the impact mismatch while
-    the quotient distance d stays continuous."""
-    fig, (axq, ax) = _figure(2, height=6.4, width=8.0)
+    """The paper's central point on one impact window: the positions with the wall (n > 1: the
+    gaps); below, on a log axis, the Euclidean error jumping at the impact mismatch while the
+    quotient distance d stays continuous (however small it is next to the jump)."""
+    fig, (axq, ax) = _figure(2, height=6.4, width=9.0)
     win = impact_window(result, system)
     t = np.asarray(result.t)
     if win is None:
@@ -308,43 +342,69 @@ def plot_impact_zoom(result, path, system=None, title=None) -> Path:
     i0, i1, k = win
     sl = slice(i0, i1)
     parts = _systems(result, system)
-    n = parts[0][1].shape[1]
-    w, g0 = wall(system, n)
+    nm = _Normal(result, system, parts[0][1].shape[1])
     for c, (label, q, _, hits) in enumerate(parts):
-        axq.plot(t[sl], (q @ w + g0)[sl], color=COLORS[c], label=label)
+        axq.plot(t[sl], nm.pos(q)[sl], color=COLORS[c], label=label)
         h = hits[(hits >= i0) & (hits < i1)]
         if h.size:
-            axq.plot(t[h], np.zeros(h.size), ls="none", marker="v" if c == 0 else "^", ms=7,
+            axq.plot(t[h], np.full(h.size, nm.wall_at), ls="none", marker="v" if c == 0 else "^", ms=7,
                      color=COLORS[c], mec="k", mew=0.5, label=f"contact episode begins ({label})")
-    _wall_band(axq)
-    axq.set_ylabel(f"gap g(q) [{_u(result, 'q')}]" if n > 1 else f"position q [{_u(result, 'q')}]")
-    axq.legend(loc="upper center", ncol=2, fontsize=8.5)
-    axq.set_ylim(top=axq.get_ylim()[1] * 1.35)
-    E, d = np.asarray(result.euclidean), np.asarray(result.d)
-    ax.plot(t[sl], E[sl], color="#ff7f0e", lw=1.4, label="Euclidean error ‖x1 − x2‖_P")
-    ax.plot(t[sl], d[sl], color="#2ca02c", lw=2.0, label="quotient distance d")
-    ax.set_ylim(bottom=0.0, top=1.3 * float(np.nanmax(E[sl])))
+    nm.band(axq)
+    axq.set_ylabel(nm.pos_label)
+    _legend(axq)
+    E, d = np.asarray(result.euclidean, dtype=float), np.asarray(result.d, dtype=float)
+    ax.semilogy(t[sl], _positive(E[sl]), color="#ff7f0e", lw=1.4, label="Euclidean error ‖x1 − x2‖_P")
+    ax.semilogy(t[sl], _positive(d[sl]), color="#2ca02c", lw=2.0, label="quotient distance d")
+    shown = np.concatenate([E[sl], d[sl]])
+    shown = shown[np.isfinite(shown) & (shown > 0.0)]
+    if shown.size:
+        ax.set_ylim(0.3 * float(shown.min()), 3.0 * float(shown.max()))
+    _zero_note(ax, t[sl], d[sl], "#2ca02c")
     ax.annotate(f"Euclidean error {E[k] - d[k]:.3g} above d\n(one system hit the wall, the other not yet)",
-                xy=(t[k], E[k]), xytext=(0.98, 0.6), textcoords="axes fraction", ha="right", fontsize=9,
+                xy=(t[k], E[k]), xytext=(0.98, 0.5), textcoords="axes fraction", ha="right", fontsize=9,
                 arrowprops=dict(arrowstyle="->", lw=0.8))
     ax.set_xlabel("time t [s]")
-    ax.set_ylabel("distance (P-norm)")
-    ax.legend(loc="upper left", fontsize=9)
+    ax.set_ylabel("distance (P-norm, log)")
+    _legend(ax)
     what = "impact window: d continuous, Euclidean error jumps"
     with matplotlib.rc_context(STYLE):
         fig.suptitle(f"{title}: {what}" if title else what, fontsize=11)
     return _save(fig, path)
 
 
+def _coupled(result) -> bool:
+    """Whether a coupling law acts in the run (a pair's ``coupling``, a network's ``info["coupling"]``)."""
+    c = (getattr(result, "info", None) or {}).get("coupling") if is_network(result) else \
+        getattr(result, "coupling", None)
+    return any(x not in (None, "none") for x in (c if isinstance(c, (list, tuple)) else [c]))
+
+
+def lyapunov_note(result) -> str | None:
+    """None when the result says that V is a Lyapunov function of its law (``info["lyapunov"]``,
+    a coupled run); else why V is not called one on the plots."""
+    info = getattr(result, "info", None) or {}
+    if not _coupled(result):
+        return "uncoupled run: V is not a Lyapunov function here"
+    if info.get("lyapunov"):
+        return None
+    if "lyapunov" not in info:
+        return "the result does not say that V is a Lyapunov function of the law"
+    return f"not a Lyapunov function of this run's law (metric: {info.get('metric', '?')}, see the summary)"
+
+
 def plot_lyapunov(result, path, system=None, title=None) -> Path:
-    """V(t) on a log axis: d²/2 for a pair, ½ Σ_edges a_ij d_ij² for a network."""
+    """V(t) on a log axis: d²/2 for a pair, ½ Σ_edges a_ij d_ij² for a network; called a Lyapunov
+    function only when the result says it is one (:func:`lyapunov_note`)."""
     fig, (ax,) = _figure(width=10.0)
     ax.semilogy(np.asarray(result.t), _positive(result.V), color="#9467bd", lw=1.5, label=_V_LABEL[is_network(result)])
     _zero_note(ax, result.t, result.V, "#9467bd", "V")
+    note = lyapunov_note(result)
+    if note is not None:
+        ax.plot([], [], ls="none", label=note)
     ax.set_xlabel("time t [s]")
-    ax.set_ylabel("Lyapunov function V")
+    ax.set_ylabel("Lyapunov function V" if note is None else "V")
     _legend(ax)
-    _title(ax, title, "Lyapunov function V(t)")
+    _title(ax, title, "Lyapunov function V(t)" if note is None else f"{_V_LABEL[is_network(result)]} vs time")
     return _save(fig, path)
 
 
@@ -403,16 +463,16 @@ def tail_start(y, turns: int = PHASE_TURNS) -> int:
 
 
 def plot_phase(result, path, system=None, title=None) -> Path:
-    """Phase portrait (q, u) of each system with the wall (n > 1: normal coordinates (g, w·u)).
-    A long run: the last :data:`PHASE_TURNS` turns in full, the motion before them faint."""
+    """Phase portrait (q, u) of each system with the wall (n > 1: the normal coordinates, gap
+    g = wᵀq + g0 and normal velocity γ = wᵀu). A long run: the last :data:`PHASE_TURNS` turns in
+    full, the motion before them faint."""
     parts = _systems(result, system)
-    n = parts[0][1].shape[1]
-    w, g0 = wall(system, n)
+    nm = _Normal(result, system, parts[0][1].shape[1])
     t = np.asarray(result.t)
     fig, (ax,) = _figure(height=5.6, width=6.8, sharex=False)
-    start = min(tail_start(u @ w) for _, _, u, _ in parts)
+    start = min(tail_start(nm.vel(u)) for _, _, u, _ in parts)
     for k, (label, q, u, _) in enumerate(parts):
-        x, y = q @ w + g0, u @ w
+        x, y = nm.pos(q), nm.vel(u)
         if start > 0:
             ax.plot(x[:start + 1], y[:start + 1], color=COLORS[k], lw=0.5, alpha=0.18)
         # system 2 dashed: synchronized systems draw one curve, both stay visible
@@ -424,9 +484,9 @@ def plot_phase(result, path, system=None, title=None) -> Path:
     ax.plot([], [], ls="none", marker="s", ms=6, color="w", mec="k", label="end")
     if start > 0:
         ax.plot([], [], color="0.6", lw=0.5, label=f"before t = {t[start]:.4g} s (faint)")
-    _wall_band(ax, horizontal=False)
-    ax.set_xlabel(f"gap g = w·q + g0 [{_u(result, 'q')}]" if n > 1 else f"position q [{_u(result, 'q')}]")
-    ax.set_ylabel(f"normal velocity w·u [{_u(result, 'u')}]" if n > 1 else f"velocity u [{_u(result, 'u')}]")
+    nm.band(ax, horizontal=False)
+    ax.set_xlabel(nm.pos_label)
+    ax.set_ylabel(nm.vel_label)
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=3, frameon=False)
     what = "phase portrait" if start == 0 else \
         f"phase portrait, last {PHASE_TURNS} turns (t ≥ {t[start]:.4g} s)"
@@ -438,7 +498,7 @@ def plot_phase(result, path, system=None, title=None) -> Path:
 _V_LABEL = {False: "V = d²/2", True: "V = ½ Σ_edges a_ij d_ij²"}
 _LABELS = {"d": ("quotient distance d", "distance d (P-norm)"),
            "euclidean": ("Euclidean error ‖x1 − x2‖_P", "Euclidean error (P-norm)"),
-           "V": ("Lyapunov function V (pair: d²/2; network: ½ Σ_edges a_ij d_ij²)", "V")}
+           "V": ("V (pair: d²/2; network: ½ Σ_edges a_ij d_ij²)", "V")}
 
 
 def compare_plot(results: Mapping[str, object], path, quantity: str = "d", title=None, dashed=(),

@@ -17,7 +17,7 @@ import os
 import sys
 import time
 
-__all__ = ["Progress", "scaled", "caches_cold"]
+__all__ = ["Progress", "scaled", "caches_cold", "note"]
 
 
 def _env_flag(name: str) -> bool | None:
@@ -104,6 +104,15 @@ class Progress:
     def __exit__(self, *exc):
         self.close()
         return False
+
+
+def note(text: str, stream=None) -> None:
+    """One line ``text`` on stderr (``stream``), written when a :class:`Progress` would draw
+    (not under ``CI=true`` nor ``FMU_SYNC_PROGRESS=0``): what a long silent step is doing."""
+    bar = Progress(stream=stream)
+    if bar.enabled:
+        bar.stream.write(text + "\n")
+        bar.stream.flush()
 
 
 def scaled(progress, start: float, stop: float):

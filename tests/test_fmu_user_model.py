@@ -276,3 +276,34 @@ def test_a_law_with_two_forcing_terms_exports_runs_and_refuses_a_third(tmp_path)
     assert np.max(np.abs(r["q"] - c.q[:, 0])) <= 1e-12
     with pytest.raises(Exception, match=r"fmi2ExitInitializationMode failed with status 3 \(error\)"):
         simulate_fmu(str(fmu), stop_time=0.1, output_interval=H, start_values={"nt": 3.0})
+
+
+def test_a_second_export_of_the_file_compiles_nothing(pend, tmp_path, capsys):
+    """Issue 36 item 4: the law's FMU stepper is cached on disk like the built-in one. This
+    process's copy forgotten (as in a new process), a second export of the same file loads it
+    from numba's cache: no compilation (the compile counter unchanged, a cache hit, no progress
+    line) and the same FMU, byte for byte."""
+    from fmu_sync.fmus import law_stepper as LS
+    law = pend["decl"].force
+    assert law.key in LS._STEPPERS
+    before = LS.compiled()
+    del LS._STEPPERS[law.key]
+    assert main_export([pend["spec"], "-o", str(tmp_path / "again.fmu")]) == 0
+    assert LS.compiled() == before
+    assert LS._STEPPERS[law.key].cache_hits == 1
+    assert "compiling" not in capsys.readouterr().err
+    assert (tmp_path / "again.fmu").read_bytes() == pend["fmu"].read_bytes()
+
+
+def test_the_stepper_cache_key_follows_the_model_file(pend, tmp_path):
+    """The key changes with an edit of the file (a helper or a constant included), not with where
+    the file lies."""
+    from fmu_sync.fmus.law_stepper import stepper_key
+    key = stepper_key(pend["decl"].force)
+    moved = tmp_path / "elsewhere" / "my_pendulum.py"
+    moved.parent.mkdir()
+    moved.write_text(PENDULUM_FILE)
+    edited = tmp_path / "my_pendulum.py"
+    edited.write_text(PENDULUM_FILE + "\nUNUSED = 1\n")
+    assert stepper_key(load_model(f"{moved}:pendulum").force) == key
+    assert stepper_key(load_model(f"{edited}:pendulum").force) != key

@@ -301,3 +301,101 @@ def test_an_interrupted_plot_leaves_no_truncated_png(tmp_path):
         assert files and all(f.suffix == ".png" and not f.name.startswith(".") for f in files), files
         for f in files:
             assert f.read_bytes().endswith(b"IEND\xaeB`\x82"), (f, f.stat().st_size)
+
+
+# ------------------------------------------------------------------ labels match the drawn data (issue 36)
+def _figure_of(plotter, *args, **kw):
+    return _texts(plotter, *args, **kw)[0]
+
+
+def _lines(ax):
+    """The drawn (non-empty) lines of ``ax``: their data and labels."""
+    return [(ln.get_xydata(), ln.get_label()) for ln in ax.get_lines() if len(ln.get_xydata())]
+
+
+def _one_dof_wall(w):
+    """A forced 1-DOF oscillator with the wall at q = 0.8 on the side of ``w`` (w = +1: q >= 0.8,
+    w = -1: q <= 0.8), and a pair of runs from x1 = (0, 0), x2 = (-0.5, 0.4) (w = +1: mirrored)."""
+    s = MechanicalSystem(M=[[1.0]], K=[[1.0]], C=[[0.05]], f0=[0.0], w=[float(w)], g0=-0.8 * w, e=0.7,
+                         forcing=(([0.6], 1.3, 0.0),))
+    x1, x2 = ((0.0, 0.0), (-0.5, 0.4)) if w < 0 else ((1.6, 0.0), (2.1, -0.4))
+    return s, fake_pair(s, x1, x2, t_end=12.0)
+
+
+@pytest.mark.parametrize("w", [1.0, -1.0])
+def test_wall_plots_draw_q_and_u_with_the_wall_on_its_side(tmp_path, w):
+    """1-DOF, w = ±1 (issue 36: the phase portrait said "position q" and drew the gap and -u;
+    its start markers sat at (0.8, 0) and (1.3, -0.4) for x1 = (0, 0), x2 = (-0.5, 0.4)): the
+    phase portrait, the positions plot and the impact window draw q and u as labelled, the wall
+    at q = 0.8 with its forbidden side hatched on the side w forbids."""
+    s, r = _one_dof_wall(w)
+    q_wall = 0.8
+    fig = _figure_of(plots.plot_phase, r, tmp_path / "ph.png", system=s, title="t")
+    ax = fig.axes[0]
+    assert ax.get_xlabel() == "position q [m]" and ax.get_ylabel() == "velocity u [m/s]"
+    lines = _lines(ax)
+    starts = [xy[0].tolist() for xy, _ in lines if len(xy) == 1][::2]     # start, end markers per system
+    assert starts == [[r.q1[0, 0], r.u1[0, 0]], [r.q2[0, 0], r.u2[0, 0]]]
+    curves = {lab: xy for xy, lab in lines if lab in ("system 1", "system 2")}
+    for i, lab in ((1, "system 1"), (2, "system 2")):
+        q, u = getattr(r, f"q{i}")[:, 0], getattr(r, f"u{i}")[:, 0]
+        xy = curves[lab]
+        np.testing.assert_array_equal(xy, np.column_stack([q, u])[len(q) - len(xy):])
+    walls = [xy for xy, lab in lines if lab.startswith("wall q = 0.8 m")]
+    assert len(walls) == 1 and np.all(walls[0][:, 0] == q_wall)
+    span = ax.patches[0]                                                   # the forbidden side, hatched
+    x = span.get_patch_transform().transform(span.get_path().vertices)[:, 0]
+    assert (x.max() <= q_wall + 1e-12) if w > 0 else (x.min() >= q_wall - 1e-12), x
+    allowed = np.concatenate([r.q1[:, 0], r.q2[:, 0]])
+    assert np.all(allowed * w >= q_wall * w - 1e-4)                        # the run stays on the allowed side
+
+    fig = _figure_of(plots.plot_positions, r, tmp_path / "p.png", system=s, title="scene")
+    ax = fig.axes[0]
+    assert ax.get_ylabel() == "position q [m]" and ax.get_title().startswith("scene: position q")
+    curves = {lab: xy for xy, lab in _lines(ax)}
+    np.testing.assert_array_equal(curves["system 1"], np.column_stack([r.t, r.q1[:, 0]]))
+    np.testing.assert_array_equal(curves["system 2"], np.column_stack([r.t, r.q2[:, 0]]))
+    assert any(lab.startswith("contact episodes") and np.all(xy[:, 1] == q_wall) for xy, lab in _lines(ax))
+
+    fig = _figure_of(plots.plot_impact_zoom, r, tmp_path / "z.png", system=s)
+    axq, axd = fig.axes[:2]
+    i0, i1, _ = plots.impact_window(r, s)
+    assert axq.get_ylabel() == "position q [m]"
+    curves = {lab: xy for xy, lab in _lines(axq)}
+    np.testing.assert_array_equal(curves["system 1"], np.column_stack([r.t, r.q1[:, 0]])[i0:i1])
+    assert axd.get_yscale() == "log"                                       # d readable next to the jump
+    drawn_d = {lab: xy for xy, lab in _lines(axd)}["quotient distance d"]
+    np.testing.assert_array_equal(drawn_d[:, 1], np.where(r.d > 0, r.d, np.nan)[i0:i1])
+
+
+def test_oblique_wall_plots_label_the_gap_and_the_normal_velocity(tmp_path, two_dof):
+    """n = 2, oblique wall w = (1, 0.5): the phase portrait draws (g, γ) = (wᵀq + g0, wᵀu), so labelled."""
+    s, r = two_dof
+    w = np.asarray(s.w)
+    ax = _figure_of(plots.plot_phase, r, tmp_path / "ph.png", system=s).axes[0]
+    assert ax.get_xlabel() == "gap g = wᵀq + g0 [m]" and ax.get_ylabel() == "normal velocity γ = wᵀu [m/s]"
+    xy = {lab: xy for xy, lab in _lines(ax)}["system 2"]
+    np.testing.assert_allclose(xy, np.column_stack([r.q2 @ w + s.g0, r.u2 @ w])[len(r.t) - len(xy):], rtol=0,
+                               atol=1e-15)
+    fig = _figure_of(plots.plot_positions, r, tmp_path / "p.png", system=s, title="two-dof")
+    assert fig.axes[0].get_ylabel() == "position q [m]" and fig.axes[1].get_ylabel().startswith("gap g = wᵀq")
+    assert fig.axes[0].get_title().startswith("two-dof: positions q")
+
+
+def test_v_is_called_a_lyapunov_function_only_when_the_result_says_so(tmp_path, pair, osc):
+    from dataclasses import replace
+    cases = {"yes": replace(pair, info={"lyapunov": True, "metric": "energy"}),
+             "user metric": replace(pair, info={"lyapunov": False, "metric": "user"}),
+             "uncoupled": replace(pair, coupling=None, info={"lyapunov": True, "metric": "energy"}),
+             "unsaid": replace(pair, info={})}
+    for name, r in cases.items():
+        fig, texts = _texts(plots.plot_lyapunov, r, tmp_path / "v.png", system=osc, title=name)
+        ax = fig.axes[0]
+        if name == "yes":
+            assert ax.get_ylabel() == "Lyapunov function V" and ax.get_title() == "yes: Lyapunov function V(t)"
+        else:   # V, with the reason it is not called a Lyapunov function in the legend
+            assert ax.get_ylabel() == "V" and ax.get_title() == f"{name}: V = d²/2 vs time"
+            assert not any("Lyapunov function V" in t for t in texts), (name, texts)
+            assert plots.lyapunov_note(r) in [t.get_text().replace("\n", " ") for t in ax.get_legend().get_texts()]
+    _, texts = _texts(plots.compare_plot, {"a": cases["uncoupled"]}, tmp_path / "c.png", quantity="V")
+    assert not any("Lyapunov" in t for t in texts)

@@ -468,3 +468,29 @@ def test_basin_colours_without_a_rate_are_told_apart(tmp_path, monkeypatch):
     canvas.draw()
     R = canvas.get_renderer()
     assert not leg.get_window_extent(R).overlaps(ax.get_window_extent(R))
+
+
+def test_sweep_axes_carry_the_units_of_the_scene_and_its_model(tmp_path, monkeypatch):
+    """Issue 36: a line plot's axis "system.k12" had no unit. The unit of a swept key comes from
+    the model's declaration ([system] keys, the initial state's q and u) or the scene schema."""
+    from pathlib import Path
+
+    import fmu_sync.scenes
+    from fmu_sync.core.registry import load_model
+    SP, figs = _captured(monkeypatch)
+    pend, osc = load_model("pendulum"), load_model("impact-oscillator")
+    assert SP.axis_label("system.l", pend) == "system.l [m]"
+    assert SP.axis_label("initial.q1", pend) == "$q_1(0)$ [rad]"
+    assert SP.axis_label("initial.u2", pend) == "$u_2(0)$ [rad/s]"
+    assert SP.axis_label("initial.q1", osc) == "$q_1(0)$ [m]" and SP.axis_label("system.k", osc) == "system.k [N/m]"
+    assert SP.axis_label("coupling.Kp") == "$K_p$ [N/m]" and SP.axis_label("run.H") == "H [s]"
+    assert SP.axis_label("system.e", pend) == "restitution e"          # dimensionless: no unit
+    l = np.array([0.5, 1.0, 1.5])
+    ds = xr.Dataset({"status": ("system.l", np.zeros(3, dtype=np.int8)), "decay_rate": ("system.l", [0.3, 0.2, 0.1]),
+                     "decay_rate_err": ("system.l", [0.01] * 3), "rate_resolved": ("system.l", [True] * 3),
+                     "synchronized": ("system.l", [True] * 3), "t_sync": ("system.l", [5.0, 7.0, 9.0])},
+                    coords={"system.l": l},
+                    attrs={"scene": "pendulum",
+                           "scene_file": str(Path(fmu_sync.scenes.__file__).parent / "pendulum.toml")})
+    SP.line_plot(ds, "system.l", tmp_path / "line.png")
+    assert [ax.get_xlabel() for ax in figs[-1].axes] == ["system.l [m]"] * 2

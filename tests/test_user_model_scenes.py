@@ -142,7 +142,7 @@ def test_the_declared_units_reach_the_records_plots_and_summary(runs):
         for f in ("switching.csv", "switching.npz"):      # read back with its units
             assert fmu_sync.load(out / f).info["units"]["u"] == "rad/s"
     labels = runs["labels"]
-    assert labels["switching-positions.png"][0][1] == "gap g(q) = w·q + g0 [rad]"   # the wall at q_w != 0
+    assert labels["switching-positions.png"][0][1] == "position q [rad]"   # q itself, the wall drawn at q = q_w
     assert labels["switching-phase.png"][0] == ("position q [rad]", "velocity u [rad/s]")
     assert "[N.m]" in labels["switching-forces.png"][0][1]
     loaded = fmu_sync.load(runs["cosim"].out_dir / "switching.csv")

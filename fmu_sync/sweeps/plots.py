@@ -22,12 +22,13 @@ import numpy as np
 
 from ..plots import save_figure
 
-__all__ = ["heat_map", "basin", "scatter", "line_plot", "sweep_plots", "zoh_margin", "LABELS"]
+__all__ = ["heat_map", "basin", "scatter", "line_plot", "sweep_plots", "zoh_margin", "LABELS", "axis_label", "key_unit"]
 
-LABELS = {"coupling.Kp": "$K_p$ (N/m)", "coupling.Kd": "$K_d$ (N s/m)", "solver.dt": "dt (s)",
-          "run.H": "H (s)", "system.e": "restitution e", "system.m": "m (kg)",
-          "initial.q1": "$q_1(0)$ (m)", "initial.u1": "$u_1(0)$ (m/s)",
-          "initial.q2": "$q_2(0)$ (m)", "initial.u2": "$u_2(0)$ (m/s)"}
+#: the name an axis of a swept key shows (its unit comes from the scene schema or the model's
+#: declaration, :func:`axis_label`); other keys show themselves
+LABELS = {"coupling.Kp": "$K_p$", "coupling.Kd": "$K_d$", "solver.dt": "dt", "run.H": "H",
+          "system.e": "restitution e", "system.m": "m", "initial.q1": "$q_1(0)$", "initial.u1": "$u_1(0)$",
+          "initial.q2": "$q_2(0)$", "initial.u2": "$u_2(0)$"}
 _ZOH_KEYS = ("coupling.Kp", "coupling.Kd", "solver.dt", "run.H", "system.m")
 _STATE_KEYS = ("initial.q1", "initial.u1", "initial.q2", "initial.u2")
 
@@ -61,8 +62,46 @@ def _edges(v, log):
     return np.exp(e) if log else e
 
 
-def _label(k):
-    return LABELS.get(k, k)
+def key_unit(key: str, model=None) -> str:
+    """The unit of the swept scene key ``key`` ("table.name"): a ``[system]`` key's as ``model``
+    (the scene's :class:`~fmu_sync.core.Model`) declares it, ``initial.q1`` .. ``initial.u2`` the
+    model's units of q and u, any other key's from the scene schema; "" when it has none (or
+    dimensionless)."""
+    from ..scenes.schema import KEYS, system_keys
+    from .spec import STATE_ALIASES
+    table, _, name = key.partition(".")
+    if key in STATE_ALIASES:
+        return model.units["q" if name.startswith("q") else "u"] if model is not None else ""
+    if table == "system":
+        found = system_keys(model).get(name) if model is not None else None
+    else:
+        found = KEYS.get(table, {}).get(name)
+    return found.unit if found is not None else ""
+
+
+def axis_label(key: str, model=None) -> str:
+    """An axis of the swept key ``key``: its name (:data:`LABELS`, else the key) and its unit,
+    ``"system.k12 [N/m]"`` (:func:`key_unit`)."""
+    unit = key_unit(key, model)
+    return f"{LABELS.get(key, key)} [{unit}]" if unit else LABELS.get(key, key)
+
+
+def _model(ds):
+    """The model declaration of the sweep's scene variant (for its parameters' units), or None."""
+    v = _base_variant(ds)
+    if v is None:
+        return None
+    from ..scenes.loading import model_of
+    try:
+        return model_of(v.cfg)
+    except Exception:   # a model file gone since the sweep: the axes without units
+        return None
+
+
+def _labels(ds, *keys) -> list:
+    """The axis labels of ``keys`` of the sweep ``ds`` (its model loaded once)."""
+    model = _model(ds)
+    return [axis_label(k, model) for k in keys]
 
 
 def _base_variant(ds):
@@ -204,6 +243,7 @@ def heat_map(ds, x: str, y: str, path, title: str | None = None) -> Path:
     fig, axes = plt.subplots(1, 2, figsize=(13, 5.4), constrained_layout=True)
     rate = resolved_rate(sub)
     ts = np.where(sub["synchronized"].values, sub["t_sync"].values, np.nan)
+    xlabel, ylabel = _labels(ds, x, y)
     panels = [(axes[0], rate, "decay rate of d (1/s, log scale)", "viridis", "log"),
               (axes[1], ts, "t_sync: time to d < %.0e (s)" % ds.attrs.get("threshold", 1e-6), "magma_r",
                "log")]
@@ -233,8 +273,8 @@ def heat_map(ds, x: str, y: str, path, title: str | None = None) -> Path:
             ax.set_yscale("log")
         ax.set_xlim(XE[0], XE[-1])
         ax.set_ylim(YE[0], YE[-1])
-        ax.set_xlabel(_label(x))
-        ax.set_ylabel(_label(y))
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel)
         handles = getattr(ax, "legend_handles_extra", [])
         if drawn:
             handles = ax.get_legend_handles_labels()[0] + handles
@@ -290,8 +330,9 @@ def basin(ds, x: str, y: str, path, title: str | None = None) -> Path:
         ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(0.0, -0.1), ncol=2, fontsize=8, frameon=False)
     ax.set_xlim(XE[0], XE[-1])
     ax.set_ylim(YE[0], YE[-1])
-    ax.set_xlabel(_label(x))
-    ax.set_ylabel(_label(y))
+    xlabel, ylabel = _labels(ds, x, y)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
     n, nf = int(ds["status"].size), int((ds["status"].values != 0).sum())
     fig.suptitle((title or f"basin of synchronization, {ds.attrs.get('scene', '')}"
                   + (f" ({ds.attrs['variant']})" if ds.attrs.get("variant") else ""))
@@ -337,8 +378,9 @@ def scatter(ds, x: str, y: str, path) -> Path:
         ax.set_xscale("log")
     if np.all(yv > 0) and yv.max() / yv.min() > 50:
         ax.set_yscale("log")
-    ax.set_xlabel(_label(x))
-    ax.set_ylabel(_label(y))
+    xlabel, ylabel = _labels(ds, x, y)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(0.0, -0.1), ncol=2, frameon=False)
     ax.set_title(f"{ds.attrs.get('method', '')} sample of {ds.attrs.get('scene', '')}: {st.size} runs, all drawn, "
                  f"{int((st != 0).sum())} failed")
@@ -373,10 +415,11 @@ def line_plot(ds, x: str, path) -> Path:
                 ax.plot(xv[bad], np.zeros(bad.sum()), "x", color="#b2182b", ms=7,
                         label="diverged / refused" if n == 0 else None)
     log = _is_log(xv)
+    (xlabel,) = _labels(ds, x)
     for ax, yl in ((axes[0], "decay rate of d (1/s)"), (axes[1], "t_sync (s)")):
         if log:
             ax.set_xscale("log")
-        ax.set_xlabel(_label(x))
+        ax.set_xlabel(xlabel)
         ax.set_ylabel(yl)
         ax.grid(alpha=0.3)
         if ax.get_legend_handles_labels()[0]:
