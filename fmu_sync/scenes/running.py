@@ -217,7 +217,7 @@ def _run_variant(variant: Variant, fmu_path, progress, scene_name, sink, chunk_r
                             coupling=_coupling_arg(variant.law), Kp=variant.Kp, Kd=variant.Kd, Q=variant.Q,
                             method=cfg["run.method"], record_every=cfg["run.record_every"],
                             event_aware=cfg["run.event_aware"], H_min=cfg["run.H_min"], hold=cfg["run.hold"],
-                            start_values=fmu_start_values(fmu_path, variant),
+                            tol=cfg["run.tol"], start_values=fmu_start_values(fmu_path, variant),
                             record_distance=bool(cfg["record.distance"]), progress=progress, **extra)
         if getattr(result, "error", None):   # a record that stopped early (older masters return it)
             raise RunFailed(result.error, partial=result)
@@ -258,7 +258,7 @@ def _run_network(variant: Variant, fmu_path, progress, label, extra):
                                 coupling=_laws_arg(variant), Kp=variant.Kp, Kd=variant.Kd, Q=variant.Q,
                                 method=cfg["run.method"], record_every=cfg["run.record_every"],
                                 event_aware=cfg["run.event_aware"], H_min=cfg["run.H_min"], hold=cfg["run.hold"],
-                                start_values=starts, record_distance=bool(cfg["record.distance"]),
+                                tol=cfg["run.tol"], start_values=starts, record_distance=bool(cfg["record.distance"]),
                                 progress=progress, **extra)
     if getattr(result, "error", None):
         raise RunFailed(result.error, partial=result)
@@ -522,7 +522,7 @@ def stream_notes(runs) -> list[str]:
             for r in runs if r.metrics.get("thinned_every", 1) > 1]
 
 
-_COSIM_KEYS = ("run.H", "run.H_min", "run.method", "run.event_aware", "run.hold")
+_COSIM_KEYS = ("run.H", "run.H_min", "run.method", "run.event_aware", "run.hold", "run.tol")
 
 
 def _relevant(key: str, variants) -> bool:
