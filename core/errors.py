@@ -14,7 +14,7 @@
 """
 from __future__ import annotations
 
-__all__ = ["RunFailed", "SimulationDiverged", "RunRefused", "UnstableScheme", "LawRefused"]
+__all__ = ["RunFailed", "SimulationDiverged", "ExchangeNotConverged", "RunRefused", "UnstableScheme", "LawRefused"]
 
 
 class RunFailed(RuntimeError):
@@ -27,6 +27,11 @@ class RunFailed(RuntimeError):
 
 class SimulationDiverged(RunFailed):
     """The state became non-finite: the scheme is unstable for this step size."""
+
+
+class ExchangeNotConverged(RunFailed):
+    """The implicit exchange of a co-simulation step did not converge within its iteration cap
+    (docs/design.md §4.4): the step is not accepted; the record ends at the step's start."""
 
 
 class RunRefused(ValueError):

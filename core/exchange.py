@@ -31,6 +31,16 @@ spectral radius, :func:`hold_bound`): ``omega H < 0.69, 0.90, 1.35, 1.62,
 ``0.2, 0.4, 1.0, 1.41, 2.0, 1.0, 0.5`` for the zero-order hold: larger for
 light damping, smaller (about half) for ``zeta >= 0.5``.
 
+Implicit exchange (the master's ``exchange="implicit"``, docs/design.md §2.6): the force over
+a step depends on the states at both ends, ``f_k`` and ``f_{k+1}``, and the step is iterated
+until they agree. With the first-order hold the force is the line between them, with the
+zero-order hold their mean is held; the step map of a mode is Newmark's with ``gamma = 1/2``
+and ``beta = 1/6`` (the line: ``x' = x + H v + H^2 (f/3 + f'/6)``) or ``beta = 1/4`` (the
+mean: ``x' = x + H v + H^2 (f + f')/4``), ``v' = v + H (f + f')/2``. The mean is A-stable
+(any H, any damping) and at ``Kd = 0`` conserves the mode's energy exactly; the line conserves
+it too (``|lambda| = 1``) up to ``omega H < 2 sqrt(3) = 3.46`` and is unstable beyond.
+Both are second order.
+
 :func:`exchange_limit` computes the limit; :func:`check_exchange` refuses an
 unstable step with :class:`UnstableExchange` (a ``ValueError``) unless the
 caller passes ``allow_unstable=True``. The core (``simulate_pair``,
@@ -46,10 +56,20 @@ import numpy as np
 from .errors import RunRefused
 
 __all__ = ["UnstableExchange", "ExchangeLimit", "exchange_limit", "check_exchange", "zoh_bound",
-           "laplacian_modes", "hold_map_radius", "hold_bound", "HOLDS"]
+           "laplacian_modes", "hold_map_radius", "hold_bound", "HOLDS", "EXCHANGES", "check_exchange_name"]
 
 #: the input holds over a step: zero-order (forces constant) and first-order (extrapolated line)
 HOLDS = ("zoh", "foh")
+#: the exchanges: the forces from the step's start (explicit), or iterated to the states at both
+#: of its ends (implicit: the line between them with the first-order hold, their mean with the zero-order)
+EXCHANGES = ("explicit", "implicit")
+
+
+def check_exchange_name(exchange: str) -> str:
+    """``exchange``, or ValueError naming the allowed ones."""
+    if exchange not in EXCHANGES:
+        raise ValueError(f"exchange must be {' or '.join(repr(e) for e in EXCHANGES)}, got {exchange!r}")
+    return exchange
 
 
 class UnstableExchange(RunRefused):
@@ -78,6 +98,7 @@ class ExchangeLimit:
     lam: float
     step_name: str = "H"
     hold: str = "zoh"
+    exchange: str = "explicit"
 
     @property
     def h(self) -> float:
@@ -91,6 +112,8 @@ class ExchangeLimit:
     def message(self) -> str:
         s = self.step_name
         if math.isinf(self.H_max):
+            if self.exchange == "implicit" and self.omega_c > 0.0:
+                return f"the implicit exchange with hold={self.hold!r} is A-stable: any {s} is stable"
             return f"the coupling adds no relative mode: any {s} is stable"
         if self.H_max == 0.0:
             largest = (f"no {s} is stable without damping of the relative mode (Kd = 0: the held "
@@ -100,6 +123,8 @@ class ExchangeLimit:
         if math.isnan(self.zeta):
             against = (f"the limit {self.bound:.4g} of the hold map (gains not modal: no single "
                        f"zeta)")
+        elif self.exchange == "implicit":
+            against = f"the implicit exchange's bound {self.bound:.4g} with hold={self.hold!r} (zeta = {self.zeta:.4g})"
         elif self.hold == "foh":
             against = f"the first-order-hold bound {self.bound:.4g} (zeta = {self.zeta:.4g})"
         else:
@@ -120,14 +145,23 @@ def laplacian_modes(A) -> np.ndarray:
     return ev[ev > tol]
 
 
-def hold_map_radius(Ap: np.ndarray, Ad: np.ndarray, H: float, hold: str = "zoh") -> float:
+def hold_map_radius(Ap: np.ndarray, Ad: np.ndarray, H: float, hold: str = "zoh",
+                    exchange: str = "explicit") -> float:
     """Spectral radius of the held step of ``x'' = -Ap x - Ad x'`` (exact free
     flight under the held force; the midpoint step gives the same map).
     ``hold="zoh"``: the force at the start held; ``"foh"``: the line through the
-    forces at the last two communication points (state ``(x, v, f_prev)``)."""
+    forces at the last two communication points (state ``(x, v, f_prev)``).
+    ``exchange="implicit"``: the converged implicit step (Newmark, gamma = 1/2, beta = 1/6
+    for the line of ``"foh"``, 1/4 for the mean of ``"zoh"``; see the module docstring)."""
     n = Ap.shape[0]
     I = np.eye(n)
-    if hold == "foh":
+    if exchange == "implicit":
+        # f = -(Ap x + Ad v): [x'; v'] solves L [x'; v'] = R [x; v] with f' = -(Ap x' + Ad v')
+        a, b = (1.0 / 3.0, 1.0 / 6.0) if hold == "foh" else (0.25, 0.25)
+        Lm = np.block([[I + b * H * H * Ap, b * H * H * Ad], [0.5 * H * Ap, I + 0.5 * H * Ad]])
+        Rm = np.block([[I - a * H * H * Ap, H * I - a * H * H * Ad], [-0.5 * H * Ap, I - 0.5 * H * Ad]])
+        Phi = np.linalg.solve(Lm, Rm)
+    elif hold == "foh":
         # f = -(Ap x + Ad v), slope (f - f_prev)/H:  x' = x + H v + 2H^2/3 f - H^2/6 f_prev,
         # v' = v + 3H/2 f - H/2 f_prev, f_prev' = f
         Fx, Fv, Z = -Ap, -Ad, np.zeros((n, n))
@@ -139,13 +173,17 @@ def hold_map_radius(Ap: np.ndarray, Ad: np.ndarray, H: float, hold: str = "zoh")
     return float(np.max(np.abs(np.linalg.eigvals(Phi))))
 
 
-def _bisect_radius(Ap, Ad, scale, hold: str = "zoh"):
+def _bisect_radius(Ap, Ad, scale, hold: str = "zoh", exchange: str = "explicit"):
     """Largest H with radius <= 1 (bisection from a step known stable or 0). The
     zero-order hold doubles from 1/scale; the first-order hold scans in steps of
     1/(64 scale) up to the first unstable step (its stable range ends at
-    omega H < 1.7, and doubling could step over it)."""
+    omega H < 1.7, and doubling could step over it); the implicit exchange with the
+    zero-order hold (the mean) is A-stable (inf), with the line it scans as the first-order hold."""
+    if exchange == "implicit" and hold == "zoh":
+        return math.inf
+
     def ok(H):
-        return hold_map_radius(Ap, Ad, H, hold) <= 1.0 + 1e-12
+        return hold_map_radius(Ap, Ad, H, hold, exchange) <= 1.0 + 1e-12
     if hold == "zoh":
         lo, hi = 0.0, 1.0 / scale
         while ok(hi):
@@ -170,24 +208,28 @@ def _bisect_radius(Ap, Ad, scale, hold: str = "zoh"):
     return lo
 
 
-def hold_bound(zeta: float, hold: str = "zoh") -> float:
+def hold_bound(zeta: float, hold: str = "zoh", exchange: str = "explicit") -> float:
     """The limit of ``omega H`` of a scalar mode with damping ratio ``zeta`` under
-    the hold (``zoh``: min(4 zeta, 1/zeta); ``foh``: from the hold map)."""
-    if hold == "zoh":
+    the hold (``zoh``: min(4 zeta, 1/zeta); ``foh``: from the hold map; implicit: from
+    its map, inf for the mean)."""
+    if hold == "zoh" and exchange == "explicit":
         return zoh_bound(zeta)
     if hold not in HOLDS:
         raise ValueError(f"hold must be one of {', '.join(HOLDS)}, got {hold!r}")
-    return _bisect_radius(np.array([[1.0]]), np.array([[2.0 * zeta]]), 1.0, hold)
+    return _bisect_radius(np.array([[1.0]]), np.array([[2.0 * zeta]]), 1.0, hold, exchange)
 
 
-def exchange_limit(M, Kp, Kd, H: float, A=None, step_name: str = "H", hold: str = "zoh") -> ExchangeLimit:
+def exchange_limit(M, Kp, Kd, H: float, A=None, step_name: str = "H", hold: str = "zoh",
+                   exchange: str = "explicit") -> ExchangeLimit:
     """The stability limit of the held coupling (see the module docstring).
 
     ``M``: the (common) mass matrix; ``Kp, Kd``: gains (scalars or n x n);
     ``A``: graph weights (default: a pair with weight 1); ``hold``: ``"zoh"``
-    or ``"foh"`` (first-order hold of the master)."""
+    or ``"foh"`` (first-order hold of the master); ``exchange``: ``"explicit"`` or
+    the master's ``"implicit"``."""
     if hold not in HOLDS:
         raise ValueError(f"hold must be one of {', '.join(HOLDS)}, got {hold!r}")
+    check_exchange_name(exchange)
     M = np.atleast_2d(np.asarray(M, dtype=np.float64))
     n = M.shape[0]
     Kp = np.asarray(Kp, dtype=np.float64)
@@ -212,11 +254,13 @@ def exchange_limit(M, Kp, Kd, H: float, A=None, step_name: str = "H", hold: str 
                 w = math.sqrt(lam * kp)
                 if w > 0.0:
                     zeta = lam * kd / (2.0 * w)
-                    bound = hold_bound(zeta, hold)
+                    bound = hold_bound(zeta, hold, exchange)
                     H_max = bound / w
                 elif kd > 0.0:
-                    # ZOH: lam kd H < 2; FOH (the Adams-Bashforth-2 map of v' = -lam kd v): < 1
-                    zeta, bound = math.inf, (2.0 if hold == "zoh" else 1.0)
+                    # ZOH: lam kd H < 2; FOH (the Adams-Bashforth-2 map of v' = -lam kd v): < 1;
+                    # implicit: v' = v - lam kd H (v + v')/2, the trapezoidal rule: any H
+                    zeta = math.inf
+                    bound = math.inf if exchange == "implicit" else (2.0 if hold == "zoh" else 1.0)
                     H_max = bound / (lam * kd)
                 else:
                     continue
@@ -226,24 +270,27 @@ def exchange_limit(M, Kp, Kd, H: float, A=None, step_name: str = "H", hold: str 
             Minv = np.linalg.inv(M)
             Ap, Ad = lam * Minv @ Kp, lam * Minv @ Kd
             w = math.sqrt(max(float(np.max(np.linalg.eigvals(Ap).real)), 0.0))
-            H_max = _bisect_radius(Ap, Ad, max(w, 1e-300), hold)
+            H_max = _bisect_radius(Ap, Ad, max(w, 1e-300), hold, exchange)
             bound = w * H_max if math.isfinite(H_max) else math.inf
             if best is None or H_max < best[0]:
                 best = (H_max, w, math.nan, bound, lam)
     if best is None:
-        return ExchangeLimit(H, 0.0, math.nan, math.inf, math.inf, 0.0, step_name, hold)
+        return ExchangeLimit(H, 0.0, math.nan, math.inf, math.inf, 0.0, step_name, hold, exchange)
     H_max, w, zeta, bound, lam = best
-    return ExchangeLimit(H, w, zeta, bound, H_max, lam, step_name, hold)
+    return ExchangeLimit(H, w, zeta, bound, H_max, lam, step_name, hold, exchange)
 
 
 def check_exchange(M, Kp, Kd, H: float, A=None, allow_unstable: bool = False,
-                   step_name: str = "H", hold: str = "zoh") -> ExchangeLimit:
+                   step_name: str = "H", hold: str = "zoh", exchange: str = "explicit") -> ExchangeLimit:
     """:func:`exchange_limit`, refused with :class:`UnstableExchange` when unstable
-    (``H >= H_max``) unless ``allow_unstable``."""
-    lim = exchange_limit(M, Kp, Kd, H, A, step_name, hold)
+    (``H >= H_max``) unless ``allow_unstable``. The co-simulation's refusal (``step_name``
+    ``"H"``) of the explicit exchange names ``exchange="implicit"`` as the fix."""
+    lim = exchange_limit(M, Kp, Kd, H, A, step_name, hold, exchange)
     if not lim.stable and not allow_unstable:
+        implicit = (f"use exchange=\"implicit\" (iterated to the states at the step's end, stable at any "
+                    f"{step_name} with hold='zoh'), " if step_name == "H" and exchange == "explicit" else "")
         raise UnstableExchange(
-            f"refused before the first step: the explicit exchange is unstable: {lim.message()}. "
-            f"Lower Kp or {step_name}, add Kd, or pass allow_unstable=True to run anyway "
+            f"refused before the first step: the {exchange} exchange is unstable: {lim.message()}. "
+            f"Lower Kp or {step_name}, add Kd, {implicit}or pass allow_unstable=True to run anyway "
             f"(the run then stops as failed when it diverges).")
     return lim

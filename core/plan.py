@@ -113,11 +113,12 @@ def coupled_weights(A, edges, laws) -> np.ndarray:
 
 
 def held_exchange(M, Kp, Kd, step: float, A=None, laws=None, hold: str = "zoh", allow_unstable: bool = False,
-                  step_name: str = "H"):
+                  step_name: str = "H", exchange: str = "explicit"):
     """The one check of the held coupling exchange of a run (docs/design.md §2.6), step 5 of
     :func:`plan_run`: gains as n x n matrices, the weights of the edges whose law carries a
     force (``laws``: one code per edge of ``A``, default all coupled; ``A`` default the pair),
-    the hold in use (``"zoh"``; the master's ``"foh"``). Returns ``(Kp, Kd, A_coupled,
+    the hold in use (``"zoh"``; the master's ``"foh"``) and the exchange (``"explicit"``; the
+    master's ``"implicit"``). Returns ``(Kp, Kd, A_coupled,
     limit)``; ``limit`` is None when no edge is coupled; refused with ``UnstableExchange``
     (a ValueError) unless ``allow_unstable``."""
     from .coupling import SWITCHING, UNCOUPLED, gain_matrix   # coupled runs only (see coupled_weights)
@@ -130,7 +131,7 @@ def held_exchange(M, Kp, Kd, step: float, A=None, laws=None, hold: str = "zoh", 
     if not np.any(laws != UNCOUPLED):
         return Kp_m, Kd_m, Ac, None
     return Kp_m, Kd_m, Ac, check_exchange(M, Kp_m, Kd_m, step, A=Ac, allow_unstable=allow_unstable,
-                                          step_name=step_name, hold=hold)
+                                          step_name=step_name, hold=hold, exchange=exchange)
 
 
 # ------------------------------------------------------------------ the plan
@@ -190,7 +191,8 @@ def _per_system(value, N: int, what: str) -> tuple:
 
 
 def plan_run(systems, starts, t_end, step, *, scheme="midpoint", theta: float = 0.5, dt=None,
-             hold: str = "zoh", A=None, laws=None, Kp=0.0, Kd=0.0, record_every: int = 1,
+             hold: str = "zoh", exchange: str = "explicit", A=None, laws=None, Kp=0.0, Kd=0.0,
+             record_every: int = 1,
              t0: float = 0.0, record_values: int | None = None, record_what: str = "the record",
              record_hint: str = "", allow_unstable: bool = False,
              step_name: str = "dt", state_names=None, system_names=None, exact: bool = False) -> RunPlan:
@@ -202,7 +204,8 @@ def plan_run(systems, starts, t_end, step, *, scheme="midpoint", theta: float = 
     core's ``dt``; the master's ``H``, with ``step_name="H"``); ``scheme``/``dt``: each
     system's scheme and internal step (one for all or one per system; ``dt`` default
     ``step``; ``None``: not checked; ``"exact"``, accepted where the caller offers it,
-    ``exact=True``: no limit); ``hold``: the hold of the exchange;
+    ``exact=True``: no limit); ``hold``: the hold of the exchange; ``exchange``: explicit or
+    implicit (the master's ``exchange="implicit"``);
     ``A`` (default: the pair), ``laws`` (law codes per edge, default all switching),
     ``Kp``, ``Kd``: the coupling (coupled runs only); ``record_values``: float64 values per
     record row (None: the caller keeps no record, or checks it elsewhere);
@@ -272,7 +275,8 @@ def plan_run(systems, starts, t_end, step, *, scheme="midpoint", theta: float = 
             laws_a = np.asarray(laws, dtype=np.int64)
         if np.any(laws_a == COMPENSATED):
             check_compensated(n, s0.force)
-        Kp_m, Kd_m, Ac, limit = held_exchange(s0.M, Kp, Kd, step, A, laws_a, hold, allow_unstable, step_name)
+        Kp_m, Kd_m, Ac, limit = held_exchange(s0.M, Kp, Kd, step, A, laws_a, hold, allow_unstable, step_name,
+                                              exchange)
         coupled = bool(np.any(laws_a != UNCOUPLED))
     if record_values is not None and grid is not None:                  # 6. the record budget
         check_record_size(rows, int(record_values), record_what, record_hint)

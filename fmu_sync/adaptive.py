@@ -81,9 +81,24 @@ class AdaptiveMaster(NetworkMaster):
         self.ad = np.array([self.tol, self.grid.t_end, self.unit, self.H])
         self.ast = np.array([0.0, self.unit * max(1.0, math.floor(self.H / self.unit + 1e-9)), 0.0])
         self.actl = np.zeros(ad.ACTL, dtype=np.int64)
-        self.extra = (np.zeros((N, n)), np.zeros((N, n)), np.zeros(n), np.zeros(n))
+        self.mine = np.zeros(N, dtype=np.int64)   # the controller's FMU-state handles
+        self.pmine = self.loop_args[0].copy()
+        self.pmine[loop.P_SAVED] = self.mine.ctypes.data
+        self.extra = (np.zeros((N, n)), np.zeros((N, n)), np.zeros(n), np.zeros(n), self.mine, self.pmine)
         cap = 2 * self.n_steps + 16
         self.HS, self.ES = np.full(cap, np.nan), np.full(cap, np.nan)
+        self._implicit_room(cap)
+
+    def _implicit_room(self, cap: int) -> None:
+        """The implicit exchange's per-step arrays (iterations, residuals) for ``cap`` accepted steps."""
+        if not self.implicit:
+            return
+        it, res = self.iw[-3], self.iw[-2]
+        grown = (np.zeros(cap, dtype=np.int64), np.full(cap, np.nan))
+        grown[0][:min(cap, it.size)], grown[1][:min(cap, res.size)] = it[:cap], res[:cap]
+        self.iw = self.iw[:-3] + grown + self.iw[-1:]
+        s = self.loop_state
+        self.loop_state = s[:9] + (s[9][:7] + (self.iw,),) + s[10:]
 
     def _grow(self) -> None:
         """Twice the room for rows and steps (the number of steps is not known in advance)."""
@@ -95,6 +110,7 @@ class AdaptiveMaster(NetworkMaster):
             grow(a, np.nan) for a in (self.T, self.Qr, self.Ur, self.TAU, self.D, self.EU))
         self.BR = grow(self.BR, -1)
         self.HS, self.ES = grow(self.HS, np.nan), grow(self.ES, np.nan)
+        self._implicit_room(self.HS.size)
 
     def _adaptive(self, budget: int) -> int:
         s = self.loop_state   # (q, u, tau, tau_next, hist_tau, hist, imp, ctl, saved, keep, T...)
@@ -123,7 +139,7 @@ class AdaptiveMaster(NetworkMaster):
                     elif progress is not None:
                         progress(min(1.0, float(self.ast[ad.S_T]) / self.grid.t_end))
             finally:
-                ad.free_states(self.loop_args[0], self.fn, self.comp, self.loop_state[8])
+                ad.free_states(self.pmine, self.fn, self.comp, self.mine, np.zeros(4, dtype=np.int64), np.zeros(1))
         self.steps, self.rejected = int(self.actl[ad.C_STEPS]), int(self.actl[ad.C_REJECTED])
         self.forced, self.estimate = int(self.actl[ad.C_FORCED]), float(self.ast[ad.S_ERR])
         return self.finish(int(self.ctl[loop.ROW]), [int(v) for v in self.imp], failure)

@@ -28,9 +28,9 @@ import numpy as np
 from numba import njit
 
 from .core.network import network_forces
-from .cosim_loop import (DONE, FREE_STATE, GET_STATE, HIST_VALID, FRESH, P_SAVED, ROW, SET_STATE, SLAVE_FAILED,
-                         STATE_DIVERGED, DISTANCE_DIVERGED, WARNING, FOH, GAUSS_SEIDEL, RECORD_EVERY, NEED_D,
-                         _copy, _exchange, _failed, _impacts, _record, fmi_call, unmanaged)
+from .cosim_loop import (DONE, FREE_STATE, GET_STATE, _states, HIST_VALID, FRESH, IMPLICIT, NOT_CONVERGED, ROW, SET_STATE,
+                         SLAVE_FAILED, STATE_DIVERGED, DISTANCE_DIVERGED, WARNING, FOH, GAUSS_SEIDEL, RECORD_EVERY,
+                         NEED_D, _copy, _exchange, _failed, _implicit_step, _impacts, _record, unmanaged)
 
 __all__ = ["adaptive_chunk", "free_states", "SAFETY", "FAC_MIN", "FAC_MAX", "FULL",
            "A_TOL", "A_T_END", "A_UNIT", "A_H", "AD", "S_T", "S_H", "S_ERR", "AST",
@@ -49,6 +49,23 @@ AST = 3
 # actl: accepted steps, rejected steps, steps accepted at the floor over their share, finished
 C_STEPS, C_REJECTED, C_FORCED, C_DONE = range(4)
 ACTL = 4
+
+
+@njit(cache=True, inline="always")
+def _copies(back, live, kept, hist, hs, ctl):
+    """The master's own state at a step's start (``live``: states, input history, held forces;
+    ``hist``, ``ctl[HIST_VALID]``) kept in ``kept``, ``hs`` (``back`` False) or put back (True)."""
+    for j in range(len(live)):
+        if back:
+            _copy(kept[j], live[j])
+        else:
+            _copy(live[j], kept[j])
+    if back:
+        hist[0] = hs[0]
+        ctl[HIST_VALID] = np.int64(hs[1])
+    else:
+        hs[0] = hist[0]
+        hs[1] = ctl[HIST_VALID]
 
 
 @njit(cache=True, inline="always")
@@ -128,7 +145,13 @@ def adaptive_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, ad, norm
     ``ast[S_T]`` with the proposed step ``ast[S_H]``; the start (row 0) is made before by
     :func:`fmu_sync.cosim_loop.exchange_chunk` with ``k0 = -1``. Arguments as ``exchange_chunk``
     and: ``ad`` (:data:`A_TOL` ...), ``norm`` (M^-1, Q/lambda_min(Q), M/lambda_min(Q)),
-    ``extra`` (held forces' copy and forces at the step's end (N, n), scratch (n,) twice), ``ast``, ``actl``
+    ``extra`` (held forces' copy and forces at the step's end (N, n), scratch (n,) twice, the
+    controller's own FMU-state handles ``mine`` (N,) and ``pmine``, ``ptr`` with the address of
+    ``mine`` in its ``P_SAVED`` slot, for ``cosim_loop._states``); with the implicit exchange
+    (``flags[IMPLICIT]``) the step is :func:`fmu_sync.cosim_loop._implicit_step` (its per-step
+    arrays in ``keep[7]`` indexed by the accepted step), its estimate the converged end force
+    against its explicit first-order prediction, and a step that does not converge is retaken
+    shorter, ``ast``, ``actl``
     (:data:`C_STEPS` ...), ``HS``, ``ES`` the accepted steps' lengths and local estimates.
     Returns the outcome code: DONE (finished if ``actl[C_DONE]``, else the budget is spent),
     :data:`FULL` (the record or the step arrays are full: grow them and call again) or a
@@ -139,13 +162,14 @@ def adaptive_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, ad, norm
          keep, extra, T, Qr, Ur, TAU, D, BR, EU, HS, ES, w, FAIL, fail_t))
     N, n = q.shape[0], q.shape[1]
     need_d = flags[NEED_D] != 0
-    foh = flags[FOH] != 0
+    implicit = flags[IMPLICIT] != 0
+    foh = flags[FOH] != 0 or implicit   # the estimate of the implicit exchange: its explicit prediction's
     jacobi = flags[GAUSS_SEIDEL] == 0
     every = flags[RECORD_EVERY]
     tol, t_end, unit, H = ad[A_TOL], ad[A_T_END], ad[A_UNIT], ad[A_H]
     Minv, Qn, Mn = norm
-    qs, us, hts, hs, scratch, imp_new, ibuf = keep
-    taus, tau_end, delta, v = extra
+    qs, us, hts, hs, scratch, imp_new, ibuf, iw = keep
+    taus, tau_end, delta, v, mine, pmine = extra
     t1, t2, c1q, c1u, c2q, c2u, dk, bk, ek, buf, slope = w
     FAIL[0] = DONE
     retry = False   # the step being tried follows a rejection (the controller does not grow it)
@@ -159,20 +183,27 @@ def adaptive_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, ad, norm
         last = t + h + 1e-6 * unit >= t_end
         if last:
             h = t_end - t
-        for i in range(N):
-            st = fmi_call(fn[i, GET_STATE], (comp[i], ptr[P_SAVED] + 8 * i))
-            if st > WARNING:
-                _failed(FAIL, fail_t, SLAVE_FAILED, i, GET_STATE, st, t)
-                return FAIL[0]
-        _copy(q, qs)
-        _copy(u, us)
-        _copy(hist_tau, hts)
-        _copy(tau, taus)
-        hs[0] = hist[0]
-        hs[1] = ctl[HIST_VALID]
+        # the step's start in the controller's own handles (the implicit step keeps its own)
+        if _states(pmine, fn, comp, FREE_STATE, mine, FAIL, fail_t, t) or _states(pmine, fn, comp, GET_STATE,
+                                                                                   mine, FAIL, fail_t, t):
+            return FAIL[0]
+        _copies(False, (q, u, hist_tau, tau), (qs, us, hts, taus), hist, hs, ctl)
         fresh = ctl[FRESH]
-        if _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau, tau_next, hist_tau, hist,
-                     ctl, w, FAIL, fail_t, hp):
+        if implicit:
+            if _implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, actl[C_STEPS], q, u, tau,
+                              hist_tau, hist, ctl, saved, qs, us, iw, w, FAIL, fail_t, hp):
+                if FAIL[0] != NOT_CONVERGED or not h > unit * (1.0 + 1e-9):
+                    return FAIL[0]
+                # not converged (the slaves are back at t): retaken shorter, as a rejected step
+                FAIL[0] = DONE
+                actl[C_REJECTED] += 1
+                _copies(True, (q, u, hist_tau, tau), (qs, us, hts, taus), hist, hs, ctl)
+                ctl[FRESH] = fresh
+                ast[S_H] = unit * max(1.0, math.floor(FAC_MIN * h / unit + 1e-9))
+                retry = True
+                continue
+        elif _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau, tau_next, hist_tau, hist,
+                       ctl, w, FAIL, fail_t, hp):
             return FAIL[0]
         if _impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + h):
             return FAIL[0]
@@ -207,17 +238,9 @@ def adaptive_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, ad, norm
         if err > share and h > unit * (1.0 + 1e-9):
             # rejected: every instance and the master's copies back to t, retaken shorter
             actl[C_REJECTED] += 1
-            for i in range(N):
-                st = fmi_call(fn[i, SET_STATE], (comp[i], saved[i]))
-                if st > WARNING:
-                    _failed(FAIL, fail_t, SLAVE_FAILED, i, SET_STATE, st, t)
-                    return FAIL[0]
-            _copy(qs, q)
-            _copy(us, u)
-            _copy(hts, hist_tau)
-            _copy(taus, tau)
-            hist[0] = hs[0]
-            ctl[HIST_VALID] = np.int64(hs[1])
+            if _states(pmine, fn, comp, SET_STATE, mine, FAIL, fail_t, t):
+                return FAIL[0]
+            _copies(True, (q, u, hist_tau, tau), (qs, us, hts, taus), hist, hs, ctl)
             ctl[FRESH] = fresh
             ast[S_H] = next_step(h, eq_max, eu_max, tol, t_end, foh, unit, H, 2)
             retry = True
@@ -253,8 +276,6 @@ def adaptive_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, ad, norm
 
 
 @njit(cache=True)
-def free_states(ptr, fn, comp, saved):
-    """fmi2FreeFMUstate of every instance's saved state (at the end of an adaptive run)."""
-    for i in range(comp.shape[0]):
-        if saved[i] != 0:
-            fmi_call(fn[i, FREE_STATE], (comp[i], ptr[P_SAVED] + 8 * i))
+def free_states(pmine, fn, comp, mine, FAIL, fail_t):
+    """fmi2FreeFMUstate of every instance's state the controller kept (at the end of a run)."""
+    _states(pmine, fn, comp, FREE_STATE, mine, FAIL, fail_t, 0.0)

@@ -11,8 +11,17 @@ core's :func:`fmu_sync.core.network.network_forces` / ``node_force``, which call
 fmi2GetReal of the outputs, fmi2GetInteger of the impact counters, the
 event-aware retake (fmi2GetFMUstate / SetFMUstate / FreeFMUstate), the
 divergence checks and the record. Jacobi and Gauss–Seidel, ZOH and FOH, pairs
-and networks, and the other masters' delayed orders (``DELAY``: libcosim's and
-fmpy's SSP runner, docs/ssp.md) are one loop.
+and networks, the other masters' delayed orders (``DELAY``: libcosim's and
+fmpy's SSP runner, docs/ssp.md) and the implicit exchange (``IMPLICIT``: each step
+iterated with FMU-state rollback until the forces agree with the states at its end,
+accelerated by IQN-ILS, :func:`_implicit_step`) are one loop.
+
+The exchange strategies are the branches of one primitive, "take the step [t, t + h]
+from the current states": :func:`_exchange` (Jacobi, Gauss–Seidel, delayed; explicit,
+never rolled back), the event-aware retake around it (rolled back if an impact counter
+moved) and :func:`_implicit_step` (rolled back until it converges; returns False with
+``FAIL = NOT_CONVERGED`` otherwise, the slaves restored to t, so a step-size
+controller can retake it shorter).
 
 Every call's status is checked: a status worse than fmi2Warning ends the chunk
 and hands back the failure (``FAIL``: code, instance, call, status; time in
@@ -40,7 +49,8 @@ from .fmus.contract import INPUT_BOUND
 depends_on_core(__file__)   # its cache follows the core's edits (it compiles network_forces in)
 
 __all__ = ["CALLS", "fmi_functions", "exchange_chunk", "DONE", "SLAVE_FAILED", "FORCE_BOUND",
-           "STATE_DIVERGED", "DISTANCE_DIVERGED"]
+           "STATE_DIVERGED", "DISTANCE_DIVERGED", "NOT_CONVERGED", "IMPLICIT_TOL", "IMPLICIT_MAX_ITERATIONS",
+           "implicit_work"]
 
 #: The FMI 2.0 functions the loop calls, in the column order of ``fmi_functions``.
 CALLS = ("fmi2SetReal", "fmi2SetRealInputDerivatives", "fmi2DoStep", "fmi2GetReal", "fmi2GetInteger",
@@ -48,7 +58,7 @@ CALLS = ("fmi2SetReal", "fmi2SetRealInputDerivatives", "fmi2DoStep", "fmi2GetRea
 SET_REAL, SET_DER, DO_STEP, GET_REAL, GET_INT, GET_STATE, SET_STATE, FREE_STATE = range(len(CALLS))
 
 # outcome codes of a chunk (FAIL[0])
-DONE, SLAVE_FAILED, FORCE_BOUND, STATE_DIVERGED, DISTANCE_DIVERGED = range(5)
+DONE, SLAVE_FAILED, FORCE_BOUND, STATE_DIVERGED, DISTANCE_DIVERGED, NOT_CONVERGED = range(6)
 # ctl: the loop's integer state between chunks (FRESH: tau already holds the Jacobi
 # forces at the current states, computed with the record's distances; ZERO_STEPS: delayed
 # orders, the steps still to run before the forces transferred for the next step are computed)
@@ -58,8 +68,20 @@ CTL = 5
 P_VR_OUT, P_VR_TAU, P_VR_IMP, P_ORDER, P_TAU, P_BUF, P_SLOPE, P_IBUF, P_SAVED = range(9)
 # flags: the run's settings (STEPS: the run's communication steps; PIECES, PIECES_LAST: the
 # event-aware retake's pieces of a step of length H and of the last step)
-GAUSS_SEIDEL, FOH, EVENT_AWARE, NEED_D, COUPLED, RECORD_EVERY, PIECES, DELAY, STEPS, PIECES_LAST = range(10)
-FLAGS = 10
+# IMPLICIT: the implicit exchange; MAX_ITER: its cap of FMU steps per communication step)
+GAUSS_SEIDEL, FOH, EVENT_AWARE, NEED_D, COUPLED, RECORD_EVERY, PIECES, DELAY, STEPS, PIECES_LAST, IMPLICIT, \
+    MAX_ITER = range(12)
+FLAGS = 12
+#: The implicit exchange's defaults: a step has converged when every force differs from the law at
+#: the step's end states by at most IMPLICIT_TOL times the force scale (:func:`_scale`); at most
+#: IMPLICIT_MAX_ITERATIONS FMU steps per communication step, else the run fails (NOT_CONVERGED).
+IMPLICIT_TOL = 1e-9
+IMPLICIT_MAX_ITERATIONS = 30
+#: the relaxation of the first fixed-point update of the run (Aitken's after that, IQN-ILS once it
+#: has a secant); IQN-ILS's QR filter: a column whose part not in the span of the newer ones is
+#: below QR_FILTER of its length is left out
+OMEGA0 = 0.5
+QR_FILTER = 1e-8
 # flags[DELAY]: the exchange order of another master (docs/ssp.md), zero-order hold only.
 # DELAYED (libcosim): step k is held at the forces of the states x_{k-1} (step 0 at x_0's);
 # DELAYED_ZERO (fmpy's simulate_ssp): every connection starts at 0, steps 0 and 1 run
@@ -86,6 +108,20 @@ def fmi_functions(dll, optional=("fmi2SetRealInputDerivatives", "fmi2GetFMUstate
             if name not in optional:
                 raise ValueError(f"the FMU's binary does not export {name}, which the master calls") from None
     return out
+
+
+def implicit_work(N: int, n: int, steps: int, tol: float = IMPLICIT_TOL):
+    """The implicit exchange's arrays (``keep[7]`` of :func:`exchange_chunk`, unpacked in
+    :func:`_implicit_step`): ``ta, te, g, r, rp, gp`` (N, n); IQN-ILS's ring of ``C = N n``
+    columns ``V, W`` (C, N, n), its QR ``Qw`` (C, N, n), ``Rw`` (C, C), ``alpha`` (C,),
+    ``cols`` (C,); ``ist`` (columns, newest); ``iters`` (steps,) int64
+    and ``resid`` (steps,) per communication step; ``tolv`` (1,) the tolerance. ``steps`` = 0
+    for an explicit run (nothing per step)."""
+    C = N * n
+    z = (lambda: np.zeros((N, n)))
+    return (z(), z(), z(), z(), z(), z(), np.zeros((C, N, n)), np.zeros((C, N, n)), np.zeros((C, N, n)),
+            np.zeros((C, C)), np.zeros(C), np.zeros(C, dtype=np.int64), np.array([0, C - 1], dtype=np.int64),
+            np.zeros(steps, dtype=np.int64), np.full(steps, np.nan), np.array([float(tol)]))
 
 
 @intrinsic
@@ -177,9 +213,19 @@ def _impacts(ptr, fn, comp, ibuf, imp, FAIL, fail_t, t):
 @njit(cache=True, inline="always")
 def _give(ptr, fn, comp, i, t, h, foh, no_prior, tau, hist_tau, hist_t, hist_valid, slope, FAIL,
           fail_t):
+    """Instance i: for the first-order hold the slope from the inputs at the last
+    communication point (0 on the first step), then :func:`_put`."""
+    if foh:
+        for c in range(tau.shape[1]):
+            slope[c] = (tau[i, c] - hist_tau[i, c]) / (t - hist_t) if hist_valid and t > hist_t else 0.0
+    return _put(ptr, fn, comp, i, t, h, foh, no_prior, tau, FAIL, fail_t)
+
+
+@njit(cache=True, inline="always")
+def _put(ptr, fn, comp, i, t, h, foh, no_prior, tau, FAIL, fail_t):
     """Instance i: the input bound check, fmi2SetReal(tau_i), for the first-order hold
-    fmi2SetRealInputDerivatives (after the value: setting an input resets its derivative),
-    then fmi2DoStep(t, h)."""
+    fmi2SetRealInputDerivatives of the slope in ``ptr[P_SLOPE]`` (after the value: setting
+    an input resets its derivative), then fmi2DoStep(t, h)."""
     n = tau.shape[1]
     for c in range(n):
         if not abs(tau[i, c]) <= INPUT_BOUND:   # also catches NaN
@@ -187,9 +233,7 @@ def _give(ptr, fn, comp, i, t, h, foh, no_prior, tau, hist_tau, hist_t, hist_val
     st = fmi_call(fn[i, SET_REAL], (comp[i], ptr[P_VR_TAU], np.int64(n), ptr[P_TAU] + 8 * n * i))
     if st > WARNING:
         return _failed(FAIL, fail_t, SLAVE_FAILED, i, SET_REAL, st, t)
-    if foh:  # the slope from the inputs at the last communication point (0 on the first step)
-        for c in range(n):
-            slope[c] = (tau[i, c] - hist_tau[i, c]) / (t - hist_t) if hist_valid and t > hist_t else 0.0
+    if foh:
         st = fmi_call(fn[i, SET_DER], (comp[i], ptr[P_VR_TAU], np.int64(n), ptr[P_ORDER],
                                        ptr[P_SLOPE]))
         if st > WARNING:
@@ -250,6 +294,196 @@ def _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau, 
 
 
 @njit(cache=True, inline="always")
+def _states(ptr, fn, comp, call, saved, FAIL, fail_t, t):
+    """Every instance's FMU state: saved (``call`` GET_STATE, a new copy), restored (SET_STATE)
+    or freed (FREE_STATE) through the handles ``saved`` (at ``ptr[P_SAVED]``)."""
+    for i in range(comp.shape[0]):
+        if call == SET_STATE:
+            st = fmi_call(fn[i, SET_STATE], (comp[i], saved[i]))
+        else:
+            if call == GET_STATE:
+                saved[i] = 0
+            st = fmi_call(fn[i, call], (comp[i], ptr[P_SAVED] + 8 * i))
+        if st > WARNING:
+            return _failed(FAIL, fail_t, SLAVE_FAILED, i, call, st, t)
+    return False
+
+
+@njit(cache=True, inline="always")
+def _scale(g, ta, q, u, Kp, Kd):
+    """The force scale of the implicit exchange's tolerance: the largest force at either end of
+    the step plus the largest law terms Kp q and Kd u could carry (round-off of the law)."""
+    fmax = 0.0
+    xq = 0.0
+    xu = 0.0
+    for i in range(g.shape[0]):
+        for c in range(g.shape[1]):
+            fmax = max(fmax, abs(g[i, c]), abs(ta[i, c]))
+            xq = max(xq, abs(q[i, c]))
+            xu = max(xu, abs(u[i, c]))
+    kp = 0.0
+    kd = 0.0
+    for a in range(Kp.shape[0]):
+        for b in range(Kp.shape[1]):
+            kp = max(kp, abs(Kp[a, b]))
+            kd = max(kd, abs(Kd[a, b]))
+    return fmax + kp * xq + kd * xu
+
+
+@njit(cache=True, inline="always")
+def _dot(a, b):
+    s = 0.0
+    for i in range(a.shape[0]):
+        for c in range(a.shape[1]):
+            s += a[i, c] * b[i, c]
+    return s
+
+
+@njit(cache=True)
+def _iqn_ils(te, g, r, V, W, Qw, Rw, alpha, cols, ncol, head):
+    """IQN-ILS (the interface quasi-Newton of preCICE, Degroote et al. 2009): ``te = g + W alpha``
+    with ``alpha`` the least-squares solution of ``V alpha = -r``; ``V``, ``W`` the differences of
+    the residuals and of the law's forces between iterates (a ring of ``ncol`` columns, the newest
+    at ``head``, kept from earlier steps too), QR by modified Gram–Schmidt newest first, a column
+    mostly in the span of newer ones left out (:data:`QR_FILTER`). Returns the columns used (0:
+    ``te`` untouched)."""
+    C = V.shape[0]
+    used = 0
+    for j in range(ncol):
+        s = (head - j + C) % C
+        _copy(V[s], Qw[used])
+        n0 = math.sqrt(_dot(Qw[used], Qw[used]))
+        for m in range(used):
+            Rw[m, used] = _dot(Qw[m], Qw[used])
+            for i in range(te.shape[0]):
+                for c in range(te.shape[1]):
+                    Qw[used, i, c] -= Rw[m, used] * Qw[m, i, c]
+        nr = math.sqrt(_dot(Qw[used], Qw[used]))
+        if not (nr > QR_FILTER * n0):
+            continue
+        Rw[used, used] = nr
+        for i in range(te.shape[0]):
+            for c in range(te.shape[1]):
+                Qw[used, i, c] /= nr
+        cols[used] = s
+        used += 1
+    for m in range(used - 1, -1, -1):   # R alpha = -Q^T r
+        acc = -_dot(Qw[m], r)
+        for j in range(m + 1, used):
+            acc -= Rw[m, j] * alpha[j]
+        alpha[m] = acc / Rw[m, m]
+    if used > 0:
+        for i in range(te.shape[0]):
+            for c in range(te.shape[1]):
+                v = g[i, c]
+                for m in range(used):
+                    v += alpha[m] * W[cols[m], i, c]
+                te[i, c] = v
+    return used
+
+
+@njit(cache=True)
+def _implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, u, tau, hist_tau, hist, ctl,
+                   saved, qs, us, iw, w, FAIL, fail_t, hp):
+    """The implicit exchange over [t, t + h] (docs/design.md §4.4): the force over the step is the
+    line from ``ta`` (the law at the states at t) to ``te`` (first-order hold: value and input
+    derivative) or their mean held (zero-order hold); ``te`` is iterated until it equals the law
+    at the states the step ends in, to :data:`IMPLICIT_TOL` (``iw[-1][0]``) times :func:`_scale`.
+    The first iterate is the explicit first-order hold's extrapolation; between iterates every
+    instance is restored to t (fmi2SetFMUstate) and ``te`` updated by :func:`_iqn_ils`
+    (Aitken's relaxation while it has no secant). Each iterate evaluates the law on the branch of
+    its own end states. ``iters[k]``: FMU steps taken, ``resid[k]``: the last residual's max norm.
+    Not converged within ``flags[MAX_ITER]`` FMU steps: the instances are restored to t, ``FAIL``
+    = NOT_CONVERGED, returns True (a caller with a step-size control may retake it shorter)."""
+    t1, t2, c1q, c1u, c2q, c2u, dk, bk, ek, buf, slope = w
+    ta, te, g, r, rp, gp, V, W, Qw, Rw, alpha, cols, ist, iters, resid, tolv = iw
+    N = q.shape[0]
+    n = q.shape[1]
+    foh = flags[FOH] != 0
+    if ctl[FRESH] == 0:
+        network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, False, dk, bk, ek, hp, t)
+    ctl[FRESH] = 0
+    extrapolate = ctl[HIST_VALID] != 0 and t > hist[0]
+    for i in range(N):
+        for c in range(n):
+            ta[i, c] = tau[i, c]
+            te[i, c] = ta[i, c] + h * (ta[i, c] - hist_tau[i, c]) / (t - hist[0]) if extrapolate else ta[i, c]
+    if _states(ptr, fn, comp, GET_STATE, saved, FAIL, fail_t, t):
+        return True
+    _copy(q, qs)
+    _copy(u, us)
+    C = V.shape[0]
+    it = 0
+    rmax = math.inf
+    converged = False
+    omega = OMEGA0
+    while True:
+        for i in range(N):
+            for c in range(n):
+                if foh:
+                    tau[i, c] = ta[i, c]
+                    slope[c] = (te[i, c] - ta[i, c]) / h
+                else:
+                    tau[i, c] = 0.5 * (ta[i, c] + te[i, c])
+            if _put(ptr, fn, comp, i, t, h, foh, 0, tau, FAIL, fail_t):
+                return True
+        it += 1
+        for i in range(N):
+            if _read(ptr, fn, comp, i, buf, q, u, FAIL, fail_t, t + h):
+                return True
+        network_forces(laws, geo, Kp, Kd, E2, W2, q, u, g, t1, t2, c1q, c1u, c2q, c2u, False, dk, bk, ek, hp, t + h)
+        rmax = 0.0
+        for i in range(N):
+            for c in range(n):
+                r[i, c] = g[i, c] - te[i, c]
+                rmax = max(rmax, abs(r[i, c])) if math.isfinite(r[i, c]) else math.inf
+        if rmax <= tolv[0] * _scale(g, ta, q, u, Kp, Kd):
+            converged = True
+            break
+        if it >= flags[MAX_ITER] or not math.isfinite(rmax):
+            break
+        if it > 1:   # a secant of this step: the newest column
+            ist[1] = (ist[1] + 1) % C
+            ist[0] = min(ist[0] + 1, C)
+            for i in range(N):
+                for c in range(n):
+                    V[ist[1], i, c] = r[i, c] - rp[i, c]
+                    W[ist[1], i, c] = g[i, c] - gp[i, c]
+            dr = 0.0
+            for i in range(N):
+                for c in range(n):
+                    dr += (r[i, c] - rp[i, c]) * (r[i, c] - rp[i, c])
+            if dr > 0.0:   # Aitken's relaxation, for a step whose secants the QR filter drops
+                omega = -omega * (_dot(rp, r) - _dot(rp, rp)) / dr
+        _copy(r, rp)
+        _copy(g, gp)
+        if _iqn_ils(te, g, r, V, W, Qw, Rw, alpha, cols, ist[0], ist[1]) == 0:
+            for i in range(N):
+                for c in range(n):
+                    te[i, c] += omega * r[i, c]
+        if _states(ptr, fn, comp, SET_STATE, saved, FAIL, fail_t, t):
+            return True
+        _copy(qs, q)
+        _copy(us, u)
+    iters[k] = it
+    resid[k] = rmax
+    if not converged:   # back to t, then fail: never accepted
+        if _states(ptr, fn, comp, SET_STATE, saved, FAIL, fail_t, t):
+            return True
+        _copy(qs, q)
+        _copy(us, u)
+    if _states(ptr, fn, comp, FREE_STATE, saved, FAIL, fail_t, t + h):
+        return True
+    _copy(ta, tau)   # the record's input held over the step: its value at t (as the first-order hold's)
+    if not converged:
+        return _failed(FAIL, fail_t, NOT_CONVERGED, -1, it, 0, t)
+    _copy(ta, hist_tau)
+    hist[0] = t
+    ctl[HIST_VALID] = 1
+    return False
+
+
+@njit(cache=True, inline="always")
 def _record(row, t, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, jacobi, ctl, T, Qr, Ur, TAU, D, BR, EU, scratch,
             w, hp):
     """Row ``row`` at time t: the states, the inputs held over the step that ended here, and
@@ -298,7 +532,8 @@ def exchange_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, H, H_las
     (N, n) the current states and inputs; ``tau_next`` (N, n) the delayed orders' forces
     for the next step; ``hist_tau``, ``hist`` (time) the first-order
     hold's history; ``imp`` (N,); ``ctl`` (row, retakes, history valid); ``saved`` (N,) FMU
-    state handles; ``keep``: copies for the retake (q, u, hist_tau, hist, ctl). The record
+    state handles; ``keep``: copies for the retake (q, u, hist_tau, hist, ctl) and ``keep[7]`` the
+    implicit exchange's work (:func:`implicit_work`; its per-step iterations and residuals). The record
     arrays are preallocated for the whole run. Returns the outcome code (also ``FAIL[0]``)
     and the last step done."""
     (ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, q, u, tau, tau_next, hist_tau, hist, imp, ctl, saved, keep,
@@ -308,7 +543,7 @@ def exchange_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, H, H_las
     N = q.shape[0]
     need_d = flags[NEED_D] != 0
     jacobi = flags[GAUSS_SEIDEL] == 0 and flags[DELAY] == NOT_DELAYED   # the record may compute tau
-    qs, us, hts, hs, scratch, imp_new, ibuf = keep
+    qs, us, hts, hs, scratch, imp_new, ibuf, iw = keep
     FAIL[0] = DONE
     if k0 < 0:
         for i in range(N):
@@ -341,52 +576,49 @@ def exchange_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, H, H_las
             h = H_last
             t_next = t_last
             pieces = flags[PIECES_LAST]
-        if flags[EVENT_AWARE]:
-            for i in range(N):
-                saved[i] = 0
-                st = fmi_call(fn[i, GET_STATE], (comp[i], ptr[P_SAVED] + 8 * i))
-                if st > WARNING:
-                    _failed(FAIL, fail_t, SLAVE_FAILED, i, GET_STATE, st, t)
+        if flags[IMPLICIT]:
+            if _implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, u, tau, hist_tau, hist,
+                              ctl, saved, qs, us, iw, w, FAIL, fail_t, hp):
+                return FAIL[0], k
+            if _impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + h):
+                return FAIL[0], k
+        else:
+            if flags[EVENT_AWARE]:
+                if _states(ptr, fn, comp, GET_STATE, saved, FAIL, fail_t, t):
                     return FAIL[0], k
-            _copy(q, qs)
-            _copy(u, us)
-            _copy(hist_tau, hts)
-            hs[0] = hist[0]
-            hs[1] = ctl[HIST_VALID]
-        if _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau,
-                     tau_next, hist_tau, hist, ctl, w, FAIL, fail_t, hp):
-            return FAIL[0], k
-        if _impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + h):
-            return FAIL[0], k
-        if flags[EVENT_AWARE]:
-            moved = False
-            for i in range(N):
-                if imp_new[i] != imp[i]:
-                    moved = True
-            if moved:  # restore every instance to t and retake [t, t + h] in pieces of about H_min
-                _copy(hts, hist_tau)
-                hist[0] = hs[0]
-                ctl[HIST_VALID] = np.int64(hs[1])
-                ctl[RETAKES] += 1
+                _copy(q, qs)
+                _copy(u, us)
+                _copy(hist_tau, hts)
+                hs[0] = hist[0]
+                hs[1] = ctl[HIST_VALID]
+            if _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau,
+                         tau_next, hist_tau, hist, ctl, w, FAIL, fail_t, hp):
+                return FAIL[0], k
+            if _impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + h):
+                return FAIL[0], k
+            if flags[EVENT_AWARE]:
+                moved = False
                 for i in range(N):
-                    st = fmi_call(fn[i, SET_STATE], (comp[i], saved[i]))
-                    if st > WARNING:
-                        _failed(FAIL, fail_t, SLAVE_FAILED, i, SET_STATE, st, t)
+                    if imp_new[i] != imp[i]:
+                        moved = True
+                if moved:  # restore every instance to t and retake [t, t + h] in pieces of about H_min
+                    _copy(hts, hist_tau)
+                    hist[0] = hs[0]
+                    ctl[HIST_VALID] = np.int64(hs[1])
+                    ctl[RETAKES] += 1
+                    if _states(ptr, fn, comp, SET_STATE, saved, FAIL, fail_t, t):
                         return FAIL[0], k
-                _copy(qs, q)
-                _copy(us, u)
-                for p in range(pieces):
-                    tp = t + p * (h / pieces)
-                    hpc = (t + h) - tp if p == pieces - 1 else h / pieces
-                    if _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, tp, hpc, q,
-                                 u, tau, tau_next, hist_tau, hist, ctl, w, FAIL, fail_t, hp):
+                    _copy(qs, q)
+                    _copy(us, u)
+                    for p in range(pieces):
+                        tp = t + p * (h / pieces)
+                        hpc = (t + h) - tp if p == pieces - 1 else h / pieces
+                        if _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, tp, hpc, q,
+                                     u, tau, tau_next, hist_tau, hist, ctl, w, FAIL, fail_t, hp):
+                            return FAIL[0], k
+                    if _impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + h):
                         return FAIL[0], k
-                if _impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + h):
-                    return FAIL[0], k
-            for i in range(N):
-                st = fmi_call(fn[i, FREE_STATE], (comp[i], ptr[P_SAVED] + 8 * i))
-                if st > WARNING:
-                    _failed(FAIL, fail_t, SLAVE_FAILED, i, FREE_STATE, st, t + h)
+                if _states(ptr, fn, comp, FREE_STATE, saved, FAIL, fail_t, t + h):
                     return FAIL[0], k
         for i in range(N):
             imp[i] = imp_new[i]

@@ -42,8 +42,8 @@ from .core.checks import check_record_size, check_run, check_step, record_rows
 from .core.compensation import force_table
 from .core.coupling import chain_work, law_metric, metric_info
 from .core.distance import geometry
-from .core.errors import RunFailed, SimulationDiverged, UnstableScheme
-from .core.exchange import exchange_limit
+from .core.errors import ExchangeNotConverged, RunFailed, SimulationDiverged, UnstableScheme
+from .core.exchange import check_exchange_name, exchange_limit
 from .core.model import MechanicalSystem
 from .core.network import edge_arrays, edge_laws, edges_of, weights
 from .core.pair import LAWS, stack_nodes
@@ -132,11 +132,17 @@ class NetworkMaster:
     def __init__(self, fmu, states, A, t_end: float, H: float, coupling: str | None = "switching",
                  Kp=0.0, Kd=0.0, Q=None, method: str = "jacobi", record_every: int = 1,
                  event_aware: bool = False, H_min: float | None = None, start_values=None,
-                 record_distance: bool = True, allow_unstable: bool = False, hold: str = "zoh"):
+                 record_distance: bool = True, allow_unstable: bool = False, hold: str = "zoh",
+                 exchange: str = "explicit"):
         grid, record_every = check_run(t_end, H, record_every, dt_name="H")   # ends at t_end (grid.dt_last)
         H, n_steps = grid.dt, grid.steps
         if method not in self.METHODS:
             raise ValueError(f"method must be {' or '.join(repr(m) for m in self.METHODS)}, got {method!r}")
+        self.exchange_kind = check_exchange_name(exchange)
+        if exchange == "implicit" and (method != "jacobi" or event_aware):
+            raise ValueError(f"exchange='implicit' iterates every step to its end states, so it takes "
+                             f"method='jacobi' (its predictor) and no event_aware retake; got method={method!r}, "
+                             f"event_aware={event_aware!r}")
         if event_aware:
             H_min = H / 16 if H_min is None else check_step(H_min, "H_min")
             if H_min > H:
@@ -165,6 +171,10 @@ class NetworkMaster:
         self.check_fmi_version()
         self.model = fmu_model(self.md, self.fmu)  # a foreign FMU fails here, naming what it lacks
         self.hold = check_hold(hold, self.md, self.fmu)
+        if exchange == "implicit" and not (self.md.coSimulation is not None and
+                                           self.md.coSimulation.canGetAndSetFMUstate):
+            raise ValueError(f"exchange='implicit' rolls every step back with fmi2GetFMUstate/fmi2SetFMUstate; "
+                             f"{self.fmu} declares canGetAndSetFMUstate = false: use exchange='explicit'")
         self.record_values = 1 + 3 * N * self.model.n + 3 * len(self.edges)
         check_record_size(record_rows(n_steps, record_every), self.record_values,
                           "the record of the co-simulation")   # the plan's step 6, before any instance exists
@@ -227,7 +237,8 @@ class NetworkMaster:
         systems = [self.model.system(v) for v in values]
         try:
             return plan_run(systems, self.states, self.t_end, self.H, scheme=schemes,
-                            dt=[v[contract.SOLVER_DT] for v in values], hold=self.hold, A=self.A, laws=self.laws,
+                            dt=[v[contract.SOLVER_DT] for v in values], hold=self.hold, exchange=self.exchange_kind,
+                            A=self.A, laws=self.laws,
                             Kp=self.Kp, Kd=self.Kd, record_every=self.record_every, step_name="H", exact=True,
                             allow_unstable=self.allow_unstable, record_values=self.record_values,
                             record_what="the record of the co-simulation",
@@ -248,12 +259,26 @@ class NetworkMaster:
             self.EU[sl] if need_d else None, V, impacts=impacts,
             info=dict(mode="cosim", H=self.H, method=self.method, event_aware=self.event_aware, fmu=self.fmu,
                       H_min=self.H_min if self.event_aware else None, retaken_steps=self.retakes,
-                      steps=self.n_steps, coupling=self.coupling, hold=self.hold, **metric_info(self.metric, self.geo),
+                      steps=self.n_steps, coupling=self.coupling, hold=self.hold, exchange=self.exchange_kind,
+                      **self.iterations(rows), **metric_info(self.metric, self.geo),
                       **units_info(self.model.declaration),
                       **({} if self.limit is None else dict(
                           omega_c_H=self.limit.h, exchange_bound=self.limit.bound,
                           zeta=self.limit.zeta, H_max=self.limit.H_max))),
             error=error)
+
+    @property
+    def implicit(self) -> bool:
+        return self.exchange_kind == "implicit"
+
+    def iterations(self, rows: int) -> dict:
+        """The implicit exchange's ``iterations`` (FMU steps per communication step, int64) and
+        ``residuals`` (each step's final max |tau_end - law(end states)|) of the steps taken."""
+        if not self.implicit or not hasattr(self, "iw"):
+            return {}
+        it, res = self.iw[-3], self.iw[-2]
+        done = int(np.count_nonzero(it))
+        return dict(iterations=it[:done].copy(), residuals=res[:done].copy(), exchange_tol=float(self.iw[-1][0]))
 
     def diverged(self, t: float, what: str) -> SimulationDiverged:
         hint = f" ({self.limit.message()})" if self.limit is not None else ""
@@ -268,11 +293,12 @@ class NetworkMaster:
         the loop's state between chunks."""
         model, N, n = self.model, self.N, self.model.n
         self.fn = np.stack([fmi_functions(s.fmu.dll) for s in self.slaves])
+        rollback = "event_aware=True" if self.event_aware else "exchange='implicit'" if self.implicit else None
         needed = (["fmi2SetRealInputDerivatives"] if self.hold == "foh" else []) + (
-            ["fmi2GetFMUstate", "fmi2SetFMUstate", "fmi2FreeFMUstate"] if self.event_aware else [])
+            ["fmi2GetFMUstate", "fmi2SetFMUstate", "fmi2FreeFMUstate"] if rollback else [])
         for name in needed:
             if not np.all(self.fn[:, CALLS.index(name)]):
-                why = "hold='foh'" if "Derivatives" in name else "event_aware=True"
+                why = "hold='foh'" if "Derivatives" in name else rollback
                 raise ValueError(f"{self.fmu}: its binary does not export {name}, which {why} needs")
         self.comp = np.array([s.fmu.component or 0 for s in self.slaves], dtype=np.int64)
         ref = (lambda names: np.array([self.slaves[0].variables[v].valueReference for v in names], dtype=np.uint32))
@@ -284,6 +310,7 @@ class NetworkMaster:
         flags[loop.RECORD_EVERY] = self.record_every
         flags[loop.DELAY] = self.DELAY.get(self.method, loop.NOT_DELAYED)
         flags[loop.STEPS] = self.n_steps   # the last one of length grid.dt_last, ending at grid.t_end
+        flags[loop.IMPLICIT], flags[loop.MAX_ITER] = self.implicit, loop.IMPLICIT_MAX_ITERATIONS
         pieces = (lambda h: max(1, int(math.ceil(h / self.H_min - 1e-9))) if self.event_aware else 1)
         flags[loop.PIECES], flags[loop.PIECES_LAST] = pieces(self.H), pieces(self.grid.dt_last)
         z = (lambda: np.zeros((N, n)))
@@ -293,7 +320,8 @@ class NetworkMaster:
         work = chain_work(n)
         w = (np.zeros(n), np.zeros(n), *work, np.zeros(E), np.zeros(E, dtype=np.int64), np.zeros(E),
              np.zeros(2 * n), np.zeros(n))
-        keep = (z(), z(), z(), np.zeros(2), z(), np.zeros(N, dtype=np.int64), np.zeros(1, dtype=np.int32))
+        self.iw = loop.implicit_work(N, n, self.n_steps if self.implicit else 0)
+        keep = (z(), z(), z(), np.zeros(2), z(), np.zeros(N, dtype=np.int64), np.zeros(1, dtype=np.int32), self.iw)
         self.FAIL, self.fail_t = np.zeros(4, dtype=np.int64), np.zeros(1)
         saved = np.zeros(N, dtype=np.int64)
         # the arrays the FMI calls read or write, by address (cosim_loop.P_*); they live as long as the run
@@ -312,10 +340,11 @@ class NetworkMaster:
 
     def force_bound(self, i: int, t: float) -> SlaveError:
         """Instance i's coupling force ``self.tau[i]`` is non-finite or above the FMU's input bound."""
-        lim = exchange_limit(self.system.M, self.Kp_m, self.Kd_m, self.H, self.A_coupled, hold=self.hold)
+        lim = exchange_limit(self.system.M, self.Kp_m, self.Kd_m, self.H, self.A_coupled, hold=self.hold,
+                             exchange=self.exchange_kind)
         return SlaveError(f"system{i + 1}", t, "coupling", 3, [
             f"its coupling force became non-finite or exceeds the FMU's input bound "
-            f"{contract.INPUT_BOUND:g} ({self.tau[i].tolist()}): the explicit "
+            f"{contract.INPUT_BOUND:g} ({self.tau[i].tolist()}): the {self.exchange_kind} "
             f"exchange is unstable for these gains and this step ({lim.message()}): lower "
             f"Kp or H, or add Kd"])
 
@@ -330,6 +359,12 @@ class NetworkMaster:
             return s.failure(CALLS[call], status, t)
         if code == loop.FORCE_BOUND:
             return self.force_bound(i, t)
+        if code == loop.NOT_CONVERGED:
+            return ExchangeNotConverged(
+                f"the implicit exchange did not converge over the step from t = {t:.6g} (H = {self.H:g}): "
+                f"after {call} FMU steps the end force still differs from the law at the end states by "
+                f"{float(self.iw[-2][np.count_nonzero(self.iw[-3]) - 1]):.3g} (tolerance {loop.IMPLICIT_TOL:g} "
+                f"times the force scale); the step is not accepted and the record ends at its start: lower H")
         return self.diverged(t, "a state" if code == loop.STATE_DIVERGED else "a distance")
 
     def run(self, progress=None) -> NetworkResult:
@@ -392,7 +427,7 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
                        event_aware: bool = False, H_min: float | None = None,
                        start_values=None, progress=None,
                        record_distance: bool = True, allow_unstable: bool = False, hold: str = "zoh",
-                       tol: float | None = None) -> NetworkResult:
+                       exchange: str = "explicit", tol: float | None = None) -> NetworkResult:
     """Co-simulate N instances of ``fmu`` coupled on a weighted graph (docs/design.md §2.5, §4.4).
 
     ``states``: N start states (q, u); ``A``: N×N weights a_ij >= 0 (zero
@@ -414,7 +449,7 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
     ``tol``: co-simulate to this tolerance (:mod:`fmu_sync.adaptive`, docs/design.md §4.4.1).
     """
     args = (fmu, states, A, t_end, H, coupling, Kp, Kd, Q, method, record_every, event_aware, H_min, start_values,
-            record_distance, allow_unstable, hold)
+            record_distance, allow_unstable, hold, exchange)
     if tol is not None:
         from .adaptive import AdaptiveMaster
         return AdaptiveMaster(*args, tol=tol).run(progress)
@@ -433,7 +468,7 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
                Q=None, method: str = "jacobi", record_every: int = 1, event_aware: bool = False,
                H_min: float | None = None, start_values=None, progress=None,
                record_distance: bool = True, allow_unstable: bool = False, hold: str = "zoh",
-               tol: float | None = None) -> PairResult:
+               exchange: str = "explicit", tol: float | None = None) -> PairResult:
     """Co-simulate two instances of ``fmu`` coupled by ``coupling`` (docs/design.md §2.5, §4.4).
 
     Parameters
@@ -457,6 +492,12 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
     allow_unstable : run even if the held exchange is unstable at ``H`` (by default
         refused before the first step with ``UnstableExchange``, a ValueError).
     hold : ``"zoh"`` (inputs held over a step) or ``"foh"`` (first-order hold, :mod:`fmu_sync.hold`).
+    exchange : ``"explicit"`` (the forces from the states at the step's start, extrapolated by the
+        hold) or ``"implicit"`` (each step iterated with FMU-state rollback until the forces agree
+        with the states at its end: the line between the two ends with ``hold="foh"``, their mean
+        held with ``"zoh"``; needs ``canGetAndSetFMUstate``; ``info["iterations"]``: FMU steps per
+        communication step; a step that does not converge raises ``ExchangeNotConverged``,
+        docs/design.md §4.4).
     tol : co-simulate to this tolerance (docs/design.md §4.4.1): ``H`` is then the first and
         largest step; each step's local coupling error is estimated, a step over its share
         ``tol h / t_end`` is rolled back (FMU state) and retaken shorter, steps are whole
@@ -476,7 +517,7 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
     try:
         r = cosimulate_network(fmu, [x1, x2], [[0.0, 1.0], [1.0, 0.0]], t_end, H, coupling, Kp, Kd, Q,
                                method, record_every, event_aware, H_min, start_values, progress,
-                               record_distance, allow_unstable, hold, tol)
+                               record_distance, allow_unstable, hold, exchange, tol)
     except RunFailed as exc:
         if exc.partial is not None:  # None: refused before the first step
             exc.partial = pair_result(exc.partial, coupling)

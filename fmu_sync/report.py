@@ -57,6 +57,14 @@ def _metric_fields(result) -> dict:
     return dict(metric=info["metric"], Q=info.get("Q"), metric_note=info.get("metric_note", ""))
 
 
+def _exchange_fields(result) -> dict:
+    """The implicit exchange's FMU steps per communication step (median, max; docs/design.md §4.4)."""
+    it = (getattr(result, "info", {}) or {}).get("iterations")
+    if it is None or len(it) == 0:
+        return {}
+    return dict(iterations_median=float(np.median(it)), iterations_max=int(np.max(it)))
+
+
 def network_metrics(result, threshold: float = SYNC_THRESHOLD) -> dict:
     """Summary numbers of a network run (d: the largest pairwise distance d_max)."""
     t = np.asarray(result.t)
@@ -65,7 +73,7 @@ def network_metrics(result, threshold: float = SYNC_THRESHOLD) -> dict:
            "N": int(np.asarray(result.q).shape[1]), "edges": len(result.edges),
            "coupling": _coupling_name(result.info.get("coupling")),
            "impact_steps": int(np.sum(result.impacts)), "peak_tau": float(np.nanmax(tau)) if tau.size else 0.0,
-           "error": result.error, **adaptive_fields(result.info)}
+           "error": result.error, **_exchange_fields(result), **adaptive_fields(result.info)}
     if result.d is None:
         out.update(t_sync=None, final_d=None)
         return out
@@ -166,7 +174,7 @@ def metrics(result, system=None, threshold: float = SYNC_THRESHOLD) -> dict:
     e1, e2 = impact_records(result, 1, system), impact_records(result, 2, system)
     out.update(kind="pair", coupling=result.coupling or "none", impacts1=int(result.impacts1),
                impacts2=int(result.impacts2), episodes1=int(e1.size), episodes2=int(e2.size),
-               peak_tau=float(np.nanmax(tau)) if tau.size else 0.0, error=result.error,
+               peak_tau=float(np.nanmax(tau)) if tau.size else 0.0, error=result.error, **_exchange_fields(result),
                **adaptive_fields(result.info))
     if result.d is None:
         out.update(t_sync=None, final_d=None, euclid_max=None, peaking=None, dV_impact=None, dE_impact=None)
@@ -370,6 +378,9 @@ def run_notes(runs) -> list[str]:
             bits.append(f"d0 = {m['d0']:.3g} starts below the t_sync threshold: its t_sync says nothing")
         if m.get("metric"):
             bits.append(f"Q = {m['Q']} ({m['metric']}): {m.get('metric_note', '')}")
+        if m.get("iterations_max") is not None:
+            bits.append(f"implicit exchange: FMU steps per communication step median "
+                        f"{m['iterations_median']:g}, max {m['iterations_max']}")
         if m.get("tol") is not None:
             bits.append(f"co-simulated to tol = {m['tol']:g}: {m['comm_steps']} communication steps of "
                         f"{format_value(m['H_shortest'])} to {format_value(m['H_longest'])} s "

@@ -159,3 +159,38 @@ def test_controller_picks_the_longest_passing_whole_step(m, eq, eu, foh, mode, m
     allowed = [j for j in range(lo, max(lo, hi) + 1)]
     passing = [j for j in allowed if ok(j)]
     assert k == (max(passing) if passing else min(allowed)), (k, passing[-3:], allowed[:3], allowed[-3:])
+
+
+def test_a_scene_runs_to_a_tolerance_and_its_summary_shows_it(tmp_path):
+    """Scene key run.tol: the forced pair's coupled variants co-simulated to a tolerance; the
+    results table and the notes of summary.md give tol, the steps (rejected) and the estimate."""
+    from fmu_sync import run_scene
+    over = {"run.mode": "cosim", "run.t_end": 3.0, "run.H": 0.05, "run.tol": 1e-2}
+    sr = run_scene("forced-pair", tmp_path, plots=False, overrides=over, variants=["switching", "euclidean"])
+    text = (tmp_path / "summary.md").read_text()
+    for r in sr.runs:
+        m = r.metrics
+        assert m["tol"] == 1e-2 and m["comm_steps"] == r.result.info["steps"]
+        assert len(r.result.t) - 1 == math.ceil(m["comm_steps"] / 10)   # the scene's record_every = 10 steps
+        assert m["error_estimate"] == r.result.info["error_estimate"] > 0
+        assert f"{m['comm_steps']} ({m['rejected']})" in text
+    assert "steps (rejected)" in text and "error estimate" in text
+    assert "co-simulated to tol = 0.01" in text
+    from fmu_sync.plots import plot_steps
+    assert plot_steps(sr.runs[0].result, tmp_path / "steps.png").stat().st_size > 0
+
+
+def test_tol_with_the_implicit_exchange(shared_fmu):
+    """exchange="implicit" with tol: the estimate is the converged step against its explicit
+    prediction; on the no-impact pair the error stays within tol and falls with it."""
+    params = dict(m=1.0, k=1.0, c=0.1, f0=0.0, F=0.5, Omega=2.5, e=0.9, g0=10.0)
+    fmu = shared_fmu("impact-oscillator", 2, dict(params, **{"solver.dt": DT}))
+    x1, x2 = (1.0, 0.0), (-0.5, 0.8)
+    errs = []
+    for tol in (1e-2, 1e-4):
+        r = cosimulate(fmu, x1, x2, 3.0, 0.1, tol=tol, exchange="implicit", hold="foh", **LAW)
+        err = q1_error(r, ImpactOscillator(**params), 3.0, x1, x2)
+        assert err <= tol and r.info["error_estimate"] >= err / 10
+        assert len(r.info["iterations"]) == r.info["steps"]
+        errs.append(err)
+    assert errs[1] < errs[0]

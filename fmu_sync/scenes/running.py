@@ -129,7 +129,7 @@ def plan_variant(variant: Variant):
         laws = edge_laws(_coupling_arg(variant.law), [(0, 1)])
     if cosim:   # the master's plan: the exchange at H, each instance's scheme at its internal step
         return plan_run(systems, states, cfg["run.t_end"], cfg["run.H"], dt=cfg["solver.dt"], hold=cfg["run.hold"],
-                        A=A, laws=laws, Kp=variant.Kp, Kd=variant.Kd, step_name="H", exact=True,
+                        exchange=cfg["run.exchange"], A=A, laws=laws, Kp=variant.Kp, Kd=variant.Kd, step_name="H", exact=True,
                         allow_unstable=bool(cfg["run.allow_unstable"]), **common)
     return plan_run(systems, states, cfg["run.t_end"], cfg["solver.dt"], A=A, laws=laws, Kp=variant.Kp, Kd=variant.Kd,
                     allow_unstable=bool(cfg["run.allow_unstable"]),
@@ -217,7 +217,8 @@ def _run_variant(variant: Variant, fmu_path, progress, scene_name, sink, chunk_r
                             coupling=_coupling_arg(variant.law), Kp=variant.Kp, Kd=variant.Kd, Q=variant.Q,
                             method=cfg["run.method"], record_every=cfg["run.record_every"],
                             event_aware=cfg["run.event_aware"], H_min=cfg["run.H_min"], hold=cfg["run.hold"],
-                            tol=cfg["run.tol"], start_values=fmu_start_values(fmu_path, variant),
+                            exchange=cfg["run.exchange"], tol=cfg["run.tol"],
+                            start_values=fmu_start_values(fmu_path, variant),
                             record_distance=bool(cfg["record.distance"]), progress=progress, **extra)
         if getattr(result, "error", None):   # a record that stopped early (older masters return it)
             raise RunFailed(result.error, partial=result)
@@ -258,7 +259,8 @@ def _run_network(variant: Variant, fmu_path, progress, label, extra):
                                 coupling=_laws_arg(variant), Kp=variant.Kp, Kd=variant.Kd, Q=variant.Q,
                                 method=cfg["run.method"], record_every=cfg["run.record_every"],
                                 event_aware=cfg["run.event_aware"], H_min=cfg["run.H_min"], hold=cfg["run.hold"],
-                                tol=cfg["run.tol"], start_values=starts, record_distance=bool(cfg["record.distance"]),
+                                exchange=cfg["run.exchange"], tol=cfg["run.tol"],
+                                start_values=starts, record_distance=bool(cfg["record.distance"]),
                                 progress=progress, **extra)
     if getattr(result, "error", None):
         raise RunFailed(result.error, partial=result)
@@ -285,6 +287,8 @@ def write_run(run: RunRecord, out_dir: Path, plots, title: str, formats=("csv", 
             else:
                 run.files.append(P.PLOTTERS[p](run.result, out_dir / f"{run.name}-{p}.png",
                                                system=run.variant.system, title=title))
+        if (getattr(run.result, "info", None) or {}).get("tol") is not None:   # run.tol: H over time
+            run.files.append(P.plot_steps(run.result, out_dir / f"{run.name}-steps.png", title=title))
 
 
 def run_extra(variant: Variant, plots, title: str) -> dict:
@@ -522,7 +526,7 @@ def stream_notes(runs) -> list[str]:
             for r in runs if r.metrics.get("thinned_every", 1) > 1]
 
 
-_COSIM_KEYS = ("run.H", "run.H_min", "run.method", "run.event_aware", "run.hold", "run.tol")
+_COSIM_KEYS = ("run.H", "run.H_min", "run.method", "run.event_aware", "run.hold", "run.exchange", "run.tol")
 
 
 def _relevant(key: str, variants) -> bool:

@@ -16,6 +16,7 @@ import numpy as np
 
 from ..core import MechanicalSystem
 from ..core.coupling import LAWS as COUPLING_LAWS
+from ..core.exchange import EXCHANGES
 from ..core.declaration import POSITIVE_MIN, Model, Param
 from ..core.registry import builtin_models
 
@@ -338,6 +339,8 @@ KEYS = {
             "method": _key(choice(*METHODS), "jacobi", "exchange strategy of the master (cosim)"),
             "event_aware": _key(_boolean, False, "retake a communication step that contains an impact (cosim)"),
             "hold": _key(choice(*HOLDS), "zoh", "input hold over a communication step (cosim)"),
+            "exchange": _key(choice(*EXCHANGES), "explicit", "forces from the step's start, or iterated to its "
+                             "end states with FMU-state rollback (cosim)"),
             "tol": _key(_number(gt=0), None, "co-simulate to this error tolerance (q's unit): H is then the first and "
                         "largest step, each step's coupling error estimated and a step over its share retaken "
                         "shorter (cosim; docs/design.md §4.4.1)"),
