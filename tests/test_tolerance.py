@@ -194,3 +194,17 @@ def test_tol_with_the_implicit_exchange(shared_fmu):
         assert len(r.info["iterations"]) == r.info["steps"]
         errs.append(err)
     assert errs[1] < errs[0]
+
+
+def test_a_network_to_a_tolerance(forced_fmu):
+    """cosimulate_network(..., tol): a ring of 4 forced oscillators against simulate_network at
+    dt: within tol, the estimate within a factor 10 of the error."""
+    from fmu_sync.core import ring, simulate_network
+    from fmu_sync.master import cosimulate_network
+    states = [(0.2 + 0.1 * i, 0.05 * (-1) ** i) for i in range(4)]
+    gains = dict(coupling="switching", Kp=4.0, Kd=2.0)
+    r = cosimulate_network(forced_fmu, states, ring(4), 2.0, 0.05, tol=1e-2, **gains)
+    ref = simulate_network([ImpactOscillator(**FORCED)] * 4, states, ring(4), 2.0, DT, **gains)
+    err = max(float(np.max(np.abs(r.q[:, i, 0] - np.interp(r.t, ref.t, ref.q[:, i, 0])))) for i in range(4))
+    assert err <= 1e-2 and err / 10 <= r.info["error_estimate"] <= 10 * err, (err, r.info["error_estimate"])
+    assert r.info["steps"] == len(r.info["H"]) == len(r.t) - 1
