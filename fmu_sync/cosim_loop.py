@@ -42,15 +42,17 @@ from numba import njit, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from .core.network import network_forces, node_force
+from .core.coupling import chain_work
+from .core.network import edge_arrays, network_forces, node_force
 from .core.kernels import depends_on_core
+from .fmus import contract
 from .fmus.contract import INPUT_BOUND
 
 depends_on_core(__file__)   # its cache follows the core's edits (it compiles network_forces in)
 
 __all__ = ["CALLS", "fmi_functions", "exchange_chunk", "DONE", "SLAVE_FAILED", "FORCE_BOUND",
            "STATE_DIVERGED", "DISTANCE_DIVERGED", "NOT_CONVERGED", "IMPLICIT_TOL", "IMPLICIT_MAX_ITERATIONS",
-           "implicit_work"]
+           "implicit_work", "loop_arguments", "implicit_info", "not_converged"]
 
 #: The FMI 2.0 functions the loop calls, in the column order of ``fmi_functions``.
 CALLS = ("fmi2SetReal", "fmi2SetRealInputDerivatives", "fmi2DoStep", "fmi2GetReal", "fmi2GetInteger",
@@ -108,6 +110,73 @@ def fmi_functions(dll, optional=("fmi2SetRealInputDerivatives", "fmi2GetFMUstate
             if name not in optional:
                 raise ValueError(f"the FMU's binary does not export {name}, which the master calls") from None
     return out
+
+
+def loop_arguments(m) -> None:
+    """What :func:`exchange_chunk` takes for the run of a :class:`fmu_sync.master.NetworkMaster`
+    ``m`` (set up, its instances started): every instance's FMI function addresses and component
+    handle (a function its settings need but its binary lacks: ValueError), the value references,
+    the settings (``flags``) and the loop's state between chunks, as ``m.loop_args`` and
+    ``m.loop_state`` (the arrays the loop writes also as attributes of ``m``)."""
+    model, N, n = m.model, m.N, m.model.n
+    m.fn = np.stack([fmi_functions(s.fmu.dll) for s in m.slaves])
+    rollback = "event_aware=True" if m.event_aware else "exchange='implicit'" if m.implicit else None
+    needed = (["fmi2SetRealInputDerivatives"] if m.hold == "foh" else []) + (
+        ["fmi2GetFMUstate", "fmi2SetFMUstate", "fmi2FreeFMUstate"] if rollback else [])
+    for name in needed:
+        if not np.all(m.fn[:, CALLS.index(name)]):
+            why = "hold='foh'" if "Derivatives" in name else rollback
+            raise ValueError(f"{m.fmu}: its binary does not export {name}, which {why} needs")
+    m.comp = np.array([s.fmu.component or 0 for s in m.slaves], dtype=np.int64)
+    ref = (lambda names: np.array([m.slaves[0].variables[v].valueReference for v in names], dtype=np.uint32))
+    m.vr_out, m.vr_tau, m.vr_imp = ref(model.q + model.u), ref(model.tau), ref([contract.IMPACTS])
+    E2, W2 = edge_arrays(m.A, m.edges)
+    flags = np.zeros(FLAGS, dtype=np.int64)
+    flags[[GAUSS_SEIDEL, FOH, EVENT_AWARE, NEED_D, COUPLED]] = [
+        m.method == "gauss-seidel", m.hold == "foh", m.event_aware, m.need_d, m.coupled]
+    flags[RECORD_EVERY] = m.record_every
+    flags[DELAY] = m.DELAY.get(m.method, NOT_DELAYED)
+    flags[STEPS] = m.n_steps   # the last one of length grid.dt_last, ending at grid.t_end
+    flags[IMPLICIT], flags[MAX_ITER] = m.implicit, IMPLICIT_MAX_ITERATIONS
+    pieces = (lambda h: max(1, int(math.ceil(h / m.H_min - 1e-9))) if m.event_aware else 1)
+    flags[PIECES], flags[PIECES_LAST] = pieces(m.H), pieces(m.grid.dt_last)
+    z = (lambda: np.zeros((N, n)))
+    m.q, m.u, m.tau = z(), z(), z()
+    m.imp, m.ctl = np.zeros(N, dtype=np.int64), np.zeros(CTL, dtype=np.int64)
+    E = len(m.edges)
+    work = chain_work(n)
+    w = (np.zeros(n), np.zeros(n), *work, np.zeros(E), np.zeros(E, dtype=np.int64), np.zeros(E),
+         np.zeros(2 * n), np.zeros(n))
+    m.iw = implicit_work(N, n, m.n_steps if m.implicit else 0)
+    keep = (z(), z(), z(), np.zeros(2), z(), np.zeros(N, dtype=np.int64), np.zeros(1, dtype=np.int32), m.iw)
+    m.FAIL, m.fail_t = np.zeros(4, dtype=np.int64), np.zeros(1)
+    saved = np.zeros(N, dtype=np.int64)
+    # the arrays the FMI calls read or write, by address (P_*); they live as long as the run
+    m.held = (m.vr_out, m.vr_tau, m.vr_imp, np.ones(n, dtype=np.int32), m.tau, w[9], w[10], keep[6], saved)
+    ptr = np.array([a.ctypes.data for a in m.held], dtype=np.int64)
+    m.loop_args = (ptr, m.fn, m.comp, m.laws, m.geo, m.Kp_m, m.Kd_m, E2, W2, flags, m.hp, float(m.H),
+                   float(m.grid.dt_last), float(m.grid.t_end))
+    m.loop_state = (m.q, m.u, m.tau, z(), z(), np.zeros(1), m.imp, m.ctl, saved, keep, m.T, m.Qr, m.Ur, m.TAU, m.D,
+                    m.BR, m.EU, w, m.FAIL, m.fail_t)
+
+
+def implicit_info(iw) -> dict:
+    """``info`` of an implicit run: ``iterations`` (FMU steps per communication step taken, int64),
+    ``residuals`` (each one's final max |law(end states) - end force|), ``exchange_tol``; {} for
+    an explicit run (``iw`` None or without per-step arrays)."""
+    if iw is None or iw[-3].size == 0:
+        return {}
+    done = int(np.count_nonzero(iw[-3]))
+    return dict(iterations=iw[-3][:done].copy(), residuals=iw[-2][:done].copy(), exchange_tol=float(iw[-1][0]))
+
+
+def not_converged(iw, t: float, H: float, steps: int) -> str:
+    """The message of a step from ``t`` that did not converge after ``steps`` FMU steps."""
+    res = float(iw[-2][np.count_nonzero(iw[-3]) - 1])
+    return (f"the implicit exchange did not converge over the step from t = {t:.6g} (H = {H:g}): after "
+            f"{steps} FMU steps the end force still differs from the law at the end states by {res:.3g} "
+            f"(tolerance {float(iw[-1][0]):g} times the force scale); the step is not accepted and the "
+            f"record ends at its start: lower H")
 
 
 def implicit_work(N: int, n: int, steps: int, tol: float = IMPLICIT_TOL):

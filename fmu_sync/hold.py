@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from .core.exchange import HOLDS
 
-__all__ = ["HOLDS", "check_hold", "check_schemes"]
+__all__ = ["HOLDS", "check_hold", "check_schemes", "check_implicit"]
 
 
 def check_hold(hold: str, md, fmu: str) -> str:
@@ -33,3 +33,17 @@ def check_schemes(hold: str, schemes) -> None:
             raise ValueError(f"hold='foh': instance {i + 1} has solver.scheme = exact, which holds its input "
                              f"constant over a step (the exact solver needs a constant tau): use hold='zoh' "
                              f"with it, or the midpoint/theta scheme")
+
+
+def check_implicit(exchange: str, method: str, event_aware: bool, md, fmu: str) -> None:
+    """ValueError if ``exchange="implicit"`` meets Gauss–Seidel, the event-aware retake or an FMU
+    that declares ``canGetAndSetFMUstate = false`` (it rolls every step back)."""
+    if exchange != "implicit":
+        return
+    if method != "jacobi" or event_aware:
+        raise ValueError(f"exchange='implicit' iterates every step to its end states, so it takes "
+                         f"method='jacobi' (its predictor) and no event_aware retake; got method={method!r}, "
+                         f"event_aware={event_aware!r}")
+    if not (md.coSimulation is not None and md.coSimulation.canGetAndSetFMUstate):
+        raise ValueError(f"exchange='implicit' rolls every step back with fmi2GetFMUstate/fmi2SetFMUstate; "
+                         f"{fmu} declares canGetAndSetFMUstate = false: use exchange='explicit'")

@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import contextlib
 import functools
-import math
 import shutil
 from pathlib import Path
 
@@ -40,12 +39,12 @@ import numpy as np
 
 from .core.checks import check_record_size, check_run, check_step, record_rows
 from .core.compensation import force_table
-from .core.coupling import chain_work, law_metric, metric_info
+from .core.coupling import law_metric, metric_info
 from .core.distance import geometry
 from .core.errors import ExchangeNotConverged, RunFailed, SimulationDiverged, UnstableScheme
 from .core.exchange import check_exchange_name, exchange_limit
 from .core.model import MechanicalSystem
-from .core.network import edge_arrays, edge_laws, edges_of, weights
+from .core.network import edge_laws, edges_of, weights
 from .core.pair import LAWS, stack_nodes
 from .core.plan import RunPlan, plan_run
 from .core.result import NetworkResult, PairResult
@@ -54,8 +53,8 @@ from .fmi3_bridge import element_names, open_host
 from .fmi_bridge import FMUHost, SlaveError
 from .fmus import contract
 from . import cosim_loop as loop
-from .cosim_loop import CALLS, exchange_chunk, fmi_functions
-from .hold import check_hold, check_schemes
+from .cosim_loop import CALLS, exchange_chunk
+from .hold import check_hold, check_implicit, check_schemes
 from .instance_pool import give_back, keep_instances, kept_key, take
 
 __all__ = ["cosimulate", "cosimulate_network", "keep_instances", "NetworkMaster", "NetworkResult", "SlaveError", "FmuInstance",
@@ -139,10 +138,6 @@ class NetworkMaster:
         if method not in self.METHODS:
             raise ValueError(f"method must be {' or '.join(repr(m) for m in self.METHODS)}, got {method!r}")
         self.exchange_kind = check_exchange_name(exchange)
-        if exchange == "implicit" and (method != "jacobi" or event_aware):
-            raise ValueError(f"exchange='implicit' iterates every step to its end states, so it takes "
-                             f"method='jacobi' (its predictor) and no event_aware retake; got method={method!r}, "
-                             f"event_aware={event_aware!r}")
         if event_aware:
             H_min = H / 16 if H_min is None else check_step(H_min, "H_min")
             if H_min > H:
@@ -171,10 +166,7 @@ class NetworkMaster:
         self.check_fmi_version()
         self.model = fmu_model(self.md, self.fmu)  # a foreign FMU fails here, naming what it lacks
         self.hold = check_hold(hold, self.md, self.fmu)
-        if exchange == "implicit" and not (self.md.coSimulation is not None and
-                                           self.md.coSimulation.canGetAndSetFMUstate):
-            raise ValueError(f"exchange='implicit' rolls every step back with fmi2GetFMUstate/fmi2SetFMUstate; "
-                             f"{self.fmu} declares canGetAndSetFMUstate = false: use exchange='explicit'")
+        check_implicit(exchange, method, event_aware, self.md, self.fmu)
         self.record_values = 1 + 3 * N * self.model.n + 3 * len(self.edges)
         check_record_size(record_rows(n_steps, record_every), self.record_values,
                           "the record of the co-simulation")   # the plan's step 6, before any instance exists
@@ -260,7 +252,7 @@ class NetworkMaster:
             info=dict(mode="cosim", H=self.H, method=self.method, event_aware=self.event_aware, fmu=self.fmu,
                       H_min=self.H_min if self.event_aware else None, retaken_steps=self.retakes,
                       steps=self.n_steps, coupling=self.coupling, hold=self.hold, exchange=self.exchange_kind,
-                      **self.iterations(rows), **metric_info(self.metric, self.geo),
+                      **loop.implicit_info(getattr(self, "iw", None)), **metric_info(self.metric, self.geo),
                       **units_info(self.model.declaration),
                       **({} if self.limit is None else dict(
                           omega_c_H=self.limit.h, exchange_bound=self.limit.bound,
@@ -271,15 +263,6 @@ class NetworkMaster:
     def implicit(self) -> bool:
         return self.exchange_kind == "implicit"
 
-    def iterations(self, rows: int) -> dict:
-        """The implicit exchange's ``iterations`` (FMU steps per communication step, int64) and
-        ``residuals`` (each step's final max |tau_end - law(end states)|) of the steps taken."""
-        if not self.implicit or not hasattr(self, "iw"):
-            return {}
-        it, res = self.iw[-3], self.iw[-2]
-        done = int(np.count_nonzero(it))
-        return dict(iterations=it[:done].copy(), residuals=res[:done].copy(), exchange_tol=float(self.iw[-1][0]))
-
     def diverged(self, t: float, what: str) -> SimulationDiverged:
         hint = f" ({self.limit.message()})" if self.limit is not None else ""
         return SimulationDiverged(
@@ -288,50 +271,8 @@ class NetworkMaster:
 
     # ------------------------------------------------------------ the run
     def _loop_arrays(self) -> None:
-        """What the compiled loop (:mod:`fmu_sync.cosim_loop`) takes: every instance's FMI
-        function addresses and component handle, the value references, the settings and
-        the loop's state between chunks."""
-        model, N, n = self.model, self.N, self.model.n
-        self.fn = np.stack([fmi_functions(s.fmu.dll) for s in self.slaves])
-        rollback = "event_aware=True" if self.event_aware else "exchange='implicit'" if self.implicit else None
-        needed = (["fmi2SetRealInputDerivatives"] if self.hold == "foh" else []) + (
-            ["fmi2GetFMUstate", "fmi2SetFMUstate", "fmi2FreeFMUstate"] if rollback else [])
-        for name in needed:
-            if not np.all(self.fn[:, CALLS.index(name)]):
-                why = "hold='foh'" if "Derivatives" in name else rollback
-                raise ValueError(f"{self.fmu}: its binary does not export {name}, which {why} needs")
-        self.comp = np.array([s.fmu.component or 0 for s in self.slaves], dtype=np.int64)
-        ref = (lambda names: np.array([self.slaves[0].variables[v].valueReference for v in names], dtype=np.uint32))
-        self.vr_out, self.vr_tau, self.vr_imp = ref(model.q + model.u), ref(model.tau), ref([contract.IMPACTS])
-        E2, W2 = edge_arrays(self.A, self.edges)
-        flags = np.zeros(loop.FLAGS, dtype=np.int64)
-        flags[[loop.GAUSS_SEIDEL, loop.FOH, loop.EVENT_AWARE, loop.NEED_D, loop.COUPLED]] = [
-            self.method == "gauss-seidel", self.hold == "foh", self.event_aware, self.need_d, self.coupled]
-        flags[loop.RECORD_EVERY] = self.record_every
-        flags[loop.DELAY] = self.DELAY.get(self.method, loop.NOT_DELAYED)
-        flags[loop.STEPS] = self.n_steps   # the last one of length grid.dt_last, ending at grid.t_end
-        flags[loop.IMPLICIT], flags[loop.MAX_ITER] = self.implicit, loop.IMPLICIT_MAX_ITERATIONS
-        pieces = (lambda h: max(1, int(math.ceil(h / self.H_min - 1e-9))) if self.event_aware else 1)
-        flags[loop.PIECES], flags[loop.PIECES_LAST] = pieces(self.H), pieces(self.grid.dt_last)
-        z = (lambda: np.zeros((N, n)))
-        self.q, self.u, self.tau = z(), z(), z()
-        self.imp, self.ctl = np.zeros(N, dtype=np.int64), np.zeros(loop.CTL, dtype=np.int64)
-        E = len(self.edges)
-        work = chain_work(n)
-        w = (np.zeros(n), np.zeros(n), *work, np.zeros(E), np.zeros(E, dtype=np.int64), np.zeros(E),
-             np.zeros(2 * n), np.zeros(n))
-        self.iw = loop.implicit_work(N, n, self.n_steps if self.implicit else 0)
-        keep = (z(), z(), z(), np.zeros(2), z(), np.zeros(N, dtype=np.int64), np.zeros(1, dtype=np.int32), self.iw)
-        self.FAIL, self.fail_t = np.zeros(4, dtype=np.int64), np.zeros(1)
-        saved = np.zeros(N, dtype=np.int64)
-        # the arrays the FMI calls read or write, by address (cosim_loop.P_*); they live as long as the run
-        self.held = (self.vr_out, self.vr_tau, self.vr_imp, np.ones(n, dtype=np.int32), self.tau, w[9], w[10],
-                     keep[6], saved)
-        ptr = np.array([a.ctypes.data for a in self.held], dtype=np.int64)
-        self.loop_args = (ptr, self.fn, self.comp, self.laws, self.geo, self.Kp_m, self.Kd_m, E2, W2, flags, self.hp,
-                          float(self.H), float(self.grid.dt_last), float(self.grid.t_end))
-        self.loop_state = (self.q, self.u, self.tau, z(), z(), np.zeros(1), self.imp, self.ctl, saved, keep, self.T,
-                           self.Qr, self.Ur, self.TAU, self.D, self.BR, self.EU, w, self.FAIL, self.fail_t)
+        """What the compiled loop takes (:func:`fmu_sync.cosim_loop.loop_arguments`)."""
+        loop.loop_arguments(self)
 
     def _chunk(self, k0: int, k1: int) -> int:
         """Steps k0 .. k1 - 1 in the compiled loop; returns its outcome code."""
@@ -360,11 +301,7 @@ class NetworkMaster:
         if code == loop.FORCE_BOUND:
             return self.force_bound(i, t)
         if code == loop.NOT_CONVERGED:
-            return ExchangeNotConverged(
-                f"the implicit exchange did not converge over the step from t = {t:.6g} (H = {self.H:g}): "
-                f"after {call} FMU steps the end force still differs from the law at the end states by "
-                f"{float(self.iw[-2][np.count_nonzero(self.iw[-3]) - 1]):.3g} (tolerance {loop.IMPLICIT_TOL:g} "
-                f"times the force scale); the step is not accepted and the record ends at its start: lower H")
+            return ExchangeNotConverged(loop.not_converged(self.iw, t, self.H, call))
         return self.diverged(t, "a state" if code == loop.STATE_DIVERGED else "a distance")
 
     def run(self, progress=None) -> NetworkResult:

@@ -9,7 +9,8 @@ Two kinds of section (``--only`` picks among them):
 * **timings** (developer benchmarks, ratios against a baseline measured in the same run):
   ``speed`` (core kernels vs a C loop, the quotient distance, the FMU per step and at start-up,
   :mod:`.core_speed`, :mod:`.distance_cost`, :mod:`.fmu_cost`), ``sweep`` (sweep throughput,
-  :mod:`.sweep_speed`) and ``hold`` (co-simulation hold order, :mod:`.hold_order`).
+  :mod:`.sweep_speed`), ``hold`` (co-simulation hold order, :mod:`.hold_order`) and ``implicit``
+  (the implicit exchange on a stiff pair, :mod:`.implicit_exchange`).
 
 Writes into DIR (default ``./fmu-sync-bench/``):
 
@@ -41,7 +42,7 @@ __all__ = ["main", "EXTRA_SECTIONS", "REPORTS", "SECTIONS", "PAGE", "publish", "
 #: and extreme cases
 REPORTS = ("work-precision", "stability")
 #: every section of ``fmu-sync bench`` (``--only``); the default runs all but ``sweep``
-SECTIONS = ("speed", "sweep", "hold") + REPORTS
+SECTIONS = ("speed", "sweep", "hold", "implicit") + REPORTS
 #: the markdown page ``fmu-sync bench`` writes into its output folder (docs/benchmarks.md when published)
 PAGE = "benchmarks.md"
 #: the lines between which ``--publish`` replaces a page's generated part (the rest of the page stays)
@@ -225,18 +226,21 @@ def main(argv=None) -> int:
             print(md, flush=True)
             parts.append(md)
 
-        if "hold" in sections:
+        for name, title, module in (("hold", "Co-simulation hold: zero- vs first-order", "hold_order"),
+                                    ("implicit", "Implicit exchange: the stiff pair of issue 33", "implicit_exchange")):
+            if name not in sections:
+                continue
             if fmu is None:
-                parts.append(f"## Co-simulation hold: zero- vs first-order\n\nnot run "
-                             f"(co-simulation skipped: {why}).\n")
-            else:
-                from . import hold_order
-                t0 = time.perf_counter()
-                with Progress("hold") as bar:
-                    md = hold_order.run(quick=quick, smoke=args.smoke, progress=bar)
-                timings["hold"] = time.perf_counter() - t0
-                print(md, flush=True)
-                parts.append(md)
+                parts.append(f"## {title}\n\nnot run (co-simulation skipped: {why}).\n")
+                continue
+            import importlib
+            mod = importlib.import_module(f".{module}", __name__)
+            t0 = time.perf_counter()
+            with Progress(name) as bar:
+                md = mod.run(quick=quick, smoke=args.smoke, progress=bar)
+            timings[name] = time.perf_counter() - t0
+            print(md, flush=True)
+            parts.append(md)
 
     total = time.perf_counter() - t_start
     head = [

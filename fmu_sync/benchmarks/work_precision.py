@@ -15,6 +15,8 @@ cosim          FMU + master (fmpy), Jacobi, slave's internal dt = H             
 cosim-ea       same, ``event_aware=True`` (impact steps retaken in H/16)        H
 cosim-fine     coupled pair only: slave dt = 1e-4 (coupling error alone)        H
 cosim-fine-ea  same, event-aware                                                H
+cosim-fine-    same, ``exchange="implicit"``, ``hold="foh"`` (each step iterated  H
+implicit       to its end states with FMU-state rollback)
 ============== ===============================================================  ==========
 
 Errors (``metric`` column), all absolute, SI units:

@@ -33,6 +33,7 @@ METHOD_DOC = {
     "cosim-ea": "co-simulation, event-aware (impact steps retaken in H/16 pieces), slave dt = H",
     "cosim-fine": "co-simulation with slave dt = 1e-4 (coupled pair: coupling error only); step = H",
     "cosim-fine-ea": "same, event-aware",
+    "cosim-fine-implicit": "same, exchange='implicit' (iterated to the step's end states, hold='foh')",
 }
 CORE_SCHEMES = (("midpoint", "midpoint", 0.5), ("theta0.5", "theta", 0.5), ("theta1", "theta", 1.0))
 
@@ -235,15 +236,16 @@ def _core_pair(scene, T, scheme, theta, dt):
     return fn
 
 
-def _cosim_pair(scene, T, H, ea, slave_dt, fmu):
+def _cosim_pair(scene, T, H, ea, slave_dt, fmu, implicit=False):
     from fmu_sync import cosimulate
     p = scene.pair
     sv = _fmu_starts(scene, slave_dt)
     rec = _rec_every(H, PAIR_GRID)
+    exchange = dict(exchange="implicit", hold="foh") if implicit else {}
 
     def fn():
         r = cosimulate(fmu, scene.x0, p["x2"], T, H, coupling="switching", Kp=p["Kp"], Kd=p["Kd"],
-                       event_aware=ea, start_values=sv, record_every=rec)
+                       event_aware=ea, start_values=sv, record_every=rec, **exchange)
         return r.t, r.d
     return fn
 
@@ -300,6 +302,9 @@ def _configs(mode: str, fmu, scenes=SCENES):
                         if H > 1e-4:
                             cfgs.append(_Config("cosim-fine-ea" if ea else "cosim-fine", sc, H,
                                                 _cosim_pair(sc, T, H, ea, 1e-4, fmu), ("d",), "pair"))
+                    if H > 1e-4:
+                        cfgs.append(_Config("cosim-fine-implicit", sc, H, _cosim_pair(sc, T, H, False, 1e-4, fmu, True),
+                                            ("d",), "pair"))
     return cfgs
 
 

@@ -160,7 +160,7 @@ def best_vs_ivp(points, scene, metric, n_dof=1):
 def cosim_h_dependence(points, scene, metric):
     """Slope of log error vs log H for each co-simulation variant and the event-aware gain."""
     out = {}
-    for m in ("cosim", "cosim-ea", "cosim-fine", "cosim-fine-ea"):
+    for m in ("cosim", "cosim-ea", "cosim-fine", "cosim-fine-ea", "cosim-fine-implicit"):
         slope, pts = measured_order(points, scene, metric, m)
         if pts:
             out[m] = dict(slope=slope, errors={p.step: p.error for p in pts},
