@@ -57,16 +57,34 @@ def code_hash(root: str) -> str:
     return h.hexdigest()
 
 
+class Broken(str):
+    """What :func:`_version` returns for a module that is there but fails to import: the error."""
+
+
 def _version(dist: str) -> str | None:
-    """The version of the module ``dist`` (its ``__version__``; None if it cannot be imported).
-    The FMU imports numpy anyway; importlib.metadata would add ~40 ms to a cold start."""
+    """The version of the module ``dist`` (its ``__version__``; "unknown" without one; None if it is
+    not installed; :class:`Broken` with the error if importing it raises anything else, e.g. an
+    AttributeError of a damaged or mismatched installation). The FMU imports numpy anyway;
+    importlib.metadata would add ~40 ms to a cold start."""
     import importlib
     try:
-        return str(importlib.import_module(dist).__version__)
-    except ImportError:
-        return None
-    except Exception:
-        return "unknown"
+        module = importlib.import_module(dist)
+    except ModuleNotFoundError as exc:
+        if exc.name == dist:
+            return None
+        return Broken(f"{type(exc).__name__}: {exc}")
+    except Exception as exc:
+        return Broken(f"{type(exc).__name__}: {exc}")
+    return str(getattr(module, "__version__", "unknown"))
+
+
+def _has(module: str) -> bool:
+    """Whether this interpreter can import ``module`` (found, without importing it)."""
+    import importlib.util
+    try:
+        return importlib.util.find_spec(module) is not None
+    except (ImportError, ValueError):
+        return False
 
 
 def _vtuple(v: str) -> tuple[int, ...]:
@@ -117,20 +135,29 @@ def _advice(embedded: bool) -> str:
             f"interpreter (FMU_SYNC_PYTHON is ignored in a Python host)")
 
 
-def install_command(reqs: dict) -> str:
+def install_command(reqs: dict, reinstall: bool = False) -> str:
     """The one command that installs ``reqs`` ({"numpy": ">=1.24"}) for this interpreter: pip in a venv
-    or an ordinary installation, the distribution's packages for a Debian/Ubuntu system Python
-    (PEP 668: pip is refused there)."""
+    or an ordinary installation (pip bootstrapped first with ``-m ensurepip`` where pip is absent), the
+    distribution's packages for a Debian/Ubuntu system Python (PEP 668: pip is refused there);
+    ``reinstall``: replace a broken installation (pip's ``--force-reinstall``)."""
     import sysconfig
     names = " ".join(f"'{d}{spec}'" if spec else d for d, spec in reqs.items())
     managed = sys.prefix == sys.base_prefix and os.path.isfile(
         os.path.join(sysconfig.get_path("stdlib"), "EXTERNALLY-MANAGED"))
-    if managed and os.path.isfile("/etc/debian_version"):
-        return "sudo apt-get install " + " ".join(f"python3-{d}" for d in reqs)
+    debian = os.path.isfile("/etc/debian_version")
+    if managed and debian:
+        return ("sudo apt-get install " + ("--reinstall " if reinstall else "")
+                + " ".join(f"python3-{d}" for d in reqs))
     if managed:
         return (f"python3 -m venv ~/fmu-python && ~/fmu-python/bin/python -m pip install {names} (this system "
                 f"Python refuses pip, PEP 668), then set FMU_SYNC_PYTHON=~/fmu-python/bin/python")
-    return f"{sys.executable} -m pip install {names}"
+    pip = f"{sys.executable} -m pip install {'--force-reinstall ' if reinstall else ''}{names}"
+    if _has("pip"):
+        return pip
+    if _has("ensurepip"):
+        return f"{sys.executable} -m ensurepip && {pip} (this Python has no pip: ensurepip installs it)"
+    platform = " (Debian/Ubuntu: sudo apt-get install python3-venv python3-pip)" if debian else ""
+    return (f"install pip for {sys.executable}, which has neither pip nor ensurepip{platform}, then {pip}")
 
 
 def check_runtime(built: dict, embedded: bool = False, call: str = INSTANTIATE[2],
@@ -143,13 +170,17 @@ def check_runtime(built: dict, embedded: bool = False, call: str = INSTANTIATE[2
     requires = {"numpy": ""} if requires is None else requires
     where = f"the Python environment {sys.prefix} (Python {sys.version.split()[0]}, {sys.executable})"
     py_now = ".".join(map(str, sys.version_info[:3]))
-    if py_now != built.get("python"):
+    if py_now.split(".")[:2] != str(built.get("python")).split(".")[:2]:   # patch releases share the ABI
         out.append(f"W:{call}: running on Python {py_now}; the FMU was built with Python "
                    f"{built.get('python')} (its code is plain Python)")
     missing, old = [], []
     for dist, spec in requires.items():
         have = _version(dist)
-        if have is None:
+        if isinstance(have, Broken):
+            out.append(f"E:{call}: {dist} in {where} is broken: importing it raises {have}; {_advice(embedded)}: "
+                       f"reinstall it there: {install_command({dist: spec}, reinstall=True)}"
+                       + (", or set FMU_SYNC_PYTHON to an interpreter with a working one" if embedded else ""))
+        elif have is None:
             missing.append(dist)
         elif have != "unknown" and spec and not satisfies(have, spec):
             old.append(f"{dist} {have} (needs {dist}{spec})")
@@ -166,15 +197,33 @@ def check_runtime(built: dict, embedded: bool = False, call: str = INSTANTIATE[2
     return out
 
 
+def _home() -> tuple[str | None, str]:
+    """(the user's home folder, "") if it exists, else (None, why it is not used): a HOME that is empty or
+    names no folder is never created (nor is ``.cache`` put under the file-system root)."""
+    home = os.environ.get("HOME")
+    if home is None:
+        home = os.path.expanduser("~")
+        home = None if home == "~" else home
+    if not home:
+        return None, "HOME is empty"
+    if not os.path.isdir(home):
+        return None, f"HOME={home} does not exist (not created)"
+    return home, ""
+
+
 def _cache_candidates() -> list[tuple[str, str]]:
-    """(where it comes from, folder) in the order tried."""
+    """(where it comes from, folder) in the order tried (``~/.cache`` only under an existing home)."""
     uid = os.getuid() if hasattr(os, "getuid") else 0
     xdg = os.environ.get("XDG_CACHE_HOME")
+    xdg = xdg if xdg and os.path.isabs(xdg) else None     # XDG: a relative path is ignored
+    home, _ = _home()
     out = []
     if os.environ.get("FMU_SYNC_CACHE"):
         out.append(("FMU_SYNC_CACHE", os.environ["FMU_SYNC_CACHE"]))
-    out.append(("XDG_CACHE_HOME" if xdg else "HOME", os.path.join(xdg or os.path.expanduser("~/.cache"),
-                                                                   "fmu-sync")))
+    if xdg:
+        out.append(("XDG_CACHE_HOME", os.path.join(xdg, "fmu-sync")))
+    elif home:
+        out.append(("HOME", os.path.join(home, ".cache", "fmu-sync")))
     for label, tmp in (("TMPDIR", os.environ.get("TMPDIR")),) + tuple((d, d) for d in TMP_DIRS):
         if tmp:
             out.append((label, os.path.join(tmp, f"fmu-sync-{uid}")))
@@ -183,7 +232,8 @@ def _cache_candidates() -> list[tuple[str, str]]:
 
 def cache_root(embedded: bool = False) -> str:
     """The first writable cache folder; SetupError naming every folder tried and what to do."""
-    tried = []
+    home, why = _home()
+    tried = [] if home or os.environ.get("XDG_CACHE_HOME") else [f"~/.cache/fmu-sync (HOME): {why}"]
     for label, base in _cache_candidates():
         try:
             os.makedirs(base, exist_ok=True)

@@ -46,10 +46,10 @@ class CouplingInstance(InstanceBase):
         self._set_memory([0.0] * (2 * self.spec.N + 1))
         self.refresh()
 
-    def _memory(self) -> list:
+    def _memory(self, work) -> list:
         """What the admissibility check remembers of the last doStep: [H, N speeds, N gaps]."""
-        r = CS.report_slot(self.work)
-        return [float(self.work[CS.C_HLAST])] + self.work[r - 2 * self.spec.N:r].tolist()
+        r = CS.report_slot(work)
+        return [float(work[CS.C_HLAST])] + work[r - 2 * self.spec.N:r].tolist()
 
     def _set_memory(self, m) -> None:
         r = CS.report_slot(self.work)
@@ -102,9 +102,9 @@ class CouplingInstance(InstanceBase):
                 f"yet ({why}); set valid parameters before {self.calls['exit']}")
 
     # ------------------------------------------------------------ FMU state
-    def _state(self) -> dict:
-        return {"spec": self.spec.as_dict(), "inputs": self.x[self.i_in:self.i_in + self.m].tolist(),
-                "memory": self._memory()}
+    def _state(self, x, work) -> dict:
+        return {"spec": self.spec.as_dict(), "inputs": x[self.i_in:self.i_in + self.m].tolist(),
+                "memory": self._memory(work)}
 
     def state_reason(self, s) -> tuple[str | None, object]:
         if not isinstance(s, dict) or s.get("format") != STATE_FORMAT:

@@ -126,11 +126,13 @@ class InstanceBase:
     def free(self) -> None:
         self.cfg = None
 
-    def _parameters(self) -> dict:
+    def _parameters(self, x=None) -> dict:
+        """The parameter values in ``x`` (default: the instance's variables)."""
+        x = self.x if x is None else x
         out = {}
         for v in self.params:
-            x = self.x[self.index[v.name]]
-            out[v.name] = int(x) if v.type in ("Integer", "Enumeration") else float(x)
+            a = x[self.index[v.name]]
+            out[v.name] = int(a) if v.type in ("Integer", "Enumeration") else float(a)
         return out
 
     def _configuration(self) -> tuple[str, object]:
@@ -154,41 +156,69 @@ class InstanceBase:
         return ""
 
     # ------------------------------------------------------------ FMU state
-    def get_state(self) -> dict:
-        """The instance's state: the part every kind shares and the kind's own (``_state``)."""
+    # The binary saves and restores a state natively: a copy of the arrays x and work (fmus/c/
+    # fmu_sync_runtime.c, "FMU states"). Here: that copy's serialized form (``serialize``, the dict of
+    # ``get_state`` sealed), and a serialized state checked and turned into such a copy
+    # (``deserialize``: what ``set_state`` makes of it, computed on copies of the arrays).
+    def get_state(self, x=None, work=None) -> dict:
+        """The state held by the arrays ``x`` and ``work`` (default: the instance's own): the part every
+        kind shares and the kind's own (``_state``)."""
+        x = self.x if x is None else x
+        work = self.work if work is None else work
         return {"format": self.STATE_FORMAT, "model": self.slave.MODEL,
-                "phase": _PHASE_NAMES.get(int(self.work[S.H_PHASE]), "instantiated"),
-                "time": float(self.work[S.H_TIME]), "parameters": self._parameters(), **self._state()}
+                "phase": _PHASE_NAMES.get(int(work[S.H_PHASE]), "instantiated"),
+                "time": float(work[S.H_TIME]), "parameters": self._parameters(x), **self._state(x, work)}
 
     def set_state(self, s) -> str:
         """Restore a saved state (checked by ``state_reason``; a refused one changes nothing)."""
         reason, cfg = self.state_reason(s)
         if reason:
             return f"E:{self.calls['set_state']}: {reason}; state unchanged"
+        self._apply(s, cfg)
+        return ""
+
+    def _apply(self, s, cfg) -> None:
         for name, value in s["parameters"].items():
             self.x[self.index[name]] = value
         self.work[S.H_TIME] = s["time"]
         self.work[S.H_PHASE] = PHASES[s["phase"]]
         self._restore(s, cfg)
-        return ""
 
     def state_reason(self, s) -> tuple[str | None, object]:
         """(None, configuration) for a valid saved state of this instance, else (reason, None)."""
         raise NotImplementedError
 
-    def serialize(self, s) -> bytes:
-        return self.slave.state_to_bytes(s)
+    def _split(self, arrays: bytes) -> tuple[np.ndarray, np.ndarray]:
+        """x and work of a native state's bytes (x, then work, float64)."""
+        a = np.frombuffer(arrays, dtype=np.float64)
+        nx = self.x.shape[0]
+        if a.shape[0] != nx + self.work.shape[0]:
+            raise ValueError(f"a native FMU state of {a.shape[0]} values, this instance has {nx} + "
+                             f"{self.work.shape[0]}")
+        return a[:nx], a[nx:]
 
-    def deserialize(self, data: bytes):
+    def serialize(self, arrays: bytes) -> bytes:
+        """The sealed JSON form of a native state (its arrays' bytes)."""
+        return self.slave.state_to_bytes(self.get_state(*self._split(arrays)))
+
+    def deserialize(self, data: bytes) -> tuple[str, bytes | None]:
+        """(reply, the arrays x and work, as bytes, of the state ``data`` restored) or (the refusal,
+        None); this instance is unchanged."""
         try:
             s = self.slave.state_from_bytes(data)
         except Exception as exc:
             return (f"E:{self.calls['deserialize']}: cannot deserialise the FMU state ({len(data)} bytes): {exc}",
                     None)
-        reason, _ = self.state_reason(s)
+        reason, cfg = self.state_reason(s)
         if reason:
             return f"E:{self.calls['deserialize']}: {reason}", None
-        return "", s
+        own = self.x, self.work, self.cfg
+        self.x, self.work = self.x.copy(), self.work.copy()
+        try:
+            self._apply(s, cfg)
+            return "", self.x.tobytes() + self.work.tobytes()
+        finally:
+            self.x, self.work, self.cfg = own
 
 
 class FMUInstance(InstanceBase):
@@ -297,15 +327,14 @@ class FMUInstance(InstanceBase):
                 f"will be refused ({self.calls['error']}); use solver.dt >= {H / self.max_substeps:.6g} or smaller steps")
 
     # ------------------------------------------------------------ FMU state
-    def _state(self) -> dict:
-        x = self.x
+    def _state(self, x, work) -> dict:
         return {
             "q": x[self.i_q:self.i_q + self.n].tolist(),
             "u": x[self.i_u:self.i_u + self.n].tolist(),
             "tau": x[self.i_tau:self.i_tau + self.m].tolist(),
-            "taudot": self.work[self.i_taudot:self.i_taudot + self.m].tolist(),
-            "vref": float(self.work[S.H_VREF]),
-            "pending": [float(self.work[S.H_PEND_U]), float(self.work[S.H_PEND_P])],
+            "taudot": work[self.i_taudot:self.i_taudot + self.m].tolist(),
+            "vref": float(work[S.H_VREF]),
+            "pending": [float(work[S.H_PEND_U]), float(work[S.H_PEND_P])],
             "impacts": int(x[self.i_impacts]),
             "percussion": float(x[self.i_perc]),
         }

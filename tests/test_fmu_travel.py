@@ -110,6 +110,7 @@ def test_a_python_without_numpy_is_refused_with_the_command(travel):
     assert f"lacks numpy (the FMU needs numpy{spec}" in err, err
     assert re.search(re.escape(f"{bare}/bin/python3 -m pip install ") + r"('[^']+' )*" + re.escape(f"'numpy{spec}'"),
                      err), err
+    assert f"{bare}/bin/python3 -m ensurepip && " in err, err     # the venv has no pip: bootstrapped first
     assert str(travel["gone"]) in err and "gone" in err         # what was tried, the recorded one gone
 
 

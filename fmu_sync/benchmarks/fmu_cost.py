@@ -12,6 +12,11 @@ process. The ratio ours / minimal is the price of our FMI layer and model over
 what any FMU costs in that loop. Times are CPU time per communication step,
 best of ``--repeat`` interleaved runs of ``--steps`` steps.
 
+Rollback: fmi2GetFMUstate (+ fmi2FreeFMUstate) and fmi2SetFMUstate against a doStep of 10
+internal steps (H = 10 dt), CPU time per call through fmpy, for our oscillator FMU and our
+coupling FMU (the master's event-aware retake and any rollback pay them; target: a set costs
+at most 5 doSteps of 10 internal steps).
+
 First-step latency: fresh ``python`` processes, each with an empty cache folder
 (``FMU_SYNC_CACHE``: a first use), time instantiate -> setup/enter/exit initialization -> the
 first finished doStep; the median over ``--fresh`` processes is printed, with, for the
@@ -118,56 +123,108 @@ def _cpu_per_step(fn, steps: int, repeat: int) -> float:
     return best
 
 
-def per_step_costs(fmu_path: Path, minimal_path: Path, steps: int, repeat: int) -> dict:
-    """CPU µs per communication step (set + doStep + get), ours and the minimal C FMU, interleaved."""
-    import shutil
-
+def _started(path: Path, name: str):
+    """(fmpy FMU2Slave in step mode at t = 0, its unpacked folder, its model description)."""
     from fmpy import extract, read_model_description
     from fmpy.fmi2 import FMU2Slave
+    md = read_model_description(str(path))
+    d = extract(str(path))
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=d, modelIdentifier=md.coSimulation.modelIdentifier,
+                    instanceName=name)
+    fmu.instantiate()
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    return fmu, d, md
 
+
+def _best_interleaved(loops: dict, n: int, repeat: int) -> dict:
+    """CPU seconds per iteration of each ``loops[key](n)``, best of ``repeat`` interleaved rounds."""
+    best = {k: float("inf") for k in loops}
+    for _ in range(repeat):
+        for key, fn in loops.items():
+            t0 = time.process_time()
+            fn(n)
+            best[key] = min(best[key], (time.process_time() - t0) / n)
+    return best
+
+
+def _close(opened) -> None:
+    import shutil
+    for fmu, d in opened:
+        fmu.terminate()
+        fmu.freeInstance()
+        shutil.rmtree(d, ignore_errors=True)
+
+
+def per_step_costs(fmu_path: Path, minimal_path: Path, steps: int, repeat: int) -> dict:
+    """CPU µs per communication step (set + doStep + get), ours and the minimal C FMU, interleaved."""
     dt = 1e-3
     loops, cleanup = {}, []
-    for label, path, H in (("our FMU, H = dt (1 internal step)", fmu_path, dt),
-                           ("our FMU, H = 10 dt", fmu_path, 10 * dt),
-                           ("minimal C FMU (trivial step)", minimal_path, dt)):
-        md = read_model_description(str(path))
-        vr = {v.name: v.valueReference for v in md.modelVariables}
-        d = extract(str(path))
-        fmu = FMU2Slave(guid=md.guid, unzipDirectory=d, modelIdentifier=md.coSimulation.modelIdentifier,
-                        instanceName=label[:12])
-        fmu.instantiate()
-        fmu.setupExperiment(startTime=0.0)
-        fmu.enterInitializationMode()
-        fmu.exitInitializationMode()
-        cleanup.append((fmu, d))
-        state = {"t": 0.0}
-        vin, vout = [vr["tau"]], [vr["q"], vr["u"]]
-
-        def loop(n, fmu=fmu, H=H, state=state, vin=vin, vout=vout):
-            t = state["t"]
-            setReal, doStep, getReal = fmu.setReal, fmu.doStep, fmu.getReal
-            for _ in range(n):
-                setReal(vin, [0.1])
-                doStep(t, H)
-                getReal(vout)
-                t += H
-            state["t"] = t
-
-        loop(200)  # warm
-        loops[label] = loop
-    best = {k: float("inf") for k in loops}
     try:
-        for _ in range(repeat):
-            for label, fn in loops.items():
-                t0 = time.process_time()
-                fn(steps)
-                best[label] = min(best[label], (time.process_time() - t0) / steps)
+        for label, path, H in (("our FMU, H = dt (1 internal step)", fmu_path, dt),
+                               ("our FMU, H = 10 dt", fmu_path, 10 * dt),
+                               ("minimal C FMU (trivial step)", minimal_path, dt)):
+            fmu, d, md = _started(path, label[:12])
+            cleanup.append((fmu, d))
+            vr = {v.name: v.valueReference for v in md.modelVariables}
+            state = {"t": 0.0}
+            vin, vout = [vr["tau"]], [vr["q"], vr["u"]]
+
+            def loop(n, fmu=fmu, H=H, state=state, vin=vin, vout=vout):
+                t = state["t"]
+                setReal, doStep, getReal = fmu.setReal, fmu.doStep, fmu.getReal
+                for _ in range(n):
+                    setReal(vin, [0.1])
+                    doStep(t, H)
+                    getReal(vout)
+                    t += H
+                state["t"] = t
+
+            loop(200)  # warm
+            loops[label] = loop
+        return _best_interleaved(loops, steps, repeat)
     finally:
-        for fmu, d in cleanup:
-            fmu.terminate()
-            fmu.freeInstance()
-            shutil.rmtree(d, ignore_errors=True)
-    return best
+        _close(cleanup)
+
+
+def state_costs(fmu_path: Path, coupling_path: Path, calls: int, repeat: int) -> dict:
+    """CPU µs per call of doStep (H = 10 dt), fmi2GetFMUstate + fmi2FreeFMUstate and fmi2SetFMUstate,
+    through fmpy, for our oscillator FMU and our coupling FMU (best of ``repeat``, interleaved)."""
+    H = 10 * 1e-3
+    opened, states, loops = [], [], {}
+    try:
+        for label, path in (("oscillator FMU", fmu_path), ("coupling FMU", coupling_path)):
+            fmu, d, _ = _started(path, label[:10])
+            opened.append((fmu, d))
+            clock = {"t": 0.0}
+            saved = fmu.getFMUstate()
+            states.append((fmu, saved))
+
+            def step(n, fmu=fmu, clock=clock):
+                t = clock["t"]
+                for _ in range(n):
+                    fmu.doStep(t, H)
+                    t += H
+                clock["t"] = t
+
+            def get(n, fmu=fmu):
+                for _ in range(n):
+                    fmu.freeFMUstate(fmu.getFMUstate())
+
+            def put(n, fmu=fmu, saved=saved, clock=clock):
+                for _ in range(n):
+                    fmu.setFMUstate(saved)
+                clock["t"] = 0.0
+
+            for what, fn in (("doStep (H = 10 dt)", step), ("get + free state", get), ("set state", put)):
+                loops[(label, what)] = fn
+        best = _best_interleaved(loops, calls, repeat)
+    finally:
+        for fmu, saved in states:
+            fmu.freeFMUstate(saved)
+        _close(opened)
+    return {f"{label}: {what}": v * 1e6 for (label, what), v in best.items()}
 
 
 def _run_child(code: str, args: list[str], timeout: float = 120.0, env: dict | None = None):
@@ -210,12 +267,16 @@ def _measure(steps: int, repeat: int, fresh: int, exit_n: int = 0) -> dict:
     with tempfile.TemporaryDirectory(prefix="bench-fmu-") as tmp:
         fmu_path = export_fmu("impact-oscillator", Path(tmp) / "ImpactOscillator.fmu")
         minimal = build_minimal_fmu(fmu_path, Path(tmp) / "Minimal.fmu")
+        coupling = export_fmu("coupling", Path(tmp) / "Coupling.fmu")
         res = {"per_step_us": {k: v * 1e6 for k, v in per_step_costs(fmu_path, minimal, steps, repeat).items()},
+               "state_us": state_costs(fmu_path, coupling, max(steps // 10, 200), repeat),
                "first_step_latency_ms": {k: v * 1e3 for k, v in first_step_latency(fmu_path, fresh).items()}}
         if exit_n:
             res["exit_check"] = exit_check(fmu_path, exit_n)
-    per = res["per_step_us"]
+    per, sc = res["per_step_us"], res["state_us"]
     res["ratio_H_dt"] = per["our FMU, H = dt (1 internal step)"] / per["minimal C FMU (trivial step)"]
+    step = sc["oscillator FMU: doStep (H = 10 dt)"]
+    res["set_vs_doStep"] = {k.split(":")[0]: sc[k] / step for k in sc if k.endswith("set state")}
     return res
 
 
@@ -229,7 +290,14 @@ def run(quick: bool = False) -> str:
              "| FMU | µs per step | vs minimal C FMU |", "|---|---:|---:|"]
     base = per["minimal C FMU (trivial step)"]
     lines += [f"| {k} | {v:.2f} | ×{v / base:.2f} |" for k, v in per.items()]
-    lines += ["", f"Target: our FMU at H = dt ≤ ×1.2 the minimal C FMU; measured ×{res['ratio_H_dt']:.2f}.", "",
+    lines += ["", f"Target: our FMU at H = dt ≤ ×1.2 the minimal C FMU; measured ×{res['ratio_H_dt']:.2f}.", ""]
+    lines += [f"Rollback (CPU µs per call through fmpy, best of {repeat}; the FMU state is a native copy of "
+              f"the instance's arrays):", "", "| call | µs | vs the oscillator's doStep of 10 internal steps |",
+              "|---|---:|---:|"]
+    step = res["state_us"]["oscillator FMU: doStep (H = 10 dt)"]
+    lines += [f"| {k} | {v:.2f} | ×{v / step:.2f} |" for k, v in res["state_us"].items()]
+    worst = max(res["set_vs_doStep"].values())
+    lines += ["", f"Target: fmi2SetFMUstate ≤ ×5 a doStep of 10 internal steps; measured ×{worst:.2f} at most.", "",
               f"First doStep in a fresh process, empty cache (median of {fresh}):", "",
               "| phase | ms |", "|---|---:|"]
     lines += [f"| {k} | {v:.1f} |" for k, v in lat.items()]
@@ -256,6 +324,10 @@ def main(argv=None) -> int:
     base = results["per_step_us"]["minimal C FMU (trivial step)"]
     for k, v in results["per_step_us"].items():
         print(f"  {k:<40} {v:8.2f} us   x{v / base:.2f}")
+    print("Rollback, CPU time per call (vs the oscillator's doStep of 10 internal steps):")
+    step = results["state_us"]["oscillator FMU: doStep (H = 10 dt)"]
+    for k, v in results["state_us"].items():
+        print(f"  {k:<40} {v:8.2f} us   x{v / step:.2f}")
     print(f"First doStep in a fresh process, empty cache (median of {args.fresh}):")
     for k, v in results["first_step_latency_ms"].items():
         print(f"  {k:<40} {v:8.1f} ms")

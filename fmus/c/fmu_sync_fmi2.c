@@ -119,8 +119,8 @@ static void glue_log(void *ctx, int status, const char *text) {
 #define logf_(c, s, ...) ((void)fsr_logf(&(c)->rt, (s), __VA_ARGS__))
 
 /* a reply method of the Python instance; a Python exception makes the instance fatal */
-static fmi2Status call_py(Instance *c, const char *method, fsr_state *arg) {
-    int s = fsr_call(&c->rt, method, arg);
+static fmi2Status call_py(Instance *c, const char *method) {
+    int s = fsr_call(&c->rt, method);
     if (s == FSR_FATAL) c->state = ST_FATAL;
     return (fmi2Status)s;
 }
@@ -261,7 +261,7 @@ EXPORT fmi2Status fmi2EnterInitializationMode(fmi2Component comp) {
 EXPORT fmi2Status fmi2ExitInitializationMode(fmi2Component comp) {
     Instance *c;
     if (invalid(comp, F_ExitInit, &c)) return fmi2Error;
-    fmi2Status s = call_py(c, "exit_initialization", NULL);
+    fmi2Status s = call_py(c, "exit_initialization");
     if (s >= fmi2Error) return s;        /* stays in initialization mode: fix the parameters and retry */
     c->init_dirty = 0;
     c->state = ST_STEP;
@@ -279,7 +279,7 @@ EXPORT fmi2Status fmi2Terminate(fmi2Component comp) {
 EXPORT fmi2Status fmi2Reset(fmi2Component comp) {
     Instance *c;
     if (invalid(comp, F_Reset, &c)) return fmi2Error;
-    fmi2Status s = call_py(c, "reset", NULL);
+    fmi2Status s = call_py(c, "reset");
     if (s >= fmi2Error) return s;
     c->state = ST_INSTANTIATED;
     c->rt.stop_defined = 0;              /* as after fmi2Instantiate: no experiment set up */
@@ -292,7 +292,7 @@ EXPORT fmi2Status fmi2Reset(fmi2Component comp) {
  * FMU (the coupling) by the stepper, without Python. */
 static fmi2Status refresh_if_dirty(Instance *c) {
     if (c->state == ST_INIT && c->init_dirty) {
-        fmi2Status s = call_py(c, "refresh", NULL);
+        fmi2Status s = call_py(c, "refresh");
         if (s != fmi2OK) return s;   /* warning: outputs NaN, the parameters not a valid set yet (reason logged) */
         c->init_dirty = 0;
         c->outputs_stale = 0;
@@ -411,13 +411,7 @@ EXPORT fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], 
     return no_such_type(c, F_SetString, n, "String");
 }
 
-/* ------------------------------------------------------------ FMU state (Python) */
-static fsr_state *as_state(Instance *c, int call, fmi2FMUstate s) {
-    fsr_state *st = fsr_state_check(s);
-    if (!st) refuse(c, fmi2Error, "%s: not an FMU state of this FMU (NULL or freed handle)", CALLS[call].name);
-    return st;
-}
-
+/* ------------------------------------------------------------ FMU state (native copies) */
 EXPORT fmi2Status fmi2GetFMUstate(fmi2Component comp, fmi2FMUstate *state) {
     Instance *c;
     if (invalid(comp, F_GetFMUstate, &c)) return fmi2Error;
@@ -430,24 +424,21 @@ EXPORT fmi2Status fmi2GetFMUstate(fmi2Component comp, fmi2FMUstate *state) {
 EXPORT fmi2Status fmi2SetFMUstate(fmi2Component comp, fmi2FMUstate state) {
     Instance *c;
     if (invalid(comp, F_SetFMUstate, &c)) return fmi2Error;
-    fsr_state *st = as_state(c, F_SetFMUstate, state);
-    if (!st) return fmi2Error;
-    fmi2Status s = call_py(c, "set_state", st);
-    if (s >= fmi2Error) return s;      /* refused: nothing changed */
-    int phase = (int)c->rt.work[FSR_H_PHASE];
-    if (phase == ST_INSTANTIATED || phase == ST_INIT || phase == ST_STEP || phase == ST_TERMINATED)
-        c->state = phase;
-    c->init_dirty = c->state == ST_INIT;
-    c->outputs_stale = 0;                /* set_state computed the outputs of the restored inputs */
+    fsr_state *st = fsr_state_of(&c->rt, "fmi2SetFMUstate", state);
+    if (!st) return fmi2Error;           /* refused: nothing changed */
+    fsr_state_set(&c->rt, st);
+    c->state = (int)c->rt.work[FSR_H_PHASE];
+    c->init_dirty = c->state == ST_INIT;   /* outputs of the restored parameters at the next read */
+    c->outputs_stale = 0;                /* the saved outputs are those of the saved inputs */
     c->last_successful_time = c->rt.work[FSR_H_TIME];
-    return s;
+    return fmi2OK;
 }
 
 EXPORT fmi2Status fmi2FreeFMUstate(fmi2Component comp, fmi2FMUstate *state) {
     Instance *c;
     if (invalid(comp, F_FreeFMUstate, &c)) return fmi2Error;
     if (!state || !*state) return fmi2OK;
-    fsr_state *st = as_state(c, F_FreeFMUstate, *state);
+    fsr_state *st = fsr_state_of(&c->rt, "fmi2FreeFMUstate", *state);
     if (!st) return fmi2Error;
     fsr_state_free(st);
     *state = NULL;
@@ -457,7 +448,7 @@ EXPORT fmi2Status fmi2FreeFMUstate(fmi2Component comp, fmi2FMUstate *state) {
 EXPORT fmi2Status fmi2SerializedFMUstateSize(fmi2Component comp, fmi2FMUstate state, size_t *size) {
     Instance *c;
     if (invalid(comp, F_SerializedSize, &c)) return fmi2Error;
-    fsr_state *st = as_state(c, F_SerializedSize, state);
+    fsr_state *st = fsr_state_of(&c->rt, "fmi2SerializedFMUstateSize", state);
     if (!st || !size) return st ? refuse(c, fmi2Error, "fmi2SerializedFMUstateSize: size is NULL") : fmi2Error;
     return (fmi2Status)fsr_state_serialize(&c->rt, "fmi2SerializedFMUstateSize", st, NULL, 0, size);
 }
@@ -465,7 +456,7 @@ EXPORT fmi2Status fmi2SerializedFMUstateSize(fmi2Component comp, fmi2FMUstate st
 EXPORT fmi2Status fmi2SerializeFMUstate(fmi2Component comp, fmi2FMUstate state, fmi2Byte out[], size_t size) {
     Instance *c;
     if (invalid(comp, F_Serialize, &c)) return fmi2Error;
-    fsr_state *st = as_state(c, F_Serialize, state);
+    fsr_state *st = fsr_state_of(&c->rt, "fmi2SerializeFMUstate", state);
     if (!st) return fmi2Error;
     if (!out && size) return refuse(c, fmi2Error, "fmi2SerializeFMUstate: buffer is NULL");
     char empty[1];

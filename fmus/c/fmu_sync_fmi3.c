@@ -245,7 +245,7 @@ EXPORT fmi3Status fmi3EnterInitializationMode(fmi3Instance inst, fmi3Boolean tol
 EXPORT fmi3Status fmi3ExitInitializationMode(fmi3Instance inst) {
     Instance *c;
     if (invalid(inst, F_ExitInit, NULL, &c)) return fmi3Error;
-    int s = fsr_call(&c->rt, "exit_initialization", NULL);
+    int s = fsr_call(&c->rt, "exit_initialization");
     if (s >= fmi3Error) return checked(c, s);   /* stays in initialization mode: fix the parameters and retry */
     c->init_dirty = 0;
     c->state = c->event_mode_used ? ST_EVENT : ST_STEP;
@@ -279,7 +279,7 @@ EXPORT fmi3Status fmi3Terminate(fmi3Instance inst) {
 EXPORT fmi3Status fmi3Reset(fmi3Instance inst) {
     Instance *c;
     if (invalid(inst, F_Reset, NULL, &c)) return fmi3Error;
-    int s = fsr_call(&c->rt, "reset", NULL);
+    int s = fsr_call(&c->rt, "reset");
     if (s >= fmi3Error) return checked(c, s);
     c->state = ST_INSTANTIATED;
     c->rt.stop_defined = 0;              /* as after fmi3Instantiate: no experiment set up */
@@ -289,7 +289,7 @@ EXPORT fmi3Status fmi3Reset(fmi3Instance inst) {
 /* ------------------------------------------------------------ variables */
 static fmi3Status refresh_if_dirty(Instance *c) {
     if (c->state == ST_INIT && c->init_dirty) {
-        int s = fsr_call(&c->rt, "refresh", NULL);
+        int s = fsr_call(&c->rt, "refresh");
         if (s >= fmi3Error) return checked(c, s);
         if (s != fmi3OK) return (fmi3Status)s;   /* outputs NaN: parameters not a valid set yet (reason logged) */
         c->init_dirty = 0;
@@ -448,31 +448,26 @@ EXPORT fmi3Status fmi3GetFMUState(fmi3Instance inst, fmi3FMUState *state) {
     if (!state) return refuse(c, fmi3Error, "fmi3GetFMUState: FMUState is NULL");
     if (refresh_if_dirty(c) >= fmi3Error) return fmi3Error;
     c->rt.work[FSR_H_PHASE] = c->state;
-    fsr_state *st = fsr_state_check(*state);
-    int s = fsr_state_get(&c->rt, "fmi3GetFMUState", &st);
-    if (s < fmi3Error) *state = st;
-    return checked(c, s);
+    return checked(c, fsr_state_get(&c->rt, "fmi3GetFMUState", (fsr_state **)state));
 }
 
 EXPORT fmi3Status fmi3SetFMUState(fmi3Instance inst, fmi3FMUState state) {
     Instance *c;
     if (invalid(inst, F_SetFMUState, NULL, &c)) return fmi3Error;
-    fsr_state *st = fsr_state_check(state);
-    if (!st) return refuse(c, fmi3Error, "fmi3SetFMUState: not an FMU state of this FMU (NULL or freed)");
-    int s = fsr_state_set(&c->rt, st);
-    if (s >= fmi3Error) return checked(c, s);    /* refused: nothing changed */
-    int phase = (int)c->rt.work[FSR_H_PHASE];
-    if (phase & ST_ALIVE) c->state = phase;
-    c->init_dirty = c->state == ST_INIT;
-    return (fmi3Status)s;
+    fsr_state *st = fsr_state_of(&c->rt, "fmi3SetFMUState", state);
+    if (!st) return fmi3Error;                   /* refused: nothing changed */
+    fsr_state_set(&c->rt, st);
+    c->state = (int)c->rt.work[FSR_H_PHASE];
+    c->init_dirty = c->state == ST_INIT;         /* outputs of the restored parameters at the next read */
+    return fmi3OK;
 }
 
 EXPORT fmi3Status fmi3FreeFMUState(fmi3Instance inst, fmi3FMUState *state) {
     Instance *c;
     if (invalid(inst, F_FreeFMUState, NULL, &c)) return fmi3Error;
     if (!state || !*state) return fmi3OK;
-    fsr_state *st = fsr_state_check(*state);
-    if (!st) return refuse(c, fmi3Error, "fmi3FreeFMUState: not an FMU state of this FMU (freed already?)");
+    fsr_state *st = fsr_state_of(&c->rt, "fmi3FreeFMUState", *state);
+    if (!st) return fmi3Error;
     fsr_state_free(st);
     *state = NULL;
     return fmi3OK;
@@ -481,18 +476,18 @@ EXPORT fmi3Status fmi3FreeFMUState(fmi3Instance inst, fmi3FMUState *state) {
 EXPORT fmi3Status fmi3SerializedFMUStateSize(fmi3Instance inst, fmi3FMUState state, size_t *size) {
     Instance *c;
     if (invalid(inst, F_SerializedSize, NULL, &c)) return fmi3Error;
-    fsr_state *st = fsr_state_check(state);
-    if (!st || !size) return refuse(c, fmi3Error, "fmi3SerializedFMUStateSize: %s", st ? "size is NULL" :
-                                    "not an FMU state of this FMU");
+    fsr_state *st = fsr_state_of(&c->rt, "fmi3SerializedFMUStateSize", state);
+    if (!st) return fmi3Error;
+    if (!size) return refuse(c, fmi3Error, "fmi3SerializedFMUStateSize: size is NULL");
     return checked(c, fsr_state_serialize(&c->rt, "fmi3SerializedFMUStateSize", st, NULL, 0, size));
 }
 
 EXPORT fmi3Status fmi3SerializeFMUState(fmi3Instance inst, fmi3FMUState state, fmi3Byte out[], size_t size) {
     Instance *c;
     if (invalid(inst, F_Serialize, NULL, &c)) return fmi3Error;
-    fsr_state *st = fsr_state_check(state);
-    if (!st || !out) return refuse(c, fmi3Error, "fmi3SerializeFMUState: %s", st ? "serializedState is NULL" :
-                                   "not an FMU state of this FMU");
+    fsr_state *st = fsr_state_of(&c->rt, "fmi3SerializeFMUState", state);
+    if (!st) return fmi3Error;
+    if (!out) return refuse(c, fmi3Error, "fmi3SerializeFMUState: serializedState is NULL");
     size_t n = 0;
     return checked(c, fsr_state_serialize(&c->rt, "fmi3SerializeFMUState", st, (char *)out, size, &n));
 }
@@ -504,7 +499,7 @@ EXPORT fmi3Status fmi3DeserializeFMUState(fmi3Instance inst, const fmi3Byte data
     fsr_state *st = NULL;
     int s = fsr_state_deserialize(&c->rt, "fmi3DeserializeFMUState", (const char *)data, size, &st);
     if (s < fmi3Error) {
-        fsr_state *old = fsr_state_check(*state);
+        fsr_state *old = fsr_state_check(&c->rt, *state);   /* a state of this instance is replaced */
         if (old) fsr_state_free(old);
         *state = st;
     }

@@ -246,18 +246,11 @@ static int log_reply(fsr_instance *inst, const char *text) {
     return worst;
 }
 
-struct fsr_state {
-    uint32_t magic;
-    PyObject *obj;                  /* the Python state snapshot */
-};
-#define STATE_MAGIC 0x66737353u
-
 /* Call a method of the Python instance that returns a reply string (no
- * argument, or a saved state); log it; return its worst status (FSR_FATAL if
- * Python itself failed). */
-int fsr_call(fsr_instance *inst, const char *method, fsr_state *arg) {
+ * argument); log it; return its worst status (FSR_FATAL if Python itself failed). */
+int fsr_call(fsr_instance *inst, const char *method) {
     int gil = py.GILEnsure();
-    PyObject *r = arg ? py.CallMethod(inst->obj, method, "O", arg->obj) : py.CallMethod(inst->obj, method, NULL);
+    PyObject *r = py.CallMethod(inst->obj, method, NULL);
     int s;
     if (!r) {
         char err[2000];
@@ -381,6 +374,8 @@ void fsr_bound_text(const fsr_instance *inst, unsigned vr, char *out, size_t n) 
 }
 
 /* ------------------------------------------------------------ instance */
+static uint64_t g_serial = 0;       /* instances made by this binary (fsr_instance.serial) */
+
 /* layout handed over by FMUInstance.layout() (fmus/runtime.py: LAYOUT -> FSR_L_*) */
 static int take_layout(fsr_instance *inst, char *err, size_t n) {
     /* called with the GIL held */
@@ -410,6 +405,8 @@ static int take_layout(fsr_instance *inst, char *err, size_t n) {
                  FSR_VERSION);
         return 0;
     }
+    inst->nwork = (size_t)inst->work[FSR_H_LEN];
+    inst->serial = __atomic_add_fetch(&g_serial, 1, __ATOMIC_RELAXED);
     inst->name_of = calloc(inst->nvars, sizeof(char *));
     inst->hint_of = calloc(inst->nvars, sizeof(char *));
     if (!inst->name_of || !inst->hint_of) { snprintf(err, n, "out of memory"); return 0; }
@@ -469,52 +466,84 @@ void fsr_free(fsr_instance *inst) {
 }
 
 /* ------------------------------------------------------------ FMU states */
-fsr_state *fsr_state_check(void *handle) {
+/* A state is a copy of the instance's two arrays, the variables x and the work array (time, phase,
+ * q, u, inputs and their derivatives, parameters, the packed configuration, vref, the pending
+ * impact, the coupling's memory): saving and restoring copy them, no Python and no GIL. Python
+ * builds the serialized form from such a copy and checks a deserialized one into one
+ * (fmus/runtime.py, InstanceBase.serialize / deserialize). The owner (binary, instance, serial)
+ * refuses a state of another instance: the arrays' layout is the instance's own. */
+struct fsr_state {
+    uint32_t magic;
+    const void *binary;             /* &g_serial of the binary that made it */
+    const fsr_instance *owner;
+    uint64_t serial;                /* the owner's serial (a freed owner's address may be reused) */
+    size_t nx, nw;
+    double data[];                  /* x (nx), then the work array (nw) */
+};
+#define STATE_MAGIC 0x66737354u
+
+static fsr_state *state_check(void *handle) {
     fsr_state *st = (fsr_state *)handle;
-    return st && st->magic == STATE_MAGIC ? st : NULL;
+    return st && st->magic == STATE_MAGIC && st->binary == (const void *)&g_serial ? st : NULL;
 }
 
-static fsr_state *new_state(PyObject *obj) {
-    fsr_state *st = calloc(1, sizeof *st);
+static int state_owned(const fsr_instance *inst, const fsr_state *st) {
+    return st->owner == inst && st->serial == inst->serial && st->nx == inst->nvars && st->nw == inst->nwork;
+}
+
+fsr_state *fsr_state_check(const fsr_instance *inst, void *handle) {
+    fsr_state *st = state_check(handle);
+    return st && state_owned(inst, st) ? st : NULL;
+}
+
+fsr_state *fsr_state_of(fsr_instance *inst, const char *call, void *handle) {
+    fsr_state *st = state_check(handle);
+    if (!st)
+        fsr_logf(inst, FSR_ERROR, "%s: not an FMU state of this FMU (NULL or freed handle, or a state of "
+                 "another FMU)", call);
+    else if (!state_owned(inst, st))
+        fsr_logf(inst, FSR_ERROR, "%s: an FMU state of another instance: a state belongs to the instance "
+                 "that saved it (serialize it there and deserialize it into this one)", call);
+    return st && state_owned(inst, st) ? st : NULL;
+}
+
+/* a new state of inst (its contents not yet written) */
+static fsr_state *alloc_state(const fsr_instance *inst) {
+    fsr_state *st = malloc(sizeof *st + ((size_t)inst->nvars + inst->nwork) * sizeof(double));
     if (!st) return NULL;
     st->magic = STATE_MAGIC;
-    st->obj = obj;
+    st->binary = &g_serial;
+    st->owner = inst;
+    st->serial = inst->serial;
+    st->nx = inst->nvars;
+    st->nw = inst->nwork;
     return st;
 }
 
 int fsr_state_get(fsr_instance *inst, const char *call, fsr_state **state) {
-    int gil = py.GILEnsure();
-    PyObject *r = py.CallMethod(inst->obj, "get_state", NULL);
-    int s = FSR_OK;
-    fsr_state *old = fsr_state_check(*state);
-    if (!r) {
-        char err[2000];
-        py_error_text(err, sizeof err);
-        s = fsr_logf(inst, FSR_ERROR, "%s: %s", call, err);
-    } else if (old) {
-        /* FMI: a non-NULL state is overwritten in place */
-        py.DecRef(old->obj);
-        old->obj = r;
-    } else {
-        fsr_state *st = new_state(r);
-        if (!st) { py.DecRef(r); s = fsr_logf(inst, FSR_ERROR, "%s: out of memory", call); }
-        else *state = st;
+    fsr_state *st = state_check(*state);
+    if (st && !state_owned(inst, st))
+        return fsr_logf(inst, FSR_ERROR, "%s: *FMUstate is an FMU state of another instance: pass NULL for a "
+                        "new state, or a state this instance saved to overwrite it", call);
+    if (!st) {
+        st = alloc_state(inst);
+        if (!st) return fsr_logf(inst, FSR_ERROR, "%s: out of memory", call);
+        *state = st;
     }
-    py.GILRelease(gil);
-    return s;
+    /* FMI: a state of this instance is overwritten in place */
+    memcpy(st->data, inst->x, st->nx * sizeof(double));
+    memcpy(st->data + st->nx, inst->work, st->nw * sizeof(double));
+    return FSR_OK;
 }
 
 int fsr_state_set(fsr_instance *inst, fsr_state *st) {
-    return fsr_call(inst, "set_state", st);
+    memcpy(inst->x, st->data, st->nx * sizeof(double));
+    memcpy(inst->work, st->data + st->nx, st->nw * sizeof(double));
+    return FSR_OK;
 }
 
 void fsr_state_free(fsr_state *st) {
     if (!st) return;
-    if (py.IsInitialized && py.IsInitialized()) {
-        int gil = py.GILEnsure();
-        py.DecRef(st->obj);
-        py.GILRelease(gil);
-    }
     st->magic = 0;
     free(st);
 }
@@ -522,7 +551,10 @@ void fsr_state_free(fsr_state *st) {
 int fsr_state_serialize(fsr_instance *inst, const char *call, fsr_state *st, char *out, size_t cap,
                         size_t *size) {
     int gil = py.GILEnsure();
-    PyObject *r = py.CallMethod(inst->obj, "serialize", "O", st->obj);
+    PyObject *b = py.BytesFromStringAndSize((const char *)st->data,
+                                            (Py_ssize_t)((st->nx + st->nw) * sizeof(double)));
+    PyObject *r = b ? py.CallMethod(inst->obj, "serialize", "O", b) : NULL;
+    if (b) py.DecRef(b);
     int s = FSR_ERROR;
     char *buf;
     Py_ssize_t len;
@@ -558,15 +590,23 @@ int fsr_state_deserialize(fsr_instance *inst, const char *call, const char *data
         py_error_text(err, sizeof err);
         fsr_logf(inst, FSR_ERROR, "%s: internal error: %s", call, err);
     } else {
-        PyObject *msg = py.TupleGetItem(r, 0), *obj = py.TupleGetItem(r, 1);
+        PyObject *msg = py.TupleGetItem(r, 0), *arrays = py.TupleGetItem(r, 1);
         s = log_reply(inst, msg ? py.UnicodeAsUTF8(msg) : "E:bad reply");
-        if (s < FSR_ERROR && obj && obj != py.None) {
-            py.IncRef(obj);
-            fsr_state *st = new_state(obj);
-            if (!st) { py.DecRef(obj); s = fsr_logf(inst, FSR_ERROR, "%s: out of memory", call); }
-            else *out = st;
+        char *buf = NULL;
+        Py_ssize_t len = 0;
+        size_t want = ((size_t)inst->nvars + inst->nwork) * sizeof(double);
+        if (s < FSR_ERROR && arrays && arrays != py.None && py.BytesAsStringAndSize(arrays, &buf, &len) == 0
+            && (size_t)len == want) {
+            fsr_state *st = alloc_state(inst);
+            if (!st) s = fsr_logf(inst, FSR_ERROR, "%s: out of memory", call);
+            else {
+                memcpy(st->data, buf, want);
+                *out = st;
+            }
         } else if (s < FSR_ERROR) {
-            s = fsr_logf(inst, FSR_ERROR, "%s: no state", call);
+            if (py.ErrOccurred()) { char e[200]; py_error_text(e, sizeof e); }
+            s = fsr_logf(inst, FSR_ERROR, "%s: internal error: no state arrays of %zu bytes from the Python "
+                         "slave", call, want);
         }
         py.DecRef(r);
     }
@@ -624,7 +664,7 @@ int fsr_step(fsr_instance *inst, double t, double H) {
     case FSR_R_OK:
         break;
     case FSR_R_INADMISSIBLE:   /* the coupling: outputs computed, an input state inside the wall (reason logged) */
-        warned = fsr_call(inst, "inadmissible", NULL);
+        warned = fsr_call(inst, "inadmissible");
         break;
     case FSR_R_EXACT_TAUDOT:
         return fsr_logf(inst, FSR_ERROR, REFUSED "solver.scheme = exact holds the input constant over a "
@@ -668,7 +708,7 @@ int fsr_outputs(fsr_instance *inst, const char *call) {
     if (fsr_native_errors != errors)
         return native_raised(inst, call);
     if (rc == FSR_R_INADMISSIBLE)         /* the coupling: outputs computed, an input state inside the wall */
-        return fsr_call(inst, "inadmissible", NULL);
+        return fsr_call(inst, "inadmissible");
     if (rc != 0)
         return fsr_logf(inst, FSR_ERROR, "%s: the outputs computed from the current inputs are not finite "
                         "(or the parameters are not a valid set)", call);

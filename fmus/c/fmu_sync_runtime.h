@@ -11,9 +11,13 @@
  *                                   then the FMU's boot module imported
  *   fsr_new(inst, resdir, name, guid)  a Python FMUInstance (fmus/runtime.py) and its layout
  *                                   (variable array x, per-variable table, work array)
- *   fsr_call(inst, method, state)   a reply method of the instance ("exit_initialization",
- *                                   "refresh", "reset", "set_state"), GIL taken inside
- *   fsr_state_get / _set / _free / _serialize / _deserialize   FMU states (Python snapshots)
+ *   fsr_call(inst, method)          a reply method of the instance ("exit_initialization",
+ *                                   "refresh", "reset", "inadmissible"), GIL taken inside
+ *   fsr_state_get / _set / _free    FMU states: native copies of the variable array x and the
+ *                                   work array (no Python, no GIL); a state belongs to the
+ *                                   instance that saved it (fsr_state_of refuses any other)
+ *   fsr_state_serialize / _deserialize   the sealed JSON form (Python: built from / checked into
+ *                                   such a copy)
  *   fsr_step(inst, t, H)            one communication step: argument checks (H, t, stopTime,
  *                                   a time that advances, the internal-step limit), the native
  *                                   stepper (fmu_sync_native.h) called, no Python, no GIL;
@@ -56,6 +60,8 @@ typedef struct fsr_instance {
     const char **hint_of;           /* per variable: its allowed values ("" if a range) */
     int stop_defined;               /* the experiment's stopTime (doStep must not pass it) */
     double stop_time;
+    size_t nwork;                   /* slots of the work array (its FSR_H_LEN) */
+    uint64_t serial;                /* this instance among the process's: the owner of its FMU states */
 } fsr_instance;
 
 typedef struct fsr_state fsr_state;  /* a saved FMU state (opaque) */
@@ -66,12 +72,17 @@ int fsr_is_dir(const char *path);
 int fsr_start(const char *resdir, char *err, size_t n);
 int fsr_new(fsr_instance *inst, const char *resdir, const char *name, const char *guid, char *err, size_t n);
 void fsr_free(fsr_instance *inst);
-int fsr_call(fsr_instance *inst, const char *method, fsr_state *arg);
+int fsr_call(fsr_instance *inst, const char *method);
 
-/* a valid state handle, or NULL (NULL or freed) */
-fsr_state *fsr_state_check(void *handle);
-/* save the instance's state into *st (overwritten in place if *st is a valid state) */
+/* the state behind handle if inst saved it; else NULL with the reason logged as FSR_ERROR under call
+ * (NULL, freed, not a state of this FMU, or saved by another instance); fsr_state_check: the same
+ * without a message */
+fsr_state *fsr_state_of(fsr_instance *inst, const char *call, void *handle);
+fsr_state *fsr_state_check(const fsr_instance *inst, void *handle);
+/* save the instance's state into *st (overwritten in place if *st is a state of inst; a new state
+ * if it is NULL or no state; FSR_ERROR if it is another instance's) */
 int fsr_state_get(fsr_instance *inst, const char *call, fsr_state **st);
+/* restore st (a state of inst: fsr_state_of): a copy back, no Python */
 int fsr_state_set(fsr_instance *inst, fsr_state *st);
 void fsr_state_free(fsr_state *st);
 /* out == NULL: only *size; else copy exactly cap bytes (cap must be the size) */
