@@ -227,7 +227,7 @@ def main(argv=None) -> int:
             parts.append(md)
 
         for name, title, module in (("hold", "Co-simulation hold: zero- vs first-order", "hold_order"),
-                                    ("implicit", "Implicit exchange: the stiff pair of issue 33", "implicit_exchange")):
+                                    ("implicit", "Implicit exchange on a stiff pair", "implicit_exchange")):
             if name not in sections:
                 continue
             if fmu is None:

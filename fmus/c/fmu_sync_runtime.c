@@ -5,8 +5,9 @@
  * function is looked up with dlsym (no link to libpython, so a plain C host can
  * load the FMU). Python (the FMU's carried code, resources/fmu_sync_code) runs
  * only to set up an instance, to validate the parameters at the end of
- * initialization, to compute outputs in initialization mode and to save /
- * restore / (de)serialise FMU states; those calls take the GIL. The
+ * initialization, to compute outputs in initialization mode and to
+ * (de)serialise FMU states (saving and restoring one is a copy here, no
+ * Python); those calls take the GIL. The
  * communication step (fsr_step) calls the native stepper fsr_native_step (the
  * numba cfunc compiled at export and linked in, fmu_sync_native.h), without the
  * GIL, on the arrays the Python instance handed over (they live as long as the
