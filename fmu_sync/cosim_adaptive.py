@@ -38,6 +38,13 @@ __all__ = ["adaptive_chunk", "free_states", "SAFETY", "FAC_MIN", "FAC_MAX", "FUL
 
 #: the controller's safety factor and bounds on the ratio of one step to the previous one
 SAFETY, FAC_MIN, FAC_MAX = 0.9, 0.2, 5.0
+#: the estimate's kinds (``kind`` of :func:`local_error`): the explicit zero- and first-order hold, the
+#: implicit exchange
+ZOH, FOH_KIND, IMPLICIT_KIND = range(3)
+#: Milne's factor of the implicit exchange: its converged (trapezoidal) force line misses a quadratic
+#: force by tau'' s (s - h)/2, whose effect on u over the step is tau'' h^3/12, against tau'' h^3/2
+#: for the ramp of the predictor-corrector difference delta = tau'' h^2 in the formulas
+MILNE = 1.0 / 6.0
 #: outcome of a chunk whose record (rows or steps) is full: the master grows it and goes on
 FULL = 5
 # ad: the run's settings (tolerance, t_end, the step unit = the slaves' solver.dt, the largest step H)
@@ -88,7 +95,7 @@ def error_forms(delta, Minv, Qn, Mn, v):
 
 
 @njit(cache=True, inline="always")
-def local_error(h_new, h, eq, eu, unit, foh):
+def local_error(h_new, h, eq, eu, unit, kind):
     """The estimated local coupling error of one node over a step of length ``h_new``, in q's
     unit, from the force mismatch delta of a step of length ``h`` (its forms ``eq``, ``eu``,
     :func:`error_forms`; ``h_new = h``: the step's own estimate).
@@ -101,17 +108,23 @@ def local_error(h_new, h, eq, eu, unit, foh):
     c_u = h/2, c_q = h^2/6. The norm is the law's metric ``sqrt(dq' Q dq + du' M du)`` over
     sqrt(lambda_min(Q)): for one degree of freedom sqrt(dq^2 + du^2 m/Q), the position
     amplitude the state error carries. For another step length delta is scaled as the hold's
-    mismatch grows away from impacts: as h (zero-order hold) or h^2 (first-order hold)."""
-    x = h_new if foh else max(h_new - unit, 0.0)
+    mismatch grows away from impacts: as h (zero-order hold) or h^2 (first-order hold). ``kind``
+    :data:`IMPLICIT_KIND`: delta is the converged end force against the explicit first-order
+    prediction, taken as the first-order hold's and scaled by :data:`MILNE` (the converged
+    step's own error, Milne's device)."""
+    second = kind != ZOH
+    x = h_new if second else max(h_new - unit, 0.0)
     cu = 0.5 * x
     cq = h_new * x / 6.0
     r = h_new / h
-    scale = r * r if foh else r
+    scale = r * r if second else r
+    if kind == IMPLICIT_KIND:
+        scale *= MILNE
     return scale * math.sqrt(max(cq * cq * eq + cu * cu * eu, 0.0))
 
 
 @njit(cache=True, inline="always")
-def next_step(h, eq, eu, tol, t_end, foh, unit, H, mode):
+def next_step(h, eq, eu, tol, t_end, kind, unit, H, mode):
     """The controller: the longest whole multiple m unit of the step unit whose predicted error
     (:func:`local_error` from this step's mismatch) is at most SAFETY times its share
     tol m unit / t_end, with m unit in [FAC_MIN h, FAC_MAX h] and [unit, H]; ``mode`` 1: not
@@ -124,13 +137,13 @@ def next_step(h, eq, eu, tol, t_end, foh, unit, H, mode):
         m_hi = min(m_hi, m_h - 1)
     m_hi = max(1.0, m_hi)
     m_lo = min(m_hi, max(1.0, math.ceil(FAC_MIN * h / unit - 1e-9)))
-    if local_error(m_hi * unit, h, eq, eu, unit, foh) <= SAFETY * tol * m_hi * unit / t_end:
+    if local_error(m_hi * unit, h, eq, eu, unit, kind) <= SAFETY * tol * m_hi * unit / t_end:
         return m_hi * unit
-    if not local_error(m_lo * unit, h, eq, eu, unit, foh) <= SAFETY * tol * m_lo * unit / t_end:
+    if not local_error(m_lo * unit, h, eq, eu, unit, kind) <= SAFETY * tol * m_lo * unit / t_end:
         return m_lo * unit
     while m_hi - m_lo > 1:   # m_lo passes, m_hi does not
         m = math.floor(0.5 * (m_lo + m_hi))
-        if local_error(m * unit, h, eq, eu, unit, foh) <= SAFETY * tol * m * unit / t_end:
+        if local_error(m * unit, h, eq, eu, unit, kind) <= SAFETY * tol * m * unit / t_end:
             m_lo = m
         else:
             m_hi = m
@@ -163,7 +176,8 @@ def adaptive_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, ad, norm
     N, n = q.shape[0], q.shape[1]
     need_d = flags[NEED_D] != 0
     implicit = flags[IMPLICIT] != 0
-    foh = flags[FOH] != 0 or implicit   # the estimate of the implicit exchange: its explicit prediction's
+    foh = flags[FOH] != 0 or implicit   # the implicit exchange is measured against its explicit prediction
+    kind = IMPLICIT_KIND if implicit else FOH_KIND if foh else ZOH
     jacobi = flags[GAUSS_SEIDEL] == 0
     every = flags[RECORD_EVERY]
     tol, t_end, unit, H = ad[A_TOL], ad[A_T_END], ad[A_UNIT], ad[A_H]
@@ -228,7 +242,7 @@ def adaptive_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, ad, norm
                     held += (tau[i, c] - hts[i, c]) / (t - hs[0]) * h
                 delta[c] = tau_end[i, c] - held
             eq, eu = error_forms(delta, Minv, Qn, Mn, v)
-            err = max(err, local_error(h, h, eq, eu, unit, foh))
+            err = max(err, local_error(h, h, eq, eu, unit, kind))
             eq_max = max(eq_max, eq)
             eu_max = max(eu_max, eu)
         share = tol * h / t_end
@@ -242,7 +256,7 @@ def adaptive_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, ad, norm
                 return FAIL[0]
             _copies(True, (q, u, hist_tau, tau), (qs, us, hts, taus), hist, hs, ctl)
             ctl[FRESH] = fresh
-            ast[S_H] = next_step(h, eq_max, eu_max, tol, t_end, foh, unit, H, 2)
+            ast[S_H] = next_step(h, eq_max, eu_max, tol, t_end, kind, unit, H, 2)
             retry = True
             continue
         # accepted
@@ -267,7 +281,7 @@ def adaptive_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, ad, norm
             _copy(tau_end, tau)
             ctl[FRESH] = 1
         ast[S_T] = t_next
-        ast[S_H] = next_step(h, eq_max, eu_max, tol, t_end, foh, unit, H, 1 if retry else 0)
+        ast[S_H] = next_step(h, eq_max, eu_max, tol, t_end, kind, unit, H, 1 if retry else 0)
         retry = False
         if last:
             actl[C_DONE] = 1
