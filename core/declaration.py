@@ -11,6 +11,7 @@ same kind of object, found by ``"path/to/model.py:name"`` (:func:`.registry.load
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Callable
 
@@ -104,7 +105,9 @@ class Param:
             if x.ndim != len(self.shape) or (x.ndim == 2 and x.shape[0] != x.shape[1]):
                 raise bad(f"has shape {x.shape}")
             entries = np.diag(x) if x.ndim == 2 else x
-        if not np.all(np.isfinite(x)):
+        # a scalar by math: numpy's reduction of a scalar looks a name up afresh each call, and CPython's
+        # type attribute cache keeps such names (each FMU instance grew the process: issue 35)
+        if not (math.isfinite(x) if isinstance(x, float) else np.all(np.isfinite(x))):
             raise bad("is not finite")
         if self.min is not None and np.any(entries < self.min):
             raise bad("is below the declared minimum")

@@ -125,7 +125,7 @@ class MechanicalSystem:
     def __post_init__(self):
         M = _matrix("M", self.M, None)
         n = M.shape[0]
-        if not np.allclose(M, M.T, rtol=1e-12, atol=0.0):
+        if not np.all(np.abs(M - M.T) <= 1e-12 * np.abs(M.T)):   # np.allclose(M, M.T, rtol=1e-12, atol=0): M is finite
             raise ValueError(f"M must be symmetric, got {M.tolist()}")
         eig = np.linalg.eigvalsh(M)
         if eig[0] <= 0.0:

@@ -364,7 +364,7 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
                        event_aware: bool = False, H_min: float | None = None,
                        start_values=None, progress=None,
                        record_distance: bool = True, allow_unstable: bool = False, hold: str = "zoh",
-                       exchange: str = "explicit") -> NetworkResult:
+                       exchange: str = "explicit", tol: float | None = None) -> NetworkResult:
     """Co-simulate N instances of ``fmu`` coupled on a weighted graph (docs/design.md §2.5, §4.4).
 
     ``states``: N start states (q, u); ``A``: N×N weights a_ij >= 0 (zero
@@ -383,9 +383,14 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
     Before the first step (the run plan, :func:`fmu_sync.core.plan.plan_run`), the held exchange over ``H`` (
     ``UnstableExchange``) and each instance's internal midpoint step (omega_max*dt < 2,
     ``UnstableScheme``) are checked; both are ValueErrors, skipped with ``allow_unstable``.
+    ``tol``: co-simulate to this tolerance (:mod:`fmu_sync.adaptive`, docs/design.md §4.4.1).
     """
-    return NetworkMaster(fmu, states, A, t_end, H, coupling, Kp, Kd, Q, method, record_every, event_aware,
-                         H_min, start_values, record_distance, allow_unstable, hold, exchange).run(progress)
+    args = (fmu, states, A, t_end, H, coupling, Kp, Kd, Q, method, record_every, event_aware, H_min, start_values,
+            record_distance, allow_unstable, hold, exchange)
+    if tol is not None:
+        from .adaptive import AdaptiveMaster
+        return AdaptiveMaster(*args, tol=tol).run(progress)
+    return NetworkMaster(*args).run(progress)
 
 
 def pair_result(r: NetworkResult, coupling) -> PairResult:
@@ -400,7 +405,7 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
                Q=None, method: str = "jacobi", record_every: int = 1, event_aware: bool = False,
                H_min: float | None = None, start_values=None, progress=None,
                record_distance: bool = True, allow_unstable: bool = False, hold: str = "zoh",
-               exchange: str = "explicit") -> PairResult:
+               exchange: str = "explicit", tol: float | None = None) -> PairResult:
     """Co-simulate two instances of ``fmu`` coupled by ``coupling`` (docs/design.md §2.5, §4.4).
 
     Parameters
@@ -430,6 +435,12 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
         held with ``"zoh"``; needs ``canGetAndSetFMUstate``; ``info["iterations"]``: FMU steps per
         communication step; a step that does not converge raises ``ExchangeNotConverged``,
         docs/design.md §4.4).
+    tol : co-simulate to this tolerance (docs/design.md §4.4.1): ``H`` is then the first and
+        largest step; each step's local coupling error is estimated, a step over its share
+        ``tol h / t_end`` is rolled back (FMU state) and retaken shorter, steps are whole
+        multiples of the slaves' solver.dt (the floor). tol and ``info["error_estimate"]``
+        are in q's unit (``info["error_norm"]``); ``info`` also holds ``steps``, ``rejected``
+        and ``H`` (the accepted steps' lengths). Needs an FMU that can get and set its state.
     progress : callable ``progress(fraction)`` or None.
 
     Returns a :class:`PairResult`. Bad arguments, or an FMU that does not follow
@@ -443,7 +454,7 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
     try:
         r = cosimulate_network(fmu, [x1, x2], [[0.0, 1.0], [1.0, 0.0]], t_end, H, coupling, Kp, Kd, Q,
                                method, record_every, event_aware, H_min, start_values, progress,
-                               record_distance, allow_unstable, hold, exchange)
+                               record_distance, allow_unstable, hold, exchange, tol)
     except RunFailed as exc:
         if exc.partial is not None:  # None: refused before the first step
             exc.partial = pair_result(exc.partial, coupling)

@@ -530,6 +530,29 @@ def compare_plot(results: Mapping[str, object], path, quantity: str = "d", title
     return _save(fig, path)
 
 
+def plot_steps(result, path, system=None, title=None) -> Path:
+    """The communication step H over time of a co-simulation to a tolerance (``info["H"]``, one
+    per accepted step, drawn at each step's start; log axis), with its floor (solver.dt) and
+    first step (docs/design.md §4.4.1)."""
+    info = getattr(result, "info", None) or {}
+    if info.get("tol") is None:
+        raise ValueError("plot_steps needs a co-simulation to a tolerance (cosimulate(..., tol=T)): info['H'] is "
+                         "then one length per communication step")
+    H = np.asarray(info["H"], dtype=float)
+    t0 = np.concatenate([[0.0], np.cumsum(H)[:-1]])
+    fig, (ax,) = _figure(width=10.0)
+    ax.step(t0, H, where="post", color="C0", lw=1.2, label=f"H ({len(H)} steps, {info['rejected']} rejected)")
+    ax.axhline(info["step_unit"], color="k", ls=":", lw=1.0, label=f"floor: solver.dt = {info['step_unit']:g} s")
+    ax.axhline(info["H_first"], color="k", ls="--", lw=1.0, label=f"first and largest H = {info['H_first']:g} s")
+    ax.set_yscale("log")
+    ax.set_xlabel("time t [s]")
+    ax.set_ylabel("communication step H [s]")
+    _legend(ax)
+    ax.set_title(title if title else f"communication step to tol = {info['tol']:g} "
+                 f"(estimated error {info['error_estimate']:.2g})")
+    return _save(fig, path)
+
+
 def skip_reason(kind: str, result) -> str | None:
     """Why a plot of ``kind`` would say nothing for ``result`` (then the run writes no file), or None:
     an uncoupled run's forces are zero throughout."""

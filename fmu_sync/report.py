@@ -73,7 +73,7 @@ def network_metrics(result, threshold: float = SYNC_THRESHOLD) -> dict:
            "N": int(np.asarray(result.q).shape[1]), "edges": len(result.edges),
            "coupling": _coupling_name(result.info.get("coupling")),
            "impact_steps": int(np.sum(result.impacts)), "peak_tau": float(np.nanmax(tau)) if tau.size else 0.0,
-           "error": result.error, **_exchange_fields(result)}
+           "error": result.error, **_exchange_fields(result), **adaptive_fields(result.info)}
     if result.d is None:
         out.update(t_sync=None, final_d=None)
         return out
@@ -174,7 +174,8 @@ def metrics(result, system=None, threshold: float = SYNC_THRESHOLD) -> dict:
     e1, e2 = impact_records(result, 1, system), impact_records(result, 2, system)
     out.update(kind="pair", coupling=result.coupling or "none", impacts1=int(result.impacts1),
                impacts2=int(result.impacts2), episodes1=int(e1.size), episodes2=int(e2.size),
-               peak_tau=float(np.nanmax(tau)) if tau.size else 0.0, error=result.error, **_exchange_fields(result))
+               peak_tau=float(np.nanmax(tau)) if tau.size else 0.0, error=result.error, **_exchange_fields(result),
+               **adaptive_fields(result.info))
     if result.d is None:
         out.update(t_sync=None, final_d=None, euclid_max=None, peaking=None, dV_impact=None, dE_impact=None)
         return out
@@ -188,6 +189,17 @@ def metrics(result, system=None, threshold: float = SYNC_THRESHOLD) -> dict:
                dE_impact=float(np.max(np.abs(E[hits] - E[hits - 1]))) if hits.size else None,
                impact_records=int(hits.size))
     return out
+
+
+def adaptive_fields(info) -> dict:
+    """A co-simulation to a tolerance (docs/design.md §4.4.1): its tol, communication steps
+    (accepted, rejected), shortest and longest step and estimated error (empty otherwise)."""
+    if not info or info.get("tol") is None:
+        return {}
+    H = np.asarray(info["H"], dtype=float)
+    return dict(tol=info["tol"], comm_steps=int(info["steps"]), rejected=int(info["rejected"]),
+                H_shortest=float(H.min()) if H.size else None, H_longest=float(H.max()) if H.size else None,
+                error_estimate=float(info["error_estimate"]))
 
 
 def max_abs_difference(a, b, attr: str = "d") -> float | None:
@@ -369,6 +381,11 @@ def run_notes(runs) -> list[str]:
         if m.get("iterations_max") is not None:
             bits.append(f"implicit exchange: FMU steps per communication step median "
                         f"{m['iterations_median']:g}, max {m['iterations_max']}")
+        if m.get("tol") is not None:
+            bits.append(f"co-simulated to tol = {m['tol']:g}: {m['comm_steps']} communication steps of "
+                        f"{format_value(m['H_shortest'])} to {format_value(m['H_longest'])} s "
+                        f"({m['rejected']} rejected and retaken), estimated error {m['error_estimate']:.3g} "
+                        f"(q's unit, docs/design.md §4.4.1)")
         if bits:
             out.append(f"**{m.get('name', r.name)}**: " + "; ".join(bits))
     return out
@@ -401,6 +418,12 @@ NETWORK_COLUMNS = [
     ("max|tau| [N]", lambda m: m.get("peak_tau")),
     ("impact steps (all nodes)", lambda m: m.get("impact_steps")),
 ]
+#: the columns a co-simulation to a tolerance adds (docs/design.md §4.4.1)
+ADAPTIVE_COLUMNS = [
+    ("tol", lambda m: m.get("tol")),
+    ("steps (rejected)", lambda m: f"{m['comm_steps']} ({m['rejected']})" if "comm_steps" in m else "—"),
+    ("error estimate", lambda m: m.get("error_estimate")),
+]
 SINGLE_COLUMNS = [
     ("run", lambda m: m["name"]),
     ("t_end [s]", lambda m: m["t_end"]),
@@ -417,6 +440,8 @@ def rows(runs, demo: bool = False) -> tuple[list[str], list[list[str]]]:
     single = all(r.metrics.get("kind") == "single" for r in runs)
     network = all(r.metrics.get("kind") == "network" for r in runs)
     cols = SINGLE_COLUMNS if single else NETWORK_COLUMNS if network else (DEMO_COLUMNS if demo else PAIR_COLUMNS)
+    if any(r.metrics.get("tol") is not None for r in runs):
+        cols = cols + ADAPTIVE_COLUMNS
     table = []
     for r in runs:
         m = {**r.metrics, "name": r.name}

@@ -315,8 +315,8 @@ def instantiate(resources_dir: str, instance_name: str, guid: str, embedded: int
     msgs: list[str] = []
     call = INSTANTIATE[2]
     try:
-        with open(os.path.join(resources_dir, BUILD_FILE), encoding="utf-8") as f:
-            build = json.load(f)
+        with open(os.path.join(resources_dir, BUILD_FILE), "rb") as f:   # bytes: no text decoder per call
+            build = json.loads(f.read())
         fmi_version = int(build.get("fmi_version", 2))
         call = INSTANTIATE[fmi_version]
         key = build["code_hash"]

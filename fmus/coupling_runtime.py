@@ -14,7 +14,7 @@ import numpy as np
 
 from . import coupling_stepper as CS
 from .coupling import CouplingSlave, CouplingSpec
-from .runtime import InstanceBase, create_instance
+from .runtime import InstanceBase, address, create_instance
 from .slave import PHASES
 from . import stepper as S
 from .stepper import H_CONFIGURED, R_INADMISSIBLE
@@ -59,7 +59,7 @@ class CouplingInstance(InstanceBase):
     def _evaluate(self) -> str:
         """The outputs from the current inputs, by the stepper's own code (H = 0); the
         warning reply if an input state is inside the wall (:meth:`inadmissible`)."""
-        rc = self._step(self.x.ctypes.data, self.work.ctypes.data, float(self.work[S.H_TIME]), 0.0)
+        rc = self._step(address(self.x), address(self.work), float(self.work[S.H_TIME]), 0.0)
         return self.inadmissible() if rc == R_INADMISSIBLE else ""
 
     def inadmissible(self) -> str:

@@ -29,7 +29,7 @@ from .contract import model as contract_model
 from .slave import PHASES, RUNNING_PHASES, START_FILE, STATE_FORMAT, MechanicalSlave
 
 __all__ = ["FMUInstance", "create", "LAYOUT", "TYPES", "CAUSALITIES", "CALL_NAMES", "variable_table",
-           "InstanceBase", "create_instance"]
+           "InstanceBase", "create_instance", "address"]
 
 #: what layout() hands over, in order (one uint64 each; the binary's FSR_L_* indices)
 LAYOUT = ("version", "nvars", "x", "type", "caus", "min", "max", "work", "names", "hints")
@@ -44,6 +44,13 @@ CALL_NAMES = {
     3: {"instantiate": "fmi3InstantiateCoSimulation", "exit": "fmi3ExitInitializationMode", "reset": "fmi3Reset",
         "set_state": "fmi3SetFMUState", "deserialize": "fmi3DeserializeFMUState", "error": "fmi3Error"},
 }
+
+
+def address(a: np.ndarray) -> int:
+    """The address of an array's data. Not ``a.ctypes.data``: numpy looks its helper up under a name
+    made afresh per call, which CPython's type attribute cache keeps (its slots are keyed on the
+    name's address), so every instance grew the process a little (issue 35)."""
+    return a.__array_interface__["data"][0]
 
 
 def _q_u_names(n):
@@ -117,10 +124,10 @@ class InstanceBase:
 
     def layout(self) -> bytes:
         """What the binary reads once (LAYOUT, version stepper.WORK_VERSION): the arrays."""
-        fields = {"version": S.WORK_VERSION, "nvars": self.x.shape[0], "x": self.x.ctypes.data,
-                  "type": self.vtype.ctypes.data, "caus": self.vcaus.ctypes.data, "min": self.vmin.ctypes.data,
-                  "max": self.vmax.ctypes.data, "work": self.work.ctypes.data,
-                  "names": self._names.ctypes.data, "hints": self._hints.ctypes.data}
+        fields = {"version": S.WORK_VERSION, "nvars": self.x.shape[0], "x": address(self.x),
+                  "type": address(self.vtype), "caus": address(self.vcaus), "min": address(self.vmin),
+                  "max": address(self.vmax), "work": address(self.work),
+                  "names": address(self._names), "hints": address(self._hints)}
         return struct.pack(f"<{len(LAYOUT)}Q", *(fields[k] for k in LAYOUT))
 
     def free(self) -> None:
@@ -278,7 +285,7 @@ class FMUInstance(InstanceBase):
 
     def _outputs_from_stepper(self) -> None:
         """gap and energy by the stepper's own code (H = 0): the same numbers as after a step."""
-        self._step(self.x.ctypes.data, self.work.ctypes.data, float(self.work[S.H_TIME]), 0.0)
+        self._step(address(self.x), address(self.work), float(self.work[S.H_TIME]), 0.0)
 
     # ------------------------------------------------------------ life cycle
     def refresh(self) -> str:
@@ -368,8 +375,8 @@ def create_instance(resources_dir: str, model: str, fmi_version: int, make) -> t
     call = CALL_NAMES[fmi_version]["instantiate"]
     path = os.path.join(resources_dir, START_FILE)
     try:
-        with open(path, encoding="utf-8") as f:
-            data = json.load(f)
+        with open(path, "rb") as f:        # bytes: no text decoder set up per instance (issue 35)
+            data = json.loads(f.read())
     except Exception as exc:
         return f"E:{call}: cannot read the start values {path}: {exc}", None
     if data.get("model") != model:

@@ -310,8 +310,8 @@ def _fake_cosim_modules(monkeypatch, calls):
 
     def cosimulate(fmu_path, x1, x2, t_end, H, coupling=None, Kp=0.0, Kd=0.0, Q=None, method="jacobi",
                    record_every=1, event_aware=False, H_min=None, start_values=None, record_distance=True,
-                   progress=None, hold="zoh", exchange="explicit"):
-        calls.append(("cosim", coupling, H, method, record_every, event_aware, start_values, hold, exchange))
+                   progress=None, hold="zoh", exchange="explicit", tol=None):
+        calls.append(("cosim", coupling, H, method, record_every, event_aware, start_values, hold, exchange, tol))
         return fake_result(t_end, H * record_every, coupling)
 
     def simulate_pair(system, x1, x2, t_end, dt, coupling=None, record_every=1, progress=None, **kw):
@@ -344,6 +344,11 @@ def test_cosim_scene_plumbing(tmp_path, monkeypatch):
     run_scene("forced-pair", tmp_path / "implicit", plots=False,
               overrides={"run.mode": "cosim", "run.t_end": 1.0, "run.exchange": "implicit"})
     assert [c[8] for c in calls if c[0] == "cosim"] == ["implicit"] * 3   # scene key run.exchange -> master
+    assert [c[9] for c in calls if c[0] == "cosim"] == [None] * 3
+    calls.clear()
+    run_scene("forced-pair", tmp_path / "tol", plots=False,
+              overrides={"run.mode": "cosim", "run.t_end": 1.0, "run.tol": 1e-3})
+    assert [c[9] for c in calls if c[0] == "cosim"] == [1e-3] * 3   # scene key run.tol -> master
 
 
 def test_demo_plumbing_with_stand_ins(tmp_path, monkeypatch):

@@ -209,6 +209,13 @@ def main(argv=None) -> int:
             md = wp.markdown + "\nDiagrams: " + ", ".join(f"`{p.name}`" for p in pngs) + ".\n"
             print(md, flush=True)
             parts.append(md)
+            if fmu is not None:   # the co-simulation to a tolerance against fixed H (issue 34)
+                from . import tolerance
+                t0 = time.perf_counter()
+                md = tolerance.run(quick=quick, out=out, smoke=args.smoke)
+                timings["work-precision: tolerance"] = time.perf_counter() - t0
+                print(md, flush=True)
+                parts.append(md)
 
         if "stability" in sections:
             t0 = time.perf_counter()

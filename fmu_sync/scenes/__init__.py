@@ -57,6 +57,7 @@ types and bad values raise :class:`SceneError` naming file, key and value)::
     H_min = 1e-4                # smallest retaken step with event_aware (optional)
     method = "jacobi"           # "jacobi" | "gauss-seidel" (cosim)
     event_aware = false         # cosim: retake steps that contain an impact
+    tol = 1e-4                  # cosim: co-simulate to this tolerance (q's unit; H: the first, largest step)
     record_every = 10           # keep every k-th step (core: steps dt; cosim: steps H)
     allow_unstable = false      # run even if the held coupling exchange is unstable at this step
                                 # (refused before the first step by default; CLI: --allow-unstable)

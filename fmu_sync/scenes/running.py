@@ -235,7 +235,7 @@ def _run_variant(variant: Variant, fmu_path, progress, scene_name, sink, chunk_r
                             coupling=_coupling_arg(variant.law), Kp=variant.Kp, Kd=variant.Kd, Q=variant.Q,
                             method=cfg["run.method"], record_every=cfg["run.record_every"],
                             event_aware=cfg["run.event_aware"], H_min=cfg["run.H_min"], hold=cfg["run.hold"],
-                            exchange=cfg["run.exchange"],
+                            exchange=cfg["run.exchange"], tol=cfg["run.tol"],
                             start_values=fmu_start_values(fmu_path, variant),
                             record_distance=bool(cfg["record.distance"]), progress=progress, **extra)
         if getattr(result, "error", None):   # a record that stopped early (older masters return it)
@@ -277,7 +277,7 @@ def _run_network(variant: Variant, fmu_path, progress, label, extra):
                                 coupling=_laws_arg(variant), Kp=variant.Kp, Kd=variant.Kd, Q=variant.Q,
                                 method=cfg["run.method"], record_every=cfg["run.record_every"],
                                 event_aware=cfg["run.event_aware"], H_min=cfg["run.H_min"], hold=cfg["run.hold"],
-                            exchange=cfg["run.exchange"],
+                                exchange=cfg["run.exchange"], tol=cfg["run.tol"],
                                 start_values=starts, record_distance=bool(cfg["record.distance"]),
                                 progress=progress, **extra)
     if getattr(result, "error", None):
@@ -305,6 +305,8 @@ def write_run(run: RunRecord, out_dir: Path, plots, title: str, formats=("csv", 
             else:
                 run.files.append(P.PLOTTERS[p](run.result, out_dir / f"{run.name}-{p}.png",
                                                system=run.variant.system, title=title))
+        if (getattr(run.result, "info", None) or {}).get("tol") is not None:   # run.tol: H over time
+            run.files.append(P.plot_steps(run.result, out_dir / f"{run.name}-steps.png", title=title))
 
 
 def run_extra(variant: Variant, plots, title: str) -> dict:
@@ -542,7 +544,7 @@ def stream_notes(runs) -> list[str]:
             for r in runs if r.metrics.get("thinned_every", 1) > 1]
 
 
-_COSIM_KEYS = ("run.H", "run.H_min", "run.method", "run.event_aware", "run.hold", "run.exchange")
+_COSIM_KEYS = ("run.H", "run.H_min", "run.method", "run.event_aware", "run.hold", "run.exchange", "run.tol")
 
 
 def _relevant(key: str, variants) -> bool:

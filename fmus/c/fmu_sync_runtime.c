@@ -65,9 +65,11 @@ static struct {
     int (*GILEnsure)(void);
     void (*GILRelease)(int);
     PyObject *(*ImportModule)(const char *);
-    PyObject *(*GetAttrString)(PyObject *, const char *);
     int (*SetAttrString)(PyObject *, const char *, PyObject *);
-    PyObject *(*CallMethod)(PyObject *, const char *, const char *, ...);
+    PyObject *(*InternFromString)(const char *);
+    PyObject *(*GetAttr)(PyObject *, PyObject *);
+    PyObject *(*VaBuildValue)(const char *, va_list);
+    PyObject *(*Call)(PyObject *, PyObject *, PyObject *);
     const char *(*UnicodeAsUTF8)(PyObject *);
     PyObject *(*UnicodeDecodeFSDefault)(const char *);
     int (*BytesAsStringAndSize)(PyObject *, char **, Py_ssize_t *);
@@ -103,9 +105,11 @@ static int load_api(void *h, char *err, size_t n) {
     SYM(GILEnsure, "PyGILState_Ensure");
     SYM(GILRelease, "PyGILState_Release");
     SYM(ImportModule, "PyImport_ImportModule");
-    SYM(GetAttrString, "PyObject_GetAttrString");
     SYM(SetAttrString, "PyObject_SetAttrString");
-    SYM(CallMethod, "PyObject_CallMethod");
+    SYM(InternFromString, "PyUnicode_InternFromString");
+    SYM(GetAttr, "PyObject_GetAttr");
+    SYM(VaBuildValue, "Py_VaBuildValue");
+    SYM(Call, "PyObject_Call");
     SYM(UnicodeAsUTF8, "PyUnicode_AsUTF8");
     SYM(UnicodeDecodeFSDefault, "PyUnicode_DecodeFSDefault");
     SYM(BytesAsStringAndSize, "PyBytes_AsStringAndSize");
@@ -119,6 +123,47 @@ static int load_api(void *h, char *err, size_t n) {
     SYM(None, "_Py_NoneStruct");
 #undef SYM
     return 1;
+}
+
+/* An attribute name as one interned string per name, kept (GIL held). CPython's type attribute
+ * cache is keyed on the name object's address and keeps a reference: a name made afresh per call
+ * (PyObject_GetAttrString, PyObject_CallMethod) stays there until its slot is reused, so every
+ * instantiate/free cycle grew the process by about 200 bytes (issue 35). */
+static PyObject *name_obj(const char *name) {
+    static struct { char key[32]; PyObject *obj; } names[24];
+    static int count = 0;
+    for (int i = 0; i < count; ++i)
+        if (!strcmp(names[i].key, name)) return names[i].obj;
+    PyObject *obj = py.InternFromString(name);
+    if (obj && count < (int)(sizeof names / sizeof names[0]) && strlen(name) < sizeof names[0].key) {
+        snprintf(names[count].key, sizeof names[0].key, "%s", name);
+        names[count++].obj = obj;            /* the table's reference: the name stays interned */
+    } else if (obj) {
+        py.DecRef(obj);                      /* not kept (never for this runtime's few names) */
+    }
+    return obj;
+}
+
+/* obj.name (a new reference, or NULL with the exception set) */
+static PyObject *get_attr(PyObject *obj, const char *name) {
+    PyObject *n = name_obj(name);
+    return n ? py.GetAttr(obj, n) : NULL;
+}
+
+/* obj.name(arguments built from format as Py_BuildValue builds them; NULL: none) */
+static PyObject *call_method(PyObject *obj, const char *name, const char *format, ...) {
+    PyObject *m = get_attr(obj, name);
+    if (!m) return NULL;
+    char fmt[32];
+    snprintf(fmt, sizeof fmt, "(%s)", format ? format : "");
+    va_list ap;
+    va_start(ap, format);
+    PyObject *args = py.VaBuildValue(fmt, ap);
+    va_end(ap);
+    PyObject *r = args ? py.Call(m, args, NULL) : NULL;
+    if (args) py.DecRef(args);
+    py.DecRef(m);
+    return r;
 }
 
 /* The pending Python exception as text (clears it). */
@@ -201,10 +246,10 @@ static int ensure_python(const char *resdir, char *err, size_t n) {
     int gil = py.GILEnsure();
     int ok = 0;
     PyObject *sys = py.ImportModule("sys");
-    PyObject *path = sys ? py.GetAttrString(sys, "path") : NULL;
+    PyObject *path = sys ? get_attr(sys, "path") : NULL;
     PyObject *dir = py.UnicodeDecodeFSDefault(resdir);
     if (path && dir) {
-        PyObject *r = py.CallMethod(path, "insert", "iO", 0, dir);
+        PyObject *r = call_method(path, "insert", "iO", 0, dir);
         if (r) py.DecRef(r);
         g_boot = py.ImportModule(FMU_SYNC_BOOT);
         if (!g_boot) py_error_text(err, n);
@@ -213,7 +258,7 @@ static int ensure_python(const char *resdir, char *err, size_t n) {
             py.SetAttrString(g_boot, "CHOSEN", how);
             py.DecRef(how);
         }
-        r = py.CallMethod(path, "remove", "O", dir);   /* leave sys.path as it was */
+        r = call_method(path, "remove", "O", dir);   /* leave sys.path as it was */
         if (r) py.DecRef(r);
         ok = g_boot != NULL;
     } else {
@@ -286,7 +331,7 @@ static int log_reply(fsr_instance *inst, const char *text) {
  * argument); log it; return its worst status (FSR_FATAL if Python itself failed). */
 int fsr_call(fsr_instance *inst, const char *method) {
     int gil = py.GILEnsure();
-    PyObject *r = py.CallMethod(inst->obj, method, NULL);
+    PyObject *r = call_method(inst->obj, method, NULL);
     int s;
     if (!r) {
         char err[2000];
@@ -415,7 +460,7 @@ static uint64_t g_serial = 0;       /* instances made by this binary (fsr_instan
 /* layout handed over by FMUInstance.layout() (fmus/runtime.py: LAYOUT -> FSR_L_*) */
 static int take_layout(fsr_instance *inst, char *err, size_t n) {
     /* called with the GIL held */
-    PyObject *r = py.CallMethod(inst->obj, "layout", NULL);
+    PyObject *r = call_method(inst->obj, "layout", NULL);
     if (!r) { py_error_text(err, n); return 0; }
     char *buf = NULL;
     Py_ssize_t len = 0;
@@ -463,7 +508,7 @@ static int take_layout(fsr_instance *inst, char *err, size_t n) {
 int fsr_new(fsr_instance *inst, const char *resdir, const char *name, const char *guid, char *err, size_t n) {
     int gil = py.GILEnsure();
     PyObject *dir = py.UnicodeDecodeFSDefault(resdir);
-    PyObject *r = dir ? py.CallMethod(g_boot, "instantiate", "OssiK", dir, name, guid, g_embedded,
+    PyObject *r = dir ? call_method(g_boot, "instantiate", "OssiK", dir, name, guid, g_embedded,
                                       (unsigned long long)(uintptr_t)&fsr_python_step) : NULL;
     if (dir) py.DecRef(dir);
     int s = FSR_OK;
@@ -489,7 +534,7 @@ void fsr_free(fsr_instance *inst) {
     /* a host freeing after its own interpreter shut down: leave the Python object alone */
     if (inst->obj && py.IsInitialized && py.IsInitialized()) {
         int gil = py.GILEnsure();
-        PyObject *r = py.CallMethod(inst->obj, "free", NULL);
+        PyObject *r = call_method(inst->obj, "free", NULL);
         if (r) py.DecRef(r);
         else { char e[200]; py_error_text(e, sizeof e); }
         py.DecRef(inst->obj);
@@ -589,7 +634,7 @@ int fsr_state_serialize(fsr_instance *inst, const char *call, fsr_state *st, cha
     int gil = py.GILEnsure();
     PyObject *b = py.BytesFromStringAndSize((const char *)st->data,
                                             (Py_ssize_t)((st->nx + st->nw) * sizeof(double)));
-    PyObject *r = b ? py.CallMethod(inst->obj, "serialize", "O", b) : NULL;
+    PyObject *r = b ? call_method(inst->obj, "serialize", "O", b) : NULL;
     if (b) py.DecRef(b);
     int s = FSR_ERROR;
     char *buf;
@@ -619,7 +664,7 @@ int fsr_state_deserialize(fsr_instance *inst, const char *call, const char *data
     int gil = py.GILEnsure();
     int s = FSR_ERROR;
     PyObject *b = py.BytesFromStringAndSize(data, (Py_ssize_t)size);
-    PyObject *r = b ? py.CallMethod(inst->obj, "deserialize", "O", b) : NULL;
+    PyObject *r = b ? call_method(inst->obj, "deserialize", "O", b) : NULL;
     if (b) py.DecRef(b);
     if (!r) {
         char err[2000];
