@@ -43,6 +43,7 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 from .core.coupling import chain_work
+from .core.distance import BRANCH_E
 from .core.network import edge_arrays, network_forces, node_force
 from .core.kernels import depends_on_core
 from .fmus import contract
@@ -82,7 +83,8 @@ IMPLICIT_MAX_ITERATIONS = 30
 #: The switching laws' branch within a step of the implicit exchange (docs/design.md §4.4): decided
 #: at the first iterate's end states and held for the others; a step converged on a branch that is
 #: not the law's own at its end states is iterated on once more with the branch decided again there
-#: (at most REDECIDE times), then accepted on the branch it converged on.
+#: (at most REDECIDE times), then accepted on the branch it converged on. A step not converged after
+#: half its cap of FMU steps holds branch E from there (the PD law, linear in the end states).
 REDECIDE = 1
 #: the relaxation of the first fixed-point update of the run (Aitken's after that, IQN-ILS once it
 #: has a secant); IQN-ILS's QR filter: a column whose part not in the span of the newer ones is
@@ -484,7 +486,10 @@ def _implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, 
     at the first iterate's end states and held (``bh``) for the others, so that the law is a smooth
     function of the end states; a step converged on a branch that is not the law's own at its end
     states is iterated on with the branch decided again there (:data:`REDECIDE` times), then
-    accepted (``offb[k]``: the edges accepted off their own branch). ``iters[k]``: FMU steps taken,
+    accepted (``offb[k]``: the edges accepted off their own branch); one not converged after half
+    of ``flags[MAX_ITER]`` holds branch E from there (where a system's end state sits at its chain
+    end, as in an impact within the step, the law's pull on a jump branch flips direction: no fixed
+    point), its quasi-Newton columns restarted. ``iters[k]``: FMU steps taken,
     ``resid[k]``: the last residual's max norm.
     Not converged within ``flags[MAX_ITER]`` FMU steps: the instances are restored to t, ``FAIL``
     = NOT_CONVERGED, returns True (a caller with a step-size control may retake it shorter)."""
@@ -551,6 +556,18 @@ def _implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, 
             fresh = True
         if it >= flags[MAX_ITER] or not math.isfinite(rmax):
             break
+        if it == flags[MAX_ITER] // 2 and it > 1:   # hold branch E from here, the columns restarted
+            for e_ in range(bk.shape[0]):
+                if bk[e_] > BRANCH_E:
+                    bk[e_] = BRANCH_E
+                    fresh = True
+            if fresh:
+                network_forces(laws, geo, Kp, Kd, E2, W2, q, u, g, t1, t2, c1q, c1u, c2q, c2u, False, dk, bk, ek,
+                               hp, t + h, True)
+                rmax = _residual(g, te, r)
+                ist[0] = 0
+                omega = OMEGA0
+                redecide = 0
         if it > 1 and not fresh:   # a secant of this step: the newest column
             ist[1] = (ist[1] + 1) % C
             ist[0] = min(ist[0] + 1, C)
