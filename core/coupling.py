@@ -43,7 +43,8 @@ from .distance import BRANCH_E, BRANCH_FREE, BRANCH_NAMES, resolve_geometry, geo
 __all__ = ["SWITCHING", "EUCLIDEAN", "UNCOUPLED", "COMPENSATED", "QUOTIENT_LAWS", "LAWS", "BRANCH_NONE",
            "switching_coupling", "euclidean_coupling", "coupling_kernel",
            "switching_coupling1", "euclidean_coupling1", "coupling_kernel1",
-           "gain_matrix", "chain_work", "law_code", "branch_code", "coupling_forces", "energy_metric", "laplacian_factor",
+           "gain_matrix", "chain_work", "law_code", "branch_code", "coupling_forces", "energy_metric",
+           "laplacian_factor",
            "METRICS", "LawMetric", "law_metric", "metric_info"]
 
 SWITCHING = 0
