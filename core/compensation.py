@@ -31,7 +31,7 @@ import math
 import numpy as np
 from .jit import njit
 
-from .distance import BRANCH_E, distance1
+from .distance import BRANCH_E, BRANCH_FREE, distance1
 from .errors import LawRefused
 
 __all__ = ["MU", "REST_TOL", "check_compensated", "pull1", "force1", "node_force1", "force_table", "chain_rate1", "compensated_coupling1"]
@@ -129,12 +129,13 @@ def _rests(sg, q, u, d):
 
 
 @njit(cache=True, error_model="numpy")
-def compensated_coupling1(sg, kp, kd, q1, u1, q2, u2, k1, c1, f1, k2, c2, f2):
+def compensated_coupling1(sg, kp, kd, q1, u1, q2, u2, k1, c1, f1, k2, c2, f2, fix=BRANCH_FREE):
     """The compensated switching law, 1-DOF (module docstring). ``(k_i, c_i, f_i)``: node i's
-    force law at the current time (h_i = f_i - k_i q - c_i u, :func:`force1`).
+    force law at the current time (h_i = f_i - k_i q - c_i u, :func:`force1`); ``fix``: the
+    branch whose chain the law is evaluated on (:data:`.distance.BRANCH_FREE`: its own).
 
     Returns ``(tau1, tau2, d, branch, kappa)``."""
-    d, branch, a1q, a1u, a2q, a2u = distance1(sg, q1, u1, q2, u2)
+    d, branch, a1q, a1u, a2q, a2u = distance1(sg, q1, u1, q2, u2, fix)
     if branch == BRANCH_E:
         s = kp * (q1 - q2) + kd * (u1 - u2)
         t1 = -s

@@ -38,12 +38,13 @@ import numpy as np
 from .jit import njit
 
 from .compensation import compensated_coupling1, force_table, node_force1, pull1
-from .distance import BRANCH_E, resolve_geometry, geometry_state, distance1, distance_kernel
+from .distance import BRANCH_E, BRANCH_FREE, BRANCH_NAMES, resolve_geometry, geometry_state, distance1, distance_kernel
 
 __all__ = ["SWITCHING", "EUCLIDEAN", "UNCOUPLED", "COMPENSATED", "QUOTIENT_LAWS", "LAWS", "BRANCH_NONE",
            "switching_coupling", "euclidean_coupling", "coupling_kernel",
            "switching_coupling1", "euclidean_coupling1", "coupling_kernel1",
-           "gain_matrix", "chain_work", "law_code", "coupling_forces", "energy_metric", "laplacian_factor",
+           "gain_matrix", "chain_work", "law_code", "branch_code", "coupling_forces", "energy_metric",
+           "laplacian_factor",
            "METRICS", "LawMetric", "law_metric", "metric_info"]
 
 SWITCHING = 0
@@ -62,11 +63,12 @@ BRANCH_NONE = -1
 
 # ------------------------------------------------------------ scalar (1-DOF)
 @njit(cache=True, error_model="numpy")
-def switching_coupling1(sg, kp, kd, q1, u1, q2, u2):
-    """Switching quotient coupling, 1-DOF, floats: ``sg = geo.scalar``.
+def switching_coupling1(sg, kp, kd, q1, u1, q2, u2, fix=BRANCH_FREE):
+    """Switching quotient coupling, 1-DOF, floats: ``sg = geo.scalar``; ``fix`` a branch code
+    to evaluate the law on that branch's chain (:data:`.distance.BRANCH_FREE`: the law's own).
 
     Returns ``(tau1, tau2, d, branch)``."""
-    d, branch, c1q, c1u, c2q, c2u = distance1(sg, q1, u1, q2, u2)
+    d, branch, c1q, c1u, c2q, c2u = distance1(sg, q1, u1, q2, u2, fix)
     if branch == BRANCH_E:
         s = kp * (q1 - q2) + kd * (u1 - u2)
         return -s, s, d, branch
@@ -85,12 +87,13 @@ def euclidean_coupling1(sg, kp, kd, q1, u1, q2, u2):
 
 
 @njit(cache=True, error_model="numpy")
-def coupling_kernel1(law, sg, kp, kd, q1, u1, q2, u2):
+def coupling_kernel1(law, sg, kp, kd, q1, u1, q2, u2, fix=BRANCH_FREE):
     """1-DOF dispatch on ``law``: ``(tau1, tau2, value, branch)`` -- for
-    SWITCHING the quotient distance and its branch code, otherwise the
+    SWITCHING the quotient distance and its branch code (``fix``: the branch held,
+    :func:`switching_coupling1`), otherwise the
     Euclidean error and ``BRANCH_NONE`` (UNCOUPLED: zero forces)."""
     if law == SWITCHING:
-        return switching_coupling1(sg, kp, kd, q1, u1, q2, u2)
+        return switching_coupling1(sg, kp, kd, q1, u1, q2, u2, fix)
     t1, t2, E = euclidean_coupling1(sg, kp, kd, q1, u1, q2, u2)
     if law != EUCLIDEAN:
         t1 = 0.0
@@ -134,12 +137,14 @@ def _pull(Kp, Kd, scale, q, u, cq, cu, tau):
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def switching_coupling(geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u):
+def switching_coupling(geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u, fix=BRANCH_FREE):
     """Switching quotient coupling into ``tau1``, ``tau2``; returns ``(d, branch)``.
 
     ``Kp, Kd``: (n, n) gains.  ``c1q, c1u, c2q, c2u``: (n,) work arrays (not
     aliasing the states); on return they hold the chain ends c1, c2 of
-    :func:`.distance.distance_kernel`.  Allocates nothing.
+    :func:`.distance.distance_kernel`.  ``fix``: :data:`.distance.BRANCH_FREE` (the law's own
+    branch) or the branch whose chain the law is evaluated on (d is then that chain's length).
+    Allocates nothing.
     """
     if q1.shape[0] == 1:
         sg = geo.scalar
@@ -149,7 +154,7 @@ def switching_coupling(geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c
         x1u = u1[0]
         x2q = q2[0]
         x2u = u2[0]
-        d, branch, a1q, a1u, a2q, a2u = distance1(sg, x1q, x1u, x2q, x2u)
+        d, branch, a1q, a1u, a2q, a2u = distance1(sg, x1q, x1u, x2q, x2u, fix)
         c1q[0] = a1q
         c1u[0] = a1u
         c2q[0] = a2q
@@ -162,7 +167,7 @@ def switching_coupling(geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c
             tau1[0] = pull1(sg, kp, kd, d, x1q - a1q, x1u - a1u)
             tau2[0] = pull1(sg, kp, kd, d, x2q - a2q, x2u - a2u)
         return d, branch
-    d, branch = distance_kernel(geo, q1, u1, q2, u2, c1q, c1u, c2q, c2u)
+    d, branch = distance_kernel(geo, q1, u1, q2, u2, c1q, c1u, c2q, c2u, fix)
     if branch == BRANCH_E:
         _euclidean_forces(Kp, Kd, q1, u1, q2, u2, tau1, tau2)
     else:
@@ -187,16 +192,17 @@ def euclidean_coupling(geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2):
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def coupling_kernel(law, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u):
+def coupling_kernel(law, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u, fix=BRANCH_FREE):
     """Dispatch on ``law`` (``SWITCHING``, ``EUCLIDEAN``, ``UNCOUPLED``).
 
     Returns ``(value, branch)``: for SWITCHING the quotient distance d and its
     branch code (chain ends in ``c1q..c2u``); for EUCLIDEAN and UNCOUPLED (zero
     forces) the Euclidean error ``||x1 - x2||_P`` and ``BRANCH_NONE`` (no
-    distance computed; use :func:`.distance.distance_value` to record d).
+    distance computed; use :func:`.distance.distance_value` to record d). ``fix``: the
+    branch the switching law is held on (:func:`switching_coupling`).
     """
     if law == SWITCHING:
-        return switching_coupling(geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u)
+        return switching_coupling(geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u, fix)
     E = euclidean_coupling(geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2)
     if law != EUCLIDEAN:
         for i in range(tau1.shape[0]):
@@ -243,11 +249,21 @@ def law_code(law) -> int:
 
 
 @njit(cache=True, error_model="numpy")
-def _coupling_call(law, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u):
-    return coupling_kernel(law, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u)
+def _coupling_call(law, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u, fix):
+    return coupling_kernel(law, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u, fix)
 
 
-def coupling_forces(system, x1, x2, law, Kp, Kd, Q=None, t=0.0):
+def branch_code(branch) -> int:
+    """The kernels' ``fix`` of a branch name ("E", "J12", "J21", "J2") or None (the law's own
+    branch: :data:`.distance.BRANCH_FREE`)."""
+    if branch is None:
+        return BRANCH_FREE
+    if isinstance(branch, str) and branch in BRANCH_NAMES:
+        return BRANCH_NAMES.index(branch)
+    raise ValueError(f"branch must be None (the law's own) or one of {list(BRANCH_NAMES)}, got {branch!r}")
+
+
+def coupling_forces(system, x1, x2, law, Kp, Kd, Q=None, t=0.0, branch=None):
     """Coupling forces ``(tau1, tau2)`` of docs/design.md §2.5: two (n,) arrays, B = I.
 
     Parameters
@@ -259,8 +275,12 @@ def coupling_forces(system, x1, x2, law, Kp, Kd, Q=None, t=0.0):
     Kp, Kd : gains, scalars >= 0 or n x n matrices (positive semidefinite)
     Q : position weight of the distance (positive scalar or n x n SPD); default: the law's own
         metric :func:`energy_metric` (Q = K + 2 Kp) when ``system`` has a stiffness K, else I
+    branch : None (the law's own branch, that of the quotient distance) or a branch name ("E",
+        "J12", "J21", "J2"): the quotient laws evaluated on that branch's chain (the implicit
+        exchange's held branch, docs/design.md §4.4); no effect on "euclidean" and "none"
     """
     code = law_code(law)
+    fix = branch_code(branch)
     if (Q is None or isinstance(Q, str)) and hasattr(system, "K"):
         n = np.shape(system.K)[0]
         Q = law_metric(Q, [system.K], gain_matrix(Kp, n, "Kp"), coupled=code != UNCOUPLED).Q
@@ -284,10 +304,10 @@ def coupling_forces(system, x1, x2, law, Kp, Kd, Q=None, t=0.0):
         hp = force_table(sa.K[None], sa.C[None], sa.f0[None], sa.F[None], sa.Omega[None], sa.phi[None])
         k, c, f = node_force1(hp, 0, float(t))
         tau1[0], tau2[0] = compensated_coupling1(geo.scalar, Kp[0, 0], Kd[0, 0], q1[0], u1[0], q2[0], u2[0],
-                                                 k, c, f, k, c, f)[:2]
+                                                 k, c, f, k, c, f, fix)[:2]
         return tau1, tau2
     c1q, c1u, c2q, c2u = chain_work(n)
-    _coupling_call(code, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u)
+    _coupling_call(code, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u, fix)
     return tau1, tau2
 
 

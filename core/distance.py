@@ -66,11 +66,11 @@ from .jit import njit
 
 from .model import MechanicalSystem, SystemArrays, as_state
 from .checks import check_admissible
-from .distance_planar import (BRANCH_E, BRANCH_J12, BRANCH_J21, BRANCH_J2, BRANCH_NAMES, branch_values_2d,
-                              core_2d, distance_2d)
+from .distance_planar import (BRANCH_E, BRANCH_J12, BRANCH_J21, BRANCH_J2, BRANCH_NAMES, BRANCH_FREE,
+                              branch_values_2d, core_2d, distance_2d)
 
 __all__ = [
-    "BRANCH_E", "BRANCH_J12", "BRANCH_J21", "BRANCH_J2", "BRANCH_NAMES",
+    "BRANCH_E", "BRANCH_J12", "BRANCH_J21", "BRANCH_J2", "BRANCH_NAMES", "BRANCH_FREE",
     "DistanceGeometry", "ScalarGeometry", "DistanceResult", "geometry", "make_geometry",
     "distance_2d", "branch_values_2d", "distance_kernel", "distance1", "distance_value", "distance_kernel_unpruned",
     "quotient_distance",
@@ -269,9 +269,10 @@ def _chain_params(sg, branch, s1, s2, lam1, lam2, g1, g2, wu1, wu2):
 
 
 @njit(cache=True, error_model="numpy")
-def _distance_nd(geo, q1, u1, q2, u2, prune):
+def _distance_nd(geo, q1, u1, q2, u2, prune, fix=BRANCH_FREE):
     """``(d, branch, mu1, gam1, del1, mu2, gam2, del2)``: d via the planar
-    problem, d = sqrt(D^2 + d_2D^2), and the chain ends in the form above."""
+    problem, d = sqrt(D^2 + d_2D^2), and the chain ends in the form above
+    (``fix``: the branch held, :func:`.distance_planar.core_2d`)."""
     n = q1.shape[0]
     sg = geo.scalar
     w = geo.w
@@ -290,7 +291,7 @@ def _distance_nd(geo, q1, u1, q2, u2, prune):
         wdq += w[i] * (q1[i] - q2[i])
         wdu += w[i] * (u1[i] - u2[i])
     d, branch, s1, s2, lam1, lam2 = core_2d(g1 / sg.sqrtWQ, wu1 / sg.sqrtW, g2 / sg.sqrtWQ, wu2 / sg.sqrtW,
-                                             wdq / sg.sqrtWQ, wdu / sg.sqrtW, sg.e, sg.k, prune)
+                                             wdq / sg.sqrtWQ, wdu / sg.sqrtW, sg.e, sg.k, prune, fix)
     if n > 1:
         # D^2 = |dq_par|_Q^2 + |du_t|_M^2 from the projections (no cancellation):
         # dq_par = dq - (w^T dq / WQ) Q^-1 w,  du_t = du - (w^T du / W) M^-1 w.
@@ -316,9 +317,11 @@ def _distance_nd(geo, q1, u1, q2, u2, prune):
 
 
 @njit(cache=True, error_model="numpy")
-def distance1(sg, q1, u1, q2, u2):
+def distance1(sg, q1, u1, q2, u2, fix=BRANCH_FREE):
     """Scalar 1-DOF kernel: ``sg`` a :class:`ScalarGeometry` (``geo.scalar``),
-    floats in and out, no arrays touched.
+    floats in and out, no arrays touched. ``fix``: :data:`BRANCH_FREE` (the
+    distance: the shortest chain) or the branch whose chain is taken
+    (:func:`.distance_planar.core_2d`).
 
     Returns ``(d, branch, c1q, c1u, c2q, c2u)``; same arithmetic as
     :func:`distance_kernel` (which calls it for n = 1), so the results agree
@@ -337,7 +340,7 @@ def distance1(sg, q1, u1, q2, u2):
     wdu = 0.0
     wdu += sg.w1 * (u1 - u2)
     d, branch, s1, s2, lam1, lam2 = core_2d(g1 / sg.sqrtWQ, wu1 / sg.sqrtW, g2 / sg.sqrtWQ, wu2 / sg.sqrtW,
-                                             wdq / sg.sqrtWQ, wdu / sg.sqrtW, sg.e, sg.k, True)
+                                             wdq / sg.sqrtWQ, wdu / sg.sqrtW, sg.e, sg.k, True, fix)
     mu1, gam1, del1, mu2, gam2, del2 = _chain_params(sg, branch, s1, s2, lam1, lam2, g1, g2, wu1, wu2)
     return (d, branch,
             (1.0 - mu1) * q1 + mu1 * q2 - gam1 * sg.Qinv_w1,
@@ -358,17 +361,19 @@ def _write_chain(geo, q1, u1, q2, u2, mu1, gam1, del1, mu2, gam2, del2, c1q, c1u
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def distance_kernel(geo, q1, u1, q2, u2, c1q, c1u, c2q, c2u):
+def distance_kernel(geo, q1, u1, q2, u2, c1q, c1u, c2q, c2u, fix=BRANCH_FREE):
     """Quotient distance d(x1, x2) and its branch code; fills the chain ends.
 
     ``c1q, c1u, c2q, c2u`` are (n,) float64 output arrays that must not alias
     the inputs.  Returns ``(d, branch)`` with branch in ``BRANCH_E``,
     ``BRANCH_J12``, ``BRANCH_J21``, ``BRANCH_J2``.  Allocates nothing.
+    ``fix``: a branch code to take that branch's chain whether or not it is the
+    shortest (:func:`.distance_planar.core_2d`); :data:`BRANCH_FREE`: the distance.
     """
     if q1.shape[0] == 1:
-        d, branch, c1q[0], c1u[0], c2q[0], c2u[0] = distance1(geo.scalar, q1[0], u1[0], q2[0], u2[0])
+        d, branch, c1q[0], c1u[0], c2q[0], c2u[0] = distance1(geo.scalar, q1[0], u1[0], q2[0], u2[0], fix)
         return d, branch
-    d, branch, mu1, gam1, del1, mu2, gam2, del2 = _distance_nd(geo, q1, u1, q2, u2, True)
+    d, branch, mu1, gam1, del1, mu2, gam2, del2 = _distance_nd(geo, q1, u1, q2, u2, True, fix)
     _write_chain(geo, q1, u1, q2, u2, mu1, gam1, del1, mu2, gam2, del2, c1q, c1u, c2q, c2u)
     return d, branch
 

@@ -24,14 +24,18 @@ import math
 import numpy as np
 from .jit import njit
 
-__all__ = ["BRANCH_E", "BRANCH_J12", "BRANCH_J21", "BRANCH_J2", "BRANCH_NAMES", "core_2d", "distance_2d",
-           "branch_values_2d"]
+__all__ = ["BRANCH_E", "BRANCH_J12", "BRANCH_J21", "BRANCH_J2", "BRANCH_NAMES", "BRANCH_FREE", "core_2d",
+           "distance_2d", "branch_values_2d"]
 
 BRANCH_E = 0
 BRANCH_J12 = 1
 BRANCH_J21 = 2
 BRANCH_J2 = 3
 BRANCH_NAMES = ("E", "J12", "J21", "J2")
+#: The ``fix`` argument of the kernels that lets the distance choose its branch (the minimum
+#: over the branches); a branch code instead evaluates that branch's chain alone (the implicit
+#: exchange holds the law on one branch within a communication step, docs/design.md §4.4).
+BRANCH_FREE = -1
 
 #: Iteration cap of the safeguarded Newton solve for J (bisection alone needs
 #: < 1100 halvings to exhaust any float64 bracket; in practice 3-8 steps).
@@ -238,8 +242,32 @@ def _J2(aX, aY, bX, bY, e, k):
     return best, b1, b2, q1, e * abs(b1 - b2), q2
 
 
+@njit(cache=True, inline="always", error_model="numpy")
+def _j12(aX, aY, bX, bY, e, k):
+    """J(a, b) with its boundary point s and the tangential fraction of that point."""
+    v, s, r1, r2 = _J(aX, aY, bX, bY, e, k)
+    return v, s, r1 / v if v > 0.0 else 0.5
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _j21(aX, aY, bX, bY, e, k):
+    """J(b, a) with its boundary point s and the tangential fraction of that point (from a)."""
+    v, s, r1, r2 = _J(bX, bY, aX, aY, e, k)
+    return v, s, r2 / v if v > 0.0 else 0.5
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _j2(aX, aY, bX, bY, e, k):
+    """J2(a, b) with its boundary points s1, s2 and their tangential fractions."""
+    v, t1, t2, r1, r3, r2 = _J2(aX, aY, bX, bY, e, k)
+    R = r1 + r3 + r2
+    if R > 0.0:
+        return v, t1, t2, r1 / R, (r1 + r3) / R
+    return v, t1, t2, 0.5, 0.5
+
+
 @njit(cache=True, error_model="numpy")
-def core_2d(aX, aY, bX, bY, dX, dY, e, k, prune):
+def core_2d(aX, aY, bX, bY, dX, dY, e, k, prune, fix=BRANCH_FREE):
     """Planar distance with branch, jump parameters and tangential fractions.
 
     ``(dX, dY) = a - b`` is passed separately so that callers can form it from
@@ -250,8 +278,23 @@ def core_2d(aX, aY, bX, bY, dX, dY, e, k, prune):
     is ``(0, s1)`` and its tangential part sits at fraction ``lam1`` from x1
     towards x2; for J2 the points are ``(0, s1)``, ``(0, s2)`` at ``lam1``,
     ``lam2``.  ``k = e / sqrt(1 - e^2)`` (inf for e = 1).  ``prune=False``
-    evaluates every branch (benchmarks, tests).
+    evaluates every branch (benchmarks, tests). ``fix``: :data:`BRANCH_FREE`
+    (the minimum over the branches) or a branch code: the length of that branch's
+    shortest chain alone (>= d), whether or not it is the shortest; J2 where it is not
+    defined (e = 1, or neither ordering holds: J2 >= E there) gives the free choice.
     """
+    if fix == BRANCH_E:
+        return _hyp(dX, dY), BRANCH_E, 0.0, 0.0, 0.0, 0.0
+    if fix == BRANCH_J12:
+        v, s, lam = _j12(aX, aY, bX, bY, e, k)
+        return v, BRANCH_J12, s, 0.0, lam, 0.0
+    if fix == BRANCH_J21:
+        v, s, lam = _j21(aX, aY, bX, bY, e, k)
+        return v, BRANCH_J21, s, 0.0, lam, 0.0
+    if fix == BRANCH_J2 and e < 1.0:
+        v, t1, t2, lam1, lam2 = _j2(aX, aY, bX, bY, e, k)
+        if v < np.inf:
+            return v, BRANCH_J2, t1, t2, lam1, lam2
     d = _hyp(dX, dY)
     branch = BRANCH_E
     s1 = 0.0
@@ -267,33 +310,28 @@ def core_2d(aX, aY, bX, bY, dX, dY, e, k, prune):
     bm = rb if bY > 0.0 else abs(bX)
     bp = abs(bX) if bY > 0.0 else rb
     if not prune or am + bp < d:
-        v, s, r1, r2 = _J(aX, aY, bX, bY, e, k)
+        v, s, lam = _j12(aX, aY, bX, bY, e, k)
         if v < d:
             d = v
             branch = BRANCH_J12
             s1 = s
-            lam1 = r1 / v if v > 0.0 else 0.5
+            lam1 = lam
     if not prune or bm + ap < d:
-        v, s, r1, r2 = _J(bX, bY, aX, aY, e, k)
+        v, s, lam = _j21(aX, aY, bX, bY, e, k)
         if v < d:
             d = v
             branch = BRANCH_J21
             s1 = s
-            lam1 = r2 / v if v > 0.0 else 0.5
+            lam1 = lam
     if e < 1.0 and (not prune or am + bm < d):
-        v, t1, t2, r1, r3, r2 = _J2(aX, aY, bX, bY, e, k)
+        v, t1, t2, l1, l2 = _j2(aX, aY, bX, bY, e, k)
         if v < d:
             d = v
             branch = BRANCH_J2
             s1 = t1
             s2 = t2
-            R = r1 + r3 + r2
-            if R > 0.0:
-                lam1 = r1 / R
-                lam2 = (r1 + r3) / R
-            else:
-                lam1 = 0.5
-                lam2 = 0.5
+            lam1 = l1
+            lam2 = l2
     return d, branch, s1, s2, lam1, lam2
 
 

@@ -43,6 +43,7 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 from .core.coupling import chain_work
+from .core.distance import BRANCH_E
 from .core.network import edge_arrays, network_forces, node_force
 from .core.kernels import depends_on_core
 from .fmus import contract
@@ -79,6 +80,12 @@ FLAGS = 12
 #: IMPLICIT_MAX_ITERATIONS FMU steps per communication step, else the run fails (NOT_CONVERGED).
 IMPLICIT_TOL = 1e-9
 IMPLICIT_MAX_ITERATIONS = 30
+#: The switching laws' branch within a step of the implicit exchange (docs/design.md §4.4): decided
+#: at the first iterate's end states and held for the others; a step converged on a branch that is
+#: not the law's own at its end states is iterated on once more with the branch decided again there
+#: (at most REDECIDE times), then accepted on the branch it converged on. A step not converged after
+#: half its cap of FMU steps holds branch E from there (the PD law, linear in the end states).
+REDECIDE = 1
 #: the relaxation of the first fixed-point update of the run (Aitken's after that, IQN-ILS once it
 #: has a secant); IQN-ILS's QR filter: a column whose part not in the span of the newer ones is
 #: below QR_FILTER of its length is left out
@@ -147,7 +154,7 @@ def loop_arguments(m) -> None:
     work = chain_work(n)
     w = (np.zeros(n), np.zeros(n), *work, np.zeros(E), np.zeros(E, dtype=np.int64), np.zeros(E),
          np.zeros(2 * n), np.zeros(n))
-    m.iw = implicit_work(N, n, m.n_steps if m.implicit else 0)
+    m.iw = implicit_work(N, n, len(m.edges), m.n_steps if m.implicit else 0)
     keep = (z(), z(), z(), np.zeros(2), z(), np.zeros(N, dtype=np.int64), np.zeros(1, dtype=np.int32), m.iw)
     m.FAIL, m.fail_t = np.zeros(4, dtype=np.int64), np.zeros(1)
     saved = np.zeros(N, dtype=np.int64)
@@ -162,12 +169,15 @@ def loop_arguments(m) -> None:
 
 def implicit_info(iw) -> dict:
     """``info`` of an implicit run: ``iterations`` (FMU steps per communication step taken, int64),
-    ``residuals`` (each one's final max |law(end states) - end force|), ``exchange_tol``; {} for
+    ``residuals`` (each one's final max |law(end states) - end force|), ``exchange_tol``,
+    ``off_branch`` (per step, the edges whose end force was accepted on a branch other than the
+    switching law's own at the end states: the law's branch changed within the step, §4.4); {} for
     an explicit run (``iw`` None or without per-step arrays)."""
     if iw is None or iw[-3].size == 0:
         return {}
     done = int(np.count_nonzero(iw[-3]))
-    return dict(iterations=iw[-3][:done].copy(), residuals=iw[-2][:done].copy(), exchange_tol=float(iw[-1][0]))
+    return dict(iterations=iw[-3][:done].copy(), residuals=iw[-2][:done].copy(), exchange_tol=float(iw[-1][0]),
+                off_branch=iw[-4][:done].copy())
 
 
 def not_converged(iw, t: float, H: float, steps: int) -> str:
@@ -179,18 +189,19 @@ def not_converged(iw, t: float, H: float, steps: int) -> str:
             f"record ends at its start: lower H")
 
 
-def implicit_work(N: int, n: int, steps: int, tol: float = IMPLICIT_TOL):
+def implicit_work(N: int, n: int, E: int, steps: int, tol: float = IMPLICIT_TOL):
     """The implicit exchange's arrays (``keep[7]`` of :func:`exchange_chunk`, unpacked in
     :func:`_implicit_step`): ``ta, te, g, r, rp, gp`` (N, n); IQN-ILS's ring of ``C = N n``
     columns ``V, W`` (C, N, n), its QR ``Qw`` (C, N, n), ``Rw`` (C, C), ``alpha`` (C,),
-    ``cols`` (C,); ``ist`` (columns, newest); ``iters`` (steps,) int64
-    and ``resid`` (steps,) per communication step; ``tolv`` (1,) the tolerance. ``steps`` = 0
-    for an explicit run (nothing per step)."""
+    ``cols`` (C,); ``ist`` (columns, newest); ``bh`` (E,) the branches held (``E`` edges);
+    ``offb`` (steps,), ``iters`` (steps,) int64 and ``resid`` (steps,) per communication step;
+    ``tolv`` (1,) the tolerance. ``steps`` = 0 for an explicit run (nothing per step)."""
     C = N * n
     z = (lambda: np.zeros((N, n)))
     return (z(), z(), z(), z(), z(), z(), np.zeros((C, N, n)), np.zeros((C, N, n)), np.zeros((C, N, n)),
             np.zeros((C, C)), np.zeros(C), np.zeros(C, dtype=np.int64), np.array([0, C - 1], dtype=np.int64),
-            np.zeros(steps, dtype=np.int64), np.full(steps, np.nan), np.array([float(tol)]))
+            np.zeros(E, dtype=np.int64), np.zeros(steps, dtype=np.int64), np.zeros(steps, dtype=np.int64),
+            np.full(steps, np.nan), np.array([float(tol)]))
 
 
 @intrinsic
@@ -400,6 +411,17 @@ def _scale(g, ta, q, u, Kp, Kd):
 
 
 @njit(cache=True, inline="always")
+def _residual(g, te, r):
+    """r = g - te; returns max |r| (inf if an entry is not finite)."""
+    rmax = 0.0
+    for i in range(g.shape[0]):
+        for c in range(g.shape[1]):
+            r[i, c] = g[i, c] - te[i, c]
+            rmax = max(rmax, abs(r[i, c])) if math.isfinite(r[i, c]) else math.inf
+    return rmax
+
+
+@njit(cache=True, inline="always")
 def _dot(a, b):
     s = 0.0
     for i in range(a.shape[0]):
@@ -460,12 +482,19 @@ def _implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, 
     at the states the step ends in, to :data:`IMPLICIT_TOL` (``iw[-1][0]``) times :func:`_scale`.
     The first iterate is the explicit first-order hold's extrapolation; between iterates every
     instance is restored to t (fmi2SetFMUstate) and ``te`` updated by :func:`_iqn_ils`
-    (Aitken's relaxation while it has no secant). Each iterate evaluates the law on the branch of
-    its own end states. ``iters[k]``: FMU steps taken, ``resid[k]``: the last residual's max norm.
+    (Aitken's relaxation while it has no secant). The switching laws' branch (per edge) is decided
+    at the first iterate's end states and held (``bh``) for the others, so that the law is a smooth
+    function of the end states; a step converged on a branch that is not the law's own at its end
+    states is iterated on with the branch decided again there (:data:`REDECIDE` times), then
+    accepted (``offb[k]``: the edges accepted off their own branch); one not converged after half
+    of ``flags[MAX_ITER]`` holds branch E from there (where a system's end state sits at its chain
+    end, as in an impact within the step, the law's pull on a jump branch flips direction: no fixed
+    point), its quasi-Newton columns restarted. ``iters[k]``: FMU steps taken,
+    ``resid[k]``: the last residual's max norm.
     Not converged within ``flags[MAX_ITER]`` FMU steps: the instances are restored to t, ``FAIL``
     = NOT_CONVERGED, returns True (a caller with a step-size control may retake it shorter)."""
     t1, t2, c1q, c1u, c2q, c2u, dk, bk, ek, buf, slope = w
-    ta, te, g, r, rp, gp, V, W, Qw, Rw, alpha, cols, ist, iters, resid, tolv = iw
+    ta, te, g, r, rp, gp, V, W, Qw, Rw, alpha, cols, ist, bh, offb, iters, resid, tolv = iw
     N = q.shape[0]
     n = q.shape[1]
     foh = flags[FOH] != 0
@@ -486,6 +515,8 @@ def _implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, 
     rmax = math.inf
     converged = False
     omega = OMEGA0
+    redecide = REDECIDE
+    fresh = False   # the law changed branch at the last iterate: no secant across it
     while True:
         for i in range(N):
             for c in range(n):
@@ -500,18 +531,44 @@ def _implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, 
         for i in range(N):
             if _read(ptr, fn, comp, i, buf, q, u, FAIL, fail_t, t + h):
                 return True
-        network_forces(laws, geo, Kp, Kd, E2, W2, q, u, g, t1, t2, c1q, c1u, c2q, c2u, False, dk, bk, ek, hp, t + h)
-        rmax = 0.0
-        for i in range(N):
-            for c in range(n):
-                r[i, c] = g[i, c] - te[i, c]
-                rmax = max(rmax, abs(r[i, c])) if math.isfinite(r[i, c]) else math.inf
+        # the law at the end states: on its own branch at the first iterate, on the branch held in
+        # bk (decided there) at the others
+        network_forces(laws, geo, Kp, Kd, E2, W2, q, u, g, t1, t2, c1q, c1u, c2q, c2u, False, dk, bk, ek, hp, t + h,
+                       it > 1)
+        rmax = _residual(g, te, r)
         if rmax <= tolv[0] * _scale(g, ta, q, u, Kp, Kd):
-            converged = True
-            break
+            for e_ in range(bk.shape[0]):
+                bh[e_] = bk[e_]
+            # the law's own branch at the end states (into bk; its forces into rp, free until the update)
+            network_forces(laws, geo, Kp, Kd, E2, W2, q, u, rp, t1, t2, c1q, c1u, c2q, c2u, False, dk, bk, ek, hp,
+                           t + h)
+            off = 0
+            for e_ in range(bk.shape[0]):
+                if bk[e_] != bh[e_]:
+                    off += 1
+            if off == 0 or redecide == 0:
+                offb[k] = off
+                converged = True
+                break
+            redecide -= 1   # held from here on: the branch decided at these end states
+            _copy(rp, g)
+            rmax = _residual(g, te, r)
+            fresh = True
         if it >= flags[MAX_ITER] or not math.isfinite(rmax):
             break
-        if it > 1:   # a secant of this step: the newest column
+        if it == flags[MAX_ITER] // 2 and it > 1:   # hold branch E from here, the columns restarted
+            for e_ in range(bk.shape[0]):
+                if bk[e_] > BRANCH_E:
+                    bk[e_] = BRANCH_E
+                    fresh = True
+            if fresh:
+                network_forces(laws, geo, Kp, Kd, E2, W2, q, u, g, t1, t2, c1q, c1u, c2q, c2u, False, dk, bk, ek,
+                               hp, t + h, True)
+                rmax = _residual(g, te, r)
+                ist[0] = 0
+                omega = OMEGA0
+                redecide = 0
+        if it > 1 and not fresh:   # a secant of this step: the newest column
             ist[1] = (ist[1] + 1) % C
             ist[0] = min(ist[0] + 1, C)
             for i in range(N):
@@ -524,6 +581,7 @@ def _implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, 
                     dr += (r[i, c] - rp[i, c]) * (r[i, c] - rp[i, c])
             if dr > 0.0:   # Aitken's relaxation, for a step whose secants the QR filter drops
                 omega = -omega * (_dot(rp, r) - _dot(rp, rp)) / dr
+        fresh = False
         _copy(r, rp)
         _copy(g, gp)
         if _iqn_ils(te, g, r, V, W, Qw, Rw, alpha, cols, ist[0], ist[1]) == 0:

@@ -433,8 +433,9 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
         hold) or ``"implicit"`` (each step iterated with FMU-state rollback until the forces agree
         with the states at its end: the line between the two ends with ``hold="foh"``, their mean
         held with ``"zoh"``; needs ``canGetAndSetFMUstate``; ``info["iterations"]``: FMU steps per
-        communication step; a step that does not converge raises ``ExchangeNotConverged``,
-        docs/design.md §4.4).
+        communication step; the switching laws' branch is held within a step, ``info["off_branch"]``
+        counting per step the edges accepted off the law's own branch; a step that does not converge
+        raises ``ExchangeNotConverged``, docs/design.md §4.4).
     tol : co-simulate to this tolerance (docs/design.md §4.4.1): ``H`` is then the first and
         largest step; each step's local coupling error is estimated, a step over its share
         ``tol h / t_end`` is rolled back (FMU state) and retaken shorter, steps are whole

@@ -307,3 +307,25 @@ def test_gain_matrix():
     assert K.flags["C_CONTIGUOUS"] and K.dtype == np.float64
     with pytest.raises(ValueError, match="Kp must be positive semidefinite"):
         gain_matrix([[1.0, 3.0], [0.0, 1.0]], 2)
+
+
+@FAST
+@given(scene())
+def test_the_law_on_a_held_branch(sc):
+    """coupling_forces(..., branch=) (the implicit exchange's held branch, docs/design.md §4.4): the
+    law's own branch gives the law bit for bit; branch E gives the PD law (the Euclidean forces)
+    wherever the states are; an unknown branch is refused, naming the names."""
+    from fmu_sync.core.distance import BRANCH_NAMES
+    name, e, Kp, Kd, x1, x2 = sc
+    geo = geo_of(name, e)
+    n = x1[0].size
+    _, b = coupling_kernel(SWITCHING, geo, Kp, Kd, *x1, *x2, np.zeros(n), np.zeros(n), *chain_work(n))
+    free = coupling_forces(geo, x1, x2, "switching", Kp, Kd)
+    own = coupling_forces(geo, x1, x2, "switching", Kp, Kd, branch=BRANCH_NAMES[b])
+    assert all(np.array_equal(f, o) for f, o in zip(free, own))
+    pd = coupling_forces(geo, x1, x2, "euclidean", Kp, Kd)
+    on_e = coupling_forces(geo, x1, x2, "switching", Kp, Kd, branch="E")
+    assert all(np.array_equal(f, o) for f, o in zip(pd, on_e))
+    with pytest.raises(ValueError, match=r"branch must be None \(the law's own\) or one of \['E', 'J12', 'J21', "
+                                         r"'J2'\], got 'K'"):
+        coupling_forces(geo, x1, x2, "switching", Kp, Kd, branch="K")

@@ -323,6 +323,41 @@ def test_pruned_equals_unpruned(sc):
     assert distance_value(geo, *x1, *x2) == (d, b)
 
 
+@FAST
+@given(scene(2), st.sampled_from([BRANCH_E, BRANCH_J12, BRANCH_J21, BRANCH_J2]))
+def test_a_held_branch_is_that_branch_alone(sc, fix):
+    """``fix`` (the implicit exchange's held branch, docs/design.md §4.4): holding the branch the
+    distance picks gives its result bit for bit (d, branch, chain ends); holding another gives that
+    branch's chain, no shorter than d -- except J2 where it is not defined (inf in
+    branch_values_2d), which gives the free result."""
+    name, e, x1, x2 = sc
+    geo = geo_of(name, e)
+    c = np.zeros((8, x1[0].size))
+    d, b = distance_kernel(geo, *x1, *x2, c[0], c[1], c[2], c[3])
+    assert distance_kernel(geo, *x1, *x2, c[4], c[5], c[6], c[7], b) == (d, b) and np.array_equal(c[:4], c[4:])
+    dh, bh = distance_kernel(geo, *x1, *x2, c[4], c[5], c[6], c[7], fix)
+    if bh != fix:
+        assert fix == BRANCH_J2 and (dh, bh) == (d, b)
+    else:
+        assert dh >= d * (1.0 - 1e-12)
+
+
+@settings(max_examples=800, deadline=None)
+@given(st.floats(0.0, 3.0), st.floats(-3.0, 3.0), st.floats(0.0, 3.0), st.floats(-3.0, 3.0),
+       st.one_of(st.sampled_from(E_VALUES), st.floats(0.01, 1.0)))
+def test_a_held_planar_branch_has_the_value_of_branch_values_2d(aX, aY, bX, bY, e):
+    """core_2d with a branch held returns that branch's value as branch_values_2d computes it."""
+    from fmu_sync.core.distance_planar import core_2d
+    k = e / math.sqrt(1.0 - e * e) if e < 1.0 else math.inf
+    free = core_2d(aX, aY, bX, bY, aX - bX, aY - bY, e, k, True)
+    for fix, v in enumerate(branch_values_2d(aX, aY, bX, bY, e)):
+        held = core_2d(aX, aY, bX, bY, aX - bX, aY - bY, e, k, True, fix)
+        if math.isfinite(v):
+            assert held[:2] == (v, fix)
+        else:
+            assert held == free
+
+
 small = st.one_of(st.just(0.0), st.floats(1e-120, 1e-9), st.floats(-1e-9, -1e-120))
 
 
