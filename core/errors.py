@@ -10,11 +10,15 @@
 * A run that fails mid-way raises a :class:`RunFailed`; its ``partial``
   attribute holds the result recorded up to the failure (``partial.success``
   is False, ``partial.message`` says what happened), or None where no record
-  exists (the single-system driver records nothing of a diverged state).
+  exists.
+* A user force law that raises mid-run ends the run as a :class:`ForceLawFailed` (a
+  RunFailed) with the law's own message, the time and the state of the failing step, and the
+  record up to the last good step in ``partial``; one that returns a non-finite force ends it as
+  a :class:`SimulationDiverged` whose message names the law (:mod:`fmu_sync.core.failure`).
 """
 from __future__ import annotations
 
-__all__ = ["RunFailed", "SimulationDiverged", "RunRefused", "UnstableScheme", "LawRefused"]
+__all__ = ["RunFailed", "SimulationDiverged", "ForceLawFailed", "RunRefused", "UnstableScheme", "LawRefused"]
 
 
 class RunFailed(RuntimeError):
@@ -27,6 +31,11 @@ class RunFailed(RuntimeError):
 
 class SimulationDiverged(RunFailed):
     """The state became non-finite: the scheme is unstable for this step size."""
+
+
+class ForceLawFailed(RunFailed):
+    """A user force law raised an exception mid-run; the message carries the law's name, its own
+    message, the time and the state of the step; ``partial`` the record up to the last good step."""
 
 
 class RunRefused(ValueError):
