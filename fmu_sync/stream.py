@@ -23,10 +23,15 @@ class StreamRecord:
 
     def __init__(self, writer, system=None, total_rows: int = 0, plot_rows: int = 20000,
                  threshold: float = SYNC_THRESHOLD, progress=None, every: int | None = None,
-                 keep_distance: bool = False, window_rows: int = 0):
+                 keep_distance: bool = False, window_rows: int = 0, write_every: int = 1):
         self.writer, self.system, self.threshold, self.progress = writer, system, threshold, progress
         self.total = max(int(total_rows), 1)
-        self.every = max(1, -(-self.total // max(int(plot_rows), 1))) if every is None else max(1, int(every))
+        # the rows written: every write_every-th (a record every run.record_every steps of a stream
+        # of every step) and the last (:meth:`close_rows`); the plots' rows: a multiple of those
+        self.write_every, self.written_to = max(1, int(write_every)), -1
+        written = -(-self.total // self.write_every)
+        self.every = (self.write_every * max(1, -(-written // max(int(plot_rows), 1))) if every is None
+                      else max(1, int(every)))
         self.rows = 0
         self.keep = []
         # full resolution (the scene runner, fmu_sync/scenes/running.py): every row's d for the
@@ -45,7 +50,12 @@ class StreamRecord:
         n = np.asarray(chunk.q1).shape[1]
         cols = pair_columns(n, chunk.d is not None)
         if self.writer is not None:
-            self.writer.append({k: getattr(chunk, k) for k, _ in cols})
+            idx = np.arange(self.rows, self.rows + len(chunk.t))
+            sel = np.nonzero(idx % self.write_every == 0)[0]
+            if sel.size:
+                part = chunk if sel.size == len(idx) else _take(chunk, sel)
+                self.writer.append({k: getattr(part, k) for k, _ in cols})
+                self.written_to = int(idx[sel[-1]])
         if chunk.d is not None:
             if self.keep_distance:
                 self.t_d.append((np.array(chunk.t, dtype=float), np.array(chunk.d, dtype=float)))
@@ -97,6 +107,21 @@ class StreamRecord:
         self.rows += len(t)
         if self.progress is not None:
             self.progress(min(1.0, self.rows / self.total))
+
+    def close_rows(self) -> None:
+        """Write the last row when it is not one of every ``write_every``-th (the run's final state is
+        always a row of its record)."""
+        if self.writer is not None and self.last is not None and self.written_to != self.rows - 1:
+            from .output import pair_columns
+            cols = pair_columns(np.asarray(self.last.q1).shape[1], self.last.d is not None)
+            self.writer.append({k: getattr(self.last, k) for k, _ in cols})
+            self.written_to = self.rows - 1
+
+    @property
+    def rows_written(self) -> int:
+        """The rows written so far (with :meth:`close_rows`: the record's)."""
+        return 0 if self.written_to < 0 else self.written_to // self.write_every + 1 + \
+            (1 if self.written_to % self.write_every else 0)
 
     def _follow_window(self, chunk) -> None:
         """Keep the rows within ``window_rows`` of the largest peaking ``E - d`` seen so far

@@ -331,20 +331,29 @@ def _stream_run(v: Variant, out_dir: Path, fmu_path, progress, scene_name, forma
     lay = dict(kind="pair", N=2, n=v.system.n, edges=[[0, 1]], distance=v.has_distance,
                **({"units": units_with(own["units"])} if own else {}))
     writer = RecordWriter(out_dir / v.name, pair_columns(v.system.n, v.has_distance), formats, layout=lay)
+    from ..output import record_steps, run_grid
     from ..stream import StreamRecord
-    sink = StreamRecord(writer, v.system, est.rows, plot_rows)
+    steps, step, _ = run_grid(v.cfg)
+    # every step streamed (the metrics and the impact window from all of them), a row written every
+    # run.record_every of them (full_resolution_run)
+    sink = StreamRecord(writer, v.system, steps + 2, plot_rows, write_every=record_steps(v.cfg),
+                        window_rows=int(math.ceil(WINDOW_SECONDS / step)))
     try:
-        last = run_variant(v, fmu_path, progress, scene_name, sink=sink, chunk_rows=chunk_rows)
+        last = run_variant(v, fmu_path, progress, scene_name, sink=sink, chunk_rows=chunk_rows, every=1)
+        sink.close_rows()
     except RunFailed as exc:
         if sink.rows == 0:
             writer.abort()
             raise
+        sink.close_rows()
         result = _with_units(sink.thinned(), v)
         result.error = str(exc)
+        result.impact_record = sink.window()
         writer.meta = report.record_meta(_counted(result, sink), extra)
         files = writer.close(partial=True)
         run = RunRecord(v.name, v, result, sink.metrics(result), files=files, streamed=True)
         run.metrics["error"] = str(exc)
+        run.metrics["records"] = sink.rows_written
         return run
     except BaseException:
         writer.abort()
@@ -352,9 +361,11 @@ def _stream_run(v: Variant, out_dir: Path, fmu_path, progress, scene_name, forma
     result = _with_units(sink.thinned(), v)
     writer.meta = report.record_meta(_counted(result, sink, last), extra)
     files = writer.close()
+    result.impact_record = sink.window()
     metrics = sink.metrics(last)
+    metrics["records"] = sink.rows_written
     # the fitted decay (envelope of d) and the ultimate bound from the thinned record (sampled
-    # every `thinned_every` records); t_sync, the maxima and the jumps above are exact
+    # every `thinned_every` steps); t_sync, the maxima and the jumps above are exact
     metrics.update(report._sync_fields(report._sync(result, report.SYNC_THRESHOLD)))
     run = RunRecord(v.name, v, result, metrics, files=files, streamed=True)
     return run
@@ -600,8 +611,8 @@ def skipped_notes(runs) -> list[str]:
 def stream_notes(runs) -> list[str]:
     return [f"**{r.name}**: its record exceeded the memory budget and was written in chunks while it ran; "
             f"the plots, the fitted decay rate and the ultimate bound use every "
-            f"{r.metrics['thinned_every']}-th of its "
-            f"{r.metrics['records']} records (t_sync, maxima and jumps use all of them)"
+            f"{r.metrics['thinned_every']}-th of its steps (t_sync, maxima and jumps use all of them; its "
+            f"record has {r.metrics['records']} rows)"
             for r in runs if r.metrics.get("thinned_every", 1) > 1]
 
 

@@ -338,7 +338,8 @@ KEYS = {
             "method": _key(choice(*METHODS), "jacobi", "exchange strategy of the master (cosim)"),
             "event_aware": _key(_boolean, False, "retake a communication step that contains an impact (cosim)"),
             "hold": _key(choice(*HOLDS), "zoh", "input hold over a communication step (cosim)"),
-            "record_every": _key(_integer(1), 1, "keep every k-th step (core: steps dt; cosim: steps H)"),
+            "record_every": _key(_integer(1), 1, ("record every k steps of solver.dt in both modes (cosim: at the nearest whole number of "
+                                                                 "run.H steps, at least one); the summary's metrics use every step")),
             "allow_unstable": _key(_boolean, False, "run even if the held coupling exchange is unstable at this step")},
     "record": {"distance": _key(_boolean, None, "compute d, branch, V and the Euclidean error (pairs and "
                                 "networks: default true)"),
