@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .core.pair import concat_pairs as _concat
 from .report import SYNC_THRESHOLD, impact_records
 
 __all__ = ["StreamRecord"]
@@ -196,12 +197,3 @@ def _take(r, idx):
     g = lambda a: None if a is None else np.asarray(a)[idx]  # noqa: E731
     return PairResult(*(g(getattr(r, k)) for k in StreamRecord._FIELDS), impacts1=r.impacts1,
                       impacts2=r.impacts2, coupling=r.coupling, info=dict(r.info), error=r.error)
-
-
-def _concat(parts):
-    from .core.result import PairResult
-    first = parts[0]
-    g = lambda k: None if getattr(first, k) is None else np.concatenate([getattr(p, k) for p in parts])  # noqa: E731
-    last = parts[-1]
-    return PairResult(*(g(k) for k in StreamRecord._FIELDS), impacts1=last.impacts1, impacts2=last.impacts2,
-                      coupling=first.coupling, info=dict(first.info), error=last.error)

@@ -337,7 +337,7 @@ def _stream_run(v: Variant, out_dir: Path, fmu_path, progress, scene_name, forma
     # every step streamed (the metrics and the impact window from all of them), a row written every
     # run.record_every of them (full_resolution_run)
     sink = StreamRecord(writer, v.system, steps + 2, plot_rows, write_every=record_steps(v.cfg),
-                        window_rows=int(math.ceil(WINDOW_SECONDS / step)))
+                        window_rows=window_rows(step, per_row, max_memory))
     try:
         last = run_variant(v, fmu_path, progress, scene_name, sink=sink, chunk_rows=chunk_rows, every=1)
         sink.close_rows()
@@ -376,6 +376,13 @@ def _stream_run(v: Variant, out_dir: Path, fmu_path, progress, scene_name, forma
 WINDOW_SECONDS = 2.0
 
 
+def window_rows(step: float, per_row: float, max_memory: float) -> int:
+    """Rows each side of the impact window's peak: :data:`WINDOW_SECONDS` of steps, at most what
+    keeps the window (its rows, the rows before the next chunk, their copies) within a sixteenth of
+    ``max_memory`` (``per_row``: bytes of a row)."""
+    return max(16, min(int(math.ceil(WINDOW_SECONDS / step)), int(max_memory / (16.0 * per_row))))
+
+
 def full_resolution_run(v: Variant, fmu_path, progress, scene_name, max_memory: float):
     """A pair variant (not a network) run at every step of its grid (``solver.dt``; ``run.H`` in
     co-simulation), its rows folded as they come (:class:`fmu_sync.stream.StreamRecord`): the summary's
@@ -399,7 +406,7 @@ def full_resolution_run(v: Variant, fmu_path, progress, scene_name, max_memory: 
         every_run = 1
     keep_d = 16.0 * full_rows / every_run <= 0.5 * max_memory   # every row's (t, d) for the decay fit
     sink = StreamRecord(None, v.system, full_rows, every=every // every_run, keep_distance=keep_d,
-                        window_rows=int(math.ceil(WINDOW_SECONDS / (step * every_run))))
+                        window_rows=window_rows(step * every_run, 8.0 * est.values_per_row, max_memory))
 
     def finish(last, error=None):
         result = sink.thinned()
