@@ -528,7 +528,9 @@ def run_scene(scene, out_dir=None, overrides: dict | None = None, progress: Call
                     if exc.partial is None:
                         runs.append(RunRecord(v.name, v, None, {"error": str(exc), "kind": "failed"}))
                         continue
-                    result, metrics = exc.partial, exc.metrics
+                    result = exc.partial
+                    result.error = result.error or str(exc)
+                    metrics = getattr(exc, "metrics", None) or report.metrics(result, v.system)
                 run = RunRecord(v.name, v, result, metrics)
             else:
                 try:
