@@ -426,7 +426,8 @@ def full_resolution_run(v: Variant, fmu_path, progress, scene_name, max_memory: 
 
     try:
         if v.mode == "core":
-            last = run_variant(v, fmu_path, progress, scene_name, sink=sink, chunk_rows=65536, every=1)
+            chunk = max(64, min(65536, steps // 100))   # about 100 chunks: the progress moves (and Ctrl-C stops)
+            last = run_variant(v, fmu_path, progress, scene_name, sink=sink, chunk_rows=chunk, every=1)
         else:
             last = run_variant(v, fmu_path, progress, scene_name, every=every_run)
             sink(last)
