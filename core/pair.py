@@ -17,7 +17,7 @@ from .coupling import BRANCH_NONE, QUOTIENT_LAWS, UNCOUPLED, gain_matrix, law_me
 from .distance import geometry
 from .loop import coupling_step, integrate_network, no_decimator
 from .steps import DIVERGED, OK
-from .result import PairResult
+from .result import PairResult, concat_pairs
 from .checks import divergence_message
 from .errors import ForceLawFailed, SimulationDiverged
 from .failure import force_offset, law_nonfinite, law_raised, rows_written
@@ -291,12 +291,3 @@ def pair_rows(rec, sl, record_d: bool, copy: bool = False, **kw) -> PairResult:
     cols = (T, Qr[:, 0], Ur[:, 0], Qr[:, 1], Ur[:, 1], TAU[:, 0], TAU[:, 1])
     dist = (take(D2[:, 0]), take(BR2[:, 0]), take(EU2[:, 0])) if record_d else (None, None, None)
     return PairResult(*(take(a) for a in cols), *dist, **kw)
-
-
-def concat_pairs(parts) -> PairResult:
-    """Consecutive pair results as one (the last one's counts and error, the first one's info)."""
-    first, last = parts[0], parts[-1]
-    cols = ("t", "q1", "u1", "q2", "u2", "tau1", "tau2", "d", "branch", "euclidean")
-    g = lambda k: None if getattr(first, k) is None else np.concatenate([getattr(p, k) for p in parts])  # noqa: E731
-    return PairResult(*(g(k) for k in cols), impacts1=last.impacts1, impacts2=last.impacts2,
-                      coupling=first.coupling, info=dict(first.info), error=last.error)

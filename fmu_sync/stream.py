@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .core.pair import concat_pairs as _concat
+from .core.result import concat_pairs as _concat
 from .report import SYNC_THRESHOLD, impact_records
 
 __all__ = ["StreamRecord"]
