@@ -521,28 +521,21 @@ def run_scene(scene, out_dir=None, overrides: dict | None = None, progress: Call
             if stream:
                 run = _stream_run(v, out_dir, fmu_path, scaled(progress, a, b), scene.name, fmts, est, max_memory,
                                   run_extra(v, scene.plots, _title(scene.name, v.name)))
-            elif v.pair and not v.is_network:   # metrics and impact window from every step
-                try:
-                    result, metrics = full_resolution_run(v, fmu_path, scaled(progress, a, mid), scene.name,
-                                                          max_memory)
-                except RunFailed as exc:
-                    if exc.partial is None:
-                        runs.append(RunRecord(v.name, v, None, {"error": str(exc), "kind": "failed"}))
-                        continue
-                    result = exc.partial
-                    result.error = result.error or str(exc)
-                    metrics = getattr(exc, "metrics", None) or report.metrics(result, v.system)
-                run = RunRecord(v.name, v, result, metrics)
             else:
                 try:
-                    result = run_variant(v, fmu_path, scaled(progress, a, mid), scene.name)
+                    if v.pair and not v.is_network:   # metrics and impact window from every step
+                        result, metrics = full_resolution_run(v, fmu_path, scaled(progress, a, mid), scene.name,
+                                                              max_memory)
+                    else:
+                        result, metrics = run_variant(v, fmu_path, scaled(progress, a, mid), scene.name), None
                 except RunFailed as exc:
                     if exc.partial is None:
                         runs.append(RunRecord(v.name, v, None, {"error": str(exc), "kind": "failed"}))
                         continue
                     result = exc.partial
                     result.error = result.error or str(exc)
-                run = RunRecord(v.name, v, result, report.metrics(result, v.system))
+                    metrics = getattr(exc, "metrics", None)
+                run = RunRecord(v.name, v, result, metrics or report.metrics(result, v.system))
             if run.result is not None and getattr(run.result, "error", None):
                 run.metrics["error"] = run.result.error
             try:
