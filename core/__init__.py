@@ -21,7 +21,8 @@ The public API of the core (everything a user of the standalone engine needs):
 * the exact event-driven solver :func:`simulate_exact` / :func:`exact_events` (any n: the
   compiled closed form for n = 1, the matrix flow for n > 1; results :class:`ExactEvents`);
 * results :class:`SimulationResult`, :class:`PairResult`, :class:`NetworkResult`, and the errors
-  :class:`SimulationDiverged` (a run that failed) and the refusals made before the first step,
+  :class:`SimulationDiverged` (a run that failed; :class:`ForceLawFailed`: a user force law
+  raised mid-run) and the refusals made before the first step,
   each of its own type, all :class:`RunRefused` (ValueErrors): :class:`UnstableScheme`,
   :class:`UnstableExchange`, :class:`InadmissibleState`, :class:`RecordTooLarge`;
 * the run plan :func:`plan_run` (:class:`RunPlan`): every check of a run, made once
@@ -35,7 +36,7 @@ from .model import IMPACT_OSCILLATOR, MECHANICAL_SYSTEM, ImpactOscillator, Mecha
 from .declaration import Model, ModelError, Param
 from .registry import load_model
 from .impact import impact_map
-from .errors import RunFailed, RunRefused, SimulationDiverged, UnstableScheme
+from .errors import ForceLawFailed, RunFailed, RunRefused, SimulationDiverged, UnstableScheme
 from .checks import InadmissibleState, RecordTooLarge, StepTooLarge
 from .plan import RunPlan, plan_run
 from .result import NetworkResult, PairResult, SimulationResult
@@ -54,7 +55,7 @@ from .errors import LawRefused
 __all__ = ["Model", "Param", "ModelError", "load_model", "IMPACT_OSCILLATOR", "MECHANICAL_SYSTEM",
            "ImpactOscillator", "MechanicalSystem", "SystemArrays", "impact_map", "simulate", "simulate_pair",
            "quotient_distance", "coupling_forces", "energy_metric", "simulate_exact", "exact_events", "ExactEvents",
-           "SimulationResult", "PairResult", "RunFailed",
+           "SimulationResult", "PairResult", "RunFailed", "ForceLawFailed",
            "SimulationDiverged", "NetworkResult", "simulate_network", "ring", "path", "star", "all_to_all",
            "sync_metrics", "SyncMetrics", "sync_rate", "EnsembleRate", "exchange_limit", "hold_bound", "UnstableExchange", "UnstableScheme",
            "RunRefused", "InadmissibleState", "RecordTooLarge", "StepTooLarge", "RunPlan", "plan_run", "ForceLaw", "force_law", "LawRefused"]

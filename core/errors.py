@@ -10,11 +10,16 @@
 * A run that fails mid-way raises a :class:`RunFailed`; its ``partial``
   attribute holds the result recorded up to the failure (``partial.success``
   is False, ``partial.message`` says what happened), or None where no record
-  exists (the single-system driver records nothing of a diverged state).
+  exists.
+* A user force law that raises mid-run ends the run as a :class:`ForceLawFailed` (a
+  RunFailed) with the law's own message, the time and the state of the failing step, and the
+  record up to the last good step in ``partial``; one that returns a non-finite force ends it as
+  a :class:`SimulationDiverged` whose message names the law (:mod:`fmu_sync.core.failure`).
 """
 from __future__ import annotations
 
-__all__ = ["RunFailed", "SimulationDiverged", "ExchangeNotConverged", "RunRefused", "UnstableScheme", "LawRefused"]
+__all__ = ["RunFailed", "SimulationDiverged", "ExchangeNotConverged", "ForceLawFailed", "RunRefused", "UnstableScheme",
+           "LawRefused"]
 
 
 class RunFailed(RuntimeError):
@@ -32,6 +37,11 @@ class SimulationDiverged(RunFailed):
 class ExchangeNotConverged(RunFailed):
     """The implicit exchange of a co-simulation step did not converge within its iteration cap
     (docs/design.md §4.4): the step is not accepted; the record ends at the step's start."""
+
+
+class ForceLawFailed(RunFailed):
+    """A user force law raised an exception mid-run; the message carries the law's name, its own
+    message, the time and the state of the step; ``partial`` the record up to the last good step."""
 
 
 class RunRefused(ValueError):

@@ -223,10 +223,26 @@ class ForceLaw:
         elif isinstance(rt, (types.Float, types.Integer)) and self.n == 1:
             self._returns = "scalar"
         else:
-            allowed = "a float64 (n,) array" + (" or a float" if self.n == 1 else "")
-            raise LawRefused(f"force law {self.name!r} must return {allowed} (n = {self.n}), "
-                             f"it returns {rt}")
+            raise LawRefused(f"force law {self.name!r} must return {self._allowed()}; numba types what it returns "
+                             f"as {rt}{self._never_returns(rt)}")
         return self._returns
+
+    def _allowed(self) -> str:
+        """What h must return, in words."""
+        return f"a float64 array of shape ({self.n},)" + (" or a float" if self.n == 1 else "") + f" (n = {self.n})"
+
+    def _never_returns(self, rt) -> str:
+        """For a return type ``none`` (every path raises, or h has no return): what calling h at rest
+        (q = u = tau = 0, t = 0, the default parameters) does, in words."""
+        if str(rt) != "none":
+            return ""
+        z = np.zeros(self.n)
+        try:
+            self.py_func(z, z.copy(), z.copy(), 0.0, np.array([prm.default for prm in self.params], dtype=float))
+        except Exception as exc:
+            return (f" (it never returns a value: called at q = u = tau = 0, t = 0 with the default parameters "
+                    f"it raises {type(exc).__name__}: {exc})")
+        return " (it never returns a value: add a return statement)"
 
     def evaluate(self, q, u, tau, t, p) -> np.ndarray:
         """h at one point, as an (n,) array (compiled; for checks and the metric)."""
@@ -237,15 +253,18 @@ class ForceLaw:
         except Exception as exc:   # an exception the law raises itself (numba: raise ...)
             raise LawRefused(f"force law {self.name!r} raised {type(exc).__name__}: {exc} at q = "
                              f"{args[0].tolist()}, u = {args[1].tolist()}, t = {float(t):g}") from None
-        return np.array(r, dtype=np.float64, ndmin=1).reshape(-1)
+        r = np.array(r, dtype=np.float64, ndmin=1)
+        if r.shape != (self.n,):
+            raise LawRefused(f"force law {self.name!r} returned an array of shape {r.shape} at q = "
+                             f"{args[0].tolist()}, u = {args[1].tolist()}, t = {float(t):g}; it must return "
+                             f"{self._allowed()}")
+        return r
 
     def check(self, p, q, u, tau=None, t: float = 0.0, where: str = "the start state"):
         """Before a run: compilable, the right shape, finite at ``(q, u, tau, t)``."""
         n = self.n
         tau = np.zeros(n) if tau is None else tau
-        r = self.evaluate(q, u, tau, t, p)
-        if r.shape != (n,):
-            raise LawRefused(f"force law {self.name!r} returned shape {r.shape} at {where}, expected ({n},)")
+        r = self.evaluate(q, u, tau, t, p)   # its shape checked there
         if not np.all(np.isfinite(r)):
             vals = ", ".join(f"{prm.name} = {v:g}" for prm, v in zip(self.params, p))
             raise LawRefused(f"force law {self.name!r} returned non-finite values {r.tolist()} at {where} "

@@ -101,8 +101,9 @@ def verdict(rate, err, decades, samples):
     return RESOLVED
 
 
-def reason_text(code, rate=math.nan, err=math.nan, decades=0, stall=math.nan) -> str:
-    """Why a rate means nothing, in words ('' when resolved); the numbers are optional."""
+def reason_text(code, rate=math.nan, err=math.nan, decades=0, stall=math.nan, d_from=math.nan) -> str:
+    """Why a rate means nothing, in words ('' when resolved); the numbers are optional (``stall``:
+    where d stops falling, ``d_from``: the window's top, a tenth of max d)."""
     code = int(code) if code == code else NO_RECORD
     if code == RESOLVED:
         return ""
@@ -110,7 +111,14 @@ def reason_text(code, rate=math.nan, err=math.nan, decades=0, stall=math.nan) ->
         return "no record to fit (fewer than 3 finite samples, or d is 0 throughout)"
     at = f" (it stops falling at about {stall:.2g})" if stall == stall and stall > 0 else ""
     if code == NO_DESCENT:
-        return f"d never falls a decade below its maximum{at}"
+        top = f" ({d_from:.2g})" if d_from == d_from and d_from > 0 else ""
+        if stall == stall and d_from == d_from and stall >= d_from > 0:
+            return f"d never falls below a tenth of its maximum{top}: it stops falling at about {stall:.2g}"
+        if stall == stall and stall > 0 and d_from == d_from and STALL * stall * 10.0 >= d_from:
+            return (f"the fit window, from a tenth of d's maximum{top} down to {STALL:g} times the level where d "
+                    f"stops falling ({STALL * stall:.2g}; d stops at about {stall:.2g}, its largest value over the "
+                    f"last {TAIL:.0%} of the run), spans less than one decade, too little for a rate")
+        return f"d never falls a decade below a tenth of its maximum{top}"
     if code == TOO_FEW_DECADES:
         return (f"d falls through {int(decades)} whole decade(s) below a tenth of its maximum before it stops "
                 f"falling or the run ends{at}; at least {MIN_DECADES} are needed")
@@ -314,7 +322,7 @@ def metrics_kernel(t, d, threshold, hi, lo, floor_abs, tail):
 def _pack(r, threshold, d, threshold_rel=math.nan) -> SyncMetrics:
     rate, err, ta, tb, dec, ts, tf, bound, code, d_from, d_to, stall, a, rates = r
     d0 = float(d[0]) if d is not None and len(d) else math.nan
-    why = reason_text(code, float(rate), float(err), int(dec), float(stall))
+    why = reason_text(code, float(rate), float(err), int(dec), float(stall), float(d_from))
     return SyncMetrics(float(rate), float(err), float(ta), float(tb), max(int(dec), 0), float(ts), float(tf),
                        float(bound), float(threshold), float(d_from), float(d_to),
                        tuple(float(x) for x in rates), int(code), why, d0, float(threshold_rel), float(a))

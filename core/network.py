@@ -21,10 +21,11 @@ import numpy as np
 from .coupling import BRANCH_NONE, QUOTIENT_LAWS, law_metric, metric_info
 from .distance import geometry
 from .checks import divergence_message
-from .errors import SimulationDiverged
+from .errors import ForceLawFailed, SimulationDiverged
+from .failure import rows_written
 from .loop import network_forces, no_decimator, node_force
-from .steps import OK
-from .pair import LAWS, network_loop, stack_nodes
+from .steps import DIVERGED, OK
+from .pair import LAWS, failure_message, locate_failure, network_loop, stack_nodes
 from .plan import as_systems, coupled_weights, edges_of, held_exchange, plan_run, weights
 from .result import NetworkResult
 
@@ -115,6 +116,17 @@ def edge_arrays(A, edges):
 
 
 
+def network_record(rows: int, N: int, n: int, E: int):
+    """The record arrays of a network run as the loop takes them, ``(T, Qr, Ur, TAU, D, BR, EU)``:
+    T (rows,), Qr, Ur, TAU (rows, N, n), the edges' D, BR, EU (rows, E); NaN until written
+    (core/failure.py)."""
+    T = np.full(rows, np.nan)
+    Qr, Ur, TAU = (np.full((rows, N, n), np.nan) for _ in range(3))
+    D, EU = np.full((rows, E), np.nan), np.full((rows, E), np.nan)
+    BR = np.full((rows, E), BRANCH_NONE, dtype=np.int64)
+    return T, Qr, Ur, TAU, D, BR, EU
+
+
 # ------------------------------------------------------------------ Python API
 def simulate_network(system, states, A, t_end: float, dt: float, coupling="switching", Kp=0.0,
                      Kd=0.0, Q=None, scheme: str = "midpoint", theta: float = 0.5,
@@ -157,10 +169,7 @@ def simulate_network(system, states, A, t_end: float, dt: float, coupling="switc
     lm = law_metric(Q, [s.K for s in systems], Kp_m, coupled_weights(A, edges, laws) if coupled else None,
                     coupled=coupled, stiffness=s0.metric_source)
     geo = geometry(s0, lm.Q)
-    T = np.full(rows, np.nan)
-    Qr, Ur, TAU = (np.full((rows, N, n), np.nan) for _ in range(3))
-    D, EU = np.full((rows, E), np.nan), np.full((rows, E), np.nan)
-    BR = np.full((rows, E), BRANCH_NONE, dtype=np.int64)
+    T, Qr, Ur, TAU, D, BR, EU = network_record(rows, N, n, E)
     E2, W2 = edge_arrays(A, edges)
     nodes = stack_nodes(*systems)
     loop = network_loop(systems)
@@ -175,14 +184,20 @@ def simulate_network(system, states, A, t_end: float, dt: float, coupling="switc
     row0, k0 = 0, 0
     imp = np.zeros(N, dtype=np.int64)
     i_, ep = np.zeros(N, dtype=np.int64), np.zeros(N, dtype=np.int64)   # each chunk's counts
-    status = OK
+    status, raised, chunk_k = OK, None, 0
     for c, steps in enumerate(chunks):
         last = c == len(chunks) - 1
         sl = slice(row0, rows)
-        status, done, written, _, _ = loop(
-            *nodes, geo, laws, E2, W2, Kp_m, Kd_m, q, u, float(t0), k0, dt, steps,
-            code, theta, record_every, record_d, T[sl], Qr[sl], Ur[sl], TAU[sl], D[sl], BR[sl], EU[sl],
-            dt_last if last else 0.0, False, *dec, i_, ep)
+        chunk_k = k0
+        try:
+            status, done, written, _, _ = loop(
+                *nodes, geo, laws, E2, W2, Kp_m, Kd_m, q, u, float(t0), k0, dt, steps,
+                code, theta, record_every, record_d, T[sl], Qr[sl], Ur[sl], TAU[sl], D[sl], BR[sl], EU[sl],
+                dt_last if last else 0.0, False, *dec, i_, ep)
+        except Exception as exc:   # raised by the user's law inside the compiled loop (core/failure.py)
+            if s0.force is None:
+                raise
+            status, done, written, raised = DIVERGED, 0, rows_written(T[sl]), exc
         imp += i_
         if status != OK:
             row0 += written
@@ -192,6 +207,25 @@ def simulate_network(system, states, A, t_end: float, dt: float, coupling="switc
         row0 += written - (0 if last else 1)
         if progress is not None:
             progress(min(k0 / max(n_steps, 1), 1.0))
+    fail_msg, again, t_fail = None, None, min(t0 + k0 * dt, grid.t_end)
+    if status != OK:   # the failing step (core/failure.py): from the last row, every step again with a row each
+        b = row0 - 1
+        k_b = chunk_k + (written - 1) * record_every
+        m = min(record_every, n_steps - k_b)
+        h_last = dt_last if m == n_steps - k_b else 0.0
+        bufs, j, again = locate_failure(loop, nodes, geo, laws, E2, W2, Kp_m, Kd_m, Qr[b], Ur[b], t0, k_b, dt, m,
+                                        code, theta, record_d, h_last, lambda c: network_record(c, N, n, E))
+        if raised is not None and again is None:
+            raise raised   # not the law's (it did not raise again from the same state): as it came
+        if j is not None:
+            if j >= 1:   # the last good step as the last row
+                for big, small in zip((T, Qr, Ur, TAU, D, BR, EU), bufs):
+                    big[row0] = small[j]
+                row0 += 1
+            hk = h_last if (j == m and h_last > 0.0) else dt
+            fail_msg = failure_message(systems, [s.p for s in systems], bufs, j, again, code, theta, hk,
+                                       [f"node {i + 1}" for i in range(N)])
+            t_fail = min(float(bufs[0][j]) + hk, grid.t_end)
     sl = slice(0, row0 if status != OK else rows)
     V = None
     if record_d:
@@ -208,11 +242,13 @@ def simulate_network(system, states, A, t_end: float, dt: float, coupling="switc
                         BR[sl] if record_d else None, EU[sl] if record_d else None, V,
                         impacts=[int(v) for v in imp], info=info)
     if status != OK:
-        msg = divergence_message(s0, scheme, dt, min(t0 + k0 * dt, grid.t_end), what="a network state or distance",
-                                 Kp=Kp_m if coupled else None)
-        if limit is not None:
-            msg += f" ({limit.message()})"
-        err = SimulationDiverged(msg)
+        msg = fail_msg
+        if msg is None:
+            msg = divergence_message(s0, scheme, dt, t_fail, what="a network state or distance",
+                                     Kp=Kp_m if coupled else None)
+            if limit is not None:
+                msg += f" ({limit.message()})"
+        err = (ForceLawFailed if again is not None else SimulationDiverged)(msg)
         res.error = str(err)
         err.partial = res
         raise err

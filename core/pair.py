@@ -16,10 +16,11 @@ from .coupling import LAWS as COUPLING_LAWS
 from .coupling import BRANCH_NONE, QUOTIENT_LAWS, UNCOUPLED, gain_matrix, law_metric, metric_info
 from .distance import geometry
 from .loop import coupling_step, integrate_network, no_decimator
-from .steps import OK
-from .result import PairResult
+from .steps import DIVERGED, OK
+from .result import PairResult, concat_pairs
 from .checks import divergence_message
-from .errors import SimulationDiverged
+from .errors import ForceLawFailed, SimulationDiverged
+from .failure import force_offset, law_nonfinite, law_raised, rows_written
 from .plan import as_systems, check_common_geometry, plan_run
 
 __all__ = ["simulate_pair", "coupling_step", "LAWS", "gain_matrix", "check_common_geometry", "as_systems"]
@@ -59,6 +60,39 @@ def stack_nodes(*systems):
         f0 = np.zeros((N, max(n_p, 1)))
         f0[:, :n_p] = np.stack([s.p for s in systems]).reshape(N, n_p)
     return arrays[0], K, C, f0, F, Om, ph
+
+
+def locate_failure(loop, nodes, geo, laws, E2, W2, Kp, Kd, q, u, t0, k, dt, steps, code, theta, record_d, dt_last,
+                   alloc):
+    """The failing step of a coupled run (core/failure.py): the loop again from the recorded states
+    ``q, u`` (N, n) at step ``k`` over the ``steps`` (and ``dt_last``) to the next row, a row at every
+    step, into ``alloc(rows)``'s arrays (the driver's own layout: the same compiled loop).
+    Returns ``(arrays, j, raised)``: ``j`` the last good row (None: it ran through), ``raised`` the
+    exception the law raised again (or None)."""
+    bufs = alloc(steps + 2)
+    N = q.shape[0]
+    imp, ep = np.zeros(N, dtype=np.int64), np.zeros(N, dtype=np.int64)
+    try:
+        status, _, written, _, _ = loop(*nodes, geo, laws, E2, W2, Kp, Kd, np.array(q, order="C"),
+                                        np.array(u, order="C"), float(t0), k, dt, steps, code, theta, 1, record_d,
+                                        *bufs, dt_last, False, *no_decimator(), imp, ep)
+        return bufs, (written - 1 if status != OK else None), None
+    except Exception as exc:   # raised by the user's law inside the compiled loop
+        return bufs, rows_written(bufs[0]) - 1, exc
+
+
+def failure_message(systems, P, bufs, j, raised, code, theta, h, labels):
+    """The message of a located failure (:func:`locate_failure`) of a user force law at row ``j``
+    of the rerun's ``bufs``, or None when the law is not at fault (finite there). ``P``: each
+    node's parameters; ``labels``: the nodes' names."""
+    law = systems[0].force
+    T2, Qr2, Ur2, TAU2 = bufs[:4]
+    here = [(labels[i], Qr2[j, i], Ur2[j, i], TAU2[j + 1, i]) for i in range(len(labels))]
+    if raised is not None:
+        return law_raised(law, raised, T2[j], here)
+    if law is None:
+        return None
+    return law_nonfinite(law, force_offset(code, theta, h), T2[j], here, P)
 
 
 def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
@@ -140,14 +174,8 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
             chunks = [per] * (n_steps // per) + ([n_steps % per] if n_steps % per else [])
             if not chunks:
                 chunks = [0]
-    T = np.full(cap, np.nan)
-    # node-major records (each system's rows contiguous), seen by the loop as (rows, 2, n)
-    Qn, Un, TAUn = (np.full((2, cap, n), np.nan) for _ in range(3))
-    Q1, Q2, U1, U2, TAU1, TAU2 = Qn[0], Qn[1], Un[0], Un[1], TAUn[0], TAUn[1]
-    Qr, Ur, TAU = (a.transpose(1, 0, 2) for a in (Qn, Un, TAUn))
-    D2, EU2 = np.full((cap, 1), np.nan), np.full((cap, 1), np.nan)
-    BR2 = np.full((cap, 1), BRANCH_NONE, dtype=np.int64)
-    D, EU, BR = D2[:, 0], EU2[:, 0], BR2[:, 0]
+    rec = pair_record(cap, n)
+    T, Qr, Ur, TAU, D2, BR2, EU2 = rec
     nodes = stack_nodes(s1, s2)
     loop = network_loop(systems)
     q, u = np.stack((q1, q2)), np.stack((u1, u2))
@@ -160,28 +188,31 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
     if limit is not None:
         info.update(omega_c_dt=limit.h, exchange_bound=limit.bound, zeta=limit.zeta,
                     dt_max=limit.H_max)
-    arrays = (T, Q1, U1, Q2, U2, TAU1, TAU2)
 
-    def result(sl):
-        take = (lambda a: a[sl].copy()) if sink is not None else (lambda a: a[sl])
-        return PairResult(*(take(a) for a in arrays),
-                          take(D) if record_d else None, take(BR) if record_d else None,
-                          take(EU) if record_d else None, impacts1=imp1, impacts2=imp2,
-                          coupling=coupling if coupling != "none" else None, info=dict(info))
+    def result(sl, rec=rec):
+        return pair_rows(rec, sl, record_d, copy=sink is not None, impacts1=imp1, impacts2=imp2,
+                         coupling=coupling if coupling != "none" else None, info=dict(info))
 
     row0, k0, imp1, imp2, sent = 0, 0, 0, 0, 0
     imp, ep = np.zeros(2, dtype=np.int64), np.zeros(2, dtype=np.int64)   # each chunk's counts
-    status = OK
+    status, raised, chunk_k = OK, None, 0
     for c, steps in enumerate(chunks):
         last = c == len(chunks) - 1
         if sink is not None:  # every chunk fills the buffer from row 0 (its start row, sent once)
             row0 = 0
+            T[:] = np.nan     # the rows it did not write (core/failure.py)
         sl = slice(row0, cap)
+        chunk_k = k0
         # a chunk records its start row; the next chunk starts on the row it ended on
-        status, done, written, v, _ = loop(
-            *nodes, geo, laws, PAIR_EDGES, PAIR_WEIGHTS, Kp_m, Kd_m, q, u, float(t0), k0, dt, steps, code,
-            theta, record_every, record_d, T[sl], Qr[sl], Ur[sl], TAU[sl], D2[sl], BR2[sl], EU2[sl],
-            dt_last if last else 0.0, False, *dec, imp, ep)
+        try:
+            status, done, written, v, _ = loop(
+                *nodes, geo, laws, PAIR_EDGES, PAIR_WEIGHTS, Kp_m, Kd_m, q, u, float(t0), k0, dt, steps, code,
+                theta, record_every, record_d, T[sl], Qr[sl], Ur[sl], TAU[sl], D2[sl], BR2[sl], EU2[sl],
+                dt_last if last else 0.0, False, *dec, imp, ep)
+        except Exception as exc:   # raised by the user's law inside the compiled loop (core/failure.py)
+            if s1.force is None:
+                raise
+            status, done, written, v, raised = DIVERGED, 0, rows_written(T[sl]), 0.0, exc
         imp1 += int(imp[0])
         imp2 += int(imp[1])
         info["v_impact"] = max(info["v_impact"], v)
@@ -198,17 +229,65 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
         row0 += written - (0 if last else 1)
         if progress is not None:
             progress(min(k0 / max(n_steps, 1), 1.0))
+    if status == OK:
+        if sink is not None:
+            info["rows"] = sent
+            last_row = max(written - 1, 0)
+            return result(slice(last_row, last_row + 1))
+        return result(slice(0, rows))
+    # the failing step (core/failure.py): from the last row, every step again with a row each
+    b = row0 - 1                                   # the last row, in the buffer
+    k_b = chunk_k + (written - 1) * record_every   # its step
+    m = min(record_every, n_steps - k_b)
+    h_last = dt_last if m == n_steps - k_b else 0.0
+    bufs, j, again = locate_failure(loop, nodes, geo, laws, PAIR_EDGES, PAIR_WEIGHTS, Kp_m, Kd_m, Qr[b], Ur[b], t0,
+                                    k_b, dt, m, code, theta, record_d, h_last, lambda c: pair_record(c, n))
+    if raised is not None and again is None:
+        raise raised   # not the law's (it did not raise again from the same state): as it came
+    res = result(slice(b, b + 1)) if sink is not None else result(slice(0, row0))
+    msg = None
+    if j is not None:
+        if j >= 1:   # the last good step as the last row
+            extra = result(slice(j, j + 1), bufs)
+            if sink is not None:
+                sink(extra)
+                sent += 1
+                res = extra
+            else:
+                res = concat_pairs([res, extra])
+        hk = h_last if (j == m and h_last > 0.0) else dt
+        msg = failure_message(systems, [s.p for s in systems], bufs, j, again, code, theta, hk,
+                              ["system 1", "system 2"])
+        t_fail = min(float(bufs[0][j]) + hk, grid.t_end)
+    else:
+        t_fail = min(t0 + k0 * dt, grid.t_end)
     if sink is not None:
         info["rows"] = sent
-        last_row = max(written - 1, 0)
-        res = result(slice(last_row, last_row + 1))
-    else:
-        res = result(slice(0, row0 if status != OK else rows))
-    if status != OK:
-        err = SimulationDiverged(divergence_message(s1, scheme, dt, min(t0 + k0 * dt, grid.t_end),
-                                                    what="a coupled state",
-                                                    Kp=Kp_m if law != UNCOUPLED else None))
-        res.error = str(err)
-        err.partial = res
-        raise err
-    return res
+        res.info["rows"] = sent
+    cls = ForceLawFailed if again is not None else SimulationDiverged
+    err = cls(msg or divergence_message(s1, scheme, dt, t_fail, what="a coupled state",
+                                        Kp=Kp_m if law != UNCOUPLED else None))
+    res.error = str(err)
+    err.partial = res
+    raise err
+
+
+def pair_record(cap: int, n: int):
+    """The record arrays of a pair run as the loop takes them, ``(T, Qr, Ur, TAU, D2, BR2, EU2)``:
+    T (cap,) and each system's rows contiguous (node-major, seen by the loop as (cap, 2, n)), the
+    distance columns (cap, 1); NaN until written (core/failure.py)."""
+    T = np.full(cap, np.nan)
+    Qr, Ur, TAU = (np.full((2, cap, n), np.nan).transpose(1, 0, 2) for _ in range(3))
+    D2, EU2 = np.full((cap, 1), np.nan), np.full((cap, 1), np.nan)
+    BR2 = np.full((cap, 1), BRANCH_NONE, dtype=np.int64)
+    return T, Qr, Ur, TAU, D2, BR2, EU2
+
+
+def pair_rows(rec, sl, record_d: bool, copy: bool = False, **kw) -> PairResult:
+    """The rows ``sl`` of a pair record (:func:`pair_record`) as a :class:`PairResult` (views, or
+    copies with ``copy``); ``kw`` its counts, coupling and info."""
+    T, Qr, Ur, TAU, D2, BR2, EU2 = rec
+    take = (lambda a: a[sl].copy()) if copy else (lambda a: a[sl])
+    cols = (T, Qr[:, 0], Ur[:, 0], Qr[:, 1], Ur[:, 1], TAU[:, 0], TAU[:, 1])
+    dist = (take(D2[:, 0]), take(BR2[:, 0]), take(EU2[:, 0])) if record_d else (None, None, None)
+    return PairResult(*(take(a) for a in cols), *dist, **kw)

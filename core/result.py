@@ -16,7 +16,7 @@ import numpy as np
 from .distance import BRANCH_NAMES
 from .metrics import SyncMetrics, sync_metrics
 
-__all__ = ["RunStatus", "SimulationResult", "PairResult", "NetworkResult", "BRANCH_NAMES"]
+__all__ = ["RunStatus", "SimulationResult", "PairResult", "NetworkResult", "BRANCH_NAMES", "concat_pairs"]
 
 
 class RunStatus:
@@ -236,3 +236,12 @@ class NetworkResult(RunStatus):
         if self.d is None:
             raise ValueError("this run did not record the distances d")
         return sync_metrics(self.t, self.d_max, threshold, threshold_rel=threshold_rel, **window)
+
+
+def concat_pairs(parts) -> PairResult:
+    """Consecutive pair results as one (the last one's counts and error, the first one's info)."""
+    first, last = parts[0], parts[-1]
+    cols = ("t", "q1", "u1", "q2", "u2", "tau1", "tau2", "d", "branch", "euclidean")
+    g = lambda k: None if getattr(first, k) is None else np.concatenate([getattr(p, k) for p in parts])  # noqa: E731
+    return PairResult(*(g(k) for k in cols), impacts1=last.impacts1, impacts2=last.impacts2,
+                      coupling=first.coupling, info=dict(first.info), error=last.error)

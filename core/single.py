@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 from .checks import divergence_message
-from .errors import SimulationDiverged
+from .errors import ForceLawFailed, SimulationDiverged
 from .exact import simulate_exact
+from .failure import force_offset, law_nonfinite, law_raised, rows_written
 from .model import MechanicalSystem
 from .moreau import DIVERGED, kernels_for
 from .plan import plan_run
@@ -30,7 +31,9 @@ def simulate(system: MechanicalSystem, x0, t_end: float, dt: float, scheme: str 
     is refused before anything is allocated (:class:`.checks.RecordTooLarge`, a ValueError). ``phasor`` (default): harmonic forcing by
     the phasor recurrence, within 1e-13 of a cos per step (``phasor=False``; see
     :mod:`.moreau`). Raises :class:`SimulationDiverged` if the
-    state becomes non-finite (never returns NaN data).
+    state becomes non-finite (never returns NaN data), :class:`ForceLawFailed` if a user force
+    law raises mid-run; either with the record up to the last good step in ``.partial`` (its
+    ``error`` the message: the law's, the time and the state, docs/design.md §5.1).
     """
     plan = plan_run(system, [x0], t_end, dt, scheme=scheme, theta=theta, record_every=record_every, t0=t0,
                     record_values=2 + 2 * system.n, record_what="the record of simulate",
@@ -43,20 +46,58 @@ def simulate(system: MechanicalSystem, x0, t_end: float, dt: float, scheme: str 
     if scheme == "exact":
         return simulate_exact(system, (q0, u0), t_end, dt, tau=tau, record_every=record_every, t0=t0)
     code, theta = plan.code, plan.theta
-    T = np.empty(rows)
+    T = np.full(rows, np.nan)   # NaN: the rows a failed loop did not complete (core/failure.py)
     Q = np.empty((rows, n))
     U = np.empty((rows, n))
-    P = np.empty(rows)
+    P = np.zeros(rows)
     sa = system.arrays()
+    law = system.force
     full = grid.steps - 1 if grid.short else grid.steps
     dt_last = grid.dt_last if grid.short else 0.0
-    if system.force is not None:   # a user force law: its copy of the loop, the law's force (core/law_loops.py)
-        status, done, written = system.force.kernels().integrate(
-            sa, system.p, q0.copy(), u0.copy(), float(t0), dt, full, tau, code, theta, record_every, T, Q, U, P,
-            bool(phasor), dt_last)
-    else:
-        status, done, written = kernels_for(sa)(sa, q0.copy(), u0.copy(), float(t0), dt, full, tau, code, theta,
-                                                record_every, T, Q, U, P, bool(phasor), dt_last)
-    if status == DIVERGED:
-        raise SimulationDiverged(divergence_message(system, scheme, dt, t0 + done * dt))
-    return SimulationResult(T, Q, U, P, scheme, dt)
+
+    def run(q, u, t_start, steps, every, T, Q, U, P, last):
+        if law is not None:   # a user force law: its copy of the loop, the law's force (core/law_loops.py)
+            return law.kernels().integrate(sa, system.p, q, u, float(t_start), dt, steps, tau, code, theta, every,
+                                           T, Q, U, P, bool(phasor), last)
+        return kernels_for(sa)(sa, q, u, float(t_start), dt, steps, tau, code, theta, every, T, Q, U, P,
+                               bool(phasor), last)
+
+    try:
+        status, done, written = run(q0.copy(), u0.copy(), t0, full, record_every, T, Q, U, P, dt_last)
+        raised = None
+    except Exception as exc:   # raised by the user's law inside the compiled loop
+        if law is None:
+            raise
+        status, done, written, raised = DIVERGED, None, rows_written(T), exc
+    if status != DIVERGED:
+        return SimulationResult(T, Q, U, P, scheme, dt)
+    # the failing step: from the last row, every step again with a row each (core/failure.py)
+    r = written - 1
+    m = min(record_every, full - r * record_every)
+    last = dt_last if m == full - r * record_every else 0.0
+    T2, Q2, U2, P2 = np.full(m + 2, np.nan), np.empty((m + 2, n)), np.empty((m + 2, n)), np.zeros(m + 2)
+    again = None
+    try:
+        st2, _, w2 = run(Q[r].copy(), U[r].copy(), T[r], m, 1, T2, Q2, U2, P2, last)
+        j = w2 - 1 if st2 == DIVERGED else None
+    except Exception as exc:
+        again, j = exc, rows_written(T2) - 1
+    if raised is not None and again is None:
+        raise raised   # not the law's (it did not raise again from the same state): as it came
+    keep = slice(0, written)
+    partial = SimulationResult(T[keep], Q[keep], U[keep], P[keep], scheme, dt)
+    if j is None:   # the rerun did not diverge again (round-off): the block's end, as the loop saw it
+        msg = divergence_message(system, scheme, dt, t0 + done * dt)
+        partial.error = msg
+        raise SimulationDiverged(msg, partial=partial)
+    if j >= 1:      # the last good step as the last row
+        partial = SimulationResult(np.append(T[keep], T2[j]), np.vstack((Q[keep], Q2[j])),
+                                   np.vstack((U[keep], U2[j])), np.append(P[keep], P2[1:j + 1].sum()), scheme, dt)
+    here = [("", Q2[j], U2[j], tau)]
+    if again is not None:
+        partial.error = law_raised(law, again, T2[j], here)
+        raise ForceLawFailed(partial.error, partial=partial)
+    hk = last if (j == m and last > 0.0) else dt
+    msg = law_nonfinite(law, force_offset(code, theta, hk), T2[j], here, [system.p]) if law is not None else None
+    partial.error = msg or divergence_message(system, scheme, dt, float(T2[j]) + hk)
+    raise SimulationDiverged(partial.error, partial=partial)

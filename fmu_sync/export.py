@@ -438,19 +438,31 @@ def target_requires(model: str = "impact-oscillator") -> dict[str, str]:
     inside a function, such as core/views.py's xarray, or under ``if``/``try``, such as
     core/jit.py's numba, is not needed), with their TARGET_REQUIRES range."""
     import ast
-    names = set()
-
+    names, where = set(), {}
+    standard = set(sys.stdlib_module_names) | {"__future__"}
     for rel in carried_modules(model):
         for node in _imports(rel, _source(rel, model))[1]:
             if isinstance(node, ast.Import):
-                names.update(a.name.split(".")[0] for a in node.names)
+                found = {a.name.split(".")[0] for a in node.names}
             elif node.level == 0 and node.module:
-                names.add(node.module.split(".")[0])
-    names -= set(sys.stdlib_module_names) | {"__future__"}
-    unknown = names - set(TARGET_REQUIRES)
-    if unknown:
-        raise ValueError(f"the FMU's carried code imports {', '.join(sorted(unknown))}, which TARGET_REQUIRES "
-                         f"does not list (the target could not be told what it needs)")
+                found = {node.module.split(".")[0]}
+            else:
+                continue
+            names |= found
+            for name in found - standard - set(TARGET_REQUIRES):
+                where.setdefault(name, (rel, node.lineno))
+    if where:
+        allowed = ", ".join(f"{d}{spec}" for d, spec in TARGET_REQUIRES.items())
+        said = []
+        for name, (rel, line) in sorted(where.items()):
+            file = (f"the model file {model.split(':')[0]}" if rel == "user/model.py" and ":" in model
+                    else f"{rel} of the carried code")
+            said.append(f"{file} imports {name} (line {line})")
+        raise ValueError(f"cannot export the FMU of {model!r}: {'; '.join(said)}. An FMU's code runs on the "
+                         f"target's Python, which is asked for these packages only: {allowed} (besides the "
+                         f"standard library and the fmu_sync core the FMU carries). Remove that import from the "
+                         f"top of the file: write the law with math and numpy, or import the package inside a "
+                         f"function the FMU does not call")
     return {d: TARGET_REQUIRES[d] for d in TARGET_REQUIRES if d in names}
 
 

@@ -29,7 +29,7 @@ import numpy as np
 
 from .core.checks import record_rows, run_steps
 
-__all__ = ["FORMATS", "DEFAULT_MAX_MEMORY", "DEFAULT_MAX_DISK", "OutputTooLarge", "OutputPathError",
+__all__ = ["record_steps", "FORMATS", "DEFAULT_MAX_MEMORY", "DEFAULT_MAX_DISK", "OutputTooLarge", "OutputPathError",
            "Estimate", "parse_size", "format_size", "parse_formats", "estimate", "check_budget",
            "check_out_dir", "make_out_dir", "plain_os_error", "results_in", "run_grid", "RecordWriter", "pair_columns", "network_columns", "single_columns", "WRITE_ROWS"]
 
@@ -178,11 +178,23 @@ def run_grid(cfg) -> tuple[int, float, str]:
     return run_steps(cfg["run.t_end"], step).steps, step, name
 
 
+def record_steps(cfg) -> int:
+    """``run.record_every`` in steps of the variant's run grid (:func:`run_grid`). The key counts
+    steps of ``solver.dt`` in both modes, so one scene records at one interval, k dt, in the core
+    and in co-simulation; a co-simulation records at communication points, every
+    max(1, round(k dt / H)) steps of ``run.H`` (the nearest whole number of them, at least one)."""
+    k = int(cfg["run.record_every"])
+    _, step, name = run_grid(cfg)
+    if name == "solver.dt":
+        return k
+    return max(1, round(k * cfg["solver.dt"] / step))
+
+
 def estimate(variant, formats=("csv", "npz")) -> Estimate:
     """The record size of a :class:`~fmu_sync.scenes.schema.Variant` (nothing runs)."""
     cfg = variant.cfg
     steps, _, _ = run_grid(cfg)
-    every = int(cfg["run.record_every"])
+    every = record_steps(cfg)
     n = variant.system.n
     if variant.is_network:
         A = variant.network.A
@@ -218,8 +230,10 @@ def check_budget(variant, formats, max_memory: float = DEFAULT_MAX_MEMORY,
     every = max(est.record_every + 1, math.ceil(est.record_every * ratio * 1.05))
     if every > est.steps:
         hint = "shorten run.t_end or raise the step"
-    else:
-        hint = f"set run.record_every = {every} (or larger)"
+    else:   # the key counts solver.dt (record_steps)
+        _, step, name = run_grid(variant.cfg)
+        key = every if name == "solver.dt" else math.ceil(every * step / variant.cfg["solver.dt"] * (1 - 1e-9))
+        hint = f"set run.record_every = {key} (or larger)"
     what = (f"disk {format_size(est.disk)} > budget {format_size(max_disk)} (--max-disk)" if over_disk else
             f"memory {format_size(est.memory)} > budget {format_size(max_memory)} (--max-memory; this "
             f"run cannot write its record in chunks)")

@@ -331,6 +331,8 @@ def plot_impact_zoom(result, path, system=None, title=None) -> Path:
     gaps); below, on a log axis, the Euclidean error jumping at the impact mismatch while the
     quotient distance d stays continuous (however small it is next to the jump)."""
     fig, (axq, ax) = _figure(2, height=6.4, width=9.0)
+    # a scene run keeps the rows around its largest mismatch at every step (scenes/running.py)
+    result = getattr(result, "impact_record", None) or result
     win = impact_window(result, system)
     t = np.asarray(result.t)
     if win is None:

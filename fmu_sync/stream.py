@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .core.result import concat_pairs as _concat
 from .report import SYNC_THRESHOLD, impact_records
 
 __all__ = ["StreamRecord"]
@@ -22,12 +23,22 @@ class StreamRecord:
     """
 
     def __init__(self, writer, system=None, total_rows: int = 0, plot_rows: int = 20000,
-                 threshold: float = SYNC_THRESHOLD, progress=None):
+                 threshold: float = SYNC_THRESHOLD, progress=None, every: int | None = None,
+                 keep_distance: bool = False, window_rows: int = 0, write_every: int = 1):
         self.writer, self.system, self.threshold, self.progress = writer, system, threshold, progress
         self.total = max(int(total_rows), 1)
-        self.every = max(1, -(-self.total // max(int(plot_rows), 1)))
+        # the rows written: every write_every-th (a record every run.record_every steps of a stream
+        # of every step) and the last (:meth:`close_rows`); the plots' rows: a multiple of those
+        self.write_every, self.written_to = max(1, int(write_every)), -1
+        written = -(-self.total // self.write_every)
+        self.every = (self.write_every * max(1, -(-written // max(int(plot_rows), 1))) if every is None
+                      else max(1, int(every)))
         self.rows = 0
         self.keep = []
+        # full resolution (the scene runner, fmu_sync/scenes/running.py): every row's d for the
+        # decay fit (:meth:`sync`), and the rows around the largest impact mismatch (:meth:`window`)
+        self.keep_distance, self.t_d = keep_distance, []
+        self.window_rows, self.recent, self.win, self.win_peak, self.win_until = int(window_rows), None, None, -1.0, -1
         self.tail = None             # the last 2 rows of the previous chunk
         self.last = None             # the last row
         self.m = dict(peak_tau=0.0, euclid_max=-np.inf, peaking=-np.inf, dV=None, dE=None, hits=0,
@@ -39,7 +50,18 @@ class StreamRecord:
         from .output import pair_columns
         n = np.asarray(chunk.q1).shape[1]
         cols = pair_columns(n, chunk.d is not None)
-        self.writer.append({k: getattr(chunk, k) for k, _ in cols})
+        if self.writer is not None:
+            idx = np.arange(self.rows, self.rows + len(chunk.t))
+            sel = np.nonzero(idx % self.write_every == 0)[0]
+            if sel.size:
+                part = chunk if sel.size == len(idx) else _take(chunk, sel)
+                self.writer.append({k: getattr(part, k) for k, _ in cols})
+                self.written_to = int(idx[sel[-1]])
+        if chunk.d is not None:
+            if self.keep_distance:
+                self.t_d.append((np.array(chunk.t, dtype=float), np.array(chunk.d, dtype=float)))
+            if self.window_rows > 0:
+                self._follow_window(chunk)
         m = self.m
         t = np.asarray(chunk.t)
         if m["first_t"] is None:
@@ -87,6 +109,58 @@ class StreamRecord:
         if self.progress is not None:
             self.progress(min(1.0, self.rows / self.total))
 
+    def close_rows(self) -> None:
+        """Write the last row when it is not one of every ``write_every``-th (the run's final state is
+        always a row of its record)."""
+        if self.writer is not None and self.last is not None and self.written_to != self.rows - 1:
+            from .output import pair_columns
+            cols = pair_columns(np.asarray(self.last.q1).shape[1], self.last.d is not None)
+            self.writer.append({k: getattr(self.last, k) for k, _ in cols})
+            self.written_to = self.rows - 1
+
+    @property
+    def rows_written(self) -> int:
+        """The rows written so far (with :meth:`close_rows`: the record's)."""
+        return 0 if self.written_to < 0 else self.written_to // self.write_every + 1 + \
+            (1 if self.written_to % self.write_every else 0)
+
+    def _follow_window(self, chunk) -> None:
+        """Keep the rows within ``window_rows`` of the largest peaking ``E - d`` seen so far
+        (the impact window's data, :func:`fmu_sync.plots.impact_window`), at the stream's resolution."""
+        W = self.window_rows
+        gap = np.asarray(chunk.euclidean) - np.asarray(chunk.d)
+        gap = np.where(np.isfinite(gap), gap, -np.inf)
+        k = int(np.argmax(gap))
+        ext = chunk if self.recent is None else _concat([self.recent, chunk])
+        off = 0 if self.recent is None else len(self.recent.t)
+        if gap[k] > self.win_peak:
+            self.win_peak = float(gap[k])
+            self.win = _take(ext, np.arange(max(0, off + k - W), len(ext.t)))
+            self.win_until = self.rows + k + W          # the last global row the window keeps
+        elif self.win is not None and self.rows <= self.win_until:
+            self.win = _concat([self.win, _take(chunk, np.arange(0, min(len(chunk.t), self.win_until - self.rows + 1)))])
+        if self.win is not None and len(self.win.t) > 2 * W + 1:
+            peak = int(np.argmax(np.asarray(self.win.euclidean) - np.asarray(self.win.d)))
+            self.win = _take(self.win, np.arange(max(0, peak - W), min(len(self.win.t), peak + W + 1)))
+        self.recent = _take(ext, np.arange(max(0, len(ext.t) - W), len(ext.t)))
+
+    def window(self):
+        """The rows around the largest impact mismatch at the stream's resolution (a PairResult), or None."""
+        return self.win
+
+    def sync(self):
+        """:func:`fmu_sync.core.metrics.sync_metrics` of every row's d (``keep_distance``), or None."""
+        from .core.metrics import sync_metrics
+        if not self.t_d:
+            return None
+        t = np.concatenate([a for a, _ in self.t_d])
+        d = np.concatenate([b for _, b in self.t_d])
+        keep = np.concatenate(([True], np.diff(t) > 0))   # a chunk's start row repeats the last one
+        try:
+            return sync_metrics(t[keep], d[keep], self.threshold)
+        except ValueError:
+            return None
+
     def thinned(self):
         """The kept rows (every ``every``-th and the last) as one PairResult, for the plots."""
         parts = list(self.keep)
@@ -123,12 +197,3 @@ def _take(r, idx):
     g = lambda a: None if a is None else np.asarray(a)[idx]  # noqa: E731
     return PairResult(*(g(getattr(r, k)) for k in StreamRecord._FIELDS), impacts1=r.impacts1,
                       impacts2=r.impacts2, coupling=r.coupling, info=dict(r.info), error=r.error)
-
-
-def _concat(parts):
-    from .core.result import PairResult
-    first = parts[0]
-    g = lambda k: None if getattr(first, k) is None else np.concatenate([getattr(p, k) for p in parts])  # noqa: E731
-    last = parts[-1]
-    return PairResult(*(g(k) for k in StreamRecord._FIELDS), impacts1=last.impacts1, impacts2=last.impacts2,
-                      coupling=first.coupling, info=dict(first.info), error=last.error)

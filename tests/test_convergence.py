@@ -106,7 +106,9 @@ def test_cosim_refines_H_and_keeps_dt_dividing_it():
     o = [refined_overrides(v, k) for k in range(3)]
     assert [x["run.H"] for x in o] == pytest.approx([1e-2, 5e-3, 2.5e-3])
     assert [x["solver.dt"] for x in o] == pytest.approx([1e-3, 1e-3, 2.5e-3 / 3])
-    assert [x["run.record_every"] for x in o] == [10, 20, 40]
+    # run.record_every counts solver.dt (issue 36): the same record times, every 0.01 s
+    assert [x["run.record_every"] for x in o] == [10, 10, 12]
+    assert [x["run.record_every"] * x["solver.dt"] for x in o] == pytest.approx([1e-2] * 3)
     w = load_scene("forced-pair", {"run.mode": "cosim", "solver.dt": 1e-2}, ["switching"]).variants[0]
     assert [refined_overrides(w, k)["solver.dt"] for k in range(3)] == pytest.approx([1e-2, 5e-3, 2.5e-3])
 

@@ -176,3 +176,19 @@ def test_decimator_runs_inside_a_compiled_loop():
     assert code == 0 and decades >= 6
     assert rate == pytest.approx(0.5, rel=5e-3) and abs(rate - 0.5) < 3 * err + 1e-3
     assert t_sync == pytest.approx(full.t_sync, abs=1e-9) and bound == pytest.approx(full.bound)
+
+
+def test_no_descent_reason_says_where_d_stops():
+    """d falling 0.916 -> 0.0018 and levelling off there (issue 36 item 6): the rate is not resolved,
+    and the reason says what is true: the window from a tenth of the maximum down to ten times the
+    level where d stops spans less than a decade (not that d never falls a decade)."""
+    from fmu_sync.core.metrics import NO_DESCENT
+    t = np.linspace(0.0, 10.0, 5001)
+    m = sync_metrics(t, np.maximum(0.916 * np.exp(-2.0 * t), 0.0018))
+    assert m.code == NO_DESCENT and not m.resolved
+    assert "never falls" not in m.reason
+    assert "(0.092)" in m.reason and "(0.018;" in m.reason and "about 0.0018" in m.reason
+    # a d that really never falls a decade below a tenth of its maximum says so
+    m = sync_metrics(t, 1.0 - 0.05 * t)
+    assert m.code == NO_DESCENT and m.reason == ("d never falls below a tenth of its maximum (0.1): it stops "
+                                                 "falling at about 0.6")

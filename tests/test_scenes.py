@@ -224,10 +224,20 @@ def test_divergence_names_the_scene_and_step(tmp_path):
     assert not (tmp_path / "o").exists()
 
 
+def _streamed(res, sink):
+    """What simulate_pair(..., sink=...) does with a result: the rows to the sink, the last row back."""
+    if sink is None:
+        return res
+    sink(res)
+    last = lambda a: None if a is None else a[-1:]  # noqa: E731
+    return PairResult(*(last(getattr(res, k)) for k in ("t", "q1", "u1", "q2", "u2", "tau1", "tau2", "d", "branch",
+                                                        "euclidean")), coupling=res.coupling)
+
+
 def _fake_pair_module(calls):
     """A stand-in for fmu_sync.core.pair that records its arguments (tests the plumbing only)."""
     def simulate_pair(system, x1, x2, t_end, dt, coupling=None, Kp=0.0, Kd=0.0, Q=None, scheme="midpoint",
-                      theta=0.5, record_every=1, record_distance=True, progress=None):
+                      theta=0.5, record_every=1, record_distance=True, progress=None, sink=None, chunk_rows=None):
         calls.append(dict(coupling=coupling, Kp=Kp, Kd=Kd, Q=Q, scheme=scheme, record_every=record_every,
                           record_distance=record_distance, t_end=t_end, dt=dt))
         t = np.linspace(0.0, t_end, 11)
@@ -237,8 +247,8 @@ def _fake_pair_module(calls):
         d = np.exp(-t) if want_d else None
         if progress:
             progress(1.0)
-        return PairResult(t, q1, z, q1 + 0.1, z, z, z, d, np.zeros(11, int) if want_d else None,
-                          d, coupling=coupling)
+        return _streamed(PairResult(t, q1, z, q1 + 0.1, z, z, z, d, np.zeros(11, int) if want_d else None,
+                                    d, coupling=coupling), sink)
     return types.SimpleNamespace(simulate_pair=simulate_pair)
 
 
@@ -250,8 +260,10 @@ def test_pair_plumbing_without_distance(tmp_path, monkeypatch):
     sr = run_scene("forced-pair", tmp_path, variants=["uncoupled"], progress=seen.append,
                    overrides={"record.distance": False, "plot.plots": ["positions", "forces", "phase"],
                               "plot.compare": False, "run.t_end": 1.0})
-    assert calls == [dict(coupling=None, Kp=1.0, Kd=0.5, Q=None, scheme="midpoint", record_every=10,
+    # every step run (the metrics from all of them, issue 36), every run.record_every = 10th kept
+    assert calls == [dict(coupling=None, Kp=1.0, Kd=0.5, Q=None, scheme="midpoint", record_every=1,
                           record_distance=False, t_end=1.0, dt=1e-3)]
+    assert sr.runs[0].result.t.tolist() == pytest.approx([0.0, 1.0])
     assert seen and seen[-1] == 1.0
     assert sr.runs[0].metrics["t_sync"] is None
     names = {p.name for p in tmp_path.iterdir()}
@@ -314,9 +326,9 @@ def _fake_cosim_modules(monkeypatch, calls):
         calls.append(("cosim", coupling, H, method, record_every, event_aware, start_values, hold, exchange, tol))
         return fake_result(t_end, H * record_every, coupling)
 
-    def simulate_pair(system, x1, x2, t_end, dt, coupling=None, record_every=1, progress=None, **kw):
+    def simulate_pair(system, x1, x2, t_end, dt, coupling=None, record_every=1, progress=None, sink=None, **kw):
         calls.append(("core", coupling, dt, record_every))
-        return fake_result(t_end, dt * record_every, coupling)
+        return _streamed(fake_result(t_end, dt * record_every, coupling), sink)
 
     monkeypatch.setitem(sys.modules, "fmu_sync.export", types.SimpleNamespace(export_fmu=export_fmu))
     monkeypatch.setitem(sys.modules, "fmu_sync.master", types.SimpleNamespace(cosimulate=cosimulate))
@@ -332,7 +344,10 @@ def test_cosim_scene_plumbing(tmp_path, monkeypatch):
     assert calls[0] == ("export", "impact-oscillator")
     assert [c[0] for c in calls] == ["export", "cosim", "cosim", "cosim"], "one FMU for all variants"
     assert [c[1] for c in calls[1:]] == [None, "euclidean", "switching"]
-    assert all(c[2:6] == (1e-2, "gauss-seidel", 10, False) and c[6] == {"e": 0.9} for c in calls[1:])
+    # every communication step run (the metrics from all of them); run.record_every = 10 steps of
+    # solver.dt = 1 step of H kept
+    assert all(c[2:6] == (1e-2, "gauss-seidel", 1, False) and c[6] == {"e": 0.9} for c in calls[1:])
+    assert np.allclose(np.diff(sr.runs[0].result.t), 1e-2)
     assert len(list(tmp_path.glob("*.fmu"))) == 1 and len(sr.runs) == 3
     assert all(c[7] == "zoh" for c in calls[1:])
     calls.clear()
@@ -388,15 +403,16 @@ def test_demo_plumbing_with_stand_ins(tmp_path, monkeypatch):
 
 
 def test_the_record_interval_is_said_as_a_time_core_and_cosim():
-    """run.record_every counts steps of solver.dt in the core and of run.H in co-simulation (issue 28:
-    `--set run.mode=cosim` then recorded every 0.1 s, unsaid): the summary's settings and the data
-    file's meta say the interval in seconds, with the step it counts."""
+    """run.record_every counts steps of solver.dt in both modes (issue 36; issue 28: `--set
+    run.mode=cosim` recorded every 0.1 s, unsaid): one scene records every 0.01 s in both, and the
+    summary's settings and the data file's meta say the interval in seconds, with the steps."""
     from fmu_sync.scenes.loading import load_scene
     from fmu_sync.scenes.running import run_extra, settings_table
     rows = {}
     for mode in ("core", "cosim"):
         sc = load_scene("forced-pair", {"run.mode": mode}, ["switching"])
         rows[mode] = dict(settings_table(sc, sc.variants))["record interval"]
-        assert run_extra(sc.variants[0], [], "t")["record_interval"] == pytest.approx(0.01 if mode == "core" else 0.1)
+        assert run_extra(sc.variants[0], [], "t")["record_interval"] == pytest.approx(0.01)
     assert rows["core"] == "0.01 s (run.record_every = 10 steps of solver.dt = 0.001 s)"
-    assert rows["cosim"] == "0.1 s (run.record_every = 10 steps of run.H = 0.01 s)"
+    assert rows["cosim"] == ("0.01 s (run.record_every = 10 steps of solver.dt = 0.001 s; in co-simulation "
+                             "every 1 step of run.H = 0.01 s)")

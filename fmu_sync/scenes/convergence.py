@@ -66,7 +66,9 @@ class ConvergenceRun:
 
 
 def refined_overrides(variant: Variant, level: int) -> dict:
-    """The keys of ``variant`` at its step divided by ``2**level`` (record_every times ``2**level``)."""
+    """The keys of ``variant`` at its step divided by ``2**level`` (record_every scaled: the same
+    record times)."""
+    from ..output import record_steps
     cfg = variant.cfg
     f = 2 ** level
     out = {"run.record_every": int(cfg["run.record_every"]) * f, "record.distance": True}
@@ -74,7 +76,10 @@ def refined_overrides(variant: Variant, level: int) -> dict:
         H = cfg["run.H"] / f
         dt = cfg["solver.dt"]
         # the largest internal step <= the scene's dt that divides H (dt = H: halved alongside)
-        out.update({"run.H": H, "solver.dt": H / max(1, math.ceil(H / dt * (1 - 1e-9)))})
+        m = max(1, math.ceil(H / dt * (1 - 1e-9)))
+        # run.record_every counts solver.dt (fmu_sync.output.record_steps): the same record times,
+        # every (its steps of the scene's H) x f steps of H / f, each m internal steps
+        out.update({"run.H": H, "solver.dt": H / m, "run.record_every": record_steps(cfg) * f * m})
         if cfg.get("run.H_min") is not None:
             out["run.H_min"] = min(cfg["run.H_min"], H)
     else:

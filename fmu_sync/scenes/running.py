@@ -4,11 +4,13 @@ master (:func:`~fmu_sync.master.cosimulate`, values named by the FMU contract), 
 its data, plots and ``summary.md`` are written."""
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-from ..core import RunFailed, RunRefused, SimulationDiverged, UnstableExchange, UnstableScheme, simulate
+from ..core import ForceLawFailed, RunFailed, RunRefused, SimulationDiverged, UnstableExchange, UnstableScheme, simulate
 from ..fmus import contract
 from ..progress import scaled
 from ..user_export import fmu_model_of
@@ -172,16 +174,18 @@ def preflight(variant: Variant, scene_name: str = ""):
 
 
 def run_variant(variant: Variant, fmu_path=None, progress: Callable | None = None, scene_name: str = "",
-                sink: Callable | None = None, chunk_rows: int = 65536):
+                sink: Callable | None = None, chunk_rows: int = 65536, every: int | None = None):
     """Run one variant: ``simulate`` (single system), ``simulate_pair`` (core) or ``cosimulate``.
 
     ``sink``/``chunk_rows`` (core pairs only): stream the record in chunks
     (:func:`fmu_sync.core.simulate_pair`). A run that fails mid-way raises
     :class:`~fmu_sync.core.RunFailed` naming the scene and variant, with the
-    record up to the failure in ``.partial`` (None where there is none).
+    record up to the failure in ``.partial`` (None where there is none). ``every``: the record's
+    interval in steps of the run (default ``run.record_every`` in them,
+    :func:`fmu_sync.output.record_steps`; pairs: 1 for the full resolution).
     """
     try:
-        return _with_units(_run_variant(variant, fmu_path, progress, scene_name, sink, chunk_rows), variant)
+        return _with_units(_run_variant(variant, fmu_path, progress, scene_name, sink, chunk_rows, every), variant)
     except RunFailed as exc:
         _with_units(exc.partial, variant)
         raise
@@ -205,9 +209,11 @@ def _with_units(result, variant: Variant):
     return result
 
 
-def _run_variant(variant: Variant, fmu_path, progress, scene_name, sink, chunk_rows):
+def _run_variant(variant: Variant, fmu_path, progress, scene_name, sink, chunk_rows, every=None):
+    from ..output import record_steps
     cfg = variant.cfg
     label = _label(variant, scene_name)
+    every = record_steps(cfg) if every is None else every   # run.record_every in the run's steps
     extra = {"allow_unstable": True} if cfg["run.allow_unstable"] else {}
     try:
         if variant.is_network:
@@ -226,14 +232,14 @@ def _run_variant(variant: Variant, fmu_path, progress, scene_name, sink, chunk_r
             return simulate_pair(variant.system, variant.x1, variant.x2, cfg["run.t_end"], cfg["solver.dt"],
                                  coupling=_coupling_arg(variant.law), Kp=variant.Kp, Kd=variant.Kd, Q=variant.Q,
                                  scheme=cfg["solver.scheme"], theta=cfg["solver.theta"],
-                                 record_every=cfg["run.record_every"],
+                                 record_every=every,
                                  record_distance=bool(cfg["record.distance"]), progress=progress, **extra)
         from ..master import cosimulate  # imports fmpy: cosim branch only
         if fmu_path is None:
             raise ValueError(f"{label}: mode = cosim needs an exported FMU (fmu_path)")
         result = cosimulate(fmu_path, variant.x1, variant.x2, cfg["run.t_end"], cfg["run.H"],
                             coupling=_coupling_arg(variant.law), Kp=variant.Kp, Kd=variant.Kd, Q=variant.Q,
-                            method=cfg["run.method"], record_every=cfg["run.record_every"],
+                            method=cfg["run.method"], record_every=every,
                             event_aware=cfg["run.event_aware"], H_min=cfg["run.H_min"], hold=cfg["run.hold"],
                             exchange=cfg["run.exchange"], tol=cfg["run.tol"],
                             start_values=fmu_start_values(fmu_path, variant),
@@ -244,7 +250,7 @@ def _run_variant(variant: Variant, fmu_path, progress, scene_name, sink, chunk_r
     except RunFailed as exc:
         if getattr(exc, "variant_label", None) == label:   # named already (by attribute, not by its text)
             raise
-        cls = SimulationDiverged if isinstance(exc, SimulationDiverged) else RunFailed
+        cls = next(c for c in (ForceLawFailed, SimulationDiverged, RunFailed) if isinstance(exc, c))
         err = cls(f"{label}: {exc}")
         err.partial, err.variant_label = exc.partial, label
         raise err from None
@@ -260,6 +266,7 @@ def _laws_arg(variant: Variant):
 
 def _run_network(variant: Variant, fmu_path, progress, label, extra):
     """A network variant: ``simulate_network`` (core) or ``cosimulate_network`` (master)."""
+    from ..output import record_steps
     cfg = variant.cfg
     spec = variant.network
     if variant.mode == "core":
@@ -275,7 +282,7 @@ def _run_network(variant: Variant, fmu_path, progress, label, extra):
     starts = [fmu_start_values(fmu_path, variant, s, t) for s, t in zip(spec.systems, spec.nodes)]
     result = cosimulate_network(fmu_path, list(spec.states), spec.A, cfg["run.t_end"], cfg["run.H"],
                                 coupling=_laws_arg(variant), Kp=variant.Kp, Kd=variant.Kd, Q=variant.Q,
-                                method=cfg["run.method"], record_every=cfg["run.record_every"],
+                                method=cfg["run.method"], record_every=record_steps(cfg),
                                 event_aware=cfg["run.event_aware"], H_min=cfg["run.H_min"], hold=cfg["run.hold"],
                                 exchange=cfg["run.exchange"], tol=cfg["run.tol"],
                                 start_values=starts, record_distance=bool(cfg["record.distance"]),
@@ -321,13 +328,17 @@ def run_extra(variant: Variant, plots, title: str) -> dict:
 
 def record_interval(variant: Variant) -> tuple[float, str]:
     """``(seconds, words)``: the time between two record rows of the variant's run.
-    ``run.record_every`` counts steps of the run's grid (:func:`fmu_sync.output.estimate`'s rule):
-    ``solver.dt`` in the core, ``run.H`` in co-simulation, so one value records a cosim run
-    H/dt times more sparsely; the summary and the data file say the interval as a time."""
-    from ..output import run_grid
+    ``run.record_every`` counts steps of ``solver.dt`` in both modes; a co-simulation records at
+    the nearest whole number of communication steps (:func:`fmu_sync.output.record_steps`); the
+    summary and the data file say the interval as a time."""
+    from ..output import record_steps, run_grid
     _, step, name = run_grid(variant.cfg)
-    k = int(variant.cfg["run.record_every"])
-    return k * step, f"{k * step:g} s (run.record_every = {k} step{'s' if k > 1 else ''} of {name} = {step:g} s)"
+    k, dt = int(variant.cfg["run.record_every"]), variant.cfg["solver.dt"]
+    every = record_steps(variant.cfg)
+    said = f"run.record_every = {k} step{'s' if k > 1 else ''} of solver.dt = {dt:g} s"
+    if name != "solver.dt":
+        said += f"; in co-simulation every {every} step{'s' if every > 1 else ''} of run.H = {step:g} s"
+    return every * step, f"{every * step:g} s ({said})"
 
 
 def _stream_run(v: Variant, out_dir: Path, fmu_path, progress, scene_name, formats, est, max_memory, extra):
@@ -342,20 +353,29 @@ def _stream_run(v: Variant, out_dir: Path, fmu_path, progress, scene_name, forma
     lay = dict(kind="pair", N=2, n=v.system.n, edges=[[0, 1]], distance=v.has_distance,
                **({"units": units_with(own["units"])} if own else {}))
     writer = RecordWriter(out_dir / v.name, pair_columns(v.system.n, v.has_distance), formats, layout=lay)
+    from ..output import record_steps, run_grid
     from ..stream import StreamRecord
-    sink = StreamRecord(writer, v.system, est.rows, plot_rows)
+    steps, step, _ = run_grid(v.cfg)
+    # every step streamed (the metrics and the impact window from all of them), a row written every
+    # run.record_every of them (full_resolution_run)
+    sink = StreamRecord(writer, v.system, steps + 2, plot_rows, write_every=record_steps(v.cfg),
+                        window_rows=window_rows(step, per_row, max_memory))
     try:
-        last = run_variant(v, fmu_path, progress, scene_name, sink=sink, chunk_rows=chunk_rows)
+        last = run_variant(v, fmu_path, progress, scene_name, sink=sink, chunk_rows=chunk_rows, every=1)
+        sink.close_rows()
     except RunFailed as exc:
         if sink.rows == 0:
             writer.abort()
             raise
+        sink.close_rows()
         result = _with_units(sink.thinned(), v)
         result.error = str(exc)
+        result.impact_record = sink.window()
         writer.meta = report.record_meta(_counted(result, sink), extra)
         files = writer.close(partial=True)
         run = RunRecord(v.name, v, result, sink.metrics(result), files=files, streamed=True)
         run.metrics["error"] = str(exc)
+        run.metrics["records"] = sink.rows_written
         return run
     except BaseException:
         writer.abort()
@@ -363,12 +383,84 @@ def _stream_run(v: Variant, out_dir: Path, fmu_path, progress, scene_name, forma
     result = _with_units(sink.thinned(), v)
     writer.meta = report.record_meta(_counted(result, sink, last), extra)
     files = writer.close()
+    result.impact_record = sink.window()
     metrics = sink.metrics(last)
+    metrics["records"] = sink.rows_written
     # the fitted decay (envelope of d) and the ultimate bound from the thinned record (sampled
-    # every `thinned_every` records); t_sync, the maxima and the jumps above are exact
+    # every `thinned_every` steps); t_sync, the maxima and the jumps above are exact
     metrics.update(report._sync_fields(report._sync(result, report.SYNC_THRESHOLD)))
     run = RunRecord(v.name, v, result, metrics, files=files, streamed=True)
     return run
+
+
+#: the impact window's data at full resolution: the rows within this many seconds of the largest
+#: impact mismatch (fmu_sync.plots.impact_window draws at most max(1.5 x the episode, 0.3 s) around it)
+WINDOW_SECONDS = 2.0
+
+
+def window_rows(step: float, per_row: float, max_memory: float) -> int:
+    """Rows each side of the impact window's peak: :data:`WINDOW_SECONDS` of steps, at most what
+    keeps the window (its rows, the rows before the next chunk, their copies) within a sixteenth of
+    ``max_memory`` (``per_row``: bytes of a row)."""
+    return max(16, min(int(math.ceil(WINDOW_SECONDS / step)), int(max_memory / (16.0 * per_row))))
+
+
+def full_resolution_run(v: Variant, fmu_path, progress, scene_name, max_memory: float):
+    """A pair variant (not a network) run at every step of its grid (``solver.dt``; ``run.H`` in
+    co-simulation), its rows folded as they come (:class:`fmu_sync.stream.StreamRecord`): the summary's
+    metrics (maxima, jumps at impacts, contact episodes, t_sync, the decay fit) and the impact
+    window's rows (:attr:`PairResult.impact_record`) from every step, the record kept every
+    ``run.record_every`` (:func:`fmu_sync.output.record_steps`): the metrics do not depend on it.
+    The core streams its steps in chunks; a co-simulation records every communication step when
+    that record fits ``max_memory`` (else at ``run.record_every``, its metrics from that record).
+    Returns ``(result, metrics)``; a failure mid-way raises RunFailed with ``.partial`` the kept
+    record and ``.metrics``."""
+    from .. import report
+    from ..output import estimate, record_steps, run_grid
+    from ..stream import StreamRecord
+    steps, step, _ = run_grid(v.cfg)
+    every = record_steps(v.cfg)
+    est = estimate(v)
+    full_rows = steps + 2
+    if v.mode == "cosim" and est.memory * est.record_every > max_memory:   # the full record does not fit
+        every_run = every
+    else:
+        every_run = 1
+    keep_d = 16.0 * full_rows / every_run <= 0.5 * max_memory   # every row's (t, d) for the decay fit
+    sink = StreamRecord(None, v.system, full_rows, every=every // every_run, keep_distance=keep_d,
+                        window_rows=window_rows(step * every_run, 8.0 * est.values_per_row, max_memory))
+
+    def finish(last, error=None):
+        result = sink.thinned()
+        result.info = {k: val for k, val in (last or result).info.items() if k not in ("rows", "thinned_every")}
+        result.impacts1, result.impacts2 = (last or result).impacts1, (last or result).impacts2
+        result.error = error
+        result.impact_record = sink.window()
+        _with_units(result, v)
+        if result.impact_record is not None:
+            result.impact_record.info = dict(result.info)
+        m = sink.metrics(result)
+        m.pop("thinned_every", None)
+        m["records"] = len(result.t)
+        fit = sink.sync() if keep_d else report._sync(result, report.SYNC_THRESHOLD)
+        m.update(report._sync_fields(fit), **report._metric_fields(result))
+        return result, m
+
+    try:
+        if v.mode == "core":
+            chunk = max(64, min(65536, steps // 100))   # about 100 chunks: the progress moves (and Ctrl-C stops)
+            last = run_variant(v, fmu_path, progress, scene_name, sink=sink, chunk_rows=chunk, every=1)
+        else:
+            last = run_variant(v, fmu_path, progress, scene_name, every=every_run)
+            sink(last)
+    except RunFailed as exc:
+        if v.mode != "core" and exc.partial is not None:
+            sink(exc.partial)
+        if sink.rows == 0:
+            raise
+        exc.partial, exc.metrics = finish(exc.partial if v.mode != "core" else sink.last, str(exc))
+        raise
+    return finish(last)
 
 
 def _counted(result, sink, last=None):
@@ -453,14 +545,19 @@ def run_scene(scene, out_dir=None, overrides: dict | None = None, progress: Call
                                   run_extra(v, scene.plots, _title(scene.name, v.name)))
             else:
                 try:
-                    result = run_variant(v, fmu_path, scaled(progress, a, mid), scene.name)
+                    if v.pair and not v.is_network:   # metrics and impact window from every step
+                        result, metrics = full_resolution_run(v, fmu_path, scaled(progress, a, mid), scene.name,
+                                                              max_memory)
+                    else:
+                        result, metrics = run_variant(v, fmu_path, scaled(progress, a, mid), scene.name), None
                 except RunFailed as exc:
                     if exc.partial is None:
                         runs.append(RunRecord(v.name, v, None, {"error": str(exc), "kind": "failed"}))
                         continue
                     result = exc.partial
                     result.error = result.error or str(exc)
-                run = RunRecord(v.name, v, result, report.metrics(result, v.system))
+                    metrics = getattr(exc, "metrics", None)
+                run = RunRecord(v.name, v, result, metrics or report.metrics(result, v.system))
             if run.result is not None and getattr(run.result, "error", None):
                 run.metrics["error"] = run.result.error
             try:
@@ -539,8 +636,8 @@ def skipped_notes(runs) -> list[str]:
 def stream_notes(runs) -> list[str]:
     return [f"**{r.name}**: its record exceeded the memory budget and was written in chunks while it ran; "
             f"the plots, the fitted decay rate and the ultimate bound use every "
-            f"{r.metrics['thinned_every']}-th of its "
-            f"{r.metrics['records']} records (t_sync, maxima and jumps use all of them)"
+            f"{r.metrics['thinned_every']}-th of its steps (t_sync, maxima and jumps use all of them; its "
+            f"record has {r.metrics['records']} rows)"
             for r in runs if r.metrics.get("thinned_every", 1) > 1]
 
 

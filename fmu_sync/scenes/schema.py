@@ -344,7 +344,8 @@ KEYS = {
             "tol": _key(_number(gt=0), None, "co-simulate to this error tolerance (q's unit): H is then the first and "
                         "largest step, each step's coupling error estimated and a step over its share retaken "
                         "shorter (cosim; docs/design.md §4.4.1)"),
-            "record_every": _key(_integer(1), 1, "keep every k-th step (core: steps dt; cosim: steps H)"),
+            "record_every": _key(_integer(1), 1, ("record every k steps of solver.dt in both modes (cosim: at the nearest whole number of "
+                                                                 "run.H steps, at least one); the summary's metrics use every step")),
             "allow_unstable": _key(_boolean, False, "run even if the held coupling exchange is unstable at this step")},
     "record": {"distance": _key(_boolean, None, "compute d, branch, V and the Euclidean error (pairs and "
                                 "networks: default true)"),
