@@ -17,6 +17,8 @@ import os
 
 from numba.core import caching
 
+from .jit import LAW_KEY  # noqa: F401 (the law's key global, defined in core/jit.py)
+
 __all__ = ["install", "core_stamp", "depends_on_core", "CORE_DIR"]
 
 CORE_DIR = os.path.dirname(os.path.abspath(__file__))
@@ -48,9 +50,6 @@ def depends_on_core(py_file: str) -> None:
     assembly into its loop)."""
     _DEPENDENTS.add(os.path.abspath(py_file))
 
-
-#: the global of a user force law's specialised kernels that holds the law's key (core/forcelaw.py)
-LAW_KEY = "__fmu_sync_law_key__"
 
 
 class _CoreStamp:

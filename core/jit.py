@@ -16,7 +16,11 @@ from __future__ import annotations
 
 import sys
 
-__all__ = ["NUMBA", "njit", "cfunc", "carray", "prange"]
+__all__ = ["NUMBA", "njit", "cfunc", "carray", "prange", "LAW_KEY"]
+
+#: the global of a user force law's specialised kernels (core/forcelaw.py, fmus/law_stepper.py) that holds
+#: the law's key, read by the cache locator (core/_cache.py)
+LAW_KEY = "__fmu_sync_law_key__"
 
 
 def _plain_requested() -> bool:

@@ -1,7 +1,7 @@
 """Co-simulation to a tolerance: the adaptive communication step (docs/design.md §4.4.1).
 
 A layer on top of the compiled exchange loop (:mod:`fmu_sync.cosim_loop`): it takes that
-loop's one exchange over [t, t + h] (``_exchange``: Jacobi or Gauss–Seidel, zero- or
+loop's one exchange over [t, t + h] (``exchange_step``: Jacobi or Gauss–Seidel, zero- or
 first-order hold) and wraps it in an error test with FMU-state rollback, compiled like the
 loop (numba nopython, ``cache=True``, no Python per step):
 
@@ -28,9 +28,9 @@ import numpy as np
 from numba import njit
 
 from .core.network import network_forces
-from .cosim_loop import (DONE, FREE_STATE, GET_STATE, _states, HIST_VALID, FRESH, IMPLICIT, NOT_CONVERGED, ROW, SET_STATE,
+from .cosim_loop import (DONE, FREE_STATE, GET_STATE, fmu_states, HIST_VALID, FRESH, IMPLICIT, NOT_CONVERGED, ROW, SET_STATE,
                          SLAVE_FAILED, STATE_DIVERGED, DISTANCE_DIVERGED, WARNING, FOH, GAUSS_SEIDEL, RECORD_EVERY,
-                         NEED_D, _copy, _exchange, _failed, _implicit_step, _impacts, _record, unmanaged)
+                         NEED_D, copy_rows, exchange_step, fail_at, implicit_step, read_impacts, record_row, unmanaged)
 
 __all__ = ["adaptive_chunk", "free_states", "SAFETY", "FAC_MIN", "FAC_MAX", "FULL",
            "A_TOL", "A_T_END", "A_UNIT", "A_H", "AD", "S_T", "S_H", "S_ERR", "AST",
@@ -64,9 +64,9 @@ def _copies(back, live, kept, hist, hs, ctl):
     ``hist``, ``ctl[HIST_VALID]``) kept in ``kept``, ``hs`` (``back`` False) or put back (True)."""
     for j in range(len(live)):
         if back:
-            _copy(kept[j], live[j])
+            copy_rows(kept[j], live[j])
         else:
-            _copy(live[j], kept[j])
+            copy_rows(live[j], kept[j])
     if back:
         hist[0] = hs[0]
         ctl[HIST_VALID] = np.int64(hs[1])
@@ -160,8 +160,8 @@ def adaptive_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, ad, norm
     and: ``ad`` (:data:`A_TOL` ...), ``norm`` (M^-1, Q/lambda_min(Q), M/lambda_min(Q)),
     ``extra`` (held forces' copy and forces at the step's end (N, n), scratch (n,) twice, the
     controller's own FMU-state handles ``mine`` (N,) and ``pmine``, ``ptr`` with the address of
-    ``mine`` in its ``P_SAVED`` slot, for ``cosim_loop._states``); with the implicit exchange
-    (``flags[IMPLICIT]``) the step is :func:`fmu_sync.cosim_loop._implicit_step` (its per-step
+    ``mine`` in its ``P_SAVED`` slot, for ``cosim_loop.fmu_states``); with the implicit exchange
+    (``flags[IMPLICIT]``) the step is :func:`fmu_sync.cosim_loop.implicit_step` (its per-step
     arrays in ``keep[7]`` indexed by the accepted step), its estimate the converged end force
     against its explicit first-order prediction, and a step that does not converge is retaken
     shorter, ``ast``, ``actl``
@@ -198,13 +198,13 @@ def adaptive_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, ad, norm
         if last:
             h = t_end - t
         # the step's start in the controller's own handles (the implicit step keeps its own)
-        if _states(pmine, fn, comp, FREE_STATE, mine, FAIL, fail_t, t) or _states(pmine, fn, comp, GET_STATE,
+        if fmu_states(pmine, fn, comp, FREE_STATE, mine, FAIL, fail_t, t) or fmu_states(pmine, fn, comp, GET_STATE,
                                                                                    mine, FAIL, fail_t, t):
             return FAIL[0]
         _copies(False, (q, u, hist_tau, tau), (qs, us, hts, taus), hist, hs, ctl)
         fresh = ctl[FRESH]
         if implicit:
-            if _implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, actl[C_STEPS], q, u, tau,
+            if implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, actl[C_STEPS], q, u, tau,
                               hist_tau, hist, ctl, saved, qs, us, iw, w, FAIL, fail_t, hp):
                 if FAIL[0] != NOT_CONVERGED or not h > unit * (1.0 + 1e-9):
                     return FAIL[0]
@@ -216,10 +216,10 @@ def adaptive_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, ad, norm
                 ast[S_H] = unit * max(1.0, math.floor(FAC_MIN * h / unit + 1e-9))
                 retry = True
                 continue
-        elif _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau, tau_next, hist_tau, hist,
+        elif exchange_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau, tau_next, hist_tau, hist,
                        ctl, w, FAIL, fail_t, hp):
             return FAIL[0]
-        if _impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + h):
+        if read_impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + h):
             return FAIL[0]
         finite = True
         for i in range(N):
@@ -227,7 +227,7 @@ def adaptive_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, ad, norm
                 if not (math.isfinite(q[i, c]) and math.isfinite(u[i, c])):
                     finite = False
         if not finite:
-            _failed(FAIL, fail_t, STATE_DIVERGED, -1, -1, 0, t + h)
+            fail_at(FAIL, fail_t, STATE_DIVERGED, -1, -1, 0, t + h)
             return FAIL[0]
         # the estimate: the forces at the step's end against those the hold gave there
         network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau_end, t1, t2, c1q, c1u, c2q, c2u, False, dk, bk, ek, hp,
@@ -252,7 +252,7 @@ def adaptive_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, ad, norm
         if err > share and h > unit * (1.0 + 1e-9):
             # rejected: every instance and the master's copies back to t, retaken shorter
             actl[C_REJECTED] += 1
-            if _states(pmine, fn, comp, SET_STATE, mine, FAIL, fail_t, t):
+            if fmu_states(pmine, fn, comp, SET_STATE, mine, FAIL, fail_t, t):
                 return FAIL[0]
             _copies(True, (q, u, hist_tau, tau), (qs, us, hts, taus), hist, hs, ctl)
             ctl[FRESH] = fresh
@@ -272,13 +272,13 @@ def adaptive_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, ad, norm
         t_next = t_end if last else t + h
         if actl[C_STEPS] % every == 0 or last:
             row = ctl[ROW]
-            if not _record(row, t_next, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, jacobi, ctl, T, Qr, Ur, TAU,
+            if not record_row(row, t_next, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, jacobi, ctl, T, Qr, Ur, TAU,
                            D, BR, EU, scratch, w, hp):
-                _failed(FAIL, fail_t, DISTANCE_DIVERGED, -1, -1, 0, t_next)
+                fail_at(FAIL, fail_t, DISTANCE_DIVERGED, -1, -1, 0, t_next)
                 return FAIL[0]
             ctl[ROW] = row + 1
         if jacobi and ctl[FRESH] == 0:   # the next step's forces are those of the estimate
-            _copy(tau_end, tau)
+            copy_rows(tau_end, tau)
             ctl[FRESH] = 1
         ast[S_T] = t_next
         ast[S_H] = next_step(h, eq_max, eu_max, tol, t_end, kind, unit, H, 1 if retry else 0)
@@ -292,4 +292,4 @@ def adaptive_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, ad, norm
 @njit(cache=True)
 def free_states(pmine, fn, comp, mine, FAIL, fail_t):
     """fmi2FreeFMUstate of every instance's state the controller kept (at the end of a run)."""
-    _states(pmine, fn, comp, FREE_STATE, mine, FAIL, fail_t, 0.0)
+    fmu_states(pmine, fn, comp, FREE_STATE, mine, FAIL, fail_t, 0.0)

@@ -1,3 +1,4 @@
+# long module: the one compiled exchange loop, its strategies (Jacobi, Gauss-Seidel, event-aware retake, implicit) beside the inlined helpers they share
 """The master's exchange loop, compiled (docs/design.md §4.4).
 
 fmpy loads the FMU (extract, instantiate, initialise, free, logger); this
@@ -14,12 +15,12 @@ divergence checks and the record. Jacobi and Gauss–Seidel, ZOH and FOH, pairs
 and networks, the other masters' delayed orders (``DELAY``: libcosim's and
 fmpy's SSP runner, docs/ssp.md) and the implicit exchange (``IMPLICIT``: each step
 iterated with FMU-state rollback until the forces agree with the states at its end,
-accelerated by IQN-ILS, :func:`_implicit_step`) are one loop.
+accelerated by IQN-ILS, :func:`implicit_step`) are one loop.
 
 The exchange strategies are the branches of one primitive, "take the step [t, t + h]
-from the current states": :func:`_exchange` (Jacobi, Gauss–Seidel, delayed; explicit,
+from the current states": :func:`exchange_step` (Jacobi, Gauss–Seidel, delayed; explicit,
 never rolled back), the event-aware retake around it (rolled back if an impact counter
-moved) and :func:`_implicit_step` (rolled back until it converges; returns False with
+moved) and :func:`implicit_step` (rolled back until it converges; returns False with
 ``FAIL = NOT_CONVERGED`` otherwise, the slaves restored to t, so a step-size
 controller can retake it shorter).
 
@@ -191,7 +192,7 @@ def not_converged(iw, t: float, H: float, steps: int) -> str:
 
 def implicit_work(N: int, n: int, E: int, steps: int, tol: float = IMPLICIT_TOL):
     """The implicit exchange's arrays (``keep[7]`` of :func:`exchange_chunk`, unpacked in
-    :func:`_implicit_step`): ``ta, te, g, r, rp, gp`` (N, n); IQN-ILS's ring of ``C = N n``
+    :func:`implicit_step`): ``ta, te, g, r, rp, gp`` (N, n); IQN-ILS's ring of ``C = N n``
     columns ``V, W`` (C, N, n), its QR ``Qw`` (C, N, n), ``Rw`` (C, C), ``alpha`` (C,),
     ``cols`` (C,); ``ist`` (columns, newest); ``bh`` (E,) the branches held (``E`` edges);
     ``offb`` (steps,), ``iters`` (steps,) int64 and ``resid`` (steps,) per communication step;
@@ -249,7 +250,7 @@ def unmanaged(typingctx, x):
 
 
 @njit(cache=True, inline="always")
-def _copy(a, b):
+def copy_rows(a, b):
     """b[:, :] = a, element by element (no array views: no reference counting in the loop)."""
     for i in range(a.shape[0]):
         for c in range(a.shape[1]):
@@ -257,7 +258,7 @@ def _copy(a, b):
 
 
 @njit(cache=True, inline="always")
-def _failed(FAIL, fail_t, code, i, call, status, t):
+def fail_at(FAIL, fail_t, code, i, call, status, t):
     FAIL[0] = code
     FAIL[1] = i
     FAIL[2] = call
@@ -272,7 +273,7 @@ def _read(ptr, fn, comp, i, buf, q, u, FAIL, fail_t, t):
     n = q.shape[1]
     st = fmi_call(fn[i, GET_REAL], (comp[i], ptr[P_VR_OUT], np.int64(2 * n), ptr[P_BUF]))
     if st > WARNING:
-        return _failed(FAIL, fail_t, SLAVE_FAILED, i, GET_REAL, st, t)
+        return fail_at(FAIL, fail_t, SLAVE_FAILED, i, GET_REAL, st, t)
     for c in range(n):
         q[i, c] = buf[c]
         u[i, c] = buf[n + c]
@@ -280,12 +281,12 @@ def _read(ptr, fn, comp, i, buf, q, u, FAIL, fail_t, t):
 
 
 @njit(cache=True, inline="always")
-def _impacts(ptr, fn, comp, ibuf, imp, FAIL, fail_t, t):
+def read_impacts(ptr, fn, comp, ibuf, imp, FAIL, fail_t, t):
     """fmi2GetInteger of every instance's impact counter into imp."""
     for i in range(comp.shape[0]):
         st = fmi_call(fn[i, GET_INT], (comp[i], ptr[P_VR_IMP], np.int64(1), ptr[P_IBUF]))
         if st > WARNING:
-            return _failed(FAIL, fail_t, SLAVE_FAILED, i, GET_INT, st, t)
+            return fail_at(FAIL, fail_t, SLAVE_FAILED, i, GET_INT, st, t)
         imp[i] = ibuf[0]
     return False
 
@@ -309,23 +310,23 @@ def _put(ptr, fn, comp, i, t, h, foh, no_prior, tau, FAIL, fail_t):
     n = tau.shape[1]
     for c in range(n):
         if not abs(tau[i, c]) <= INPUT_BOUND:   # also catches NaN
-            return _failed(FAIL, fail_t, FORCE_BOUND, i, -1, 3, t)
+            return fail_at(FAIL, fail_t, FORCE_BOUND, i, -1, 3, t)
     st = fmi_call(fn[i, SET_REAL], (comp[i], ptr[P_VR_TAU], np.int64(n), ptr[P_TAU] + 8 * n * i))
     if st > WARNING:
-        return _failed(FAIL, fail_t, SLAVE_FAILED, i, SET_REAL, st, t)
+        return fail_at(FAIL, fail_t, SLAVE_FAILED, i, SET_REAL, st, t)
     if foh:
         st = fmi_call(fn[i, SET_DER], (comp[i], ptr[P_VR_TAU], np.int64(n), ptr[P_ORDER],
                                        ptr[P_SLOPE]))
         if st > WARNING:
-            return _failed(FAIL, fail_t, SLAVE_FAILED, i, SET_DER, st, t)
+            return fail_at(FAIL, fail_t, SLAVE_FAILED, i, SET_DER, st, t)
     st = fmi_call(fn[i, DO_STEP], (comp[i], t, h, np.int32(no_prior)))
     if st > WARNING:
-        return _failed(FAIL, fail_t, SLAVE_FAILED, i, DO_STEP, st, t)
+        return fail_at(FAIL, fail_t, SLAVE_FAILED, i, DO_STEP, st, t)
     return False
 
 
 @njit(cache=True, inline="always")
-def _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau, tau_next, hist_tau,
+def exchange_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau, tau_next, hist_tau,
               hist, ctl, w, FAIL, fail_t, hp):
     """One exchange over [t, t + h]: Jacobi (every input from the same states, then all
     step), Gauss–Seidel (in index order, each input from the newest states) or delayed
@@ -348,7 +349,7 @@ def _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau, 
                 return True
     else:
         if flags[DELAY]:
-            _copy(tau_next, tau)
+            copy_rows(tau_next, tau)
             if ctl[ZERO_STEPS] > 0:   # fmpy: the connections still hold their start value 0
                 ctl[ZERO_STEPS] -= 1
             else:
@@ -359,7 +360,7 @@ def _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau, 
         for i in range(N):
             for c in range(tau.shape[1]):
                 if not abs(tau[i, c]) <= INPUT_BOUND:
-                    return _failed(FAIL, fail_t, FORCE_BOUND, i, -1, 3, t)
+                    return fail_at(FAIL, fail_t, FORCE_BOUND, i, -1, 3, t)
         for i in range(N):
             if _give(ptr, fn, comp, i, t, h, foh, no_prior, tau, hist_tau, hist[0], ctl[HIST_VALID],
                      slope, FAIL, fail_t):
@@ -367,14 +368,14 @@ def _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau, 
         for i in range(N):
             if _read(ptr, fn, comp, i, buf, q, u, FAIL, fail_t, t + h):
                 return True
-    _copy(tau, hist_tau)
+    copy_rows(tau, hist_tau)
     hist[0] = t
     ctl[HIST_VALID] = 1
     return False
 
 
 @njit(cache=True, inline="always")
-def _states(ptr, fn, comp, call, saved, FAIL, fail_t, t):
+def fmu_states(ptr, fn, comp, call, saved, FAIL, fail_t, t):
     """Every instance's FMU state: saved (``call`` GET_STATE, a new copy), restored (SET_STATE)
     or freed (FREE_STATE) through the handles ``saved`` (at ``ptr[P_SAVED]``)."""
     for i in range(comp.shape[0]):
@@ -385,7 +386,7 @@ def _states(ptr, fn, comp, call, saved, FAIL, fail_t, t):
                 saved[i] = 0
             st = fmi_call(fn[i, call], (comp[i], ptr[P_SAVED] + 8 * i))
         if st > WARNING:
-            return _failed(FAIL, fail_t, SLAVE_FAILED, i, call, st, t)
+            return fail_at(FAIL, fail_t, SLAVE_FAILED, i, call, st, t)
     return False
 
 
@@ -442,7 +443,7 @@ def _iqn_ils(te, g, r, V, W, Qw, Rw, alpha, cols, ncol, head):
     used = 0
     for j in range(ncol):
         s = (head - j + C) % C
-        _copy(V[s], Qw[used])
+        copy_rows(V[s], Qw[used])
         n0 = math.sqrt(_dot(Qw[used], Qw[used]))
         for m in range(used):
             Rw[m, used] = _dot(Qw[m], Qw[used])
@@ -474,7 +475,7 @@ def _iqn_ils(te, g, r, V, W, Qw, Rw, alpha, cols, ncol, head):
 
 
 @njit(cache=True)
-def _implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, u, tau, hist_tau, hist, ctl,
+def implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, u, tau, hist_tau, hist, ctl,
                    saved, qs, us, iw, w, FAIL, fail_t, hp):
     """The implicit exchange over [t, t + h] (docs/design.md §4.4): the force over the step is the
     line from ``ta`` (the law at the states at t) to ``te`` (first-order hold: value and input
@@ -506,10 +507,10 @@ def _implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, 
         for c in range(n):
             ta[i, c] = tau[i, c]
             te[i, c] = ta[i, c] + h * (ta[i, c] - hist_tau[i, c]) / (t - hist[0]) if extrapolate else ta[i, c]
-    if _states(ptr, fn, comp, GET_STATE, saved, FAIL, fail_t, t):
+    if fmu_states(ptr, fn, comp, GET_STATE, saved, FAIL, fail_t, t):
         return True
-    _copy(q, qs)
-    _copy(u, us)
+    copy_rows(q, qs)
+    copy_rows(u, us)
     C = V.shape[0]
     it = 0
     rmax = math.inf
@@ -551,7 +552,7 @@ def _implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, 
                 converged = True
                 break
             redecide -= 1   # held from here on: the branch decided at these end states
-            _copy(rp, g)
+            copy_rows(rp, g)
             rmax = _residual(g, te, r)
             fresh = True
         if it >= flags[MAX_ITER] or not math.isfinite(rmax):
@@ -582,36 +583,36 @@ def _implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, 
             if dr > 0.0:   # Aitken's relaxation, for a step whose secants the QR filter drops
                 omega = -omega * (_dot(rp, r) - _dot(rp, rp)) / dr
         fresh = False
-        _copy(r, rp)
-        _copy(g, gp)
+        copy_rows(r, rp)
+        copy_rows(g, gp)
         if _iqn_ils(te, g, r, V, W, Qw, Rw, alpha, cols, ist[0], ist[1]) == 0:
             for i in range(N):
                 for c in range(n):
                     te[i, c] += omega * r[i, c]
-        if _states(ptr, fn, comp, SET_STATE, saved, FAIL, fail_t, t):
+        if fmu_states(ptr, fn, comp, SET_STATE, saved, FAIL, fail_t, t):
             return True
-        _copy(qs, q)
-        _copy(us, u)
+        copy_rows(qs, q)
+        copy_rows(us, u)
     iters[k] = it
     resid[k] = rmax
     if not converged:   # back to t, then fail: never accepted
-        if _states(ptr, fn, comp, SET_STATE, saved, FAIL, fail_t, t):
+        if fmu_states(ptr, fn, comp, SET_STATE, saved, FAIL, fail_t, t):
             return True
-        _copy(qs, q)
-        _copy(us, u)
-    if _states(ptr, fn, comp, FREE_STATE, saved, FAIL, fail_t, t + h):
+        copy_rows(qs, q)
+        copy_rows(us, u)
+    if fmu_states(ptr, fn, comp, FREE_STATE, saved, FAIL, fail_t, t + h):
         return True
-    _copy(ta, tau)   # the record's input held over the step: its value at t (as the first-order hold's)
+    copy_rows(ta, tau)   # the record's input held over the step: its value at t (as the first-order hold's)
     if not converged:
-        return _failed(FAIL, fail_t, NOT_CONVERGED, -1, it, 0, t)
-    _copy(ta, hist_tau)
+        return fail_at(FAIL, fail_t, NOT_CONVERGED, -1, it, 0, t)
+    copy_rows(ta, hist_tau)
     hist[0] = t
     ctl[HIST_VALID] = 1
     return False
 
 
 @njit(cache=True, inline="always")
-def _record(row, t, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, jacobi, ctl, T, Qr, Ur, TAU, D, BR, EU, scratch,
+def record_row(row, t, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, jacobi, ctl, T, Qr, Ur, TAU, D, BR, EU, scratch,
             w, hp):
     """Row ``row`` at time t: the states, the inputs held over the step that ended here, and
     each edge's distance (returns False if a distance is not finite). Jacobi: the forces
@@ -676,7 +677,7 @@ def exchange_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, H, H_las
         for i in range(N):
             if _read(ptr, fn, comp, i, w[9], q, u, FAIL, fail_t, 0.0):
                 return FAIL[0], 0
-        if _impacts(ptr, fn, comp, ibuf, imp, FAIL, fail_t, 0.0):
+        if read_impacts(ptr, fn, comp, ibuf, imp, FAIL, fail_t, 0.0):
             return FAIL[0], 0
         if flags[COUPLED]:
             network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, w[0], w[1], w[2], w[3], w[4], w[5], False,
@@ -687,8 +688,8 @@ def exchange_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, H, H_las
                     tau[i, c] = 0.0
             ctl[ZERO_STEPS] = 1
         if flags[DELAY]:
-            _copy(tau, tau_next)
-        _record(0, 0.0, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, jacobi, ctl, T, Qr, Ur, TAU, D, BR, EU, scratch,
+            copy_rows(tau, tau_next)
+        record_row(0, 0.0, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, jacobi, ctl, T, Qr, Ur, TAU, D, BR, EU, scratch,
                 w, hp)
         ctl[ROW] = 1
         k0 = 0
@@ -704,24 +705,24 @@ def exchange_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, H, H_las
             t_next = t_last
             pieces = flags[PIECES_LAST]
         if flags[IMPLICIT]:
-            if _implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, u, tau, hist_tau, hist,
+            if implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, u, tau, hist_tau, hist,
                               ctl, saved, qs, us, iw, w, FAIL, fail_t, hp):
                 return FAIL[0], k
-            if _impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + h):
+            if read_impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + h):
                 return FAIL[0], k
         else:
             if flags[EVENT_AWARE]:
-                if _states(ptr, fn, comp, GET_STATE, saved, FAIL, fail_t, t):
+                if fmu_states(ptr, fn, comp, GET_STATE, saved, FAIL, fail_t, t):
                     return FAIL[0], k
-                _copy(q, qs)
-                _copy(u, us)
-                _copy(hist_tau, hts)
+                copy_rows(q, qs)
+                copy_rows(u, us)
+                copy_rows(hist_tau, hts)
                 hs[0] = hist[0]
                 hs[1] = ctl[HIST_VALID]
-            if _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau,
+            if exchange_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau,
                          tau_next, hist_tau, hist, ctl, w, FAIL, fail_t, hp):
                 return FAIL[0], k
-            if _impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + h):
+            if read_impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + h):
                 return FAIL[0], k
             if flags[EVENT_AWARE]:
                 moved = False
@@ -729,36 +730,36 @@ def exchange_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, H, H_las
                     if imp_new[i] != imp[i]:
                         moved = True
                 if moved:  # restore every instance to t and retake [t, t + h] in pieces of about H_min
-                    _copy(hts, hist_tau)
+                    copy_rows(hts, hist_tau)
                     hist[0] = hs[0]
                     ctl[HIST_VALID] = np.int64(hs[1])
                     ctl[RETAKES] += 1
-                    if _states(ptr, fn, comp, SET_STATE, saved, FAIL, fail_t, t):
+                    if fmu_states(ptr, fn, comp, SET_STATE, saved, FAIL, fail_t, t):
                         return FAIL[0], k
-                    _copy(qs, q)
-                    _copy(us, u)
+                    copy_rows(qs, q)
+                    copy_rows(us, u)
                     for p in range(pieces):
                         tp = t + p * (h / pieces)
                         hpc = (t + h) - tp if p == pieces - 1 else h / pieces
-                        if _exchange(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, tp, hpc, q,
+                        if exchange_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, tp, hpc, q,
                                      u, tau, tau_next, hist_tau, hist, ctl, w, FAIL, fail_t, hp):
                             return FAIL[0], k
-                    if _impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + h):
+                    if read_impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + h):
                         return FAIL[0], k
-                if _states(ptr, fn, comp, FREE_STATE, saved, FAIL, fail_t, t + h):
+                if fmu_states(ptr, fn, comp, FREE_STATE, saved, FAIL, fail_t, t + h):
                     return FAIL[0], k
         for i in range(N):
             imp[i] = imp_new[i]
         for i in range(N):
             for c in range(q.shape[1]):
                 if not (math.isfinite(q[i, c]) and math.isfinite(u[i, c])):
-                    _failed(FAIL, fail_t, STATE_DIVERGED, -1, -1, 0, t_next)
+                    fail_at(FAIL, fail_t, STATE_DIVERGED, -1, -1, 0, t_next)
                     return FAIL[0], k
         if (k + 1) % every == 0 or k == last:   # the final state is always a row
             row = ctl[ROW]
-            if not _record(row, t_next, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, jacobi, ctl, T, Qr, Ur, TAU, D,
+            if not record_row(row, t_next, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, jacobi, ctl, T, Qr, Ur, TAU, D,
                            BR, EU, scratch, w, hp):
-                _failed(FAIL, fail_t, DISTANCE_DIVERGED, -1, -1, 0, t_next)
+                fail_at(FAIL, fail_t, DISTANCE_DIVERGED, -1, -1, 0, t_next)
                 return FAIL[0], k
             ctl[ROW] = row + 1
     return DONE, k1

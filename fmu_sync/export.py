@@ -1,3 +1,4 @@
+# long module: one export pipeline (spec, C binary, carried code, model description, archive) read top to bottom
 """Export the fmu-sync slaves as FMI 2.0 (default) or FMI 3.0 co-simulation FMUs (SPEC §7).
 
     export_fmu("impact-oscillator", "io.fmu", {"e": 0.8, "solver.scheme": "theta"})

@@ -57,12 +57,15 @@ def _metric_fields(result) -> dict:
     return dict(metric=info["metric"], Q=info.get("Q"), metric_note=info.get("metric_note", ""))
 
 
-def _exchange_fields(result) -> dict:
-    """The implicit exchange's FMU steps per communication step (median, max; docs/design.md §4.4)."""
-    it = (getattr(result, "info", {}) or {}).get("iterations")
-    if it is None or len(it) == 0:
-        return {}
-    return dict(iterations_median=float(np.median(it)), iterations_max=int(np.max(it)))
+def exchange_fields(result) -> dict:
+    """What a co-simulation's exchange adds to its metrics: the implicit exchange's FMU steps per
+    communication step (median, max; docs/design.md §4.4) and a run to a tolerance's steps and
+    estimate (:func:`adaptive_fields`, §4.4.1); empty for other runs."""
+    info = getattr(result, "info", {}) or {}
+    it = info.get("iterations")
+    out = {} if it is None or len(it) == 0 else dict(iterations_median=float(np.median(it)),
+                                                      iterations_max=int(np.max(it)))
+    return {**out, **adaptive_fields(info)}
 
 
 def network_metrics(result, threshold: float = SYNC_THRESHOLD) -> dict:
@@ -73,7 +76,7 @@ def network_metrics(result, threshold: float = SYNC_THRESHOLD) -> dict:
            "N": int(np.asarray(result.q).shape[1]), "edges": len(result.edges),
            "coupling": _coupling_name(result.info.get("coupling")),
            "impact_steps": int(np.sum(result.impacts)), "peak_tau": float(np.nanmax(tau)) if tau.size else 0.0,
-           "error": result.error, **_exchange_fields(result), **adaptive_fields(result.info)}
+           "error": result.error, **exchange_fields(result)}
     if result.d is None:
         out.update(t_sync=None, final_d=None)
         return out
@@ -174,8 +177,7 @@ def metrics(result, system=None, threshold: float = SYNC_THRESHOLD) -> dict:
     e1, e2 = impact_records(result, 1, system), impact_records(result, 2, system)
     out.update(kind="pair", coupling=result.coupling or "none", impacts1=int(result.impacts1),
                impacts2=int(result.impacts2), episodes1=int(e1.size), episodes2=int(e2.size),
-               peak_tau=float(np.nanmax(tau)) if tau.size else 0.0, error=result.error, **_exchange_fields(result),
-               **adaptive_fields(result.info))
+               peak_tau=float(np.nanmax(tau)) if tau.size else 0.0, error=result.error, **exchange_fields(result))
     if result.d is None:
         out.update(t_sync=None, final_d=None, euclid_max=None, peaking=None, dV_impact=None, dE_impact=None)
         return out

@@ -1,3 +1,4 @@
+# long module: the SSP reader, writer and runner share one checking layer (SspError) and its element names
 """A coupled scene as an SSP 1.0 package, and our master running one (docs/ssp.md).
 
     write_ssp("forced-pair", "pair.ssp", variant="switching")

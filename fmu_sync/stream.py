@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from .core.result import concat_pairs as _concat
-from .report import SYNC_THRESHOLD, impact_records
+from .report import SYNC_THRESHOLD, exchange_fields, impact_records
 
 __all__ = ["StreamRecord"]
 
@@ -177,7 +177,7 @@ class StreamRecord:
         out = {"t_end": float(last.t[-1]), "records": self.rows, "kind": "pair",
                "coupling": res.coupling or "none", "impacts1": int(res.impacts1),
                "impacts2": int(res.impacts2), "episodes1": m["e1"], "episodes2": m["e2"],
-               "peak_tau": m["peak_tau"], "error": res.error, "thinned_every": self.every}
+               "peak_tau": m["peak_tau"], "error": res.error, "thinned_every": self.every, **exchange_fields(res)}
         if not m["any_d"]:
             out.update(t_sync=None, final_d=None, euclid_max=None, peaking=None, dV_impact=None,
                        dE_impact=None)

@@ -35,7 +35,7 @@ from numba import njit
 from numba.core import sigutils
 from numba.core.ccallback import CFunc
 
-from ..core._cache import LAW_KEY
+from ..core.jit import LAW_KEY
 from . import stepper as S
 
 __all__ = ["law_stepper", "stepper_key", "compiled"]

@@ -1,3 +1,4 @@
+# long module: one scene runner for every mode (core, cosim, streamed, full resolution, failures) sharing the variant plumbing
 """Running a scene (docs/design.md §4.5): each variant goes to the core
 (:func:`~fmu_sync.core.simulate`, :func:`~fmu_sync.core.simulate_pair`) or to the
 master (:func:`~fmu_sync.master.cosimulate`, values named by the FMU contract), then
