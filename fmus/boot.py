@@ -231,18 +231,24 @@ def _cache_candidates() -> list[tuple[str, str]]:
     return out
 
 
+def _unwritable(base: str) -> str | None:
+    """None if ``base`` is (made) a writable folder, else why it is not."""
+    try:
+        os.makedirs(base, exist_ok=True)
+        return None if os.access(base, os.W_OK) else "not writable"
+    except OSError as exc:
+        return exc.strerror or str(exc)
+
+
 def cache_root(embedded: bool = False) -> str:
     """The first writable cache folder; SetupError naming every folder tried and what to do."""
     home, why = _home()
     tried = [] if home or os.environ.get("XDG_CACHE_HOME") else [f"~/.cache/fmu-sync (HOME): {why}"]
     for label, base in _cache_candidates():
-        try:
-            os.makedirs(base, exist_ok=True)
-            if os.access(base, os.W_OK):
-                return base
-            tried.append(f"{base} ({label}): not writable")
-        except OSError as exc:
-            tried.append(f"{base} ({label}): {exc.strerror or exc}")
+        why = _unwritable(base)
+        if why is None:
+            return base
+        tried.append(f"{base} ({label}): {why}")
     where = ("in the environment of the program that loads the FMU" if embedded else
              f"in this Python process (os.environ['FMU_SYNC_CACHE'] before loading the FMU, or in the "
              f"shell that starts {sys.executable})")
@@ -270,17 +276,21 @@ def _set_aside(root: str, dest: str, digest: str) -> None:
 
 
 def unpack(resources_dir: str, build: dict, embedded: bool = False) -> str:
-    """The folder to put on sys.path (holds ``<package>/``): the first cache folder that holds a
-    complete copy of this code (even a read-only one), else a copy made in the first writable one.
+    """The folder to put on sys.path (holds ``<package>/``): going through the cache folders in order
+    (:func:`_cache_candidates`), the first that holds a complete copy of this code (even a read-only
+    one), up to the first writable one, where a copy is made if it holds none (so a set
+    FMU_SYNC_CACHE is where the copy is, not a folder further down the list).
 
     Safe under any concurrency (processes, threads, several FMUs, docs/fmu.md "The code cache"):
     a copy is made in a temporary folder and published whole by renaming it to ``<root>/<hash>``;
     a published copy is never removed or replaced (its name is its content's hash, so it never
     changes); one that fails its hash is set aside by a rename (:func:`_set_aside`), not deleted."""
     digest, package = build["code_hash"], build["package"]
-    for _, base in _cache_candidates():   # a complete copy is used where it is, read-only or not
-        if _complete(os.path.join(base, digest), digest, package):
-            return os.path.join(base, digest)
+    for _, base in _cache_candidates():   # in order: a complete copy is used where it is (read-only or
+        if _complete(os.path.join(base, digest), digest, package):     # not), up to the first writable
+            return os.path.join(base, digest)                           # folder, where one is made
+        if _unwritable(base) is None:
+            break
     root = cache_root(embedded)
     dest = os.path.join(root, digest)
     src = os.path.join(resources_dir, CODE_DIR)
