@@ -56,7 +56,7 @@ from .fmus import contract
 from . import cosim_adaptive as ad
 from . import cosim_loop as loop
 from .cosim_loop import CALLS, exchange_chunk
-from .hold import check_hold, check_implicit, check_schemes
+from .hold import check_hold, check_implicit, check_rollback, check_schemes, rollback_strategy
 from .instance_pool import give_back, keep_instances, kept_key, take
 
 __all__ = ["cosimulate", "cosimulate_network", "keep_instances", "NetworkMaster", "AdaptiveMaster", "check_tol", "NetworkResult", "SlaveError", "FmuInstance",
@@ -127,6 +127,7 @@ class NetworkMaster:
     """
 
     METHODS = ("jacobi", "gauss-seidel")
+    tol = None             # the tolerance of an AdaptiveMaster (set before this constructor runs)
     EARLY_RETURN = False   # FMI 3.0 instances with early return and event mode (fmu_sync.early_return)
     DELAY: dict = {}
 
@@ -168,7 +169,8 @@ class NetworkMaster:
         self.check_fmi_version()
         self.model = fmu_model(self.md, self.fmu)  # a foreign FMU fails here, naming what it lacks
         self.hold = check_hold(hold, self.md, self.fmu)
-        check_implicit(exchange, method, event_aware, self.md, self.fmu)
+        check_implicit(exchange, method, event_aware)
+        check_rollback(rollback_strategy(exchange, event_aware, self.tol), self.md, self.fmu)
         self.record_values = 1 + 3 * N * self.model.n + 3 * len(self.edges)
         check_record_size(record_rows(n_steps, record_every), self.record_values,
                           "the record of the co-simulation")   # the plan's step 6, before any instance exists
@@ -498,8 +500,8 @@ class AdaptiveMaster(NetworkMaster):
     """A co-simulation run to the tolerance ``tol``: ``H`` is the first and largest step."""
 
     def __init__(self, *args, tol, **kwargs):
-        super().__init__(*args, **kwargs)
         self.tol = check_tol(tol)
+        super().__init__(*args, **kwargs)
         if self.event_aware:
             raise ValueError("tol and event_aware=True exclude each other: with tol a step in which an impact "
                              "counter moves is retaken shorter by the error control itself")
@@ -519,10 +521,9 @@ class AdaptiveMaster(NetworkMaster):
 
     def _loop_arrays(self) -> None:
         super()._loop_arrays()
-        if not getattr(self.md.coSimulation, "canGetAndSetFMUstate", False) or not np.all(
-                self.fn[:, [CALLS.index(c) for c in _STATE_CALLS]]):
-            raise ValueError(f"{self.fmu}: tol rolls rejected steps back with the FMU state, but the FMU does not "
-                             f"declare canGetAndSetFMUstate (or its binary lacks {', '.join(_STATE_CALLS)})")
+        if not np.all(self.fn[:, [CALLS.index(c) for c in _STATE_CALLS]]):
+            raise ValueError(f"{self.fmu}: tol rolls rejected steps back with the FMU state, but its binary lacks "
+                             f"{', '.join(_STATE_CALLS)}")
         flags = self.loop_args[9]
         flags[loop.EVENT_AWARE] = 1   # the slaves may be set back: noSetFMUStatePriorToCurrentPoint = false
         N, n = self.N, self.model.n
