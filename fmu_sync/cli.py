@@ -357,6 +357,7 @@ def _main(argv) -> int:
     import signal
 
     from .core import RunFailed
+    from .fmi_bridge import InstantiationFailed
     from .scenes.schema import SceneError   # refusals are ValueErrors (exit 2) by type, never by message
     try:
         signal.signal(signal.SIGTERM, _terminate)
@@ -392,6 +393,9 @@ def _main(argv) -> int:
             from .sweeps.cli import run as run_sweep
             return run_sweep(args)
         raise AssertionError(args.command)
+    except InstantiationFailed as exc:   # an FMU that refused to instantiate: nothing ran
+        print(f"{PROG}: error: {_one_line(exc)}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     except RunFailed as exc:   # a run that failed mid-way (or a diverging single system)
         print(f"{PROG}: error: {_one_line(exc)}", file=sys.stderr)
         return EXIT_FAILED

@@ -70,8 +70,9 @@ class FMU3Host(FMUHost):
 
         self.fmu = FMU3Slave(guid=self.md.guid, unzipDirectory=self.unzip_dir,
                              modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=instance_name)
-        self.fmu.instantiate(loggingOn=logging, eventModeUsed=self.event_mode,
-                             earlyReturnAllowed=self.early_return_allowed, logMessage=_logger)
+        self._instantiate(lambda: self.fmu.instantiate(loggingOn=logging, eventModeUsed=self.event_mode,
+                                                       earlyReturnAllowed=self.early_return_allowed,
+                                                       logMessage=_logger))
 
     # ---------------------------------------------------------------- variables
     def _where(self, name: str):

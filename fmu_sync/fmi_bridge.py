@@ -24,7 +24,7 @@ import shutil
 
 from .core.errors import RunFailed
 
-__all__ = ["FMUHost", "SlaveError", "OK", "WARNING", "DISCARD", "ERROR", "FATAL", "STATUS_NAMES"]
+__all__ = ["FMUHost", "SlaveError", "InstantiationFailed", "OK", "WARNING", "DISCARD", "ERROR", "FATAL", "STATUS_NAMES"]
 
 OK, WARNING, DISCARD, ERROR, FATAL = 0, 1, 2, 3, 4
 STATUS_NAMES = {0: "OK", 1: "WARNING", 2: "DISCARD", 3: "ERROR", 4: "FATAL", 5: "PENDING"}
@@ -36,12 +36,19 @@ class SlaveError(RunFailed):
     """A slave answered an FMI call with a status worse than Warning (``call`` names the FMI
     call, or what of the master's stopped the slave, e.g. "coupling")."""
 
-    def __init__(self, slave: str, t: float, call: str, status: int, log: list[str]):
+    def __init__(self, slave: str, t: float, call: str, status: int, log: list[str], returned: str | None = None):
         reason = log[-1] if log else "no message logged"
         label = STATUS[status] if 0 <= status < len(STATUS) else str(status)
         prefix = call[:4] if call.startswith(("fmi2", "fmi3")) else "fmi2"
-        super().__init__(f"slave {slave!r} failed at t = {t:.6g}: {call} returned {prefix}{label}: {reason}")
+        returned = returned or f"{prefix}{label}"
+        super().__init__(f"slave {slave!r} failed at t = {t:.6g}: {call} returned {returned}: {reason}")
         self.slave, self.t, self.call, self.status, self.log = slave, t, call, status, list(log)
+
+
+class InstantiationFailed(SlaveError):
+    """fmi2Instantiate / fmi3InstantiateCoSimulation returned NULL: the instance was never made
+    (an edited or foreign file, a missing Python on the target, ...); the message is the FMU's own
+    logged reason. Nothing ran: the command line reports it as bad input (exit 2)."""
 
 
 class FMUHost:
@@ -96,9 +103,31 @@ class FMUHost:
         self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self.unzip_dir,
                              modelIdentifier=self.md.coSimulation.modelIdentifier,
                              instanceName=instance_name)
-        self.fmu.instantiate(callbacks=cb, loggingOn=logging)
+        self._instantiate(lambda: self.fmu.instantiate(callbacks=cb, loggingOn=logging))
         if logging:
             self.fmu.setDebugLogging(True, [])
+
+    def _instantiate(self, make) -> None:
+        """``make()`` (fmpy's instantiate, which raises a bare ``Exception`` when the FMU returns
+        NULL): a failed instantiate is an :class:`InstantiationFailed` (a :class:`SlaveError`) with the FMU's own logged reason (the
+        file, the hash, the GUID it refused), whatever ``raises`` says (there is no instance to
+        return a status from); the library is released and the files this host unpacked removed."""
+        try:
+            make()
+        except Exception as exc:
+            if getattr(self.fmu, "component", None):
+                raise
+            log = self.errors(min_status=WARNING) or [m for _, _, m in self.messages] or [
+                f"{exc} (the FMU logged no reason)"]
+            err = InstantiationFailed(self.name, self.t, self.PREFIX + "Instantiate", ERROR, log, returned="NULL")
+            self._freed = True
+            try:
+                self.fmu.freeLibrary()
+            except Exception:   # noqa: BLE001 - the SlaveError below is what the caller needs
+                pass
+            if self._owns_dir:
+                shutil.rmtree(self.unzip_dir, ignore_errors=True)
+            raise err from None
 
     # ---------------------------------------------------------------- calls
     def call(self, name: str, *args):

@@ -12,6 +12,7 @@ import contextlib
 import io
 import json
 import sys
+import tempfile
 import traceback
 import zipfile
 from pathlib import Path
@@ -46,6 +47,7 @@ import subprocess  # noqa: E402
 import pytest  # noqa: E402
 from hypothesis import HealthCheck, assume, given, settings, strategies as st  # noqa: E402
 
+from fmu_sync.fmi_bridge import InstantiationFailed, SlaveError  # noqa: E402
 from fmu_sync.ssp import SSD, SspError, run_ssp, write_ssp  # noqa: E402
 from _children import child  # noqa: E402
 
@@ -135,11 +137,29 @@ def _edited(src: Path, dst: Path, edits) -> Path:
     return dst
 
 
+START = "resources/fmu_sync_start.json"
+
+
+def _inner_edited(data: bytes) -> bytes:
+    """A system FMU whose start file was edited after export (its checksum no longer matches)."""
+    src, out = io.BytesIO(data), io.BytesIO()
+    with zipfile.ZipFile(src) as zin, zipfile.ZipFile(out, "w") as zout:
+        for name in zin.namelist():
+            body = zin.read(name)
+            zout.writestr(name, body.replace(b'"solver.dt": 0.001', b'"solver.dt": 0.002') if name == START
+                          else body)
+    return out.getvalue()
+
+
+#: packages whose XML is sound but whose inner FMUs refuse to instantiate (issue 44 item 6)
+INNER = {"inner-fmu-edited": ({"resources/system1.fmu": _inner_edited, "resources/system2.fmu": _inner_edited},)}
+
+
 @pytest.fixture(scope="module")
 def pair(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("malformed")
     good = write_ssp("forced-pair", tmp / "pair.ssp", "switching", {"run.t_end": 1.0})
-    bad = {key: _edited(good, tmp / f"{key}.ssp", case[0]) for key, case in CASES.items()}
+    bad = {key: _edited(good, tmp / f"{key}.ssp", case[0]) for key, case in {**CASES, **INNER}.items()}
     return tmp, good, bad
 
 
@@ -180,6 +200,28 @@ def test_cli_run_exits_2_with_one_line_for_each_malformed_package(cli, pair, key
 def test_cli_runs_the_unedited_package(cli):
     """The control: the package every case was edited from runs (exit 0)."""
     assert cli["good"]["rc"] == 0 and cli["good"]["escaped"] is None, cli["good"]
+
+
+def test_an_inner_fmu_that_refuses_to_instantiate_is_a_slave_error_with_its_reason(pair):
+    """An edited start file inside the system FMUs: the FMU's own logged reason (the file, its
+    hash) in an InstantiationFailed, a SlaveError (0.6.0: a bare ``Exception: Failed to instantiate
+    model``); nothing of the run's unpacked files stays behind."""
+    _, _, bad = pair
+    before = set(Path(tempfile.gettempdir()).iterdir())
+    with pytest.raises(SlaveError) as exc:
+        run_ssp(bad["inner-fmu-edited"])
+    assert isinstance(exc.value, InstantiationFailed) and exc.value.call == "fmi2Instantiate"
+    msg = str(exc.value)
+    assert "fmu_sync_start.json" in msg and "changed after export" in msg and "SHA-256" in msg, msg
+    assert set(Path(tempfile.gettempdir()).iterdir()) <= before
+
+
+def test_cli_exits_2_with_the_fmus_reason_in_one_line(cli):
+    got = cli["inner-fmu-edited"]
+    assert got["escaped"] is None, got["escaped"]
+    lines = got["stderr"].strip().splitlines()
+    assert got["rc"] == 2 and len(lines) == 1, got
+    assert lines[0].startswith("fmu-sync: error: slave 'system1'") and "fmu_sync_start.json" in lines[0], lines
 
 
 @pytest.mark.parametrize("key", ["ssd-truncated", "component-fmu-missing"])
