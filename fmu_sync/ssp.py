@@ -65,6 +65,10 @@ OMS = "org.openmodelica"
 OMS_SOLVER = {"name": "fixedstep", "method": "oms_ma"}
 COUPLING_COMPONENT = "coupling"
 _COUPLING_FMU = "resources/coupling.fmu"
+#: the most a package entry may inflate to when it is read (an FMU of ours is about 1.3 MB; a
+#: zip bomb is refused instead of read whole): FMUs, and the XML/JSON files read into memory
+MAX_ENTRY_BYTES = 256 * 2**20
+MAX_TEXT_BYTES = 16 * 2**20
 for _p, _u in NS.items():
     ET.register_namespace(_p, _u)
 
@@ -104,9 +108,28 @@ class _Archive:
     def __init__(self, path: Path, zf: zipfile.ZipFile):
         self.path, self.zf = path, zf
         self.names = set(zf.namelist())
+        if len(self.names) != len(zf.namelist()):    # zipfile would read the last of them, silently
+            twice = sorted({n for n in zf.namelist() if zf.namelist().count(n) > 1})
+            raise self.fail(twice[0], None, f"the package holds {len(twice)} entry name(s) twice "
+                            f"({', '.join(twice[:4])}): which one a master reads is undefined, so it is refused")
 
     def fail(self, file: str | None, element: str | None, reason: str) -> SspError:
         return SspError(self.path, file, element, reason)
+
+    def read(self, name: str, limit: int = MAX_TEXT_BYTES, zf: zipfile.ZipFile | None = None,
+             where: str | None = None) -> bytes:
+        """Entry ``name`` of the package (or of the inner archive ``zf``), refused above ``limit`` bytes
+        as declared or as it inflates (it is never read whole beyond the limit)."""
+        zf = zf or self.zf
+        size = zf.getinfo(name).file_size
+        with zf.open(name) as f:
+            raw = f.read(limit + 1) if size <= limit else b""
+        if size > limit or len(raw) > limit:
+            raise self.fail(where or name, None if where is None else name,
+                            f"inflates to {max(size, len(raw)) / 2**20:.1f} MiB, above the limit of "
+                            f"{limit / 2**20:g} MiB for {'an FMU' if limit == MAX_ENTRY_BYTES else 'a text file'} "
+                            f"of a package")
+        return raw
 
     def data(self, name: str | None, file: str, element: str) -> bytes:
         """The entry ``name`` that ``element`` of ``file`` refers to."""
@@ -115,7 +138,7 @@ class _Archive:
         if name not in self.names:
             held = ", ".join(sorted(self.names)[:12]) + (", ..." if len(self.names) > 12 else "")
             raise self.fail(file, element, f"refers to {name}, which the package does not hold (it holds: {held})")
-        return self.zf.read(name)
+        return self.read(name, MAX_ENTRY_BYTES if name.lower().endswith(".fmu") else MAX_TEXT_BYTES)
 
     def xml(self, name: str, root: str, file: str, element: str):
         """The root of the XML entry ``name`` (referred to by ``element`` of ``file``), which must be ``root``."""
@@ -150,7 +173,7 @@ class _Archive:
         element = f'<ssd:Component name="{component}">'
         try:
             with zipfile.ZipFile(io.BytesIO(self.data(src, SSD, element))) as fz:
-                raw = fz.read(entry)
+                raw = self.read(entry, MAX_TEXT_BYTES, fz, src)
         except zipfile.BadZipFile:
             raise self.fail(src, element, "not an FMU (not a zip archive)") from None
         except KeyError:
@@ -695,7 +718,7 @@ def _one_model(pkg: SspPackage, arc: _Archive, names: list[str]) -> bytes:
             raise pkg.fail(src, f'<ssd:Component name="{c}">', f"the systems' FMUs differ in {k!r}, which the "
                            f"bindings of {c!r} do not set ({srcs[0]}: {start0.get(k)!r}, {src}: "
                            f"{start.get(k)!r}): our master runs N instances of one model")
-    return arc.zf.read(srcs[0])
+    return arc.read(srcs[0], MAX_ENTRY_BYTES)
 
 
 def _run_master(pkg, arc, fmu, names, spec, cfg, t_end, H, method, record_every, progress, allow_unstable, cvals):

@@ -112,6 +112,8 @@ CASES = {
                     "not well-formed XML"),
     "connection-to-nothing": ({SSD: _replace(b'startElement="system2"', b'startElement="system9"')}, SSD,
                               'startElement="system9"', "not a component"),
+    "ssv-inflates": ({SYS1: lambda d: d[:-1] + b" " * (17 * 2**20) + d[-1:]}, SYS1, None,
+                     "inflates to 17.0 MiB, above the limit of 16 MiB"),
     "geometry-differs": ({CPL: _replace(b'name="e">\n      <ssv:Real value="0.9"', b'name="e">\n      '
                                         b'<ssv:Real value="0.8"')}, CPL, "geometry", "e differs"),
 }
@@ -200,6 +202,18 @@ def test_cli_run_exits_2_with_one_line_for_each_malformed_package(cli, pair, key
 def test_cli_runs_the_unedited_package(cli):
     """The control: the package every case was edited from runs (exit 0)."""
     assert cli["good"]["rc"] == 0 and cli["good"]["escaped"] is None, cli["good"]
+
+
+def test_duplicate_entry_names_are_refused(pair, tmp_path):
+    """Two entries named resources/system1.ssv (0.6.0 read the last one without a word)."""
+    _, good, _ = pair
+    dup = tmp_path / "dup.ssp"
+    with zipfile.ZipFile(good) as zin, zipfile.ZipFile(dup, "w") as zout, pytest.warns(UserWarning):
+        for name in zin.namelist():
+            zout.writestr(name, zin.read(name))
+        zout.writestr(SYS1, zin.read(SYS1).replace(b'<ssv:Real value="1.0" />', b'<ssv:Real value="2.0" />'))
+    with pytest.raises(SspError, match=f"{SYS1}.*holds 1 entry name.*twice"):
+        run_ssp(dup)
 
 
 def test_an_inner_fmu_that_refuses_to_instantiate_is_a_slave_error_with_its_reason(pair):
