@@ -48,7 +48,8 @@ import numpy as np
 from .fmus import contract
 
 __all__ = ["write_ssp", "read_ssp", "run_ssp", "save_result", "SspPackage", "fmpy_parameter_set", "SSD", "SspError", "SsdError",
-           "COUPLING_COMPONENT", "system_component"]
+           "COUPLING_COMPONENT", "system_component",
+           "coupling_connections"]
 
 SSD = "SystemStructure.ssd"
 NS = {"ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
@@ -407,15 +408,8 @@ def _ssd(scene_name, v, model, edges, N, n, osc_names, cfg, mapped=False) -> byt
     _component(elements, COUPLING_COMPONENT, _COUPLING_FMU, cons, f"resources/{COUPLING_COMPONENT}.ssv",
                [(f"resources/{system_component(i, N)}.ssv", _ssm_name(i, N)) for i in range(N)] if mapped else ())
     conns = ET.SubElement(system, _q("ssd", "Connections"))
-    for i in range(N):
-        for mine, theirs in list(zip(qn, node_names("q", i, n))) + list(zip(un, node_names("u", i, n))):
-            ET.SubElement(conns, _q("ssd", "Connection"), {
-                "startElement": system_component(i, N), "startConnector": mine,
-                "endElement": COUPLING_COMPONENT, "endConnector": theirs})
-        for mine, theirs in zip(tn, node_names("tau", i, n)):
-            ET.SubElement(conns, _q("ssd", "Connection"), {
-                "startElement": COUPLING_COMPONENT, "startConnector": theirs,
-                "endElement": system_component(i, N), "endConnector": mine})
+    for ends in coupling_connections([system_component(i, N) for i in range(N)], model):
+        ET.SubElement(conns, _q("ssd", "Connection"), dict(zip(_ENDS, ends)))
     _oms_annotation(system, cfg["run.H"])
     exp = ET.SubElement(root, _q("ssd", "DefaultExperiment"),
                         {"startTime": "0.0", "stopTime": _fmt(cfg["run.t_end"])})
@@ -423,6 +417,44 @@ def _ssd(scene_name, v, model, edges, N, n, osc_names, cfg, mapped=False) -> byt
     alg = ET.SubElement(ann, _q("osp", "Algorithm"))
     ET.SubElement(alg, _q("osp", "FixedStepAlgorithm"), {"baseStepSize": _fmt(cfg["run.H"])})
     return _xml_bytes(root)
+
+
+_ENDS = ("startElement", "startConnector", "endElement", "endConnector")
+
+
+def coupling_connections(names: list[str], model) -> list[tuple]:
+    """The connections of the coupled system our master runs, the one definition the writer
+    writes and the runner holds a package to: system i's q and u to the coupling's ``q[i]``,
+    ``u[i]``, the coupling's ``tau[i]`` to system i's tau (``names``: the system components in
+    node order; ``model``: their FMU model, its variable names and n)."""
+    from .fmus.coupling import node_names
+    out = []
+    for i, c in enumerate(names):
+        for base, mine in (("q", model.q), ("u", model.u)):
+            out += [(c, a, COUPLING_COMPONENT, b) for a, b in zip(mine, node_names(base, i, model.n))]
+        out += [(COUPLING_COMPONENT, b, c, a) for a, b in zip(model.tau, node_names("tau", i, model.n))]
+    return out
+
+
+def _check_connections(pkg: SspPackage, names: list[str], model) -> None:
+    """The package's connections must be the coupled system our master runs (it computes the forces
+    itself and sets them as :func:`coupling_connections` says): a connection missing, added,
+    crossed or to a connector that does not exist is refused, naming it, instead of running
+    another system than the package describes."""
+    want = coupling_connections(names, model)
+    have = [tuple(c) for c in pkg.connections]
+    show = (lambda e: f'<ssd:Connection startElement="{e[0]}" startConnector="{e[1]}" endElement="{e[2]}" '
+                      f'endConnector="{e[3]}">')
+    rule = (f"our master runs each system's {'/'.join(model.q + model.u)} into the coupling's q[i]/u[i] and the "
+            f"coupling's tau[i] into system i's {'/'.join(model.tau)}, nothing else")
+    for e in have:
+        if e not in want:
+            raise pkg.fail(SSD, show(e), f"is not a connection of the coupled system our master can run ({rule}); "
+                           f"it would run another system than this package describes")
+    for e in want:
+        if e not in have:
+            raise pkg.fail(SSD, "<ssd:Connections>", f"lacks the connection {e[0]}.{e[1]} -> {e[2]}.{e[3]} "
+                           f"({rule}); it would run another system than this package describes")
 
 
 # ------------------------------------------------------------------ reading
@@ -729,6 +761,7 @@ def _run_master(pkg, arc, fmu, names, spec, cfg, t_end, H, method, record_every,
     from .master import fmu_model, model_description
     from .ssp_master import SspMaster
     model = fmu_model(model_description(str(fmu)), str(fmu))   # a force-law model: registered from its FMU
+    _check_connections(pkg, names, model)
     slave = MechanicalSlave(model)
     own = arc.fmu_json(pkg.sources[names[0]], _START, names[0])["start"]
     starts, states, values = [], [], []

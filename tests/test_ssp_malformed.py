@@ -65,6 +65,10 @@ def _replace(old: bytes, new: bytes, count: int = 1):
     return edit
 
 
+_TAU1 = b'<ssd:Connection startElement="coupling" startConnector="tau[1]" endElement="system1" endConnector="tau" />'
+_TAU2 = b'<ssd:Connection startElement="coupling" startConnector="tau[2]" endElement="system2" endConnector="tau" />'
+
+
 #: case -> (edits of the archive's entries: bytes, None (removed) or a function of the old bytes;
 #:          the file inside the package, a part of the element, a part of the reason)
 CASES = {
@@ -112,6 +116,20 @@ CASES = {
                     "not well-formed XML"),
     "connection-to-nothing": ({SSD: _replace(b'startElement="system2"', b'startElement="system9"')}, SSD,
                               'startElement="system9"', "not a component"),
+    # the connections are the truth (issue 44 item 5): 0.6.0 ran each of these as the unedited package
+    "connection-deleted": ({SSD: _replace(_TAU1, b"")}, SSD, "<ssd:Connections>",
+                           "lacks the connection coupling.tau[1] -> system1.tau"),
+    "connections-crossed": ({SSD: lambda d: d.replace(_TAU1, b"@1").replace(_TAU2, _TAU1.replace(b"tau[1]", b"tau[2]"))
+                             .replace(b"@1", _TAU2.replace(b"tau[2]", b"tau[1]"))}, SSD,
+                            'startConnector="tau[1]" endElement="system2"', "not a connection of the coupled system"),
+    "q-u-swapped": ({SSD: lambda d: d.replace(b'startConnector="q" endElement="coupling" endConnector="q[1]"', b"@q")
+                     .replace(b'startConnector="u" endElement="coupling" endConnector="u[1]"',
+                              b'startConnector="q" endElement="coupling" endConnector="u[1]"')
+                     .replace(b"@q", b'startConnector="u" endElement="coupling" endConnector="q[1]"')}, SSD,
+                    'startConnector="u" endElement="coupling" endConnector="q[1]"',
+                    "not a connection of the coupled system"),
+    "connector-unknown": ({SSD: _replace(b'startConnector="tau[2]"', b'startConnector="torque[2]"')}, SSD,
+                          'startConnector="torque[2]"', "not a connection of the coupled system"),
     "ssv-inflates": ({SYS1: lambda d: d[:-1] + b" " * (17 * 2**20) + d[-1:]}, SYS1, None,
                      "inflates to 17.0 MiB, above the limit of 16 MiB"),
     "geometry-differs": ({CPL: _replace(b'name="e">\n      <ssv:Real value="0.9"', b'name="e">\n      '
