@@ -249,12 +249,15 @@ def _cmd_run(args) -> int:
 
 
 def _cmd_convergence(scene, args, max_memory, max_disk) -> int:
-    from .scenes.convergence import convergence, format_table, verdicts
+    from .scenes.convergence import convergence, format_table, refined_key, refined_what, verdicts
     from .output import estimate
     steps = sum(estimate(v).steps for v in scene.variants)
     if not args.quiet:
-        print(f"convergence check: each variant at its step, /2 and /4: 7x the steps of one run "
-              f"({7 * steps:.4g} steps in all), only the metrics kept", file=sys.stderr, flush=True)
+        for what in dict.fromkeys(refined_what(refined_key(v)) for v in scene.variants):
+            names = ", ".join(v.name for v in scene.variants if refined_what(refined_key(v)) == what)
+            print(f"convergence check: {names} at {what}", file=sys.stderr)
+        print(f"({7 * steps:.4g} steps in all at fixed steps; a tolerance run takes the steps it needs), only "
+              f"the metrics kept", file=sys.stderr, flush=True)
     with _progress(f"{scene.name} convergence", args.quiet) as bar:
         cr = convergence(scene, args.out, progress=bar, max_memory=max_memory, max_disk=max_disk)
     print(f"\nscene {scene.name}: convergence of the synchronization metrics")

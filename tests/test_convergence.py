@@ -130,3 +130,22 @@ def test_cli_convergence_refusals_exit_2(tmp_path):
     out = run_cli(["run", "bouncing-ball", "--convergence", "-o", str(tmp_path / "b")], tmp_path)
     assert out.returncode == 2 and "single system" in out.stderr, out.stderr
     assert not (tmp_path / "b").exists()
+
+
+def test_under_a_tolerance_the_check_refines_tol_and_says_so(tmp_path):
+    """Issue 44 item 3: with run.tol the tolerance chooses the steps, so 0.6.0's rows "H, H/2, H/4"
+    agreed to 0.001 % and the verdict said "rate converged" without a word of tol. Now the check
+    refines run.tol (T, T/4, T/16), the rows and the verdict name it, and the records differ."""
+    v = load_scene("forced-pair", {"run.mode": "cosim", "run.tol": 1e-3}, ["switching"]).variants[0]
+    o = [refined_overrides(v, k) for k in range(3)]
+    assert [x["run.tol"] for x in o] == pytest.approx([1e-3, 2.5e-4, 6.25e-5]) and all("run.H" not in x for x in o)
+    out = run_cli(["run", "forced-pair", "--variant", "switching", "--convergence", "--set", "run.t_end=3",
+                   "--set", "run.mode=cosim", "--set", "run.tol=1e-3", "-o", str(tmp_path / "T")], tmp_path)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.count("| switching | run.tol = ") == 3 and "run.H = " not in out.stdout, out.stdout
+    assert "switching at its tolerance run.tol, /4 and /16" in out.stderr, out.stderr
+    with open(tmp_path / "T" / "convergence.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["step_name"] for r in rows] == ["run.tol"] * 3
+    finals = [float(r["final_d"]) for r in rows]
+    assert len(set(finals)) == 3, finals      # three different runs, not one run three times

@@ -1,5 +1,6 @@
 """Scenes (docs/design.md §4.5): the built-in files load, bad files fail loudly, overrides apply,
 and running a scene builds only what it names."""
+import re
 import sys
 import types
 
@@ -416,3 +417,21 @@ def test_the_record_interval_is_said_as_a_time_core_and_cosim():
     assert rows["core"] == "0.01 s (run.record_every = 10 steps of solver.dt = 0.001 s)"
     assert rows["cosim"] == ("0.01 s (run.record_every = 10 steps of solver.dt = 0.001 s; in co-simulation "
                              "every 1 step of run.H = 0.01 s)")
+
+
+def test_a_cosim_key_that_would_do_nothing_is_refused_naming_key_and_mode(tmp_path):
+    """Issue 44 item 4: ``--set run.tol=1e-4 --set run.exchange=implicit`` on a core-mode variant
+    ran and exited 0 on 0.6.0; now the key is refused, naming it and the mode. With
+    ``run.mode=cosim`` (or when another selected variant co-simulates) it is accepted."""
+    for key, value in (("run.tol", 1e-4), ("run.exchange", "implicit"), ("run.hold", "foh"), ("run.H", 0.02)):
+        with pytest.raises(SceneError, match=rf"--set {re.escape(key)} = .*does nothing here.*run.mode = \"core\""):
+            load_scene("forced-pair", {key: value}, ["switching"])
+        v = load_scene("forced-pair", {key: value, "run.mode": "cosim"}, ["switching"]).variants[0]
+        assert v.cfg[key] == value
+    scene = tmp_path / "s.toml"
+    text = (SCENE_DIR / "forced-pair.toml").read_text()
+    scene.write_text(text.replace('name = "switching"', 'name = "switching"\nrun.tol = 1e-4', 1))
+    with pytest.raises(SceneError, match=r"runs\[\d\]\.run\.tol = 0\.0001: does nothing in variant 'switching'"):
+        load_scene(scene)
+    # the scene file's own [run] table may hold them for --set run.mode=cosim (forced-pair sets run.H)
+    assert load_scene("forced-pair").variants[0].mode == "core"

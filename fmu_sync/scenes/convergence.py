@@ -26,10 +26,12 @@ from .loading import Scene, as_scene, load_scene
 from .schema import DEFAULT_OUT, SceneError, Variant
 
 __all__ = ["ConvergenceRow", "VariantConvergence", "ConvergenceRun", "refined_overrides", "convergence", "compare_rows",
-           "LEVELS"]
+           "LEVELS", "TOL_FACTOR", "refined_what", "refined_key"]
 
-#: the steps checked: the scene's step divided by 1, 2, 4
+#: the steps checked: the scene's step divided by 1, 2, 4 (a tolerance: by 1, 4, 16, the factor that
+#: halves the step of a second-order exchange)
 LEVELS = 3
+TOL_FACTOR = 4
 
 
 @dataclass
@@ -46,6 +48,7 @@ class ConvergenceRow:
     reason: str = ""              #: why the rate means nothing ('' when resolved)
     change: float = math.nan      #: relative change of the rate from the previous (coarser) step
     within: bool | None = None    #: the two rates' intervals overlap (None: either is unresolved)
+    label: str = "step"           #: what ``step`` is: "step" or "tolerance"
 
 
 @dataclass
@@ -71,6 +74,8 @@ def refined_overrides(variant: Variant, level: int) -> dict:
     from ..output import record_steps
     cfg = variant.cfg
     f = 2 ** level
+    if refined_key(variant) == "run.tol":   # the tolerance chooses the steps: refine it, not H
+        return {"run.tol": cfg["run.tol"] / TOL_FACTOR ** level, "record.distance": True}
     out = {"run.record_every": int(cfg["run.record_every"]) * f, "record.distance": True}
     if variant.mode == "cosim" and variant.pair:
         H = cfg["run.H"] / f
@@ -87,8 +92,20 @@ def refined_overrides(variant: Variant, level: int) -> dict:
     return out
 
 
-def _step_name(v: Variant) -> str:
-    return "run.H" if v.mode == "cosim" and v.pair else "solver.dt"
+def refined_key(v: Variant) -> str:
+    """What the check refines: ``solver.dt`` (core), ``run.H`` (co-simulation), or ``run.tol`` when
+    a tolerance chooses the co-simulation's steps (then H is only the first and largest step, and
+    halving it changes nothing: 0.6.0 labelled such rows H, H/2, H/4 and they agreed to 0.001 %)."""
+    if v.mode == "cosim" and v.pair:
+        return "run.tol" if v.cfg.get("run.tol") is not None else "run.H"
+    return "solver.dt"
+
+
+def refined_what(step_name: str, levels: int = LEVELS) -> str:
+    """The words for what the check varies: "its step, /2 and /4" or "its tolerance, /4 and /16"."""
+    if step_name == "run.tol":
+        return "its tolerance run.tol, " + " and ".join(f"/{TOL_FACTOR ** k}" for k in range(1, levels))
+    return "its step, " + " and ".join(f"/{2 ** k}" for k in range(1, levels))
 
 
 def compare_rows(rows) -> tuple[str, bool]:
@@ -110,10 +127,11 @@ def _verdict(rows) -> tuple[str, bool]:
     changes = [abs(r.change) for r in rows[1:]]
     worst = max(changes)
     if all(r.within for r in rows[1:]):
-        return f"rate converged: changes up to {100 * worst:.3g} %, within the rates' spreads", True
+        how = " as the tolerance run.tol is refined" if rows[0].label == "tolerance" else ""
+        return f"rate converged{how}: changes up to {100 * worst:.3g} %, within the rates' spreads", True
     bad = [r for r in rows[1:] if not r.within]
-    return (f"not converged: rate changes {100 * abs(bad[0].change):.3g} % at step {bad[0].step:g}, beyond "
-            f"the spreads of the two rates (refine the step further)"), False
+    return (f"not converged: rate changes {100 * abs(bad[0].change):.3g} % at {bad[0].label} {bad[0].step:g}, "
+            f"beyond the spreads of the two rates (refine the {bad[0].label} further)"), False
 
 
 def _metrics(result, threshold):
@@ -164,7 +182,8 @@ def convergence(scene, out_dir=None, overrides: dict | None = None, variants=Non
             vk = load_scene(scene.path, {**scene.overrides, **refined_overrides(v, k)}, [v.name]).variants[0]
             preflight(vk, scene.name)
             est, _ = check_budget(vk, (), max_memory, max_disk, can_stream=False,
-                                  label=f"scene {scene.name!r}, variant {v.name!r} at {_step_name(v)}/{2 ** k}")
+                                  label=f"scene {scene.name!r}, variant {v.name!r} at {refined_key(v)}/"
+                                        f"{(TOL_FACTOR if refined_key(v) == 'run.tol' else 2) ** k}")
             runs.append((vk, est.steps))
         plan.append((v, runs))
     total = sum(s for _, runs in plan for _, s in runs)
@@ -174,7 +193,7 @@ def convergence(scene, out_dir=None, overrides: dict | None = None, variants=Non
     fmus, results, done = {}, [], 0
     try:
         for v, runs in plan:
-            vc = VariantConvergence(v.name, _step_name(v))
+            vc = VariantConvergence(v.name, refined_key(v))
             for vk, steps in runs:
                 fmu_path = None
                 if vk.mode == "cosim":
@@ -192,6 +211,7 @@ def convergence(scene, out_dir=None, overrides: dict | None = None, variants=Non
                 m = _metrics(result, report.SYNC_THRESHOLD)
                 nan = math.nan
                 vc.rows.append(ConvergenceRow(
+                    label="tolerance" if vc.step_name == "run.tol" else "step",
                     step=float(vk.cfg[vc.step_name]), dt=float(vk.cfg["solver.dt"]),
                     record_every=int(vk.cfg["run.record_every"]),
                     rate=m.rate if m else nan, rate_err=m.rate_err if m else nan,
@@ -255,7 +275,9 @@ def verdicts(results) -> list[str]:
 def _write(scene: Scene, results, out_dir: Path) -> list[Path]:
     md = out_dir / "convergence.md"
     text = [f"# Convergence check of scene `{scene.name}`", "",
-            "Each variant rerun at its step, /2 and /4 (record_every scaled: the same record times); "
+            "Each variant rerun at its step, /2 and /4 (record_every scaled: the same record times; a variant "
+            "co-simulated to a tolerance at run.tol, /4 and /16 instead, since its steps are chosen by the "
+            "tolerance, not by run.H: the step column says which); "
             "rate: decay rate of the envelope of d (median of its per-decade rates) ± their spread, — where "
             "it means nothing; t_sync: time "
             "after which d stays below 1e-6; t_fit: where the fitted envelope crosses 1e-6; ultimate "

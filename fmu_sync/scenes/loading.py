@@ -13,7 +13,7 @@ from ..core import InadmissibleState, ModelError, load_model
 from ..core.checks import check_start
 from ..user_export import fmu_model_of
 from . import SCENE_DIR, builtin_names
-from .schema import (DISTANCE_PLOTS, KEYS, MODELS, NAME_RE, NETWORK_PLOTS, REQUIRED, SINGLE_PLOTS,
+from .schema import (COSIM_KEYS, DISTANCE_PLOTS, KEYS, MODELS, NAME_RE, NETWORK_PLOTS, REQUIRED, SINGLE_PLOTS,
                      TABLES, VARIANT_TABLES, BadValue, NetworkSpec, SceneError, Variant, model_name,
                      plots_for, show_value, system_keys)
 
@@ -178,9 +178,30 @@ def load_scene(name_or_path, overrides: dict | None = None, variants=None) -> Sc
         cfg = _validate(merged, where, ctx, path.parent)
         built.append(_build_variant(head["name"], head["description"], cfg, where, ctx, merged))
 
+    _check_cosim_keys(built, raw_variants, overrides, ctx)
     plots, compare = _resolve_plots(origin, ctx, built)
     return Scene(name=path.stem, path=path, description=description, variants=tuple(built),
                  plots=tuple(plots), compare=compare, overrides=overrides)
+
+
+def _check_cosim_keys(built: list, raw_variants: list, overrides: dict, ctx: str) -> None:
+    """A key of the co-simulation master that would do nothing is refused, naming the key and the
+    mode: given with ``--set`` when no variant run co-simulates, or in a variant's own table that
+    runs in the core. (A scene file's [run] table may hold them for ``--set run.mode=cosim``.)"""
+    cosim = [v for v in built if v.mode == "cosim"]
+    for key in overrides:
+        if key in COSIM_KEYS and not cosim:
+            names = ", ".join(v.name for v in built)
+            raise SceneError(f"{ctx}: --set {key} = {show_value(overrides[key])}: does nothing here: it is a key of "
+                             f"the co-simulation master and every run of this command runs in the core "
+                             f"(run.mode = \"core\": {names}); allowed: add --set run.mode=cosim, or leave it out")
+    for (head, flat, orig), v in zip(raw_variants, built):
+        for key in flat:
+            if key in COSIM_KEYS and v.mode != "cosim" and not orig[key].startswith("--set"):
+                raise SceneError(f"{ctx}: {orig[key]} = {show_value(flat[key])}: does nothing in variant "
+                                 f"{head['name']!r}, which runs in the core (run.mode = \"core\"): it is a key of "
+                                 f"the co-simulation master; allowed: run.mode = \"cosim\" in that variant, or "
+                                 f"leave it out")
 
 
 def as_scene(scene, overrides: dict | None = None, variants=None) -> Scene:

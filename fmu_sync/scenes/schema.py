@@ -356,6 +356,10 @@ KEYS = {
 }
 
 
+#: the keys only the co-simulation master reads: set where every run is in the core, they do nothing
+COSIM_KEYS = ("run.H", "run.H_min", "run.method", "run.event_aware", "run.hold", "run.exchange", "run.tol")
+
+
 def show_value(v) -> str:
     s = repr(v) if not isinstance(v, str) else f'"{v}"'
     return s if len(s) <= 80 else s[:77] + "..."
