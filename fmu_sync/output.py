@@ -173,8 +173,8 @@ class Estimate:
 
 def run_grid(cfg) -> tuple[int, float, str]:
     """Steps of a variant's run (the last one shortened to land on run.t_end), its step and the step's key."""
-    step, name = (cfg["run.H"], "run.H") if cfg["run.mode"] == "cosim" and cfg.get("initial.x2") is not None \
-        else (cfg["solver.dt"], "solver.dt")
+    coupled = cfg.get("initial.x2") is not None or cfg.get("network.graph") is not None   # a pair or a network
+    step, name = (cfg["run.H"], "run.H") if cfg["run.mode"] == "cosim" and coupled else (cfg["solver.dt"], "solver.dt")
     return run_steps(cfg["run.t_end"], step).steps, step, name
 
 
@@ -191,10 +191,14 @@ def record_steps(cfg) -> int:
 
 
 def estimate(variant, formats=("csv", "npz")) -> Estimate:
-    """The record size of a :class:`~fmu_sync.scenes.schema.Variant` (nothing runs)."""
+    """The record size of a :class:`~fmu_sync.scenes.schema.Variant` (nothing runs). A run to a
+    tolerance (``run.tol``) records every accepted step, as short as ``solver.dt``: its worst case,
+    t_end / solver.dt rows, is the estimate."""
     cfg = variant.cfg
-    steps, _, _ = run_grid(cfg)
+    steps, _, name = run_grid(cfg)
     every = record_steps(cfg)
+    if name == "run.H" and cfg.get("run.tol") is not None:
+        steps, every = run_steps(cfg["run.t_end"], cfg["solver.dt"]).steps, 1
     n = variant.system.n
     if variant.is_network:
         A = variant.network.A
@@ -228,7 +232,10 @@ def check_budget(variant, formats, max_memory: float = DEFAULT_MAX_MEMORY,
     ratio = max(est.disk / max_disk if over_disk else 0.0,
                 est.memory / max_memory if over_mem and not can_stream else 0.0)
     every = max(est.record_every + 1, math.ceil(est.record_every * ratio * 1.05))
-    if every > est.steps:
+    if variant.mode == "cosim" and variant.cfg.get("run.tol") is not None:
+        hint = ("a run to a tolerance records every accepted step, down to solver.dt (the worst case is the "
+                "estimate): shorten run.t_end, raise solver.dt (the floor of its steps)")
+    elif every > est.steps:
         hint = "shorten run.t_end or raise the step"
     else:   # the key counts solver.dt (record_steps)
         _, step, name = run_grid(variant.cfg)

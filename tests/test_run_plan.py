@@ -81,7 +81,7 @@ def _cases():
         base = load_scene(scene, None, [vname]).variants[0]
         if base.system.omega_max() > 0.0:   # beyond the midpoint limit (a free ball has none)
             wdt = 2.0 / base.system.omega_max()
-            yield scene, vname, {"solver.scheme": "midpoint", "solver.dt": 1.05 * wdt, "run.H": 4.2 * wdt}
+            yield scene, vname, {"solver.scheme": "midpoint", "solver.dt": 1.05 * wdt}
         if not base.pair:
             yield scene, vname, {}
             continue
@@ -91,7 +91,7 @@ def _cases():
             lim = held_exchange(base.system.M, base.Kp, base.Kd, 1.0, A, laws, hold=hold, allow_unstable=True)[3]
             steps = [0.5, 0.97, 1.03, 2.0] if lim is not None and math.isfinite(lim.H_max) else [float("nan")]
             for f in steps:
-                over = {"run.mode": mode, "run.hold": hold}
+                over = {"run.mode": mode, **({"run.hold": hold} if mode == "cosim" else {})}   # issue 44.4
                 if math.isfinite(f):
                     over["solver.dt" if mode == "core" else "run.H"] = f * lim.H_max
                 yield scene, vname, over

@@ -335,6 +335,10 @@ def record_interval(variant: Variant) -> tuple[float, str]:
     from ..output import record_steps, run_grid
     _, step, name = run_grid(variant.cfg)
     k, dt = int(variant.cfg["run.record_every"]), variant.cfg["solver.dt"]
+    if name == "run.H" and variant.cfg.get("run.tol") is not None:   # the controller chooses the steps
+        return math.nan, (f"every accepted step of the tolerance control (run.tol = {variant.cfg['run.tol']:g}: "
+                          f"steps from solver.dt = {dt:g} s to run.H = {step:g} s; the steps taken are in the "
+                          f"table's notes); run.record_every does not apply")
     every = record_steps(variant.cfg)
     said = f"run.record_every = {k} step{'s' if k > 1 else ''} of solver.dt = {dt:g} s"
     if name != "solver.dt":
@@ -592,7 +596,8 @@ def _interrupted(scene, out_dir, created, runs, fmus, current, plots, chosen) ->
     again = " ".join(f"--variant {n}" for n in rest)
     return RunInterrupted(
         f"interrupted during variant {current!r}: kept {', '.join(r.name for r in done)} in {sr.out_dir}/ "
-        f"(data, plots, summary.md); to run the rest, repeat the command with {again} and another -o")
+        f"({'data, plots, summary.md' if plots else 'data, summary.md'}); to run the rest, repeat the command "
+        f"with {again} and another -o")
 
 
 def _summarize(scene, out_dir, created, runs, fmus, plots, chosen) -> SceneRun:
