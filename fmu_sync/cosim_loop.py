@@ -92,6 +92,10 @@ REDECIDE = 1
 #: below QR_FILTER of its length is left out
 OMEGA0 = 0.5
 QR_FILTER = 1e-8
+#: the trust region of the implicit exchange's iterates: no FMU is given a force beyond this
+#: fraction of its input bound (an iterate outside it is moved to its edge; the law's own force at
+#: the step's start, inside the bound, stays inside: issue 44 item 7)
+TRUST = 0.5
 # flags[DELAY]: the exchange order of another master (docs/ssp.md), zero-order hold only.
 # DELAYED (libcosim): step k is held at the forces of the states x_{k-1} (step 0 at x_0's);
 # DELAYED_ZERO (fmpy's simulate_ssp): every connection starts at 0, steps 0 and 1 run
@@ -474,6 +478,19 @@ def _iqn_ils(te, g, r, V, W, Qw, Rw, alpha, cols, ncol, head):
     return used
 
 
+@njit(cache=True, inline="always")
+def _trust(te):
+    """Every iterate inside the trust region: each force component clipped to +-TRUST * INPUT_BOUND
+    (a box: the quasi-Newton secants stay exact, since they are built from the forces applied)."""
+    b = TRUST * INPUT_BOUND
+    for i in range(te.shape[0]):
+        for c in range(te.shape[1]):
+            if te[i, c] > b:
+                te[i, c] = b
+            elif te[i, c] < -b:
+                te[i, c] = -b
+
+
 @njit(cache=True)
 def implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, u, tau, hist_tau, hist, ctl,
                    saved, qs, us, iw, w, FAIL, fail_t, hp):
@@ -507,6 +524,7 @@ def implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, u
         for c in range(n):
             ta[i, c] = tau[i, c]
             te[i, c] = ta[i, c] + h * (ta[i, c] - hist_tau[i, c]) / (t - hist[0]) if extrapolate else ta[i, c]
+    _trust(te)
     if fmu_states(ptr, fn, comp, GET_STATE, saved, FAIL, fail_t, t):
         return True
     copy_rows(q, qs)
@@ -589,6 +607,7 @@ def implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, u
             for i in range(N):
                 for c in range(n):
                     te[i, c] += omega * r[i, c]
+        _trust(te)
         if fmu_states(ptr, fn, comp, SET_STATE, saved, FAIL, fail_t, t):
             return True
         copy_rows(qs, q)

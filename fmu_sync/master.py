@@ -287,11 +287,16 @@ class NetworkMaster:
         """Instance i's coupling force ``self.tau[i]`` is non-finite or above the FMU's input bound."""
         lim = exchange_limit(self.system.M, self.Kp_m, self.Kd_m, self.H, self.A_coupled, hold=self.hold,
                              exchange=self.exchange_kind)
-        return SlaveError(f"system{i + 1}", t, "coupling", 3, [
-            f"its coupling force became non-finite or exceeds the FMU's input bound "
-            f"{contract.INPUT_BOUND:g} ({self.tau[i].tolist()}): the {self.exchange_kind} "
-            f"exchange is unstable for these gains and this step ({lim.message()}): lower "
-            f"Kp or H, or add Kd"])
+        what = (f"its coupling force became non-finite or exceeds the FMU's input bound {contract.INPUT_BOUND:g} "
+                f"({self.tau[i].tolist()})")
+        if self.exchange_kind == "explicit" and not lim.stable:
+            why = (f"the explicit exchange is unstable for these gains and this step ({lim.message()}): lower Kp "
+                   f"or H, add Kd, or use exchange='implicit'")
+        else:   # a stable exchange: the law itself asks for forces the FMU does not take
+            why = (f"the {self.exchange_kind} exchange is stable at this step, but the law's force at these states "
+                   f"(Kp |q_i - q_j| + Kd |u_i - u_j| summed over the edges) is beyond what the FMU accepts: "
+                   f"lower Kp and Kd, or start the systems closer")
+        return SlaveError(f"system{i + 1}", t, "coupling", 3, [f"{what}: {why}"])
 
     def _failure(self, code: int) -> RunFailed:
         """The exception of a chunk that ended early (the loop's FAIL record)."""

@@ -348,3 +348,27 @@ def test_a_stiff_switching_ring_runs_implicit_through_its_branch_changes(fmus, l
     it, off = r.info["iterations"], r.info["off_branch"]
     assert len(it) == len(off) == 400 and np.median(it) <= 3 and it.max() < 30
     assert np.all((off >= 0) & (off <= 3))
+
+
+@pytest.mark.parametrize("H", [0.01, 0.001])
+def test_very_stiff_gains_run_with_every_iterate_inside_the_input_bound(fmus, H):
+    """Issue 44 item 7: Kp = 1e10, Kd = 0 (the law's force at the start, 8e9, inside the FMU's input
+    bound 1e12) failed at t = 0 on 0.6.0: the first quasi-Newton update overshot to 1.003e15. Every
+    iterate now stays in the trust region (half the bound), the step converges on the law, and the
+    run completes. The mean hold is A-stable: the relative motion keeps its energy (Kd = 0)."""
+    from fmu_sync.cosim_loop import TRUST
+    r = cosimulate(fmus["stiff"], X1, X2, 0.2, H, "euclidean", 1e10, 0.0, exchange="implicit")
+    assert r.success and np.all(np.isfinite(r.q1)) and np.all(np.isfinite(r.q2))
+    assert np.max(np.abs(np.r_[r.tau1, r.tau2])) <= TRUST * contract.INPUT_BOUND
+    it = np.asarray(r.info["iterations"])
+    assert np.median(it) <= 6 and it.max() < 30, (np.median(it), it.max())
+
+
+def test_a_law_beyond_the_input_bound_is_not_called_unstable(fmus):
+    """Kp = 1e13: the law's force at the start (8e12) is beyond the input bound. The failure says
+    so, and never calls the (A-stable) implicit exchange unstable in the same sentence (0.6.0:
+    "the implicit exchange is unstable ... (... A-stable: any H is stable)")."""
+    with pytest.raises(RunFailed) as exc:
+        cosimulate(fmus["stiff"], X1, X2, 0.1, 0.01, "euclidean", 1e13, 0.0, exchange="implicit")
+    msg = str(exc.value)
+    assert "beyond what the FMU accepts" in msg and "unstable" not in msg, msg
