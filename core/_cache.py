@@ -88,15 +88,20 @@ class _CoreStamp:
         return self
 
 
-class CoreUserProvidedLocator(_CoreStamp, caching.UserProvidedCacheLocator):
+def _locator(name: str):
+    """numba's locator class ``name``: public from numba 0.62 on, ``_name`` before (0.60, 0.61)."""
+    return getattr(caching, name, None) or getattr(caching, "_" + name)
+
+
+class CoreUserProvidedLocator(_CoreStamp, _locator("UserProvidedCacheLocator")):
     """NUMBA_CACHE_DIR set: the user's folder, package-wide stamp."""
 
 
-class CoreInTreeLocator(_CoreStamp, caching.InTreeCacheLocator):
+class CoreInTreeLocator(_CoreStamp, _locator("InTreeCacheLocator")):
     """``core/__pycache__``, package-wide stamp."""
 
 
-class CoreUserWideLocator(_CoreStamp, caching.UserWideCacheLocator):
+class CoreUserWideLocator(_CoreStamp, _locator("UserWideCacheLocator")):
     """Read-only install: the user-wide cache folder, package-wide stamp."""
 
 

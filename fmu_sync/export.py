@@ -510,6 +510,7 @@ def export_fmu(model: str = "impact-oscillator", path=None, start_values: dict |
     """
     if fmi_version not in FMI_VERSIONS or isinstance(fmi_version, bool):
         raise ValueError(f"fmi_version must be one of {', '.join(map(str, FMI_VERSIONS))}, got {fmi_version!r}")
+    native.require_export_versions()   # before any work: the numba the export is tested with
     if model == COUPLING:
         if fmi_version != 2:
             raise ValueError(f"the coupling FMU is exported for FMI 2.0 only, got fmi_version={fmi_version!r}")
@@ -528,6 +529,7 @@ def export_coupling(path=None, A=None, n: int = 1, start_values: dict | None = N
     :func:`fmu_sync.core.coupling.energy_metric` of the systems' stiffness ``K``
     (default 1.0, the impact-oscillator FMU's k), Kp and the graph. ``units``: the systems' units of
     q, u, tau (a model declaration's ``units``; default m, m/s, N), which its variables take."""
+    native.require_export_versions()
     from .core.coupling import energy_metric
     from .core.network import weights
     from .fmus.contract import matrix

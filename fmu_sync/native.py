@@ -49,6 +49,7 @@ import tempfile
 from pathlib import Path
 
 __all__ = ["ENTRY", "CPU", "VARIANTS", "TRIPLE", "GLIBC_BASE", "LIBC", "RUNTIME", "TESTED", "NativeCodeError",
+           "ExportNeedsNumba", "require_export_versions", "EXPORT_EXTRA",
            "check_versions", "stepper_object", "stepper_objects", "link_names", "cached_object", "cache_dir",
            "c_objects"]
 
@@ -90,6 +91,38 @@ TESTED = {"numba": ((0, 68), (0, 68)), "llvmlite": ((0, 50), (0, 50))}
 
 class NativeCodeError(RuntimeError):
     """The stepper cannot be compiled to native code for the FMU (the export fails)."""
+
+
+class ExportNeedsNumba(ValueError):
+    """The installed numba or llvmlite is outside the range the FMU export is tested with: refused
+    before any work (the core, the master and the sweeps run on any numba the package allows)."""
+
+
+#: how to get an export environment (docs/install.md)
+EXPORT_EXTRA = 'pip install "fmu-sync[export]"'
+
+
+def require_export_versions() -> dict:
+    """The numba and llvmlite the export runs with, or :class:`ExportNeedsNumba` in one line: the
+    versions found, the versions the export supports, and how to get them. Called first by every
+    export entry point (``export_fmu``, ``export_coupling``, ``fmu-sync export``, a co-simulated
+    scene, the demo, ``fmu-sync ssp``), so nothing is written when it refuses."""
+    try:
+        return check_versions()
+    except NativeCodeError as exc:
+        found = []
+        for dist in TESTED:
+            try:
+                found.append(f"{dist} {__import__(dist).__version__}")
+            except ImportError:
+                found.append(f"no {dist}")
+        want = ", ".join(f"{d} {lo[0]}.{lo[1]}.x" + (f"-{hi[0]}.{hi[1]}.x" if hi != lo else "")
+                         for d, (lo, hi) in TESTED.items())
+        raise ExportNeedsNumba(
+            f"exporting an FMU compiles its native stepper from numba's compiled module, which is tested "
+            f"with {want} only; this environment has {', '.join(found)} (the core, the master on existing "
+            f"FMUs and the sweeps run on it). Export from an environment with the tested versions, e.g. "
+            f"a separate venv: {EXPORT_EXTRA}") from (None if "installed" in str(exc) else exc)
 
 
 def _minor(version: str) -> tuple[int, int]:

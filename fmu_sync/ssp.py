@@ -305,7 +305,8 @@ def write_ssp(scene, path, variant: str | None = None, overrides: dict | None = 
     from .scenes.running import export_spec, scene_values
     from .scenes.schema import SceneError
 
-    sc = as_scene(scene, overrides)
+    # a package is a co-simulation: the master's keys (run.H, ...) are its settings whatever the scene's mode
+    sc = as_scene(scene, {**(overrides or {}), "run.mode": "cosim"})
     if variant is None:
         if len(sc.variants) != 1:
             raise SceneError(f"scene {sc.name!r} has the variants {', '.join(v.name for v in sc.variants)}: "

@@ -53,3 +53,50 @@ def test_the_master_loop_cache_follows_core_edits():
     from fmu_sync import cosim_loop
     stamp = cosim_loop.exchange_chunk._cache._impl.locator.get_source_stamp()
     assert isinstance(stamp, tuple) and stamp[0] == _cache.core_stamp() and stamp[1] != _cache.core_stamp()
+
+
+_VERSIONED = r"""
+import pickle, sys
+import numpy as np
+from fmu_sync.core.impact import impact_map_kernel as k
+from fmu_sync.core.model import ImpactOscillator
+from fmu_sync.core.distance import geometry
+geo = geometry(ImpactOscillator(m=1, k=1, e=0.9), 1.0)
+q, u, zq, zu = np.zeros(1), np.array([-1.0]), np.zeros(1), np.zeros(1)
+k(geo, q, u, zq, zu)
+index = k._cache._cache_file._index_path
+if sys.argv[1] == "other":     # the index as another numba would have left it
+    with open(index, "rb") as f:
+        pickle.load(f)
+        rest = f.read()
+    with open(index, "wb") as f:
+        pickle.dump("0.59.1", f, protocol=-1)
+        f.write(rest)
+with open(index, "rb") as f:
+    print(pickle.load(f), k.stats.cache_hits.get(k.signatures[0], 0), len(k.stats.cache_misses))
+"""
+
+
+def test_a_kernel_cached_by_another_numba_is_never_loaded(tmp_path):
+    """Issue 41 item 4: numba's own keying suffices. Its cache index starts with the numba version
+    that wrote it, and an index of another version is read as empty (numba/core/caching.py,
+    IndexDataCacheFile._load_index); our locators (core/_cache.py) change the folder and the
+    source stamp, not that file. A kernel cached, its index relabelled as numba 0.59.1's, is
+    compiled again (a miss, no hit) and the index rewritten under this numba's version."""
+    import os
+    import subprocess
+    import sys
+
+    import numba
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
+    run = (lambda *a: subprocess.run([sys.executable, "-c", _VERSIONED, *a], env=env, capture_output=True,
+                                     text=True, timeout=300))
+    first = run("other")
+    assert first.returncode == 0, first.stderr
+    assert first.stdout.split()[0] == "0.59.1"
+    again = run("same")
+    assert again.returncode == 0, again.stderr
+    version, hits, misses = again.stdout.split()
+    assert version == numba.__version__ and int(hits) == 0 and int(misses) >= 1, again.stdout
+    third = run("same")     # and this numba's own entry is then loaded
+    assert third.stdout.split()[1] != "0", third.stdout

@@ -194,21 +194,43 @@ def test_every_runtime_symbol_is_provided_by_the_c_support():
     assert native.RUNTIME <= defined, sorted(native.RUNTIME - defined)
 
 
-def test_pyproject_pins_the_tested_numba_and_llvmlite():
-    """The dependency ranges are the ranges the emission was tested with (native.TESTED)."""
+def test_pyproject_pins_the_tested_numba_and_llvmlite_in_the_export_extra_only():
+    """Issue 41: the export extra's ranges are the ranges the emission was tested with
+    (native.TESTED); the package itself allows older numba (a user's is kept), and the test extra
+    installs the export's, so CI runs the newest tested."""
     import tomllib
-    deps = tomllib.loads((Path(native.__file__).parents[1] / "pyproject.toml").read_text())["project"]["dependencies"]
+    project = tomllib.loads((Path(native.__file__).parents[1] / "pyproject.toml").read_text())["project"]
+    extra = project["optional-dependencies"]["export"]
     for dist, (lo, hi) in native.TESTED.items():
-        spec = next(d for d in deps if re.match(rf"{dist}\b", d))
+        spec = next(d for d in extra if re.match(rf"{dist}\b", d))
         assert spec == f"{dist}>={lo[0]}.{lo[1]},<{hi[0]}.{hi[1] + 1}", spec
+        base = next(d for d in project["dependencies"] if re.match(rf"{dist}\b", d))
+        assert "<" not in base, base      # no upper pin for everything
+    assert "fmu-sync[export]" in project["optional-dependencies"]["test"]
     native.check_versions()     # the installed ones are in range
 
 
-def test_export_fails_for_untested_numba_or_llvmlite(monkeypatch, tmp_path):
+@pytest.mark.parametrize("how", ["api", "cli", "coupling", "scene"])
+def test_export_outside_the_tested_numba_refuses_in_one_line_before_any_work(monkeypatch, tmp_path, capsys, how):
+    """Issue 41 item 2: the numba found, the versions the export supports, how to get them; no
+    traceback, nothing written (the output file, the scene's folder)."""
+    from fmu_sync.cli import main
+    from fmu_sync.export import export_coupling
+    from fmu_sync.scenes.running import run_scene
     monkeypatch.setitem(native.TESTED, "numba", ((0, 1), (0, 2)))
-    with pytest.raises(native.NativeCodeError, match=r"numba .* is installed.*0\.1\.x to 0\.2\.x"):
-        export_fmu("impact-oscillator", tmp_path / "io.fmu")
-    assert not (tmp_path / "io.fmu").exists()
+    import numba
+    want = rf"numba 0\.1\.x-0\.2\.x.*this environment has numba {re.escape(numba.__version__)}.*fmu-sync\[export\]"
+    if how == "cli":
+        assert main(["export", "impact-oscillator", "-o", str(tmp_path / "io.fmu")]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and re.search(want, err[0]) and "Traceback" not in err[0], err
+    else:
+        call = {"api": lambda: export_fmu("impact-oscillator", tmp_path / "io.fmu"),
+                "coupling": lambda: export_coupling(tmp_path / "io.fmu"),
+                "scene": lambda: run_scene("forced-pair", tmp_path / "out", overrides={"run.mode": "cosim"})}[how]
+        with pytest.raises(native.ExportNeedsNumba, match=want):
+            call()
+    assert not (tmp_path / "io.fmu").exists() and not (tmp_path / "out").exists()
 
 
 def test_export_fails_naming_a_symbol_the_binary_cannot_provide(tmp_path):

@@ -162,9 +162,10 @@ def convergence(scene, out_dir=None, overrides: dict | None = None, variants=Non
     from .. import report
     from ..core import RunFailed
     from ..output import DEFAULT_MAX_DISK, DEFAULT_MAX_MEMORY, check_budget, check_out_dir
-    from .running import export_for, preflight, run_variant
+    from .running import check_export, export_for, preflight, run_variant
 
     scene = as_scene(scene, overrides, variants)
+    check_export(scene.variants)
     levels = int(levels)
     if levels < 2:
         raise ValueError(f"a convergence check needs at least 2 steps, got levels = {levels}")

@@ -39,6 +39,8 @@ def run_demo(out_dir=None, quick: bool = False, progress: Callable | None = None
     from .. import plots as P
     from .. import report
 
+    from ..native import require_export_versions
+    require_export_versions()   # the demo co-simulates an FMU it exports: refused before anything is written
     out_dir = Path(out_dir) if out_dir is not None else DEMO_OUT
     out_dir.mkdir(parents=True, exist_ok=True)
     base = {"run.t_end": t_end} if t_end is not None else {"run.t_end": DEMO_QUICK_T_END} if quick else {}

@@ -19,7 +19,7 @@ from .loading import Scene, as_scene
 from .schema import DEFAULT_OUT, TABLES, SceneError, Variant
 
 __all__ = ["RunRecord", "SceneRun", "RunRefused", "RunInterrupted", "preflight", "plan_variant", "run_scene", "run_variant",
-           "fmu_start_values", "scene_values", "export_for", "export_spec", "write_run", "run_extra", "record_interval", "clean_written", "error_notes", "skipped_notes", "settings_table"]
+           "fmu_start_values", "scene_values", "check_export", "export_for", "export_spec", "write_run", "run_extra", "record_interval", "clean_written", "error_notes", "skipped_notes", "settings_table"]
 
 
 @dataclass
@@ -101,6 +101,14 @@ def _declared_values(variant: Variant, node: dict | None = None) -> dict:
     keys = system_keys(decl)
     values.update({k: keys[k][0](v) for k, v in (node or {}).items()})
     return decl.check(values)
+
+
+def check_export(variants) -> None:
+    """Before anything is written: a co-simulated variant needs an FMU, and exporting one needs the
+    numba the export is tested with (:func:`fmu_sync.native.require_export_versions`, one line)."""
+    if any(v.pair and v.mode == "cosim" for v in variants):
+        from ..native import require_export_versions
+        require_export_versions()
 
 
 def export_for(variant: Variant, out_dir) -> Path:
@@ -513,6 +521,7 @@ def run_scene(scene, out_dir=None, overrides: dict | None = None, progress: Call
     out_dir = check_out_dir(Path(out_dir) if out_dir is not None else DEFAULT_OUT / scene.name)
     max_memory = DEFAULT_MAX_MEMORY if max_memory is None else float(max_memory)
     max_disk = DEFAULT_MAX_DISK if max_disk is None else float(max_disk)
+    check_export(chosen)
     plan = []
     for v in chosen:
         preflight(v, scene.name)
