@@ -70,8 +70,11 @@ class FMU3Host(FMUHost):
 
         self.fmu = FMU3Slave(guid=self.md.guid, unzipDirectory=self.unzip_dir,
                              modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=instance_name)
-        self.fmu.instantiate(loggingOn=logging, eventModeUsed=self.event_mode,
-                             earlyReturnAllowed=self.early_return_allowed, logMessage=_logger)
+        try:
+            self.fmu.instantiate(loggingOn=logging, eventModeUsed=self.event_mode,
+                                 earlyReturnAllowed=self.early_return_allowed, logMessage=_logger)
+        except Exception:   # fmpy's bare exception: the FMU's logged reason instead (as FMUHost)
+            raise self._not_instantiated() from None
 
     # ---------------------------------------------------------------- variables
     def _where(self, name: str):

@@ -96,9 +96,24 @@ class FMUHost:
         self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self.unzip_dir,
                              modelIdentifier=self.md.coSimulation.modelIdentifier,
                              instanceName=instance_name)
-        self.fmu.instantiate(callbacks=cb, loggingOn=logging)
+        try:
+            self.fmu.instantiate(callbacks=cb, loggingOn=logging)
+        except Exception:   # fmpy's bare "Failed to instantiate model": the FMU's logged reason instead
+            raise self._not_instantiated() from None
         if logging:
             self.fmu.setDebugLogging(True, [])
+
+    def _not_instantiated(self) -> SlaveError:
+        """The :class:`SlaveError` of a failed fmi2Instantiate (the one error path of instantiation,
+        whatever ``raises`` says), carrying what the FMU logged (its start file, hash or GUID check);
+        the unpacked files are removed (there is no instance to free)."""
+        self._freed = True
+        if self._owns_dir:
+            shutil.rmtree(self.unzip_dir, ignore_errors=True)
+        log = self.errors(min_status=WARNING) or [m for _, _, m in self.messages]
+        if not log:
+            log = ["the FMU logged no reason (its start files, resources or GUID may not match this build)"]
+        return SlaveError(self.name, 0.0, self.PREFIX + "Instantiate", ERROR, log)
 
     # ---------------------------------------------------------------- calls
     def call(self, name: str, *args):

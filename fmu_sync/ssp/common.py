@@ -17,6 +17,8 @@ OMS = "org.openmodelica"
 #: OMSimulator's solver of a fixed-step co-simulation: ``oms_ma``, an undelayed Jacobi exchange
 OMS_SOLVER = {"name": "fixedstep", "method": "oms_ma"}
 COUPLING_COMPONENT = "coupling"
+#: the attributes of an ``ssd:Connection``, in the order of a connection tuple
+CONNECTION_ENDS = ("startElement", "startConnector", "endElement", "endConnector")
 _COUPLING_FMU = "resources/coupling.fmu"
 for _p, _u in NS.items():
     ET.register_namespace(_p, _u)
@@ -65,3 +67,18 @@ def _q(prefix: str, tag: str) -> str:
 def _fmt(x: float) -> str:
     return repr(float(x))
 
+
+
+def coupling_connections(systems: list[str], q: list[str], u: list[str], tau: list[str]) -> list[tuple]:
+    """The connections of a coupled system as fmu-sync writes and runs it, as (start element, start
+    connector, end element, end connector): each system's q and u to the coupling's ``q[i]``, ``u[i]``
+    (``q[i,k]`` for n > 1), the coupling's ``tau[i]`` to the system's tau; ``q``, ``u``, ``tau``: the
+    system FMU's variable names. :func:`~fmu_sync.ssp.write_ssp` writes these, :func:`~fmu_sync.ssp.run_ssp`
+    runs a package only if it holds exactly these (docs/ssp.md)."""
+    from ..fmus.coupling import node_names
+    n, out = len(q), []
+    for i, c in enumerate(systems):
+        for mine, theirs in list(zip(q, node_names("q", i, n))) + list(zip(u, node_names("u", i, n))):
+            out.append((c, mine, COUPLING_COMPONENT, theirs))
+        out += [(COUPLING_COMPONENT, theirs, c, mine) for mine, theirs in zip(tau, node_names("tau", i, n))]
+    return out

@@ -10,7 +10,37 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from xml.etree import ElementTree as ET
 
-from .common import OMS, SSD, SspError, _element, _q, _tag
+from .common import CONNECTION_ENDS, OMS, SSD, SspError, _element, _q, _tag
+from .settings import read_run
+
+
+#: the largest entry of a package (or of a component FMU inside it) that is read, inflated: the
+#: packages fmu-sync writes hold entries below 1 MB; an entry above it is refused, never inflated
+MAX_ENTRY_BYTES = 64 * 2**20
+
+
+def bounded_read(zf: zipfile.ZipFile, name: str, fail) -> bytes:
+    """The entry ``name`` of ``zf``, inflated only if its size is at most :data:`MAX_ENTRY_BYTES`
+    (``fail(reason)``: the error to raise above it). zipfile stops inflating at the size the entry
+    declares and checks its CRC, so a declared size that lies is caught too."""
+    size = zf.getinfo(name).file_size
+    if size > MAX_ENTRY_BYTES:
+        raise fail(f"inflates to {size:,} bytes, above the {MAX_ENTRY_BYTES:,} bytes an entry may have "
+                   f"(fmu_sync.ssp.reader.MAX_ENTRY_BYTES): not read")
+    try:
+        return zf.read(name)
+    except (zipfile.BadZipFile, EOFError, OSError) as exc:
+        raise fail(f"a damaged entry ({exc})") from None
+
+
+def _no_duplicates(zf: zipfile.ZipFile, fail) -> None:
+    """Refuse a zip archive holding two entries of one name (which one a tool reads is its choice)."""
+    seen = set()
+    for name in zf.namelist():
+        if name in seen:
+            raise fail(name, "two entries of this name in one archive: which one is meant is not known "
+                             "(write the archive again with one)")
+        seen.add(name)
 
 
 class _Archive:
@@ -20,6 +50,7 @@ class _Archive:
     def __init__(self, path: Path, zf: zipfile.ZipFile):
         self.path, self.zf = path, zf
         self.names = set(zf.namelist())
+        _no_duplicates(zf, lambda name, reason: self.fail(name, None, reason))
 
     def fail(self, file: str | None, element: str | None, reason: str) -> SspError:
         return SspError(self.path, file, element, reason)
@@ -31,7 +62,7 @@ class _Archive:
         if name not in self.names:
             held = ", ".join(sorted(self.names)[:12]) + (", ..." if len(self.names) > 12 else "")
             raise self.fail(file, element, f"refers to {name}, which the package does not hold (it holds: {held})")
-        return self.zf.read(name)
+        return bounded_read(self.zf, name, lambda reason: self.fail(name, None, reason))
 
     def xml(self, name: str, root: str, file: str, element: str):
         """The root of the XML entry ``name`` (referred to by ``element`` of ``file``), which must be ``root``."""
@@ -66,7 +97,8 @@ class _Archive:
         element = f'<ssd:Component name="{component}">'
         try:
             with zipfile.ZipFile(io.BytesIO(self.data(src, SSD, element))) as fz:
-                raw = fz.read(entry)
+                _no_duplicates(fz, lambda name, reason: self.fail(src, name, reason))
+                raw = bounded_read(fz, entry, lambda reason: self.fail(src, entry, reason))
         except zipfile.BadZipFile:
             raise self.fail(src, element, "not an FMU (not a zip archive)") from None
         except KeyError:
@@ -93,6 +125,8 @@ class SspPackage:
     t_end: float | None
     H: float | None
     extra: dict = field(default_factory=dict)
+    #: the run settings it keeps (exchange, hold, tol, event_aware, H_min: fmu_sync.ssp.settings)
+    run: dict = field(default_factory=dict)
     origins: dict = field(default_factory=dict)
     bindings: dict = field(default_factory=dict)   #: per component, the files its bindings read
 
@@ -183,8 +217,8 @@ def read_ssp(path) -> SspPackage:
                     origins[name][k] = (b.get("source") or SSD, e)
         conns = []
         for c in system.iter(_q("ssd", "Connection")):
-            ends = tuple(c.get(a) for a in ("startElement", "startConnector", "endElement", "endConnector"))
-            here = _element(c, "startElement", "startConnector", "endElement", "endConnector")
+            ends = tuple(c.get(a) for a in CONNECTION_ENDS)
+            here = _element(c, *CONNECTION_ENDS)
             if not (ends[1] and ends[3]):
                 raise arc.fail(SSD, here, "needs a startConnector and an endConnector")
             for el in (ends[0], ends[2]):
@@ -200,7 +234,9 @@ def read_ssp(path) -> SspPackage:
                     x = arc.number(SSD, "<ssd:DefaultExperiment>", exp.get(a), a, positive=a == "stopTime")
                     t_end = x if a == "stopTime" else t_end
         H = _package_step(arc, root, system)
-    return SspPackage(path, root.get("name"), sources, params, conns, t_end, H, origins=origins, bindings=bindings)
+        run = read_run(arc, root)
+    return SspPackage(path, root.get("name"), sources, params, conns, t_end, H, origins=origins, bindings=bindings,
+                      run=run)
 
 
 def _package_step(arc: _Archive, root, system) -> float | None:

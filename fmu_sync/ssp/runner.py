@@ -9,8 +9,9 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from .common import COUPLING_COMPONENT, SSD
+from .common import CONNECTION_ENDS, COUPLING_COMPONENT, SSD, coupling_connections
 from .reader import SspPackage, _Archive, read_ssp
+from .settings import DEFAULTS
 
 
 _START = "resources/fmu_sync_start.json"
@@ -86,7 +87,7 @@ def _system_components(pkg: SspPackage, N: int) -> list[str]:
 
 
 def run_ssp(path, method: str = "jacobi", t_end: float | None = None, H: float | None = None,
-            record_every: int = 1, progress=None, allow_unstable: bool = False):
+            record_every: int = 1, progress=None, allow_unstable: bool = False, settings: dict | None = None):
     """Run an fmu-sync SSP package in our master (:class:`fmu_sync.master.NetworkMaster`).
 
     The systems are the package's oscillator components (one FMU file, each with its
@@ -97,9 +98,15 @@ def run_ssp(path, method: str = "jacobi", t_end: float | None = None, H: float |
     "delayed-zero" = fmpy's SSP runner; docs/ssp.md). Returns a :class:`~fmu_sync.core.result.NetworkResult`.
     Every fault of the package is refused before the run with an :class:`SspError` naming the
     package, the file inside it, the element and what is wrong: the checks of :func:`read_ssp`, every
-    component's values as its FMU checks them, a coupling geometry that differs from the systems'.
+    component's values as its FMU checks them, a coupling geometry that differs from the systems', connections
+    other than the ones our master runs. ``settings``: the package's run settings (``exchange``, ``hold``,
+    ``tol``, ``event_aware``, ``H_min``; kept by :func:`write_ssp`, fmu_sync.ssp.settings) overridden for this run.
     """
     pkg = read_ssp(path)
+    unknown = sorted(set(settings or {}) - set(DEFAULTS))
+    if unknown:
+        raise ValueError(f"settings: unknown run setting {unknown[0]!r} (allowed: {', '.join(DEFAULTS)})")
+    run = {**pkg.run, **(settings or {})}
     t_end = pkg.t_end if t_end is None else t_end
     H = pkg.H if H is None else H
     if t_end is None or H is None:
@@ -113,7 +120,7 @@ def run_ssp(path, method: str = "jacobi", t_end: float | None = None, H: float |
         fmu = Path(tmp) / "system.fmu"
         fmu.write_bytes(_one_model(pkg, arc, names))
         return _run_master(pkg, arc, fmu, names, ccls.SPEC, cfg, t_end, H, method, record_every, progress,
-                           allow_unstable, cvals)
+                           allow_unstable, cvals, run)
 
 
 def _one_model(pkg: SspPackage, arc: _Archive, names: list[str]) -> bytes:
@@ -145,17 +152,19 @@ def _one_model(pkg: SspPackage, arc: _Archive, names: list[str]) -> bytes:
             raise pkg.fail(src, f'<ssd:Component name="{c}">', f"the systems' FMUs differ in {k!r}, which the "
                            f"bindings of {c!r} do not set ({srcs[0]}: {start0.get(k)!r}, {src}: "
                            f"{start.get(k)!r}): our master runs N instances of one model")
-    return arc.zf.read(srcs[0])
+    return arc.data(srcs[0], SSD, f'<ssd:Component name="{names[0]}">')
 
 
-def _run_master(pkg, arc, fmu, names, spec, cfg, t_end, H, method, record_every, progress, allow_unstable, cvals):
+def _run_master(pkg, arc, fmu, names, spec, cfg, t_end, H, method, record_every, progress, allow_unstable, cvals,
+                run):
     from ..core.coupling import LAWS
     from ..core.errors import RunFailed
     from ..core.pair import check_common_geometry
     from ..fmus.slave import MechanicalSlave
-    from ..master import fmu_model, model_description
+    from ..master import AdaptiveMaster, fmu_model, model_description
     from ..ssp_master import SspMaster
     model = fmu_model(model_description(str(fmu)), str(fmu))   # a force-law model: registered from its FMU
+    _check_connections(pkg, names, model)
     slave = MechanicalSlave(model)
     own = arc.fmu_json(pkg.sources[names[0]], _START, names[0])["start"]
     starts, states, values = [], [], []
@@ -183,11 +192,16 @@ def _run_master(pkg, arc, fmu, names, spec, cfg, t_end, H, method, record_every,
                        "the geometry M, w, g0, e", str(exc)) from None
     if "switching-compensated" in laws:   # and the force law h it evaluates must be theirs
         _check_force_laws(pkg, names, cvals, values)
-    master = SspMaster(fmu, states, A, t_end, H, [None if x == "none" else x for x in laws], cfg.Kp, cfg.Kd,
-                       geo.Q, method=method, record_every=record_every, start_values=starts,
-                       allow_unstable=allow_unstable)
-    about = dict(package=str(pkg.path), components=names, method=method, H=float(H),
-                 wall={"w": [float(x) for x in np.ravel(geo.w)], "g0": float(geo.g0)})
+    tol = run["tol"]
+    kind = SspMaster if tol is None else AdaptiveMaster    # tol: our master's orders only (it refuses the others)
+    master = kind(fmu, states, A, t_end, H, [None if x == "none" else x for x in laws], cfg.Kp, cfg.Kd,
+                  geo.Q, method=method, record_every=record_every, start_values=starts,
+                  allow_unstable=allow_unstable, hold=run["hold"], exchange=run["exchange"],
+                  event_aware=run["event_aware"], H_min=run["H_min"], **({} if tol is None else {"tol": tol}))
+    about = dict(package=str(pkg.path), components=names, method=method, H_package=float(H),
+                 wall={"w": [float(x) for x in np.ravel(geo.w)], "g0": float(geo.g0)}, **run)
+    if tol is None:   # with tol, info["H"] is each step's H (AdaptiveMaster)
+        about["H"] = float(H)
     try:
         res = master.run(progress)
     except RunFailed as exc:   # the record up to the failure says what it is too
@@ -196,6 +210,45 @@ def _run_master(pkg, arc, fmu, names, spec, cfg, t_end, H, method, record_every,
         raise
     res.info.update(about)
     return res
+
+
+def _check_connections(pkg, names, model) -> None:
+    """The package's connections must be the ones our master runs (:func:`coupling_connections`), no
+    more, no fewer: SspError naming the first connection that differs (a connector the FMUs do not
+    have, a crossed, swapped, extra or missing connection): never another system than the package's."""
+    want = coupling_connections(names, list(model.q), list(model.u), list(model.tau))
+    have = list(pkg.connections)
+    inputs = {(b, bc) for _, _, b, bc in want}
+    outputs = {(a, ac) for a, ac, _, _ in want}
+    for ends in have:
+        if ends in want:
+            continue
+        a, ac, b, bc = ends
+        if (b, bc) not in inputs and b != COUPLING_COMPONENT and (a, ac) not in outputs:
+            why = f"neither {a}.{ac} nor {b}.{bc} is a connector of the coupled system our master runs"
+        elif (a, ac) not in outputs:
+            why = f"{a}.{ac} is not an output that our master connects"
+        elif (b, bc) not in inputs:
+            why = f"{b}.{bc} is not an input that our master connects"
+        else:
+            theirs = next(w for w in want if (w[0], w[1]) == (a, ac))
+            why = f"our master connects {a}.{ac} to {theirs[2]}.{theirs[3]}, not to {b}.{bc}"
+        raise pkg.fail(SSD, _connection(ends), f"the package's connections differ from the coupled system our master "
+                       f"runs ({why}); it runs exactly each system's {', '.join([*model.q, *model.u])} to the "
+                       f"coupling's q[i], u[i] and the coupling's tau[i] to the system's "
+                       f"{', '.join(model.tau)}: refused rather than running another system")
+    for ends in want:
+        if ends not in have:
+            raise pkg.fail(SSD, "<ssd:Connections>", f"the connection {_connection(ends)} is missing: the coupling our "
+                           f"master runs has it all the same, which is another system than the package "
+                           f"describes: refused")
+    if len(have) != len(set(have)):
+        dup = next(e for e in have if have.count(e) > 1)
+        raise pkg.fail(SSD, _connection(dup), "this connection is given twice")
+
+
+def _connection(ends) -> str:
+    return "<ssd:Connection " + " ".join(f'{k}="{v}"' for k, v in zip(CONNECTION_ENDS, ends)) + ">"
 
 
 def _check_force_laws(pkg, names, cvals, values) -> None:
@@ -232,7 +285,8 @@ def save_result(res, out, formats=("csv", "npz"), plots: bool = True, method: st
     info = res.info
     wall = info.get("wall")
     kinds = plots_for(True, res.d is not None, True)
-    settings = {"package": info.get("package"), "method": method or info.get("method"), "H": info.get("H"),
+    settings = {"package": info.get("package"), "method": method or info.get("method"),
+                "H": info.get("H_package", info.get("H")), **{k: info.get(k) for k in DEFAULTS if k in info},
                 "t_end": float(res.t[-1]) if len(res.t) else None, "components": info.get("components")}
     extra = {"settings": settings, "plots": kinds, "title": name, "wall": wall}
     files = []

@@ -9,7 +9,9 @@ from xml.etree import ElementTree as ET
 import numpy as np
 
 from ..fmus import contract
-from .common import _COUPLING_FMU, COUPLING_COMPONENT, OMS, OMS_SOLVER, OSP, SSD, _fmt, _q, system_component
+from .common import (_COUPLING_FMU, CONNECTION_ENDS, COUPLING_COMPONENT, OMS, OMS_SOLVER, OSP, SSD, _fmt, _q,
+                     coupling_connections, system_component)
+from .settings import write_run
 
 
 def _ssv(name: str, values: dict) -> bytes:
@@ -219,20 +221,15 @@ def _ssd(scene_name, v, model, edges, N, n, osc_names, cfg, mapped=False) -> byt
     _component(elements, COUPLING_COMPONENT, _COUPLING_FMU, cons, f"resources/{COUPLING_COMPONENT}.ssv",
                [(f"resources/{system_component(i, N)}.ssv", _ssm_name(i, N)) for i in range(N)] if mapped else ())
     conns = ET.SubElement(system, _q("ssd", "Connections"))
-    for i in range(N):
-        for mine, theirs in list(zip(qn, node_names("q", i, n))) + list(zip(un, node_names("u", i, n))):
-            ET.SubElement(conns, _q("ssd", "Connection"), {
-                "startElement": system_component(i, N), "startConnector": mine,
-                "endElement": COUPLING_COMPONENT, "endConnector": theirs})
-        for mine, theirs in zip(tn, node_names("tau", i, n)):
-            ET.SubElement(conns, _q("ssd", "Connection"), {
-                "startElement": COUPLING_COMPONENT, "startConnector": theirs,
-                "endElement": system_component(i, N), "endConnector": mine})
+    for ends in coupling_connections([system_component(i, N) for i in range(N)], qn, un, tn):
+        ET.SubElement(conns, _q("ssd", "Connection"), dict(zip(CONNECTION_ENDS, ends)))
     _oms_annotation(system, cfg["run.H"])
     exp = ET.SubElement(root, _q("ssd", "DefaultExperiment"),
                         {"startTime": "0.0", "stopTime": _fmt(cfg["run.t_end"])})
-    ann = ET.SubElement(ET.SubElement(exp, _q("ssd", "Annotations")), _q("ssc", "Annotation"), {"type": OSP})
+    anns = ET.SubElement(exp, _q("ssd", "Annotations"))
+    ann = ET.SubElement(anns, _q("ssc", "Annotation"), {"type": OSP})
     alg = ET.SubElement(ann, _q("osp", "Algorithm"))
     ET.SubElement(alg, _q("osp", "FixedStepAlgorithm"), {"baseStepSize": _fmt(cfg["run.H"])})
+    write_run(anns, cfg)   # the exchange, hold, tol, ... of the scene (fmu_sync.ssp.settings)
     return _xml_bytes(root)
 
