@@ -235,6 +235,7 @@ def _cmd_run(args) -> int:
     max_memory = parse_size(args.max_memory) if args.max_memory is not None else None
     max_disk = parse_size(args.max_disk) if args.max_disk is not None else None
     scene = load_scene(args.scene, overrides, args.variant or None)
+    idle = _idle_keys(scene)
     _announce_compilation(scene, args.quiet)
     if args.convergence:
         return _cmd_convergence(scene, args, max_memory, max_disk)
@@ -242,6 +243,11 @@ def _cmd_run(args) -> int:
         sr = run_scene(scene, args.out, progress=bar, plots=not args.no_plots, formats=formats,
                        max_memory=max_memory, max_disk=max_disk, overwrite=args.overwrite)
     _print_summary(sr, f"scene {scene.name}")
+    if idle:
+        print(f"  note: {idle}")
+        if sr.summary is not None:
+            from .ensemble import add_to_summary
+            add_to_summary(sr.summary, [f"- note: {idle}", ""])
     if args.starts and not sr.failed:
         from . import ensemble
         with _progress(f"{scene.name} ensemble", args.quiet) as bar:
@@ -256,9 +262,28 @@ def _cmd_run(args) -> int:
     return EXIT_FAILED if sr.failed else 0
 
 
+def _idle_keys(scene) -> str | None:
+    """A co-simulation key given with --set (scene.overrides) does nothing in a core run: refused
+    (SceneError naming the key and the mode) when every variant of the run is core, or, when the
+    variants mix modes, the note saying which variants it does not apply to (None if none)."""
+    from .scenes.schema import COSIM_KEYS, SceneError
+    given = [k for k in scene.overrides if k in COSIM_KEYS]
+    core = [v.name for v in scene.variants if v.mode != "cosim"]
+    if not given or not core:
+        return None
+    keys = ", ".join(f"--set {k}" for k in given)
+    if len(core) == len(scene.variants):
+        raise SceneError(f"scene {scene.name}: {keys}: a co-simulation key, but run.mode = 'core' in "
+                         f"{'every variant' if len(core) > 1 else 'the variant'} run ({', '.join(core)}): it would "
+                         f"do nothing; add --set run.mode=cosim, or drop it")
+    return f"{keys} applies to the co-simulated variants only: not to {', '.join(core)} (run.mode = 'core')"
+
+
 def _cmd_convergence(scene, args, max_memory, max_disk) -> int:
-    from .scenes.convergence import convergence, format_table, verdicts
+    from .scenes.convergence import check_step_varied, convergence, format_table, verdicts
     from .output import estimate
+    for v in scene.variants:   # refused before the announcement: one line
+        check_step_varied(scene.name, v)
     steps = sum(estimate(v).steps for v in scene.variants)
     if not args.quiet:
         print(f"convergence check: each variant at its step, /2 and /4: 7x the steps of one run "

@@ -173,8 +173,8 @@ class Estimate:
 
 def run_grid(cfg) -> tuple[int, float, str]:
     """Steps of a variant's run (the last one shortened to land on run.t_end), its step and the step's key."""
-    step, name = (cfg["run.H"], "run.H") if cfg["run.mode"] == "cosim" and cfg.get("initial.x2") is not None \
-        else (cfg["solver.dt"], "solver.dt")
+    coupled = cfg.get("initial.x2") is not None or cfg.get("network.graph") is not None   # a pair or a network
+    step, name = (cfg["run.H"], "run.H") if cfg["run.mode"] == "cosim" and coupled else (cfg["solver.dt"], "solver.dt")
     return run_steps(cfg["run.t_end"], step).steps, step, name
 
 
@@ -195,6 +195,10 @@ def estimate(variant, formats=("csv", "npz")) -> Estimate:
     cfg = variant.cfg
     steps, _, _ = run_grid(cfg)
     every = record_steps(cfg)
+    if cfg["run.mode"] == "cosim" and variant.pair and cfg.get("run.tol") is not None:
+        # tol chooses the steps, each at least solver.dt (its floor): the worst case, a step of solver.dt
+        # all along, recorded every record_steps accepted steps (fmu_sync.cosim_adaptive)
+        steps = max(steps, run_steps(cfg["run.t_end"], cfg["solver.dt"]).steps)
     n = variant.system.n
     if variant.is_network:
         A = variant.network.A

@@ -87,6 +87,15 @@ def refined_overrides(variant: Variant, level: int) -> dict:
     return out
 
 
+def check_step_varied(scene_name: str, v: Variant) -> None:
+    """SceneError for a variant whose steps the check cannot vary: with run.tol the tolerance, not
+    run.H, chooses the steps (halving H would change nothing it says)."""
+    if v.mode == "cosim" and v.cfg.get("run.tol") is not None:
+        raise SceneError(f"scene {scene_name!r}, variant {v.name!r}: --convergence varies run.H, but with "
+                         f"run.tol = {v.cfg['run.tol']!r} the tolerance chooses the steps (H is only the first and "
+                         f"largest): rerun at tol, tol/4, tol/16 yourself (--set run.tol=...), or drop run.tol")
+
+
 def _step_name(v: Variant) -> str:
     return "run.H" if v.mode == "cosim" and v.pair else "solver.dt"
 
@@ -159,6 +168,7 @@ def convergence(scene, out_dir=None, overrides: dict | None = None, variants=Non
             raise SceneError(f"scene {scene.name!r}, variant {v.name!r}: the convergence check compares the "
                              "decay of the distance d of coupled systems; this variant is a single system "
                              "(give [initial] x2 or a [network])")
+        check_step_varied(scene.name, v)
         runs = []
         for k in range(levels):
             vk = load_scene(scene.path, {**scene.overrides, **refined_overrides(v, k)}, [v.name]).variants[0]

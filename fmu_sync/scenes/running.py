@@ -16,7 +16,8 @@ from ..fmus import contract
 from ..progress import scaled
 from ..user_export import fmu_model_of
 from .loading import Scene, as_scene
-from .schema import DEFAULT_OUT, TABLES, SceneError, Variant
+from .record import record_interval
+from .schema import COSIM_KEYS, DEFAULT_OUT, TABLES, SceneError, Variant
 
 __all__ = ["RunRecord", "SceneRun", "RunRefused", "RunInterrupted", "preflight", "plan_variant", "run_scene", "run_variant",
            "fmu_start_values", "scene_values", "export_for", "export_spec", "write_run", "run_extra", "record_interval", "clean_written", "error_notes", "skipped_notes", "settings_table"]
@@ -327,21 +328,6 @@ def run_extra(variant: Variant, plots, title: str) -> dict:
             "record_interval": record_interval(variant)[0]}
 
 
-def record_interval(variant: Variant) -> tuple[float, str]:
-    """``(seconds, words)``: the time between two record rows of the variant's run.
-    ``run.record_every`` counts steps of ``solver.dt`` in both modes; a co-simulation records at
-    the nearest whole number of communication steps (:func:`fmu_sync.output.record_steps`); the
-    summary and the data file say the interval as a time."""
-    from ..output import record_steps, run_grid
-    _, step, name = run_grid(variant.cfg)
-    k, dt = int(variant.cfg["run.record_every"]), variant.cfg["solver.dt"]
-    every = record_steps(variant.cfg)
-    said = f"run.record_every = {k} step{'s' if k > 1 else ''} of solver.dt = {dt:g} s"
-    if name != "solver.dt":
-        said += f"; in co-simulation every {every} step{'s' if every > 1 else ''} of run.H = {step:g} s"
-    return every * step, f"{every * step:g} s ({said})"
-
-
 def _stream_run(v: Variant, out_dir: Path, fmu_path, progress, scene_name, formats, est, max_memory, extra):
     """A core pair whose whole record exceeds the memory budget: written in chunks while it runs."""
     from .. import report
@@ -592,7 +578,8 @@ def _interrupted(scene, out_dir, created, runs, fmus, current, plots, chosen) ->
     again = " ".join(f"--variant {n}" for n in rest)
     return RunInterrupted(
         f"interrupted during variant {current!r}: kept {', '.join(r.name for r in done)} in {sr.out_dir}/ "
-        f"(data, plots, summary.md); to run the rest, repeat the command with {again} and another -o")
+        f"({'data, plots, summary.md' if plots else 'data, summary.md'}); to run the rest, repeat the command "
+        f"with {again} and another -o")
 
 
 def _summarize(scene, out_dir, created, runs, fmus, plots, chosen) -> SceneRun:
@@ -642,7 +629,7 @@ def stream_notes(runs) -> list[str]:
             for r in runs if r.metrics.get("thinned_every", 1) > 1]
 
 
-_COSIM_KEYS = ("run.H", "run.H_min", "run.method", "run.event_aware", "run.hold", "run.exchange", "run.tol")
+_COSIM_KEYS = COSIM_KEYS
 
 
 def _relevant(key: str, variants) -> bool:

@@ -381,6 +381,11 @@ class NetworkSpec:
         return len(self.states)
 
 
+
+#: the keys only a co-simulation reads (run.mode = "cosim"): set for a core run, they do nothing
+COSIM_KEYS = ("run.H", "run.H_min", "run.method", "run.event_aware", "run.hold", "run.exchange", "run.tol")
+
+
 @dataclass(frozen=True)
 class Variant:
     """One run of a scene: validated settings (``cfg``, dotted keys, defaults filled) and the system."""

@@ -19,7 +19,7 @@ OMS_SOLVER = {"name": "fixedstep", "method": "oms_ma"}
 COUPLING_COMPONENT = "coupling"
 #: the attributes of an ``ssd:Connection``, in the order of a connection tuple
 CONNECTION_ENDS = ("startElement", "startConnector", "endElement", "endConnector")
-_COUPLING_FMU = "resources/coupling.fmu"
+COUPLING_FMU = "resources/coupling.fmu"
 for _p, _u in NS.items():
     ET.register_namespace(_p, _u)
 
@@ -40,16 +40,16 @@ SsdError = SspError
 _PREFIX = {uri: prefix for prefix, uri in NS.items()}
 
 
-def _tag(tag: str) -> str:
+def tag_of(tag: str) -> str:
     """``ssd:Component`` of ``{uri}Component``."""
     uri, _, local = tag[1:].partition("}") if tag.startswith("{") else ("", "", tag)
     return f"{_PREFIX.get(uri, uri)}:{local}" if uri else local
 
 
-def _element(el, *attrs: str) -> str:
+def element_of(el, *attrs: str) -> str:
     """An element as the message names it: ``<ssv:Parameter name="m">`` (the given attributes that it has)."""
     shown = "".join(f' {a}="{el.get(a)}"' for a in attrs if el.get(a) is not None)
-    return f"<{_tag(el.tag)}{shown}>"
+    return f"<{tag_of(el.tag)}{shown}>"
 
 
 
@@ -60,11 +60,11 @@ def system_component(i: int, N: int = 9) -> str:
     return f"system{i + 1:0{len(str(N))}d}"
 
 
-def _q(prefix: str, tag: str) -> str:
+def qname(prefix: str, tag: str) -> str:
     return f"{{{NS[prefix]}}}{tag}"
 
 
-def _fmt(x: float) -> str:
+def fmt_real(x: float) -> str:
     return repr(float(x))
 
 

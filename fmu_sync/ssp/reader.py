@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from xml.etree import ElementTree as ET
 
-from .common import CONNECTION_ENDS, OMS, SSD, SspError, _element, _q, _tag
+from .common import CONNECTION_ENDS, OMS, SSD, SspError, element_of, qname, tag_of
 from .settings import read_run
 
 
@@ -43,7 +43,7 @@ def _no_duplicates(zf: zipfile.ZipFile, fail) -> None:
         seen.add(name)
 
 
-class _Archive:
+class Archive:
     """The open package behind every check of a read or a run: each refusal is an :class:`SspError`
     naming the package, the file inside it and the element."""
 
@@ -74,8 +74,8 @@ class _Archive:
             raise self.fail(name, f"line {line}, column {col}",
                             f"not well-formed XML ({str(exc).split(':')[0]})") from None
         if tree.tag != root:
-            raise self.fail(name, f"root element <{_tag(tree.tag)}>", f"not an SSP file of this kind: its root "
-                                                                     f"element must be <{_tag(root)}>")
+            raise self.fail(name, f"root element <{tag_of(tree.tag)}>", f"not an SSP file of this kind: its root "
+                                                                     f"element must be <{tag_of(root)}>")
         return tree
 
     def number(self, file: str, element: str, text, what: str = "value", positive: bool = False) -> float:
@@ -139,21 +139,21 @@ class SspPackage:
                                                               f"start value of {name!r}")
 
 
-def _parameters(arc: _Archive, file: str, root) -> dict:
+def _parameters(arc: Archive, file: str, root) -> dict:
     """name -> (value, element) of the Real parameters of an ``ssv:ParameterSet`` (in ``file``)."""
     out = {}
-    for p in root.iter(_q("ssv", "Parameter")):
+    for p in root.iter(qname("ssv", "Parameter")):
         name = p.get("name")
         if not name:
-            raise arc.fail(file, _element(p), "has no name attribute")
-        real = p.find(_q("ssv", "Real"))
+            raise arc.fail(file, element_of(p), "has no name attribute")
+        real = p.find(qname("ssv", "Real"))
         if real is not None:
             element = f'<ssv:Parameter name="{name}"> <ssv:Real>'
             out[name] = (arc.number(file, element, real.get("value")), element)
     return out
 
 
-def _mapped(arc: _Archive, values: dict, mapping, file: str, element: str) -> dict:
+def _mapped(arc: Archive, values: dict, mapping, file: str, element: str) -> dict:
     """A binding's values under its parameter mapping (an ``.ssm`` source or inline entries, the
     ``ssd:ParameterMapping`` ``element`` of ``file``): the mapped names renamed, the others dropped
     (the binding is meant for those it maps)."""
@@ -162,11 +162,11 @@ def _mapped(arc: _Archive, values: dict, mapping, file: str, element: str) -> di
     root, where = mapping, file
     if mapping.get("source"):
         where = mapping.get("source")
-        root = arc.xml(where, _q("ssm", "ParameterMapping"), file, element)
+        root = arc.xml(where, qname("ssm", "ParameterMapping"), file, element)
     entries = {}
-    for e in root.iter(_q("ssm", "MappingEntry")):
+    for e in root.iter(qname("ssm", "MappingEntry")):
         if not (e.get("source") and e.get("target")):
-            raise arc.fail(where, _element(e, "source", "target"), "needs both a source and a target attribute")
+            raise arc.fail(where, element_of(e, "source", "target"), "needs both a source and a target attribute")
         entries[e.get("source")] = e.get("target")
     return {entries[k]: v for k, v in values.items() if k in entries}
 
@@ -183,42 +183,42 @@ def read_ssp(path) -> SspPackage:
     except zipfile.BadZipFile:
         raise SspError(path, None, None, "not an SSP package (not a zip archive)") from None
     with zf:
-        arc = _Archive(path, zf)
+        arc = Archive(path, zf)
         if SSD not in arc.names:
             raise arc.fail(SSD, None, "missing: an SSP package holds it at its root (the package holds: "
                            f"{', '.join(sorted(arc.names)[:8]) or 'nothing'})")
-        root = arc.xml(SSD, _q("ssd", "SystemStructureDescription"), SSD, None)
-        system = root.find(_q("ssd", "System"))
+        root = arc.xml(SSD, qname("ssd", "SystemStructureDescription"), SSD, None)
+        system = root.find(qname("ssd", "System"))
         if system is None:
-            raise arc.fail(SSD, _element(root, "name"), "has no <ssd:System>")
+            raise arc.fail(SSD, element_of(root, "name"), "has no <ssd:System>")
         sources, params, origins, bindings = {}, {}, {}, {}
-        for comp in system.iter(_q("ssd", "Component")):
+        for comp in system.iter(qname("ssd", "Component")):
             name, src = comp.get("name"), comp.get("source")
-            here = _element(comp, "name", "source")
+            here = element_of(comp, "name", "source")
             if not name:
                 raise arc.fail(SSD, here, "has no name attribute")
             if name in sources:
                 raise arc.fail(SSD, here, f"a second component named {name!r}")
             arc.data(src, SSD, here)           # the component's FMU is in the package
             sources[name], params[name], origins[name], bindings[name] = src, {}, {}, []
-            for b in comp.iter(_q("ssd", "ParameterBinding")):
+            for b in comp.iter(qname("ssd", "ParameterBinding")):
                 found = {}
                 if b.get("source"):
                     ssv = b.get("source")
-                    bind = _element(b, "source")
-                    found = _parameters(arc, ssv, arc.xml(ssv, _q("ssv", "ParameterSet"), SSD, bind))
-                    found = _mapped(arc, found, b.find(_q("ssd", "ParameterMapping")), SSD, bind)
+                    bind = element_of(b, "source")
+                    found = _parameters(arc, ssv, arc.xml(ssv, qname("ssv", "ParameterSet"), SSD, bind))
+                    found = _mapped(arc, found, b.find(qname("ssd", "ParameterMapping")), SSD, bind)
                     bindings[name].append(ssv)
-                for ps in b.iter(_q("ssv", "ParameterSet")):     # inline values
+                for ps in b.iter(qname("ssv", "ParameterSet")):     # inline values
                     found.update({k: (v, f"{e} (inline, component {name!r})")
                                   for k, (v, e) in _parameters(arc, SSD, ps).items()})
                 for k, (v, e) in found.items():
                     params[name][k] = v
                     origins[name][k] = (b.get("source") or SSD, e)
         conns = []
-        for c in system.iter(_q("ssd", "Connection")):
+        for c in system.iter(qname("ssd", "Connection")):
             ends = tuple(c.get(a) for a in CONNECTION_ENDS)
-            here = _element(c, *CONNECTION_ENDS)
+            here = element_of(c, *CONNECTION_ENDS)
             if not (ends[1] and ends[3]):
                 raise arc.fail(SSD, here, "needs a startConnector and an endConnector")
             for el in (ends[0], ends[2]):
@@ -226,7 +226,7 @@ def read_ssp(path) -> SspPackage:
                     raise arc.fail(SSD, here, f"names the element {el!r}, which is not a component "
                                               f"({', '.join(sources)})")
             conns.append(ends)
-        exp = root.find(_q("ssd", "DefaultExperiment"))
+        exp = root.find(qname("ssd", "DefaultExperiment"))
         t_end = None
         if exp is not None:
             for a in ("startTime", "stopTime"):
@@ -239,16 +239,16 @@ def read_ssp(path) -> SspPackage:
                       run=run)
 
 
-def _package_step(arc: _Archive, root, system) -> float | None:
+def _package_step(arc: Archive, root, system) -> float | None:
     """The communication step the package gives: libcosim's (``osp:FixedStepAlgorithm``) and
     OMSimulator's (the system's ``oms:SimulationInformation fixedStepSize``), each a finite number > 0,
     which must agree when both are there (a package edited in one tool only is refused, naming both)."""
-    fs = root.find(f".//{_q('osp', 'FixedStepAlgorithm')}")
+    fs = root.find(f".//{qname('osp', 'FixedStepAlgorithm')}")
     steps = {}
     if fs is not None and fs.get("baseStepSize") is not None:
         steps["<osp:FixedStepAlgorithm> baseStepSize"] = fs.get("baseStepSize")
-    for ann in system.findall(f"{_q('ssd', 'Annotations')}/{_q('ssc', 'Annotation')}"):
-        info = ann.find(f".//{_q('oms', 'SimulationInformation')}") if ann.get("type") == OMS else None
+    for ann in system.findall(f"{qname('ssd', 'Annotations')}/{qname('ssc', 'Annotation')}"):
+        info = ann.find(f".//{qname('oms', 'SimulationInformation')}") if ann.get("type") == OMS else None
         if info is not None and info.get("fixedStepSize") is not None:
             steps["<oms:SimulationInformation> fixedStepSize"] = info.get("fixedStepSize")
     given = {k: arc.number(SSD, k.split()[0], v, k.split()[1], positive=True) for k, v in steps.items()}

@@ -10,7 +10,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from .common import CONNECTION_ENDS, COUPLING_COMPONENT, SSD, coupling_connections
-from .reader import SspPackage, _Archive, read_ssp
+from .reader import SspPackage, Archive, read_ssp
 from .settings import DEFAULTS
 
 
@@ -44,7 +44,7 @@ def _checked_values(pkg: SspPackage, component: str, slave, start: dict):
                        f"its parameters are not a valid set: {exc}") from None
 
 
-def _coupling_setup(pkg: SspPackage, arc: _Archive):
+def _coupling_setup(pkg: SspPackage, arc: Archive):
     """(coupling slave, its parameter values, its configuration): the coupling FMU's start values
     under the bindings, checked as the FMU checks them."""
     from ..fmus.coupling import CouplingSlave, CouplingSpec
@@ -114,7 +114,7 @@ def run_ssp(path, method: str = "jacobi", t_end: float | None = None, H: float |
                        "baseStepSize in its DefaultExperiment, or OMSimulator's fixedStepSize in its system): "
                        "give t_end and H")
     with zipfile.ZipFile(pkg.path) as zf, tempfile.TemporaryDirectory(prefix="fmu-sync-ssp-") as tmp:
-        arc = _Archive(pkg.path, zf)
+        arc = Archive(pkg.path, zf)
         ccls, cvals, cfg = _coupling_setup(pkg, arc)
         names = _system_components(pkg, ccls.SPEC.N)
         fmu = Path(tmp) / "system.fmu"
@@ -123,7 +123,7 @@ def run_ssp(path, method: str = "jacobi", t_end: float | None = None, H: float |
                            allow_unstable, cvals, run)
 
 
-def _one_model(pkg: SspPackage, arc: _Archive, names: list[str]) -> bytes:
+def _one_model(pkg: SspPackage, arc: Archive, names: list[str]) -> bytes:
     """The FMU our master instantiates N times: the systems' FMU files (one per system, as
     :func:`write_ssp` writes them, or one shared) must be one model whose start values differ
     only in what each component's bindings set (refused otherwise, naming the first difference)."""

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 
-from .common import NS, SSD, _fmt, _q
+from .common import NS, SSD, fmt_real, qname
 
 #: the annotation's type and its namespace (prefix ``fs``)
 RUN_ANNOTATION = "org.fmu-sync.run"
@@ -36,15 +36,15 @@ def write_run(annotations, cfg) -> None:
     """The ``fs:Run`` annotation of a scene variant's settings ``cfg`` in ``annotations`` (the
     DefaultExperiment's ``ssd:Annotations``): every setting, defaults too, so that the package says them."""
     from xml.etree import ElementTree as ET
-    ann = ET.SubElement(annotations, _q("ssc", "Annotation"), {"type": RUN_ANNOTATION})
+    ann = ET.SubElement(annotations, qname("ssc", "Annotation"), {"type": RUN_ANNOTATION})
     attrs = {}
     for key, arg in RUN_KEYS.items():
         value = cfg.get(key)
         if value is None:
             continue
         attrs[arg] = ("true" if value else "false") if isinstance(value, bool) else \
-            _fmt(value) if isinstance(value, (int, float)) else str(value)
-    ET.SubElement(ann, _q("fs", "Run"), attrs)
+            fmt_real(value) if isinstance(value, (int, float)) else str(value)
+    ET.SubElement(ann, qname("fs", "Run"), attrs)
 
 
 def read_run(arc, root) -> dict:
@@ -52,7 +52,7 @@ def read_run(arc, root) -> dict:
     give): SspError naming the attribute for a value that is not one."""
     from ..core.exchange import EXCHANGES, HOLDS
     run = dict(DEFAULTS)
-    el = root.find(f"{_q('ssd', 'DefaultExperiment')}//{_q('fs', 'Run')}")
+    el = root.find(f"{qname('ssd', 'DefaultExperiment')}//{qname('fs', 'Run')}")
     if el is None:
         return run
     here = "<ssd:DefaultExperiment> <fs:Run>"

@@ -9,17 +9,17 @@ from xml.etree import ElementTree as ET
 import numpy as np
 
 from ..fmus import contract
-from .common import (_COUPLING_FMU, CONNECTION_ENDS, COUPLING_COMPONENT, OMS, OMS_SOLVER, OSP, SSD, _fmt, _q,
+from .common import (COUPLING_FMU, CONNECTION_ENDS, COUPLING_COMPONENT, OMS, OMS_SOLVER, OSP, SSD, fmt_real, qname,
                      coupling_connections, system_component)
 from .settings import write_run
 
 
 def _ssv(name: str, values: dict) -> bytes:
-    root = ET.Element(_q("ssv", "ParameterSet"), {"version": "1.0", "name": name})
-    params = ET.SubElement(root, _q("ssv", "Parameters"))
+    root = ET.Element(qname("ssv", "ParameterSet"), {"version": "1.0", "name": name})
+    params = ET.SubElement(root, qname("ssv", "Parameters"))
     for key, value in values.items():
-        p = ET.SubElement(params, _q("ssv", "Parameter"), {"name": key})
-        ET.SubElement(p, _q("ssv", "Real"), {"value": _fmt(value)})
+        p = ET.SubElement(params, qname("ssv", "Parameter"), {"name": key})
+        ET.SubElement(p, qname("ssv", "Real"), {"value": fmt_real(value)})
     return _xml_bytes(root)
 
 
@@ -31,31 +31,31 @@ def _xml_bytes(root) -> bytes:
 
 
 def _connector(parent, name: str, kind: str, typ: str = "Real", unit: str | None = None) -> None:
-    c = ET.SubElement(parent, _q("ssd", "Connector"), {"name": name, "kind": kind})
-    ET.SubElement(c, _q("ssc", typ), {"unit": unit} if unit else {})
+    c = ET.SubElement(parent, qname("ssd", "Connector"), {"name": name, "kind": kind})
+    ET.SubElement(c, qname("ssc", typ), {"unit": unit} if unit else {})
 
 
 def _ssm(mapping: dict) -> bytes:
     """An SSP parameter mapping (source name -> target name)."""
-    root = ET.Element(_q("ssm", "ParameterMapping"), {"version": "1.0"})
+    root = ET.Element(qname("ssm", "ParameterMapping"), {"version": "1.0"})
     for a, b in mapping.items():
-        ET.SubElement(root, _q("ssm", "MappingEntry"), {"source": a, "target": b})
+        ET.SubElement(root, qname("ssm", "MappingEntry"), {"source": a, "target": b})
     return _xml_bytes(root)
 
 
 def _component(elements, name: str, source: str, connectors, ssv: str, mapped=()):
     """A component bound to its own ``ssv`` after the ``mapped`` (ssv, ssm) bindings (the later
     binding takes priority, SSP 1.0)."""
-    comp = ET.SubElement(elements, _q("ssd", "Component"),
+    comp = ET.SubElement(elements, qname("ssd", "Component"),
                          {"name": name, "type": "application/x-fmu-sharedlibrary", "source": source})
-    cons = ET.SubElement(comp, _q("ssd", "Connectors"))
+    cons = ET.SubElement(comp, qname("ssd", "Connectors"))
     for args in connectors:
         _connector(cons, *args)
-    binds = ET.SubElement(comp, _q("ssd", "ParameterBindings"))
+    binds = ET.SubElement(comp, qname("ssd", "ParameterBindings"))
     for src, ssm in mapped:
-        b = ET.SubElement(binds, _q("ssd", "ParameterBinding"), {"source": src})
-        ET.SubElement(b, _q("ssd", "ParameterMapping"), {"source": ssm})
-    ET.SubElement(binds, _q("ssd", "ParameterBinding"), {"source": ssv})
+        b = ET.SubElement(binds, qname("ssd", "ParameterBinding"), {"source": src})
+        ET.SubElement(b, qname("ssd", "ParameterMapping"), {"source": ssm})
+    ET.SubElement(binds, qname("ssd", "ParameterBinding"), {"source": ssv})
     _oms_annotation(comp)
     return comp
 
@@ -64,9 +64,9 @@ def _oms_annotation(element, H: float | None = None) -> None:
     """OMSimulator's fixed-step solver as the last child of a ``ssd:System`` (with its step
     ``H``) or a ``ssd:Component`` (the solver's name only): without it OMSimulator steps at
     its default 1 ms whatever the package's experiment says."""
-    ann = ET.SubElement(ET.SubElement(element, _q("ssd", "Annotations")), _q("ssc", "Annotation"), {"type": OMS})
-    info = {"name": OMS_SOLVER["name"]} if H is None else {**OMS_SOLVER, "fixedStepSize": _fmt(H)}
-    ET.SubElement(ET.SubElement(ann, _q("oms", "Annotations")), _q("oms", "SimulationInformation"), info)
+    ann = ET.SubElement(ET.SubElement(element, qname("ssd", "Annotations")), qname("ssc", "Annotation"), {"type": OMS})
+    info = {"name": OMS_SOLVER["name"]} if H is None else {**OMS_SOLVER, "fixedStepSize": fmt_real(H)}
+    ET.SubElement(ET.SubElement(ann, qname("oms", "Annotations")), qname("oms", "SimulationInformation"), info)
 
 
 def _real_values(decl, values: dict) -> dict:
@@ -175,7 +175,7 @@ def write_ssp(scene, path, variant: str | None = None, overrides: dict | None = 
                               units=model.declaration.units)
         files = [(SSD, _ssd(sc.name, v, model, edges, N, n, osc_names, cfg, bool(maps)))]
         files += [(name, osc.read_bytes()) for name, osc in zip(osc_names, oscs)]
-        files.append((_COUPLING_FMU, cpl.read_bytes()))
+        files.append((COUPLING_FMU, cpl.read_bytes()))
     files += [(f"resources/{system_component(i, N)}.ssv", _ssv(system_component(i, N), vals))
               for i, vals in enumerate(comp_values)]
     files += [(_ssm_name(i, N), _ssm(m)) for i, m in enumerate(maps)]
@@ -200,11 +200,11 @@ def _ssm_name(i: int, N: int) -> str:
 
 def _ssd(scene_name, v, model, edges, N, n, osc_names, cfg, mapped=False) -> bytes:
     from ..fmus.coupling import edge_names, node_names
-    root = ET.Element(_q("ssd", "SystemStructureDescription"),
+    root = ET.Element(qname("ssd", "SystemStructureDescription"),
                       {"version": "1.0", "name": f"{scene_name}-{v.name}",
                        "generationTool": "fmu-sync", "description": v.description or scene_name})
-    system = ET.SubElement(root, _q("ssd", "System"), {"name": scene_name, "description": v.description or ""})
-    elements = ET.SubElement(system, _q("ssd", "Elements"))
+    system = ET.SubElement(root, qname("ssd", "System"), {"name": scene_name, "description": v.description or ""})
+    elements = ET.SubElement(system, qname("ssd", "Elements"))
     qn, un, tn = model.q, model.u, model.tau
     units = model.declaration.units          # the system FMU's own (rad, rad/s, N.m for the pendulum)
     for i in range(N):
@@ -218,18 +218,18 @@ def _ssd(scene_name, v, model, edges, N, n, osc_names, cfg, mapped=False) -> byt
     cons += [(a, "output", "Real", units["tau"]) for i in range(N) for a in node_names("tau", i, n)]
     cons += [(a, "output", "Real", None) for base in ("d", "V", "euclidean") for a in edge_names(base, E)]
     cons += [(a, "output", "Integer", None) for a in edge_names("branch", E)]
-    _component(elements, COUPLING_COMPONENT, _COUPLING_FMU, cons, f"resources/{COUPLING_COMPONENT}.ssv",
+    _component(elements, COUPLING_COMPONENT, COUPLING_FMU, cons, f"resources/{COUPLING_COMPONENT}.ssv",
                [(f"resources/{system_component(i, N)}.ssv", _ssm_name(i, N)) for i in range(N)] if mapped else ())
-    conns = ET.SubElement(system, _q("ssd", "Connections"))
+    conns = ET.SubElement(system, qname("ssd", "Connections"))
     for ends in coupling_connections([system_component(i, N) for i in range(N)], qn, un, tn):
-        ET.SubElement(conns, _q("ssd", "Connection"), dict(zip(CONNECTION_ENDS, ends)))
+        ET.SubElement(conns, qname("ssd", "Connection"), dict(zip(CONNECTION_ENDS, ends)))
     _oms_annotation(system, cfg["run.H"])
-    exp = ET.SubElement(root, _q("ssd", "DefaultExperiment"),
-                        {"startTime": "0.0", "stopTime": _fmt(cfg["run.t_end"])})
-    anns = ET.SubElement(exp, _q("ssd", "Annotations"))
-    ann = ET.SubElement(anns, _q("ssc", "Annotation"), {"type": OSP})
-    alg = ET.SubElement(ann, _q("osp", "Algorithm"))
-    ET.SubElement(alg, _q("osp", "FixedStepAlgorithm"), {"baseStepSize": _fmt(cfg["run.H"])})
+    exp = ET.SubElement(root, qname("ssd", "DefaultExperiment"),
+                        {"startTime": "0.0", "stopTime": fmt_real(cfg["run.t_end"])})
+    anns = ET.SubElement(exp, qname("ssd", "Annotations"))
+    ann = ET.SubElement(anns, qname("ssc", "Annotation"), {"type": OSP})
+    alg = ET.SubElement(ann, qname("osp", "Algorithm"))
+    ET.SubElement(alg, qname("osp", "FixedStepAlgorithm"), {"baseStepSize": fmt_real(cfg["run.H"])})
     write_run(anns, cfg)   # the exchange, hold, tol, ... of the scene (fmu_sync.ssp.settings)
     return _xml_bytes(root)
 
