@@ -21,7 +21,8 @@ Exit status:
        a step not shorter than the run (dt or H >= t_end), a step known to be
        unstable (midpoint omega_max*dt >= 2, or the held
        coupling exchange beyond its limit: the message names omega_c*H and the
-       largest stable H), a record above the memory/disk budget
+       largest stable H), a record above the memory/disk budget, an FMU that
+       refuses to instantiate (the line gives the FMU's logged reason)
     3  a run failed mid-way (diverged, a slave failed): the summary says which,
        its record up to the failure is written marked partial (no plots)
   130  interrupted
@@ -66,7 +67,9 @@ def _parser() -> argparse.ArgumentParser:
                    "SSP package written by `fmu-sync ssp` (run in our master)")
     r.add_argument("-o", "--out", type=Path, default=None, help="output folder (default ./fmu-sync-out/<scene>)")
     r.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a scene key, e.g. --set coupling.Kp=2 --set run.t_end=50 (TOML values)")
+                   help="override a scene key, e.g. --set coupling.Kp=2 --set run.t_end=50 (TOML values); "
+                        "an SSP package takes run.t_end, run.H, run.exchange, run.hold, run.tol, run.event_aware "
+                        "and run.H_min")
     r.add_argument("--variant", action="append", default=[], metavar="NAME",
                    help="run only this variant of the scene (repeatable)")
     r.add_argument("--no-plots", action="store_true", help="write data and summary only")
@@ -186,16 +189,21 @@ def _cmd_ssp(args) -> int:
 def _cmd_run_ssp(args) -> int:
     from .core import RunFailed
     from .output import check_out_dir, parse_formats
+    from .scenes.loading import parse_override
     from .ssp import run_ssp, save_result
-    if args.overrides or args.variant or args.convergence:
-        raise ValueError("an SSP package takes --method, -o, --format, --no-plots, --allow-unstable and --quiet "
-                         "only (its values are the package's: edit its .ssv files, or the scene and write it again)")
+    from .ssp.settings import SET_KEYS, overrides
+    if args.variant or args.convergence:
+        raise ValueError(f"an SSP package takes --method, -o, --format, --no-plots, --allow-unstable, --quiet and "
+                         f"--set {', '.join(SET_KEYS)} only (its values are the package's: edit its .ssv files, "
+                         f"or the scene and write it again)")
+    experiment, settings = overrides(dict(parse_override(s) for s in args.overrides))
     formats = parse_formats(args.formats) if args.formats is not None else ("csv", "npz")
     out = check_out_dir(args.out or Path("fmu-sync-out") / Path(args.scene).stem)
     failed = None
     with _progress(Path(args.scene).name, args.quiet) as bar:
         try:
-            res = run_ssp(args.scene, method=args.method, progress=bar, allow_unstable=args.allow_unstable)
+            res = run_ssp(args.scene, method=args.method, progress=bar, allow_unstable=args.allow_unstable,
+                          settings=settings, **experiment)
         except RunFailed as exc:   # keep the record up to the failure, marked partial
             if exc.partial is None:
                 raise
@@ -207,7 +215,7 @@ def _cmd_run_ssp(args) -> int:
               file=sys.stderr)
         return EXIT_FAILED
     m = res.sync()
-    print(f"{args.scene}: {len(res.info['components'])} systems, method {args.method}, H = {res.info['H']:g}, "
+    print(f"{args.scene}: {len(res.info['components'])} systems, method {args.method}, H = {res.info['H_package']:g}, "
           f"t_end = {res.t[-1]:g} s; max d at the end {res.d_max[-1]:.3g}, t_sync(1e-6) = {m.t_sync:.4g} s")
     print(f"written to {summary.parent}/ (summary: {summary.name})")
     return 0
@@ -227,6 +235,7 @@ def _cmd_run(args) -> int:
     max_memory = parse_size(args.max_memory) if args.max_memory is not None else None
     max_disk = parse_size(args.max_disk) if args.max_disk is not None else None
     scene = load_scene(args.scene, overrides, args.variant or None)
+    idle = _idle_keys(scene)
     _announce_compilation(scene, args.quiet)
     if args.convergence:
         return _cmd_convergence(scene, args, max_memory, max_disk)
@@ -234,6 +243,11 @@ def _cmd_run(args) -> int:
         sr = run_scene(scene, args.out, progress=bar, plots=not args.no_plots, formats=formats,
                        max_memory=max_memory, max_disk=max_disk, overwrite=args.overwrite)
     _print_summary(sr, f"scene {scene.name}")
+    if idle:
+        print(f"  note: {idle}")
+        if sr.summary is not None:
+            from .ensemble import add_to_summary
+            add_to_summary(sr.summary, [f"- note: {idle}", ""])
     if args.starts and not sr.failed:
         from . import ensemble
         with _progress(f"{scene.name} ensemble", args.quiet) as bar:
@@ -246,6 +260,19 @@ def _cmd_run(args) -> int:
             print("\n--starts: no coupled pair variant to run (single systems, networks and uncoupled pairs "
                   "have no ensemble rate)")
     return EXIT_FAILED if sr.failed else 0
+
+
+def _idle_keys(scene) -> str | None:
+    """When the variants mix modes, the note saying which variants a co-simulation key given with
+    --set does not apply to (None if none). A run whose variants are all in the core refuses such
+    a key when the scene loads (:func:`fmu_sync.scenes.loading.load_scene`, issue 44 item 4)."""
+    from .scenes.schema import COSIM_KEYS
+    given = [k for k in scene.overrides if k in COSIM_KEYS]
+    core = [v.name for v in scene.variants if v.mode != "cosim"]
+    if not given or not core:
+        return None
+    keys = ", ".join(f"--set {k}" for k in given)
+    return f"{keys} applies to the co-simulated variants only: not to {', '.join(core)} (run.mode = 'core')"
 
 
 def _cmd_convergence(scene, args, max_memory, max_disk) -> int:
@@ -401,7 +428,8 @@ def _main(argv) -> int:
         return EXIT_BAD_INPUT
     except RunFailed as exc:   # a run that failed mid-way (or a diverging single system)
         print(f"{PROG}: error: {_one_line(exc)}", file=sys.stderr)
-        return EXIT_FAILED
+        # an FMU that refuses to instantiate (its logged reason: an edited file, the GUID): nothing ran
+        return EXIT_BAD_INPUT if str(getattr(exc, "call", "")).endswith("Instantiate") else EXIT_FAILED
     except (SceneError, FileNotFoundError, FileExistsError, ValueError, ImportError) as exc:
         prefix = "missing component: " if isinstance(exc, ImportError) else ""
         print(f"{PROG}: error: {prefix}{_one_line(exc)}", file=sys.stderr)

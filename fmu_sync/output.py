@@ -197,8 +197,10 @@ def estimate(variant, formats=("csv", "npz")) -> Estimate:
     cfg = variant.cfg
     steps, _, name = run_grid(cfg)
     every = record_steps(cfg)
-    if name == "run.H" and cfg.get("run.tol") is not None:
-        steps, every = run_steps(cfg["run.t_end"], cfg["solver.dt"]).steps, 1
+    if cfg["run.mode"] == "cosim" and variant.pair and cfg.get("run.tol") is not None:
+        # tol chooses the steps, each at least solver.dt (its floor): the worst case, a step of solver.dt
+        # all along, recorded every record_steps accepted steps (fmu_sync.cosim_adaptive)
+        steps = max(steps, run_steps(cfg["run.t_end"], cfg["solver.dt"]).steps)
     n = variant.system.n
     if variant.is_network:
         A = variant.network.A

@@ -65,7 +65,12 @@ def exchange_fields(result) -> dict:
     it = info.get("iterations")
     out = {} if it is None or len(it) == 0 else dict(iterations_median=float(np.median(it)),
                                                       iterations_max=int(np.max(it)))
-    return {**out, **adaptive_fields(info)}
+    out.update(adaptive_fields(info))
+    t = np.asarray(getattr(result, "t", ()), dtype=float)
+    if "tol" in out and t.size > 1:   # tol chooses the steps: the record's intervals as they were
+        dt = np.diff(t)
+        out.update(row_dt_min=float(dt.min()), row_dt_median=float(np.median(dt)), row_dt_max=float(dt.max()))
+    return out
 
 
 def network_metrics(result, threshold: float = SYNC_THRESHOLD) -> dict:
@@ -382,12 +387,17 @@ def run_notes(runs) -> list[str]:
             bits.append(f"Q = {m['Q']} ({m['metric']}): {m.get('metric_note', '')}")
         if m.get("iterations_max") is not None:
             bits.append(f"implicit exchange: FMU steps per communication step median "
-                        f"{m['iterations_median']:g}, max {m['iterations_max']}")
+                        f"{m['iterations_median']:g}, max {m['iterations_max']}; its recorded tau is each step's "
+                        f"force at the step's start, the FMUs integrated the line to the law at its end (the "
+                        f"mean with the zero-order hold): fmu_sync.applied.applied_forces(result)")
         if m.get("tol") is not None:
             bits.append(f"co-simulated to tol = {m['tol']:g}: {m['comm_steps']} communication steps of "
                         f"{format_value(m['H_shortest'])} to {format_value(m['H_longest'])} s "
                         f"({m['rejected']} rejected and retaken), estimated error {m['error_estimate']:.3g} "
                         f"(q's unit, docs/design.md §4.4.1)")
+        if m.get("row_dt_median") is not None:
+            bits.append(f"its record's rows came every {format_value(m['row_dt_min'])} to "
+                        f"{format_value(m['row_dt_max'])} s (median {format_value(m['row_dt_median'])} s)")
         if bits:
             out.append(f"**{m.get('name', r.name)}**: " + "; ".join(bits))
     return out

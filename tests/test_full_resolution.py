@@ -87,30 +87,3 @@ def test_record_every_counts_solver_dt_in_both_modes():
         if (k * dt / H) == round(k * dt / H):   # a whole number of H: the same interval
             assert record_interval(cosim)[0] == pytest.approx(record_interval(core)[0])
 
-
-def test_a_tolerance_run_is_budgeted_at_its_worst_case_and_its_interval_said_as_it_is():
-    """Issue 44 item 2: ``--set run.tol=1e-300 --max-memory 4MB --max-disk 5MB`` ran on 0.6.0 (76,744
-    rows, 19.9 MiB) because the estimate assumed t_end/H rows; a tolerance run records every
-    accepted step, down to solver.dt. Its summary said "record interval 0.01 s"."""
-    from fmu_sync.output import OutputTooLarge, check_budget, estimate
-    over = {"run.mode": "cosim", "run.tol": 1e-300}
-    v = load_scene("forced-pair", over, ["switching"]).variants[0]
-    fixed = load_scene("forced-pair", {"run.mode": "cosim"}, ["switching"]).variants[0]
-    cfg = v.cfg
-    assert estimate(v).rows == math.ceil(cfg["run.t_end"] / cfg["solver.dt"] - 1e-9) + 1
-    assert estimate(v).rows > 5 * estimate(fixed).rows
-    with pytest.raises(OutputTooLarge, match="a run to a tolerance records every accepted step, down to solver.dt"):
-        check_budget(v, ("csv", "npz"), 4e6, 5e6)
-    seconds, words = record_interval(v)
-    assert math.isnan(seconds) and words.startswith("every accepted step of the tolerance control")
-
-
-def test_a_cosimulated_network_records_and_says_its_interval_in_steps_of_H():
-    """Issue 39 item 7: summary.md said 1e-05 s for a co-simulated network whose rows come every H
-    (the network fell through to the core's grid); run.record_every counts solver.dt in both modes."""
-    v = load_scene("ring-8", {"run.mode": "cosim", "solver.dt": 1e-5, "run.record_every": 1}).variants[0]
-    seconds, words = record_interval(v)
-    assert seconds == pytest.approx(v.cfg["run.H"]) and "every 1 step of run.H" in words
-    w = load_scene("ring-8", {"run.mode": "cosim", "run.record_every": 50}).variants[0]   # 50 dt = 5 H
-    assert record_steps(w.cfg) == round(50 * w.cfg["solver.dt"] / w.cfg["run.H"])
-    assert record_interval(w)[0] == pytest.approx(50 * w.cfg["solver.dt"])

@@ -77,15 +77,6 @@ def test_interrupt_after_the_first_variant_keeps_it_with_a_summary(tmp_path, lo,
     assert "| uncoupled" in (out / "summary.md").read_text()
 
 
-def test_the_interrupt_message_lists_no_plots_under_no_plots(tmp_path):
-    """0.6.0 said "(data, plots, summary.md)" of a run made with plots=False (--no-plots)."""
-    out = tmp_path / "o"
-    with pytest.raises(RunInterrupted) as info:
-        run_scene("forced-pair", out, overrides={"run.t_end": 1.0}, plots=False, progress=_interrupt_at(0.4, 0.6))
-    assert "(data, summary.md)" in str(info.value) and "plots" not in str(info.value)
-    assert not [n for n in _names(out) if n.endswith(".png")]
-
-
 def test_interrupt_in_the_first_variant_leaves_nothing(tmp_path):
     out = tmp_path / "o"
     with pytest.raises(RunInterrupted, match="nothing kept"):

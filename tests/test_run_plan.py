@@ -151,7 +151,7 @@ def test_no_second_copy_of_a_run_check():
         # a sweep records the exchange's verdict (it runs either way)
         "fmu_sync/sweeps/engine.py": {"held_exchange"},
         "fmu_sync/scenes/loading.py": {"check_start"},   # a scene's state key, named where it is read
-        "fmu_sync/ssp.py": {"check_common_geometry"},   # an SSP package's components, read, not run
+        "fmu_sync/ssp/runner.py": {"check_common_geometry"},   # an SSP package's components, read, not run
     }
     found = []
     paths = [(Path(pkg.__file__).parent, path) for pkg in (fmu_sync, fmu_sync.core, fmu_sync.fmus)

@@ -424,7 +424,7 @@ def test_a_cosim_key_that_would_do_nothing_is_refused_naming_key_and_mode(tmp_pa
     ran and exited 0 on 0.6.0; now the key is refused, naming it and the mode. With
     ``run.mode=cosim`` (or when another selected variant co-simulates) it is accepted."""
     for key, value in (("run.tol", 1e-4), ("run.exchange", "implicit"), ("run.hold", "foh"), ("run.H", 0.02)):
-        with pytest.raises(SceneError, match=rf"--set {re.escape(key)} = .*does nothing here.*run.mode = \"core\""):
+        with pytest.raises(SceneError, match=rf"--set {re.escape(key)} = .*does nothing here.*run.mode = 'core'"):
             load_scene("forced-pair", {key: value}, ["switching"])
         v = load_scene("forced-pair", {key: value, "run.mode": "cosim"}, ["switching"]).variants[0]
         assert v.cfg[key] == value

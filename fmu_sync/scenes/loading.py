@@ -188,18 +188,17 @@ def _check_cosim_keys(built: list, raw_variants: list, overrides: dict, ctx: str
     """A key of the co-simulation master that would do nothing is refused, naming the key and the
     mode: given with ``--set`` when no variant run co-simulates, or in a variant's own table that
     runs in the core. (A scene file's [run] table may hold them for ``--set run.mode=cosim``.)"""
-    cosim = [v for v in built if v.mode == "cosim"]
-    for key in overrides:
-        if key in COSIM_KEYS and not cosim:
-            names = ", ".join(v.name for v in built)
-            raise SceneError(f"{ctx}: --set {key} = {show_value(overrides[key])}: does nothing here: it is a key of "
-                             f"the co-simulation master and every run of this command runs in the core "
-                             f"(run.mode = \"core\": {names}); allowed: add --set run.mode=cosim, or leave it out")
+    given = [k for k in overrides if k in COSIM_KEYS]
+    if given and not any(v.mode == "cosim" for v in built):
+        keys = ", ".join(f"--set {k} = {show_value(overrides[k])}" for k in given)
+        raise SceneError(f"{ctx}: {keys}: does nothing here: a key of the co-simulation master, and every run of "
+                         f"this command runs in the core (run.mode = 'core': {', '.join(v.name for v in built)}); "
+                         f"allowed: add --set run.mode=cosim, or leave it out")
     for (head, flat, orig), v in zip(raw_variants, built):
         for key in flat:
             if key in COSIM_KEYS and v.mode != "cosim" and not orig[key].startswith("--set"):
                 raise SceneError(f"{ctx}: {orig[key]} = {show_value(flat[key])}: does nothing in variant "
-                                 f"{head['name']!r}, which runs in the core (run.mode = \"core\"): it is a key of "
+                                 f"{head['name']!r}, which runs in the core (run.mode = 'core'): it is a key of "
                                  f"the co-simulation master; allowed: run.mode = \"cosim\" in that variant, or "
                                  f"leave it out")
 

@@ -16,7 +16,8 @@ from ..fmus import contract
 from ..progress import scaled
 from ..user_export import fmu_model_of
 from .loading import Scene, as_scene
-from .schema import DEFAULT_OUT, TABLES, SceneError, Variant
+from .record import record_interval
+from .schema import COSIM_KEYS, DEFAULT_OUT, TABLES, SceneError, Variant
 
 __all__ = ["RunRecord", "SceneRun", "RunRefused", "RunInterrupted", "preflight", "plan_variant", "run_scene", "run_variant",
            "fmu_start_values", "scene_values", "check_export", "export_for", "export_spec", "write_run", "run_extra", "record_interval", "clean_written", "error_notes", "skipped_notes", "settings_table"]
@@ -335,25 +336,6 @@ def run_extra(variant: Variant, plots, title: str) -> dict:
             "record_interval": record_interval(variant)[0]}
 
 
-def record_interval(variant: Variant) -> tuple[float, str]:
-    """``(seconds, words)``: the time between two record rows of the variant's run.
-    ``run.record_every`` counts steps of ``solver.dt`` in both modes; a co-simulation records at
-    the nearest whole number of communication steps (:func:`fmu_sync.output.record_steps`); the
-    summary and the data file say the interval as a time."""
-    from ..output import record_steps, run_grid
-    _, step, name = run_grid(variant.cfg)
-    k, dt = int(variant.cfg["run.record_every"]), variant.cfg["solver.dt"]
-    if name == "run.H" and variant.cfg.get("run.tol") is not None:   # the controller chooses the steps
-        return math.nan, (f"every accepted step of the tolerance control (run.tol = {variant.cfg['run.tol']:g}: "
-                          f"steps from solver.dt = {dt:g} s to run.H = {step:g} s; the steps taken are in the "
-                          f"table's notes); run.record_every does not apply")
-    every = record_steps(variant.cfg)
-    said = f"run.record_every = {k} step{'s' if k > 1 else ''} of solver.dt = {dt:g} s"
-    if name != "solver.dt":
-        said += f"; in co-simulation every {every} step{'s' if every > 1 else ''} of run.H = {step:g} s"
-    return every * step, f"{every * step:g} s ({said})"
-
-
 def _stream_run(v: Variant, out_dir: Path, fmu_path, progress, scene_name, formats, est, max_memory, extra):
     """A core pair whose whole record exceeds the memory budget: written in chunks while it runs."""
     from .. import report
@@ -656,7 +638,7 @@ def stream_notes(runs) -> list[str]:
             for r in runs if r.metrics.get("thinned_every", 1) > 1]
 
 
-_COSIM_KEYS = ("run.H", "run.H_min", "run.method", "run.event_aware", "run.hold", "run.exchange", "run.tol")
+_COSIM_KEYS = COSIM_KEYS
 
 
 def _relevant(key: str, variants) -> bool:

@@ -385,6 +385,8 @@ class NetworkSpec:
         return len(self.states)
 
 
+
+
 @dataclass(frozen=True)
 class Variant:
     """One run of a scene: validated settings (``cfg``, dotted keys, defaults filled) and the system."""
