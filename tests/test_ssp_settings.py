@@ -47,6 +47,19 @@ def scenario_api_instantiate(a):
     return {"type": None}
 
 
+def scenario_host_guid(a):
+    """FMUHost of an FMU given a model description with another GUID: what it raises."""
+    from fmpy import read_model_description
+    from fmu_sync.fmi_bridge import FMUHost, SlaveError
+    md = read_model_description(a["fmu"])
+    md.guid = "{00000000-0000-0000-0000-000000000000}"
+    try:
+        FMUHost(a["fmu"], instance_name="wrong", model_description=md)
+    except SlaveError as exc:
+        return {"msg": str(exc), "call": exc.call, "log": exc.log}
+    return {"msg": None}
+
+
 def scenario_settings(a):
     """run_ssp of a package with its own settings, and with overrides: what each run used."""
     from fmu_sync.ssp import run_ssp
@@ -228,6 +241,16 @@ def test_api_a_failed_instantiate_is_a_slave_error_with_the_fmus_reason(pair, tm
     got = child(__file__, "api_instantiate", {"package": str(_edited_start(pair))}, tmp_path)
     assert got["slave_error"] and got["call"] == "fmi2Instantiate", got
     assert "fmu_sync_start.json" in got["msg"] and "changed after export" in got["msg"], got
+
+
+def test_a_wrong_guid_is_a_slave_error_naming_the_guid(pair, tmp_path):
+    """44.6: FMUHost itself (every master's one wrapper) raises the FMU's logged reason."""
+    fmu = tmp_path / "system1.fmu"
+    with zipfile.ZipFile(pair[1]) as zf:
+        fmu.write_bytes(zf.read("resources/system1.fmu"))
+    got = child(__file__, "host_guid", {"fmu": str(fmu)}, tmp_path)
+    assert got["msg"] is not None and got["call"] == "fmi2Instantiate", got
+    assert "GUID" in got["msg"] and "{00000000-0000-0000-0000-000000000000}" in got["msg"], got
 
 
 def test_cli_set_on_a_package_takes_run_keys_only(runs):
