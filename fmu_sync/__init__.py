@@ -14,8 +14,7 @@ The component-level API (the core's own API is :mod:`fmu_sync.core`):
 * :func:`load` — a saved run (``.npz``, ``.csv``, ``.nc``) back into its result object, a
   sweep's ``.nc`` into its Dataset; :func:`redraw` — a finished run's plots again
   (``fmu-sync plot DIR``; docs/results.md);
-* ``__version__`` (single source: pyproject.toml; read from it in a source tree, else from
-  the installed package metadata).
+* ``__version__`` (single source: pyproject.toml, through the installed package's metadata).
 
 The names load on first use (PEP 562), so ``import fmu_sync`` imports neither
 fmpy nor the FMU export, and a core-only run never loads the master.
@@ -26,21 +25,12 @@ from importlib.metadata import version as _metadata_version
 
 
 def _version() -> str:
-    """The version in pyproject.toml: read from it in a source tree (an editable install's
-    metadata keeps the version it was installed with), else from the installed metadata."""
-    import tomllib
-    from pathlib import Path
-    src = Path(__file__).resolve().parent.parent / "pyproject.toml"
-    try:
-        with open(src, "rb") as fh:
-            project = tomllib.load(fh).get("project", {})
-        if project.get("name") == "fmu-sync" and isinstance(project.get("version"), str):
-            return project["version"]
-    except (OSError, tomllib.TOMLDecodeError):
-        pass
+    """The installed distribution's version (its metadata, written from pyproject.toml at install;
+    after a version bump in a checkout, ``pip install -e .`` again); "0+unknown" where fmu-sync is
+    not installed."""
     try:
         return _metadata_version("fmu-sync")
-    except PackageNotFoundError:  # pragma: no cover - a source tree that was never installed
+    except PackageNotFoundError:  # pragma: no cover - imported without being installed
         return "0+unknown"
 
 

@@ -59,7 +59,7 @@ from xml.etree import ElementTree as ET
 import numpy as np
 
 from .fmus import contract
-from . import __version__, native
+from . import __version__, native, package_files
 from .fmu_docs import documentation_files
 from .fmus.slave import model_guid
 
@@ -82,12 +82,13 @@ _ZIP_DATE = (2020, 1, 1, 0, 0, 0)
 #: the FMI versions an FMU can be exported for and their glue; every binary also compiles
 #: the instance runtime (the Python embedding)
 FMI_VERSIONS = (2, 3)
-_C_GLUE = {2: "c/fmu_sync_fmi2.c", 3: "c/fmu_sync_fmi3.c"}
-_C_RUNTIME = ("c/fmu_sync_runtime.c", "c/fmu_sync_python.c", "c/fmu_sync_native.c", "c/fmu_sync_verify.c")
+_C_GLUE = {2: "fmus/c/fmu_sync_fmi2.c", 3: "fmus/c/fmu_sync_fmi3.c"}
+_C_RUNTIME = ("fmus/c/fmu_sync_runtime.c", "fmus/c/fmu_sync_python.c", "fmus/c/fmu_sync_native.c",
+              "fmus/c/fmu_sync_verify.c")
 #: the library beside the FMU's binary that holds the one record per process every fmu-sync binary shares
 #: (fmus/c/fmu_sync_process.h: who starts the interpreter); a versioned shared-object name
 PROCESS_LIB = "fmu_sync_process.so.1"
-_C_PROCESS = "c/fmu_sync_process.c"
+_C_PROCESS = "fmus/c/fmu_sync_process.c"
 #: the resources that decide the FMU's behaviour, whose SHA-256 the binary checks at every instantiation
 #: (fmus/c/fmu_sync_verify.c); the build record holds the carried code's hash, checked by the boot script
 #: before it imports that code. The boot script (``fmu_sync_boot_<hash>.py``) is added per export.
@@ -129,16 +130,6 @@ def resolve(model) -> tuple[str, dict]:
     return key, {"declaration": record}
 
 
-def _fmus_dir() -> Path:
-    import fmu_sync.fmus
-    return Path(fmu_sync.fmus.__file__).resolve().parent
-
-
-def _core_dir() -> Path:
-    import fmu_sync.core
-    return Path(fmu_sync.core.__file__).resolve().parent
-
-
 def model_slave(model: str):
     """The slave of an export key ("impact-oscillator", "mechanical-system-2"): the one
     :class:`~fmu_sync.fmus.slave.MechanicalSlave` on the model's contract entry."""
@@ -152,19 +143,12 @@ def _kind(model: str) -> dict:
     return _KINDS[COUPLING if model == COUPLING else "mechanical"]
 
 
-def _read(rel: str) -> bytes:
-    """A source file of the package by its path relative to it: "core/exact.py", "fmus/slave.py"."""
-    top, name = rel.split("/")
-    if top not in ("core", "fmus"):
-        raise OSError(f"no package file {rel}")
-    return ((_core_dir() if top == "core" else _fmus_dir()) / name).read_bytes()
-
-
 def _source(rel: str, model: str | None = None) -> bytes:
-    """:func:`_read`, or a file generated for the declared ``model`` ("user/runtime.py", "user/model.py")."""
+    """A package file ("core/exact.py", :func:`fmu_sync.package_files.read`), or a file generated for
+    the declared ``model`` ("user/runtime.py", "user/model.py")."""
     if rel in _GENERATED.get(model, {}):
         return _GENERATED[model][rel]
-    return _read(rel)
+    return package_files.read(rel)
 
 
 def _nodes(tree):
@@ -367,13 +351,14 @@ def _compiling(law: str) -> None:
 def build_binary(out: Path, guid: str, boot_module: str, max_substeps: int = MAX_SUBSTEPS,
                  glue: str | None = None, fmi_version: int = 2, model: str = "impact-oscillator",
                  files: dict[str, bytes] | None = None) -> Path:
-    """Compile the FMI binary (``glue``, by default the FMI version's, the runtime with the
+    """Compile the FMI binary (``glue``, a package path, :mod:`fmu_sync.package_files`, by default the
+    FMI version's, the runtime with the
     generated constants header, :func:`fmu_sync.native.c_objects`, and ``model``'s stepper as
     native object code, :func:`fmu_sync.native.stepper_object`) with gcc (``$CC`` overrides) into ``out``;
     every symbol resolved at link time (libc, libm, libdl, libpthread; Python is looked up at run time).
     ``files``: {name in resources/: content} the binary accepts only unchanged (their SHA-256 compiled
     in beside the GUID, checked at every instantiation, fmus/c/fmu_sync_verify.c)."""
-    srcs = [str(_fmus_dir() / (glue or _C_GLUE[fmi_version]))] + [str(_fmus_dir() / c) for c in _C_RUNTIME]
+    srcs = [str(package_files.path(c)) for c in (glue or _C_GLUE[fmi_version], *_C_RUNTIME)]
     cc = os.environ.get("CC", "gcc")
     if shutil.which(cc) is None:
         raise RuntimeError(f"cannot build the FMU binary: C compiler {cc!r} not found (install gcc or set CC)")
@@ -400,7 +385,7 @@ def build_process_lib(out: Path) -> Path:
     cc = os.environ.get("CC", "gcc")
     with tempfile.TemporaryDirectory(prefix="fmu-sync-p-") as inc:
         objs = native.c_objects(cc, ["-std=gnu11", "-O2", "-fPIC", "-fvisibility=hidden"],
-                                [str(_fmus_dir() / _C_PROCESS)], Path(inc))
+                                [str(package_files.path(_C_PROCESS))], Path(inc))
         cmd = [cc, "-shared", "-fPIC", "-s", f"-Wl,-soname,{PROCESS_LIB}", "-Wl,--no-undefined", "-o", str(out),
                *map(str, objs)]
         p = subprocess.run(cmd, capture_output=True, text=True)
@@ -484,7 +469,7 @@ def _identity(model: str, starts: dict, fmi_version: int = 2) -> tuple[list[tupl
     """(carried files, their hash, GUID): the GUID changes with the model, the start
     values, the package version, the carried code, the C source and the FMI version, and nothing else."""
     code = carried_files(model)
-    c_source = b"".join(p.read_bytes() for p in sorted((_fmus_dir() / "c").glob("*.[ch]"))) + constants_header()
+    c_source = b"".join(map(package_files.read, package_files.listing("fmus/c", "*.[ch]"))) + constants_header()
     digest = _code_hash(code)
     return code, digest, model_guid(model, starts, digest + hashlib.sha256(c_source).hexdigest()
                                     + ("" if fmi_version == 2 else f"/fmi{fmi_version}"), __version__)
@@ -571,12 +556,11 @@ def _export(cls, model: str, path, start_values, start_extra: dict, fmi_version:
              "max_substeps": MAX_SUBSTEPS, "fmi_version": fmi_version,
              "runtime": _kind(model)["runtime"], "stepper": _kind(model)["stepper"],
              **({"declaration": declaration} if declaration else {})}
-    from fmu_sync.fmus import boot as _boot
     from fmu_sync.fmus.slave import START_FILE
     resources = {f"fmu_sync_code/{rel}": data for rel, data in code}
     resources.update({f"fmu_sync_code/{rel}": data for rel, data in bytecode(code)})
     resources.update({
-        f"{boot_module}.py": Path(_boot.__file__).read_bytes(),
+        f"{boot_module}.py": package_files.read("fmus/boot.py"),
         "fmu_sync_build.json": (json.dumps(build, indent=2, sort_keys=True) + "\n").encode(),
         "fmu_sync_python.txt": python_record().encode(),
         START_FILE: (json.dumps({"model": model, "fmu_sync_version": __version__, "start": all_starts,

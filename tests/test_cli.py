@@ -209,7 +209,7 @@ def test_demo_quick_end_to_end(tmp_path):
 
 
 def test_version_is_the_one_in_pyproject():
-    """pyproject.toml is the single source (an editable install's metadata may be older)."""
+    """pyproject.toml is the single source (through the installed metadata, fmu_sync._version)."""
     import tomllib
     from pathlib import Path
 

@@ -238,16 +238,16 @@ def test_fmu_carries_only_what_its_slave_and_stepper_import():
 
 
 def test_changing_core_batch_leaves_the_guid_unchanged(monkeypatch):
-    from fmu_sync import export
+    from fmu_sync import export, package_files
     guid = export.fmu_guid("impact-oscillator")
-    read = export._read
+    read = package_files.read
 
     def edited(target):
         return lambda rel: read(rel) + (b"\n# edited\n" if rel == target else b"")
     for other in ("core/batch.py", "core/network.py", "core/pair.py", "fmus/coupling.py"):  # not carried
-        monkeypatch.setattr(export, "_read", edited(other))
+        monkeypatch.setattr(package_files, "read", edited(other))
         assert export.fmu_guid("impact-oscillator") == guid, other
-    monkeypatch.setattr(export, "_read", edited("core/moreau.py"))     # a module the FMU runs: a new GUID
+    monkeypatch.setattr(package_files, "read", edited("core/moreau.py"))     # a module the FMU runs: a new GUID
     assert export.fmu_guid("impact-oscillator") != guid
 
 

@@ -324,7 +324,7 @@ def test_the_object_cache_keeps_one_entry_per_key(monkeypatch, tmp_path):
 def test_the_c_sources_are_compiled_again_only_when_their_text_changes(monkeypatch, tmp_path):
     """native.c_objects: keyed by the preprocessed source; fmu_sync_python.c does not use the boot
     module's name, fmu_sync_runtime.c does."""
-    from fmu_sync import export as E
+    from fmu_sync import export as E, package_files
     (tmp_path / "cache").mkdir()
     monkeypatch.setattr(native, "cache_dir", lambda: tmp_path / "cache")
     monkeypatch.setattr(native, "_OBJECTS", {})
@@ -336,7 +336,7 @@ def test_the_c_sources_are_compiled_again_only_when_their_text_changes(monkeypat
         return run(cmd, *a, **k)
 
     monkeypatch.setattr(native.subprocess, "run", spy)
-    srcs = [str(E._fmus_dir() / "c" / f) for f in ("fmu_sync_runtime.c", "fmu_sync_python.c")]
+    srcs = [str(package_files.path(f"fmus/c/{f}")) for f in ("fmu_sync_runtime.c", "fmu_sync_python.c")]
 
     def build(boot):
         d = tmp_path / f"inc{len(list(tmp_path.iterdir()))}"
