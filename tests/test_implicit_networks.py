@@ -66,3 +66,49 @@ def test_a_tolerance_run_on_a_ring_of_32_completes(fmu, exchange):
         assert np.median(it) <= 3 and it.max() <= 6, (np.median(it), it.max())
         ref = simulate_network(ImpactOscillator(**RING), xs, ring(N), T, 1e-3, "euclidean", **GAINS)
         assert _error(r, ref) <= 0.02
+
+
+# ------------------------------------------------------------ the per-FMU secants (cosim_newton)
+from hypothesis import given, settings, strategies as st  # noqa: E402
+
+
+@settings(max_examples=40, deadline=None)
+@given(n=st.integers(1, 2), h=st.sampled_from([0.01, 0.002]), foh=st.booleans(), seed=st.integers(0, 10**6))
+def test_each_fmus_secant_is_its_own_response_and_is_forgotten_at_an_impact(n, h, foh, seed):
+    """Linear FMU responses x_i = x0_i + R_i te_i (R_i random, 2n x n): after iterates with the
+    same impact count Broyden's J_i satisfies the secant equation of the last iterate (for n = 1:
+    J_i = R_i exactly); an FMU whose impact count moves takes the free-mass prior (dq/dte =
+    h^2 M^-1/4 for the mean, /6 for the line, du/dte = h M^-1/2) or, once one was measured without
+    impact, that response; another h forgets everything."""
+    from fmu_sync.cosim_newton import MEASURED, PRIOR, newton_work, secants, step_start
+    g = np.random.default_rng(seed)
+    N = 3
+    Minv = np.stack([np.linalg.inv(np.eye(n) * g.uniform(0.5, 2.0)) for _ in range(N)])
+    nw = newton_work(N, n, np.zeros(1, dtype=np.int32), Minv)
+    J, jimp, jkn, imp0, impc = nw[0], nw[1], nw[2], nw[5], nw[6]
+    R = g.normal(size=(N, 2 * n, n))
+    x0 = g.normal(size=(N, 2 * n))
+    step_start(nw, h, foh)
+    te = np.zeros((N, n))
+    for it in range(1, 4):
+        te = g.normal(size=(N, n))
+        x = x0 + np.einsum("iab,ib->ia", R, te)
+        secants(nw, te, np.ascontiguousarray(x[:, :n]), np.ascontiguousarray(x[:, n:]), it)
+    assert np.all(jkn == MEASURED)
+    if n == 1:
+        np.testing.assert_allclose(J, R, rtol=1e-9, atol=1e-12)
+    measured = J[0].copy()
+    impc[1] += 1   # FMU 1 hits its wall in the next iterate
+    te2 = te + g.normal(size=(N, n))
+    x = x0 + np.einsum("iab,ib->ia", R, te2)
+    secants(nw, te2, np.ascontiguousarray(x[:, :n]), np.ascontiguousarray(x[:, n:]), 4)
+    assert jkn[1] == PRIOR and jimp[1] == 1
+    np.testing.assert_allclose(J[1], J[0])   # the response just measured without impact (FMU 0's)
+    assert not np.allclose(J[1], R[1]) or n > 1
+    step_start(nw, h / 2, foh)   # another h: nothing kept, the free-mass prior
+    impc[:] = imp0
+    secants(nw, te2, np.ascontiguousarray(x[:, :n]), np.ascontiguousarray(x[:, n:]), 1)
+    cq = (h / 2) ** 2 / (6.0 if foh else 4.0)
+    np.testing.assert_allclose(J[:, :n, :], cq * Minv)
+    np.testing.assert_allclose(J[:, n:, :], 0.5 * (h / 2) * Minv)
+    assert np.all(jkn == PRIOR) and measured.shape == (2 * n, n)
