@@ -516,7 +516,8 @@ def implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, u
         network_forces(laws, geo, Kp, Kd, E2, W2, q, u, g, t1, t2, c1q, c1u, c2q, c2u, False, dk, bk, ek, hp, t + h,
                        it > 1)
         rmax = _residual(g, te, r)
-        if rmax <= tolv[0] * _scale(g, ta, q, u, Kp, Kd):
+        target = tolv[0] * _scale(g, ta, q, u, Kp, Kd)
+        if rmax <= target:
             for e_ in range(bk.shape[0]):
                 bh[e_] = bk[e_]
             # the law's own branch at the end states (into bk; its forces into rp, free until the update)
@@ -562,7 +563,7 @@ def implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, u
                 for c in range(n):
                     te[i, c] += omega * r[i, c]
         else:
-            newton_update(nw, te, r, rmax, g, q, u, laws, geo, Kp, Kd, E2, W2, w, hp, t + h)
+            newton_update(nw, te, r, rmax, 0.1 * target, g, q, u, laws, geo, Kp, Kd, E2, W2, w, hp, t + h)
         fresh = False
         _trust(te)
         if fmu_states(ptr, fn, comp, SET_STATE, saved, FAIL, fail_t, t):

@@ -35,7 +35,8 @@ __all__ = ["newton_work", "OMEGA0", "GROW", "NEUMANN_MAX", "LINEAR_TOL"]
 OMEGA0 = 0.5
 #: no update is larger than GROW times the largest residual (an update beyond it is scaled down)
 GROW = 4.0
-#: the Neumann series' sweeps before the dense solve, and its accuracy (relative to max |r|)
+#: the Neumann series' sweeps before the dense solve, and its accuracy (relative to max |r|; and at
+#: most a tenth of the exchange's tolerance: a linear step then converges at its first update)
 NEUMANN_MAX = 12
 LINEAR_TOL = 1e-6
 # the prior's state (fl): step length the secants belong to, measured prior valid, masses known
@@ -219,9 +220,10 @@ def _dense(nw, r, g, q, u, laws, geo, Kp, Kd, E2, W2, w, hp, t):
 
 
 @njit(cache=True)
-def newton_update(nw, te, r, rmax, g, q, u, laws, geo, Kp, Kd, E2, W2, w, hp, t):
-    """te += delta, delta the block quasi-Newton step ``(I - L' J) delta = r`` (Neumann sweeps, the
-    dense solve if they do not contract), an FMU with unknown response damped by :data:`OMEGA0`,
+def newton_update(nw, te, r, rmax, target, g, q, u, laws, geo, Kp, Kd, E2, W2, w, hp, t):
+    """te += delta, delta the block quasi-Newton step ``(I - L' J) delta = r`` (Neumann sweeps to
+    ``target`` or :data:`LINEAR_TOL` ``rmax``, whichever is smaller, the exchange's own tolerance
+    being ``target``'s measure; the dense solve if they do not contract), an FMU with unknown response damped by :data:`OMEGA0`,
     ``max |delta| <= GROW rmax``."""
     J, jimp, jkn, xp, tp, imp0, impc, impp, ibuf, Am, piv, d1, d2, qx, ux, J0, fl, Minv, Jm = nw
     N, n = te.shape[0], te.shape[1]
@@ -241,7 +243,7 @@ def newton_update(nw, te, r, rmax, g, q, u, laws, geo, Kp, Kd, E2, W2, w, hp, t)
         if not math.isfinite(change) or change > 0.5 * last:
             break
         last = change
-        if change <= LINEAR_TOL * rmax:
+        if change <= min(LINEAR_TOL * rmax, target):
             solved = True
             break
     if not solved and not _dense(nw, r, g, q, u, laws, geo, Kp, Kd, E2, W2, w, hp, t):
