@@ -15,7 +15,8 @@ divergence checks and the record. Jacobi and Gauss–Seidel, ZOH and FOH, pairs
 and networks, the other masters' delayed orders (``DELAY``: libcosim's and
 fmpy's SSP runner, docs/ssp.md) and the implicit exchange (``IMPLICIT``: each step
 iterated with FMU-state rollback until the forces agree with the states at its end,
-accelerated by IQN-ILS, :func:`implicit_step`) are one loop.
+accelerated by a quasi-Newton step per FMU composed with the law's exact Jacobian,
+:mod:`fmu_sync.cosim_newton`, :func:`implicit_step`) are one loop.
 
 The exchange strategies are the branches of one primitive, "take the step [t, t + h]
 from the current states": :func:`exchange_step` (Jacobi, Gauss–Seidel, delayed; explicit,
@@ -453,15 +454,17 @@ def implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, u
     derivative) or their mean held (zero-order hold); ``te`` is iterated until it equals the law
     at the states the step ends in, to :data:`IMPLICIT_TOL` (``iw[-1][0]``) times :func:`_scale`.
     The first iterate is the explicit first-order hold's extrapolation; between iterates every
-    instance is restored to t (fmi2SetFMUstate) and ``te`` updated by :func:`_iqn_ils`
-    (Aitken's relaxation while it has no secant). The switching laws' branch (per edge) is decided
+    instance is restored to t (fmi2SetFMUstate) and ``te`` updated by the block quasi-Newton step
+    of :mod:`fmu_sync.cosim_newton` (each FMU's secant, reset when its impact count within the step
+    moves or h changes, composed with the law's Jacobian; the impact counters are read after every
+    iterate). The switching laws' branch (per edge) is decided
     at the first iterate's end states and held (``bh``) for the others, so that the law is a smooth
     function of the end states; a step converged on a branch that is not the law's own at its end
     states is iterated on with the branch decided again there (:data:`REDECIDE` times), then
     accepted (``offb[k]``: the edges accepted off their own branch); one not converged after half
     of ``flags[MAX_ITER]`` holds branch E from there (where a system's end state sits at its chain
     end, as in an impact within the step, the law's pull on a jump branch flips direction: no fixed
-    point), its quasi-Newton columns restarted. ``iters[k]``: FMU steps taken,
+    point) and the update is a damped fixed point (relaxation OMEGA0, then Aitken's). ``iters[k]``: FMU steps taken,
     ``resid[k]``: the last residual's max norm.
     Not converged within ``flags[MAX_ITER]`` FMU steps: the instances are restored to t, ``FAIL``
     = NOT_CONVERGED, returns True (a caller with a step-size control may retake it shorter)."""
