@@ -15,7 +15,8 @@ divergence checks and the record. Jacobi and Gauss–Seidel, ZOH and FOH, pairs
 and networks, the other masters' delayed orders (``DELAY``: libcosim's and
 fmpy's SSP runner, docs/ssp.md) and the implicit exchange (``IMPLICIT``: each step
 iterated with FMU-state rollback until the forces agree with the states at its end,
-accelerated by IQN-ILS, :func:`implicit_step`) are one loop.
+accelerated by a quasi-Newton step per FMU composed with the law's exact Jacobian,
+:mod:`fmu_sync.cosim_newton`, :func:`implicit_step`) are one loop.
 
 The exchange strategies are the branches of one primitive, "take the step [t, t + h]
 from the current states": :func:`exchange_step` (Jacobi, Gauss–Seidel, delayed; explicit,
@@ -47,6 +48,7 @@ from .core.coupling import chain_work
 from .core.distance import BRANCH_E
 from .core.network import edge_arrays, network_forces, node_force
 from .core.kernels import depends_on_core
+from .cosim_newton import OMEGA0, newton_update, newton_work, secants, step_start
 from .fmus import contract
 from .fmus.contract import INPUT_BOUND
 
@@ -87,11 +89,6 @@ IMPLICIT_MAX_ITERATIONS = 30
 #: (at most REDECIDE times), then accepted on the branch it converged on. A step not converged after
 #: half its cap of FMU steps holds branch E from there (the PD law, linear in the end states).
 REDECIDE = 1
-#: the relaxation of the first fixed-point update of the run (Aitken's after that, IQN-ILS once it
-#: has a secant); IQN-ILS's QR filter: a column whose part not in the span of the newer ones is
-#: below QR_FILTER of its length is left out
-OMEGA0 = 0.5
-QR_FILTER = 1e-8
 #: the trust region of the implicit exchange's iterates: no FMU is given a force beyond this
 #: fraction of its input bound (an iterate outside it is moved to its edge; the law's own force at
 #: the step's start, inside the bound, stays inside: issue 44 item 7)
@@ -159,8 +156,10 @@ def loop_arguments(m) -> None:
     work = chain_work(n)
     w = (np.zeros(n), np.zeros(n), *work, np.zeros(E), np.zeros(E, dtype=np.int64), np.zeros(E),
          np.zeros(2 * n), np.zeros(n))
-    m.iw = implicit_work(N, n, len(m.edges), m.n_steps if m.implicit else 0)
-    keep = (z(), z(), z(), np.zeros(2), z(), np.zeros(N, dtype=np.int64), np.zeros(1, dtype=np.int32), m.iw)
+    ibuf = np.zeros(1, dtype=np.int32)
+    m.iw = implicit_work(N, n, len(m.edges), m.n_steps if m.implicit else 0, ibuf=ibuf,
+                         Minv=getattr(m, "Minv_nodes", None))
+    keep = (z(), z(), z(), np.zeros(2), z(), np.zeros(N, dtype=np.int64), ibuf, m.iw)
     m.FAIL, m.fail_t = np.zeros(4, dtype=np.int64), np.zeros(1)
     saved = np.zeros(N, dtype=np.int64)
     # the arrays the FMI calls read or write, by address (P_*); they live as long as the run
@@ -194,19 +193,18 @@ def not_converged(iw, t: float, H: float, steps: int) -> str:
             f"record ends at its start: lower H")
 
 
-def implicit_work(N: int, n: int, E: int, steps: int, tol: float = IMPLICIT_TOL):
+def implicit_work(N: int, n: int, E: int, steps: int, tol: float = IMPLICIT_TOL, ibuf=None, Minv=None):
     """The implicit exchange's arrays (``keep[7]`` of :func:`exchange_chunk`, unpacked in
-    :func:`implicit_step`): ``ta, te, g, r, rp, gp`` (N, n); IQN-ILS's ring of ``C = N n``
-    columns ``V, W`` (C, N, n), its QR ``Qw`` (C, N, n), ``Rw`` (C, C), ``alpha`` (C,),
-    ``cols`` (C,); ``ist`` (columns, newest); ``bh`` (E,) the branches held (``E`` edges);
-    ``offb`` (steps,), ``iters`` (steps,) int64 and ``resid`` (steps,) per communication step;
-    ``tolv`` (1,) the tolerance. ``steps`` = 0 for an explicit run (nothing per step)."""
-    C = N * n
+    :func:`implicit_step`): ``ta, te, g, r, rp, gp`` (N, n); the block quasi-Newton's work ``nw``
+    (:func:`fmu_sync.cosim_newton.newton_work`; ``ibuf`` the loop's impact-counter buffer at
+    ``ptr[P_IBUF]``, ``Minv`` (N, n, n) each FMU's M^-1 or None); ``bh`` (E,) the branches held (``E`` edges); ``offb`` (steps,), ``iters``
+    (steps,) int64 and ``resid`` (steps,) per communication step; ``tolv`` (1,) the tolerance.
+    ``steps`` = 0 for an explicit run (nothing per step)."""
     z = (lambda: np.zeros((N, n)))
-    return (z(), z(), z(), z(), z(), z(), np.zeros((C, N, n)), np.zeros((C, N, n)), np.zeros((C, N, n)),
-            np.zeros((C, C)), np.zeros(C), np.zeros(C, dtype=np.int64), np.array([0, C - 1], dtype=np.int64),
-            np.zeros(E, dtype=np.int64), np.zeros(steps, dtype=np.int64), np.zeros(steps, dtype=np.int64),
-            np.full(steps, np.nan), np.array([float(tol)]))
+    ibuf = np.zeros(1, dtype=np.int32) if ibuf is None else ibuf
+    nw = newton_work(N, n, ibuf, Minv) if steps else newton_work(1, n, ibuf)
+    return (z(), z(), z(), z(), z(), z(), nw, np.zeros(E, dtype=np.int64), np.zeros(steps, dtype=np.int64),
+            np.zeros(steps, dtype=np.int64), np.full(steps, np.nan), np.array([float(tol)]))
 
 
 @intrinsic
@@ -435,49 +433,6 @@ def _dot(a, b):
     return s
 
 
-@njit(cache=True)
-def _iqn_ils(te, g, r, V, W, Qw, Rw, alpha, cols, ncol, head):
-    """IQN-ILS (the interface quasi-Newton of preCICE, Degroote et al. 2009): ``te = g + W alpha``
-    with ``alpha`` the least-squares solution of ``V alpha = -r``; ``V``, ``W`` the differences of
-    the residuals and of the law's forces between iterates (a ring of ``ncol`` columns, the newest
-    at ``head``, kept from earlier steps too), QR by modified Gram–Schmidt newest first, a column
-    mostly in the span of newer ones left out (:data:`QR_FILTER`). Returns the columns used (0:
-    ``te`` untouched)."""
-    C = V.shape[0]
-    used = 0
-    for j in range(ncol):
-        s = (head - j + C) % C
-        copy_rows(V[s], Qw[used])
-        n0 = math.sqrt(_dot(Qw[used], Qw[used]))
-        for m in range(used):
-            Rw[m, used] = _dot(Qw[m], Qw[used])
-            for i in range(te.shape[0]):
-                for c in range(te.shape[1]):
-                    Qw[used, i, c] -= Rw[m, used] * Qw[m, i, c]
-        nr = math.sqrt(_dot(Qw[used], Qw[used]))
-        if not (nr > QR_FILTER * n0):
-            continue
-        Rw[used, used] = nr
-        for i in range(te.shape[0]):
-            for c in range(te.shape[1]):
-                Qw[used, i, c] /= nr
-        cols[used] = s
-        used += 1
-    for m in range(used - 1, -1, -1):   # R alpha = -Q^T r
-        acc = -_dot(Qw[m], r)
-        for j in range(m + 1, used):
-            acc -= Rw[m, j] * alpha[j]
-        alpha[m] = acc / Rw[m, m]
-    if used > 0:
-        for i in range(te.shape[0]):
-            for c in range(te.shape[1]):
-                v = g[i, c]
-                for m in range(used):
-                    v += alpha[m] * W[cols[m], i, c]
-                te[i, c] = v
-    return used
-
-
 @njit(cache=True, inline="always")
 def _trust(te):
     """Every iterate inside the trust region: each force component clipped to +-TRUST * INPUT_BOUND
@@ -499,20 +454,23 @@ def implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, u
     derivative) or their mean held (zero-order hold); ``te`` is iterated until it equals the law
     at the states the step ends in, to :data:`IMPLICIT_TOL` (``iw[-1][0]``) times :func:`_scale`.
     The first iterate is the explicit first-order hold's extrapolation; between iterates every
-    instance is restored to t (fmi2SetFMUstate) and ``te`` updated by :func:`_iqn_ils`
-    (Aitken's relaxation while it has no secant). The switching laws' branch (per edge) is decided
+    instance is restored to t (fmi2SetFMUstate) and ``te`` updated by the block quasi-Newton step
+    of :mod:`fmu_sync.cosim_newton` (each FMU's secant, reset when its impact count within the step
+    moves or h changes, composed with the law's Jacobian; the impact counters are read after every
+    iterate). The switching laws' branch (per edge) is decided
     at the first iterate's end states and held (``bh``) for the others, so that the law is a smooth
     function of the end states; a step converged on a branch that is not the law's own at its end
     states is iterated on with the branch decided again there (:data:`REDECIDE` times), then
     accepted (``offb[k]``: the edges accepted off their own branch); one not converged after half
     of ``flags[MAX_ITER]`` holds branch E from there (where a system's end state sits at its chain
     end, as in an impact within the step, the law's pull on a jump branch flips direction: no fixed
-    point), its quasi-Newton columns restarted. ``iters[k]``: FMU steps taken,
+    point) and the update is a damped fixed point (relaxation OMEGA0, then Aitken's). ``iters[k]``: FMU steps taken,
     ``resid[k]``: the last residual's max norm.
     Not converged within ``flags[MAX_ITER]`` FMU steps: the instances are restored to t, ``FAIL``
     = NOT_CONVERGED, returns True (a caller with a step-size control may retake it shorter)."""
     t1, t2, c1q, c1u, c2q, c2u, dk, bk, ek, buf, slope = w
-    ta, te, g, r, rp, gp, V, W, Qw, Rw, alpha, cols, ist, bh, offb, iters, resid, tolv = iw
+    ta, te, g, r, rp, gp, nw, bh, offb, iters, resid, tolv = iw
+    imp0, impc, ibuf = nw[5], nw[6], nw[8]
     N = q.shape[0]
     n = q.shape[1]
     foh = flags[FOH] != 0
@@ -527,15 +485,18 @@ def implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, u
     _trust(te)
     if fmu_states(ptr, fn, comp, GET_STATE, saved, FAIL, fail_t, t):
         return True
+    if read_impacts(ptr, fn, comp, ibuf, imp0, FAIL, fail_t, t):
+        return True
+    step_start(nw, h, foh)
     copy_rows(q, qs)
     copy_rows(u, us)
-    C = V.shape[0]
     it = 0
     rmax = math.inf
     converged = False
     omega = OMEGA0
     redecide = REDECIDE
-    fresh = False   # the law changed branch at the last iterate: no secant across it
+    damped = False   # the fallback: a fixed point relaxed by Aitken's rule
+    fresh = False   # the law changed branch at the last iterate: no Aitken across it
     while True:
         for i in range(N):
             for c in range(n):
@@ -550,12 +511,16 @@ def implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, u
         for i in range(N):
             if _read(ptr, fn, comp, i, buf, q, u, FAIL, fail_t, t + h):
                 return True
+        if read_impacts(ptr, fn, comp, ibuf, impc, FAIL, fail_t, t + h):
+            return True
+        secants(nw, te, q, u, it)
         # the law at the end states: on its own branch at the first iterate, on the branch held in
         # bk (decided there) at the others
         network_forces(laws, geo, Kp, Kd, E2, W2, q, u, g, t1, t2, c1q, c1u, c2q, c2u, False, dk, bk, ek, hp, t + h,
                        it > 1)
         rmax = _residual(g, te, r)
-        if rmax <= tolv[0] * _scale(g, ta, q, u, Kp, Kd):
+        target = tolv[0] * _scale(g, ta, q, u, Kp, Kd)
+        if rmax <= target:
             for e_ in range(bk.shape[0]):
                 bh[e_] = bk[e_]
             # the law's own branch at the end states (into bk; its forces into rp, free until the update)
@@ -575,7 +540,7 @@ def implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, u
             fresh = True
         if it >= flags[MAX_ITER] or not math.isfinite(rmax):
             break
-        if it == flags[MAX_ITER] // 2 and it > 1:   # hold branch E from here, the columns restarted
+        if it == flags[MAX_ITER] // 2 and it > 1:   # hold branch E from here; a damped fixed point
             for e_ in range(bk.shape[0]):
                 if bk[e_] > BRANCH_E:
                     bk[e_] = BRANCH_E
@@ -584,29 +549,25 @@ def implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, u
                 network_forces(laws, geo, Kp, Kd, E2, W2, q, u, g, t1, t2, c1q, c1u, c2q, c2u, False, dk, bk, ek,
                                hp, t + h, True)
                 rmax = _residual(g, te, r)
-                ist[0] = 0
-                omega = OMEGA0
                 redecide = 0
-        if it > 1 and not fresh:   # a secant of this step: the newest column
-            ist[1] = (ist[1] + 1) % C
-            ist[0] = min(ist[0] + 1, C)
-            for i in range(N):
-                for c in range(n):
-                    V[ist[1], i, c] = r[i, c] - rp[i, c]
-                    W[ist[1], i, c] = g[i, c] - gp[i, c]
-            dr = 0.0
-            for i in range(N):
-                for c in range(n):
-                    dr += (r[i, c] - rp[i, c]) * (r[i, c] - rp[i, c])
-            if dr > 0.0:   # Aitken's relaxation, for a step whose secants the QR filter drops
-                omega = -omega * (_dot(rp, r) - _dot(rp, rp)) / dr
-        fresh = False
-        copy_rows(r, rp)
-        copy_rows(g, gp)
-        if _iqn_ils(te, g, r, V, W, Qw, Rw, alpha, cols, ist[0], ist[1]) == 0:
+            damped = True
+            omega = OMEGA0
+            fresh = True
+        if damped:
+            if not fresh:   # Aitken's relaxation from the last two residuals
+                dr = 0.0
+                for i in range(N):
+                    for c in range(n):
+                        dr += (r[i, c] - rp[i, c]) * (r[i, c] - rp[i, c])
+                if dr > 0.0:
+                    omega = -omega * (_dot(rp, r) - _dot(rp, rp)) / dr
+            copy_rows(r, rp)
             for i in range(N):
                 for c in range(n):
                     te[i, c] += omega * r[i, c]
+        else:
+            newton_update(nw, te, r, rmax, 0.1 * target, g, q, u, laws, geo, Kp, Kd, E2, W2, w, hp, t + h)
+        fresh = False
         _trust(te)
         if fmu_states(ptr, fn, comp, SET_STATE, saved, FAIL, fail_t, t):
             return True

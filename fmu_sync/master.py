@@ -217,6 +217,8 @@ class NetworkMaster:
                                  stiffness=plan.systems[0].metric_source)   # a user force law: "linearized"
         self.geo = geometry(system, self.metric.Q)
         self.hp = force_table(*stack_nodes(*plan.systems)[1:])   # each instance's h (the compensated law)
+        # each instance's M^-1: the implicit exchange's prior of an FMU's response to its input
+        self.Minv_nodes = np.stack([np.linalg.inv(np.atleast_2d(np.asarray(s.M, dtype=float))) for s in plan.systems])
         E, rows = len(self.edges), record_rows(self.n_steps, self.record_every)
         self.T = np.full(rows, np.nan)
         self.Qr, self.Ur, self.TAU = (np.full((rows, N, n), np.nan) for _ in range(3))

@@ -312,6 +312,10 @@ def test_the_accepted_end_force_is_the_law_on_the_held_branch(fmus, Kp, Kd, H, l
     changes = [k for k in range(r.t.size - 1) if r.branch[k] != r.branch[k + 1] or off[k]]
     assert changes, "the run changes branch"
     steps = sorted(set(changes[:8] + pick.sample(range(r.t.size - 1), 3)))
+    # a recorded start state a hair inside the wall (the FMU's own state, g(q) ~ -1e-3 after an
+    # impact: seen on main too, e.g. Kp = 84, Kd = 0, H = 0.01, q1 = 1, u2 = -0.25) is not a valid
+    # start value for the replaying instance: such steps cannot be replayed by instantiation
+    steps = [k for k in steps if r.q1[k, 0] >= 0.0 and r.q2[k, 0] >= 0.0]
     cases, meta = [], []
     for k in steps:
         xa, xb = (r.q1[k, 0], r.u1[k, 0]), (r.q2[k, 0], r.u2[k, 0])

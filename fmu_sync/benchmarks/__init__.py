@@ -9,8 +9,9 @@ Two kinds of section (``--only`` picks among them):
 * **timings** (developer benchmarks, ratios against a baseline measured in the same run):
   ``speed`` (core kernels vs a C loop, the quotient distance, the FMU per step and at start-up,
   :mod:`.core_speed`, :mod:`.distance_cost`, :mod:`.fmu_cost`), ``sweep`` (sweep throughput,
-  :mod:`.sweep_speed`), ``hold`` (co-simulation hold order, :mod:`.hold_order`) and ``implicit``
-  (the implicit exchange on a stiff pair, :mod:`.implicit_exchange`).
+  :mod:`.sweep_speed`), ``hold`` (co-simulation hold order, :mod:`.hold_order`), ``implicit``
+  (the implicit exchange on a stiff pair, :mod:`.implicit_exchange`) and ``networks`` (the
+  implicit exchange on rings of impacting oscillators, N = 8 ... 256, :mod:`.implicit_networks`).
 
 Writes into DIR (default ``./fmu-sync-bench/``):
 
@@ -42,7 +43,7 @@ __all__ = ["main", "EXTRA_SECTIONS", "REPORTS", "SECTIONS", "PAGE", "publish", "
 #: and extreme cases
 REPORTS = ("work-precision", "stability")
 #: every section of ``fmu-sync bench`` (``--only``); the default runs all but ``sweep``
-SECTIONS = ("speed", "sweep", "hold", "implicit") + REPORTS
+SECTIONS = ("speed", "sweep", "hold", "implicit", "networks") + REPORTS
 #: the markdown page ``fmu-sync bench`` writes into its output folder (docs/benchmarks.md when published)
 PAGE = "benchmarks.md"
 #: the lines between which ``--publish`` replaces a page's generated part (the rest of the page stays)
@@ -227,7 +228,8 @@ def main(argv=None) -> int:
             parts.append(md)
 
         for name, title, module in (("hold", "Co-simulation hold: zero- vs first-order", "hold_order"),
-                                    ("implicit", "Implicit exchange on a stiff pair", "implicit_exchange")):
+                                    ("implicit", "Implicit exchange on a stiff pair", "implicit_exchange"),
+                                    ("networks", "Implicit exchange on networks with impacts", "implicit_networks")):
             if name not in sections:
                 continue
             if fmu is None:
