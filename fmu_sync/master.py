@@ -488,7 +488,8 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
 # (steps rolled back and retaken shorter), ``H`` (the accepted steps' lengths, an array, one
 # per step), ``H_first`` (the first and largest step), ``step_unit`` (the floor: the slaves'
 # solver.dt), ``tol``, ``error_estimate`` (the estimated global error: the sum of the accepted
-# steps' local estimates, in q's unit like tol), ``floor_steps`` (steps accepted at the floor
+# steps' local estimates and the slaves' own error at solver.dt ``floor_error``, in q's unit like
+# tol), ``tol_met`` (bool) and ``tol_not_met`` (why not), ``floor_steps`` (steps accepted at the floor
 # although their estimate exceeded their share: an impact accumulation, for example) and
 # ``error_norm`` (the norm, in words). The record has a row every ``record_every`` accepted
 # steps and the final state.

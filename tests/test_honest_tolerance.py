@@ -143,3 +143,20 @@ def test_a_run_that_grows_without_bound_fails_with_its_record(pend):
     part = exc.value.partial
     assert part is not None and not part.success and 0.0 < part.t[-1] <= 3.0
     assert np.max(np.abs(part.q1)) > 100 * max(np.abs(X1))   # what 0.6.0 returned as a success
+
+
+def test_summary_and_cli_say_the_tolerance_was_not_met(tmp_path, capsys):
+    """The forced pair with impacts to run.tol: summary.md's note and the CLI's summary say
+    'tolerance NOT met' and why (impacts), its table 'tol met: NO'; 0.6.0 said nothing."""
+    from fmu_sync.cli import main
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ToleranceNotMet)
+        code = main(["run", "forced-pair", "--variant", "switching", "--no-plots", "-o", str(tmp_path),
+                     "--set", "run.mode=cosim", "--set", "run.t_end=5.0", "--set", "run.H=0.05",
+                     "--set", "run.tol=1e-2"])
+    out = capsys.readouterr().out
+    text = (tmp_path / "summary.md").read_text()
+    assert code in (0, None)
+    for where in (out, text):
+        assert "tolerance NOT met" in where and "impacts" in where, where[-2000:]
+    assert "| NO |" in text.replace("  ", " ")
