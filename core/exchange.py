@@ -132,8 +132,9 @@ class ExchangeLimit:
         else:
             largest = f"largest stable {s} = {largest_stable(self.H_max):.4g}"
         if self.own > 0.0:
+            z = "" if math.isnan(self.zeta) else f", zeta = {self.zeta:.4g}"
             against = (f"the limit {self.bound:.4g} of the hold map with the systems' own stiffness integrated "
-                       f"by them (largest eigenvalue of M^-1 K = {self.own:.4g} 1/s^2), hold={self.hold!r}")
+                       f"by them (largest eigenvalue of M^-1 K = {self.own:.4g} 1/s^2{z}), hold={self.hold!r}")
         elif math.isnan(self.zeta):
             against = (f"the limit {self.bound:.4g} of the hold map (gains not modal: no single "
                        f"zeta)")
@@ -339,8 +340,9 @@ def exchange_limit(M, Kp, Kd, H: float, A=None, step_name: str = "H", hold: str 
             scale = math.sqrt(w * w + own_w) if own_m is not None else w
             H_max = _bisect_radius(Ap, Ad, max(scale, 1e-300), hold, exchange, own_m)
             bound = w * H_max if math.isfinite(H_max) else math.inf
+            zeta = Ad[0, 0] / (2.0 * w) if n == 1 and w > 0.0 else math.nan   # one DOF: the mode's own zeta
             if best is None or H_max < best[0]:
-                best = (H_max, w, math.nan, bound, lam)
+                best = (H_max, w, zeta, bound, lam)
     if best is None:
         return ExchangeLimit(H, 0.0, math.nan, math.inf, math.inf, 0.0, step_name, hold, exchange)
     H_max, w, zeta, bound, lam = best
