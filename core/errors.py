@@ -18,7 +18,7 @@
 """
 from __future__ import annotations
 
-__all__ = ["RunFailed", "SimulationDiverged", "ExchangeNotConverged", "ForceLawFailed", "RunRefused", "UnstableScheme",
+__all__ = ["RunFailed", "SimulationDiverged", "ToleranceNotMet", "ExchangeNotConverged", "ForceLawFailed", "RunRefused", "UnstableScheme",
            "LawRefused"]
 
 
@@ -32,6 +32,12 @@ class RunFailed(RuntimeError):
 
 class SimulationDiverged(RunFailed):
     """The state became non-finite: the scheme is unstable for this step size."""
+
+
+class ToleranceNotMet(UserWarning):
+    """A co-simulation to a tolerance ended without meeting it (``info["tol_met"]`` False): the
+    message says why (steps at the floor H = solver.dt over their share, the slaves' own error at
+    solver.dt, impacts); the record is complete (docs/design.md §4.4.1)."""
 
 
 class ExchangeNotConverged(RunFailed):

@@ -41,6 +41,15 @@ mean: ``x' = x + H v + H^2 (f + f')/4``), ``v' = v + H (f + f')/2``. The mean is
 it too (``|lambda| = 1``) up to ``omega H < 2 sqrt(3) = 3.46`` and is unstable beyond.
 Both are second order.
 
+The systems' own forces (docs/design.md §2.6.1): in a co-simulation each slave integrates its own
+stiffness ``K`` and damping ``C`` inside the step (at its solver.dt, far below H), and only the
+coupling force is held. The relative mode is then ``x'' = -M^-1 (K x + C x') + f``, ``f`` the held
+coupling force, and the step map is the exact flow of the systems under the held force line
+(:func:`held_flow_map`). Its limit lies below the bare coupling's: the pendulum pair (m g l = 9.81,
+Euclidean Kp = 500, Kd = 0, the line) is stable up to H = 0.1087, not the 0.1095 of
+``omega_c H < 2 sqrt 3``. :func:`exchange_limit` takes ``K`` and ``C`` (``own=``; the master's
+plan passes them) and then bisects the spectral radius of this map for each Laplacian mode.
+
 :func:`exchange_limit` computes the limit; :func:`check_exchange` refuses an
 unstable step with :class:`UnstableExchange` (a ``ValueError``) unless the
 caller passes ``allow_unstable=True``. The core (``simulate_pair``,
@@ -56,7 +65,8 @@ import numpy as np
 from .errors import RunRefused
 
 __all__ = ["UnstableExchange", "ExchangeLimit", "exchange_limit", "check_exchange", "zoh_bound",
-           "laplacian_modes", "hold_map_radius", "hold_bound", "HOLDS", "EXCHANGES", "check_exchange_name"]
+           "laplacian_modes", "hold_map_radius", "hold_bound", "HOLDS", "EXCHANGES", "check_exchange_name",
+           "held_flow_map", "largest_stable"]
 
 #: the input holds over a step: zero-order (forces constant) and first-order (extrapolated line)
 HOLDS = ("zoh", "foh")
@@ -99,6 +109,7 @@ class ExchangeLimit:
     step_name: str = "H"
     hold: str = "zoh"
     exchange: str = "explicit"
+    own: float = 0.0   # the largest eigenvalue of M^-1 K of the systems' own forces in the map (0: none)
 
     @property
     def h(self) -> float:
@@ -119,8 +130,12 @@ class ExchangeLimit:
             largest = (f"no {s} is stable without damping of the relative mode (Kd = 0: the held "
                        f"forces grow it by 1 + (omega_c*{s})^2/4 per step); add Kd > 0")
         else:
-            largest = f"largest stable {s} = {self.H_max:.4g}"
-        if math.isnan(self.zeta):
+            largest = f"largest stable {s} = {largest_stable(self.H_max):.4g}"
+        if self.own > 0.0:
+            z = "" if math.isnan(self.zeta) else f", zeta = {self.zeta:.4g}"
+            against = (f"the limit {self.bound:.4g} of the hold map with the systems' own stiffness integrated "
+                       f"by them (largest eigenvalue of M^-1 K = {self.own:.4g} 1/s^2{z}), hold={self.hold!r}")
+        elif math.isnan(self.zeta):
             against = (f"the limit {self.bound:.4g} of the hold map (gains not modal: no single "
                        f"zeta)")
         elif self.exchange == "implicit":
@@ -132,6 +147,46 @@ class ExchangeLimit:
                        f"(zeta = {self.zeta:.4g})")
         return (f"coupling forces held over {s} = {self.H:.4g}: omega_c*{s} = {self.h:.4g} against "
                 f"{against}, omega_c = {self.omega_c:.4g} rad/s; {largest}")
+
+
+def largest_stable(H_max: float) -> float:
+    """The step a refusal names as the largest stable one: ``H_max`` rounded down to 4 significant
+    digits and strictly below it, so that the named step is itself accepted."""
+    if not (math.isfinite(H_max) and H_max > 0.0):
+        return H_max
+    e = math.floor(math.log10(H_max)) - 3
+    m = math.floor(H_max / 10.0 ** e)
+    H = m * 10.0 ** e
+    while H >= H_max:
+        m -= 1
+        H = m * 10.0 ** e
+    return H
+
+
+def held_flow_map(Ap, Ad, Ks, Cs, H: float, hold: str = "zoh", exchange: str = "explicit") -> np.ndarray:
+    """The step map of ``x'' = -Ks x - Cs x' + f`` under the coupling force ``f = -(Ap x + Ad x')``
+    held by ``hold``/``exchange`` (as :func:`hold_map_radius`), the systems' own forces ``Ks``, ``Cs``
+    integrated exactly (the slaves' fine steps): the flow's response to the force line
+    ``f0 + f1 s/H`` from one matrix exponential. State ``(x, v)``, with ``f_prev`` for the explicit
+    first-order hold. At ``Ks = Cs = 0`` it is :func:`hold_map_radius`'s map."""
+    from scipy.linalg import expm
+    n = Ap.shape[0]
+    I, Z = np.eye(n), np.zeros((n, n))
+    Aug = np.zeros((4 * n, 4 * n))
+    Aug[:2 * n, :2 * n] = H * np.block([[Z, I], [-Ks, -Cs]])
+    Aug[n:2 * n, 2 * n:3 * n] = H * I
+    Aug[2 * n:3 * n, 3 * n:] = I
+    E = expm(Aug)
+    Phi, G0, G1 = E[:2 * n, :2 * n], E[:2 * n, 2 * n:3 * n], E[:2 * n, 3 * n:]
+    Kz = np.hstack([Ap, Ad])
+    I2 = np.eye(2 * n)
+    if exchange == "implicit":
+        if hold == "foh":   # f0 = F(z), f1 = F(z') - F(z)
+            return np.linalg.solve(I2 + G1 @ Kz, Phi - G0 @ Kz + G1 @ Kz)
+        return np.linalg.solve(I2 + 0.5 * G0 @ Kz, Phi - 0.5 * G0 @ Kz)   # the mean held
+    if hold == "foh":       # f0 = F(z), f1 = F(z) - f_prev
+        return np.block([[Phi - (G0 + G1) @ Kz, -G1], [-Kz, Z]])
+    return Phi - G0 @ Kz
 
 
 def laplacian_modes(A) -> np.ndarray:
@@ -146,13 +201,16 @@ def laplacian_modes(A) -> np.ndarray:
 
 
 def hold_map_radius(Ap: np.ndarray, Ad: np.ndarray, H: float, hold: str = "zoh",
-                    exchange: str = "explicit") -> float:
+                    exchange: str = "explicit", own=None) -> float:
     """Spectral radius of the held step of ``x'' = -Ap x - Ad x'`` (exact free
     flight under the held force; the midpoint step gives the same map).
     ``hold="zoh"``: the force at the start held; ``"foh"``: the line through the
     forces at the last two communication points (state ``(x, v, f_prev)``).
     ``exchange="implicit"``: the converged implicit step (Newmark, gamma = 1/2, beta = 1/6
-    for the line of ``"foh"``, 1/4 for the mean of ``"zoh"``; see the module docstring)."""
+    for the line of ``"foh"``, 1/4 for the mean of ``"zoh"``; see the module docstring).
+    ``own``: ``(Ks, Cs)``, the systems' own forces integrated exactly (:func:`held_flow_map`)."""
+    if own is not None:
+        return float(np.max(np.abs(np.linalg.eigvals(held_flow_map(Ap, Ad, own[0], own[1], H, hold, exchange)))))
     n = Ap.shape[0]
     I = np.eye(n)
     if exchange == "implicit":
@@ -173,17 +231,19 @@ def hold_map_radius(Ap: np.ndarray, Ad: np.ndarray, H: float, hold: str = "zoh",
     return float(np.max(np.abs(np.linalg.eigvals(Phi))))
 
 
-def _bisect_radius(Ap, Ad, scale, hold: str = "zoh", exchange: str = "explicit"):
+def _bisect_radius(Ap, Ad, scale, hold: str = "zoh", exchange: str = "explicit", own=None):
     """Largest H with radius <= 1 (bisection from a step known stable or 0). The
     zero-order hold doubles from 1/scale; the first-order hold scans in steps of
     1/(64 scale) up to the first unstable step (its stable range ends at
     omega H < 1.7, and doubling could step over it); the implicit exchange with the
-    zero-order hold (the mean) is A-stable (inf), with the line it scans as the first-order hold."""
+    zero-order hold (the mean) is A-stable (inf; with the systems' own stiffness too: radius 1 to
+    round-off measured up to omega H = 100 on the pendulum pair), with the line it scans as the
+    first-order hold. ``own``: the systems' own forces (:func:`held_flow_map`)."""
     if exchange == "implicit" and hold == "zoh":
         return math.inf
 
     def ok(H):
-        return hold_map_radius(Ap, Ad, H, hold, exchange) <= 1.0 + 1e-12
+        return hold_map_radius(Ap, Ad, H, hold, exchange, own) <= 1.0 + 1e-12
     if hold == "zoh":
         lo, hi = 0.0, 1.0 / scale
         while ok(hi):
@@ -220,13 +280,16 @@ def hold_bound(zeta: float, hold: str = "zoh", exchange: str = "explicit") -> fl
 
 
 def exchange_limit(M, Kp, Kd, H: float, A=None, step_name: str = "H", hold: str = "zoh",
-                   exchange: str = "explicit") -> ExchangeLimit:
+                   exchange: str = "explicit", own=None) -> ExchangeLimit:
     """The stability limit of the held coupling (see the module docstring).
 
     ``M``: the (common) mass matrix; ``Kp, Kd``: gains (scalars or n x n);
     ``A``: graph weights (default: a pair with weight 1); ``hold``: ``"zoh"``
     or ``"foh"`` (first-order hold of the master); ``exchange``: ``"explicit"`` or
-    the master's ``"implicit"``."""
+    the master's ``"implicit"``; ``own``: ``(K, C)``, the systems' own stiffness and damping,
+    integrated by the systems inside the step (the co-simulation's slaves): the map is then
+    :func:`held_flow_map` (a K or C that is not positive semidefinite, a system unstable by
+    itself, is left out: its growth is the system's, not the exchange's)."""
     if hold not in HOLDS:
         raise ValueError(f"hold must be one of {', '.join(HOLDS)}, got {hold!r}")
     check_exchange_name(exchange)
@@ -247,6 +310,8 @@ def exchange_limit(M, Kp, Kd, H: float, A=None, step_name: str = "H", hold: str 
     D = V.T @ kd_t @ V
     off = D - np.diag(np.diag(D))
     modal = np.max(np.abs(off), initial=0.0) <= 1e-9 * max(1e-300, np.max(np.abs(D), initial=0.0))
+    own_m, own_w = _own_forces(M, own)
+    modal = modal and own_m is None
     best = None  # (H_max, omega, zeta, bound, lam)
     for lam in lams:
         if modal:
@@ -269,23 +334,45 @@ def exchange_limit(M, Kp, Kd, H: float, A=None, step_name: str = "H", hold: str 
         else:
             Minv = np.linalg.inv(M)
             Ap, Ad = lam * Minv @ Kp, lam * Minv @ Kd
+            if own_m is not None and not (np.any(Ap) or np.any(Ad)):
+                continue
             w = math.sqrt(max(float(np.max(np.linalg.eigvals(Ap).real)), 0.0))
-            H_max = _bisect_radius(Ap, Ad, max(w, 1e-300), hold, exchange)
+            scale = math.sqrt(w * w + own_w) if own_m is not None else w
+            H_max = _bisect_radius(Ap, Ad, max(scale, 1e-300), hold, exchange, own_m)
             bound = w * H_max if math.isfinite(H_max) else math.inf
+            zeta = Ad[0, 0] / (2.0 * w) if n == 1 and w > 0.0 else math.nan   # one DOF: the mode's own zeta
             if best is None or H_max < best[0]:
-                best = (H_max, w, math.nan, bound, lam)
+                best = (H_max, w, zeta, bound, lam)
     if best is None:
         return ExchangeLimit(H, 0.0, math.nan, math.inf, math.inf, 0.0, step_name, hold, exchange)
     H_max, w, zeta, bound, lam = best
-    return ExchangeLimit(H, w, zeta, bound, H_max, lam, step_name, hold, exchange)
+    return ExchangeLimit(H, w, zeta, bound, H_max, lam, step_name, hold, exchange, own_w)
+
+
+def _own_forces(M, own):
+    """``((M^-1 K, M^-1 C), largest eigenvalue of M^-1 K)`` of the systems' own forces for
+    :func:`held_flow_map`, or ``(None, 0.0)`` when there are none (or they are not positive
+    semidefinite: a system unstable by itself)."""
+    if own is None:
+        return None, 0.0
+    n = M.shape[0]
+    K, C = (np.asarray(x, dtype=np.float64) * (np.eye(n) if np.ndim(x) == 0 else 1.0) for x in own)
+    K, C = 0.5 * (K + K.T), 0.5 * (C + C.T)
+    if not (np.any(K) or np.any(C)):
+        return None, 0.0
+    if min(np.linalg.eigvalsh(K).min(), np.linalg.eigvalsh(C).min()) < -1e-12 * max(1.0, np.abs(K).max()):
+        return None, 0.0
+    Minv = np.linalg.inv(M)
+    Ks = Minv @ K
+    return (Ks, Minv @ C), max(float(np.max(np.linalg.eigvals(Ks).real)), 0.0)
 
 
 def check_exchange(M, Kp, Kd, H: float, A=None, allow_unstable: bool = False,
-                   step_name: str = "H", hold: str = "zoh", exchange: str = "explicit") -> ExchangeLimit:
+                   step_name: str = "H", hold: str = "zoh", exchange: str = "explicit", own=None) -> ExchangeLimit:
     """:func:`exchange_limit`, refused with :class:`UnstableExchange` when unstable
     (``H >= H_max``) unless ``allow_unstable``. The co-simulation's refusal (``step_name``
     ``"H"``) of the explicit exchange names ``exchange="implicit"`` as the fix."""
-    lim = exchange_limit(M, Kp, Kd, H, A, step_name, hold, exchange)
+    lim = exchange_limit(M, Kp, Kd, H, A, step_name, hold, exchange, own)
     if not lim.stable and not allow_unstable:
         implicit = (f"use exchange=\"implicit\" (iterated to the states at the step's end, stable at any "
                     f"{step_name} with hold='zoh'), " if step_name == "H" and exchange == "explicit" else "")

@@ -113,12 +113,13 @@ def coupled_weights(A, edges, laws) -> np.ndarray:
 
 
 def held_exchange(M, Kp, Kd, step: float, A=None, laws=None, hold: str = "zoh", allow_unstable: bool = False,
-                  step_name: str = "H", exchange: str = "explicit"):
+                  step_name: str = "H", exchange: str = "explicit", own=None):
     """The one check of the held coupling exchange of a run (docs/design.md §2.6), step 5 of
     :func:`plan_run`: gains as n x n matrices, the weights of the edges whose law carries a
     force (``laws``: one code per edge of ``A``, default all coupled; ``A`` default the pair),
     the hold in use (``"zoh"``; the master's ``"foh"``) and the exchange (``"explicit"``; the
-    master's ``"implicit"``). Returns ``(Kp, Kd, A_coupled,
+    master's ``"implicit"``; ``own``: the systems' own ``(K, C)`` where the systems integrate them
+    inside the step, :func:`fmu_sync.core.exchange.exchange_limit`). Returns ``(Kp, Kd, A_coupled,
     limit)``; ``limit`` is None when no edge is coupled; refused with ``UnstableExchange``
     (a ValueError) unless ``allow_unstable``."""
     from .coupling import SWITCHING, UNCOUPLED, gain_matrix   # coupled runs only (see coupled_weights)
@@ -131,7 +132,7 @@ def held_exchange(M, Kp, Kd, step: float, A=None, laws=None, hold: str = "zoh", 
     if not np.any(laws != UNCOUPLED):
         return Kp_m, Kd_m, Ac, None
     return Kp_m, Kd_m, Ac, check_exchange(M, Kp_m, Kd_m, step, A=Ac, allow_unstable=allow_unstable,
-                                          step_name=step_name, hold=hold, exchange=exchange)
+                                          step_name=step_name, hold=hold, exchange=exchange, own=own)
 
 
 # ------------------------------------------------------------------ the plan
@@ -275,8 +276,9 @@ def plan_run(systems, starts, t_end, step, *, scheme="midpoint", theta: float = 
             laws_a = np.asarray(laws, dtype=np.int64)
         if np.any(laws_a == COMPENSATED):
             check_compensated(n, s0.force)
+        own = (s0.K, s0.C) if dt is not None else None   # a co-simulation: the slaves integrate K, C inside H
         Kp_m, Kd_m, Ac, limit = held_exchange(s0.M, Kp, Kd, step, A, laws_a, hold, allow_unstable, step_name,
-                                              exchange)
+                                              exchange, own)
         coupled = bool(np.any(laws_a != UNCOUPLED))
     if record_values is not None and grid is not None:                  # 6. the record budget
         check_record_size(rows, int(record_values), record_what, record_hint)

@@ -46,6 +46,7 @@ _API = {
     "sweep": "sweeps",
     "load": "results", "redraw": "results",
     "sync_rate": "ensemble",
+    "ToleranceNotMet": "core.errors",
 }
 
 __all__ = ["__version__", *_API]

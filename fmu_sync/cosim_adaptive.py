@@ -17,8 +17,9 @@ loop (numba nopython, ``cache=True``, no Python per step):
   (:func:`next_step`).
 
 Steps are whole multiples of the slaves' ``solver.dt`` (``unit``), from ``unit`` (the floor,
-always accepted: at h = unit the co-simulation is its own limit H -> dt) to ``H``; the last one
-lands on t_end.
+always accepted: a step shorter than the slaves' own is not possible) to ``H``; the last one
+lands on t_end. The estimate is against the coupled system, the floor's own error included: a
+run whose steps at the floor exceed their share says so (``info["tol_met"]``, the master).
 """
 from __future__ import annotations
 
@@ -40,7 +41,7 @@ __all__ = ["adaptive_chunk", "free_states", "SAFETY", "FAC_MIN", "FAC_MAX", "FUL
 SAFETY, FAC_MIN, FAC_MAX = 0.9, 0.2, 5.0
 #: the estimate's kinds (``kind`` of :func:`local_error`): the explicit zero- and first-order hold, the
 #: implicit exchange
-ZOH, FOH_KIND, IMPLICIT_KIND = range(3)
+ZOH, FOH_KIND, IMPLICIT_KIND, IMPLICIT_MEAN = range(4)
 #: Milne's factor of the implicit exchange: its converged (trapezoidal) force line misses a quadratic
 #: force by tau'' s (s - h)/2, whose effect on u over the step is tau'' h^3/12, against tau'' h^3/2
 #: for the ramp of the predictor-corrector difference delta = tau'' h^2 in the formulas
@@ -95,40 +96,45 @@ def error_forms(delta, Minv, Qn, Mn, v):
 
 
 @njit(cache=True, inline="always")
-def local_error(h_new, h, eq, eu, unit, kind):
-    """The estimated local coupling error of one node over a step of length ``h_new``, in q's
-    unit, from the force mismatch delta of a step of length ``h`` (its forms ``eq``, ``eu``,
-    :func:`error_forms`; ``h_new = h``: the step's own estimate).
+def local_error(h_new, h, eq, eu, unit, kind, eq_mean=0.0):
+    """The estimated local coupling error of one node over a step of length ``h_new``, against
+    the coupled system (the exact force the law gives along the exact motion), in q's unit, from
+    the force mismatch delta of a step of length ``h`` (its forms ``eq``, ``eu``,
+    :func:`error_forms`; ``h_new = h``: the step's own estimate). ``unit`` (the slaves' solver.dt)
+    is not subtracted: the floor h = unit has its own error, which the estimate keeps.
 
     delta is the force at the step's end from the new states minus the force the hold gave
     there; its effect is the response to the ramp delta (s/h), s in [0, h]:
-    Delta u = M^-1 delta c_u, Delta q = M^-1 delta c_q. The zero-order hold is measured
-    against its limit h -> unit (the slaves' own step, which holds over each internal step):
-    c_u = (h - unit)/2, c_q = h (h - unit)/6; the first-order hold against the exact ramp:
-    c_u = h/2, c_q = h^2/6. The norm is the law's metric ``sqrt(dq' Q dq + du' M du)`` over
-    sqrt(lambda_min(Q)): for one degree of freedom sqrt(dq^2 + du^2 m/Q), the position
-    amplitude the state error carries. For another step length delta is scaled as the hold's
-    mismatch grows away from impacts: as h (zero-order hold) or h^2 (first-order hold). ``kind``
-    :data:`IMPLICIT_KIND`: delta is the converged end force against the explicit first-order
-    prediction, taken as the first-order hold's and scaled by :data:`MILNE` (the converged
-    step's own error, Milne's device)."""
+    Delta u = M^-1 delta c_u, Delta q = M^-1 delta c_q, c_u = h/2, c_q = h^2/6 for every hold.
+    The norm is the law's metric ``sqrt(dq' Q dq + du' M du)`` over sqrt(lambda_min(Q)): for one
+    degree of freedom sqrt(dq^2 + du^2 m/Q), the position amplitude the state error carries. For
+    another step length delta is scaled as the hold's mismatch grows away from impacts: as h
+    (zero-order hold) or h^2 (first-order hold). ``kind`` :data:`IMPLICIT_KIND`: delta is the
+    converged end force against the explicit first-order prediction, taken as the first-order
+    hold's and scaled by :data:`MILNE` (the converged line's own error, Milne's device);
+    :data:`IMPLICIT_MEAN` adds the mean's own error: holding the mean (f0 + f1)/2 instead of the
+    line from f0 to f1 moves q by M^-1 (f1 - f0) h^2/12 (u unchanged); ``eq_mean`` is the form
+    v' Qn v of v = M^-1 (f1 - f0) of the step h, scaled as h for another step length."""
     second = kind != ZOH
-    x = h_new if second else max(h_new - unit, 0.0)
-    cu = 0.5 * x
-    cq = h_new * x / 6.0
+    cu = 0.5 * h_new
+    cq = h_new * h_new / 6.0
     r = h_new / h
     scale = r * r if second else r
-    if kind == IMPLICIT_KIND:
+    if kind == IMPLICIT_KIND or kind == IMPLICIT_MEAN:
         scale *= MILNE
-    return scale * math.sqrt(max(cq * cq * eq + cu * cu * eu, 0.0))
+    err = scale * math.sqrt(max(cq * cq * eq + cu * cu * eu, 0.0))
+    if kind == IMPLICIT_MEAN:
+        err += r * h_new * h_new / 12.0 * math.sqrt(max(eq_mean, 0.0))
+    return err
 
 
 @njit(cache=True, inline="always")
-def next_step(h, eq, eu, tol, t_end, kind, unit, H, mode):
+def next_step(h, eq, eu, tol, t_end, kind, unit, H, mode, eq_mean=0.0):
     """The controller: the longest whole multiple m unit of the step unit whose predicted error
     (:func:`local_error` from this step's mismatch) is at most SAFETY times its share
     tol m unit / t_end, with m unit in [FAC_MIN h, FAC_MAX h] and [unit, H]; ``mode`` 1: not
-    longer than h (right after a rejection), 2: shorter than h (a rejected step)."""
+    longer than h (right after a rejection), 2: shorter than h (a rejected step); ``eq_mean``: as
+    :func:`local_error`."""
     m_h = math.floor(h / unit + 1e-9)
     m_hi = min(math.floor(H / unit + 1e-9), math.floor(FAC_MAX * h / unit + 1e-9))
     if mode == 1:
@@ -137,13 +143,13 @@ def next_step(h, eq, eu, tol, t_end, kind, unit, H, mode):
         m_hi = min(m_hi, m_h - 1)
     m_hi = max(1.0, m_hi)
     m_lo = min(m_hi, max(1.0, math.ceil(FAC_MIN * h / unit - 1e-9)))
-    if local_error(m_hi * unit, h, eq, eu, unit, kind) <= SAFETY * tol * m_hi * unit / t_end:
+    if local_error(m_hi * unit, h, eq, eu, unit, kind, eq_mean) <= SAFETY * tol * m_hi * unit / t_end:
         return m_hi * unit
-    if not local_error(m_lo * unit, h, eq, eu, unit, kind) <= SAFETY * tol * m_lo * unit / t_end:
+    if not local_error(m_lo * unit, h, eq, eu, unit, kind, eq_mean) <= SAFETY * tol * m_lo * unit / t_end:
         return m_lo * unit
     while m_hi - m_lo > 1:   # m_lo passes, m_hi does not
         m = math.floor(0.5 * (m_lo + m_hi))
-        if local_error(m * unit, h, eq, eu, unit, kind) <= SAFETY * tol * m * unit / t_end:
+        if local_error(m * unit, h, eq, eu, unit, kind, eq_mean) <= SAFETY * tol * m * unit / t_end:
             m_lo = m
         else:
             m_hi = m
@@ -177,7 +183,8 @@ def adaptive_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, ad, norm
     need_d = flags[NEED_D] != 0
     implicit = flags[IMPLICIT] != 0
     foh = flags[FOH] != 0 or implicit   # the implicit exchange is measured against its explicit prediction
-    kind = IMPLICIT_KIND if implicit else FOH_KIND if foh else ZOH
+    mean = implicit and flags[FOH] == 0   # the implicit exchange holding the mean of the step's end forces
+    kind = (IMPLICIT_MEAN if mean else IMPLICIT_KIND) if implicit else FOH_KIND if foh else ZOH
     jacobi = flags[GAUSS_SEIDEL] == 0
     every = flags[RECORD_EVERY]
     tol, t_end, unit, H = ad[A_TOL], ad[A_T_END], ad[A_UNIT], ad[A_H]
@@ -235,20 +242,27 @@ def adaptive_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, ad, norm
         err = 0.0
         eq_max = 0.0
         eu_max = 0.0
+        em_max = 0.0
         for i in range(N):
+            em = 0.0
+            if mean:   # the force's change over the step: the mean's own error
+                for c in range(n):
+                    delta[c] = tau_end[i, c] - taus[i, c]
+                em, _ = error_forms(delta, Minv, Qn, Mn, v)
             for c in range(n):
                 held = tau[i, c]
                 if foh and hs[1] != 0 and t > hs[0]:
                     held += (tau[i, c] - hts[i, c]) / (t - hs[0]) * h
                 delta[c] = tau_end[i, c] - held
             eq, eu = error_forms(delta, Minv, Qn, Mn, v)
-            err = max(err, local_error(h, h, eq, eu, unit, kind))
+            err = max(err, local_error(h, h, eq, eu, unit, kind, em))
             eq_max = max(eq_max, eq)
             eu_max = max(eu_max, eu)
+            em_max = max(em_max, em)
         share = tol * h / t_end
         if not math.isfinite(err):
             err = np.inf
-            eq_max = eu_max = np.inf
+            eq_max = eu_max = em_max = np.inf
         if err > share and h > unit * (1.0 + 1e-9):
             # rejected: every instance and the master's copies back to t, retaken shorter
             actl[C_REJECTED] += 1
@@ -256,7 +270,7 @@ def adaptive_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, ad, norm
                 return FAIL[0]
             _copies(True, (q, u, hist_tau, tau), (qs, us, hts, taus), hist, hs, ctl)
             ctl[FRESH] = fresh
-            ast[S_H] = next_step(h, eq_max, eu_max, tol, t_end, kind, unit, H, 2)
+            ast[S_H] = next_step(h, eq_max, eu_max, tol, t_end, kind, unit, H, 2, em_max)
             retry = True
             continue
         # accepted
@@ -281,7 +295,7 @@ def adaptive_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, ad, norm
             copy_rows(tau_end, tau)
             ctl[FRESH] = 1
         ast[S_T] = t_next
-        ast[S_H] = next_step(h, eq_max, eu_max, tol, t_end, kind, unit, H, 1 if retry else 0)
+        ast[S_H] = next_step(h, eq_max, eu_max, tol, t_end, kind, unit, H, 1 if retry else 0, em_max)
         retry = False
         if last:
             actl[C_DONE] = 1

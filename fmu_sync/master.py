@@ -58,6 +58,7 @@ from . import cosim_loop as loop
 from .cosim_loop import CALLS, exchange_chunk
 from .hold import check_hold, check_implicit, check_rollback, check_schemes, rollback_strategy
 from .instance_pool import give_back, keep_instances, kept_key, take
+from .run_guard import GrowthGuard, floor_error, tolerance_verdict
 
 __all__ = ["cosimulate", "cosimulate_network", "keep_instances", "NetworkMaster", "AdaptiveMaster", "check_tol", "NetworkResult", "SlaveError", "FmuInstance",
            "fmu_model", "system_from_fmu", "pair_result"]
@@ -212,6 +213,8 @@ class NetworkMaster:
             s.exit_initialization(model.state_values(q0, u0))
         n = model.n
         self.Kp_m, self.Kd_m, self.A_coupled, self.limit = plan.Kp, plan.Kd, plan.A_coupled, plan.limit
+        self.guard = GrowthGuard(plan.systems[0], self.Kp_m, self.A_coupled, self.edges, plan.q, plan.u,
+                                 "" if self.limit is None else f" ({self.limit.message()})")
         self.metric = law_metric(self.Q, [s.K for s in plan.systems], self.Kp_m,
                                  self.A_coupled if self.coupled else None, coupled=self.coupled,
                                  stiffness=plan.systems[0].metric_source)   # a user force law: "linearized"
@@ -285,10 +288,15 @@ class NetworkMaster:
         code, _ = exchange_chunk(*self.loop_args, k0, k1, *self.loop_state)
         return int(code)
 
+    def grew(self):
+        """The growth guard's failure (:mod:`fmu_sync.run_guard`) at the last recorded row, or None."""
+        row = int(self.ctl[loop.ROW]) - 1
+        return self.guard.check(self.loop_state[0], self.loop_state[1], float(self.T[max(row, 0)]))
+
     def force_bound(self, i: int, t: float) -> SlaveError:
         """Instance i's coupling force ``self.tau[i]`` is non-finite or above the FMU's input bound."""
-        lim = exchange_limit(self.system.M, self.Kp_m, self.Kd_m, self.H, self.A_coupled, hold=self.hold,
-                             exchange=self.exchange_kind)
+        lim = self.limit or exchange_limit(self.system.M, self.Kp_m, self.Kd_m, self.H, self.A_coupled,
+                                           hold=self.hold, exchange=self.exchange_kind)
         what = (f"its coupling force became non-finite or exceeds the FMU's input bound {contract.INPUT_BOUND:g} "
                 f"({self.tau[i].tolist()})")
         if self.exchange_kind == "explicit" and not lim.stable:
@@ -331,8 +339,8 @@ class NetworkMaster:
             chunk = max(1, n_steps // 200) if progress is not None else CHUNK_STEPS
             for k0 in range(0, n_steps, chunk):
                 code = self._chunk(k0, min(n_steps, k0 + chunk))
-                if code != loop.DONE:
-                    failure = self._failure(code)
+                failure = self._failure(code) if code != loop.DONE else self.grew()
+                if failure is not None:
                     break
                 if progress is not None:
                     progress(min(n_steps, k0 + chunk) / n_steps)
@@ -482,7 +490,8 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
 # (steps rolled back and retaken shorter), ``H`` (the accepted steps' lengths, an array, one
 # per step), ``H_first`` (the first and largest step), ``step_unit`` (the floor: the slaves'
 # solver.dt), ``tol``, ``error_estimate`` (the estimated global error: the sum of the accepted
-# steps' local estimates, in q's unit like tol), ``floor_steps`` (steps accepted at the floor
+# steps' local estimates and the slaves' own error at solver.dt ``floor_error``, in q's unit like
+# tol), ``tol_met`` (bool) and ``tol_not_met`` (why not), ``floor_steps`` (steps accepted at the floor
 # although their estimate exceeded their share: an impact accumulation, for example) and
 # ``error_norm`` (the norm, in words). The record has a row every ``record_every`` accepted
 # steps and the final state.
@@ -519,6 +528,7 @@ class AdaptiveMaster(NetworkMaster):
 
     def plan(self, values, schemes):
         plan = super().plan(values, schemes)
+        self.guard_start = (plan.q, plan.u)
         self.unit = max(plan.dts)   # the floor of the step: the slaves' own solver.dt
         if self.H < self.unit * (1 - 1e-9):
             raise ValueError(f"tol: H = {self.H:g} is below the slaves' solver.dt = {self.unit:g}, the "
@@ -596,8 +606,8 @@ class AdaptiveMaster(NetworkMaster):
                     code = self._adaptive(budget)
                     if code == ad.FULL:
                         self._grow()
-                    elif code != loop.DONE:
-                        failure = self._failure(code)
+                    elif code != loop.DONE or self.grew() is not None:
+                        failure = self._failure(code) if code != loop.DONE else self.grew()
                         break
                     elif progress is not None:
                         progress(min(1.0, float(self.ast[ad.S_T]) / self.grid.t_end))
@@ -605,11 +615,25 @@ class AdaptiveMaster(NetworkMaster):
                 ad.free_states(self.pmine, self.fn, self.comp, self.mine, np.zeros(4, dtype=np.int64), np.zeros(1))
         self.steps, self.rejected = int(self.actl[ad.C_STEPS]), int(self.actl[ad.C_REJECTED])
         self.forced, self.estimate = int(self.actl[ad.C_FORCED]), float(self.ast[ad.S_ERR])
+        if failure is None:
+            self.verdict(sum(int(v) for v in self.imp))
         return self.finish(int(self.ctl[loop.ROW]), [int(v) for v in self.imp], failure)
+
+    def verdict(self, impacts: int) -> None:
+        """The slaves' own error at the floor added to the estimate, and whether the run met tol
+        (:func:`fmu_sync.run_guard.tolerance_verdict`, a ToleranceNotMet warning when not)."""
+        omega = 0.0 if self.limit is None else math.sqrt(self.limit.omega_c ** 2 + self.limit.own)
+        q, u = self.guard_start
+        amp = float(np.max(np.abs(q)) + (np.max(np.abs(u)) / omega if omega > 0 else 0.0))
+        self.floor = floor_error(omega, self.unit, self.grid.t_end, amp)
+        self.estimate += self.floor
+        self.tol_met, self.tol_not_met = tolerance_verdict(self.tol, self.estimate, self.floor, self.forced,
+                                                           self.unit, self.hold, impacts)
 
     def result(self, rows, impacts, error):
         res = super().result(rows, impacts, error)
         res.info.update(tol=self.tol, steps=self.steps, rejected=self.rejected, H=self.HS[:self.steps].copy(),
                         H_first=self.H, step_unit=self.unit, error_estimate=self.estimate,
-                        floor_steps=self.forced, error_norm=ERROR_NORM)
+                        floor_steps=self.forced, error_norm=ERROR_NORM, floor_error=getattr(self, "floor", None),
+                        tol_met=getattr(self, "tol_met", False), tol_not_met=getattr(self, "tol_not_met", error))
         return res

@@ -206,7 +206,8 @@ def adaptive_fields(info) -> dict:
     H = np.asarray(info["H"], dtype=float)
     return dict(tol=info["tol"], comm_steps=int(info["steps"]), rejected=int(info["rejected"]),
                 H_shortest=float(H.min()) if H.size else None, H_longest=float(H.max()) if H.size else None,
-                error_estimate=float(info["error_estimate"]))
+                error_estimate=float(info["error_estimate"]), tol_met=bool(info.get("tol_met", True)),
+                tol_not_met=info.get("tol_not_met") or "")
 
 
 def max_abs_difference(a, b, attr: str = "d") -> float | None:
@@ -394,7 +395,8 @@ def run_notes(runs) -> list[str]:
             bits.append(f"co-simulated to tol = {m['tol']:g}: {m['comm_steps']} communication steps of "
                         f"{format_value(m['H_shortest'])} to {format_value(m['H_longest'])} s "
                         f"({m['rejected']} rejected and retaken), estimated error {m['error_estimate']:.3g} "
-                        f"(q's unit, docs/design.md §4.4.1)")
+                        f"(q's unit, docs/design.md §4.4.1)"
+                        + ("" if m.get("tol_met", True) else f"; tolerance NOT met: {m['tol_not_met']}"))
         if m.get("row_dt_median") is not None:
             bits.append(f"its record's rows came every {format_value(m['row_dt_min'])} to "
                         f"{format_value(m['row_dt_max'])} s (median {format_value(m['row_dt_median'])} s)")
@@ -435,6 +437,7 @@ ADAPTIVE_COLUMNS = [
     ("tol", lambda m: m.get("tol")),
     ("steps (rejected)", lambda m: f"{m['comm_steps']} ({m['rejected']})" if "comm_steps" in m else "—"),
     ("error estimate", lambda m: m.get("error_estimate")),
+    ("tol met", lambda m: ("yes" if m["tol_met"] else "NO") if "tol_met" in m else "—"),
 ]
 SINGLE_COLUMNS = [
     ("run", lambda m: m["name"]),

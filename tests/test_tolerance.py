@@ -69,19 +69,25 @@ def test_issue_case_error_within_ten_tol_and_estimated(forced_fmu):
 
 @pytest.mark.slow
 def test_issue_case_at_1e4_and_it_pays(forced_fmu):
-    """T = 1e-4: within 10 T, estimated within a factor 10, and at most half the steps of the
-    largest fixed H = 0.02/2^k (or the floor H = dt) whose error is no larger."""
+    """T = 1e-4: within 10 T, estimated above a tenth of it, and fewer steps than the
+    largest fixed H = 0.02/2^k (or the floor H = dt) whose error is no larger. The reference here is
+    the limit H -> dt; the estimate is against the coupled system (issue 39.3), so it keeps the
+    zero-order hold's own error at dt, which this reference shares: it may be far above this
+    error, and the run says the tolerance was not met (impacts, the hold's floor)."""
     system = ImpactOscillator(**FORCED)
     r = cosimulate(forced_fmu, X1, X2, 5.0, 0.05, tol=1e-4, **LAW)
     err = q1_error(r, system, 5.0)
-    assert err <= 1e-3 and err / 10 <= r.info["error_estimate"] <= 10 * err
+    assert err <= 1e-3 and err / 10 <= r.info["error_estimate"]
+    assert r.info["tol_met"] is False and "impacts" in r.info["tol_not_met"]
     ladder = [0.02 / 2 ** k for k in range(8)] + [DT]
     for H in ladder:   # the largest H whose error is no larger
         f = cosimulate(forced_fmu, X1, X2, 5.0, H, **LAW, record_every=max(1, int(round(0.01 / H))))
         if q1_error(f, system, 5.0) <= err:
             break
     fixed_steps = math.ceil(5.0 / H - 1e-9)
-    assert r.info["steps"] <= fixed_steps / 2, (r.info["steps"], H, fixed_steps)
+    # 0.6.0's estimate vanished at the floor and took at most half of these steps; the honest one
+    # keeps the zero-order hold's first-order error at dt, so the run spends its steps there
+    assert r.info["steps"] < fixed_steps, (r.info["steps"], H, fixed_steps)
 
 
 def test_rejected_steps_leave_the_slaves_as_a_fresh_run(forced_fmu):
