@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as hst
 
 from fmu_sync.benchmarks import stability as st
 from fmu_sync.core import ImpactOscillator, hold_bound, simulate
@@ -119,3 +120,29 @@ def test_step_larger_than_the_forcing_period():
     _assert_rows(rows)
     mids = [r for r in rows if r.method == "midpoint" and r.case.startswith("paper")]
     assert all(r.outcome == "SimulationDiverged" for r in mids)   # omega_max*dt = 3, 7 > 2
+
+
+@settings(max_examples=40, deadline=None)
+@given(n=hst.integers(1, 6), scale=hst.floats(1e-3, 50.0), seed=hst.integers(0, 2**32 - 1))
+def test_our_matrix_exponential_is_scipys(n, scale, seed):
+    """core.exchange.expm (numpy only: the master's stability bound with the systems' own stiffness
+    runs without scipy, a test extra) against scipy.linalg.expm."""
+    import scipy.linalg as sl
+
+    from fmu_sync.core.exchange import expm
+    A = np.random.default_rng(seed).normal(size=(n, n)) * scale
+    ref = sl.expm(A)
+    assert np.max(np.abs(expm(A) - ref)) <= 1e-11 * max(1.0, np.max(np.abs(ref)))
+
+
+def test_the_held_flow_map_needs_no_scipy():
+    """The numba-range smoke (0.7.0 on numba 0.64) found the master importing scipy for the bound."""
+    import subprocess
+    import sys
+    code = ("import sys; sys.modules['scipy'] = None\n"
+            "import numpy as np\n"
+            "from fmu_sync.core.exchange import hold_map_radius\n"
+            "r = hold_map_radius(np.eye(1) * 2.0, np.eye(1) * 0.2, 0.1, 'foh', 'implicit', own=(np.eye(1), np.eye(1) * 0.1))\n"
+            "print(r)")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0 and 0.0 < float(p.stdout) < 1.0, p.stderr
