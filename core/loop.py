@@ -269,7 +269,7 @@ def implicit_matrix(laws, E2, W2, kp, kd, co, Ainv):
     Ainv[:, :] = _inverse(A)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def implicit_forces(laws, E2, W2, sg, kp, kd, qf, uf, co, tau1d, dq, du, hp, t, bh, Ainv, r, delta):
     """``tau1d`` (the forces at the step's start) -> the trapezoid of the coupling forces over the
     step (:func:`implicit_matrix`), n = 1: ``qf, uf`` the nodes' end states under ``tau1d`` held
@@ -406,6 +406,8 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
     du = np.zeros(N)
     rr = np.zeros(N)
     delta = np.zeros(N)
+    fcs = np.zeros(N)
+    pair = N == 2 and E == 1 and E2[0, 0] == 0 and E2[0, 1] == 1
     bh = np.full(max(E2.shape[0], 1), BRANCH_NONE)
     hp = force_table(K, C, f0, F, Omega, phi)
     B0 = base.B[0, 0]
@@ -497,11 +499,21 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
             for i in range(N):
                 cf = (co[i, 0], co[i, 1], co[i, 2], co[i, 3], co[i, 4], co[i, 5], co[i, 6], co[i, 7], co[i, 8],
                       co[i, 9], co[i, 10])
-                y = net_force1(cf, f0, f01, i, q1d[i], u1d[i], tau1d[i], B0,
-                               _forcing1(F1d, Om1d, ph1d, nf, i, t + a), t + a, a, qa, uta, ta)
+                fcs[i] = _forcing1(F1d, Om1d, ph1d, nf, i, t + a)
+                y = net_force1(cf, f0, f01, i, q1d[i], u1d[i], tau1d[i], B0, fcs[i], t + a, a, qa, uta, ta)
                 qf[i] = q1d[i] + (hk * u1d[i] + co[i, 3] * y)
                 uf1[i] = u1d[i] + co[i, 2] * y
-            implicit_forces(laws, E2, W2, sg, kp0, kd0, qf, uf1, co, tau1d, dq, du, hp, t + hk, bh, Ainv, rr, delta)
+            if pair and (law0 == EUCLIDEAN or bh[0] == BRANCH_E):   # the pair's linear case on floats
+                sE = kp0 * (qf[0] - qf[1]) + kd0 * (uf1[0] - uf1[1])   # the PD law (both laws' branch E)
+                f1 = -sE
+                f2 = sE
+                r0 = W2[0, 0] * f1 - tau1d[0]
+                r1 = W2[0, 1] * f2 - tau1d[1]
+                tau1d[0] += Ainv[0, 0] * r0 + Ainv[0, 1] * r1
+                tau1d[1] += Ainv[1, 0] * r0 + Ainv[1, 1] * r1
+            else:
+                implicit_forces(laws, E2, W2, sg, kp0, kd0, qf, uf1, co, tau1d, dq, du, hp, t + hk, bh, Ainv, rr,
+                                delta)
             if k == 0 and k0 == 0:
                 for i in range(N):
                     TAU[0, i, 0] = tau1d[i]
@@ -554,7 +566,7 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
             for i in range(N):
                 u0 = u1d[i]
                 # the forcing (harmonic.hsum1_cos of node i, written out: no arrays handed per step)
-                fc = _forcing1(F1d, Om1d, ph1d, nf, i, t + a)
+                fc = fcs[i] if implicit else _forcing1(F1d, Om1d, ph1d, nf, i, t + a)
                 cf = (co[i, 0], co[i, 1], co[i, 2], co[i, 3], co[i, 4], co[i, 5], co[i, 6], co[i, 7], co[i, 8],
                       co[i, 9], co[i, 10])
                 y = net_force1(cf, f0, f01, i, q1d[i], u0, tau1d[i], B0, fc, t + a, a, qa, uta, ta)
