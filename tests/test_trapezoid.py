@@ -176,3 +176,21 @@ def test_the_implicit_cosimulation_at_H_dt_is_the_trapezoid_pair(tmp_path, hold)
         r = cosimulate(fmu, x1, x2, 0.2, 1e-3, law, Kp, Kd, exchange="implicit", hold=hold)
         for a, b in ((r.q1, ref.q1), (r.u1, ref.u1), (r.q2, ref.q2), (r.u2, ref.u2)):
             assert np.max(np.abs(a - b)) <= 1e-9
+
+
+def test_a_stiff_user_law_pair_is_second_order():
+    """The damped pendulum pair (the user law of core/examples.py), Euclidean Kp = 500, Kd = 0: refused by
+    the midpoint's held exchange, second order with the coupling inside the step (DOP853 reference)."""
+    p = Pendulum(c=0.2, q_w=3.0)
+    x1, x2, T = (0.5, 0.0), (-0.3, 0.2), 1.0
+    with pytest.raises(UnstableExchange):
+        simulate_pair(p, x1, x2, T, 1e-3, coupling="euclidean", Kp=500.0, Kd=0.0)
+
+    def rhs(t, z):
+        q1, u1, q2, u2 = z
+        tau = -500.0 * (q1 - q2)
+        return [u1, -9.81 * math.sin(q1) - 0.2 * u1 + tau, u2, -9.81 * math.sin(q2) - 0.2 * u2 - tau]
+    ref = _dop(rhs, (*x1, *x2), T)
+    e = [np.max(np.abs(_end(simulate_pair(p, x1, x2, T, dt, coupling="euclidean", Kp=500.0, Kd=0.0,
+                                          scheme="trapezoid", record_every=10 ** 6)) - ref)) for dt in (1e-3, 1e-4)]
+    assert _order(*e) >= 1.9
