@@ -192,6 +192,8 @@ def scheme_code(scheme: str, theta: float) -> tuple[int, float]:
     from .moreau import SCHEMES
     if scheme not in SCHEMES:
         raise ValueError(f"scheme must be one of {sorted(SCHEMES)} (or 'exact' where supported), got {scheme!r}")
+    if scheme == "trapezoid":   # theta = 1/2 by definition (the θ argument belongs to scheme='theta')
+        return SCHEMES[scheme], 0.5
     theta = float(theta)
     if not 0.5 <= theta <= 1.0:
         raise ValueError(f"theta must lie in [0.5, 1] (unconditional stability needs theta >= 1/2), got {theta}")

@@ -15,14 +15,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from .steps import THETA
+from .steps import MIDPOINT
 
 __all__ = ["rows_written", "state_text", "law_raised", "law_nonfinite", "force_offset"]
 
 
 def force_offset(code: int, theta: float, h: float) -> float:
     """``a``: the scheme's force point t + a of a step of length h (θ h, or h/2 for the midpoint)."""
-    return theta * h if code == THETA else 0.5 * h
+    return theta * h if code != MIDPOINT else 0.5 * h
 
 
 def rows_written(T) -> int:

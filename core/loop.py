@@ -27,14 +27,14 @@ import numpy as np
 from .jit import njit
 
 from .compensation import compensated_coupling1, force_table, node_force1
-from .coupling import (BRANCH_NONE, COMPENSATED, SWITCHING, UNCOUPLED, coupling_kernel, coupling_kernel1,
+from .coupling import (BRANCH_NONE, COMPENSATED, EUCLIDEAN, SWITCHING, UNCOUPLED, coupling_kernel, coupling_kernel1,
                        euclidean_coupling1, p_norm_diff)
-from .distance import BRANCH_FREE, distance1, distance_value
+from .distance import BRANCH_E, BRANCH_FREE, distance1, distance_value
 from .harmonic import hsum_cos
 from .metrics import decimator_push
 from .model import SystemArrays
 from .moreau import force, force1
-from .steps import (DIVERGED, OK, THETA, finish_step, flush1, hbase, scalar_params, step1_y, step_coeffs1, step_y,
+from .steps import (DIVERGED, MIDPOINT, OK, TRAPEZOID, _inverse, finish_step, flush1, hbase, scalar_params, step1_y, step_coeffs1, step_y,
                     theta_matrices)
 
 __all__ = ["coupling_step", "coupling_step1", "network_forces", "node_force", "integrate_network",
@@ -191,10 +191,10 @@ def _matrices(base, K, C, f0, F, Omega, phi, scheme, theta, h, Sinv, Sinv_w, WS,
     scalar = K.shape[1] == 1
     for i in range(K.shape[0]):
         sa = _node(base, K, C, f0, F, Omega, phi, i)
-        if scheme == THETA:
+        if scheme != MIDPOINT:
             WS[i] = theta_matrices(sa, h, theta, Sinv[i], Sinv_w[i])
         if scalar:
-            if scheme == THETA:
+            if scheme != MIDPOINT:
                 c = step_coeffs1(scalar_params(sa), Sinv[i, 0, 0], Sinv_w[i, 0], WS[i], theta * h, h)
             else:
                 c = step_coeffs1(scalar_params(sa), sa.Minv[0, 0], sa.Minv_w[0], sa.W, 0.5 * h, h)
@@ -214,6 +214,18 @@ def _impact(i, k, imp, ep, last, v, v_imp):
 
 
 @njit(cache=True, inline="always")
+def _forcing1(F1d, Om1d, ph1d, nf, i, tf):
+    """Node i's harmonic forcing at tf, n = 1 (:func:`.harmonic.hsum1_cos`, written out on the 1-D
+    views: no arrays handed per step)."""
+    fc = 0.0
+    if nf > 0:
+        fc = F1d[i * nf] * math.cos(Om1d[i * nf] * tf + ph1d[i * nf])
+        for j in range(1, nf):
+            fc += F1d[i * nf + j] * math.cos(Om1d[i * nf + j] * tf + ph1d[i * nf + j])
+    return fc
+
+
+@njit(cache=True, inline="always")
 def net_force(sa, f0, i, q, u, tau, hf, tf, a, y, qe):
     """The force of node i (n > 1) at its force point, into y: the built-in law's
     (:func:`.moreau.force`, ``hb = f0 + B tau`` in ``qe``); a user law's copy of the loop takes
@@ -229,6 +241,86 @@ def net_force1(cf, f0, f01, i, q, u, tau, B0, fc, tf, a, qa, ua, ta):
     return force1(cf, f0, q, u, tau, f01[i] + B0 * tau, fc, tf, a, qa, ua, ta)
 
 
+@njit(cache=True)
+def implicit_matrix(laws, E2, W2, kp, kd, co, Ainv):
+    """The coupling inside the step (scheme ``trapezoid``, n = 1; docs/design.md §2.3): each node i
+    steps with the held force ``s_i = tau_i(x0) + delta_i``, the trapezoid of its coupling force
+    ``(tau_i(x0) + tau_i(x1)) / 2``. A node's end state is affine in its force (``u1 += G1 delta``,
+    ``q1 += G2 delta``, ``G1 = dt X``, ``G2 = a dt X`` of :func:`.steps.step_coeffs1` in ``co``), and
+    the PD law of a held branch E is linear: ``tau(x1) = tau(x1 free) + J delta``. Fills
+    ``Ainv = (2 I - J)^-1``, so that ``delta = Ainv (tau(x1 free) - tau(x0))`` solves the step
+    (exactly for the Euclidean law and branch E; a Newton matrix on a jump branch)."""
+    N = Ainv.shape[0]
+    A = np.zeros((N, N))
+    for i in range(N):
+        A[i, i] = 2.0
+    for e_ in range(E2.shape[0]):
+        if laws[e_] == UNCOUPLED:
+            continue
+        a = E2[e_, 0]
+        b = E2[e_, 1]
+        ga = kp * co[a, 3] + kd * co[a, 2]
+        gb = kp * co[b, 3] + kd * co[b, 2]
+        # tau_a += W(-kp (q_a - q_b) - kd (u_a - u_b)), tau_b the opposite: -J in A
+        A[a, a] += W2[e_, 0] * ga
+        A[a, b] -= W2[e_, 0] * gb
+        A[b, b] += W2[e_, 1] * gb
+        A[b, a] -= W2[e_, 1] * ga
+    Ainv[:, :] = _inverse(A)
+
+
+@njit(cache=True, inline="always")
+def implicit_forces(laws, E2, W2, sg, kp, kd, qf, uf, co, tau1d, dq, du, hp, t, bh, Ainv, r, delta):
+    """``tau1d`` (the forces at the step's start) -> the trapezoid of the coupling forces over the
+    step (:func:`implicit_matrix`), n = 1: ``qf, uf`` the nodes' end states under ``tau1d`` held
+    (contact left out), ``bh`` each edge's branch at the start (held over the step, as the master's
+    implicit exchange holds it, docs/design.md §4.4); ``dq, du, r, delta`` (N,) scratch. Newton on
+    ``R(delta) = (tau(x1(delta)) - tau(x0)) / 2 - delta`` with the matrix of :func:`implicit_matrix`:
+    one pass when every edge is Euclidean or on branch E (linear), otherwise until
+    |2 R| <= 1e-13 max|tau| (at most 8 passes)."""
+    N = tau1d.shape[0]
+    linear = True
+    for e_ in range(E2.shape[0]):
+        if laws[e_] != UNCOUPLED and laws[e_] != EUCLIDEAN and bh[e_] != BRANCH_E:
+            linear = False
+    for i in range(N):
+        delta[i] = 0.0
+    for it in range(8):
+        for i in range(N):
+            dq[i] = qf[i] + co[i, 3] * delta[i]
+            du[i] = uf[i] + co[i, 2] * delta[i]
+            r[i] = 0.0
+        for e_ in range(E2.shape[0]):
+            lw = laws[e_]
+            if lw == UNCOUPLED:
+                continue
+            ia = E2[e_, 0]
+            ib = E2[e_, 1]
+            f1, f2, _, _, _ = coupling_step1(lw, sg, kp, kd, dq[ia], du[ia], dq[ib], du[ib], False, hp, ia, ib, t,
+                                             bh[e_])
+            if W2[e_, 0] > 0.0:
+                r[ia] += W2[e_, 0] * f1
+            if W2[e_, 1] > 0.0:
+                r[ib] += W2[e_, 1] * f2
+        big = 0.0
+        scale = 1e-300
+        for i in range(N):   # 2 R = tau(x1) - tau(x0) - 2 delta
+            r[i] = (r[i] - tau1d[i]) - 2.0 * delta[i]
+            big = max(big, abs(r[i]))
+            scale = max(scale, abs(tau1d[i]))
+        if it > 0 and big <= 1e-13 * scale:
+            break
+        for i in range(N):
+            s = 0.0
+            for j in range(N):
+                s += Ainv[i, j] * r[j]
+            delta[i] += s
+        if linear:
+            break
+    for i in range(N):
+        tau1d[i] += delta[i]
+
+
 #: the loop's templates, as :data:`.moreau.TEMPLATES`: a user law's copy has its ``net_force``,
 #: ``net_force1`` (core/law_loops.py)
 TEMPLATES = {"_step_node": "never", "integrate_network": "never"}
@@ -242,10 +334,10 @@ def _step_node(base, K, C, f0, F, Omega, phi, i, q, u, tau, t, hk, scheme, theta
     for c in range(q.shape[1]):
         ua[c] = u[i, c]
     sa = _node(base, K, C, f0, F, Omega, phi, i)
-    a = theta * hk if scheme == THETA else 0.5 * hk
+    a = theta * hk if scheme != MIDPOINT else 0.5 * hk
     hsum_cos(sa.F, sa.Omega, sa.phi, t + a, hf)
     net_force(sa, f0, i, q[i], u[i], tau[i], hf, t + a, a, y, qe)
-    if scheme == THETA:
+    if scheme != MIDPOINT:
         P = step_y(sa, Sinv[i], Sinv_w[i], WS[i], a, q[i], u[i], hk, y, uf)[0]
     else:
         P = step_y(sa, sa.Minv, sa.Minv_w, sa.W, a, q[i], u[i], hk, y, uf)[0]
@@ -301,6 +393,22 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
     WS = np.zeros(N)
     co = np.zeros((N, 11))
     _matrices(base, K, C, f0, F, Omega, phi, scheme, theta, dt, Sinv, Sinv_w, WS, co)
+    Ainv = np.zeros((N, N))
+    implicit = scheme == TRAPEZOID and scalar
+    for e_ in range(E2.shape[0]):
+        if laws[e_] == COMPENSATED:   # its own law, held as it is (docs/design.md §2.5.2)
+            implicit = False
+    if implicit:
+        implicit_matrix(laws, E2, W2, Kp[0, 0], Kd[0, 0], co, Ainv)
+    qf = np.zeros(N)
+    uf1 = np.zeros(N)
+    dq = np.zeros(N)
+    du = np.zeros(N)
+    rr = np.zeros(N)
+    delta = np.zeros(N)
+    fcs = np.zeros(N)
+    pair = N == 2 and E == 1 and E2[0, 0] == 0 and E2[0, 1] == 1
+    bh = np.full(max(E2.shape[0], 1), BRANCH_NONE)
     hp = force_table(K, C, f0, F, Omega, phi)
     B0 = base.B[0, 0]
     sg = geo.scalar
@@ -363,6 +471,7 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
                 lw = law0 if uniform else laws[e_]
                 f1, f2, d_, b_, e1 = coupling_step1(lw, sg, kp0, kd0, q1d[ia], u1d[ia], q1d[ib], u1d[ib], need_d,
                                                     hp, ia, ib, tk)
+                bh[e_] = b_
                 if need_d:   # the record is read at rows only
                     dk[e_] = d_
                     bk[e_] = b_
@@ -380,6 +489,34 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
             for i in range(N):
                 for c in range(n):
                     TAU[0, i, c] = tau[i, c]
+        if implicit and coupled and k < total:   # the coupling inside the step: its trapezoid
+            hk = dt_last if k == n_steps else dt
+            if k == n_steps:
+                _matrices(base, K, C, f0, F, Omega, phi, scheme, theta, hk, Sinv, Sinv_w, WS, co)
+                implicit_matrix(laws, E2, W2, kp0, kd0, co, Ainv)
+            t = t0 + (k0 + k) * dt
+            a = theta * hk
+            for i in range(N):
+                cf = (co[i, 0], co[i, 1], co[i, 2], co[i, 3], co[i, 4], co[i, 5], co[i, 6], co[i, 7], co[i, 8],
+                      co[i, 9], co[i, 10])
+                fcs[i] = _forcing1(F1d, Om1d, ph1d, nf, i, t + a)
+                y = net_force1(cf, f0, f01, i, q1d[i], u1d[i], tau1d[i], B0, fcs[i], t + a, a, qa, uta, ta)
+                qf[i] = q1d[i] + (hk * u1d[i] + co[i, 3] * y)
+                uf1[i] = u1d[i] + co[i, 2] * y
+            if pair and (law0 == EUCLIDEAN or bh[0] == BRANCH_E):   # the pair's linear case on floats
+                sE = kp0 * (qf[0] - qf[1]) + kd0 * (uf1[0] - uf1[1])   # the PD law (both laws' branch E)
+                f1 = -sE
+                f2 = sE
+                r0 = W2[0, 0] * f1 - tau1d[0]
+                r1 = W2[0, 1] * f2 - tau1d[1]
+                tau1d[0] += Ainv[0, 0] * r0 + Ainv[0, 1] * r1
+                tau1d[1] += Ainv[1, 0] * r0 + Ainv[1, 1] * r1
+            else:
+                implicit_forces(laws, E2, W2, sg, kp0, kd0, qf, uf1, co, tau1d, dq, du, hp, t + hk, bh, Ainv, rr,
+                                delta)
+            if k == 0 and k0 == 0:
+                for i in range(N):
+                    TAU[0, i, 0] = tau1d[i]
         if is_row:
             T[r] = tk
             # the states (then flushed, as moreau.finish_step) and the edges' distance records, on the
@@ -422,17 +559,14 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
         hk = dt
         if k == n_steps:   # the shortened last step
             hk = dt_last
-            _matrices(base, K, C, f0, F, Omega, phi, scheme, theta, hk, Sinv, Sinv_w, WS, co)
-        a = theta * hk if scheme == THETA else 0.5 * hk
+            if not implicit:   # (the implicit solve above made them)
+                _matrices(base, K, C, f0, F, Omega, phi, scheme, theta, hk, Sinv, Sinv_w, WS, co)
+        a = theta * hk if scheme != MIDPOINT else 0.5 * hk
         if scalar:   # the 1-DOF path: the step on floats (bitwise the general step), 1-D views
             for i in range(N):
                 u0 = u1d[i]
                 # the forcing (harmonic.hsum1_cos of node i, written out: no arrays handed per step)
-                fc = 0.0
-                if nf > 0:
-                    fc = F1d[i * nf] * math.cos(Om1d[i * nf] * (t + a) + ph1d[i * nf])
-                    for j in range(1, nf):
-                        fc += F1d[i * nf + j] * math.cos(Om1d[i * nf + j] * (t + a) + ph1d[i * nf + j])
+                fc = fcs[i] if implicit else _forcing1(F1d, Om1d, ph1d, nf, i, t + a)
                 cf = (co[i, 0], co[i, 1], co[i, 2], co[i, 3], co[i, 4], co[i, 5], co[i, 6], co[i, 7], co[i, 8],
                       co[i, 9], co[i, 10])
                 y = net_force1(cf, f0, f01, i, q1d[i], u0, tau1d[i], B0, fc, t + a, a, qa, uta, ta)

@@ -28,8 +28,8 @@ from .jit import njit
 
 from .harmonic import PHASOR_SYNC, harmonic_table  # noqa: F401 (re-exported: the loops' forcing)
 from .harmonic import harmonic_workspace, hsum1_cos, hsum1_ph, hsum_cos, hsum_ph, ph_rot, ph_sync
-from .steps import MIDPOINT, SCHEMES  # noqa: F401 (re-exported: the scheme codes)
-from .steps import (DIVERGED, OK, THETA, all_finite, flush, flush1, hbase, scalar_params, step1_y, step_coeffs1,
+from .steps import MIDPOINT, SCHEMES, THETA, TRAPEZOID  # noqa: F401 (re-exported: the scheme codes)
+from .steps import (DIVERGED, OK, all_finite, flush, flush1, hbase, scalar_params, step1_y, step_coeffs1,
                     step_workspace, step_y, theta_matrices)
 
 
@@ -88,7 +88,7 @@ def integrate_with(sa, p, q, u, t0, dt, n_steps, tau, scheme, theta, record_ever
     """:func:`integrate` of the law ``force`` with parameters ``p`` (the template)."""
     n = q.shape[0]
     y, hf, uf, Sinv, Sinv_w, WS = step_workspace(sa, dt, scheme, theta)
-    if scheme == THETA:
+    if scheme != MIDPOINT:
         X, iw, WX, a = Sinv, Sinv_w, WS, theta * dt
     else:
         X, iw, WX, a = sa.Minv, sa.Minv_w, sa.W, 0.5 * dt
@@ -148,7 +148,7 @@ def integrate_with(sa, p, q, u, t0, dt, n_steps, tau, scheme, theta, record_ever
             row += 1
     if dt_last > 0.0:
         t = t0 + n_steps * dt
-        if scheme == THETA:
+        if scheme != MIDPOINT:
             WS = theta_matrices(sa, dt_last, theta, Sinv, Sinv_w)
             X, iw, WX, a = Sinv, Sinv_w, WS, theta * dt_last
         else:
@@ -231,7 +231,7 @@ def advance_in(sa, p, q, u, t0, H, dt, tau, taudot, foh, scheme, theta, phasor,
     :func:`advance_with`."""
     n = q.shape[0]
     WS = 0.0
-    if scheme == THETA:
+    if scheme != MIDPOINT:
         WS = theta_matrices(sa, dt, theta, Sinv, Sinv_w)
     Omega = sa.Omega
     phi = sa.phi
@@ -258,9 +258,9 @@ def advance_in(sa, p, q, u, t0, H, dt, tau, taudot, foh, scheme, theta, phasor,
         hk = dt
         if k == k_steps - 1:
             hk = (t0 + H) - t if k > 0 else H
-            if scheme == THETA and hk != dt:
+            if scheme != MIDPOINT and hk != dt:
                 WS = theta_matrices(sa, hk, theta, Sinv, Sinv_w)
-        if scheme == THETA:
+        if scheme != MIDPOINT:
             X, iw, WX, a = Sinv, Sinv_w, WS, theta * hk
         else:
             X, iw, WX, a = sa.Minv, sa.Minv_w, sa.W, 0.5 * hk
@@ -321,7 +321,7 @@ def integrate1_with(sa, p, q_, u_, t0, dt, n_steps, tau_, scheme, theta, record_
     ua = qut[1:2]
     ta = qut[2:3]
     _, _, _, Sinv, Sinv_w, WS = step_workspace(sa, dt, scheme, theta)
-    if scheme == THETA:
+    if scheme != MIDPOINT:
         a = theta * dt
         c = step_coeffs1(sp, Sinv[0, 0], Sinv_w[0], WS, a, dt)
     else:
@@ -406,7 +406,7 @@ def integrate1_with(sa, p, q_, u_, t0, dt, n_steps, tau_, scheme, theta, record_
             row += 1
     if dt_last > 0.0:
         t = t0 + n_steps * dt
-        if scheme == THETA:
+        if scheme != MIDPOINT:
             _, _, _, Sinv, Sinv_w, WS = step_workspace(sa, dt_last, scheme, theta)
             a = theta * dt_last
             c = step_coeffs1(sp, Sinv[0, 0], Sinv_w[0], WS, a, dt_last)

@@ -26,7 +26,7 @@ from .failure import rows_written
 from .loop import network_forces, no_decimator, node_force
 from .steps import DIVERGED, OK
 from .pair import LAWS, failure_message, locate_failure, network_loop, stack_nodes
-from .plan import as_systems, coupled_weights, edges_of, held_exchange, plan_run, weights
+from .plan import coupling_exchange, as_systems, coupled_weights, edges_of, held_exchange, plan_run, weights
 from .result import NetworkResult
 
 __all__ = ["simulate_network", "ring", "path", "star", "all_to_all", "GRAPHS", "graph", "weights",
@@ -158,6 +158,7 @@ def simulate_network(system, states, A, t_end: float, dt: float, coupling="switc
     record_d = bool(record_distance) or bool(np.any(np.isin(laws, QUOTIENT_LAWS)))
     E = len(edges)
     plan = plan_run(systems, states, t_end, dt, scheme=scheme, theta=theta, A=A, laws=laws, Kp=Kp, Kd=Kd,
+                    exchange=coupling_exchange(scheme, systems),
                     record_every=record_every, t0=t0, allow_unstable=allow_unstable,
                     record_values=1 + 3 * N * systems[0].n + (3 * E + 1 if record_d else 0),
                     record_what="the record of simulate_network",

@@ -21,7 +21,7 @@ from .result import PairResult, concat_pairs
 from .checks import divergence_message
 from .errors import ForceLawFailed, SimulationDiverged
 from .failure import force_offset, law_nonfinite, law_raised, rows_written
-from .plan import as_systems, check_common_geometry, plan_run
+from .plan import coupling_exchange, as_systems, check_common_geometry, plan_run
 
 __all__ = ["simulate_pair", "coupling_step", "LAWS", "gain_matrix", "check_common_geometry", "as_systems"]
 
@@ -145,6 +145,7 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
     n = s1.n
     record_d = bool(record_distance) or law in QUOTIENT_LAWS
     plan = plan_run(systems, (x1, x2), t_end, dt, scheme=scheme, theta=theta, laws=[law], Kp=Kp, Kd=Kd,
+                    exchange=coupling_exchange(scheme, systems),
                     record_every=record_every, t0=t0, allow_unstable=allow_unstable,
                     record_values=None if sink is not None else 4 * n + 2 * n + (4 if record_d else 1),
                     record_what="the record of simulate_pair",

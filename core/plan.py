@@ -135,6 +135,13 @@ def held_exchange(M, Kp, Kd, step: float, A=None, laws=None, hold: str = "zoh", 
                                           step_name=step_name, hold=hold, exchange=exchange, own=own)
 
 
+def coupling_exchange(scheme, systems) -> str:
+    """The exchange of the core's coupled loop (:func:`.loop.integrate_network`) for ``scheme``:
+    ``"implicit"`` (the coupling inside the step, its trapezoid: A-stable, docs/design.md §2.6)
+    for ``scheme="trapezoid"`` on 1-DOF systems, else the zero-order hold of the start forces."""
+    return "implicit" if scheme == "trapezoid" and systems[0].n == 1 else "explicit"
+
+
 # ------------------------------------------------------------------ the plan
 @dataclass(frozen=True, eq=False)
 class RunPlan:

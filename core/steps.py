@@ -40,7 +40,11 @@ from .harmonic import hsum_cos
 
 MIDPOINT = 0
 THETA = 1
-SCHEMES = {"midpoint": MIDPOINT, "theta": THETA}
+#: Moreau–Jean θ = 1/2 (the trapezoidal rule between impacts: second order) with, in coupled runs,
+#: the coupling forces inside the step: their trapezoid (mean of the step's ends, the branch of a
+#: switching law held from the start) solved with the step (core/loop.py, docs/design.md §2.3)
+TRAPEZOID = 3   # (2 is the FMU's exact scheme, fmus/contract.py SCHEME_EXACT: one numbering everywhere)
+SCHEMES = {"midpoint": MIDPOINT, "theta": THETA, "trapezoid": TRAPEZOID}
 
 OK = 0
 DIVERGED = 1
@@ -224,7 +228,7 @@ def step_workspace(sa, dt, scheme, theta):
     Sinv = np.empty((n, n))
     Sinv_w = np.empty(n)
     WS = 0.0
-    if scheme == THETA:
+    if scheme != MIDPOINT:
         WS = theta_matrices(sa, dt, theta, Sinv, Sinv_w)
     return np.empty(n), np.empty(n), np.empty(n), Sinv, Sinv_w, WS
 

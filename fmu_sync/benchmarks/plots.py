@@ -14,6 +14,7 @@ __all__ = ["work_precision_plot", "work_precision_plots"]
 STYLE = {"font.size": 10, "axes.grid": True, "grid.alpha": 0.3, "legend.fontsize": 8.5,
          "legend.framealpha": 0.85, "lines.linewidth": 1.3}
 MARKERS = {"midpoint": ("o", "#1f77b4"), "theta0.5": ("s", "#2ca02c"), "theta1": ("D", "#17becf"),
+           "trapezoid": ("h", "#7f7f7f"),
            "solve_ivp": ("^", "#d62728"), "cosim": ("v", "#9467bd"), "cosim-ea": ("P", "#e377c2"),
            "cosim-fine": ("<", "#8c564b"), "cosim-fine-ea": (">", "#bcbd22"),
            "cosim-fine-implicit": ("X", "#ff7f0e"), "exact": ("*", "#000000")}

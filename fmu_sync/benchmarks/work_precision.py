@@ -8,6 +8,8 @@ method         what runs                                                        
 midpoint       core ``simulate`` / ``simulate_pair``, Moreau midpoint           dt
 theta0.5       core, Moreau–Jean θ = 0.5                                        dt
 theta1         core, Moreau–Jean θ = 1                                          dt
+trapezoid      core, θ = 0.5 with a pair's coupling inside the step (its        dt
+               trapezoid, docs/design.md §2.3)
 exact          core/exact.py, event-driven closed form, sampled every 1 ms      (1e-3)
 solve_ivp      ``scipy.integrate.solve_ivp`` RK45 with a terminal g = 0 event,  rtol
                restart with u -> -e u, Zeno guard (see :func:`ivp_impacts`)

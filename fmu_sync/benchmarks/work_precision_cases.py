@@ -24,6 +24,8 @@ METHOD_DOC = {
     "midpoint": "Moreau midpoint (core), step = dt",
     "theta0.5": "Moreau–Jean θ = 0.5 (core), step = dt",
     "theta1": "Moreau–Jean θ = 1 (core), step = dt",
+    "trapezoid": "trapezoid (core): Moreau–Jean θ = 0.5 with, in a pair, the coupling inside the step "
+                 "(its trapezoid, docs/design.md §2.3); step = dt",
     "exact": "exact event-driven solver (core/exact.py, n-DOF: core/exact_nd.py), output every 1 ms; "
              "it is the reference, so its own error is 0 except against a closed form (tests check it "
              "against DOP853 to 1e-12 (1-DOF) and 1e-10 (two-dof))",
@@ -35,7 +37,8 @@ METHOD_DOC = {
     "cosim-fine-ea": "same, event-aware",
     "cosim-fine-implicit": "same, exchange='implicit' (iterated to the step's end states, hold='foh')",
 }
-CORE_SCHEMES = (("midpoint", "midpoint", 0.5), ("theta0.5", "theta", 0.5), ("theta1", "theta", 1.0))
+CORE_SCHEMES = (("midpoint", "midpoint", 0.5), ("theta0.5", "theta", 0.5), ("theta1", "theta", 1.0),
+                ("trapezoid", "trapezoid", 0.5))
 
 
 # ------------------------------------------------------------------ scenes

@@ -124,7 +124,7 @@ def midpoint_vs_exact(points, scene, metric):
 #: error levels of the "best method vs solve_ivp" comparison
 LEVELS = tuple(10.0 ** -k for k in range(2, 11))
 #: the project's own methods (single system)
-OWN_METHODS = ("midpoint", "theta0.5", "theta1", "exact")
+OWN_METHODS = ("midpoint", "theta0.5", "theta1", "trapezoid", "exact")
 #: verified accuracy of the exact solvers against DOP853 (tests/test_exact.py: 1e-12 on the
 #: 1-DOF closed forms; tests/test_exact_nd.py: 1e-10 asserted on the two-dof scene)
 EXACT_VERIFIED = {1: 1e-12, 2: 1e-10}
