@@ -15,7 +15,7 @@ from .model import MechanicalSystem
 __all__ = ["check_step", "check_run", "n_steps", "RunSteps", "run_steps", "record_rows", "record_times",
            "check_record_size", "RecordTooLarge", "StepTooLarge", "record_budget", "GAP_TOL", "InadmissibleState",
            "check_admissible", "penetration_bound", "scheme_code", "check_stable", "coupling_omega",
-           "divergence_message", "check_start", "TIME_TOL", "steps_in", "lands"]
+           "divergence_message", "check_start", "TIME_TOL", "steps_in", "lands", "land_last_row"]
 
 #: two times closer than this fraction of a step are one time: a round-off, never a step of its own
 #: (the one rule of :func:`steps_in` and :func:`lands`: run grids, the tolerance controller's last
@@ -101,6 +101,13 @@ def record_times(grid: RunSteps, record_every: int, t0: float = 0.0) -> np.ndarr
     T = t0 + (np.arange(rows, dtype=np.float64) * record_every) * grid.dt
     T[-1] = grid.t_end
     return T
+
+
+def land_last_row(T, written: int, grid: RunSteps) -> None:
+    """The final row of a finished run at t_end itself: the kernels write ``t0 + k dt`` (and
+    ``+ dt_last``), which may lie a round-off beside it (0.7 / 0.1: 0.7000000000000001)."""
+    if written > 0:
+        T[written - 1] = grid.t_end
 
 
 class RecordTooLarge(RunRefused):

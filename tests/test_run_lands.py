@@ -117,3 +117,38 @@ def test_early_return_master_ends_at_t_end_with_its_final_state(shared_fmu):
         assert r3.t[-1] == 1.05 and len(r3.t) == len(r2.t)
         np.testing.assert_array_equal(r3.t, r2.t)
         assert np.max(np.abs(r3.q1 - r2.q1)) < 1e-12 and np.max(np.abs(r3.u2 - r2.u2)) < 1e-12
+
+
+# ------------------------------------------------------------------ fixed-step runs: core and master
+OSC = dict(m=1.0, k=1.0, c=0.0, e=0.9, f0=0.2, F=0.5, Omega=2.5)
+
+
+@pytest.mark.parametrize("t_end, dt", [(0.7, 0.1), (0.3, 0.1), (0.7, 0.05), (1.05, 0.1)])
+def test_core_runs_end_at_t_end_itself(t_end, dt):
+    """simulate, simulate_pair (whole, with progress chunks, streamed) and simulate_network end at
+    t_end bit for bit (0.6.0: 0.7000000000000001 for 0.7 / 0.1), the row before a step earlier."""
+    from fmu_sync.core import ImpactOscillator, simulate, simulate_network, simulate_pair
+    from fmu_sync.core.network import ring
+    o = ImpactOscillator(**OSC)
+    law = dict(coupling="euclidean", Kp=1.0, Kd=0.5)
+    streamed = []
+    runs = [simulate(o, X1, t_end, dt).t,
+            simulate_pair(o, X1, X2, t_end, dt, **law).t,
+            simulate_pair(o, X1, X2, t_end, dt, progress=lambda f: None, **law).t,
+            simulate_network([o] * 3, [X1, X2, X1], ring(3), t_end, dt, **law).t,
+            simulate_network([o] * 3, [X1, X2, X1], ring(3), t_end, dt, progress=lambda f: None, **law).t]
+    simulate_pair(o, X1, X2, t_end, dt, sink=lambda r: streamed.append(r.t), chunk_rows=2, **law)
+    runs.append(np.concatenate(streamed))
+    for t in runs:
+        assert t[-1] == t_end and 0 < t_end - t[-2] <= dt * (1 + 1e-9)
+
+
+def test_master_runs_end_at_t_end_itself(shared_fmu):
+    """cosimulate and cosimulate_network at t_end = 0.7, H = 0.05 (0.6.0: 0.7000000000000001)."""
+    from fmu_sync.core.network import ring
+    from fmu_sync.master import cosimulate_network
+    fmu = shared_fmu("impact-oscillator", 2, dict(FORCED, **{"solver.dt": 1e-3}))
+    r = cosimulate(fmu, X1, X2, 0.7, 0.05, **LAW)
+    n = cosimulate_network(fmu, [X1, X2, X1], ring(3), 0.7, 0.05, coupling="euclidean", Kp=1.0, Kd=0.5)
+    for t in (r.t, n.t):
+        assert t[-1] == 0.7 and len(t) == 15
