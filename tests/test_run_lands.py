@@ -152,3 +152,16 @@ def test_master_runs_end_at_t_end_itself(shared_fmu):
     n = cosimulate_network(fmu, [X1, X2, X1], ring(3), 0.7, 0.05, coupling="euclidean", Kp=1.0, Kd=0.5)
     for t in (r.t, n.t):
         assert t[-1] == 0.7 and len(t) == 15
+
+
+@pytest.mark.parametrize("mode", ["core", "cosim"])
+def test_scene_runs_end_at_t_end_itself(tmp_path, mode):
+    """A scene of run.t_end = 0.7 (run.H = 0.05 co-simulated): every variant's record ends at 0.7."""
+    from fmu_sync import run_scene
+    over = {"run.mode": mode, "run.t_end": 0.7}
+    if mode == "cosim":
+        over["run.H"] = 0.05
+    sr = run_scene("forced-pair", tmp_path, plots=False, overrides=over, variants=["switching", "euclidean"])
+    assert len(sr.runs) == 2
+    for r in sr.runs:
+        assert r.result.t[-1] == 0.7
