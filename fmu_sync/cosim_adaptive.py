@@ -220,7 +220,7 @@ def adaptive_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, ad, norm
                 actl[C_REJECTED] += 1
                 _copies(True, (q, u, hist_tau, tau), (qs, us, hts, taus), hist, hs, ctl)
                 ctl[FRESH] = fresh
-                ast[S_H] = unit * max(1.0, math.floor(FAC_MIN * h / unit + 1e-9))
+                ast[S_H] = unit * max(1.0, math.floor(FAC_MIN * h / unit + TIME_TOL))
                 retry = True
                 continue
         elif exchange_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau, tau_next, hist_tau, hist,
