@@ -15,7 +15,28 @@ from .model import MechanicalSystem
 __all__ = ["check_step", "check_run", "n_steps", "RunSteps", "run_steps", "record_rows", "record_times",
            "check_record_size", "RecordTooLarge", "StepTooLarge", "record_budget", "GAP_TOL", "InadmissibleState",
            "check_admissible", "penetration_bound", "scheme_code", "check_stable", "coupling_omega",
-           "divergence_message", "check_start"]
+           "divergence_message", "check_start", "TIME_TOL", "steps_in", "lands", "land_last_row"]
+
+#: two times closer than this fraction of a step are one time: a round-off, never a step of its own
+#: (the one rule of :func:`steps_in` and :func:`lands`: run grids, the tolerance controller's last
+#: step, the early-return master; docs/design.md §5.1)
+TIME_TOL = 1e-9
+
+
+@njit(cache=True, inline="always")
+def steps_in(span, step):
+    """``(k, short)``: ``span`` holds ``k`` whole steps of ``step`` and, if ``short``, a shorter
+    one more; a rest within :data:`TIME_TOL` of a step (either side) is a round-off, not a step."""
+    r = span / step
+    k = math.floor(r + TIME_TOL)
+    return int(k), r - k > TIME_TOL
+
+
+@njit(cache=True, inline="always")
+def lands(t, h, t_end, step):
+    """A step of length ``h`` from ``t`` lands on ``t_end``: it reaches it, or falls short by a
+    round-off (:data:`TIME_TOL` of ``step``); the step is then ``t_end - t`` and ends at t_end."""
+    return t + h >= t_end - TIME_TOL * step
 
 
 def check_step(dt, name: str = "dt") -> float:
@@ -30,7 +51,7 @@ def check_step(dt, name: str = "dt") -> float:
 
 
 def n_steps(t_end: float, dt: float, t0: float = 0.0) -> int:
-    """The number of steps of a run: ceil((t_end - t0)/dt), up to 1e-9 of a step
+    """The number of steps of a run: ceil((t_end - t0)/dt), up to TIME_TOL of a step
     (a run ends exactly at t_end, its last step shortened: :func:`run_steps`)."""
     return run_steps(t_end, dt, t0)[0]
 
@@ -39,7 +60,9 @@ class RunSteps(NamedTuple):
     """The step grid of a run (docs/design.md §5.1): ``steps`` steps, all of length
     ``dt`` but the last, of length ``dt_last``, so that the run ends exactly at
     ``t_end``. ``dt_last == dt`` (bit for bit) when ``t_end - t0`` is a multiple of
-    ``dt`` (up to 1e-9 of a step); the grid is then the plain ``t0 + k dt``."""
+    ``dt`` (up to :data:`TIME_TOL` of a step); the grid is then the plain ``t0 + k dt``, its
+    last time ``t_end`` itself (never ``t0 + k dt`` a round-off beside it: ``run_steps(0.7, 0.1)``
+    ends at 0.7, not 0.7000000000000001)."""
 
     dt: float
     steps: int
@@ -58,12 +81,11 @@ def run_steps(t_end, dt: float, t0: float = 0.0) -> RunSteps:
     t0 = float(t0)
     if not (math.isfinite(t_end) and t_end >= t0):
         raise ValueError(f"t_end must be finite and >= {t0}, got {t_end}")
-    r = (t_end - t0) / dt
-    k = int(math.floor(r + 1e-9))
-    if r - k > 1e-9:
+    k, short = steps_in(t_end - t0, dt)
+    if short:
         base = t0 + k * dt         # the kernels' time of step k
         return RunSteps(dt, k + 1, t_end - base, t_end)
-    return RunSteps(dt, k, dt, t0 + k * dt)
+    return RunSteps(dt, k, dt, t_end)   # t_end itself, not t0 + k dt a round-off beside it
 
 
 def record_rows(steps: int, record_every: int) -> int:
@@ -77,11 +99,15 @@ def record_times(grid: RunSteps, record_every: int, t0: float = 0.0) -> np.ndarr
     the last row at the end of the run)."""
     rows = record_rows(grid.steps, record_every)
     T = t0 + (np.arange(rows, dtype=np.float64) * record_every) * grid.dt
-    if grid.short:
-        T[-1] = grid.t_end
-    else:
-        T[-1] = t0 + grid.steps * grid.dt
+    T[-1] = grid.t_end
     return T
+
+
+def land_last_row(T, written: int, grid: RunSteps) -> None:
+    """The final row of a finished run at t_end itself: the kernels write ``t0 + k dt`` (and
+    ``+ dt_last``), which may lie a round-off beside it (0.7 / 0.1: 0.7000000000000001)."""
+    if written > 0:
+        T[written - 1] = grid.t_end
 
 
 class RecordTooLarge(RunRefused):

@@ -20,7 +20,7 @@ import numpy as np
 
 from .coupling import BRANCH_NONE, QUOTIENT_LAWS, law_metric, metric_info
 from .distance import geometry
-from .checks import divergence_message
+from .checks import divergence_message, land_last_row
 from .errors import ForceLawFailed, SimulationDiverged
 from .failure import rows_written
 from .loop import network_forces, no_decimator, node_force
@@ -199,6 +199,8 @@ def simulate_network(system, states, A, t_end: float, dt: float, coupling="switc
             if s0.force is None:
                 raise
             status, done, written, raised = DIVERGED, 0, rows_written(T[sl]), exc
+        if last and status == OK:
+            land_last_row(T[sl], written, grid)
         imp += i_
         if status != OK:
             row0 += written

@@ -18,7 +18,7 @@ from .distance import geometry
 from .loop import coupling_step, integrate_network, no_decimator
 from .steps import DIVERGED, OK
 from .result import PairResult, concat_pairs
-from .checks import divergence_message
+from .checks import divergence_message, land_last_row
 from .errors import ForceLawFailed, SimulationDiverged
 from .failure import force_offset, law_nonfinite, law_raised, rows_written
 from .plan import coupling_exchange, as_systems, check_common_geometry, plan_run
@@ -214,6 +214,8 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
             if s1.force is None:
                 raise
             status, done, written, v, raised = DIVERGED, 0, rows_written(T[sl]), 0.0, exc
+        if last and status == OK:
+            land_last_row(T[sl], written, grid)
         imp1 += int(imp[0])
         imp2 += int(imp[1])
         info["v_impact"] = max(info["v_impact"], v)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .checks import divergence_message
+from .checks import divergence_message, land_last_row
 from .errors import ForceLawFailed, SimulationDiverged
 from .exact import simulate_exact
 from .failure import force_offset, law_nonfinite, law_raised, rows_written
@@ -70,6 +70,7 @@ def simulate(system: MechanicalSystem, x0, t_end: float, dt: float, scheme: str 
             raise
         status, done, written, raised = DIVERGED, None, rows_written(T), exc
     if status != DIVERGED:
+        land_last_row(T, rows, grid)
         return SimulationResult(T, Q, U, P, scheme, dt)
     # the failing step: from the last row, every step again with a row each (core/failure.py)
     r = written - 1

@@ -17,9 +17,11 @@ loop (numba nopython, ``cache=True``, no Python per step):
   (:func:`next_step`).
 
 Steps are whole multiples of the slaves' ``solver.dt`` (``unit``), from ``unit`` (the floor,
-always accepted: a step shorter than the slaves' own is not possible) to ``H``; the last one
-lands on t_end. The estimate is against the coupled system, the floor's own error included: a
-run whose steps at the floor exceed their share says so (``info["tol_met"]``, the master).
+always accepted: a step shorter than the slaves' own is not possible) to ``H``, their ends on
+the grid of whole units (no drift of t); the last one lands on t_end exactly, stretched by at most a
+round-off (:func:`fmu_sync.core.checks.lands`) and never followed by a step of a round-off's length.
+The estimate is against the coupled system, the floor's own error included: a run whose steps at
+the floor exceed their share says so (``info["tol_met"]``, the master).
 """
 from __future__ import annotations
 
@@ -28,6 +30,7 @@ import math
 import numpy as np
 from numba import njit
 
+from .core.checks import TIME_TOL, lands
 from .core.network import network_forces
 from .cosim_loop import (DONE, FREE_STATE, GET_STATE, fmu_states, HIST_VALID, FRESH, IMPLICIT, NOT_CONVERGED, ROW, SET_STATE,
                          SLAVE_FAILED, STATE_DIVERGED, DISTANCE_DIVERGED, WARNING, FOH, GAUSS_SEIDEL, RECORD_EVERY,
@@ -201,9 +204,14 @@ def adaptive_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, ad, norm
             return FULL
         t = ast[S_T]
         h = ast[S_H]
-        last = t + h + 1e-6 * unit >= t_end
+        # at the floor (always accepted): a proposal of one unit, or the short rest of the run; the
+        # test is on the proposal, never on h stretched by a round-off to land on t_end (0.6.0 looped
+        # there: a step of unit + 1e-15 was "above the floor", rejected and stretched again, forever)
+        floor = h <= unit * (1.0 + TIME_TOL)
+        last = lands(t, h, t_end, unit)
         if last:
             h = t_end - t
+            floor = floor or h <= unit * (1.0 + TIME_TOL)
         # the step's start in the controller's own handles (the implicit step keeps its own)
         if fmu_states(pmine, fn, comp, FREE_STATE, mine, FAIL, fail_t, t) or fmu_states(pmine, fn, comp, GET_STATE,
                                                                                    mine, FAIL, fail_t, t):
@@ -213,14 +221,14 @@ def adaptive_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, ad, norm
         if implicit:
             if implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, actl[C_STEPS], q, u, tau,
                               hist_tau, hist, ctl, saved, qs, us, iw, w, FAIL, fail_t, hp):
-                if FAIL[0] != NOT_CONVERGED or not h > unit * (1.0 + 1e-9):
+                if FAIL[0] != NOT_CONVERGED or floor:
                     return FAIL[0]
                 # not converged (the slaves are back at t): retaken shorter, as a rejected step
                 FAIL[0] = DONE
                 actl[C_REJECTED] += 1
                 _copies(True, (q, u, hist_tau, tau), (qs, us, hts, taus), hist, hs, ctl)
                 ctl[FRESH] = fresh
-                ast[S_H] = unit * max(1.0, math.floor(FAC_MIN * h / unit + 1e-9))
+                ast[S_H] = unit * max(1.0, math.floor(FAC_MIN * h / unit + TIME_TOL))
                 retry = True
                 continue
         elif exchange_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau, tau_next, hist_tau, hist,
@@ -263,7 +271,7 @@ def adaptive_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, ad, norm
         if not math.isfinite(err):
             err = np.inf
             eq_max = eu_max = em_max = np.inf
-        if err > share and h > unit * (1.0 + 1e-9):
+        if err > share and not floor:
             # rejected: every instance and the master's copies back to t, retaken shorter
             actl[C_REJECTED] += 1
             if fmu_states(pmine, fn, comp, SET_STATE, mine, FAIL, fail_t, t):
@@ -283,7 +291,9 @@ def adaptive_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, ad, norm
         ast[S_ERR] += err
         for i in range(N):
             imp[i] = imp_new[i]
-        t_next = t_end if last else t + h
+        # on the unit grid (whole units from 0, as the slaves count their steps): no drift of t over
+        # many steps, so the last step is a whole number of units or the run's own short rest
+        t_next = t_end if last else unit * math.floor((t + h) / unit + 0.5)
         if actl[C_STEPS] % every == 0 or last:
             row = ctl[ROW]
             if not record_row(row, t_next, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, jacobi, ctl, T, Qr, Ur, TAU,

@@ -44,6 +44,7 @@ from numba import njit, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
+from .core.checks import run_steps
 from .core.coupling import chain_work
 from .core.distance import BRANCH_E
 from .core.network import edge_arrays, network_forces, node_force
@@ -147,7 +148,7 @@ def loop_arguments(m) -> None:
     flags[DELAY] = m.DELAY.get(m.method, NOT_DELAYED)
     flags[STEPS] = m.n_steps   # the last one of length grid.dt_last, ending at grid.t_end
     flags[IMPLICIT], flags[MAX_ITER] = m.implicit, IMPLICIT_MAX_ITERATIONS
-    pieces = (lambda h: max(1, int(math.ceil(h / m.H_min - 1e-9))) if m.event_aware else 1)
+    pieces = (lambda h: max(1, run_steps(h, m.H_min).steps) if m.event_aware else 1)
     flags[PIECES], flags[PIECES_LAST] = pieces(m.H), pieces(m.grid.dt_last)
     z = (lambda: np.zeros((N, n)))
     m.q, m.u, m.tau = z(), z(), z()

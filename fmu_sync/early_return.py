@@ -83,10 +83,10 @@ class EarlyReturnMaster(NetworkMaster):
             s.set(dict(zip(self.model.tau, self.tau[i])))
             s.do_step(tc, h)
 
-    def communication_step(self, t: float) -> None:
-        """[t, t + H], stopping at every impact: all instances brought to the earliest
-        stop, the impact handled in event mode, the forces exchanged there."""
-        end = t + self.H
+    def communication_step(self, t: float, end: float) -> None:
+        """[t, end] (end = t + H, or t_end for the run's last step), stopping at every impact: all
+        instances brought to the earliest stop, the impact handled in event mode, the forces
+        exchanged there."""
         tc = t
         while True:
             if self.coupled:
@@ -149,23 +149,24 @@ class EarlyReturnMaster(NetworkMaster):
             self.imp = [s.get_integer(contract.IMPACTS) for s in self.slaves]
             if self.coupled:
                 self.forces(self.tau, False, 0.0)
-            n_steps, H = self.n_steps, self.H
+            n_steps, H, last = self.n_steps, self.H, self.n_steps - 1
             if self.record(0, 0.0):
                 row = 1
             else:
                 failure, n_steps = self.diverged(0.0, "a distance"), 0
             report_every = max(1, n_steps // 200)
             for k in range(n_steps):
-                t = (k + 1) * H
+                # the run's grid (core.checks.run_steps): the last step lands on t_end exactly
+                t = self.grid.t_end if k == last else (k + 1) * H
                 try:
-                    self.communication_step(k * H)
+                    self.communication_step(k * H, t)
                 except SlaveError as exc:
                     failure = exc
                     break
                 if not (np.all(np.isfinite(self.q)) and np.all(np.isfinite(self.u))):
                     failure = self.diverged(t, "a state")
                     break
-                if (k + 1) % self.record_every == 0:
+                if (k + 1) % self.record_every == 0 or k == last:   # the final state is always a row
                     if not self.record(row, t):
                         failure = self.diverged(t, "a distance")
                         break

@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .core.checks import check_record_size, check_run, check_step, record_rows
+from .core.checks import TIME_TOL, check_record_size, check_run, check_step, record_rows, steps_in
 from .core.compensation import force_table
 from .core.coupling import law_metric, metric_info
 from .core.distance import geometry
@@ -530,7 +530,7 @@ class AdaptiveMaster(NetworkMaster):
         plan = super().plan(values, schemes)
         self.guard_start = (plan.q, plan.u)
         self.unit = max(plan.dts)   # the floor of the step: the slaves' own solver.dt
-        if self.H < self.unit * (1 - 1e-9):
+        if self.H < self.unit * (1 - TIME_TOL):
             raise ValueError(f"tol: H = {self.H:g} is below the slaves' solver.dt = {self.unit:g}, the "
                              f"smallest communication step with tol; H (the first and largest step) must be "
                              f">= solver.dt")
@@ -550,7 +550,7 @@ class AdaptiveMaster(NetworkMaster):
         lam = float(np.linalg.eigvalsh(0.5 * (Q + Q.T)).min())
         self.norm = (np.linalg.inv(M), Q / lam, M / lam)
         self.ad = np.array([self.tol, self.grid.t_end, self.unit, self.H])
-        self.ast = np.array([0.0, self.unit * max(1.0, math.floor(self.H / self.unit + 1e-9)), 0.0])
+        self.ast = np.array([0.0, self.unit * max(1, steps_in(self.H, self.unit)[0]), 0.0])
         self.actl = np.zeros(ad.ACTL, dtype=np.int64)
         self.mine = np.zeros(N, dtype=np.int64)   # the controller's FMU-state handles
         self.pmine = self.loop_args[0].copy()

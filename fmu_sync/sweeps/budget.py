@@ -107,7 +107,8 @@ def estimate_sweep(runs: int, scene_cfg: dict | None = None, swept: dict | None 
         return vals or [default]
     t_end = max(numbers("run.t_end", float(scene_cfg["run.t_end"])))
     step = min(numbers(step_key, float(scene_cfg[step_key])))
-    steps = math.ceil(t_end / step - 1e-9)
+    from ..core.checks import run_steps   # the one grid rule (whole steps, a short last one)
+    steps = run_steps(t_end, step).steps
     return SweepEstimate(runs, steps, compiled and not cosim, threads, workers)
 
 
