@@ -122,7 +122,7 @@ def test_unstable_exchange_is_refused_before_the_first_step(paper):
     # the case: Kp = 1e5, Kd = 150 -> omega_c = 447, zeta = 0.335, bound 1.342
     with pytest.raises(UnstableExchange, match=r"omega_c\*dt = 4.472 against the zero-order-hold "
                                                r"bound min\(4 zeta, 1/zeta\) = 1.342 \(zeta = 0.3354\)"
-                                               r".*largest stable dt = 0.003\b"):
+                                               r".*largest stable dt = 0.002999\b"):
         simulate_pair(paper, X1, X2, 5.0, 1e-2, coupling="switching", Kp=1e5, Kd=150)
     # a ValueError: bad input, like the other refusals
     with pytest.raises(ValueError, match="no dt is stable without damping"):
