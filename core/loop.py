@@ -34,7 +34,7 @@ from .harmonic import hsum_cos
 from .metrics import decimator_push
 from .model import SystemArrays
 from .moreau import force, force1
-from .steps import (DIVERGED, MIDPOINT, OK, TRAPEZOID, _inverse, finish_step, flush1, hbase, scalar_params, step1_y, step_coeffs1, step_y,
+from .steps import (DIVERGED, MIDPOINT, OK, TRAPEZOID, inverse, finish_step, flush1, hbase, scalar_params, step1_y, step_coeffs1, step_y,
                     theta_matrices)
 
 __all__ = ["coupling_step", "coupling_step1", "network_forces", "node_force", "integrate_network",
@@ -266,7 +266,7 @@ def implicit_matrix(laws, E2, W2, kp, kd, co, Ainv):
         A[a, b] -= W2[e_, 0] * gb
         A[b, b] += W2[e_, 1] * gb
         A[b, a] -= W2[e_, 1] * ga
-    Ainv[:, :] = _inverse(A)
+    Ainv[:, :] = inverse(A)
 
 
 @njit(cache=True, inline="always")

@@ -159,7 +159,7 @@ def midpoint_step(sa, q, u, tau, t, dt, qM, h, uf):
 
 
 @njit(cache=True)
-def _inverse(A):
+def inverse(A):
     """Gauss–Jordan inverse with partial pivoting (small n; no LAPACK needed)."""
     n = A.shape[0]
     a = A.copy()
@@ -196,7 +196,7 @@ def theta_matrices(sa, dt, theta, Sinv, Sinv_w):
     for i in range(n):
         for j in range(n):
             S[i, j] = sa.M[i, j] + a * sa.C[i, j] + a * a * sa.K[i, j]
-    Sinv[:, :] = _inverse(S)
+    Sinv[:, :] = inverse(S)
     WS = 0.0
     for i in range(n):
         s = 0.0
