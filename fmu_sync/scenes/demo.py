@@ -10,7 +10,7 @@ from ..ensemble import markdown as ensemble_markdown
 from ..ensemble import scene_ensembles
 from ..progress import scaled
 from .loading import load_scene
-from .running import (RunRecord, SceneRun, error_notes, export_for, run_variant, settings_table, skipped_notes,
+from .running import (RunRecord, SceneRun, check_export, error_notes, export_for, run_variant, settings_table, skipped_notes,
                       write_run)
 
 __all__ = ["run_demo", "DEMO_OUT", "DEMO_VARIANTS", "DEMO_QUICK_T_END"]
@@ -39,10 +39,7 @@ def run_demo(out_dir=None, quick: bool = False, progress: Callable | None = None
     from .. import plots as P
     from .. import report
 
-    from ..native import require_export_versions
-    require_export_versions()   # the demo co-simulates an FMU it exports: refused before anything is written
     out_dir = Path(out_dir) if out_dir is not None else DEMO_OUT
-    out_dir.mkdir(parents=True, exist_ok=True)
     base = {"run.t_end": t_end} if t_end is not None else {"run.t_end": DEMO_QUICK_T_END} if quick else {}
     scene = load_scene("forced-pair", base)
     v0 = scene.variant(DEMO_VARIANTS[0])
@@ -50,6 +47,8 @@ def run_demo(out_dir=None, quick: bool = False, progress: Callable | None = None
     every = max(1, round(H / dt))
     cosim = load_scene("forced-pair", {**base, "run.mode": "cosim", "run.record_every": 1,
                                          "record.distance": True})
+    check_export(cosim.variants)   # the demo exports an FMU: refused in one line before anything is written
+    out_dir.mkdir(parents=True, exist_ok=True)
     core = load_scene("forced-pair", {**base, "run.mode": "core", "run.record_every": every,
                                         "record.distance": True})
     fmu_path = export_for(cosim.variant(DEMO_VARIANTS[0]), out_dir)

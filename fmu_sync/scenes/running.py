@@ -638,9 +638,6 @@ def stream_notes(runs) -> list[str]:
             for r in runs if r.metrics.get("thinned_every", 1) > 1]
 
 
-_COSIM_KEYS = COSIM_KEYS
-
-
 def _relevant(key: str, variants) -> bool:
     """Settings worth listing: set (not None) and used by at least one variant."""
     for v in variants:
@@ -652,7 +649,7 @@ def _relevant(key: str, variants) -> bool:
             continue
         if key.startswith("initial.") and v.is_network:
             continue
-        if key in _COSIM_KEYS and v.mode != "cosim":
+        if key in COSIM_KEYS and v.mode != "cosim":
             continue
         if key == "solver.theta" and v.cfg["solver.scheme"] != "theta":
             continue
