@@ -16,7 +16,7 @@ from .coupling import LAWS as COUPLING_LAWS
 from .coupling import BRANCH_NONE, QUOTIENT_LAWS, UNCOUPLED, gain_matrix, law_metric, metric_info
 from .distance import geometry
 from .loop import coupling_step, integrate_network, no_decimator
-from .steps import DIVERGED, OK
+from .steps import DEFAULT_SCHEME, DIVERGED, OK
 from .result import PairResult, concat_pairs
 from .checks import divergence_message, land_last_row
 from .errors import ForceLawFailed, SimulationDiverged
@@ -96,7 +96,7 @@ def failure_message(systems, P, bufs, j, raised, code, theta, h, labels):
 
 
 def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
-                  Kp=0.0, Kd=0.0, Q=None, scheme: str = "midpoint", theta: float = 0.5,
+                  Kp=0.0, Kd=0.0, Q=None, scheme: str = DEFAULT_SCHEME, theta: float = 0.5,
                   record_every: int = 1, record_distance: bool = True, progress=None,
                   t0: float = 0.0, allow_unstable: bool = False, sink=None,
                   chunk_rows: int = 65536) -> PairResult:

@@ -10,13 +10,14 @@ from .exact import simulate_exact
 from .failure import force_offset, law_nonfinite, law_raised, rows_written
 from .model import MechanicalSystem
 from .moreau import DIVERGED, kernels_for
+from .steps import DEFAULT_SCHEME
 from .plan import plan_run
 from .result import SimulationResult
 
 __all__ = ["simulate"]
 
 
-def simulate(system: MechanicalSystem, x0, t_end: float, dt: float, scheme: str = "midpoint",
+def simulate(system: MechanicalSystem, x0, t_end: float, dt: float, scheme: str = DEFAULT_SCHEME,
              theta: float = 0.5, tau=None, record_every: int = 1, t0: float = 0.0,
              phasor: bool = True) -> SimulationResult:
     """Simulate one system from ``x0 = (q0, u0)`` over ``[t0, t_end]`` with fixed step ``dt``.

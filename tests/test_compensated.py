@@ -179,9 +179,10 @@ def ball_fmu(tmp_path_factory):
 def test_cosimulation_at_H_dt_is_the_core(ball_fmu):
     from fmu_sync.master import cosimulate
     dt = 1e-3
-    start = {"solver.dt": dt, "k": 0.5, "c": 0.1, "F": 1.0, "Omega": 1.7}     # harmonic forcing: h depends on t
+    start = {"solver.dt": dt, "k": 0.5, "c": 0.1, "F": 1.0, "Omega": 1.7,     # harmonic forcing: h depends on t
+             "solver.scheme": 0}      # the explicit exchange is the midpoint core (named on both sides)
     s = ImpactOscillator(m=1.0, k=0.5, c=0.1, e=0.8, f0=-9.81, F=1.0, Omega=1.7)
-    c = simulate_pair(s, (1.0, 0.0), (0.5, 0.0), 3.0, dt, coupling=LAW, Kp=0.1, Kd=0.1)
+    c = simulate_pair(s, (1.0, 0.0), (0.5, 0.0), 3.0, dt, coupling=LAW, Kp=0.1, Kd=0.1, scheme="midpoint")
     r = cosimulate(ball_fmu, (1.0, 0.0), (0.5, 0.0), 3.0, dt, coupling=LAW, Kp=0.1, Kd=0.1, start_values=start)
     assert r.error is None and np.any(np.asarray(c.branch) != 0)
     np.testing.assert_allclose(r.d, c.d, rtol=0, atol=1e-9)
