@@ -127,6 +127,9 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
     sent to the sink).
     ``tau1[0]``, ``tau2[0]``: the forces at the start (those held over the first step).
 
+    ``scheme``: ``"trapezoid"`` (default: θ = 1/2 with, for 1-DOF systems, the coupling inside the
+    step, docs/design.md §2.3), ``"midpoint"`` (the coupling held: what the explicit exchange at
+    H = dt reproduces) or ``"theta"``.
     Before the first step, a step known to diverge is refused (the run plan,
     :func:`fmu_sync.core.plan.plan_run`): the explicit midpoint scheme
     (omega_max*dt >= 2, :class:`~fmu_sync.core.errors.UnstableScheme`) and the

@@ -22,9 +22,9 @@ def simulate(system: MechanicalSystem, x0, t_end: float, dt: float, scheme: str 
              phasor: bool = True) -> SimulationResult:
     """Simulate one system from ``x0 = (q0, u0)`` over ``[t0, t_end]`` with fixed step ``dt``.
 
-    ``scheme`` is ``"midpoint"`` (default), ``"theta"`` (Moreau–Jean, ``theta`` in
-    [0.5, 1]) or ``"exact"`` (event-driven, linear force law: :func:`.exact.simulate_exact`,
-    any n).
+    ``scheme`` is ``"trapezoid"`` (default: Moreau–Jean θ = 1/2, second order between impacts),
+    ``"midpoint"`` (first order), ``"theta"`` (Moreau–Jean, ``theta`` in [0.5, 1]) or ``"exact"``
+    (event-driven, linear force law: :func:`.exact.simulate_exact`, any n).
     ``tau`` is a constant input (length m). The run ends exactly at ``t_end``: its
     last step is shortened when ``t_end - t0`` is not a multiple of ``dt``, and
     the final state is the last row of the record (also when ``record_every``
