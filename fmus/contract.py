@@ -52,7 +52,7 @@ STATE_BOUND = 1e12
 
 SCHEME_TYPE = "fmu_sync.Scheme"
 #: The one numbering of the schemes: the core's Moreau codes (core.moreau: MIDPOINT,
-#: THETA) and the exact communication step after them. The FMU's enumeration values,
+#: THETA, TRAPEZOID = 3, the default) and the exact communication step (2). The FMU's enumeration values,
 #: the stepper's dispatch and the binary's constants (generated at export) are these.
 SCHEME_EXACT = 2
 #: FMI enumeration items of solver.scheme: (name, value, description); the
