@@ -92,26 +92,20 @@ def integrate_with(sa, p, q, u, t0, dt, n_steps, tau, scheme, theta, record_ever
         X, iw, WX, a = Sinv, Sinv_w, WS, theta * dt
     else:
         X, iw, WX, a = sa.Minv, sa.Minv_w, sa.W, 0.5 * dt
-    Omega = sa.Omega
-    phi = sa.phi
-    F = sa.F
+    Omega, phi, F = sa.Omega, sa.phi, sa.F
     cv, sv, cr, sr = harmonic_workspace(Omega, dt)
     qe = np.zeros(n)
     hb = np.empty(n)
     for i in range(n):
         hb[i] = hbase(sa, tau, i)
     use_ph = phasor and Omega.shape[0] > 0
-    c0 = 0.0
-    s0 = 0.0
+    c0, s0 = 0.0, 0.0
     T[0] = t0
     Qr[0, :] = q
     Ur[0, :] = u
     Pr[0] = 0.0
-    row = 1
-    Psum = 0.0
-    k = 0
-    to_rec = record_every
-    to_sync = 0
+    row, Psum, k = 1, 0.0, 0
+    to_rec, to_sync = record_every, 0
     while k < n_steps:
         if use_ph and to_sync == 0:
             c0, s0 = ph_sync(Omega, phi, (t0 + k * dt) + a, cv, sv)

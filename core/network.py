@@ -24,7 +24,7 @@ from .checks import divergence_message, land_last_row
 from .errors import ForceLawFailed, SimulationDiverged
 from .failure import rows_written
 from .loop import network_forces, no_decimator, node_force
-from .steps import DIVERGED, OK
+from .steps import DEFAULT_SCHEME, DIVERGED, OK
 from .pair import LAWS, failure_message, locate_failure, network_loop, stack_nodes
 from .plan import coupling_exchange, as_systems, coupled_weights, edges_of, held_exchange, plan_run, weights
 from .result import NetworkResult
@@ -129,7 +129,7 @@ def network_record(rows: int, N: int, n: int, E: int):
 
 # ------------------------------------------------------------------ Python API
 def simulate_network(system, states, A, t_end: float, dt: float, coupling="switching", Kp=0.0,
-                     Kd=0.0, Q=None, scheme: str = "midpoint", theta: float = 0.5,
+                     Kd=0.0, Q=None, scheme: str = DEFAULT_SCHEME, theta: float = 0.5,
                      record_every: int = 1, record_distance: bool = True, progress=None,
                      t0: float = 0.0, allow_unstable: bool = False) -> NetworkResult:
     """Simulate N systems coupled on the graph ``A`` (monolithic, compiled).

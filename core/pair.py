@@ -10,13 +10,15 @@ round-off (docs/design.md §2.5).
 """
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 
 from .coupling import LAWS as COUPLING_LAWS
 from .coupling import BRANCH_NONE, QUOTIENT_LAWS, UNCOUPLED, gain_matrix, law_metric, metric_info
 from .distance import geometry
 from .loop import coupling_step, integrate_network, no_decimator
-from .steps import DIVERGED, OK
+from .steps import DEFAULT_SCHEME, DIVERGED, OK, TRAPEZOID
 from .result import PairResult, concat_pairs
 from .checks import divergence_message, land_last_row
 from .errors import ForceLawFailed, SimulationDiverged
@@ -96,7 +98,7 @@ def failure_message(systems, P, bufs, j, raised, code, theta, h, labels):
 
 
 def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
-                  Kp=0.0, Kd=0.0, Q=None, scheme: str = "midpoint", theta: float = 0.5,
+                  Kp=0.0, Kd=0.0, Q=None, scheme: str = DEFAULT_SCHEME, theta: float = 0.5,
                   record_every: int = 1, record_distance: bool = True, progress=None,
                   t0: float = 0.0, allow_unstable: bool = False, sink=None,
                   chunk_rows: int = 65536) -> PairResult:
@@ -127,6 +129,9 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
     sent to the sink).
     ``tau1[0]``, ``tau2[0]``: the forces at the start (those held over the first step).
 
+    ``scheme``: ``"trapezoid"`` (default: θ = 1/2 with, for 1-DOF systems, the coupling inside the
+    step, docs/design.md §2.3), ``"midpoint"`` (the coupling held: what the explicit exchange at
+    H = dt reproduces) or ``"theta"``.
     Before the first step, a step known to diverge is refused (the run plan,
     :func:`fmu_sync.core.plan.plan_run`): the explicit midpoint scheme
     (omega_max*dt >= 2, :class:`~fmu_sync.core.errors.UnstableScheme`) and the
@@ -141,8 +146,7 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
         raise ValueError(f"coupling must be one of {list(LAWS)}, got {coupling!r}")
     law = LAWS[coupling]
     systems = as_systems(system, 2)
-    s1, s2 = systems
-    n = s1.n
+    s1, n = systems[0], systems[0].n
     record_d = bool(record_distance) or law in QUOTIENT_LAWS
     plan = plan_run(systems, (x1, x2), t_end, dt, scheme=scheme, theta=theta, laws=[law], Kp=Kp, Kd=Kd,
                     exchange=coupling_exchange(scheme, systems),
@@ -150,129 +154,148 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
                     record_values=None if sink is not None else 4 * n + 2 * n + (4 if record_d else 1),
                     record_what="the record of simulate_pair",
                     record_hint=", or pass sink= to stream it in chunks")   # every check, once (docs/design.md §5.1.1)
-    grid, dt, record_every, rows = plan.grid, plan.dt, plan.record_every, plan.rows
-    n_steps, dt_last, code, theta = plan.whole_steps, plan.dt_last, plan.code, plan.theta
-    q1, q2, u1, u2 = (a.copy() for a in (plan.q[0], plan.q[1], plan.u[0], plan.u[1]))
-    Kp_m, Kd_m, limit = plan.Kp, plan.Kd, plan.limit
-    lm = law_metric(Q, [s.K for s in systems], Kp_m, coupled=law != UNCOUPLED, stiffness=s1.metric_source)
+    lm = law_metric(Q, [s.K for s in systems], plan.Kp, coupled=law != UNCOUPLED, stiffness=s1.metric_source)
     geo = geometry(s1, lm.Q)
+    cap, chunks = chunk_plan(plan, sink, chunk_rows, progress)
+    rec = pair_record(cap, n)
+    info = dict(mode="core", dt=plan.dt, scheme=scheme, steps=plan.grid.steps, identical=s1 is systems[1],
+                **metric_info(lm, geo), v_impact=0.0)
+    if plan.grid.short:
+        info["dt_last"] = plan.dt_last
+    if plan.limit is not None:
+        info.update(omega_c_dt=plan.limit.h, exchange_bound=plan.limit.bound, zeta=plan.limit.zeta,
+                    dt_max=plan.limit.H_max)
+    run = SimpleNamespace(systems=systems, plan=plan, law=law, geo=geo, rec=rec, cap=cap, sink=sink, info=info,
+                          record_d=record_d, coupling=coupling, loop=network_loop(systems), nodes=stack_nodes(*systems),
+                          laws=np.full(1, law, dtype=np.int64), imp1=0, imp2=0, sent=0, scheme=scheme)
+    status, raised, at = run_chunks(run, chunks, progress, t0)
+    if status == OK:
+        if sink is not None:
+            info["rows"] = run.sent
+            last_row = max(at.written - 1, 0)
+            return pair_result(run, slice(last_row, last_row + 1))
+        return pair_result(run, slice(0, plan.rows))
+    raise pair_failure(run, raised, at, t0)
+
+
+def chunk_plan(plan, sink, chunk_rows, progress):
+    """``(cap, chunks)``: the record's rows held at once and the steps of each compiled call. With a
+    ``sink``, chunks of ``chunk_rows`` records (and the one that takes a shortened last step); with
+    ``progress``, ~100 chunks; else one. Chunks are whole record intervals: chunking changes no number."""
+    n_steps, record_every, grid = plan.whole_steps, plan.record_every, plan.grid
     if sink is not None:
         chunk_rows = int(chunk_rows)
         if chunk_rows < 1:
             raise ValueError(f"chunk_rows must be >= 1, got {chunk_rows}")
-        cap = min(rows, chunk_rows + 1)   # a chunk re-records its start row (dropped)
         per = chunk_rows * record_every
         chunks = [per] * (n_steps // per) + ([n_steps % per] if n_steps % per else [])
         if not chunks or (grid.short and n_steps % per == 0):
             chunks.append(0)   # the chunk that takes the shortened last step
-    else:
-        cap = rows
-        # chunks of whole record intervals, so that chunking changes no number
-        if progress is None:
-            chunks = [n_steps]
-        else:
-            per = max(1, (n_steps // record_every) // 100) * record_every
-            chunks = [per] * (n_steps // per) + ([n_steps % per] if n_steps % per else [])
-            if not chunks:
-                chunks = [0]
-    rec = pair_record(cap, n)
-    T, Qr, Ur, TAU, D2, BR2, EU2 = rec
-    nodes = stack_nodes(s1, s2)
-    loop = network_loop(systems)
-    q, u = np.stack((q1, q2)), np.stack((u1, u2))
-    laws = np.full(1, law, dtype=np.int64)
-    dec = no_decimator()
-    info = dict(mode="core", dt=dt, scheme=scheme, steps=grid.steps, identical=s1 is s2, **metric_info(lm, geo),
-                v_impact=0.0)
-    if grid.short:
-        info["dt_last"] = dt_last
-    if limit is not None:
-        info.update(omega_c_dt=limit.h, exchange_bound=limit.bound, zeta=limit.zeta,
-                    dt_max=limit.H_max)
+        return min(plan.rows, chunk_rows + 1), chunks   # a chunk re-records its start row (dropped)
+    if progress is None:
+        return plan.rows, [n_steps]
+    per = max(1, (n_steps // record_every) // 100) * record_every
+    chunks = [per] * (n_steps // per) + ([n_steps % per] if n_steps % per else [])
+    return plan.rows, chunks or [0]
 
-    def result(sl, rec=rec):
-        return pair_rows(rec, sl, record_d, copy=sink is not None, impacts1=imp1, impacts2=imp2,
-                         coupling=coupling if coupling != "none" else None, info=dict(info))
 
-    row0, k0, imp1, imp2, sent = 0, 0, 0, 0, 0
+def pair_result(run, sl, rec=None) -> PairResult:
+    """The rows ``sl`` of the run's record (or of ``rec``) as a :class:`PairResult` (copies with a sink)."""
+    return pair_rows(run.rec if rec is None else rec, sl, run.record_d, copy=run.sink is not None,
+                     impacts1=run.imp1, impacts2=run.imp2,
+                     coupling=run.coupling if run.coupling != "none" else None, info=dict(run.info))
+
+
+def run_chunks(run, chunks, progress, t0):
+    """The compiled loop over ``chunks`` (:func:`chunk_plan`), in place on ``run`` (counts, rows sent to
+    the sink). Returns ``(status, raised, at)``: ``raised`` a user law's exception, ``at`` where the last
+    chunk stopped (``row0``, ``k0``, ``written``, ``done``, ``chunk_k``)."""
+    plan, rec = run.plan, run.rec
+    T = rec[0]
+    q, u = np.stack((plan.q[0], plan.q[1])), np.stack((plan.u[0], plan.u[1]))
+    at = SimpleNamespace(row0=0, k0=0, written=0, done=0, chunk_k=0)
     imp, ep = np.zeros(2, dtype=np.int64), np.zeros(2, dtype=np.int64)   # each chunk's counts
-    status, raised, chunk_k = OK, None, 0
+    status, raised, dec = OK, None, no_decimator()
     for c, steps in enumerate(chunks):
         last = c == len(chunks) - 1
-        if sink is not None:  # every chunk fills the buffer from row 0 (its start row, sent once)
-            row0 = 0
+        if run.sink is not None:  # every chunk fills the buffer from row 0 (its start row, sent once)
+            at.row0 = 0
             T[:] = np.nan     # the rows it did not write (core/failure.py)
-        sl = slice(row0, cap)
-        chunk_k = k0
+        sl = slice(at.row0, run.cap)
+        at.chunk_k = at.k0
         # a chunk records its start row; the next chunk starts on the row it ended on
         try:
-            status, done, written, v, _ = loop(
-                *nodes, geo, laws, PAIR_EDGES, PAIR_WEIGHTS, Kp_m, Kd_m, q, u, float(t0), k0, dt, steps, code,
-                theta, record_every, record_d, T[sl], Qr[sl], Ur[sl], TAU[sl], D2[sl], BR2[sl], EU2[sl],
-                dt_last if last else 0.0, False, *dec, imp, ep)
+            status, at.done, at.written, v, _ = run.loop(
+                *run.nodes, run.geo, run.laws, PAIR_EDGES, PAIR_WEIGHTS, plan.Kp, plan.Kd, q, u, float(t0), at.k0,
+                plan.dt, steps, plan.code, plan.theta, plan.record_every, run.record_d, *(a[sl] for a in rec),
+                plan.dt_last if last else 0.0, False, *dec, imp, ep)
         except Exception as exc:   # raised by the user's law inside the compiled loop (core/failure.py)
-            if s1.force is None:
+            if run.systems[0].force is None:
                 raise
-            status, done, written, v, raised = DIVERGED, 0, rows_written(T[sl]), 0.0, exc
+            status, at.done, at.written, v, raised = DIVERGED, 0, rows_written(T[sl]), 0.0, exc
         if last and status == OK:
-            land_last_row(T[sl], written, grid)
-        imp1 += int(imp[0])
-        imp2 += int(imp[1])
-        info["v_impact"] = max(info["v_impact"], v)
-        if sink is not None:
+            land_last_row(T[sl], at.written, plan.grid)
+        run.imp1, run.imp2 = run.imp1 + int(imp[0]), run.imp2 + int(imp[1])
+        run.info["v_impact"] = max(run.info["v_impact"], v)
+        if run.sink is not None:
             first = 0 if c == 0 else 1
-            if written > first:
-                sink(result(slice(first, written)))
-                sent += written - first
+            if at.written > first:
+                run.sink(pair_result(run, slice(first, at.written)))
+                run.sent += at.written - first
         if status != OK:
-            row0 += written
-            k0 += done
+            at.row0 += at.written
+            at.k0 += at.done
             break
-        k0 += steps
-        row0 += written - (0 if last else 1)
+        at.k0 += steps
+        at.row0 += at.written - (0 if last else 1)
         if progress is not None:
-            progress(min(k0 / max(n_steps, 1), 1.0))
-    if status == OK:
-        if sink is not None:
-            info["rows"] = sent
-            last_row = max(written - 1, 0)
-            return result(slice(last_row, last_row + 1))
-        return result(slice(0, rows))
-    # the failing step (core/failure.py): from the last row, every step again with a row each
-    b = row0 - 1                                   # the last row, in the buffer
-    k_b = chunk_k + (written - 1) * record_every   # its step
-    m = min(record_every, n_steps - k_b)
-    h_last = dt_last if m == n_steps - k_b else 0.0
-    bufs, j, again = locate_failure(loop, nodes, geo, laws, PAIR_EDGES, PAIR_WEIGHTS, Kp_m, Kd_m, Qr[b], Ur[b], t0,
-                                    k_b, dt, m, code, theta, record_d, h_last, lambda c: pair_record(c, n))
+            progress(min(at.k0 / max(plan.whole_steps, 1), 1.0))
+    return status, raised, at
+
+
+def pair_failure(run, raised, at, t0):
+    """The error of a failed run (core/failure.py): the failing step located from the last row (every
+    step again with a row each), the partial record (with the last good step) in ``.partial``; or the
+    law's own exception when it did not raise again from the same state."""
+    plan, n = run.plan, run.systems[0].n
+    _, Qr, Ur = run.rec[:3]
+    b = at.row0 - 1                                       # the last row, in the buffer
+    k_b = at.chunk_k + (at.written - 1) * plan.record_every   # its step
+    m = min(plan.record_every, plan.whole_steps - k_b)
+    if plan.code == TRAPEZOID and raised is not None and m < plan.whole_steps - k_b:
+        m += 1   # the coupling inside the step evaluates the next step's law before it writes a row's record
+    h_last = plan.dt_last if m == plan.whole_steps - k_b else 0.0
+    bufs, j, again = locate_failure(run.loop, run.nodes, run.geo, run.laws, PAIR_EDGES, PAIR_WEIGHTS, plan.Kp,
+                                    plan.Kd, Qr[b], Ur[b], t0, k_b, plan.dt, m, plan.code, plan.theta,
+                                    run.record_d, h_last, lambda c: pair_record(c, n))
     if raised is not None and again is None:
-        raise raised   # not the law's (it did not raise again from the same state): as it came
-    res = result(slice(b, b + 1)) if sink is not None else result(slice(0, row0))
+        return raised   # not the law's (it did not raise again from the same state): as it came
+    res = pair_result(run, slice(b, b + 1)) if run.sink is not None else pair_result(run, slice(0, at.row0))
     msg = None
     if j is not None:
         if j >= 1:   # the last good step as the last row
-            extra = result(slice(j, j + 1), bufs)
-            if sink is not None:
-                sink(extra)
-                sent += 1
+            extra = pair_result(run, slice(j, j + 1), bufs)
+            if run.sink is not None:
+                run.sink(extra)
+                run.sent += 1
                 res = extra
             else:
                 res = concat_pairs([res, extra])
-        hk = h_last if (j == m and h_last > 0.0) else dt
-        msg = failure_message(systems, [s.p for s in systems], bufs, j, again, code, theta, hk,
+        hk = h_last if (j == m and h_last > 0.0) else plan.dt
+        msg = failure_message(run.systems, [s.p for s in run.systems], bufs, j, again, plan.code, plan.theta, hk,
                               ["system 1", "system 2"])
-        t_fail = min(float(bufs[0][j]) + hk, grid.t_end)
+        t_fail = min(float(bufs[0][j]) + hk, plan.grid.t_end)
     else:
-        t_fail = min(t0 + k0 * dt, grid.t_end)
-    if sink is not None:
-        info["rows"] = sent
-        res.info["rows"] = sent
+        t_fail = min(t0 + at.k0 * plan.dt, plan.grid.t_end)
+    if run.sink is not None:
+        run.info["rows"] = run.sent
+        res.info["rows"] = run.sent
     cls = ForceLawFailed if again is not None else SimulationDiverged
-    err = cls(msg or divergence_message(s1, scheme, dt, t_fail, what="a coupled state",
-                                        Kp=Kp_m if law != UNCOUPLED else None))
+    err = cls(msg or divergence_message(run.systems[0], run.scheme, plan.dt, t_fail, what="a coupled state",
+                                        Kp=plan.Kp if run.law != UNCOUPLED else None))
     res.error = str(err)
     err.partial = res
-    raise err
+    return err
 
 
 def pair_record(cap: int, n: int):

@@ -10,20 +10,21 @@ from .exact import simulate_exact
 from .failure import force_offset, law_nonfinite, law_raised, rows_written
 from .model import MechanicalSystem
 from .moreau import DIVERGED, kernels_for
+from .steps import DEFAULT_SCHEME
 from .plan import plan_run
 from .result import SimulationResult
 
 __all__ = ["simulate"]
 
 
-def simulate(system: MechanicalSystem, x0, t_end: float, dt: float, scheme: str = "midpoint",
+def simulate(system: MechanicalSystem, x0, t_end: float, dt: float, scheme: str = DEFAULT_SCHEME,
              theta: float = 0.5, tau=None, record_every: int = 1, t0: float = 0.0,
              phasor: bool = True) -> SimulationResult:
     """Simulate one system from ``x0 = (q0, u0)`` over ``[t0, t_end]`` with fixed step ``dt``.
 
-    ``scheme`` is ``"midpoint"`` (default), ``"theta"`` (Moreau–Jean, ``theta`` in
-    [0.5, 1]) or ``"exact"`` (event-driven, linear force law: :func:`.exact.simulate_exact`,
-    any n).
+    ``scheme`` is ``"trapezoid"`` (default: Moreau–Jean θ = 1/2, second order between impacts),
+    ``"midpoint"`` (first order), ``"theta"`` (Moreau–Jean, ``theta`` in [0.5, 1]) or ``"exact"``
+    (event-driven, linear force law: :func:`.exact.simulate_exact`, any n).
     ``tau`` is a constant input (length m). The run ends exactly at ``t_end``: its
     last step is shortened when ``t_end - t0`` is not a multiple of ``dt``, and
     the final state is the last row of the record (also when ``record_every``
@@ -72,7 +73,17 @@ def simulate(system: MechanicalSystem, x0, t_end: float, dt: float, scheme: str 
     if status != DIVERGED:
         land_last_row(T, rows, grid)
         return SimulationResult(T, Q, U, P, scheme, dt)
-    # the failing step: from the last row, every step again with a row each (core/failure.py)
+    raise single_failure(system, scheme, plan, run, (T, Q, U, P), written, done, raised, tau, code, theta)
+
+
+def single_failure(system, scheme, plan, run, rec, written, done, raised, tau, code, theta):
+    """The error of a failed :func:`simulate` (core/failure.py): from the last row, every step again with
+    a row each (``run``: the compiled loop), the partial record (with the last good step) in
+    ``.partial``; or the law's own exception when it did not raise again from the same state."""
+    T, Q, U, P = rec
+    grid, dt, record_every, n, law = plan.grid, plan.dt, plan.record_every, system.n, system.force
+    full = grid.steps - 1 if grid.short else grid.steps
+    dt_last = grid.dt_last if grid.short else 0.0
     r = written - 1
     m = min(record_every, full - r * record_every)
     last = dt_last if m == full - r * record_every else 0.0
@@ -84,21 +95,21 @@ def simulate(system: MechanicalSystem, x0, t_end: float, dt: float, scheme: str 
     except Exception as exc:
         again, j = exc, rows_written(T2) - 1
     if raised is not None and again is None:
-        raise raised   # not the law's (it did not raise again from the same state): as it came
+        return raised   # not the law's (it did not raise again from the same state): as it came
     keep = slice(0, written)
     partial = SimulationResult(T[keep], Q[keep], U[keep], P[keep], scheme, dt)
     if j is None:   # the rerun did not diverge again (round-off): the block's end, as the loop saw it
-        msg = divergence_message(system, scheme, dt, t0 + done * dt)
+        msg = divergence_message(system, scheme, dt, float(T[0]) + done * dt)   # T[0] = t0
         partial.error = msg
-        raise SimulationDiverged(msg, partial=partial)
+        return SimulationDiverged(msg, partial=partial)
     if j >= 1:      # the last good step as the last row
         partial = SimulationResult(np.append(T[keep], T2[j]), np.vstack((Q[keep], Q2[j])),
                                    np.vstack((U[keep], U2[j])), np.append(P[keep], P2[1:j + 1].sum()), scheme, dt)
     here = [("", Q2[j], U2[j], tau)]
     if again is not None:
         partial.error = law_raised(law, again, T2[j], here)
-        raise ForceLawFailed(partial.error, partial=partial)
+        return ForceLawFailed(partial.error, partial=partial)
     hk = last if (j == m and last > 0.0) else dt
     msg = law_nonfinite(law, force_offset(code, theta, hk), T2[j], here, [system.p]) if law is not None else None
     partial.error = msg or divergence_message(system, scheme, dt, float(T2[j]) + hk)
-    raise SimulationDiverged(partial.error, partial=partial)
+    return SimulationDiverged(partial.error, partial=partial)

@@ -182,9 +182,11 @@ def _work_precision_caption(folder: Path) -> str:
     """What the figure is, and the machine line of the run that drew it (its timings depend on the load)."""
     machine = next((line[2:] for line in (folder / "benchmarks.md").read_text().splitlines()
                     if line.startswith("- machine:")), "machine: not recorded")
-    return ("The work–precision diagram of the forced pair (the `forced-pair` scene: our parameters), as "
-            "`fmu-sync report work-precision` drew it (one `work_precision_<scene>_<metric>.png` per scene and "
-            f"metric). The errors are reproducible; the run times are this run's, {machine}.")
+    return ("The work–precision diagrams of the forced pair (the `forced-pair` scene: our parameters) and of the "
+            "smooth damped pair (`damped-pair`: the wall far away, truth DOP853; the default `trapezoid` beside the "
+            "midpoint and θ), as `fmu-sync report work-precision` drew them (one "
+            "`work_precision_<scene>_<metric>.png` per scene and metric). The errors are reproducible; the run "
+            f"times are this run's, {machine}.")
 
 
 BLOCKS = (
@@ -198,7 +200,8 @@ BLOCKS = (
     Block("convergence", "docs/benchmarks.md", "convergence", _convergence),
     Block("networks", "docs/benchmarks.md", "networks", _networks),
     Block("work-precision-figure", "docs/benchmarks.md", "work-precision", _work_precision_caption,
-          figures=(("work_precision_forced-pair_max_q.png", "docs/work-precision-forced-pair.png"),)),
+          figures=(("work_precision_forced-pair_max_q.png", "docs/work-precision-forced-pair.png"),
+                   ("work_precision_damped-pair_q.png", "docs/work-precision-damped-pair.png"))),
 )
 
 

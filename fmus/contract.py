@@ -28,7 +28,8 @@ import numpy as np
 
 from ..core.declaration import DEFAULT_UNITS, POSITIVE_MIN, Model, ModelError, Param
 from ..core.model import IMPACT_OSCILLATOR, MECHANICAL_SYSTEM, MechanicalSystem
-from ..core.moreau import MIDPOINT, THETA
+from ..core.moreau import MIDPOINT, SCHEMES, THETA, TRAPEZOID
+from ..core.steps import DEFAULT_SCHEME
 
 __all__ = ["Var", "FmuModel", "ContractError", "MODELS", "POSITIVE_MIN", "INPUT_BOUND", "STATE_BOUND",
            "SCHEME_TYPE", "SCHEME_ITEMS", "SCHEME_EXACT", "LAW_TYPE", "LAW_ITEMS", "ENUM_TYPES",
@@ -51,7 +52,7 @@ STATE_BOUND = 1e12
 
 SCHEME_TYPE = "fmu_sync.Scheme"
 #: The one numbering of the schemes: the core's Moreau codes (core.moreau: MIDPOINT,
-#: THETA) and the exact communication step after them. The FMU's enumeration values,
+#: THETA, TRAPEZOID = 3, the default) and the exact communication step (2). The FMU's enumeration values,
 #: the stepper's dispatch and the binary's constants (generated at export) are these.
 SCHEME_EXACT = 2
 #: FMI enumeration items of solver.scheme: (name, value, description); the
@@ -61,6 +62,8 @@ SCHEME_ITEMS = (
     ("theta", THETA, "Moreau-Jean theta scheme, linear part (K, C) implicit"),
     ("exact", SCHEME_EXACT, "Exact communication step (1-DOF only): closed-form flow, impacts, completed "
                             "accumulations and persistent contact, tau constant over the step; solver.dt unused"),
+    ("trapezoid", TRAPEZOID, "Moreau-Jean theta = 1/2 (second order between impacts; the default, as in the "
+                             "core): under the master's implicit exchange the coupling inside the step"),
 )
 assert sorted(v for _, v, _ in SCHEME_ITEMS) == list(range(len(SCHEME_ITEMS))), "one numbering, 0..n-1"
 
@@ -176,9 +179,9 @@ def _solver_variables(dt: float = 1e-3) -> list[Var]:
                "communication step is shortened to land on the communication point (> 0)",
                dt, min=POSITIVE_MIN),
         Var(SOLVER_SCHEME, "Enumeration", "parameter", "fixed",
-            "Solver of a communication step: Moreau midpoint or theta with internal step solver.dt, "
-            "or exact (1-DOF model only)",
-            initial="exact", start=MIDPOINT, declared_type=SCHEME_TYPE),
+            "Solver of a communication step: Moreau trapezoid (theta = 1/2, the default), midpoint or theta "
+            "with internal step solver.dt, or exact (1-DOF model only)",
+            initial="exact", start=SCHEMES[DEFAULT_SCHEME], declared_type=SCHEME_TYPE),
         _param(SOLVER_THETA, "1", "Theta of the Moreau-Jean scheme (used when solver.scheme = theta)",
                0.5, min=0.5, max=1.0),
     ]
@@ -437,7 +440,7 @@ class FmuModel:
         """Start values q_start/u_start of a state (q, u)."""
         return dict(zip(self.q_start + self.u_start, [float(x) for x in q] + [float(x) for x in u]))
 
-    def solver_values(self, dt: float, scheme: str = "midpoint", theta: float | None = None) -> dict:
+    def solver_values(self, dt: float, scheme: str = DEFAULT_SCHEME, theta: float | None = None) -> dict:
         """Start values of solver.dt, solver.scheme (and solver.theta for the theta scheme)."""
         out = {SOLVER_DT: float(dt), SOLVER_SCHEME: scheme_value(scheme)}
         if scheme == "theta":

@@ -53,7 +53,7 @@ from ..core.jit import carray, cfunc, njit
 from ..core.exact_step import NT as _EXACT_NT
 from ..core.exact_step import STEP_OK, STEP_TOO_MANY_EVENTS, exact_step_early
 from ..core.model import SystemArrays
-from ..core.moreau import MIDPOINT, OK, THETA, advance_in, substeps
+from ..core.moreau import MIDPOINT, OK, THETA, TRAPEZOID, advance_in, substeps
 from .contract import SCHEME_EXACT as EXACT
 from .contract import STATE_BOUND
 from .workarray import mat, put, put_wall, wall
@@ -226,7 +226,7 @@ def _advance(sa, q, u, t, H, dt, tau, taudot, scheme, theta, s, w):
     n = q.shape[0]
     nf = sa.Omega.shape[0]
     m = tau.shape[0]
-    if scheme == MIDPOINT or scheme == THETA:
+    if scheme == MIDPOINT or scheme == THETA or scheme == TRAPEZOID:
         foh = False
         for j in range(m):
             if taudot[j] != 0.0:

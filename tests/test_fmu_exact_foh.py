@@ -34,7 +34,7 @@ def fmus(tmp_path_factory, shared_fmu):
     d = tmp_path_factory.mktemp("exact_foh")
     return {
         "exact": str(shared_fmu(start_values={"solver.scheme": "exact"})),
-        "mid": str(export_fmu("impact-oscillator", d / "mid.fmu", {"solver.dt": 1e-3})),
+        "mid": str(export_fmu("impact-oscillator", d / "mid.fmu", {"solver.dt": 1e-3, "solver.scheme": "midpoint"})),
         "far": str(export_fmu("impact-oscillator", d / "far.fmu", {**FAR, "solver.dt": 1e-4})),
         "ms2": str(shared_fmu("mechanical-system-2")),
     }

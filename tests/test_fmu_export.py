@@ -95,7 +95,8 @@ def test_impact_oscillator_interface(fmus):
     assert (float(v["q_start"].min), float(v["q_start"].max)) == (-1e12, 1e12)
     assert v["solver.scheme"].type == "Enumeration"
     items = {i.name: int(i.value) for i in v["solver.scheme"].declaredType.items}
-    assert items == {"midpoint": 0, "theta": 1, "exact": 2}     # the core's scheme codes
+    assert items == {"midpoint": 0, "theta": 1, "exact": 2, "trapezoid": 3}     # the core's scheme codes
+    assert int(v["solver.scheme"].start) == items["trapezoid"]                  # the core's default
 
 
 def test_model_structure_dependencies(fmus):

@@ -169,7 +169,7 @@ def test_the_communication_step_is_the_simulate_step():
     q, u = np.array([-1.0]), np.array([0.0])
     adv = s.force.kernels().advance
     for k in range(20):
-        status, _, _ = adv(s.arrays(), s.p, q, u, k * 0.1, 0.1, 1e-3, np.zeros(1), 0, 0.5)
+        status, _, _ = adv(s.arrays(), s.p, q, u, k * 0.1, 0.1, 1e-3, np.zeros(1), 3, 0.5)   # 3: the default
         assert status == 0
     np.testing.assert_allclose([q[0], u[0]], [r.q[-1, 0], r.u[-1, 0]], atol=1e-9)
 
@@ -178,7 +178,7 @@ def test_theta_treats_the_declared_linear_part_implicitly():
     """A stiff linear part: the explicit midpoint is refused, the θ-scheme runs it stably."""
     s = DuffingOscillator(k=1e8, k3=1.0, c=0.0, g0=0.01, e=0.5)
     with pytest.raises(ValueError, match="omega_max"):
-        simulate(s, (0.005, 0.0), 0.1, 1e-3)
+        simulate(s, (0.005, 0.0), 0.1, 1e-3, scheme="midpoint")
     r = simulate(s, (0.005, 0.0), 0.1, 1e-3, scheme="theta", theta=1.0)
     assert np.all(np.isfinite(r.q)) and np.max(np.abs(r.q)) <= 0.006
 

@@ -127,19 +127,22 @@ def test_raising_law_keeps_the_record(laws, every):
     assert f"q = [{p.q[-1, 0]:.9g}]" in msg and f"u = [{p.u[-1, 0]:.9g}]" in msg
 
 
+@pytest.mark.parametrize("scheme", ["midpoint", "trapezoid"])
 @pytest.mark.parametrize("every, sink", [(1, False), (7, False), (7, True)])
-def test_raising_law_in_a_pair(laws, every, sink):
+def test_raising_law_in_a_pair(laws, every, sink, scheme):
     """The pair (also streamed to a sink): the same failure, the record up to t = 5, both states
-    named; the rows sent to the sink are the partial record."""
+    named; the rows sent to the sink are the partial record. The trapezoid (the coupling inside the
+    step) evaluates the law at a step's end (t = 5 + round-off > t_fail) before it records that step:
+    its record ends one step earlier, at the last state recorded before the law raised."""
     got = []
     kw = dict(sink=got.append, chunk_rows=250) if sink else {}
     with pytest.raises(ForceLawFailed) as err:
         simulate_pair(_system(laws.raising), X1, X2, T_END, DT, coupling="switching", Kp=1.0, Kd=0.5,
-                      record_every=every, **kw)
+                      record_every=every, scheme=scheme, **kw)
     msg = str(err.value)
     assert "boom late" in msg and "system 1" in msg and "system 2" in msg
     ref = simulate_pair(_reference(laws.raising), X1, X2, 5.0, DT, coupling="switching", Kp=1.0, Kd=0.5,
-                        record_every=every)
+                        record_every=every, scheme=scheme)
     p = err.value.partial
     if sink:
         t = np.concatenate([c.t for c in got])
@@ -147,8 +150,16 @@ def test_raising_law_in_a_pair(laws, every, sink):
         assert p.t[-1] == t[-1]
     else:
         t, q1 = p.t, p.q1
-    assert t[-1] == pytest.approx(5.0) and np.all(np.diff(t) > 0)
-    assert len(t) == len(ref.t) and np.max(np.abs(q1 - ref.q1)) < 1e-12
+    assert np.all(np.diff(t) > 0)
+    if scheme == "midpoint":
+        assert t[-1] == pytest.approx(5.0) and len(t) == len(ref.t)
+        assert np.max(np.abs(q1 - ref.q1)) < 1e-12
+    else:   # the record rows, then the last good step (4.999, a row of the reference with every = 1)
+        assert t[-1] == pytest.approx(5.0 - DT) and np.allclose(t[:-1], ref.t[:len(t) - 1])
+        assert np.max(np.abs(q1[:-1] - ref.q1[:len(t) - 1])) < 1e-12
+        last = simulate_pair(_reference(laws.raising), X1, X2, t[-1], DT, coupling="switching", Kp=1.0, Kd=0.5,
+                             scheme=scheme, record_every=10 ** 6)
+        assert abs(q1[-1, 0] - last.q1[-1, 0]) < 1e-12
     assert p.error == msg and np.all(np.isfinite(p.d))
 
 

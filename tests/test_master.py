@@ -17,6 +17,7 @@ def fmu(tmp_path_factory):
     from fmu_sync.export import export_fmu
     start = dict(PAPER)
     start["solver.dt"] = 1e-3
+    start["solver.scheme"] = "midpoint"   # the explicit exchange reproduces the midpoint core (named on both sides)
     return export_fmu("impact-oscillator", tmp_path_factory.mktemp("fmu") / "osc.fmu", start)
 
 
@@ -26,7 +27,7 @@ def system():
 
 
 def test_cosim_with_H_equal_dt_reproduces_the_monolithic_run(fmu, system):
-    core = simulate_pair(system, X1, X2, 30.0, 1e-3, coupling="switching", **GAINS)
+    core = simulate_pair(system, X1, X2, 30.0, 1e-3, coupling="switching", **GAINS, scheme="midpoint")
     cos = cosimulate(fmu, X1, X2, 30.0, 1e-3, coupling="switching", **GAINS)
     assert cos.error is None
     assert np.array_equal(cos.t, core.t)
@@ -38,7 +39,7 @@ def test_cosim_with_H_equal_dt_reproduces_the_monolithic_run(fmu, system):
 
 
 def test_larger_H_error_is_reported_and_sync_still_happens(fmu, system):
-    core = simulate_pair(system, X1, X2, 100.0, 1e-3, coupling="switching", record_every=10, **GAINS)
+    core = simulate_pair(system, X1, X2, 100.0, 1e-3, coupling="switching", record_every=10, **GAINS, scheme="midpoint")
     cos = cosimulate(fmu, X1, X2, 100.0, 1e-2, coupling="switching", **GAINS)
     err = np.max(np.abs(cos.d - core.d))
     # a zero-order hold over 10 internal steps is a real (first-order) error, not round-off
@@ -70,7 +71,7 @@ def test_event_aware_stepping_repairs_the_euclidean_law(fmu, system):
     # force over a whole communication step kicks the pair apart. Retaking impact steps
     # in pieces of H_min lets the coupling see the impact (measured: max |d - d_core|
     # 9.6e-3 -> 4.4e-3, time to d < 1e-6: 43.0 s -> 26.6 s vs 26.1 s in the core).
-    core = simulate_pair(system, X1, X2, 60.0, 1e-3, coupling="euclidean", record_every=10, **GAINS)
+    core = simulate_pair(system, X1, X2, 60.0, 1e-3, coupling="euclidean", record_every=10, **GAINS, scheme="midpoint")
     plain = cosimulate(fmu, X1, X2, 60.0, 1e-2, coupling="euclidean", **GAINS)
     aware = cosimulate(fmu, X1, X2, 60.0, 1e-2, coupling="euclidean", event_aware=True,
                        H_min=1e-3, **GAINS)
@@ -129,7 +130,7 @@ def test_network_disconnected_node_runs_alone_and_pair_matches(fmu, system):
     A = [[0, 1, 0], [1, 0, 0], [0, 0, 0]]  # node 3 is not coupled
     net = cosimulate_network(fmu, [X1, X2, x3], A, 20.0, 1e-2, coupling="switching", **GAINS)
     assert net.error is None and net.edges == [(0, 1)]
-    alone = simulate(system, x3, 20.0, 1e-3, record_every=10)
+    alone = simulate(system, x3, 20.0, 1e-3, record_every=10, scheme="midpoint")
     assert np.max(np.abs(net.q[:, 2, 0] - alone.q[:, 0])) < 1e-12
     pair = cosimulate(fmu, X1, X2, 20.0, 1e-2, coupling="switching", **GAINS)
     assert np.array_equal(net.q[:, 0], pair.q1) and np.array_equal(net.d[:, 0], pair.d)
@@ -159,7 +160,7 @@ def test_network_rejects_bad_weights(fmu, A, match):
 def test_mismatched_pair_cosim_reproduces_the_core(fmu, system):
     # 5 % stiffness mismatch through per-instance start values: d stays bounded, not 0
     other = ImpactOscillator(**{**PAPER, "k": 1.05})
-    core = simulate_pair((system, other), X1, X2, 60.0, 1e-3, coupling="switching", **GAINS)
+    core = simulate_pair((system, other), X1, X2, 60.0, 1e-3, coupling="switching", **GAINS, scheme="midpoint")
     cos = cosimulate(fmu, X1, X2, 60.0, 1e-3, coupling="switching", start_values=[{}, {"k": 1.05}],
                      **GAINS)
     assert cos.success
@@ -188,7 +189,7 @@ def test_ring_of_8_cosim_reproduces_the_core_network_and_synchronizes(fmu, syste
     from fmu_sync.core.network import ring, simulate_network
     from fmu_sync.master import cosimulate_network
     kw = dict(coupling="switching", Kp=4.0, Kd=2.0)
-    core = simulate_network(system, RING_X, ring(8), 40.0, 1e-2, **kw)
+    core = simulate_network(system, RING_X, ring(8), 40.0, 1e-2, **kw, scheme="midpoint")
     cos = cosimulate_network(fmu, RING_X, ring(8), 40.0, 1e-2, start_values={"solver.dt": 1e-2}, **kw)
     assert cos.success and cos.edges == core.edges
     assert np.array_equal(cos.t, core.t)
@@ -206,7 +207,7 @@ def test_mismatched_network_with_mixed_laws_cosim_reproduces_the_core(fmu):
     laws = ["switching", "euclidean", "switching"]          # star edges (0,1), (0,2), (0,3)
     A = star(4)
     A[0, 1] = 0.5                                            # directed weights differ on one edge
-    core = simulate_network(nodes, RING_X[:4], A, 20.0, 1e-2, coupling=laws, Kp=2.0, Kd=1.0)
+    core = simulate_network(nodes, RING_X[:4], A, 20.0, 1e-2, coupling=laws, Kp=2.0, Kd=1.0, scheme="midpoint")
     cos = cosimulate_network(fmu, RING_X[:4], A, 20.0, 1e-2, coupling=laws, Kp=2.0, Kd=1.0,
                              start_values=[{"solver.dt": 1e-2, "k": k} for k in ks])
     assert cos.success

@@ -38,14 +38,18 @@ def test_graph_helpers():
 
 def test_two_nodes_are_the_pair_bitwise(paper):
     x = [(1.0, 0.0), (0.2, 0.5)]
-    net = simulate_network(paper, x, ring(2), 30.0, 1e-3, coupling="switching", Kp=1.0, Kd=0.5)
-    pair = simulate_pair(paper, *x, 30.0, 1e-3, coupling="switching", Kp=1.0, Kd=0.5)
+    net = simulate_network(paper, x, ring(2), 30.0, 1e-3, coupling="switching", Kp=1.0, Kd=0.5, scheme="midpoint")
+    pair = simulate_pair(paper, *x, 30.0, 1e-3, coupling="switching", Kp=1.0, Kd=0.5, scheme="midpoint")
     assert net.edges == [(0, 1)] and net.impacts == [pair.impacts1, pair.impacts2]
     for a, b in ((net.q[:, 0], pair.q1), (net.u[:, 1], pair.u2), (net.d[:, 0], pair.d),
                  (net.branch[:, 0], pair.branch), (net.tau[1:, 0], pair.tau1[1:])):
         assert np.array_equal(a, b)
     # row 0 holds the forces at the start (as the master records them)
     assert net.tau[0, 0, 0] == pytest.approx(-(1.0 * 0.8 + 0.5 * -0.5))
+    # the default scheme (trapezoid: the coupling inside the step) too
+    net = simulate_network(paper, x, ring(2), 5.0, 1e-3, coupling="switching", Kp=1.0, Kd=0.5)
+    pair = simulate_pair(paper, *x, 5.0, 1e-3, coupling="switching", Kp=1.0, Kd=0.5)
+    assert np.array_equal(net.q[:, 0], pair.q1) and np.array_equal(net.d[:, 0], pair.d)
 
 
 def test_ring_without_impacts_decays_at_the_slowest_laplacian_mode():
@@ -107,15 +111,15 @@ def test_network_stability_is_checked_on_the_largest_laplacian_mode(paper):
     H_max = 4 * zeta / w
     with pytest.raises(UnstableExchange, match=r"largest stable dt = " + f"{largest_stable(H_max):.4g}"):
         simulate_network(paper, RING_X, all_to_all(8), 1.0, 1.05 * H_max, coupling="euclidean",
-                         Kp=Kp, Kd=Kd)
+                         Kp=Kp, Kd=Kd, scheme="midpoint")
     # forced to run: it stops, marked failed, with the finite part of the record
     with pytest.raises(SimulationDiverged) as err:
         simulate_network(paper, RING_X, all_to_all(8), 200.0, 5 * H_max, coupling="euclidean",
-                         Kp=Kp, Kd=Kd, allow_unstable=True)
+                         Kp=Kp, Kd=Kd, allow_unstable=True, scheme="midpoint")
     part = err.value.partial
     assert not part.success and np.all(np.isfinite(part.d)) and np.all(np.isfinite(part.q))
     ok = simulate_network(paper, RING_X, all_to_all(8), 2.0, 0.95 * H_max, coupling="euclidean",
-                          Kp=Kp, Kd=Kd)
+                          Kp=Kp, Kd=Kd, scheme="midpoint")
     assert ok.success
 
 

@@ -64,7 +64,7 @@ def test_ring8_core_synchronizes_from_the_scene(tmp_path):
     cfg = run.variant.cfg
     ref = simulate_network(run.variant.system, list(run.variant.network.states), ring(8), cfg["run.t_end"],
                            cfg["solver.dt"], coupling="switching", Kp=cfg["coupling.Kp"], Kd=cfg["coupling.Kd"],
-                           record_every=cfg["run.record_every"])
+                           record_every=cfg["run.record_every"], scheme=cfg["solver.scheme"])
     assert np.array_equal(ref.d, r.d)
     for name in ("ring-8.csv", "ring-8.npz", "ring-8-distance.png", "ring-8-positions.png", "summary.md"):
         assert (tmp_path / name).stat().st_size > 0, name
@@ -101,7 +101,7 @@ def test_mismatched_pair_bounded_with_ultimate_bound(tmp_path):
     osc = ImpactOscillator(m=1, k=1, c=0, f0=0.2, F=0.5, Omega=2.5, e=0.9)
     stiff = ImpactOscillator(m=1, k=1.05, c=0, f0=0.2, F=0.5, Omega=2.5, e=0.9)
     p = simulate_pair((osc, stiff), (1.0, 0.0), (0.2, 0.5), 60.0, 1e-3, coupling="switching", Kp=1.0, Kd=0.5,
-                      record_every=10)
+                      record_every=10, scheme=sr.runs[1].variant.cfg["solver.scheme"])
     assert sw["bound"] == pytest.approx(p.bound, rel=1e-9)
     text = (tmp_path / "summary.md").read_text()
     assert "ultimate bound" in text

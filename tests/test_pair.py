@@ -22,12 +22,12 @@ def uncoupled(paper):
 
 @pytest.fixture(scope="module")
 def switching(paper):
-    return simulate_pair(paper, X1, X2, 100.0, 1e-4, coupling="switching", Kp=1.0, Kd=0.5)
+    return simulate_pair(paper, X1, X2, 100.0, 1e-4, coupling="switching", Kp=1.0, Kd=0.5, scheme="midpoint")
 
 
 def test_uncoupled_pair_equals_two_single_runs_bitwise(paper):
     # the pair loop's scalar steps against the general n-DOF kernel, one system at a time
-    r = simulate_pair(paper, X1, X2, 20.0, 1e-3, record_distance=False)
+    r = simulate_pair(paper, X1, X2, 20.0, 1e-3, record_distance=False, scheme="midpoint")
     assert r.d is None and r.branch is None
     sa = paper.arrays()
     for x, q, u in ((X1, r.q1, r.u1), (X2, r.q2, r.u2)):
@@ -111,7 +111,7 @@ def test_divergence_is_reported_with_partial_record():
     ball = ImpactOscillator(m=1, k=0, f0=-1, e=0.5)
     with pytest.raises(SimulationDiverged, match=r"coupling omega_c\*dt = 14.1") as err:
         simulate_pair(ball, (1.0 + 1e-6, 0.0), (1.0, 0.0), 10.0, 1e-2, coupling="euclidean", Kp=1e6,
-                      allow_unstable=True)
+                      allow_unstable=True, scheme="midpoint")
     part = err.value.partial
     assert not part.success and "non-finite" in part.error
     assert part.t.size > 1 and np.all(np.isfinite(part.q1)) and np.all(np.isfinite(part.d))
@@ -123,17 +123,17 @@ def test_unstable_exchange_is_refused_before_the_first_step(paper):
     with pytest.raises(UnstableExchange, match=r"omega_c\*dt = 4.472 against the zero-order-hold "
                                                r"bound min\(4 zeta, 1/zeta\) = 1.342 \(zeta = 0.3354\)"
                                                r".*largest stable dt = 0.002999\b"):
-        simulate_pair(paper, X1, X2, 5.0, 1e-2, coupling="switching", Kp=1e5, Kd=150)
+        simulate_pair(paper, X1, X2, 5.0, 1e-2, coupling="switching", Kp=1e5, Kd=150, scheme="midpoint")
     # a ValueError: bad input, like the other refusals
     with pytest.raises(ValueError, match="no dt is stable without damping"):
-        simulate_pair(paper, X1, X2, 5.0, 1e-3, coupling="euclidean", Kp=1.0, Kd=0.0)
+        simulate_pair(paper, X1, X2, 5.0, 1e-3, coupling="euclidean", Kp=1.0, Kd=0.0, scheme="midpoint")
     # the limit is the measured ZOH limit: d decays just below it and grows just above it
     lim = exchange_limit(paper.M, 1e5, 150, 1e-2)
     assert lim.H_max == pytest.approx(1.342 / 447.2, rel=1e-3)
 
     def growth(factor):
         r = simulate_pair(paper, X1, X2, 1.0, factor * lim.H_max, coupling="euclidean", Kp=1e5,
-                          Kd=150, allow_unstable=factor > 1)
+                          Kd=150, allow_unstable=factor > 1, scheme="midpoint")
         k = r.t.size // 5
         return r, np.max(r.d[-k:]) / np.max(r.d[:k])
     r, below = growth(0.97)
@@ -143,7 +143,7 @@ def test_unstable_exchange_is_refused_before_the_first_step(paper):
     # the midpoint scheme's own limit is checked first, and opt-in skips both
     stiff = ImpactOscillator(m=1, k=1e8, f0=-1, e=0.5)
     with pytest.raises(UnstableScheme, match=r"omega_max\*dt = 10"):
-        simulate_pair(stiff, (1e-6, 0.0), (0.0, 0.0), 1e-2, 1e-3)
+        simulate_pair(stiff, (1e-6, 0.0), (0.0, 0.0), 1e-2, 1e-3, scheme="midpoint")
 
 
 def test_mismatched_pair_is_practically_synchronized(paper):

@@ -199,7 +199,7 @@ def fmu(tmp_path_factory):
     from builtin_scenes import FORCED_PAIR
     from fmu_sync.export import export_fmu
     return export_fmu("impact-oscillator", tmp_path_factory.mktemp("fmu") / "osc.fmu",
-                      {**FORCED_PAIR, "solver.dt": 1e-3})
+                      {**FORCED_PAIR, "solver.dt": 1e-3, "solver.scheme": "midpoint"})   # the explicit exchange's core
 
 
 def test_cosimulation_ends_at_t_end_with_the_core_numbers(fmu):
@@ -209,7 +209,7 @@ def test_cosimulation_ends_at_t_end_with_the_core_numbers(fmu):
     from fmu_sync.master import cosimulate
     system = ImpactOscillator(**FORCED_PAIR)
     kw = dict(coupling="switching", record_every=7, **FORCED_GAINS)
-    core = simulate_pair(system, FORCED_X1, FORCED_X2, 3.0005, 1e-3, **kw)
+    core = simulate_pair(system, FORCED_X1, FORCED_X2, 3.0005, 1e-3, scheme="midpoint", **kw)
     cos = cosimulate(fmu, FORCED_X1, FORCED_X2, 3.0005, 1e-3, **kw)
     assert cos.error is None and cos.t[-1] == core.t[-1] == 3.0005
     assert np.array_equal(cos.t, core.t)

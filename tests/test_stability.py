@@ -38,7 +38,7 @@ def test_stiff_wall_midpoint_bounded_below_the_limit():
 def test_stiff_wall_midpoint_divergence_is_an_error_naming_dt_and_omega():
     s = ImpactOscillator(**st.STIFF)
     with pytest.raises(UnstableScheme, match=r"dt = 0\.001.*omega_max\*dt = 10"):
-        simulate(s, st.STIFF_X0, 0.2, 1e-3)
+        simulate(s, st.STIFF_X0, 0.2, 1e-3, scheme="midpoint")
     rows = st.stiff_wall(dts=(1e-3,), t_end=0.2, schemes=(("midpoint", "midpoint", 0.5),))
     _assert_rows(rows)
     assert rows[0].outcome == "SimulationDiverged"

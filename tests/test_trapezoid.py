@@ -88,7 +88,7 @@ def test_kd_zero_and_stiff_gains_are_accepted_and_second_order():
     T = 10.0
     s = ImpactOscillator(**OSC, g0=100.0)
     with pytest.raises(UnstableExchange):
-        simulate_pair(s, X1, X2, T, 1e-3, coupling="euclidean", Kp=400.0, Kd=0.0)
+        simulate_pair(s, X1, X2, T, 1e-3, coupling="euclidean", Kp=400.0, Kd=0.0, scheme="midpoint")
     ref = _pd_pair(400.0, 0.0, (X1, X2), T)
     e = []
     for dt in (1e-3, 5e-4):
@@ -105,7 +105,7 @@ def test_a_stiff_impacting_pair_is_accepted_and_its_amplitude_right():
     s = ImpactOscillator(m=1.0, k=1.0, c=0.0, f0=0.2, F=0.5, Omega=2.5, e=0.9)
     x1, x2 = (1.0, 0.0), (0.2, 0.5)
     with pytest.raises(UnstableExchange):
-        simulate_pair(s, x1, x2, 2.0, 1e-3, coupling="euclidean", Kp=1e4, Kd=1.0)
+        simulate_pair(s, x1, x2, 2.0, 1e-3, coupling="euclidean", Kp=1e4, Kd=1.0, scheme="midpoint")
     amp = {}
     for dt in (1e-3, 1e-5):
         r = simulate_pair(s, x1, x2, 5.0, dt, coupling="euclidean", Kp=1e4, Kd=1.0, scheme="trapezoid",
@@ -160,19 +160,22 @@ def test_the_trapezoid_is_theta_one_half_on_one_system_bit_for_bit():
 
 @pytest.mark.parametrize("hold", ["zoh", "foh"])
 def test_the_implicit_cosimulation_at_H_dt_is_the_trapezoid_pair(tmp_path, hold):
-    """The master's implicit exchange (converged: the FMU's step under the mean of the forces at the step's
-    ends, or their line with the first-order hold) with the FMU's internal θ = 1/2 step is the monolithic
-    trapezoid step: at H = solver.dt it reproduces simulate_pair(scheme='trapezoid') to 1e-9, also at
-    Kd = 0 and a stiff gain, which the explicit core refuses."""
+    """One scheme everywhere: the FMU's default solver.scheme is the core's default (trapezoid: its internal
+    θ = 1/2 step), and the master's implicit exchange (converged: the FMU's step under the mean of the
+    forces at the step's ends, or their line with the first-order hold) is the monolithic trapezoid step:
+    at H = solver.dt it reproduces the default simulate_pair to 1e-9, also at Kd = 0 and a stiff gain,
+    which the midpoint core refuses."""
+    import zipfile
     from fmu_sync.export import export_fmu
     from fmu_sync.master import cosimulate
     far = dict(m=1.0, k=1.0, c=0.1, f0=0.0, F=0.5, Omega=2.5, e=0.9, g0=10.0)
-    fmu = str(export_fmu("impact-oscillator", tmp_path / "far.fmu",
-                         {**far, "solver.dt": 1e-3, "solver.scheme": "theta", "solver.theta": 0.5}))
+    fmu = str(export_fmu("impact-oscillator", tmp_path / "far.fmu", {**far, "solver.dt": 1e-3}))
+    xml = zipfile.ZipFile(fmu).read("modelDescription.xml").decode()
+    assert '<Item name="trapezoid" value="3"' in xml and 'name="solver.scheme"' in xml
     s = ImpactOscillator(**far)
     x1, x2 = (1.0, 0.0), (0.2, 0.5)
     for law, Kp, Kd in (("euclidean", 1.0, 0.5), ("switching", 1.0, 0.5), ("euclidean", 400.0, 0.0)):
-        ref = simulate_pair(s, x1, x2, 0.2, 1e-3, coupling=law, Kp=Kp, Kd=Kd, scheme="trapezoid")
+        ref = simulate_pair(s, x1, x2, 0.2, 1e-3, coupling=law, Kp=Kp, Kd=Kd)
         r = cosimulate(fmu, x1, x2, 0.2, 1e-3, law, Kp, Kd, exchange="implicit", hold=hold)
         for a, b in ((r.q1, ref.q1), (r.u1, ref.u1), (r.q2, ref.q2), (r.u2, ref.u2)):
             assert np.max(np.abs(a - b)) <= 1e-9
@@ -184,7 +187,7 @@ def test_a_stiff_user_law_pair_is_second_order():
     p = Pendulum(c=0.2, q_w=3.0)
     x1, x2, T = (0.5, 0.0), (-0.3, 0.2), 1.0
     with pytest.raises(UnstableExchange):
-        simulate_pair(p, x1, x2, T, 1e-3, coupling="euclidean", Kp=500.0, Kd=0.0)
+        simulate_pair(p, x1, x2, T, 1e-3, coupling="euclidean", Kp=500.0, Kd=0.0, scheme="midpoint")
 
     def rhs(t, z):
         q1, u1, q2, u2 = z
@@ -194,3 +197,39 @@ def test_a_stiff_user_law_pair_is_second_order():
     e = [np.max(np.abs(_end(simulate_pair(p, x1, x2, T, dt, coupling="euclidean", Kp=500.0, Kd=0.0,
                                           scheme="trapezoid", record_every=10 ** 6)) - ref)) for dt in (1e-3, 1e-4)]
     assert _order(*e) >= 1.9
+
+
+def test_the_default_scheme_is_the_trapezoid():
+    """simulate, simulate_pair and simulate_network without a scheme run the trapezoid, bit for bit, and
+    accept what only the trapezoid accepts (Kd = 0, Kp = 400); the midpoint stays by name."""
+    from fmu_sync.core.network import ring
+    s = ImpactOscillator(**OSC, e=0.8, g0=0.5)
+    a, b = simulate(s, (0.3, 0.2), 2.0, 1e-3), simulate(s, (0.3, 0.2), 2.0, 1e-3, scheme="trapezoid")
+    assert a.scheme == "trapezoid" and np.array_equal(a.q, b.q) and np.array_equal(a.u, b.u)
+    assert not np.array_equal(a.q, simulate(s, (0.3, 0.2), 2.0, 1e-3, scheme="midpoint").q)
+    a = simulate_pair(s, X1, X2, 1.0, 1e-3, coupling="euclidean", Kp=400.0, Kd=0.0)
+    b = simulate_pair(s, X1, X2, 1.0, 1e-3, coupling="euclidean", Kp=400.0, Kd=0.0, scheme="trapezoid")
+    assert a.info["scheme"] == "trapezoid" and np.array_equal(_end(a), _end(b))
+    xs = [(0.3, 0.0), (-0.2, 0.4), (0.1, -0.3)]
+    a = simulate_network(s, xs, ring(3), 1.0, 1e-3, coupling="euclidean", Kp=400.0, Kd=0.0)
+    b = simulate_network(s, xs, ring(3), 1.0, 1e-3, coupling="euclidean", Kp=400.0, Kd=0.0, scheme="trapezoid")
+    assert np.array_equal(a.q, b.q) and np.array_equal(a.u, b.u)
+
+
+def test_the_smooth_damped_pair_of_the_work_precision_figure():
+    """The work-precision figure's smooth case (damped-pair, its truth DOP853): the trapezoid is second
+    order and at the midpoint's cost per step (bench: fmu-sync bench, core speed) >= 10x closer."""
+    from fmu_sync.benchmarks.work_precision_cases import PAIR_GRID, SCENES, _core_pair, dop853_pair
+    sc = next(s for s in SCENES if s.name == "damped-pair")
+    T = 5.0
+    t = np.arange(int(round(T / PAIR_GRID)) + 1) * PAIR_GRID
+    ref = dop853_pair(sc, t)
+    err = {}
+    for scheme in ("midpoint", "trapezoid"):
+        err[scheme] = []
+        for dt in (1e-3, 1e-4):
+            out = _core_pair(sc, T, scheme, 0.5, dt)()
+            assert np.allclose(out[0], t)
+            err[scheme].append(max(np.max(np.abs(q - r)) for q, r in zip(out[2:], ref)))
+    assert _order(*err["trapezoid"]) >= 1.9 and _order(*err["midpoint"]) < 1.2
+    assert err["trapezoid"][0] * 10 <= err["midpoint"][0]

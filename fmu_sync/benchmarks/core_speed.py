@@ -38,17 +38,23 @@ def _build_c(workdir: Path, flags=None) -> Path | None:
     return exe
 
 
-def _run_c(exe: Path, dt: float, n: int, phasor: bool):
+#: the schemes of the core-vs-C comparison and the C loop's theta argument (0: the midpoint)
+C_THETA = {"trapezoid": 0.5, "midpoint": 0.0}
+
+
+def _run_c(exe: Path, dt: float, n: int, phasor: bool, scheme: str = "trapezoid"):
     p = OSC
     args = [str(exe)] + [repr(float(x)) for x in (p["m"], p["k"], p["c"], p["f0"], p["F"], p["Omega"],
-                                                   0.0, p["e"], X0[0], X0[1], dt)] + [str(n), str(int(phasor))]
+                                                   0.0, p["e"], X0[0], X0[1], dt)] + [str(n), str(int(phasor)),
+                                                                                     repr(C_THETA[scheme])]
     out = subprocess.run(args, check=True, capture_output=True, text=True).stdout.split()
     return float(out[0]), float(out[1]), float(out[2])
 
 
-def simulate_vs_c(repeats: int = 5, n_steps: int = 20_000_000, dt: float = 1e-5):
-    """Steps per second of ``simulate`` (1-DOF fast path), cos path and phasor path,
-    each against its C twin compiled for the same target, interleaved; same final states.
+def simulate_vs_c(repeats: int = 5, n_steps: int = 20_000_000, dt: float = 1e-5, scheme: str = "trapezoid"):
+    """Steps per second of ``simulate`` (1-DOF fast path, ``scheme``: the default trapezoid or the
+    midpoint), cos path and phasor path, each against its C twin compiled for the same target
+    (:data:`C_THETA`), interleaved; same final states.
 
     The C loop's block length is the ``record_every`` of the numba run (100000):
     the same block structure, so the same arithmetic.
@@ -58,18 +64,18 @@ def simulate_vs_c(repeats: int = 5, n_steps: int = 20_000_000, dt: float = 1e-5)
     system = ImpactOscillator(**OSC)
     t_end = n_steps * dt
     for ph in (False, True):
-        simulate(system, X0, 10 * dt, dt, phasor=ph)  # compile / load cache
+        simulate(system, X0, 10 * dt, dt, phasor=ph, scheme=scheme)  # compile / load cache
     rows = {False: [], True: []}
     with tempfile.TemporaryDirectory() as tmp:
         exe = _build_c(Path(tmp))
         for _ in range(repeats):
             for ph in (False, True):
-                c_sec, cq, cu = _run_c(exe, dt, n_steps, ph) if exe else (float("nan"),) * 3
+                c_sec, cq, cu = _run_c(exe, dt, n_steps, ph, scheme) if exe else (float("nan"),) * 3
                 t = time.perf_counter()
-                r = simulate(system, X0, t_end, dt, record_every=100_000, phasor=ph)
+                r = simulate(system, X0, t_end, dt, record_every=100_000, phasor=ph, scheme=scheme)
                 nb_sec = time.perf_counter() - t
                 rows[ph].append((c_sec, nb_sec, cq, r.q[-1, 0], cu, r.u[-1, 0]))
-    out = dict(steps=n_steps, repeats=repeats, flags=" ".join(C_FLAGS))
+    out = dict(steps=n_steps, repeats=repeats, flags=" ".join(C_FLAGS), scheme=scheme)
     for ph, name in ((False, "cos"), (True, "phasor")):
         R = rows[ph]
         ratios = [r[0] / r[1] for r in R]
@@ -78,13 +84,47 @@ def simulate_vs_c(repeats: int = 5, n_steps: int = 20_000_000, dt: float = 1e-5)
             numba_Msteps=n_steps / statistics.median(r[1] for r in R) / 1e6,
             ratio=statistics.median(ratios), ratio_min=min(ratios), ratio_max=max(ratios),
             same_final_state=all(r[2] == r[3] and r[4] == r[5] for r in R),
-            q=R[-1][3], u=R[-1][5])
+            q=R[-1][3], u=R[-1][5], sec=[r[1] for r in R])
     speedup = [c[1] / p[1] for c, p in zip(rows[False], rows[True])]
     out["phasor_speedup"] = statistics.median(speedup)
     out["phasor_speedup_min"] = min(speedup)
     out["phasor_speedup_max"] = max(speedup)
     out["phasor_state_diff"] = max(abs(out["cos"]["q"] - out["phasor"]["q"]),
                                    abs(out["cos"]["u"] - out["phasor"]["u"]))
+    return out
+
+
+def scheme_cost(repeats: int = 5, n_steps: int = 5_000_000, dt: float = 1e-5, t_pair: float = 20.0):
+    """Seconds per step of the default scheme (trapezoid) over the midpoint's, interleaved in one run
+    (issue 40 item 4: target <= 1.5): the 1-DOF forced oscillator (``simulate``, phasor path) and the
+    forced pair (``simulate_pair``, Euclidean and switching, Kp = 1, Kd = 0.5, record_every=1000: the
+    trapezoid's coupling inside the step against the midpoint's held coupling)."""
+    from fmu_sync.core import ImpactOscillator, simulate, simulate_pair
+
+    osc = ImpactOscillator(**OSC)
+    s = ImpactOscillator(m=1, k=1, c=0, f0=0.2, F=0.5, Omega=2.5, e=0.9)
+
+    def single(scheme):
+        return lambda: simulate(osc, X0, n_steps * dt, dt, record_every=100_000, scheme=scheme)
+
+    def pair(scheme, law):
+        return lambda: simulate_pair(s, (1.0, 0.0), (0.2, 0.5), t_pair, dt, coupling=law, Kp=1.0, Kd=0.5,
+                                     record_every=1000, scheme=scheme)
+    cases = {"single": single, "euclidean pair": lambda sc: pair(sc, "euclidean"),
+             "switching pair": lambda sc: pair(sc, "switching")}
+    out = {}
+    for name, make in cases.items():
+        runs = {sc: make(sc) for sc in ("trapezoid", "midpoint")}
+        for r in runs.values():
+            r()   # compile / load cache
+        sec = {sc: [] for sc in runs}
+        for _ in range(repeats):
+            for sc, r in runs.items():
+                t = time.perf_counter()
+                r()
+                sec[sc].append(time.perf_counter() - t)
+        ratios = [a / b for a, b in zip(sec["trapezoid"], sec["midpoint"])]
+        out[name] = dict(ratio=statistics.median(ratios), ratio_min=min(ratios), ratio_max=max(ratios))
     return out
 
 
@@ -174,6 +214,8 @@ def run(quick: bool = False) -> str:
     """Run all core speed measurements; return a markdown report."""
     reps = 3 if quick else 5
     sim = simulate_vs_c(repeats=reps, n_steps=5_000_000 if quick else 20_000_000)
+    mid = simulate_vs_c(repeats=reps, n_steps=5_000_000 if quick else 20_000_000, scheme="midpoint")
+    cost = scheme_cost(repeats=reps, n_steps=2_000_000 if quick else 5_000_000, t_pair=5.0 if quick else 20.0)
     from .distance_cost import measure
     dist = measure(n_calls=50_000 if quick else 200_000, repeats=reps)
     pair = pair_speed(repeats=reps, t_end=20.0 if quick else 100.0)
@@ -182,7 +224,8 @@ def run(quick: bool = False) -> str:
     lines = ["## Core speed", "", "Medians of %d interleaved repeats." % reps, "",
              f"C baseline `fmu_sync/benchmarks/moreau_loop.c`: the same operations in the same order as "
              f"the 1-DOF kernel, compiled `gcc {sim['flags']}` (numba compiles for the host CPU and "
-             f"does not contract a*b+c into FMAs either).", "",
+             f"does not contract a*b+c into FMAs either). The rows without a scheme are the default, "
+             f"`trapezoid` (the C loop with theta = 1/2); the midpoint's rows say so.", "",
              "| measurement | value | target |", "|---|---|---|",
              f"| `simulate` 1-DOF forced oscillator, {sim['steps']:.0e} steps, cos path "
              f"(`phasor=False`) | {cos['numba_Msteps']:.1f} Msteps/s | |",
@@ -199,10 +242,18 @@ def run(quick: bool = False) -> str:
              f"({sim['phasor_speedup_min']:.2f}–{sim['phasor_speedup_max']:.2f}) | ≥ 2 |",
              f"| final state, phasor vs cos path, max abs difference | {sim['phasor_state_diff']:.1e} "
              f"| ≤ 1e-12 |"]
+    for ph in ("cos", "phasor"):
+        m = mid[ph]
+        lines += [f"| midpoint: ratio numba / C, {ph} path (median, min–max) | {m['ratio']:.2f} "
+                  f"({m['ratio_min']:.2f}–{m['ratio_max']:.2f}) | ≥ 0.9 |",
+                  f"| midpoint: same final state as C, bit for bit ({ph}) | {m['same_final_state']} | |"]
+    for name, c in cost.items():
+        lines.append(f"| a step of the default (trapezoid) / a step of the midpoint, {name} (median, min–max) "
+                     f"| {c['ratio']:.2f} ({c['ratio_min']:.2f}–{c['ratio_max']:.2f}) | ≤ 1.5 |")
     for label, ns in dist[1:]:
         target = "< 300 ns" if label.startswith("1-DOF") and "coupling" not in label else ""
         lines.append(f"| distance/coupling kernel, {label} | {ns:.0f} ns | {target} |")
-    lines.append(f"| `simulate_pair`, switching coupling, record_every=1000 | "
+    lines.append(f"| `simulate_pair` (trapezoid), switching coupling, record_every=1000 | "
                  f"{pair['Msteps_median']:.2f} Msteps/s ({pair['Msteps_min']:.2f}–{pair['Msteps_max']:.2f}) "
                  f"| ≥ 2 Msteps/s |")
     lines += [f"| user force law (the same forced oscillator as `h(q, u, tau, t, p)`, its forcing declared), "

@@ -7,7 +7,11 @@
  * floating-point contraction (-ffp-contract=off: numba does not fuse a*b+c into
  * an FMA either; with FMAs the results differ in the last bits).
  *
- * usage: moreau_loop m k c f0 F Omega phi e q0 u0 dt n_steps phasor
+ * The same loop runs the core's default scheme, trapezoid (theta = 1/2: the coefficients of
+ * S = M + a C + a^2 K in place of M, a = theta dt; step_coeffs1's products), when the last
+ * argument theta is > 0 (0: the midpoint).
+ *
+ * usage: moreau_loop m k c f0 F Omega phi e q0 u0 dt n_steps phasor theta
  * prints: seconds q u impacts
  */
 #include <math.h>
@@ -22,8 +26,8 @@
 static double flush(double x) { return fabs(x) < FLUSH ? 0.0 : x; }
 
 int main(int argc, char **argv) {
-    if (argc != 14) {
-        fprintf(stderr, "usage: %s m k c f0 F Omega phi e q0 u0 dt n_steps phasor\n", argv[0]);
+    if (argc != 15) {
+        fprintf(stderr, "usage: %s m k c f0 F Omega phi e q0 u0 dt n_steps phasor theta\n", argv[0]);
         return 2;
     }
     double m = atof(argv[1]), k = atof(argv[2]), c = atof(argv[3]), f0 = atof(argv[4]);
@@ -31,11 +35,13 @@ int main(int argc, char **argv) {
     double q = atof(argv[9]), u = atof(argv[10]), dt = atof(argv[11]);
     long n = atol(argv[12]);
     int phasor = atoi(argv[13]);
+    double theta = atof(argv[14]);
     /* the system's arrays (w = 1, g0 = 0, B = 1, tau = 0) and step1_h's coefficients */
     double Minv = 1.0 / m, w = 1.0, g0 = 0.0, B = 1.0, tau = 0.0, t0 = 0.0;
-    double iw = Minv * w, WX = w * iw;
-    double a = 0.5 * dt;
-    double K = k, CK = c + a * k, G1 = dt * Minv, G2 = a * G1, aiw = a * iw, hd = 0.5 * dt;
+    double a = theta > 0.0 ? theta * dt : 0.5 * dt;
+    double X = theta > 0.0 ? 1.0 / ((m + a * c) + (a * a) * k) : Minv; /* S^-1 (theta_matrices) or M^-1 */
+    double iw = X * w, WX = w * iw;
+    double K = k, CK = c + a * k, G1 = dt * X, G2 = a * G1, aiw = a * iw, hd = 0.5 * dt;
     double hb = f0 + B * tau;
     double cr = cos(Omega * dt), sr = sin(Omega * dt), c0 = 0.0, s0 = 0.0;
     long impacts = 0;

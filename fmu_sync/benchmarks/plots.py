@@ -57,7 +57,7 @@ def work_precision_plot(points, scene: str, metric: str, path) -> Path | None:
                 if (~zero).any():
                     ax.scatter(xs[~zero], ys[~zero], marker=marker, s=140, color=color, label=label)
                 continue
-            if m == "midpoint":      # the default scheme: drawn on top, open markers (theta0.5 often coincides)
+            if m == "trapezoid":     # the default scheme: drawn on top, open markers (theta0.5 coincides alone)
                 ax.plot(xs[~zero], ys[~zero], marker=marker, color=color, label=m, markersize=8,
                         markerfacecolor="none", zorder=4)
             else:
@@ -71,7 +71,7 @@ def work_precision_plot(points, scene: str, metric: str, path) -> Path | None:
         ax.set_yscale("log")
         ax.set_xlabel("run time (s, median of repeats)")
         unit = {"rest_time": "rest-time error |t_rest − t_inf| (s)", "max_q": "max position error (m)",
-                "d": "max |d − d_ref| (quotient distance)"}.get(metric, metric)
+                "d": "max |d − d_ref| (quotient distance)", "q": "max |q_i − q_i,DOP853| (both systems)"}.get(metric, metric)
         ax.set_ylabel(unit)
         ref = pts[0].reference
         ax.set_title(f"Work–precision: {scene}, {metric} (reference: {ref})", fontsize=10)

@@ -173,7 +173,7 @@ def restitution_limits(n_impacts: int = 10_000, dt: float = 1e-3) -> list[Row]:
     ev = exact_events(s, (1.0, 0.0), T)
     qmax_ex = float(np.max(np.abs(ev.state(np.linspace(0, T, 200_001))[0])))
     t0 = time.perf_counter()
-    r = simulate(s, (1.0, 0.0), T, dt, record_every=10)
+    r = simulate(s, (1.0, 0.0), T, dt, record_every=10, scheme="midpoint")
     sec = time.perf_counter() - t0
     n = _onsets(r.percussion).size
     qm = float(np.max(np.abs(r.q)))
@@ -241,7 +241,7 @@ def zeno_rest_times(es=ZENO_ES, dts=(1e-3, 1e-4), q0: float = 1.0) -> list[Row]:
         v_tol = 1e-6 * math.sqrt(2 * G * q0)
         for dt in dts:
             t0 = time.perf_counter()
-            r = simulate(s, (q0, 0.0), T, dt)
+            r = simulate(s, (q0, 0.0), T, dt, scheme="midpoint")
             sec = time.perf_counter() - t0
             tr = rest_time_of(r.t, r.u[:, 0], v_tol)
             err = abs(tr - t_inf)
@@ -317,7 +317,7 @@ def scale_invariance(scales=SCALES, dt: float = 1e-3, fmu=None, tol: float = 1e-
         p, x0, T = ball(sc)
         s = osc(**p)
         ev = exact_events(s, x0, T)
-        r = simulate(s, x0, T, dt)
+        r = simulate(s, x0, T, dt, scheme="midpoint")
         qe, _ = ev.state(r.t)
         out[("bouncing ball", "midpoint", "max|q-q_exact|/s")] = float(np.max(np.abs(r.q[:, 0] - qe))) / sc
         t_inf = closed_form_rest_time(dict(p, f0=-G, m=1.0), 1.0)      # time scale is unchanged
@@ -334,7 +334,7 @@ def scale_invariance(scales=SCALES, dt: float = 1e-3, fmu=None, tol: float = 1e-
         rx = simulate_exact(s, x0, T, dt)
         out[("forced pair", "exact", "q(T)/s")] = float(rx.q[-1, 0]) / sc
         rp = simulate_pair(s, x0, (0.2 * sc, 0.5 * sc), 10.0, dt, coupling="switching", Kp=1.0, Kd=0.5,
-                           record_every=10)
+                           record_every=10, scheme="midpoint")
         out[("forced pair, coupled pair (switching)", "simulate_pair midpoint", "max d/s, d(T)/s")] = (float(np.max(rp.d)) / sc, float(rp.d[-1]) / sc)
         if fmu is not None:
             from fmu_sync import SlaveError, cosimulate

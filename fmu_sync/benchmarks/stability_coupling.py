@@ -80,7 +80,7 @@ def _probe_core(Kp, Kd, wc, h, n_steps):
     dt = h / wc
     try:
         r = simulate_pair(s, (1 + _DELTA, 0.0), (1 - _DELTA, 0.0), n_steps * dt, dt, coupling="euclidean",
-                          Kp=Kp, Kd=Kd, record_distance=False, allow_unstable=True)
+                          Kp=Kp, Kd=Kd, record_distance=False, allow_unstable=True, scheme="midpoint")
     except SimulationDiverged:
         return True
     return _growth(r.q1, r.u1, r.q2, r.u2, wc) > 1.0
@@ -150,7 +150,7 @@ def coupling_gains(kps=(1e-2, 1.0, 1e2, 1e4, 1e6), zeta: float = ZETA, fmu=None,
             try:
                 simulate_pair(s, (1 + _DELTA, 0.0), (1 - _DELTA, 0.0), n * h / wc, h / wc, coupling="euclidean",
                               Kp=Kp, Kd=Kd, record_every=max(1, n // 10), record_distance=False,
-                              allow_unstable=True)
+                              allow_unstable=True, scheme="midpoint")
                 outcome, msg, ok = "returned data, no error", "", False
             except SimulationDiverged as ex:
                 outcome, msg, ok = "SimulationDiverged", str(ex).split(" The ")[0], True
@@ -208,7 +208,7 @@ def coupling_gains(kps=(1e-2, 1.0, 1e2, 1e4, 1e6), zeta: float = ZETA, fmu=None,
     s = osc(**_FREE)
     t0 = time.perf_counter()
     r = simulate_pair(s, (1 + _DELTA, 0.0), (1 - _DELTA, 0.0), steps * h / wc, h / wc, coupling="euclidean",
-                      Kp=Kp, Kd=0.0, record_distance=False, allow_unstable=True)
+                      Kp=Kp, Kd=0.0, record_distance=False, allow_unstable=True, scheme="midpoint")
     x = r.q1[:, 0] - r.q2[:, 0]
     v = r.u1[:, 0] - r.u2[:, 0]
     A2 = x * x + (v / wc) ** 2

@@ -13,12 +13,13 @@ import numpy as np
 from .ivp_baseline import ivp_impacts, ivp_impacts_nd
 
 __all__ = ["SCENES", "Case", "Point", "WorkPrecision", "METHOD_DOC", "LADDERS", "measure", "horizon",
-           "rest_time_of", "closed_form_rest_time"]
+           "rest_time_of", "closed_form_rest_time", "pair_metrics", "dop853_pair"]
 
 
 G = 9.81
 V_REST_REL = 1e-6        # rest detection: |u| <= V_REST_REL * v1
 PAIR_GRID = 0.01         # d is compared on this grid (s)
+PAIR_REF_SCHEME = "trapezoid"   # the impacting pair's fine reference run (the core's default)
 
 METHOD_DOC = {
     "midpoint": "Moreau midpoint (core), step = dt",
@@ -53,6 +54,7 @@ class Case:
     pair: dict | None = None      # coupled pair for the "d" metric: x2, Kp, Kd
     system: object = None         # n-DOF scene: its MechanicalSystem (params unused)
     fmu: bool = True              # the 1-DOF FMU applies (co-simulation runs)
+    smooth: bool = False          # no impacts: the pair's truth is DOP853 (metric "q"), not a fine run ("d")
 
     def horizon(self, quick: bool) -> float:
         return self.t_end_quick if quick else self.t_end
@@ -80,7 +82,13 @@ def _builtin_nd(name: str, t_end: float, t_end_quick: float) -> Case:
     return Case(name, {}, v.x1, t_end, t_end_quick, system=v.system, fmu=False)
 
 
+#: the issue-40 damped forced oscillator (m = 1, k = 1, c = 0.1, F = 0.5, Omega = 2.5), the wall far away: the
+#: smooth case (truth: the exact solver alone, DOP853 coupled with Kp = 1, Kd = 0.5)
+DAMPED = dict(m=1.0, k=1.0, c=0.1, f0=0.0, F=0.5, Omega=2.5, e=0.9, g0=100.0)
+SMOOTH_PAIR = dict(x2=(-0.2, 0.4), Kp=1.0, Kd=0.5)
+
 SCENES = (
+    Case("damped-pair", DAMPED, (0.3, 0.0), 20.0, 10.0, pair=SMOOTH_PAIR, fmu=False, smooth=True),
     _builtin("bouncing-ball", 5.0, 5.0, metrics=("rest_time", "max_q")),
     _builtin("forced-pair", 20.0, 10.0, pair="switching"),
     _builtin("zeno-table", 20.0, 10.0),
@@ -235,8 +243,31 @@ def _core_pair(scene, T, scheme, theta, dt):
     def fn():
         r = simulate_pair(system, scene.x0, p["x2"], T, dt, coupling="switching", Kp=p["Kp"], Kd=p["Kd"],
                           scheme=scheme, theta=theta, record_every=rec)
-        return r.t, r.d
+        return r.t, r.d, r.q1[:, 0], r.q2[:, 0]
     return fn
+
+
+def pair_metrics(scene: Case) -> tuple:
+    """The pair's metrics: ``q`` (max |q_i - q_i,DOP853| over both systems) for a smooth pair, else ``d``."""
+    return ("q",) if scene.smooth else ("d",)
+
+
+def dop853_pair(scene: Case, t):
+    """The smooth pair by DOP853 (rtol = atol = 1e-12) at the times ``t``: (q1, q2). Far from the wall the
+    switching law is on branch E, the PD law tau_1 = -Kp (q1 - q2) - Kd (u1 - u2) = -tau_2."""
+    from scipy.integrate import solve_ivp
+    p, s = scene.pair, _system(scene)
+    m, k, c, f0 = (float(x) for x in (s.M[0, 0], s.K[0, 0], s.C[0, 0], s.f0[0]))
+    (F, Om, ph), = ((float(np.ravel(a)[0]), float(b), float(c_)) for a, b, c_ in s.forcing)
+
+    def rhs(t_, z):
+        q1, u1, q2, u2 = z
+        tau = -p["Kp"] * (q1 - q2) - p["Kd"] * (u1 - u2)
+        f = f0 + F * math.cos(Om * t_ + ph)
+        return [u1, (f - k * q1 - c * u1 + tau) / m, u2, (f - k * q2 - c * u2 - tau) / m]
+    z0 = [*scene.x0, *p["x2"]]
+    r = solve_ivp(rhs, (0.0, float(t[-1])), z0, method="DOP853", rtol=1e-12, atol=1e-12, t_eval=t)
+    return r.y[0], r.y[2]
 
 
 def _cosim_pair(scene, T, H, ea, slave_dt, fmu, implicit=False):
@@ -295,8 +326,9 @@ def _configs(mode: str, fmu, scenes=SCENES):
         if sc.pair is not None:
             for label, scheme, theta in CORE_SCHEMES:
                 for dt in lad["dt"]:
-                    if dt >= 10 * lad["dt_ref_pair"] - 1e-15:
-                        cfgs.append(_Config(label, sc, dt, _core_pair(sc, T, scheme, theta, dt), ("d",), "pair"))
+                    if dt >= 10 * lad["dt_ref_pair"] - 1e-15 or sc.smooth:
+                        cfgs.append(_Config(label, sc, dt, _core_pair(sc, T, scheme, theta, dt), pair_metrics(sc),
+                                            "pair"))
             if fmu is not None:
                 for H in lad["H"]:
                     for ea in (False, True):
@@ -320,6 +352,7 @@ class _Reference:
     d_t: np.ndarray | None = None   # pair reference on the PAIR_GRID
     d: np.ndarray | None = None
     d_label: str = ""
+    q_pair: tuple | None = None     # smooth pair: DOP853's (q1, q2) on the PAIR_GRID
 
 
 def _references(cfgs, mode):
@@ -335,20 +368,25 @@ def _references(cfgs, mode):
         if "rest_time" in sc.metrics:
             ref.t_inf = closed_form_rest_time(sc.params, sc.x0[0])
             ref.v_tol = V_REST_REL * math.sqrt(2.0 * G * sc.x0[0])
-        if sc.pair is not None:
+        if sc.smooth:
+            ref.q_pair = dop853_pair(sc, np.arange(int(round(T / PAIR_GRID)) + 1) * PAIR_GRID)
+        elif sc.pair is not None:
             p = sc.pair
             r = simulate_pair(_system(sc), sc.x0, p["x2"], T, dt_ref, coupling="switching", Kp=p["Kp"],
-                              Kd=p["Kd"], record_every=_rec_every(dt_ref, PAIR_GRID))
+                              Kd=p["Kd"], record_every=_rec_every(dt_ref, PAIR_GRID), scheme=PAIR_REF_SCHEME)
             ref.d_t, ref.d = r.t, r.d
-            ref.d_label = f"simulate_pair midpoint dt={dt_ref:g}"
+            ref.d_label = f"simulate_pair {PAIR_REF_SCHEME} dt={dt_ref:g}"
         refs[sc.name] = ref
     return refs
 
 
 def _evaluate(cfg: _Config, out, ref: _Reference) -> dict:
     if cfg.kind == "pair":
-        t, d = out
+        t, d = out[:2]
         idx = np.rint(np.asarray(t) / PAIR_GRID).astype(int)
+        if ref.q_pair is not None:
+            ok = idx < ref.q_pair[0].size
+            return {"q": float(max(np.max(np.abs(np.asarray(q)[ok] - qr[idx[ok]])) for q, qr in zip(out[2:], ref.q_pair)))}
         ok = idx < ref.d.size
         return {"d": float(np.max(np.abs(np.asarray(d)[ok] - ref.d[idx[ok]])))}
     t, q, u, rest = out
@@ -376,6 +414,8 @@ def _evaluate(cfg: _Config, out, ref: _Reference) -> dict:
 def _reference_label(cfg: _Config, metric: str, ref: _Reference) -> str:
     if metric == "d":
         return ref.d_label
+    if metric == "q":
+        return "DOP853 rtol=atol=1e-12"
     if metric == "rest_time":
         return "closed form t_inf"
     return "exact (core/exact_nd.py)" if cfg.scene.system is not None else "exact (core/exact.py)"
