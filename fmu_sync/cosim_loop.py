@@ -52,6 +52,7 @@ from .core.kernels import depends_on_core
 from .cosim_newton import OMEGA0, newton_update, newton_work, secants, step_start
 from .fmus import contract
 from .fmus.contract import INPUT_BOUND
+from .strategies import DELAYED, DELAYED_ZERO, NOT_DELAYED, flags_of
 
 depends_on_core(__file__)   # its cache follows the core's edits (it compiles network_forces in)
 
@@ -76,9 +77,12 @@ P_VR_OUT, P_VR_TAU, P_VR_IMP, P_ORDER, P_TAU, P_BUF, P_SLOPE, P_IBUF, P_SAVED = 
 # flags: the run's settings (STEPS: the run's communication steps; PIECES, PIECES_LAST: the
 # event-aware retake's pieces of a step of length H and of the last step)
 # IMPLICIT: the implicit exchange; MAX_ITER: its cap of FMU steps per communication step)
+#: the flags by name (the builder, :func:`loop_arguments`, fills them by name; the kernels read them by index)
+FLAG_NAMES = ("gauss_seidel", "foh", "event_aware", "need_d", "coupled", "record_every", "pieces", "delay", "steps",
+              "pieces_last", "implicit", "max_iter")
 GAUSS_SEIDEL, FOH, EVENT_AWARE, NEED_D, COUPLED, RECORD_EVERY, PIECES, DELAY, STEPS, PIECES_LAST, IMPLICIT, \
-    MAX_ITER = range(12)
-FLAGS = 12
+    MAX_ITER = range(len(FLAG_NAMES))
+FLAGS = len(FLAG_NAMES)
 #: The implicit exchange's defaults: a step has converged when every force differs from the law at
 #: the step's end states by at most IMPLICIT_TOL times the force scale (:func:`_scale`); at most
 #: IMPLICIT_MAX_ITERATIONS FMU steps per communication step, else the run fails (NOT_CONVERGED).
@@ -98,7 +102,7 @@ TRUST = 0.5
 # DELAYED (libcosim): step k is held at the forces of the states x_{k-1} (step 0 at x_0's);
 # DELAYED_ZERO (fmpy's simulate_ssp): every connection starts at 0, steps 0 and 1 run
 # without forces, step k >= 2 at the forces of x_{k-1}
-NOT_DELAYED, DELAYED, DELAYED_ZERO = range(3)
+# (the codes are the registry's, fmu_sync.strategies)
 WARNING = 1
 
 #: the core's network_forces inlined into the loop (numba IR inlining: its own source and
@@ -122,6 +126,14 @@ def fmi_functions(dll, optional=("fmi2SetRealInputDerivatives", "fmi2GetFMUstate
     return out
 
 
+def named_flags(**values) -> np.ndarray:
+    """The loop's ``flags`` array from its values by name (:data:`FLAG_NAMES`; unnamed ones 0)."""
+    unknown = sorted(set(values) - set(FLAG_NAMES))
+    if unknown:
+        raise ValueError(f"unknown loop flag {unknown[0]!r} (the loop's flags: {', '.join(FLAG_NAMES)})")
+    return np.array([int(values.get(k, 0)) for k in FLAG_NAMES], dtype=np.int64)
+
+
 def loop_arguments(m) -> None:
     """What :func:`exchange_chunk` takes for the run of a :class:`fmu_sync.master.NetworkMaster`
     ``m`` (set up, its instances started): every instance's FMI function addresses and component
@@ -130,7 +142,7 @@ def loop_arguments(m) -> None:
     ``m.loop_state`` (the arrays the loop writes also as attributes of ``m``)."""
     model, N, n = m.model, m.N, m.model.n
     m.fn = np.stack([fmi_functions(s.fmu.dll) for s in m.slaves])
-    rollback = "event_aware=True" if m.event_aware else "exchange='implicit'" if m.implicit else None
+    rollback = next((st.selected_by for st in m.strategies if st.rollback), None)
     needed = (["fmi2SetRealInputDerivatives"] if m.hold == "foh" else []) + (
         ["fmi2GetFMUstate", "fmi2SetFMUstate", "fmi2FreeFMUstate"] if rollback else [])
     for name in needed:
@@ -141,15 +153,11 @@ def loop_arguments(m) -> None:
     ref = (lambda names: np.array([m.slaves[0].variables[v].valueReference for v in names], dtype=np.uint32))
     m.vr_out, m.vr_tau, m.vr_imp = ref(model.q + model.u), ref(model.tau), ref([contract.IMPACTS])
     E2, W2 = edge_arrays(m.A, m.edges)
-    flags = np.zeros(FLAGS, dtype=np.int64)
-    flags[[GAUSS_SEIDEL, FOH, EVENT_AWARE, NEED_D, COUPLED]] = [
-        m.method == "gauss-seidel", m.hold == "foh", m.event_aware, m.need_d, m.coupled]
-    flags[RECORD_EVERY] = m.record_every
-    flags[DELAY] = m.DELAY.get(m.method, NOT_DELAYED)
-    flags[STEPS] = m.n_steps   # the last one of length grid.dt_last, ending at grid.t_end
-    flags[IMPLICIT], flags[MAX_ITER] = m.implicit, IMPLICIT_MAX_ITERATIONS
     pieces = (lambda h: max(1, run_steps(h, m.H_min).steps) if m.event_aware else 1)
-    flags[PIECES], flags[PIECES_LAST] = pieces(m.H), pieces(m.grid.dt_last)
+    flags = named_flags(foh=m.hold == "foh", need_d=m.need_d, coupled=m.coupled, record_every=m.record_every,
+                        steps=m.n_steps,   # the last one of length grid.dt_last, ending at grid.t_end
+                        max_iter=IMPLICIT_MAX_ITERATIONS, pieces=pieces(m.H), pieces_last=pieces(m.grid.dt_last),
+                        **flags_of(m.strategies))   # the strategies' own: gauss_seidel, delay, implicit, event_aware
     z = (lambda: np.zeros((N, n)))
     m.q, m.u, m.tau = z(), z(), z()
     m.imp, m.ctl = np.zeros(N, dtype=np.int64), np.zeros(CTL, dtype=np.int64)

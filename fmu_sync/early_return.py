@@ -18,8 +18,9 @@ Python over FMI 3.0 instances (:class:`fmu_sync.fmi3_bridge.FMU3Host` through
 ``integrate_network`` call). The arguments, the set-up checks, the record and the
 failures are those of :class:`fmu_sync.master.NetworkMaster`.
 
-:func:`cosimulate_early_return` is the pair entry point (a two-node graph);
-:class:`EarlyReturnMaster` the strategy. The instances are FMI 3.0 instances of
+:class:`EarlyReturnMaster` is the strategy ``"early-return"`` of the registry
+(:mod:`fmu_sync.strategies`), selected by ``cosimulate(..., method="early-return")`` or
+``cosimulate_network``; :func:`cosimulate_early_return` is an alias of the first. The instances are FMI 3.0 instances of
 an fmu-sync FMU (``fmu-sync export --fmi-version 3``).
 """
 from __future__ import annotations
@@ -27,11 +28,10 @@ from __future__ import annotations
 import numpy as np
 
 from .core.coupling import chain_work
-from .core.errors import RunFailed
 from .core.network import edge_arrays, network_forces
 from .core.result import NetworkResult, PairResult
 from .fmus import contract
-from .master import NetworkMaster, SlaveError, pair_result
+from .master import NetworkMaster, SlaveError, cosimulate
 
 __all__ = ["EarlyReturnMaster", "cosimulate_early_return"]
 
@@ -40,24 +40,11 @@ class EarlyReturnMaster(NetworkMaster):
     """:class:`NetworkMaster` over FMI 3.0 instances whose steps stop at every impact
     (early return) and exchange the coupling forces there; Jacobi exchange, zero-order hold."""
 
-    METHODS = ("jacobi",)
     EARLY_RETURN = True
 
-    def __init__(self, fmu, states, A, t_end: float, H: float, coupling: str | None = "switching",
-                 Kp=0.0, Kd=0.0, Q=None, record_every: int = 1, start_values=None,
-                 record_distance: bool = True, allow_unstable: bool = False):
-        super().__init__(fmu, states, A, t_end, H, coupling, Kp, Kd, Q, "jacobi", record_every, False, None,
-                         start_values, record_distance, allow_unstable, "zoh")
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)   # method='early-return': the registry's checks (fmu_sync.strategies)
         self.early_stops, self.imp, self.stop_times = 0, [0] * self.N, []
-
-    def check_fmi_version(self) -> None:
-        cs = self.md.coSimulation
-        if self.md.fmiVersion != "3.0" or cs is None or not cs.mightReturnEarlyFromDoStep:
-            raise ValueError(f"the early-return exchange needs an FMI 3.0 co-simulation FMU that may return early "
-                             f"(mightReturnEarlyFromDoStep = true); {self.fmu} is FMI {self.md.fmiVersion}"
-                             + ("" if self.md.fmiVersion != "3.0" else " without early return")
-                             + ": export it with fmu-sync export --fmi-version 3, or use cosimulate with "
-                               "event_aware=True on the FMI 2.0 FMU")
 
     # ------------------------------------------------------------ the exchange
     def _arrays(self) -> None:
@@ -186,13 +173,8 @@ class EarlyReturnMaster(NetworkMaster):
 def cosimulate_early_return(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None, Kp=0.0, Kd=0.0,
                             Q=None, record_every: int = 1, start_values=None, progress=None,
                             record_distance: bool = True, allow_unstable: bool = False) -> PairResult:
-    """:func:`fmu_sync.master.cosimulate` of an FMI 3.0 FMU with the early-return
-    exchange: the coupling forces are also exchanged at every impact instant."""
-    try:
-        r = EarlyReturnMaster(fmu, [x1, x2], [[0.0, 1.0], [1.0, 0.0]], t_end, H, coupling, Kp, Kd, Q, record_every,
-                              start_values, record_distance, allow_unstable).run(progress)
-    except RunFailed as exc:
-        if exc.partial is not None:
-            exc.partial = pair_result(exc.partial, coupling)
-        raise
-    return pair_result(r, coupling)
+    """:func:`fmu_sync.master.cosimulate` of an FMI 3.0 FMU with ``method="early-return"`` (an
+    alias): the coupling forces are also exchanged at every impact instant."""
+    return cosimulate(fmu, x1, x2, t_end, H, coupling, Kp, Kd, Q, method="early-return", record_every=record_every,
+                      start_values=start_values, progress=progress, record_distance=record_distance,
+                      allow_unstable=allow_unstable)
