@@ -26,17 +26,18 @@ the floor exceed their share says so (``info["tol_met"]``, the master).
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
 from .core.checks import TIME_TOL, lands
 from .core.network import network_forces
-from .cosim_loop import (DONE, FREE_STATE, GET_STATE, fmu_states, HIST_VALID, FRESH, IMPLICIT, NOT_CONVERGED, ROW, SET_STATE,
+from .cosim_loop import (DONE, FULL, FREE_STATE, GET_STATE, fmu_states, HIST_VALID, FRESH, IMPLICIT, NOT_CONVERGED, ROW, SET_STATE,
                          SLAVE_FAILED, STATE_DIVERGED, DISTANCE_DIVERGED, WARNING, FOH, GAUSS_SEIDEL, RECORD_EVERY,
                          NEED_D, copy_rows, exchange_step, fail_at, implicit_step, read_impacts, record_row, unmanaged)
 
-__all__ = ["adaptive_chunk", "free_states", "SAFETY", "FAC_MIN", "FAC_MAX", "FULL",
+__all__ = ["adaptive_chunk", "Extra", "free_states", "SAFETY", "FAC_MIN", "FAC_MAX", "FULL",
            "A_TOL", "A_T_END", "A_UNIT", "A_H", "AD", "S_T", "S_H", "S_ERR", "AST",
            "C_STEPS", "C_REJECTED", "C_FORCED", "C_DONE", "ACTL"]
 
@@ -49,8 +50,20 @@ ZOH, FOH_KIND, IMPLICIT_KIND, IMPLICIT_MEAN = range(4)
 #: force by tau'' s (s - h)/2, whose effect on u over the step is tau'' h^3/12, against tau'' h^3/2
 #: for the ramp of the predictor-corrector difference delta = tau'' h^2 in the formulas
 MILNE = 1.0 / 6.0
-#: outcome of a chunk whose record (rows or steps) is full: the master grows it and goes on
-FULL = 5
+
+
+class Extra(NamedTuple):
+    """The controller's own arrays: the held forces' copy ``taus`` and the forces at the step's end
+    ``tau_end`` (N, n), scratch ``delta``, ``v`` (n,), its FMU-state handles ``mine`` (N,) and ``pmine``
+    (the loop's ``ptr`` with the address of ``mine`` in its ``P_SAVED`` slot)."""
+    taus: np.ndarray
+    tau_end: np.ndarray
+    delta: np.ndarray
+    v: np.ndarray
+    mine: np.ndarray
+    pmine: np.ndarray
+
+
 # ad: the run's settings (tolerance, t_end, the step unit = the slaves' solver.dt, the largest step H)
 A_TOL, A_T_END, A_UNIT, A_H = range(4)
 AD = 4
@@ -171,7 +184,7 @@ def adaptive_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, ad, norm
     controller's own FMU-state handles ``mine`` (N,) and ``pmine``, ``ptr`` with the address of
     ``mine`` in its ``P_SAVED`` slot, for ``cosim_loop.fmu_states``); with the implicit exchange
     (``flags[IMPLICIT]``) the step is :func:`fmu_sync.cosim_loop.implicit_step` (its per-step
-    arrays in ``keep[7]`` indexed by the accepted step), its estimate the converged end force
+    arrays in ``keep.iw`` indexed by the accepted step), its estimate the converged end force
     against its explicit first-order prediction, and a step that does not converge is retaken
     shorter, ``ast``, ``actl``
     (:data:`C_STEPS` ...), ``HS``, ``ES`` the accepted steps' lengths and local estimates.
@@ -200,7 +213,7 @@ def adaptive_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, ad, norm
     for _ in range(budget):
         if actl[C_DONE]:
             return DONE
-        if ctl[ROW] >= T.shape[0] or actl[C_STEPS] >= HS.shape[0]:
+        if ctl[ROW] >= T.shape[0] or actl[C_STEPS] >= HS.shape[0] or (implicit and actl[C_STEPS] >= iw.iters.shape[0]):
             return FULL
         t = ast[S_T]
         h = ast[S_H]

@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import ctypes
 import math
+from typing import NamedTuple
 
 import numpy as np
 from llvmlite import ir
@@ -57,7 +58,8 @@ from .strategies import DELAYED, DELAYED_ZERO, NOT_DELAYED, flags_of
 depends_on_core(__file__)   # its cache follows the core's edits (it compiles network_forces in)
 
 __all__ = ["CALLS", "fmi_functions", "exchange_chunk", "DONE", "SLAVE_FAILED", "FORCE_BOUND",
-           "STATE_DIVERGED", "DISTANCE_DIVERGED", "NOT_CONVERGED", "IMPLICIT_TOL", "IMPLICIT_MAX_ITERATIONS",
+           "STATE_DIVERGED", "DISTANCE_DIVERGED", "NOT_CONVERGED", "FULL", "NO_ROOM", "LoopArgs", "LoopState",
+           "Keep", "Work", "ImplicitWork", "Held", "with_room", "named_flags", "IMPLICIT_TOL", "IMPLICIT_MAX_ITERATIONS",
            "implicit_work", "loop_arguments", "implicit_info", "not_converged"]
 
 #: The FMI 2.0 functions the loop calls, in the column order of ``fmi_functions``.
@@ -65,15 +67,126 @@ CALLS = ("fmi2SetReal", "fmi2SetRealInputDerivatives", "fmi2DoStep", "fmi2GetRea
          "fmi2GetFMUstate", "fmi2SetFMUstate", "fmi2FreeFMUstate")
 SET_REAL, SET_DER, DO_STEP, GET_REAL, GET_INT, GET_STATE, SET_STATE, FREE_STATE = range(len(CALLS))
 
-# outcome codes of a chunk (FAIL[0])
-DONE, SLAVE_FAILED, FORCE_BOUND, STATE_DIVERGED, DISTANCE_DIVERGED, NOT_CONVERGED = range(6)
+# outcome codes of a chunk (FAIL[0]); FULL: the tolerance controller's record is full (grow it, go on);
+# NO_ROOM: a per-step array would be written past its end (the bounds check of the builder's sizes)
+DONE, SLAVE_FAILED, FORCE_BOUND, STATE_DIVERGED, DISTANCE_DIVERGED, NOT_CONVERGED, FULL, NO_ROOM = range(8)
 # ctl: the loop's integer state between chunks (FRESH: tau already holds the Jacobi
 # forces at the current states, computed with the record's distances; ZERO_STEPS: delayed
 # orders, the steps still to run before the forces transferred for the next step are computed)
 ROW, RETAKES, HIST_VALID, FRESH, ZERO_STEPS = range(5)
 CTL = 5
-# ptr: addresses of the arrays the FMI calls read or write (taken once, in Python)
-P_VR_OUT, P_VR_TAU, P_VR_IMP, P_ORDER, P_TAU, P_BUF, P_SLOPE, P_IBUF, P_SAVED = range(9)
+
+
+class Held(NamedTuple):
+    """The arrays the FMI calls read or write, by address (``ptr``, taken once in Python; they
+    live as long as the run): value references of q, u (2n,), of tau (n,), of the impact counter
+    (1,); the derivative orders (n,) int32 ones; ``tau`` (N, n); the outputs' buffer (2n,); the
+    slope (n,); the impact-counter buffer (1,) int32; the FMU-state handles (N,)."""
+    vr_out: np.ndarray
+    vr_tau: np.ndarray
+    vr_imp: np.ndarray
+    order: np.ndarray
+    tau: np.ndarray
+    buf: np.ndarray
+    slope: np.ndarray
+    ibuf: np.ndarray
+    saved: np.ndarray
+
+
+# ptr's slots (the kernels read ptr[P_*]): the fields of Held, in its order
+P_VR_OUT, P_VR_TAU, P_VR_IMP, P_ORDER, P_TAU, P_BUF, P_SLOPE, P_IBUF, P_SAVED = (
+    Held._fields.index(f) for f in ("vr_out", "vr_tau", "vr_imp", "order", "tau", "buf", "slope", "ibuf", "saved"))
+
+
+class Work(NamedTuple):
+    """The loop's scratch arrays: the law's chain work (t1 .. c2u, :func:`fmu_sync.core.coupling.chain_work`),
+    each edge's distance, branch and Euclidean distance (E,), the outputs' buffer (2n,) and the slope (n,)."""
+    t1: np.ndarray
+    t2: np.ndarray
+    c1q: np.ndarray
+    c1u: np.ndarray
+    c2q: np.ndarray
+    c2u: np.ndarray
+    dk: np.ndarray
+    bk: np.ndarray
+    ek: np.ndarray
+    buf: np.ndarray
+    slope: np.ndarray
+
+
+class ImplicitWork(NamedTuple):
+    """The implicit exchange's arrays (:func:`implicit_work`): ``ta, te, g, r, rp, gp`` (N, n); the
+    block quasi-Newton's work ``nw``; ``bh`` (E,) the branches held; per accepted step ``offb``,
+    ``iters`` (int64) and ``resid``; ``tolv`` (1,) the tolerance."""
+    ta: np.ndarray
+    te: np.ndarray
+    g: np.ndarray
+    r: np.ndarray
+    rp: np.ndarray
+    gp: np.ndarray
+    nw: tuple
+    bh: np.ndarray
+    offb: np.ndarray
+    iters: np.ndarray
+    resid: np.ndarray
+    tolv: np.ndarray
+
+
+class Keep(NamedTuple):
+    """The copies a rolled-back step restores (states, input history, its time and validity in
+    ``hs``), the record's scratch forces, the new impact counters, the impact-counter buffer and
+    the implicit exchange's work."""
+    qs: np.ndarray
+    us: np.ndarray
+    hts: np.ndarray
+    hs: np.ndarray
+    scratch: np.ndarray
+    imp_new: np.ndarray
+    ibuf: np.ndarray
+    iw: ImplicitWork
+
+
+class LoopArgs(NamedTuple):
+    """What the kernels take that a run does not change (the first arguments of :func:`exchange_chunk`)."""
+    ptr: np.ndarray
+    fn: np.ndarray
+    comp: np.ndarray
+    laws: np.ndarray
+    geo: tuple
+    Kp: np.ndarray
+    Kd: np.ndarray
+    E2: np.ndarray
+    W2: np.ndarray
+    flags: np.ndarray
+    hp: np.ndarray
+    H: float
+    H_last: float
+    t_last: float
+
+
+class LoopState(NamedTuple):
+    """The loop's state between chunks and its record (the last arguments of :func:`exchange_chunk`)."""
+    q: np.ndarray
+    u: np.ndarray
+    tau: np.ndarray
+    tau_next: np.ndarray
+    hist_tau: np.ndarray
+    hist: np.ndarray
+    imp: np.ndarray
+    ctl: np.ndarray
+    saved: np.ndarray
+    keep: Keep
+    T: np.ndarray
+    Qr: np.ndarray
+    Ur: np.ndarray
+    TAU: np.ndarray
+    D: np.ndarray
+    BR: np.ndarray
+    EU: np.ndarray
+    w: Work
+    FAIL: np.ndarray
+    fail_t: np.ndarray
+
 # flags: the run's settings (STEPS: the run's communication steps; PIECES, PIECES_LAST: the
 # event-aware retake's pieces of a step of length H and of the last step)
 # IMPLICIT: the implicit exchange; MAX_ITER: its cap of FMU steps per communication step)
@@ -162,22 +275,20 @@ def loop_arguments(m) -> None:
     m.q, m.u, m.tau = z(), z(), z()
     m.imp, m.ctl = np.zeros(N, dtype=np.int64), np.zeros(CTL, dtype=np.int64)
     E = len(m.edges)
-    work = chain_work(n)
-    w = (np.zeros(n), np.zeros(n), *work, np.zeros(E), np.zeros(E, dtype=np.int64), np.zeros(E),
-         np.zeros(2 * n), np.zeros(n))
+    w = Work(np.zeros(n), np.zeros(n), *chain_work(n), np.zeros(E), np.zeros(E, dtype=np.int64), np.zeros(E),
+             np.zeros(2 * n), np.zeros(n))
     ibuf = np.zeros(1, dtype=np.int32)
     m.iw = implicit_work(N, n, len(m.edges), m.n_steps if m.implicit else 0, ibuf=ibuf,
                          Minv=getattr(m, "Minv_nodes", None))
-    keep = (z(), z(), z(), np.zeros(2), z(), np.zeros(N, dtype=np.int64), ibuf, m.iw)
+    keep = Keep(z(), z(), z(), np.zeros(2), z(), np.zeros(N, dtype=np.int64), ibuf, m.iw)
     m.FAIL, m.fail_t = np.zeros(4, dtype=np.int64), np.zeros(1)
     saved = np.zeros(N, dtype=np.int64)
-    # the arrays the FMI calls read or write, by address (P_*); they live as long as the run
-    m.held = (m.vr_out, m.vr_tau, m.vr_imp, np.ones(n, dtype=np.int32), m.tau, w[9], w[10], keep[6], saved)
+    m.held = Held(m.vr_out, m.vr_tau, m.vr_imp, np.ones(n, dtype=np.int32), m.tau, w.buf, w.slope, keep.ibuf, saved)
     ptr = np.array([a.ctypes.data for a in m.held], dtype=np.int64)
-    m.loop_args = (ptr, m.fn, m.comp, m.laws, m.geo, m.Kp_m, m.Kd_m, E2, W2, flags, m.hp, float(m.H),
-                   float(m.grid.dt_last), float(m.grid.t_end))
-    m.loop_state = (m.q, m.u, m.tau, z(), z(), np.zeros(1), m.imp, m.ctl, saved, keep, m.T, m.Qr, m.Ur, m.TAU, m.D,
-                    m.BR, m.EU, w, m.FAIL, m.fail_t)
+    m.loop_args = LoopArgs(ptr, m.fn, m.comp, m.laws, m.geo, m.Kp_m, m.Kd_m, E2, W2, flags, m.hp, float(m.H),
+                           float(m.grid.dt_last), float(m.grid.t_end))
+    m.loop_state = LoopState(m.q, m.u, m.tau, z(), z(), np.zeros(1), m.imp, m.ctl, saved, keep, m.T, m.Qr, m.Ur,
+                             m.TAU, m.D, m.BR, m.EU, w, m.FAIL, m.fail_t)
 
 
 def implicit_info(iw) -> dict:
@@ -186,24 +297,24 @@ def implicit_info(iw) -> dict:
     ``off_branch`` (per step, the edges whose end force was accepted on a branch other than the
     switching law's own at the end states: the law's branch changed within the step, §4.4); {} for
     an explicit run (``iw`` None or without per-step arrays)."""
-    if iw is None or iw[-3].size == 0:
+    if iw is None or iw.iters.size == 0:
         return {}
-    done = int(np.count_nonzero(iw[-3]))
-    return dict(iterations=iw[-3][:done].copy(), residuals=iw[-2][:done].copy(), exchange_tol=float(iw[-1][0]),
-                off_branch=iw[-4][:done].copy())
+    done = int(np.count_nonzero(iw.iters))
+    return dict(iterations=iw.iters[:done].copy(), residuals=iw.resid[:done].copy(), exchange_tol=float(iw.tolv[0]),
+                off_branch=iw.offb[:done].copy())
 
 
 def not_converged(iw, t: float, H: float, steps: int) -> str:
     """The message of a step from ``t`` that did not converge after ``steps`` FMU steps."""
-    res = float(iw[-2][np.count_nonzero(iw[-3]) - 1])
+    res = float(iw.resid[np.count_nonzero(iw.iters) - 1])
     return (f"the implicit exchange did not converge over the step from t = {t:.6g} (H = {H:g}): after "
             f"{steps} FMU steps the end force still differs from the law at the end states by {res:.3g} "
-            f"(tolerance {float(iw[-1][0]):g} times the force scale); the step is not accepted and the "
+            f"(tolerance {float(iw.tolv[0]):g} times the force scale); the step is not accepted and the "
             f"record ends at its start: lower H")
 
 
 def implicit_work(N: int, n: int, E: int, steps: int, tol: float = IMPLICIT_TOL, ibuf=None, Minv=None):
-    """The implicit exchange's arrays (``keep[7]`` of :func:`exchange_chunk`, unpacked in
+    """The implicit exchange's arrays (:class:`ImplicitWork`, ``keep.iw`` of :func:`exchange_chunk`, unpacked in
     :func:`implicit_step`): ``ta, te, g, r, rp, gp`` (N, n); the block quasi-Newton's work ``nw``
     (:func:`fmu_sync.cosim_newton.newton_work`; ``ibuf`` the loop's impact-counter buffer at
     ``ptr[P_IBUF]``, ``Minv`` (N, n, n) each FMU's M^-1 or None); ``bh`` (E,) the branches held (``E`` edges); ``offb`` (steps,), ``iters``
@@ -212,8 +323,18 @@ def implicit_work(N: int, n: int, E: int, steps: int, tol: float = IMPLICIT_TOL,
     z = (lambda: np.zeros((N, n)))
     ibuf = np.zeros(1, dtype=np.int32) if ibuf is None else ibuf
     nw = newton_work(N, n, ibuf, Minv) if steps else newton_work(1, n, ibuf)
-    return (z(), z(), z(), z(), z(), z(), nw, np.zeros(E, dtype=np.int64), np.zeros(steps, dtype=np.int64),
-            np.zeros(steps, dtype=np.int64), np.full(steps, np.nan), np.array([float(tol)]))
+    return ImplicitWork(z(), z(), z(), z(), z(), z(), nw, np.zeros(E, dtype=np.int64), np.zeros(steps, dtype=np.int64),
+                        np.zeros(steps, dtype=np.int64), np.full(steps, np.nan), np.array([float(tol)]))
+
+
+def with_room(iw: ImplicitWork, cap: int) -> ImplicitWork:
+    """``iw`` whose per-step arrays (``offb``, ``iters``, ``resid``) hold ``cap`` steps, the
+    steps so far kept (the tolerance controller grows them with its record)."""
+    def grown(a, fill):
+        b = np.full(cap, fill, dtype=a.dtype)
+        b[:min(cap, a.size)] = a[:cap]
+        return b
+    return iw._replace(offb=grown(iw.offb, 0), iters=grown(iw.iters, 0), resid=grown(iw.resid, np.nan))
 
 
 @intrinsic
@@ -461,7 +582,7 @@ def implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, u
     """The implicit exchange over [t, t + h] (docs/design.md §4.4): the force over the step is the
     line from ``ta`` (the law at the states at t) to ``te`` (first-order hold: value and input
     derivative) or their mean held (zero-order hold); ``te`` is iterated until it equals the law
-    at the states the step ends in, to :data:`IMPLICIT_TOL` (``iw[-1][0]``) times :func:`_scale`.
+    at the states the step ends in, to :data:`IMPLICIT_TOL` (``iw.tolv[0]``) times :func:`_scale`.
     The first iterate is the explicit first-order hold's extrapolation; between iterates every
     instance is restored to t (fmi2SetFMUstate) and ``te`` updated by the block quasi-Newton step
     of :mod:`fmu_sync.cosim_newton` (each FMU's secant, reset when its impact count within the step
@@ -479,6 +600,8 @@ def implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, u
     = NOT_CONVERGED, returns True (a caller with a step-size control may retake it shorter)."""
     t1, t2, c1q, c1u, c2q, c2u, dk, bk, ek, buf, slope = w
     ta, te, g, r, rp, gp, nw, bh, offb, iters, resid, tolv = iw
+    if k >= iters.shape[0]:   # the per-step arrays hold the steps the builder sized them for: never past
+        return fail_at(FAIL, fail_t, NO_ROOM, -1, k, iters.shape[0], t)
     imp0, impc, ibuf = nw[5], nw[6], nw[8]
     N = q.shape[0]
     n = q.shape[1]
@@ -643,13 +766,13 @@ def exchange_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, H, H_las
 
     ``ptr`` (:data:`P_VR_OUT` ...) the addresses of the arrays the FMI calls read or write:
     the value references of q, u (2n,), of tau (n,) and of the impact counter (1,), the
-    derivative orders (n,) int32 ones, ``tau``, ``w[9]`` (2n,) and ``w[10]`` (n,) (outputs
-    and slopes), ``keep[6]`` (1,) int32, ``saved``; ``fn`` (N, len(CALLS)) function
+    derivative orders (n,) int32 ones, ``tau``, ``w.buf`` (2n,) and ``w.slope`` (n,) (outputs
+    and slopes), ``keep.ibuf`` (1,) int32, ``saved``: :class:`Held`, built once by :func:`loop_arguments`; ``fn`` (N, len(CALLS)) function
     addresses, ``comp`` (N,) component handles. ``flags`` (:data:`GAUSS_SEIDEL` ...); ``q, u, tau``
     (N, n) the current states and inputs; ``tau_next`` (N, n) the delayed orders' forces
     for the next step; ``hist_tau``, ``hist`` (time) the first-order
     hold's history; ``imp`` (N,); ``ctl`` (row, retakes, history valid); ``saved`` (N,) FMU
-    state handles; ``keep``: copies for the retake (q, u, hist_tau, hist, ctl) and ``keep[7]`` the
+    state handles; ``keep`` (:class:`Keep`): copies for the retake (q, u, hist_tau, hist, ctl) and ``keep.iw`` the
     implicit exchange's work (:func:`implicit_work`; its per-step iterations and residuals). The record
     arrays are preallocated for the whole run. Returns the outcome code (also ``FAIL[0]``)
     and the last step done."""
@@ -664,13 +787,13 @@ def exchange_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, H, H_las
     FAIL[0] = DONE
     if k0 < 0:
         for i in range(N):
-            if _read(ptr, fn, comp, i, w[9], q, u, FAIL, fail_t, 0.0):
+            if _read(ptr, fn, comp, i, w.buf, q, u, FAIL, fail_t, 0.0):
                 return FAIL[0], 0
         if read_impacts(ptr, fn, comp, ibuf, imp, FAIL, fail_t, 0.0):
             return FAIL[0], 0
         if flags[COUPLED]:
-            network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, w[0], w[1], w[2], w[3], w[4], w[5], False,
-                           w[6], w[7], w[8], hp, 0.0)
+            network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, w.t1, w.t2, w.c1q, w.c1u, w.c2q, w.c2u, False,
+                           w.dk, w.bk, w.ek, hp, 0.0)
         if flags[DELAY] == DELAYED_ZERO:   # the first two steps are held at 0
             for i in range(N):
                 for c in range(q.shape[1]):

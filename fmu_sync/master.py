@@ -281,7 +281,7 @@ class NetworkMaster:
     def grew(self):
         """The growth guard's failure (:mod:`fmu_sync.run_guard`) at the last recorded row, or None."""
         row = int(self.ctl[loop.ROW]) - 1
-        return self.guard.check(self.loop_state[0], self.loop_state[1], float(self.T[max(row, 0)]))
+        return self.guard.check(self.loop_state.q, self.loop_state.u, float(self.T[max(row, 0)]))
 
     def force_bound(self, i: int, t: float) -> SlaveError:
         """Instance i's coupling force ``self.tau[i]`` is non-finite or above the FMU's input bound."""
@@ -311,6 +311,9 @@ class NetworkMaster:
             return self.force_bound(i, t)
         if code == loop.NOT_CONVERGED:
             return ExchangeNotConverged(loop.not_converged(self.iw, t, self.H, call))
+        if code == loop.NO_ROOM:   # a bug of the builder's sizes, caught before any write past an end
+            return RunFailed(f"the implicit exchange's per-step arrays hold {status} steps, step {call} at t = {t:.6g} "
+                             f"needs more (fmu_sync.cosim_loop.implicit_work sized them): the run stopped there")
         return self.diverged(t, "a state" if code == loop.STATE_DIVERGED else "a distance")
 
     def run(self, progress=None) -> NetworkResult:
@@ -534,25 +537,21 @@ class AdaptiveMaster(NetworkMaster):
         self.ast = np.array([0.0, self.unit * max(1, steps_in(self.H, self.unit)[0]), 0.0])
         self.actl = np.zeros(ad.ACTL, dtype=np.int64)
         self.mine = np.zeros(N, dtype=np.int64)   # the controller's FMU-state handles
-        self.pmine = self.loop_args[0].copy()
+        self.pmine = self.loop_args.ptr.copy()
         self.pmine[loop.P_SAVED] = self.mine.ctypes.data
-        self.extra = (np.zeros((N, n)), np.zeros((N, n)), np.zeros(n), np.zeros(n), self.mine, self.pmine)
+        self.extra = ad.Extra(np.zeros((N, n)), np.zeros((N, n)), np.zeros(n), np.zeros(n), self.mine, self.pmine)
         cap = 2 * self.n_steps + 16
         self.HS, self.ES = np.full(cap, np.nan), np.full(cap, np.nan)
         self._implicit_room(cap)
 
     def _implicit_room(self, cap: int) -> None:
-        """The implicit exchange's per-step arrays (edges off their branch, iterations, residuals:
-        ``iw[-4:-1]``, :func:`fmu_sync.cosim_loop.implicit_work`) for ``cap`` accepted steps."""
+        """The implicit exchange's per-step arrays (:func:`fmu_sync.cosim_loop.with_room`) for ``cap``
+        accepted steps, in the loop's state by name."""
         if not self.implicit:
             return
-        grown = tuple(np.full(cap, a.dtype.type(np.nan) if a.dtype.kind == "f" else 0, dtype=a.dtype)
-                      for a in self.iw[-4:-1])
-        for g, a in zip(grown, self.iw[-4:-1]):
-            g[:min(cap, a.size)] = a[:cap]
-        self.iw = self.iw[:-4] + grown + self.iw[-1:]
+        self.iw = loop.with_room(self.iw, cap)
         s = self.loop_state
-        self.loop_state = s[:9] + (s[9][:7] + (self.iw,),) + s[10:]
+        self.loop_state = s._replace(keep=s.keep._replace(iw=self.iw))
 
     def _grow(self) -> None:
         """Twice the room for rows and steps (the number of steps is not known in advance)."""
@@ -567,10 +566,11 @@ class AdaptiveMaster(NetworkMaster):
         self._implicit_room(self.HS.size)
 
     def _adaptive(self, budget: int) -> int:
-        s = self.loop_state   # (q, u, tau, tau_next, hist_tau, hist, imp, ctl, saved, keep, T...)
-        code = ad.adaptive_chunk(*self.loop_args[:11], self.ad, self.norm, budget, *s[:10], self.extra, self.ast,
-                                 self.actl, self.T, self.Qr, self.Ur, self.TAU, self.D, self.BR, self.EU, self.HS,
-                                 self.ES, *s[17:])
+        a, s = self.loop_args, self.loop_state
+        code = ad.adaptive_chunk(a.ptr, a.fn, a.comp, a.laws, a.geo, a.Kp, a.Kd, a.E2, a.W2, a.flags, a.hp, self.ad,
+                                 self.norm, budget, s.q, s.u, s.tau, s.tau_next, s.hist_tau, s.hist, s.imp, s.ctl,
+                                 s.saved, s.keep, self.extra, self.ast, self.actl, self.T, self.Qr, self.Ur, self.TAU,
+                                 self.D, self.BR, self.EU, self.HS, self.ES, s.w, s.FAIL, s.fail_t)
         return int(code)
 
     def run(self, progress=None):
