@@ -37,7 +37,7 @@ from .cosim_loop import (DONE, FULL, FREE_STATE, GET_STATE, fmu_states, HIST_VAL
                          SLAVE_FAILED, STATE_DIVERGED, DISTANCE_DIVERGED, WARNING, FOH, GAUSS_SEIDEL, RECORD_EVERY,
                          NEED_D, copy_rows, exchange_step, fail_at, implicit_step, read_impacts, record_row, unmanaged)
 
-__all__ = ["adaptive_chunk", "Extra", "free_states", "SAFETY", "FAC_MIN", "FAC_MAX", "FULL",
+__all__ = ["adaptive_chunk", "Extra", "controller_arrays", "controller_state", "SETTINGS", "FLOATS", "COUNTS", "free_states", "SAFETY", "FAC_MIN", "FAC_MAX", "FULL",
            "A_TOL", "A_T_END", "A_UNIT", "A_H", "AD", "S_T", "S_H", "S_ERR", "AST",
            "C_STEPS", "C_REJECTED", "C_FORCED", "C_DONE", "ACTL"]
 
@@ -65,14 +65,30 @@ class Extra(NamedTuple):
 
 
 # ad: the run's settings (tolerance, t_end, the step unit = the slaves' solver.dt, the largest step H)
-A_TOL, A_T_END, A_UNIT, A_H = range(4)
-AD = 4
+SETTINGS = ("tol", "t_end", "unit", "H")
+A_TOL, A_T_END, A_UNIT, A_H = range(len(SETTINGS))
+AD = len(SETTINGS)
 # ast: the controller's float state (time, next step, the run's error estimate)
-S_T, S_H, S_ERR = range(3)
-AST = 3
+FLOATS = ("t", "h", "error_estimate")
+S_T, S_H, S_ERR = range(len(FLOATS))
+AST = len(FLOATS)
 # actl: accepted steps, rejected steps, steps accepted at the floor over their share, finished
-C_STEPS, C_REJECTED, C_FORCED, C_DONE = range(4)
-ACTL = 4
+COUNTS = ("steps", "rejected", "floor_steps", "done")
+C_STEPS, C_REJECTED, C_FORCED, C_DONE = range(len(COUNTS))
+ACTL = len(COUNTS)
+
+
+def controller_arrays(tol: float, t_end: float, unit: float, H: float, h0: float):
+    """The controller's arrays, filled by name: ``ad`` (:data:`SETTINGS`), ``ast`` (:data:`FLOATS`:
+    time 0, the first step ``h0``, estimate 0) and ``actl`` (:data:`COUNTS`, all 0)."""
+    settings = dict(tol=tol, t_end=t_end, unit=unit, H=H)
+    return (np.array([float(settings[k]) for k in SETTINGS]), np.array([0.0, float(h0), 0.0]),
+            np.zeros(len(COUNTS), dtype=np.int64))
+
+
+def controller_state(ast, actl) -> dict:
+    """The controller's state by name (:data:`FLOATS` and :data:`COUNTS`)."""
+    return {**{k: float(ast[i]) for i, k in enumerate(FLOATS)}, **{k: int(actl[i]) for i, k in enumerate(COUNTS)}}
 
 
 @njit(cache=True, inline="always")

@@ -1,8 +1,7 @@
-# long module: the one compiled exchange loop, its strategies (Jacobi, Gauss-Seidel, event-aware retake, implicit) beside the inlined helpers they share
 """The master's exchange loop, compiled (docs/design.md §4.4).
 
 fmpy loads the FMU (extract, instantiate, initialise, free, logger); this
-module takes over from there. :func:`fmi_functions` reads the FMI 2.0 C
+module takes over from there. :func:`fmu_sync.cosim_args.fmi_functions` reads the FMI 2.0 C
 function pointers of every instance from fmpy's loaded library and
 :func:`exchange_chunk` (numba nopython, ``cache=True``) runs a chunk of
 communication steps calling them directly: per step the coupling law (the
@@ -35,7 +34,6 @@ int64, ``double`` as float64, ``fmi2Boolean``/``fmi2Status`` as int32).
 """
 from __future__ import annotations
 
-import ctypes
 import math
 from typing import NamedTuple
 
@@ -45,22 +43,18 @@ from numba import njit, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from .core.checks import run_steps
-from .core.coupling import chain_work
 from .core.distance import BRANCH_E
-from .core.network import edge_arrays, network_forces, node_force
+from .core.network import network_forces, node_force
 from .core.kernels import depends_on_core
-from .cosim_newton import OMEGA0, newton_update, newton_work, secants, step_start
-from .fmus import contract
+from .cosim_newton import (OMEGA0, TRUST, dot_rows, force_scale, newton_update, residual_max,  # noqa: F401
+                           secants, step_start, trust_clip)
 from .fmus.contract import INPUT_BOUND
-from .strategies import DELAYED, DELAYED_ZERO, NOT_DELAYED, flags_of
+from .strategies import DELAYED, DELAYED_ZERO, NOT_DELAYED
 
 depends_on_core(__file__)   # its cache follows the core's edits (it compiles network_forces in)
 
-__all__ = ["CALLS", "fmi_functions", "exchange_chunk", "DONE", "SLAVE_FAILED", "FORCE_BOUND",
-           "STATE_DIVERGED", "DISTANCE_DIVERGED", "NOT_CONVERGED", "FULL", "NO_ROOM", "LoopArgs", "LoopState",
-           "Keep", "Work", "ImplicitWork", "Held", "with_room", "named_flags", "IMPLICIT_TOL", "IMPLICIT_MAX_ITERATIONS",
-           "implicit_work", "loop_arguments", "implicit_info", "not_converged"]
+__all__ = ["CALLS", "exchange_chunk", "DONE", "SLAVE_FAILED", "FORCE_BOUND", "STATE_DIVERGED", "DISTANCE_DIVERGED",
+           "NOT_CONVERGED", "FULL", "NO_ROOM", "Held", "FLAG_NAMES", "IMPLICIT_TOL", "IMPLICIT_MAX_ITERATIONS"]
 
 #: The FMI 2.0 functions the loop calls, in the column order of ``fmi_functions``.
 CALLS = ("fmi2SetReal", "fmi2SetRealInputDerivatives", "fmi2DoStep", "fmi2GetReal", "fmi2GetInteger",
@@ -98,106 +92,17 @@ P_VR_OUT, P_VR_TAU, P_VR_IMP, P_ORDER, P_TAU, P_BUF, P_SLOPE, P_IBUF, P_SAVED = 
     Held._fields.index(f) for f in ("vr_out", "vr_tau", "vr_imp", "order", "tau", "buf", "slope", "ibuf", "saved"))
 
 
-class Work(NamedTuple):
-    """The loop's scratch arrays: the law's chain work (t1 .. c2u, :func:`fmu_sync.core.coupling.chain_work`),
-    each edge's distance, branch and Euclidean distance (E,), the outputs' buffer (2n,) and the slope (n,)."""
-    t1: np.ndarray
-    t2: np.ndarray
-    c1q: np.ndarray
-    c1u: np.ndarray
-    c2q: np.ndarray
-    c2u: np.ndarray
-    dk: np.ndarray
-    bk: np.ndarray
-    ek: np.ndarray
-    buf: np.ndarray
-    slope: np.ndarray
-
-
-class ImplicitWork(NamedTuple):
-    """The implicit exchange's arrays (:func:`implicit_work`): ``ta, te, g, r, rp, gp`` (N, n); the
-    block quasi-Newton's work ``nw``; ``bh`` (E,) the branches held; per accepted step ``offb``,
-    ``iters`` (int64) and ``resid``; ``tolv`` (1,) the tolerance."""
-    ta: np.ndarray
-    te: np.ndarray
-    g: np.ndarray
-    r: np.ndarray
-    rp: np.ndarray
-    gp: np.ndarray
-    nw: tuple
-    bh: np.ndarray
-    offb: np.ndarray
-    iters: np.ndarray
-    resid: np.ndarray
-    tolv: np.ndarray
-
-
-class Keep(NamedTuple):
-    """The copies a rolled-back step restores (states, input history, its time and validity in
-    ``hs``), the record's scratch forces, the new impact counters, the impact-counter buffer and
-    the implicit exchange's work."""
-    qs: np.ndarray
-    us: np.ndarray
-    hts: np.ndarray
-    hs: np.ndarray
-    scratch: np.ndarray
-    imp_new: np.ndarray
-    ibuf: np.ndarray
-    iw: ImplicitWork
-
-
-class LoopArgs(NamedTuple):
-    """What the kernels take that a run does not change (the first arguments of :func:`exchange_chunk`)."""
-    ptr: np.ndarray
-    fn: np.ndarray
-    comp: np.ndarray
-    laws: np.ndarray
-    geo: tuple
-    Kp: np.ndarray
-    Kd: np.ndarray
-    E2: np.ndarray
-    W2: np.ndarray
-    flags: np.ndarray
-    hp: np.ndarray
-    H: float
-    H_last: float
-    t_last: float
-
-
-class LoopState(NamedTuple):
-    """The loop's state between chunks and its record (the last arguments of :func:`exchange_chunk`)."""
-    q: np.ndarray
-    u: np.ndarray
-    tau: np.ndarray
-    tau_next: np.ndarray
-    hist_tau: np.ndarray
-    hist: np.ndarray
-    imp: np.ndarray
-    ctl: np.ndarray
-    saved: np.ndarray
-    keep: Keep
-    T: np.ndarray
-    Qr: np.ndarray
-    Ur: np.ndarray
-    TAU: np.ndarray
-    D: np.ndarray
-    BR: np.ndarray
-    EU: np.ndarray
-    w: Work
-    FAIL: np.ndarray
-    fail_t: np.ndarray
-
 # flags: the run's settings (STEPS: the run's communication steps; PIECES, PIECES_LAST: the
 # event-aware retake's pieces of a step of length H and of the last step)
 # IMPLICIT: the implicit exchange; MAX_ITER: its cap of FMU steps per communication step)
-#: the flags by name (the builder, :func:`loop_arguments`, fills them by name; the kernels read them by index)
+#: the flags by name (the builder, :func:`fmu_sync.cosim_args.loop_arguments`, fills them by name; the kernels read them by index)
 FLAG_NAMES = ("gauss_seidel", "foh", "event_aware", "need_d", "coupled", "record_every", "pieces", "delay", "steps",
               "pieces_last", "implicit", "max_iter")
 GAUSS_SEIDEL, FOH, EVENT_AWARE, NEED_D, COUPLED, RECORD_EVERY, PIECES, DELAY, STEPS, PIECES_LAST, IMPLICIT, \
     MAX_ITER = range(len(FLAG_NAMES))
 FLAGS = len(FLAG_NAMES)
 #: The implicit exchange's defaults: a step has converged when every force differs from the law at
-#: the step's end states by at most IMPLICIT_TOL times the force scale (:func:`_scale`); at most
+#: the step's end states by at most IMPLICIT_TOL times the force scale (:func:`force_scale`); at most
 #: IMPLICIT_MAX_ITERATIONS FMU steps per communication step, else the run fails (NOT_CONVERGED).
 IMPLICIT_TOL = 1e-9
 IMPLICIT_MAX_ITERATIONS = 30
@@ -207,10 +112,6 @@ IMPLICIT_MAX_ITERATIONS = 30
 #: (at most REDECIDE times), then accepted on the branch it converged on. A step not converged after
 #: half its cap of FMU steps holds branch E from there (the PD law, linear in the end states).
 REDECIDE = 1
-#: the trust region of the implicit exchange's iterates: no FMU is given a force beyond this
-#: fraction of its input bound (an iterate outside it is moved to its edge; the law's own force at
-#: the step's start, inside the bound, stays inside: issue 44 item 7)
-TRUST = 0.5
 # flags[DELAY]: the exchange order of another master (docs/ssp.md), zero-order hold only.
 # DELAYED (libcosim): step k is held at the forces of the states x_{k-1} (step 0 at x_0's);
 # DELAYED_ZERO (fmpy's simulate_ssp): every connection starts at 0, steps 0 and 1 run
@@ -223,118 +124,6 @@ WARNING = 1
 #: a third of the loop's own time. Never compiled on its own, so not cached itself: it is
 #: compiled into exchange_chunk, which is.
 _forces_inline = njit(inline="always")(network_forces.py_func)
-
-
-def fmi_functions(dll, optional=("fmi2SetRealInputDerivatives", "fmi2GetFMUstate", "fmi2SetFMUstate",
-                                 "fmi2FreeFMUstate")) -> np.ndarray:
-    """The addresses of :data:`CALLS` in a loaded FMU library (0 for an optional function
-    the library does not export; the master only calls those its run needs)."""
-    out = np.zeros(len(CALLS), dtype=np.int64)
-    for k, name in enumerate(CALLS):
-        try:
-            out[k] = ctypes.cast(getattr(dll, name), ctypes.c_void_p).value or 0
-        except AttributeError:
-            if name not in optional:
-                raise ValueError(f"the FMU's binary does not export {name}, which the master calls") from None
-    return out
-
-
-def named_flags(**values) -> np.ndarray:
-    """The loop's ``flags`` array from its values by name (:data:`FLAG_NAMES`; unnamed ones 0)."""
-    unknown = sorted(set(values) - set(FLAG_NAMES))
-    if unknown:
-        raise ValueError(f"unknown loop flag {unknown[0]!r} (the loop's flags: {', '.join(FLAG_NAMES)})")
-    return np.array([int(values.get(k, 0)) for k in FLAG_NAMES], dtype=np.int64)
-
-
-def loop_arguments(m) -> None:
-    """What :func:`exchange_chunk` takes for the run of a :class:`fmu_sync.master.NetworkMaster`
-    ``m`` (set up, its instances started): every instance's FMI function addresses and component
-    handle (a function its settings need but its binary lacks: ValueError), the value references,
-    the settings (``flags``) and the loop's state between chunks, as ``m.loop_args`` and
-    ``m.loop_state`` (the arrays the loop writes also as attributes of ``m``)."""
-    model, N, n = m.model, m.N, m.model.n
-    m.fn = np.stack([fmi_functions(s.fmu.dll) for s in m.slaves])
-    rollback = next((st.selected_by for st in m.strategies if st.rollback), None)
-    needed = (["fmi2SetRealInputDerivatives"] if m.hold == "foh" else []) + (
-        ["fmi2GetFMUstate", "fmi2SetFMUstate", "fmi2FreeFMUstate"] if rollback else [])
-    for name in needed:
-        if not np.all(m.fn[:, CALLS.index(name)]):
-            why = "hold='foh'" if "Derivatives" in name else rollback
-            raise ValueError(f"{m.fmu}: its binary does not export {name}, which {why} needs")
-    m.comp = np.array([s.fmu.component or 0 for s in m.slaves], dtype=np.int64)
-    ref = (lambda names: np.array([m.slaves[0].variables[v].valueReference for v in names], dtype=np.uint32))
-    m.vr_out, m.vr_tau, m.vr_imp = ref(model.q + model.u), ref(model.tau), ref([contract.IMPACTS])
-    E2, W2 = edge_arrays(m.A, m.edges)
-    pieces = (lambda h: max(1, run_steps(h, m.H_min).steps) if m.event_aware else 1)
-    flags = named_flags(foh=m.hold == "foh", need_d=m.need_d, coupled=m.coupled, record_every=m.record_every,
-                        steps=m.n_steps,   # the last one of length grid.dt_last, ending at grid.t_end
-                        max_iter=IMPLICIT_MAX_ITERATIONS, pieces=pieces(m.H), pieces_last=pieces(m.grid.dt_last),
-                        **flags_of(m.strategies))   # the strategies' own: gauss_seidel, delay, implicit, event_aware
-    z = (lambda: np.zeros((N, n)))
-    m.q, m.u, m.tau = z(), z(), z()
-    m.imp, m.ctl = np.zeros(N, dtype=np.int64), np.zeros(CTL, dtype=np.int64)
-    E = len(m.edges)
-    w = Work(np.zeros(n), np.zeros(n), *chain_work(n), np.zeros(E), np.zeros(E, dtype=np.int64), np.zeros(E),
-             np.zeros(2 * n), np.zeros(n))
-    ibuf = np.zeros(1, dtype=np.int32)
-    m.iw = implicit_work(N, n, len(m.edges), m.n_steps if m.implicit else 0, ibuf=ibuf,
-                         Minv=getattr(m, "Minv_nodes", None))
-    keep = Keep(z(), z(), z(), np.zeros(2), z(), np.zeros(N, dtype=np.int64), ibuf, m.iw)
-    m.FAIL, m.fail_t = np.zeros(4, dtype=np.int64), np.zeros(1)
-    saved = np.zeros(N, dtype=np.int64)
-    m.held = Held(m.vr_out, m.vr_tau, m.vr_imp, np.ones(n, dtype=np.int32), m.tau, w.buf, w.slope, keep.ibuf, saved)
-    ptr = np.array([a.ctypes.data for a in m.held], dtype=np.int64)
-    m.loop_args = LoopArgs(ptr, m.fn, m.comp, m.laws, m.geo, m.Kp_m, m.Kd_m, E2, W2, flags, m.hp, float(m.H),
-                           float(m.grid.dt_last), float(m.grid.t_end))
-    m.loop_state = LoopState(m.q, m.u, m.tau, z(), z(), np.zeros(1), m.imp, m.ctl, saved, keep, m.T, m.Qr, m.Ur,
-                             m.TAU, m.D, m.BR, m.EU, w, m.FAIL, m.fail_t)
-
-
-def implicit_info(iw) -> dict:
-    """``info`` of an implicit run: ``iterations`` (FMU steps per communication step taken, int64),
-    ``residuals`` (each one's final max |law(end states) - end force|), ``exchange_tol``,
-    ``off_branch`` (per step, the edges whose end force was accepted on a branch other than the
-    switching law's own at the end states: the law's branch changed within the step, §4.4); {} for
-    an explicit run (``iw`` None or without per-step arrays)."""
-    if iw is None or iw.iters.size == 0:
-        return {}
-    done = int(np.count_nonzero(iw.iters))
-    return dict(iterations=iw.iters[:done].copy(), residuals=iw.resid[:done].copy(), exchange_tol=float(iw.tolv[0]),
-                off_branch=iw.offb[:done].copy())
-
-
-def not_converged(iw, t: float, H: float, steps: int) -> str:
-    """The message of a step from ``t`` that did not converge after ``steps`` FMU steps."""
-    res = float(iw.resid[np.count_nonzero(iw.iters) - 1])
-    return (f"the implicit exchange did not converge over the step from t = {t:.6g} (H = {H:g}): after "
-            f"{steps} FMU steps the end force still differs from the law at the end states by {res:.3g} "
-            f"(tolerance {float(iw.tolv[0]):g} times the force scale); the step is not accepted and the "
-            f"record ends at its start: lower H")
-
-
-def implicit_work(N: int, n: int, E: int, steps: int, tol: float = IMPLICIT_TOL, ibuf=None, Minv=None):
-    """The implicit exchange's arrays (:class:`ImplicitWork`, ``keep.iw`` of :func:`exchange_chunk`, unpacked in
-    :func:`implicit_step`): ``ta, te, g, r, rp, gp`` (N, n); the block quasi-Newton's work ``nw``
-    (:func:`fmu_sync.cosim_newton.newton_work`; ``ibuf`` the loop's impact-counter buffer at
-    ``ptr[P_IBUF]``, ``Minv`` (N, n, n) each FMU's M^-1 or None); ``bh`` (E,) the branches held (``E`` edges); ``offb`` (steps,), ``iters``
-    (steps,) int64 and ``resid`` (steps,) per communication step; ``tolv`` (1,) the tolerance.
-    ``steps`` = 0 for an explicit run (nothing per step)."""
-    z = (lambda: np.zeros((N, n)))
-    ibuf = np.zeros(1, dtype=np.int32) if ibuf is None else ibuf
-    nw = newton_work(N, n, ibuf, Minv) if steps else newton_work(1, n, ibuf)
-    return ImplicitWork(z(), z(), z(), z(), z(), z(), nw, np.zeros(E, dtype=np.int64), np.zeros(steps, dtype=np.int64),
-                        np.zeros(steps, dtype=np.int64), np.full(steps, np.nan), np.array([float(tol)]))
-
-
-def with_room(iw: ImplicitWork, cap: int) -> ImplicitWork:
-    """``iw`` whose per-step arrays (``offb``, ``iters``, ``resid``) hold ``cap`` steps, the
-    steps so far kept (the tolerance controller grows them with its record)."""
-    def grown(a, fill):
-        b = np.full(cap, fill, dtype=a.dtype)
-        b[:min(cap, a.size)] = a[:cap]
-        return b
-    return iw._replace(offb=grown(iw.offb, 0), iters=grown(iw.iters, 0), resid=grown(iw.resid, np.nan))
 
 
 @intrinsic
@@ -522,67 +311,13 @@ def fmu_states(ptr, fn, comp, call, saved, FAIL, fail_t, t):
     return False
 
 
-@njit(cache=True, inline="always")
-def _scale(g, ta, q, u, Kp, Kd):
-    """The force scale of the implicit exchange's tolerance: the largest force at either end of
-    the step plus the largest law terms Kp q and Kd u could carry (round-off of the law)."""
-    fmax = 0.0
-    xq = 0.0
-    xu = 0.0
-    for i in range(g.shape[0]):
-        for c in range(g.shape[1]):
-            fmax = max(fmax, abs(g[i, c]), abs(ta[i, c]))
-            xq = max(xq, abs(q[i, c]))
-            xu = max(xu, abs(u[i, c]))
-    kp = 0.0
-    kd = 0.0
-    for a in range(Kp.shape[0]):
-        for b in range(Kp.shape[1]):
-            kp = max(kp, abs(Kp[a, b]))
-            kd = max(kd, abs(Kd[a, b]))
-    return fmax + kp * xq + kd * xu
-
-
-@njit(cache=True, inline="always")
-def _residual(g, te, r):
-    """r = g - te; returns max |r| (inf if an entry is not finite)."""
-    rmax = 0.0
-    for i in range(g.shape[0]):
-        for c in range(g.shape[1]):
-            r[i, c] = g[i, c] - te[i, c]
-            rmax = max(rmax, abs(r[i, c])) if math.isfinite(r[i, c]) else math.inf
-    return rmax
-
-
-@njit(cache=True, inline="always")
-def _dot(a, b):
-    s = 0.0
-    for i in range(a.shape[0]):
-        for c in range(a.shape[1]):
-            s += a[i, c] * b[i, c]
-    return s
-
-
-@njit(cache=True, inline="always")
-def _trust(te):
-    """Every iterate inside the trust region: each force component clipped to +-TRUST * INPUT_BOUND
-    (a box: the quasi-Newton secants stay exact, since they are built from the forces applied)."""
-    b = TRUST * INPUT_BOUND
-    for i in range(te.shape[0]):
-        for c in range(te.shape[1]):
-            if te[i, c] > b:
-                te[i, c] = b
-            elif te[i, c] < -b:
-                te[i, c] = -b
-
-
 @njit(cache=True)
 def implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, u, tau, hist_tau, hist, ctl,
                    saved, qs, us, iw, w, FAIL, fail_t, hp):
     """The implicit exchange over [t, t + h] (docs/design.md §4.4): the force over the step is the
     line from ``ta`` (the law at the states at t) to ``te`` (first-order hold: value and input
     derivative) or their mean held (zero-order hold); ``te`` is iterated until it equals the law
-    at the states the step ends in, to :data:`IMPLICIT_TOL` (``iw.tolv[0]``) times :func:`_scale`.
+    at the states the step ends in, to :data:`IMPLICIT_TOL` (``iw.tolv[0]``) times :func:`force_scale`.
     The first iterate is the explicit first-order hold's extrapolation; between iterates every
     instance is restored to t (fmi2SetFMUstate) and ``te`` updated by the block quasi-Newton step
     of :mod:`fmu_sync.cosim_newton` (each FMU's secant, reset when its impact count within the step
@@ -614,7 +349,7 @@ def implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, u
         for c in range(n):
             ta[i, c] = tau[i, c]
             te[i, c] = ta[i, c] + h * (ta[i, c] - hist_tau[i, c]) / (t - hist[0]) if extrapolate else ta[i, c]
-    _trust(te)
+    trust_clip(te)
     if fmu_states(ptr, fn, comp, GET_STATE, saved, FAIL, fail_t, t):
         return True
     if read_impacts(ptr, fn, comp, ibuf, imp0, FAIL, fail_t, t):
@@ -650,8 +385,8 @@ def implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, u
         # bk (decided there) at the others
         network_forces(laws, geo, Kp, Kd, E2, W2, q, u, g, t1, t2, c1q, c1u, c2q, c2u, False, dk, bk, ek, hp, t + h,
                        it > 1)
-        rmax = _residual(g, te, r)
-        target = tolv[0] * _scale(g, ta, q, u, Kp, Kd)
+        rmax = residual_max(g, te, r)
+        target = tolv[0] * force_scale(g, ta, q, u, Kp, Kd)
         if rmax <= target:
             for e_ in range(bk.shape[0]):
                 bh[e_] = bk[e_]
@@ -668,7 +403,7 @@ def implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, u
                 break
             redecide -= 1   # held from here on: the branch decided at these end states
             copy_rows(rp, g)
-            rmax = _residual(g, te, r)
+            rmax = residual_max(g, te, r)
             fresh = True
         if it >= flags[MAX_ITER] or not math.isfinite(rmax):
             break
@@ -680,7 +415,7 @@ def implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, u
             if fresh:
                 network_forces(laws, geo, Kp, Kd, E2, W2, q, u, g, t1, t2, c1q, c1u, c2q, c2u, False, dk, bk, ek,
                                hp, t + h, True)
-                rmax = _residual(g, te, r)
+                rmax = residual_max(g, te, r)
                 redecide = 0
             damped = True
             omega = OMEGA0
@@ -692,7 +427,7 @@ def implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, u
                     for c in range(n):
                         dr += (r[i, c] - rp[i, c]) * (r[i, c] - rp[i, c])
                 if dr > 0.0:
-                    omega = -omega * (_dot(rp, r) - _dot(rp, rp)) / dr
+                    omega = -omega * (dot_rows(rp, r) - dot_rows(rp, rp)) / dr
             copy_rows(r, rp)
             for i in range(N):
                 for c in range(n):
@@ -700,7 +435,7 @@ def implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, u
         else:
             newton_update(nw, te, r, rmax, 0.1 * target, g, q, u, laws, geo, Kp, Kd, E2, W2, w, hp, t + h)
         fresh = False
-        _trust(te)
+        trust_clip(te)
         if fmu_states(ptr, fn, comp, SET_STATE, saved, FAIL, fail_t, t):
             return True
         copy_rows(qs, q)
@@ -767,13 +502,13 @@ def exchange_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, H, H_las
     ``ptr`` (:data:`P_VR_OUT` ...) the addresses of the arrays the FMI calls read or write:
     the value references of q, u (2n,), of tau (n,) and of the impact counter (1,), the
     derivative orders (n,) int32 ones, ``tau``, ``w.buf`` (2n,) and ``w.slope`` (n,) (outputs
-    and slopes), ``keep.ibuf`` (1,) int32, ``saved``: :class:`Held`, built once by :func:`loop_arguments`; ``fn`` (N, len(CALLS)) function
+    and slopes), ``keep.ibuf`` (1,) int32, ``saved``: :class:`Held`, built once by :func:`fmu_sync.cosim_args.loop_arguments`; ``fn`` (N, len(CALLS)) function
     addresses, ``comp`` (N,) component handles. ``flags`` (:data:`GAUSS_SEIDEL` ...); ``q, u, tau``
     (N, n) the current states and inputs; ``tau_next`` (N, n) the delayed orders' forces
     for the next step; ``hist_tau``, ``hist`` (time) the first-order
     hold's history; ``imp`` (N,); ``ctl`` (row, retakes, history valid); ``saved`` (N,) FMU
-    state handles; ``keep`` (:class:`Keep`): copies for the retake (q, u, hist_tau, hist, ctl) and ``keep.iw`` the
-    implicit exchange's work (:func:`implicit_work`; its per-step iterations and residuals). The record
+    state handles; ``keep`` (:class:`fmu_sync.cosim_args.Keep`): copies for the retake (q, u, hist_tau, hist, ctl) and ``keep.iw`` the
+    implicit exchange's work (:func:`fmu_sync.cosim_args.implicit_work`; its per-step iterations and residuals). The record
     arrays are preallocated for the whole run. Returns the outcome code (also ``FAIL[0]``)
     and the last step done."""
     (ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, q, u, tau, tau_next, hist_tau, hist, imp, ctl, saved, keep,

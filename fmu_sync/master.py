@@ -54,6 +54,7 @@ from .fmi3_bridge import element_names, open_host
 from .fmi_bridge import FMUHost, SlaveError
 from .fmus import contract
 from . import cosim_adaptive as ad
+from . import cosim_args as args
 from . import cosim_loop as loop
 from .cosim_loop import CALLS, exchange_chunk
 from .hold import check_hold, check_schemes
@@ -251,7 +252,7 @@ class NetworkMaster:
                       strategies=[st.name for st in self.strategies], event_aware=self.event_aware, fmu=self.fmu,
                       H_min=self.H_min if self.event_aware else None, retaken_steps=self.retakes,
                       steps=self.n_steps, coupling=self.coupling, hold=self.hold, exchange=self.exchange_kind,
-                      **loop.implicit_info(getattr(self, "iw", None)), **metric_info(self.metric, self.geo),
+                      **args.implicit_info(getattr(self, "iw", None)), **metric_info(self.metric, self.geo),
                       **units_info(self.model.declaration),
                       **({} if self.limit is None else dict(
                           omega_c_H=self.limit.h, exchange_bound=self.limit.bound,
@@ -270,8 +271,8 @@ class NetworkMaster:
 
     # ------------------------------------------------------------ the run
     def _loop_arrays(self) -> None:
-        """What the compiled loop takes (:func:`fmu_sync.cosim_loop.loop_arguments`)."""
-        loop.loop_arguments(self)
+        """What the compiled loop takes (:func:`fmu_sync.cosim_args.loop_arguments`)."""
+        args.loop_arguments(self)
 
     def _chunk(self, k0: int, k1: int) -> int:
         """Steps k0 .. k1 - 1 in the compiled loop; returns its outcome code."""
@@ -310,10 +311,10 @@ class NetworkMaster:
         if code == loop.FORCE_BOUND:
             return self.force_bound(i, t)
         if code == loop.NOT_CONVERGED:
-            return ExchangeNotConverged(loop.not_converged(self.iw, t, self.H, call))
+            return ExchangeNotConverged(args.not_converged(self.iw, t, self.H, call))
         if code == loop.NO_ROOM:   # a bug of the builder's sizes, caught before any write past an end
             return RunFailed(f"the implicit exchange's per-step arrays hold {status} steps, step {call} at t = {t:.6g} "
-                             f"needs more (fmu_sync.cosim_loop.implicit_work sized them): the run stopped there")
+                             f"needs more (fmu_sync.cosim_args.implicit_work sized them): the run stopped there")
         return self.diverged(t, "a state" if code == loop.STATE_DIVERGED else "a distance")
 
     def run(self, progress=None) -> NetworkResult:
@@ -533,9 +534,8 @@ class AdaptiveMaster(NetworkMaster):
         Q = Q * np.eye(n) if Q.ndim == 0 else np.atleast_2d(Q)
         lam = float(np.linalg.eigvalsh(0.5 * (Q + Q.T)).min())
         self.norm = (np.linalg.inv(M), Q / lam, M / lam)
-        self.ad = np.array([self.tol, self.grid.t_end, self.unit, self.H])
-        self.ast = np.array([0.0, self.unit * max(1, steps_in(self.H, self.unit)[0]), 0.0])
-        self.actl = np.zeros(ad.ACTL, dtype=np.int64)
+        self.ad, self.ast, self.actl = ad.controller_arrays(self.tol, self.grid.t_end, self.unit, self.H,
+                                                            self.unit * max(1, steps_in(self.H, self.unit)[0]))
         self.mine = np.zeros(N, dtype=np.int64)   # the controller's FMU-state handles
         self.pmine = self.loop_args.ptr.copy()
         self.pmine[loop.P_SAVED] = self.mine.ctypes.data
@@ -545,11 +545,11 @@ class AdaptiveMaster(NetworkMaster):
         self._implicit_room(cap)
 
     def _implicit_room(self, cap: int) -> None:
-        """The implicit exchange's per-step arrays (:func:`fmu_sync.cosim_loop.with_room`) for ``cap``
+        """The implicit exchange's per-step arrays (:func:`fmu_sync.cosim_args.with_room`) for ``cap``
         accepted steps, in the loop's state by name."""
         if not self.implicit:
             return
-        self.iw = loop.with_room(self.iw, cap)
+        self.iw = args.with_room(self.iw, cap)
         s = self.loop_state
         self.loop_state = s._replace(keep=s.keep._replace(iw=self.iw))
 
@@ -583,7 +583,7 @@ class AdaptiveMaster(NetworkMaster):
                 if code != loop.DONE:
                     raise self._failure(code)
                 budget = 256 if progress is not None else CHUNK_STEPS
-                while not self.actl[ad.C_DONE]:
+                while not ad.controller_state(self.ast, self.actl)["done"]:
                     code = self._adaptive(budget)
                     if code == ad.FULL:
                         self._grow()
@@ -591,11 +591,12 @@ class AdaptiveMaster(NetworkMaster):
                         failure = self._failure(code) if code != loop.DONE else self.grew()
                         break
                     elif progress is not None:
-                        progress(min(1.0, float(self.ast[ad.S_T]) / self.grid.t_end))
+                        progress(min(1.0, ad.controller_state(self.ast, self.actl)["t"] / self.grid.t_end))
             finally:
                 ad.free_states(self.pmine, self.fn, self.comp, self.mine, np.zeros(4, dtype=np.int64), np.zeros(1))
-        self.steps, self.rejected = int(self.actl[ad.C_STEPS]), int(self.actl[ad.C_REJECTED])
-        self.forced, self.estimate = int(self.actl[ad.C_FORCED]), float(self.ast[ad.S_ERR])
+        c = ad.controller_state(self.ast, self.actl)
+        self.steps, self.rejected, self.forced, self.estimate = c["steps"], c["rejected"], c["floor_steps"], \
+            c["error_estimate"]
         if failure is None:
             self.verdict(sum(int(v) for v in self.imp))
         return self.finish(int(self.ctl[loop.ROW]), [int(v) for v in self.imp], failure)
