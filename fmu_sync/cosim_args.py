@@ -1,7 +1,7 @@
 """The compiled loop's arguments by name, and their one builder (docs/design.md §4.4).
 
-:func:`loop_arguments` makes what :func:`fmu_sync.cosim_loop.exchange_chunk` (and the tolerance
-controller's :func:`fmu_sync.cosim_adaptive.adaptive_chunk`) take for a run of a
+:func:`loop_arguments` makes what :func:`fmu_sync.cosim_loop.loop_start` and the one driver
+:func:`fmu_sync.cosim_driver.drive` take for a run of a
 :class:`fmu_sync.master.NetworkMaster`: :class:`LoopArgs` (what a run does not change),
 :class:`LoopState` (the state between chunks and the record) with its :class:`Keep` (a rolled-back
 step's copies), :class:`Work` (scratch) and :class:`ImplicitWork` (the implicit exchange's arrays);
@@ -80,7 +80,7 @@ class Keep(NamedTuple):
 
 
 class LoopArgs(NamedTuple):
-    """What the kernels take that a run does not change (the first arguments of :func:`exchange_chunk`)."""
+    """What the kernels take that a run does not change (the first arguments of :func:`fmu_sync.cosim_driver.drive`)."""
     ptr: np.ndarray
     fn: np.ndarray
     comp: np.ndarray
@@ -98,7 +98,7 @@ class LoopArgs(NamedTuple):
 
 
 class LoopState(NamedTuple):
-    """The loop's state between chunks and its record (the last arguments of :func:`exchange_chunk`)."""
+    """The loop's state between chunks and its record (the last arguments of :func:`fmu_sync.cosim_driver.drive`)."""
     q: np.ndarray
     u: np.ndarray
     tau: np.ndarray
@@ -144,7 +144,7 @@ def named_flags(**values) -> np.ndarray:
 
 
 def loop_arguments(m) -> None:
-    """What :func:`exchange_chunk` takes for the run of a :class:`fmu_sync.master.NetworkMaster`
+    """What :func:`fmu_sync.cosim_driver.drive` takes for the run of a :class:`fmu_sync.master.NetworkMaster`
     ``m`` (set up, its instances started): every instance's FMI function addresses and component
     handle (a function its settings need but its binary lacks: ValueError), the value references,
     the settings (``flags``) and the loop's state between chunks, as ``m.loop_args`` and
@@ -210,7 +210,7 @@ def not_converged(iw, t: float, H: float, steps: int) -> str:
 
 
 def implicit_work(N: int, n: int, E: int, steps: int, tol: float = IMPLICIT_TOL, ibuf=None, Minv=None):
-    """The implicit exchange's arrays (:class:`ImplicitWork`, ``keep.iw`` of :func:`exchange_chunk`, unpacked in
+    """The implicit exchange's arrays (:class:`ImplicitWork`, ``keep.iw`` of :func:`fmu_sync.cosim_driver.drive`, unpacked in
     :func:`implicit_step`): ``ta, te, g, r, rp, gp`` (N, n); the block quasi-Newton's work ``nw``
     (:func:`fmu_sync.cosim_newton.newton_work`; ``ibuf`` the loop's impact-counter buffer at
     ``ptr[P_IBUF]``, ``Minv`` (N, n, n) each FMU's M^-1 or None); ``bh`` (E,) the branches held (``E`` edges); ``offb`` (steps,), ``iters``

@@ -3,8 +3,8 @@
 fmpy loads the FMU (extract, instantiate, initialise, free, logger); this
 module takes over from there. :func:`fmu_sync.cosim_args.fmi_functions` reads the FMI 2.0 C
 function pointers of every instance from fmpy's loaded library and
-:func:`exchange_chunk` (numba nopython, ``cache=True``) runs a chunk of
-communication steps calling them directly: per step the coupling law (the
+:func:`loop_start` and :func:`take_step` (numba nopython, ``cache=True``; the one driver
+that walks the run's time is :func:`fmu_sync.cosim_driver.drive`) call them directly: per step the coupling law (the
 core's :func:`fmu_sync.core.network.network_forces` / ``node_force``, which call
 :func:`fmu_sync.core.pair.coupling_step`), the input bound check, fmi2SetReal
 (+ fmi2SetRealInputDerivatives for the first-order hold), fmi2DoStep,
@@ -20,7 +20,7 @@ accelerated by a quasi-Newton step per FMU composed with the law's exact Jacobia
 The exchange strategies are the branches of one primitive, "take the step [t, t + h]
 from the current states": :func:`exchange_step` (Jacobi, Gauss–Seidel, delayed; explicit,
 never rolled back), the event-aware retake around it (rolled back if an impact counter
-moved) and :func:`implicit_step` (rolled back until it converges; returns False with
+moved; the two are :func:`take_step`) and :func:`implicit_step` (rolled back until it converges; returns False with
 ``FAIL = NOT_CONVERGED`` otherwise, the slaves restored to t, so a step-size
 controller can retake it shorter).
 
@@ -53,7 +53,7 @@ from .strategies import DELAYED, DELAYED_ZERO, NOT_DELAYED
 
 depends_on_core(__file__)   # its cache follows the core's edits (it compiles network_forces in)
 
-__all__ = ["CALLS", "exchange_chunk", "DONE", "SLAVE_FAILED", "FORCE_BOUND", "STATE_DIVERGED", "DISTANCE_DIVERGED",
+__all__ = ["CALLS", "loop_start", "take_step", "DONE", "SLAVE_FAILED", "FORCE_BOUND", "STATE_DIVERGED", "DISTANCE_DIVERGED",
            "NOT_CONVERGED", "FULL", "NO_ROOM", "Held", "FLAG_NAMES", "IMPLICIT_TOL", "IMPLICIT_MAX_ITERATIONS"]
 
 #: The FMI 2.0 functions the loop calls, in the column order of ``fmi_functions``.
@@ -97,9 +97,9 @@ P_VR_OUT, P_VR_TAU, P_VR_IMP, P_ORDER, P_TAU, P_BUF, P_SLOPE, P_IBUF, P_SAVED = 
 # IMPLICIT: the implicit exchange; MAX_ITER: its cap of FMU steps per communication step)
 #: the flags by name (the builder, :func:`fmu_sync.cosim_args.loop_arguments`, fills them by name; the kernels read them by index)
 FLAG_NAMES = ("gauss_seidel", "foh", "event_aware", "need_d", "coupled", "record_every", "pieces", "delay", "steps",
-              "pieces_last", "implicit", "max_iter")
+              "pieces_last", "implicit", "max_iter", "tol")
 GAUSS_SEIDEL, FOH, EVENT_AWARE, NEED_D, COUPLED, RECORD_EVERY, PIECES, DELAY, STEPS, PIECES_LAST, IMPLICIT, \
-    MAX_ITER = range(len(FLAG_NAMES))
+    MAX_ITER, TOL = range(len(FLAG_NAMES))
 FLAGS = len(FLAG_NAMES)
 #: The implicit exchange's defaults: a step has converged when every force differs from the law at
 #: the step's end states by at most IMPLICIT_TOL times the force scale (:func:`force_scale`); at most
@@ -122,7 +122,7 @@ WARNING = 1
 #: the core's network_forces inlined into the loop (numba IR inlining: its own source and
 #: arithmetic, bit for bit): called, it takes its ~20 arrays through the stack every step,
 #: a third of the loop's own time. Never compiled on its own, so not cached itself: it is
-#: compiled into exchange_chunk, which is.
+#: compiled into the kernels that call it, which are.
 _forces_inline = njit(inline="always")(network_forces.py_func)
 
 
@@ -163,7 +163,7 @@ def unmanaged(typingctx, x):
     track (NULL meminfo): passing them on costs no reference counting (an atomic
     increment and decrement per array per call otherwise, most of the loop's time). Only
     for arrays the caller keeps alive for the whole call (the arguments of
-    :func:`exchange_chunk`), never returned or stored."""
+    :func:`loop_start`, :func:`fmu_sync.cosim_driver.drive`), never returned or stored."""
     def codegen(context, builder, signature, llargs):
         return _unmanaged_value(context, builder, signature.args[0], llargs[0])
 
@@ -259,7 +259,7 @@ def exchange_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, t
     fresh = ctl[FRESH]
     ctl[FRESH] = 0
     foh = flags[FOH] != 0
-    no_prior = 0 if flags[EVENT_AWARE] else 1
+    no_prior = 0 if flags[EVENT_AWARE] or flags[TOL] else 1   # a state may be set back
     if flags[GAUSS_SEIDEL]:
         for i in range(N):
             node_force(i, laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, hp, t)
@@ -488,125 +488,95 @@ def record_row(row, t, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, jacobi, ctl
     return ok
 
 
+@njit(cache=True, inline="always")
+def take_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, t, h, k, pieces, retake, q, u, tau, tau_next,
+              hist_tau, hist, imp, ctl, saved, keep, w, FAIL, fail_t):
+    """The run's step over [t, t + h] by its strategy: the implicit exchange (:func:`implicit_step`,
+    its per-step arrays at ``k``) or :func:`exchange_step`, with ``retake`` the event-aware retake
+    (every instance saved before; if an impact counter moved, restored and the step retaken in
+    ``pieces``); then the impact counters into ``keep.imp_new``. True on a failure (``FAIL``)."""
+    qs, us, hts, hs, scratch, imp_new, ibuf, iw = keep
+    if flags[IMPLICIT]:
+        if implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, u, tau, hist_tau, hist,
+                         ctl, saved, qs, us, iw, w, FAIL, fail_t, hp):
+            return True
+        return read_impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + h)
+    if retake:
+        if fmu_states(ptr, fn, comp, GET_STATE, saved, FAIL, fail_t, t):
+            return True
+        copy_rows(q, qs)
+        copy_rows(u, us)
+        copy_rows(hist_tau, hts)
+        hs[0] = hist[0]
+        hs[1] = ctl[HIST_VALID]
+    if exchange_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau, tau_next, hist_tau, hist,
+                     ctl, w, FAIL, fail_t, hp):
+        return True
+    if read_impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + h):
+        return True
+    if not retake:
+        return False
+    moved = False
+    for i in range(q.shape[0]):
+        if imp_new[i] != imp[i]:
+            moved = True
+    if moved:  # restore every instance to t and retake [t, t + h] in pieces of about H_min
+        copy_rows(hts, hist_tau)
+        hist[0] = hs[0]
+        ctl[HIST_VALID] = np.int64(hs[1])
+        ctl[RETAKES] += 1
+        if fmu_states(ptr, fn, comp, SET_STATE, saved, FAIL, fail_t, t):
+            return True
+        copy_rows(qs, q)
+        copy_rows(us, u)
+        for p in range(pieces):
+            tp = t + p * (h / pieces)
+            hpc = (t + h) - tp if p == pieces - 1 else h / pieces
+            if exchange_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, tp, hpc, q, u, tau, tau_next,
+                             hist_tau, hist, ctl, w, FAIL, fail_t, hp):
+                return True
+        if read_impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + h):
+            return True
+    return fmu_states(ptr, fn, comp, FREE_STATE, saved, FAIL, fail_t, t + h)
+
+
 @njit(cache=True)
-def exchange_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, H, H_last, t_last, k0, k1, q, u,
-                   tau, tau_next, hist_tau, hist, imp, ctl, saved, keep, T, Qr, Ur, TAU, D, BR, EU, w, FAIL, fail_t):
-    """Communication steps ``k0 .. k1 - 1`` (time ``k H``); ``k0 = -1`` first reads the start
-    states and impact counters and records row 0.
+def loop_start(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, H, H_last, t_last, q, u, tau, tau_next,
+               hist_tau, hist, imp, ctl, saved, keep, T, Qr, Ur, TAU, D, BR, EU, w, FAIL, fail_t):
+    """The run's start (the arguments of :class:`fmu_sync.cosim_args.LoopArgs` and
+    :class:`fmu_sync.cosim_args.LoopState`): the start states and impact counters read, the forces
+    at them (the delayed orders' buffer ``tau_next``; 0 for ``delayed-zero``), row 0 recorded.
+    The steps are the driver's (:func:`fmu_sync.cosim_driver.drive`). Returns the outcome code.
 
-    The run ends exactly at ``t_last`` (docs/design.md §2.3): its last step
-    ``k = flags[STEPS] - 1`` has the length ``H_last`` (``t_end - k H``; ``H`` itself, bit for
-    bit, when t_end is a multiple of H) and ends at ``t_last``; the final state is always
-    recorded (also when ``flags[RECORD_EVERY]`` does not divide the steps).
-
-    ``ptr`` (:data:`P_VR_OUT` ...) the addresses of the arrays the FMI calls read or write:
-    the value references of q, u (2n,), of tau (n,) and of the impact counter (1,), the
-    derivative orders (n,) int32 ones, ``tau``, ``w.buf`` (2n,) and ``w.slope`` (n,) (outputs
-    and slopes), ``keep.ibuf`` (1,) int32, ``saved``: :class:`Held`, built once by :func:`fmu_sync.cosim_args.loop_arguments`; ``fn`` (N, len(CALLS)) function
-    addresses, ``comp`` (N,) component handles. ``flags`` (:data:`GAUSS_SEIDEL` ...); ``q, u, tau``
-    (N, n) the current states and inputs; ``tau_next`` (N, n) the delayed orders' forces
-    for the next step; ``hist_tau``, ``hist`` (time) the first-order
-    hold's history; ``imp`` (N,); ``ctl`` (row, retakes, history valid); ``saved`` (N,) FMU
-    state handles; ``keep`` (:class:`fmu_sync.cosim_args.Keep`): copies for the retake (q, u, hist_tau, hist, ctl) and ``keep.iw`` the
-    implicit exchange's work (:func:`fmu_sync.cosim_args.implicit_work`; its per-step iterations and residuals). The record
-    arrays are preallocated for the whole run. Returns the outcome code (also ``FAIL[0]``)
-    and the last step done."""
+    ``ptr`` (:data:`P_VR_OUT` ...) the addresses of :class:`Held`'s arrays, which the FMI calls
+    read or write; ``fn`` (N, len(CALLS)) function addresses, ``comp`` (N,) component handles;
+    ``flags`` (:data:`FLAG_NAMES`); ``q, u, tau`` (N, n) the current states and inputs;
+    ``hist_tau``, ``hist`` the first-order hold's history; ``imp`` (N,); ``ctl`` (row, retakes,
+    history valid, fresh, zero steps); ``saved`` (N,) FMU state handles; ``keep``: a rolled-back
+    step's copies and the implicit exchange's work."""
     (ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, q, u, tau, tau_next, hist_tau, hist, imp, ctl, saved, keep,
      T, Qr, Ur, TAU, D, BR, EU, w, FAIL, fail_t) = unmanaged((ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, q,
                                                               u, tau, tau_next, hist_tau, hist, imp, ctl, saved, keep,
                                                               T, Qr, Ur, TAU, D, BR, EU, w, FAIL, fail_t))
     N = q.shape[0]
-    need_d = flags[NEED_D] != 0
     jacobi = flags[GAUSS_SEIDEL] == 0 and flags[DELAY] == NOT_DELAYED   # the record may compute tau
-    qs, us, hts, hs, scratch, imp_new, ibuf, iw = keep
     FAIL[0] = DONE
-    if k0 < 0:
-        for i in range(N):
-            if _read(ptr, fn, comp, i, w.buf, q, u, FAIL, fail_t, 0.0):
-                return FAIL[0], 0
-        if read_impacts(ptr, fn, comp, ibuf, imp, FAIL, fail_t, 0.0):
-            return FAIL[0], 0
-        if flags[COUPLED]:
-            network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, w.t1, w.t2, w.c1q, w.c1u, w.c2q, w.c2u, False,
-                           w.dk, w.bk, w.ek, hp, 0.0)
-        if flags[DELAY] == DELAYED_ZERO:   # the first two steps are held at 0
-            for i in range(N):
-                for c in range(q.shape[1]):
-                    tau[i, c] = 0.0
-            ctl[ZERO_STEPS] = 1
-        if flags[DELAY]:
-            copy_rows(tau, tau_next)
-        record_row(0, 0.0, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, jacobi, ctl, T, Qr, Ur, TAU, D, BR, EU, scratch,
-                w, hp)
-        ctl[ROW] = 1
-        k0 = 0
-    every = flags[RECORD_EVERY]
-    last = flags[STEPS] - 1
-    for k in range(k0, k1):
-        t = k * H
-        h = H
-        t_next = (k + 1) * H
-        pieces = flags[PIECES]
-        if k == last:   # the last step lands on t_end
-            h = H_last
-            t_next = t_last
-            pieces = flags[PIECES_LAST]
-        if flags[IMPLICIT]:
-            if implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, u, tau, hist_tau, hist,
-                              ctl, saved, qs, us, iw, w, FAIL, fail_t, hp):
-                return FAIL[0], k
-            if read_impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + h):
-                return FAIL[0], k
-        else:
-            if flags[EVENT_AWARE]:
-                if fmu_states(ptr, fn, comp, GET_STATE, saved, FAIL, fail_t, t):
-                    return FAIL[0], k
-                copy_rows(q, qs)
-                copy_rows(u, us)
-                copy_rows(hist_tau, hts)
-                hs[0] = hist[0]
-                hs[1] = ctl[HIST_VALID]
-            if exchange_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau,
-                         tau_next, hist_tau, hist, ctl, w, FAIL, fail_t, hp):
-                return FAIL[0], k
-            if read_impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + h):
-                return FAIL[0], k
-            if flags[EVENT_AWARE]:
-                moved = False
-                for i in range(N):
-                    if imp_new[i] != imp[i]:
-                        moved = True
-                if moved:  # restore every instance to t and retake [t, t + h] in pieces of about H_min
-                    copy_rows(hts, hist_tau)
-                    hist[0] = hs[0]
-                    ctl[HIST_VALID] = np.int64(hs[1])
-                    ctl[RETAKES] += 1
-                    if fmu_states(ptr, fn, comp, SET_STATE, saved, FAIL, fail_t, t):
-                        return FAIL[0], k
-                    copy_rows(qs, q)
-                    copy_rows(us, u)
-                    for p in range(pieces):
-                        tp = t + p * (h / pieces)
-                        hpc = (t + h) - tp if p == pieces - 1 else h / pieces
-                        if exchange_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, tp, hpc, q,
-                                     u, tau, tau_next, hist_tau, hist, ctl, w, FAIL, fail_t, hp):
-                            return FAIL[0], k
-                    if read_impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + h):
-                        return FAIL[0], k
-                if fmu_states(ptr, fn, comp, FREE_STATE, saved, FAIL, fail_t, t + h):
-                    return FAIL[0], k
-        for i in range(N):
-            imp[i] = imp_new[i]
+    for i in range(N):
+        if _read(ptr, fn, comp, i, w.buf, q, u, FAIL, fail_t, 0.0):
+            return FAIL[0]
+    if read_impacts(ptr, fn, comp, keep.ibuf, imp, FAIL, fail_t, 0.0):
+        return FAIL[0]
+    if flags[COUPLED]:
+        network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, w.t1, w.t2, w.c1q, w.c1u, w.c2q, w.c2u, False,
+                       w.dk, w.bk, w.ek, hp, 0.0)
+    if flags[DELAY] == DELAYED_ZERO:   # the first two steps are held at 0
         for i in range(N):
             for c in range(q.shape[1]):
-                if not (math.isfinite(q[i, c]) and math.isfinite(u[i, c])):
-                    fail_at(FAIL, fail_t, STATE_DIVERGED, -1, -1, 0, t_next)
-                    return FAIL[0], k
-        if (k + 1) % every == 0 or k == last:   # the final state is always a row
-            row = ctl[ROW]
-            if not record_row(row, t_next, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, jacobi, ctl, T, Qr, Ur, TAU, D,
-                           BR, EU, scratch, w, hp):
-                fail_at(FAIL, fail_t, DISTANCE_DIVERGED, -1, -1, 0, t_next)
-                return FAIL[0], k
-            ctl[ROW] = row + 1
-    return DONE, k1
+                tau[i, c] = 0.0
+        ctl[ZERO_STEPS] = 1
+    if flags[DELAY]:
+        copy_rows(tau, tau_next)
+    record_row(0, 0.0, q, u, tau, laws, geo, Kp, Kd, E2, W2, flags[NEED_D] != 0, jacobi, ctl, T, Qr, Ur, TAU, D, BR, EU,
+               keep.scratch, w, hp)
+    ctl[ROW] = 1
+    return DONE

@@ -56,7 +56,8 @@ from .fmus import contract
 from . import cosim_adaptive as ad
 from . import cosim_args as args
 from . import cosim_loop as loop
-from .cosim_loop import CALLS, exchange_chunk
+from .cosim_driver import drive
+from .cosim_loop import CALLS
 from .hold import check_hold, check_schemes
 from . import strategies
 from .instance_pool import give_back, keep_instances, kept_key, take
@@ -271,13 +272,55 @@ class NetworkMaster:
 
     # ------------------------------------------------------------ the run
     def _loop_arrays(self) -> None:
-        """What the compiled loop takes (:func:`fmu_sync.cosim_args.loop_arguments`)."""
+        """What the compiled driver takes (:func:`fmu_sync.cosim_args.loop_arguments`), and the tolerance
+        controller's arrays, idle without tol (:class:`AdaptiveMaster` makes them live)."""
         args.loop_arguments(self)
+        N, n = self.N, self.model.n
+        self.norm = tuple(np.eye(n) for _ in range(3))
+        self.ad, self.ast, self.actl = ad.controller_arrays(0.0, self.grid.t_end, self.H, self.H, self.H)
+        self.mine = np.zeros(N, dtype=np.int64)   # the controller's FMU-state handles
+        self.pmine = self.loop_args.ptr.copy()
+        self.pmine[loop.P_SAVED] = self.mine.ctypes.data
+        self.extra = ad.Extra(np.zeros((N, n)), np.zeros((N, n)), np.zeros(n), np.zeros(n), self.mine, self.pmine)
+        self.HS, self.ES = np.zeros(0), np.zeros(0)
 
-    def _chunk(self, k0: int, k1: int) -> int:
-        """Steps k0 .. k1 - 1 in the compiled loop; returns its outcome code."""
-        code, _ = exchange_chunk(*self.loop_args, k0, k1, *self.loop_state)
-        return int(code)
+    def _drive(self, budget: int) -> int:
+        """Up to ``budget`` tries of a step in the one compiled driver; returns its outcome code."""
+        a, s = self.loop_args, self.loop_state
+        return int(drive(a.ptr, a.fn, a.comp, a.laws, a.geo, a.Kp, a.Kd, a.E2, a.W2, a.flags, a.hp, a.H, a.H_last,
+                         a.t_last, self.ad, self.norm, budget, s.q, s.u, s.tau, s.tau_next, s.hist_tau, s.hist, s.imp,
+                         s.ctl, s.saved, s.keep, self.extra, self.ast, self.actl, self.T, self.Qr, self.Ur, self.TAU,
+                         self.D, self.BR, self.EU, self.HS, self.ES, s.w, s.FAIL, s.fail_t))
+
+    def _walk(self, progress) -> RunFailed | None:
+        """The run from its start to t_end in the driver, in chunks (``progress(fraction)`` and
+        Ctrl-C between them); the failure that ended it, or None."""
+        code = int(loop.loop_start(*self.loop_args, *self.loop_state))   # states, impact counters, row 0
+        if code != loop.DONE:
+            raise self._failure(code)
+        budget = self._budget(progress)
+        while True:
+            code = self._drive(budget)
+            if code == loop.FULL:
+                self._grow()
+                continue
+            failure = self._failure(code) if code != loop.DONE else self.grew()
+            if failure is not None:
+                return failure
+            c = ad.controller_state(self.ast, self.actl)
+            if progress is not None:
+                progress(self._fraction(c))
+            if c["done"]:
+                return None
+
+    def _budget(self, progress) -> int:
+        return max(1, self.n_steps // 200) if progress is not None else CHUNK_STEPS
+
+    def _fraction(self, c: dict) -> float:
+        return c["steps"] / self.n_steps
+
+    def _grow(self) -> None:
+        raise AssertionError("a fixed-step record is sized for the whole run")
 
     def grew(self):
         """The growth guard's failure (:mod:`fmu_sync.run_guard`) at the last recorded row, or None."""
@@ -322,22 +365,10 @@ class NetworkMaster:
         :class:`SimulationDiverged` if a state or distance becomes non-finite
         (``partial``: the finite record so far). The compiled loop runs in chunks
         of steps, so ``progress(fraction)`` is called and Ctrl-C is honoured between them."""
-        failure = None
         with self.instances() as unzipdir:
             self._start(unzipdir)
             self._loop_arrays()
-            code = self._chunk(-1, 0)   # the start: states, impact counters, row 0
-            if code != loop.DONE:
-                raise self._failure(code)
-            n_steps = self.n_steps
-            chunk = max(1, n_steps // 200) if progress is not None else CHUNK_STEPS
-            for k0 in range(0, n_steps, chunk):
-                code = self._chunk(k0, min(n_steps, k0 + chunk))
-                failure = self._failure(code) if code != loop.DONE else self.grew()
-                if failure is not None:
-                    break
-                if progress is not None:
-                    progress(min(n_steps, k0 + chunk) / n_steps)
+            failure = self._walk(progress)
             if progress is not None and failure is None:
                 progress(1.0)
         self.retakes = int(self.ctl[loop.RETAKES])
@@ -528,7 +559,7 @@ class AdaptiveMaster(NetworkMaster):
 
     def _loop_arrays(self) -> None:
         super()._loop_arrays()   # with the registry's flags of tol and the state calls it needs
-        N, n = self.N, self.model.n
+        n = self.model.n
         M = np.atleast_2d(np.asarray(self.system.M, dtype=np.float64))
         Q = np.asarray(self.metric.Q, dtype=np.float64)
         Q = Q * np.eye(n) if Q.ndim == 0 else np.atleast_2d(Q)
@@ -536,10 +567,6 @@ class AdaptiveMaster(NetworkMaster):
         self.norm = (np.linalg.inv(M), Q / lam, M / lam)
         self.ad, self.ast, self.actl = ad.controller_arrays(self.tol, self.grid.t_end, self.unit, self.H,
                                                             self.unit * max(1, steps_in(self.H, self.unit)[0]))
-        self.mine = np.zeros(N, dtype=np.int64)   # the controller's FMU-state handles
-        self.pmine = self.loop_args.ptr.copy()
-        self.pmine[loop.P_SAVED] = self.mine.ctypes.data
-        self.extra = ad.Extra(np.zeros((N, n)), np.zeros((N, n)), np.zeros(n), np.zeros(n), self.mine, self.pmine)
         cap = 2 * self.n_steps + 16
         self.HS, self.ES = np.full(cap, np.nan), np.full(cap, np.nan)
         self._implicit_room(cap)
@@ -565,33 +592,18 @@ class AdaptiveMaster(NetworkMaster):
         self.HS, self.ES = grow(self.HS, np.nan), grow(self.ES, np.nan)
         self._implicit_room(self.HS.size)
 
-    def _adaptive(self, budget: int) -> int:
-        a, s = self.loop_args, self.loop_state
-        code = ad.adaptive_chunk(a.ptr, a.fn, a.comp, a.laws, a.geo, a.Kp, a.Kd, a.E2, a.W2, a.flags, a.hp, self.ad,
-                                 self.norm, budget, s.q, s.u, s.tau, s.tau_next, s.hist_tau, s.hist, s.imp, s.ctl,
-                                 s.saved, s.keep, self.extra, self.ast, self.actl, self.T, self.Qr, self.Ur, self.TAU,
-                                 self.D, self.BR, self.EU, self.HS, self.ES, s.w, s.FAIL, s.fail_t)
-        return int(code)
+    def _budget(self, progress) -> int:
+        return 256 if progress is not None else CHUNK_STEPS
+
+    def _fraction(self, c: dict) -> float:
+        return min(1.0, c["t"] / self.grid.t_end)
 
     def run(self, progress=None):
-        failure = None
         with self.instances() as unzipdir:
             self._start(unzipdir)
             self._loop_arrays()
             try:
-                code = self._chunk(-1, 0)   # the start: states, impact counters, row 0
-                if code != loop.DONE:
-                    raise self._failure(code)
-                budget = 256 if progress is not None else CHUNK_STEPS
-                while not ad.controller_state(self.ast, self.actl)["done"]:
-                    code = self._adaptive(budget)
-                    if code == ad.FULL:
-                        self._grow()
-                    elif code != loop.DONE or self.grew() is not None:
-                        failure = self._failure(code) if code != loop.DONE else self.grew()
-                        break
-                    elif progress is not None:
-                        progress(min(1.0, ad.controller_state(self.ast, self.actl)["t"] / self.grid.t_end))
+                failure = self._walk(progress)
             finally:
                 ad.free_states(self.pmine, self.fn, self.comp, self.mine, np.zeros(4, dtype=np.int64), np.zeros(1))
         c = ad.controller_state(self.ast, self.actl)

@@ -121,7 +121,7 @@ STRATEGIES: dict[str, Strategy] = {s.name: s for s in (
              info=("early_stops", "stop_times"), doc="docs/fmi3.md"),
     Strategy("tol", "mode", "tol",
              "the communication step chosen by an error controller; a step over its share rolled back, retaken "
-             "shorter", rollback=True, check=_check_tol, flags={"event_aware": 1},
+             "shorter", rollback=True, check=_check_tol, flags={"tol": 1},
              master="fmu_sync.master:AdaptiveMaster",
              info=("tol", "steps", "rejected", "step_lengths", "H_first", "step_unit", "error_estimate",
                    "floor_steps", "error_norm", "floor_error", "tol_met", "tol_not_met"),

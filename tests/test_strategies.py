@@ -63,7 +63,7 @@ def test_select_accepts_exactly_what_0_7_accepted(method, exchange, tol, event_a
     assert flags.get("gauss_seidel", 0) == (method == "gauss-seidel")
     assert flags.get("delay", 0) == {"delayed": reg.DELAYED, "delayed-zero": reg.DELAYED_ZERO}.get(method, 0)
     assert flags.get("implicit", 0) == (exchange == "implicit")
-    assert flags.get("event_aware", 0) == (event_aware or tol is not None)
+    assert flags.get("event_aware", 0) == event_aware and flags.get("tol", 0) == (tol is not None)
     want = AdaptiveMaster if tol is not None else NetworkMaster
     if method == "early-return":
         from fmu_sync.early_return import EarlyReturnMaster as want
