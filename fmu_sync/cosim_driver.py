@@ -28,7 +28,7 @@ from .cosim_loop import (DELAY, DISTANCE_DIVERGED, DONE, EVENT_AWARE, FOH, FREE_
 
 depends_on_core(__file__)   # its cache follows the core's edits (network_forces is compiled in)
 
-__all__ = ["drive"]
+__all__ = ["drive", "grid_step"]
 
 
 @njit(cache=True, inline="always")
@@ -51,7 +51,7 @@ def _reject(ctl, actl, ast, q, u, hist_tau, tau, keep, extra, hist, fresh, h_nex
 
 
 @njit(cache=True, inline="always")
-def _on_grid(k, flags, H, H_last, t_last):
+def grid_step(k, flags, H, H_last, t_last):
     """The fixed grid's step k: (t, h, t_next, pieces, last), the last one landing on t_end."""
     last = k == flags[STEPS] - 1
     if last:
@@ -145,7 +145,7 @@ def drive(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, H, H_last, t_last
             if _saved(fn, comp, extra, keep, q, u, hist_tau, tau, hist, ctl, FAIL, fail_t, t):   # (implicit: its own)
                 return FAIL[0]
         else:   # the run's grid: k H, the last step landing on t_end
-            t, h, t_next, pieces, last = _on_grid(k, flags, H, H_last, t_last)
+            t, h, t_next, pieces, last = grid_step(k, flags, H, H_last, t_last)
         if take_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, t, h, k, pieces, retake, q, u, tau,
                      tau_next, hist_tau, hist, imp, ctl, saved, keep, w, FAIL, fail_t):
             if not (tol_on and FAIL[0] == NOT_CONVERGED and not floor):

@@ -31,6 +31,9 @@ from .core.coupling import chain_work
 from .core.network import edge_arrays, network_forces
 from .core.result import NetworkResult, PairResult
 from .fmus import contract
+from .cosim_args import Work, named_flags
+from .cosim_driver import grid_step
+from .cosim_loop import CTL, record_row
 from .master import NetworkMaster, SlaveError, cosimulate
 
 __all__ = ["EarlyReturnMaster", "cosimulate_early_return"]
@@ -53,6 +56,10 @@ class EarlyReturnMaster(NetworkMaster):
         self.q, self.u, self.tau, self.scratch = (np.zeros((N, n)) for _ in range(4))
         self.work = (np.zeros(n), np.zeros(n), *chain_work(n))
         self.dk, self.bk, self.ek = np.zeros(E), np.zeros(E, dtype=np.int64), np.zeros(E)
+        # the compiled driver's grid and record (cosim_driver.grid_step, cosim_loop.record_row)
+        self.w = Work(*self.work, self.dk, self.bk, self.ek, np.zeros(2 * n), np.zeros(n))
+        self.flags = named_flags(steps=self.n_steps, record_every=self.record_every, need_d=self.need_d)
+        self.ctl = np.zeros(CTL, dtype=np.int64)
 
     def forces(self, tau, need_d: bool, t: float) -> None:
         """The Jacobi forces at the current states (time t) into ``tau`` (and each edge's distance)."""
@@ -118,13 +125,10 @@ class EarlyReturnMaster(NetworkMaster):
 
     def record(self, row: int, t: float) -> bool:
         """Row ``row`` at t: states, the inputs held over the step that ended here, distances;
-        False if a distance is not finite."""
-        self.T[row], self.Qr[row], self.Ur[row], self.TAU[row] = t, self.q, self.u, self.tau
-        if not self.need_d:
-            return True
-        self.forces(self.scratch, True, t)
-        self.D[row], self.BR[row], self.EU[row] = self.dk, self.bk, self.ek
-        return bool(np.all(np.isfinite(self.dk)))
+        False if a distance is not finite (the compiled driver's record, :func:`fmu_sync.cosim_loop.record_row`)."""
+        return bool(record_row(row, float(t), self.q, self.u, self.tau, self.laws, self.geo, self.Kp_m, self.Kd_m,
+                               self.E2, self.W2, self.need_d, False, self.ctl, self.T, self.Qr, self.Ur, self.TAU,
+                               self.D, self.BR, self.EU, self.scratch, self.w, self.hp))
 
     def run(self, progress=None) -> NetworkResult:
         """Run to t_end (failures as :meth:`NetworkMaster.run`: ``partial`` holds the record so far)."""
@@ -136,17 +140,18 @@ class EarlyReturnMaster(NetworkMaster):
             self.imp = [s.get_integer(contract.IMPACTS) for s in self.slaves]
             if self.coupled:
                 self.forces(self.tau, False, 0.0)
-            n_steps, H, last = self.n_steps, self.H, self.n_steps - 1
+            n_steps, last = self.n_steps, self.n_steps - 1
+            g = (self.flags, self.H, self.grid.dt_last, self.grid.t_end)
             if self.record(0, 0.0):
                 row = 1
             else:
                 failure, n_steps = self.diverged(0.0, "a distance"), 0
             report_every = max(1, n_steps // 200)
             for k in range(n_steps):
-                # the run's grid (core.checks.run_steps): the last step lands on t_end exactly
-                t = self.grid.t_end if k == last else (k + 1) * H
+                # the driver's grid (core.checks.run_steps): the last step lands on t_end exactly
+                t0, _, t, _, _ = grid_step(k, *g)
                 try:
-                    self.communication_step(k * H, t)
+                    self.communication_step(t0, t)
                 except SlaveError as exc:
                     failure = exc
                     break
