@@ -36,8 +36,8 @@ def applied_forces(result):
     if info.get("mode") != "cosim":
         raise ValueError("applied_forces: not a co-simulation (a core run applies the law at every solver step)")
     t = np.asarray(result.t, dtype=float)
-    H = info.get("H")
-    steps = np.size(H) if np.ndim(H) else None        # a run to a tolerance: each step's H
+    H, lengths = info.get("H"), info.get("step_lengths")   # a run to a tolerance: each step's length
+    steps = np.size(lengths) if lengths is not None else None
     thinned = (len(t) - 1 != steps) if steps is not None else bool(
         len(t) > 1 and np.max(np.diff(t)) > float(H) * (1 + 1e-9))
     if thinned:

@@ -1,9 +1,9 @@
-"""Co-simulation to a tolerance: the adaptive communication step (docs/design.md §4.4.1).
+"""Co-simulation to a tolerance: the adaptive communication step's controller (docs/design.md §4.4.1).
 
-A layer on top of the compiled exchange loop (:mod:`fmu_sync.cosim_loop`): it takes that
-loop's one exchange over [t, t + h] (``exchange_step``: Jacobi or Gauss–Seidel, zero- or
-first-order hold) and wraps it in an error test with FMU-state rollback, compiled like the
-loop (numba nopython, ``cache=True``, no Python per step):
+The one compiled driver (:func:`fmu_sync.cosim_driver.drive`) takes the run's step over
+[t, t + h] (``take_step``: Jacobi or Gauss–Seidel, zero- or first-order hold, or the implicit
+exchange) and, with ``tol``, wraps it in this module's error test with FMU-state rollback
+(numba nopython, ``cache=True``, no Python per step):
 
 * before each step every instance's FMU state is taken (fmi2GetFMUstate into the same handle
   every step) with the master's own copies (states, input history, held forces);
@@ -26,17 +26,16 @@ the floor exceed their share says so (``info["tol_met"]``, the master).
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
-from .core.checks import TIME_TOL, lands
 from .core.network import network_forces
-from .cosim_loop import (DONE, FREE_STATE, GET_STATE, fmu_states, HIST_VALID, FRESH, IMPLICIT, NOT_CONVERGED, ROW, SET_STATE,
-                         SLAVE_FAILED, STATE_DIVERGED, DISTANCE_DIVERGED, WARNING, FOH, GAUSS_SEIDEL, RECORD_EVERY,
-                         NEED_D, copy_rows, exchange_step, fail_at, implicit_step, read_impacts, record_row, unmanaged)
+from .cosim_loop import FREE_STATE, FULL, HIST_VALID, copy_rows, fmu_states
 
-__all__ = ["adaptive_chunk", "free_states", "SAFETY", "FAC_MIN", "FAC_MAX", "FULL",
+__all__ = ["step_error", "step_copies", "next_step", "local_error", "error_forms", "Extra", "controller_arrays",
+           "controller_state", "SETTINGS", "FLOATS", "COUNTS", "free_states", "SAFETY", "FAC_MIN", "FAC_MAX", "FULL",
            "A_TOL", "A_T_END", "A_UNIT", "A_H", "AD", "S_T", "S_H", "S_ERR", "AST",
            "C_STEPS", "C_REJECTED", "C_FORCED", "C_DONE", "ACTL"]
 
@@ -49,21 +48,49 @@ ZOH, FOH_KIND, IMPLICIT_KIND, IMPLICIT_MEAN = range(4)
 #: force by tau'' s (s - h)/2, whose effect on u over the step is tau'' h^3/12, against tau'' h^3/2
 #: for the ramp of the predictor-corrector difference delta = tau'' h^2 in the formulas
 MILNE = 1.0 / 6.0
-#: outcome of a chunk whose record (rows or steps) is full: the master grows it and goes on
-FULL = 5
+
+
+class Extra(NamedTuple):
+    """The controller's own arrays: the held forces' copy ``taus`` and the forces at the step's end
+    ``tau_end`` (N, n), scratch ``delta``, ``v`` (n,), its FMU-state handles ``mine`` (N,) and ``pmine``
+    (the loop's ``ptr`` with the address of ``mine`` in its ``P_SAVED`` slot)."""
+    taus: np.ndarray
+    tau_end: np.ndarray
+    delta: np.ndarray
+    v: np.ndarray
+    mine: np.ndarray
+    pmine: np.ndarray
+
+
 # ad: the run's settings (tolerance, t_end, the step unit = the slaves' solver.dt, the largest step H)
-A_TOL, A_T_END, A_UNIT, A_H = range(4)
-AD = 4
+SETTINGS = ("tol", "t_end", "unit", "H")
+A_TOL, A_T_END, A_UNIT, A_H = range(len(SETTINGS))
+AD = len(SETTINGS)
 # ast: the controller's float state (time, next step, the run's error estimate)
-S_T, S_H, S_ERR = range(3)
-AST = 3
+FLOATS = ("t", "h", "error_estimate")
+S_T, S_H, S_ERR = range(len(FLOATS))
+AST = len(FLOATS)
 # actl: accepted steps, rejected steps, steps accepted at the floor over their share, finished
-C_STEPS, C_REJECTED, C_FORCED, C_DONE = range(4)
-ACTL = 4
+COUNTS = ("steps", "rejected", "floor_steps", "done")
+C_STEPS, C_REJECTED, C_FORCED, C_DONE = range(len(COUNTS))
+ACTL = len(COUNTS)
+
+
+def controller_arrays(tol: float, t_end: float, unit: float, H: float, h0: float):
+    """The controller's arrays, filled by name: ``ad`` (:data:`SETTINGS`), ``ast`` (:data:`FLOATS`:
+    time 0, the first step ``h0``, estimate 0) and ``actl`` (:data:`COUNTS`, all 0)."""
+    settings = dict(tol=tol, t_end=t_end, unit=unit, H=H)
+    return (np.array([float(settings[k]) for k in SETTINGS]), np.array([0.0, float(h0), 0.0]),
+            np.zeros(len(COUNTS), dtype=np.int64))
+
+
+def controller_state(ast, actl) -> dict:
+    """The controller's state by name (:data:`FLOATS` and :data:`COUNTS`)."""
+    return {**{k: float(ast[i]) for i, k in enumerate(FLOATS)}, **{k: int(actl[i]) for i, k in enumerate(COUNTS)}}
 
 
 @njit(cache=True, inline="always")
-def _copies(back, live, kept, hist, hs, ctl):
+def step_copies(back, live, kept, hist, hs, ctl):
     """The master's own state at a step's start (``live``: states, input history, held forces;
     ``hist``, ``ctl[HIST_VALID]``) kept in ``kept``, ``hs`` (``back`` False) or put back (True)."""
     for j in range(len(live)):
@@ -159,158 +186,41 @@ def next_step(h, eq, eu, tol, t_end, kind, unit, H, mode, eq_mean=0.0):
     return m_lo * unit
 
 
-@njit(cache=True)
-def adaptive_chunk(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, ad, norm, budget, q, u, tau, tau_next,
-                   hist_tau, hist, imp, ctl, saved, keep, extra, ast, actl, T, Qr, Ur, TAU, D, BR, EU, HS, ES, w,
-                   FAIL, fail_t):
-    """Up to ``budget`` tries of a communication step (accepted or rejected), from the time
-    ``ast[S_T]`` with the proposed step ``ast[S_H]``; the start (row 0) is made before by
-    :func:`fmu_sync.cosim_loop.exchange_chunk` with ``k0 = -1``. Arguments as ``exchange_chunk``
-    and: ``ad`` (:data:`A_TOL` ...), ``norm`` (M^-1, Q/lambda_min(Q), M/lambda_min(Q)),
-    ``extra`` (held forces' copy and forces at the step's end (N, n), scratch (n,) twice, the
-    controller's own FMU-state handles ``mine`` (N,) and ``pmine``, ``ptr`` with the address of
-    ``mine`` in its ``P_SAVED`` slot, for ``cosim_loop.fmu_states``); with the implicit exchange
-    (``flags[IMPLICIT]``) the step is :func:`fmu_sync.cosim_loop.implicit_step` (its per-step
-    arrays in ``keep[7]`` indexed by the accepted step), its estimate the converged end force
-    against its explicit first-order prediction, and a step that does not converge is retaken
-    shorter, ``ast``, ``actl``
-    (:data:`C_STEPS` ...), ``HS``, ``ES`` the accepted steps' lengths and local estimates.
-    Returns the outcome code: DONE (finished if ``actl[C_DONE]``, else the budget is spent),
-    :data:`FULL` (the record or the step arrays are full: grow them and call again) or a
-    failure (``FAIL``)."""
-    (ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, q, u, tau, tau_next, hist_tau, hist, imp, ctl, saved, keep,
-     extra, T, Qr, Ur, TAU, D, BR, EU, HS, ES, w, FAIL, fail_t) = unmanaged(
-        (ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, q, u, tau, tau_next, hist_tau, hist, imp, ctl, saved,
-         keep, extra, T, Qr, Ur, TAU, D, BR, EU, HS, ES, w, FAIL, fail_t))
-    N, n = q.shape[0], q.shape[1]
-    need_d = flags[NEED_D] != 0
-    implicit = flags[IMPLICIT] != 0
-    foh = flags[FOH] != 0 or implicit   # the implicit exchange is measured against its explicit prediction
-    mean = implicit and flags[FOH] == 0   # the implicit exchange holding the mean of the step's end forces
-    kind = (IMPLICIT_MEAN if mean else IMPLICIT_KIND) if implicit else FOH_KIND if foh else ZOH
-    jacobi = flags[GAUSS_SEIDEL] == 0
-    every = flags[RECORD_EVERY]
-    tol, t_end, unit, H = ad[A_TOL], ad[A_T_END], ad[A_UNIT], ad[A_H]
-    Minv, Qn, Mn = norm
-    qs, us, hts, hs, scratch, imp_new, ibuf, iw = keep
+@njit(cache=True, inline="always")
+def step_error(laws, geo, Kp, Kd, E2, W2, hp, q, u, tau, t, h, hts, hs, w, extra, norm, foh, mean, kind, unit):
+    """The estimate of a step [t, t + h] just taken (docs/design.md §4.4.1): the forces at its end
+    from the new states (into ``extra.tau_end``) against those the hold gave there (``tau``, with the
+    first-order hold's slope from ``hts``, ``hs``); per node the local error (:func:`local_error`),
+    the largest over the nodes. Returns (err, eq, eu, eq_mean) (their forms' largest, for
+    :func:`next_step`); inf if not finite."""
     taus, tau_end, delta, v, mine, pmine = extra
-    t1, t2, c1q, c1u, c2q, c2u, dk, bk, ek, buf, slope = w
-    FAIL[0] = DONE
-    retry = False   # the step being tried follows a rejection (the controller does not grow it)
-    for _ in range(budget):
-        if actl[C_DONE]:
-            return DONE
-        if ctl[ROW] >= T.shape[0] or actl[C_STEPS] >= HS.shape[0]:
-            return FULL
-        t = ast[S_T]
-        h = ast[S_H]
-        # at the floor (always accepted): a proposal of one unit, or the short rest of the run; the
-        # test is on the proposal, never on h stretched by a round-off to land on t_end (0.6.0 looped
-        # there: a step of unit + 1e-15 was "above the floor", rejected and stretched again, forever)
-        floor = h <= unit * (1.0 + TIME_TOL)
-        last = lands(t, h, t_end, unit)
-        if last:
-            h = t_end - t
-            floor = floor or h <= unit * (1.0 + TIME_TOL)
-        # the step's start in the controller's own handles (the implicit step keeps its own)
-        if fmu_states(pmine, fn, comp, FREE_STATE, mine, FAIL, fail_t, t) or fmu_states(pmine, fn, comp, GET_STATE,
-                                                                                   mine, FAIL, fail_t, t):
-            return FAIL[0]
-        _copies(False, (q, u, hist_tau, tau), (qs, us, hts, taus), hist, hs, ctl)
-        fresh = ctl[FRESH]
-        if implicit:
-            if implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, actl[C_STEPS], q, u, tau,
-                              hist_tau, hist, ctl, saved, qs, us, iw, w, FAIL, fail_t, hp):
-                if FAIL[0] != NOT_CONVERGED or floor:
-                    return FAIL[0]
-                # not converged (the slaves are back at t): retaken shorter, as a rejected step
-                FAIL[0] = DONE
-                actl[C_REJECTED] += 1
-                _copies(True, (q, u, hist_tau, tau), (qs, us, hts, taus), hist, hs, ctl)
-                ctl[FRESH] = fresh
-                ast[S_H] = unit * max(1.0, math.floor(FAC_MIN * h / unit + TIME_TOL))
-                retry = True
-                continue
-        elif exchange_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau, tau_next, hist_tau, hist,
-                       ctl, w, FAIL, fail_t, hp):
-            return FAIL[0]
-        if read_impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + h):
-            return FAIL[0]
-        finite = True
-        for i in range(N):
+    Minv, Qn, Mn = norm
+    N, n = q.shape[0], q.shape[1]
+    network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau_end, w.t1, w.t2, w.c1q, w.c1u, w.c2q, w.c2u, False, w.dk,
+                   w.bk, w.ek, hp, t + h)
+    err = 0.0
+    eq_max = 0.0
+    eu_max = 0.0
+    em_max = 0.0
+    for i in range(N):
+        em = 0.0
+        if mean:   # the force's change over the step: the mean's own error
             for c in range(n):
-                if not (math.isfinite(q[i, c]) and math.isfinite(u[i, c])):
-                    finite = False
-        if not finite:
-            fail_at(FAIL, fail_t, STATE_DIVERGED, -1, -1, 0, t + h)
-            return FAIL[0]
-        # the estimate: the forces at the step's end against those the hold gave there
-        network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau_end, t1, t2, c1q, c1u, c2q, c2u, False, dk, bk, ek, hp,
-                       t + h)
-        err = 0.0
-        eq_max = 0.0
-        eu_max = 0.0
-        em_max = 0.0
-        for i in range(N):
-            em = 0.0
-            if mean:   # the force's change over the step: the mean's own error
-                for c in range(n):
-                    delta[c] = tau_end[i, c] - taus[i, c]
-                em, _ = error_forms(delta, Minv, Qn, Mn, v)
-            for c in range(n):
-                held = tau[i, c]
-                if foh and hs[1] != 0 and t > hs[0]:
-                    held += (tau[i, c] - hts[i, c]) / (t - hs[0]) * h
-                delta[c] = tau_end[i, c] - held
-            eq, eu = error_forms(delta, Minv, Qn, Mn, v)
-            err = max(err, local_error(h, h, eq, eu, unit, kind, em))
-            eq_max = max(eq_max, eq)
-            eu_max = max(eu_max, eu)
-            em_max = max(em_max, em)
-        share = tol * h / t_end
-        if not math.isfinite(err):
-            err = np.inf
-            eq_max = eu_max = em_max = np.inf
-        if err > share and not floor:
-            # rejected: every instance and the master's copies back to t, retaken shorter
-            actl[C_REJECTED] += 1
-            if fmu_states(pmine, fn, comp, SET_STATE, mine, FAIL, fail_t, t):
-                return FAIL[0]
-            _copies(True, (q, u, hist_tau, tau), (qs, us, hts, taus), hist, hs, ctl)
-            ctl[FRESH] = fresh
-            ast[S_H] = next_step(h, eq_max, eu_max, tol, t_end, kind, unit, H, 2, em_max)
-            retry = True
-            continue
-        # accepted
-        if err > share:
-            actl[C_FORCED] += 1
-        k = actl[C_STEPS]
-        HS[k] = h
-        ES[k] = err
-        actl[C_STEPS] = k + 1
-        ast[S_ERR] += err
-        for i in range(N):
-            imp[i] = imp_new[i]
-        # on the unit grid (whole units from 0, as the slaves count their steps): no drift of t over
-        # many steps, so the last step is a whole number of units or the run's own short rest
-        t_next = t_end if last else unit * math.floor((t + h) / unit + 0.5)
-        if actl[C_STEPS] % every == 0 or last:
-            row = ctl[ROW]
-            if not record_row(row, t_next, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, jacobi, ctl, T, Qr, Ur, TAU,
-                           D, BR, EU, scratch, w, hp):
-                fail_at(FAIL, fail_t, DISTANCE_DIVERGED, -1, -1, 0, t_next)
-                return FAIL[0]
-            ctl[ROW] = row + 1
-        if jacobi and ctl[FRESH] == 0:   # the next step's forces are those of the estimate
-            copy_rows(tau_end, tau)
-            ctl[FRESH] = 1
-        ast[S_T] = t_next
-        ast[S_H] = next_step(h, eq_max, eu_max, tol, t_end, kind, unit, H, 1 if retry else 0, em_max)
-        retry = False
-        if last:
-            actl[C_DONE] = 1
-            return DONE
-    return DONE
+                delta[c] = tau_end[i, c] - taus[i, c]
+            em, _ = error_forms(delta, Minv, Qn, Mn, v)
+        for c in range(n):
+            held = tau[i, c]
+            if foh and hs[1] != 0 and t > hs[0]:
+                held += (tau[i, c] - hts[i, c]) / (t - hs[0]) * h
+            delta[c] = tau_end[i, c] - held
+        eq, eu = error_forms(delta, Minv, Qn, Mn, v)
+        err = max(err, local_error(h, h, eq, eu, unit, kind, em))
+        eq_max = max(eq_max, eq)
+        eu_max = max(eu_max, eu)
+        em_max = max(em_max, em)
+    if not math.isfinite(err):
+        return np.inf, np.inf, np.inf, np.inf
+    return err, eq_max, eu_max, em_max
 
 
 @njit(cache=True)

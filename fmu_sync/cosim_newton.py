@@ -24,11 +24,12 @@ import numpy as np
 from numba import njit
 
 from .core.network import network_forces
+from .fmus.contract import INPUT_BOUND
 from .core.kernels import depends_on_core
 
 depends_on_core(__file__)
 
-__all__ = ["newton_work", "OMEGA0", "GROW", "NEUMANN_MAX", "LINEAR_TOL"]
+__all__ = ["newton_work", "OMEGA0", "GROW", "NEUMANN_MAX", "LINEAR_TOL", "TRUST"]
 
 #: the relaxation of an FMU's update while its response is unknown (no secant, no prior) and of
 #: the damped fixed point the step falls back to (Aitken's relaxation from there)
@@ -262,3 +263,65 @@ def newton_update(nw, te, r, rmax, target, g, q, u, laws, geo, Kp, Kd, E2, W2, w
     for i in range(N):
         for a in range(n):
             te[i, a] += f * d1[i, a]
+
+
+# the implicit exchange's helpers (fmu_sync.cosim_loop.implicit_step): its tolerance's force scale,
+# the residual, and the trust region of its iterates
+#: the trust region of the implicit exchange's iterates: no FMU is given a force beyond this
+#: fraction of its input bound (an iterate outside it is moved to its edge; the law's own force at
+#: the step's start, inside the bound, stays inside: issue 44 item 7)
+TRUST = 0.5
+
+
+@njit(cache=True, inline="always")
+def force_scale(g, ta, q, u, Kp, Kd):
+    """The force scale of the implicit exchange's tolerance: the largest force at either end of
+    the step plus the largest law terms Kp q and Kd u could carry (round-off of the law)."""
+    fmax = 0.0
+    xq = 0.0
+    xu = 0.0
+    for i in range(g.shape[0]):
+        for c in range(g.shape[1]):
+            fmax = max(fmax, abs(g[i, c]), abs(ta[i, c]))
+            xq = max(xq, abs(q[i, c]))
+            xu = max(xu, abs(u[i, c]))
+    kp = 0.0
+    kd = 0.0
+    for a in range(Kp.shape[0]):
+        for b in range(Kp.shape[1]):
+            kp = max(kp, abs(Kp[a, b]))
+            kd = max(kd, abs(Kd[a, b]))
+    return fmax + kp * xq + kd * xu
+
+
+@njit(cache=True, inline="always")
+def residual_max(g, te, r):
+    """r = g - te; returns max |r| (inf if an entry is not finite)."""
+    rmax = 0.0
+    for i in range(g.shape[0]):
+        for c in range(g.shape[1]):
+            r[i, c] = g[i, c] - te[i, c]
+            rmax = max(rmax, abs(r[i, c])) if math.isfinite(r[i, c]) else math.inf
+    return rmax
+
+
+@njit(cache=True, inline="always")
+def dot_rows(a, b):
+    s = 0.0
+    for i in range(a.shape[0]):
+        for c in range(a.shape[1]):
+            s += a[i, c] * b[i, c]
+    return s
+
+
+@njit(cache=True, inline="always")
+def trust_clip(te):
+    """Every iterate inside the trust region: each force component clipped to +-TRUST * INPUT_BOUND
+    (a box: the quasi-Newton secants stay exact, since they are built from the forces applied)."""
+    b = TRUST * INPUT_BOUND
+    for i in range(te.shape[0]):
+        for c in range(te.shape[1]):
+            if te[i, c] > b:
+                te[i, c] = b
+            elif te[i, c] < -b:
+                te[i, c] = -b

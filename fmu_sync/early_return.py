@@ -18,8 +18,9 @@ Python over FMI 3.0 instances (:class:`fmu_sync.fmi3_bridge.FMU3Host` through
 ``integrate_network`` call). The arguments, the set-up checks, the record and the
 failures are those of :class:`fmu_sync.master.NetworkMaster`.
 
-:func:`cosimulate_early_return` is the pair entry point (a two-node graph);
-:class:`EarlyReturnMaster` the strategy. The instances are FMI 3.0 instances of
+:class:`EarlyReturnMaster` is the strategy ``"early-return"`` of the registry
+(:mod:`fmu_sync.strategies`), selected by ``cosimulate(..., method="early-return")`` or
+``cosimulate_network``; :func:`cosimulate_early_return` is an alias of the first. The instances are FMI 3.0 instances of
 an fmu-sync FMU (``fmu-sync export --fmi-version 3``).
 """
 from __future__ import annotations
@@ -27,11 +28,13 @@ from __future__ import annotations
 import numpy as np
 
 from .core.coupling import chain_work
-from .core.errors import RunFailed
 from .core.network import edge_arrays, network_forces
 from .core.result import NetworkResult, PairResult
 from .fmus import contract
-from .master import NetworkMaster, SlaveError, pair_result
+from .cosim_args import Work, named_flags
+from .cosim_driver import grid_step
+from .cosim_loop import CTL, record_row
+from .master import NetworkMaster, SlaveError, cosimulate
 
 __all__ = ["EarlyReturnMaster", "cosimulate_early_return"]
 
@@ -40,24 +43,11 @@ class EarlyReturnMaster(NetworkMaster):
     """:class:`NetworkMaster` over FMI 3.0 instances whose steps stop at every impact
     (early return) and exchange the coupling forces there; Jacobi exchange, zero-order hold."""
 
-    METHODS = ("jacobi",)
     EARLY_RETURN = True
 
-    def __init__(self, fmu, states, A, t_end: float, H: float, coupling: str | None = "switching",
-                 Kp=0.0, Kd=0.0, Q=None, record_every: int = 1, start_values=None,
-                 record_distance: bool = True, allow_unstable: bool = False):
-        super().__init__(fmu, states, A, t_end, H, coupling, Kp, Kd, Q, "jacobi", record_every, False, None,
-                         start_values, record_distance, allow_unstable, "zoh")
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)   # method='early-return': the registry's checks (fmu_sync.strategies)
         self.early_stops, self.imp, self.stop_times = 0, [0] * self.N, []
-
-    def check_fmi_version(self) -> None:
-        cs = self.md.coSimulation
-        if self.md.fmiVersion != "3.0" or cs is None or not cs.mightReturnEarlyFromDoStep:
-            raise ValueError(f"the early-return exchange needs an FMI 3.0 co-simulation FMU that may return early "
-                             f"(mightReturnEarlyFromDoStep = true); {self.fmu} is FMI {self.md.fmiVersion}"
-                             + ("" if self.md.fmiVersion != "3.0" else " without early return")
-                             + ": export it with fmu-sync export --fmi-version 3, or use cosimulate with "
-                               "event_aware=True on the FMI 2.0 FMU")
 
     # ------------------------------------------------------------ the exchange
     def _arrays(self) -> None:
@@ -66,6 +56,10 @@ class EarlyReturnMaster(NetworkMaster):
         self.q, self.u, self.tau, self.scratch = (np.zeros((N, n)) for _ in range(4))
         self.work = (np.zeros(n), np.zeros(n), *chain_work(n))
         self.dk, self.bk, self.ek = np.zeros(E), np.zeros(E, dtype=np.int64), np.zeros(E)
+        # the compiled driver's grid and record (cosim_driver.grid_step, cosim_loop.record_row)
+        self.w = Work(*self.work, self.dk, self.bk, self.ek, np.zeros(2 * n), np.zeros(n))
+        self.flags = named_flags(steps=self.n_steps, record_every=self.record_every, need_d=self.need_d)
+        self.ctl = np.zeros(CTL, dtype=np.int64)
 
     def forces(self, tau, need_d: bool, t: float) -> None:
         """The Jacobi forces at the current states (time t) into ``tau`` (and each edge's distance)."""
@@ -131,13 +125,10 @@ class EarlyReturnMaster(NetworkMaster):
 
     def record(self, row: int, t: float) -> bool:
         """Row ``row`` at t: states, the inputs held over the step that ended here, distances;
-        False if a distance is not finite."""
-        self.T[row], self.Qr[row], self.Ur[row], self.TAU[row] = t, self.q, self.u, self.tau
-        if not self.need_d:
-            return True
-        self.forces(self.scratch, True, t)
-        self.D[row], self.BR[row], self.EU[row] = self.dk, self.bk, self.ek
-        return bool(np.all(np.isfinite(self.dk)))
+        False if a distance is not finite (the compiled driver's record, :func:`fmu_sync.cosim_loop.record_row`)."""
+        return bool(record_row(row, float(t), self.q, self.u, self.tau, self.laws, self.geo, self.Kp_m, self.Kd_m,
+                               self.E2, self.W2, self.need_d, False, self.ctl, self.T, self.Qr, self.Ur, self.TAU,
+                               self.D, self.BR, self.EU, self.scratch, self.w, self.hp))
 
     def run(self, progress=None) -> NetworkResult:
         """Run to t_end (failures as :meth:`NetworkMaster.run`: ``partial`` holds the record so far)."""
@@ -149,17 +140,18 @@ class EarlyReturnMaster(NetworkMaster):
             self.imp = [s.get_integer(contract.IMPACTS) for s in self.slaves]
             if self.coupled:
                 self.forces(self.tau, False, 0.0)
-            n_steps, H, last = self.n_steps, self.H, self.n_steps - 1
+            n_steps, last = self.n_steps, self.n_steps - 1
+            g = (self.flags, self.H, self.grid.dt_last, self.grid.t_end)
             if self.record(0, 0.0):
                 row = 1
             else:
                 failure, n_steps = self.diverged(0.0, "a distance"), 0
             report_every = max(1, n_steps // 200)
             for k in range(n_steps):
-                # the run's grid (core.checks.run_steps): the last step lands on t_end exactly
-                t = self.grid.t_end if k == last else (k + 1) * H
+                # the driver's grid (core.checks.run_steps): the last step lands on t_end exactly
+                t0, _, t, _, _ = grid_step(k, *g)
                 try:
-                    self.communication_step(k * H, t)
+                    self.communication_step(t0, t)
                 except SlaveError as exc:
                     failure = exc
                     break
@@ -186,13 +178,8 @@ class EarlyReturnMaster(NetworkMaster):
 def cosimulate_early_return(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None, Kp=0.0, Kd=0.0,
                             Q=None, record_every: int = 1, start_values=None, progress=None,
                             record_distance: bool = True, allow_unstable: bool = False) -> PairResult:
-    """:func:`fmu_sync.master.cosimulate` of an FMI 3.0 FMU with the early-return
-    exchange: the coupling forces are also exchanged at every impact instant."""
-    try:
-        r = EarlyReturnMaster(fmu, [x1, x2], [[0.0, 1.0], [1.0, 0.0]], t_end, H, coupling, Kp, Kd, Q, record_every,
-                              start_values, record_distance, allow_unstable).run(progress)
-    except RunFailed as exc:
-        if exc.partial is not None:
-            exc.partial = pair_result(exc.partial, coupling)
-        raise
-    return pair_result(r, coupling)
+    """:func:`fmu_sync.master.cosimulate` of an FMI 3.0 FMU with ``method="early-return"`` (an
+    alias): the coupling forces are also exchanged at every impact instant."""
+    return cosimulate(fmu, x1, x2, t_end, H, coupling, Kp, Kd, Q, method="early-return", record_every=record_every,
+                      start_values=start_values, progress=progress, record_distance=record_distance,
+                      allow_unstable=allow_unstable)

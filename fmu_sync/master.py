@@ -43,7 +43,7 @@ from .core.compensation import force_table
 from .core.coupling import law_metric, metric_info
 from .core.distance import geometry
 from .core.errors import ExchangeNotConverged, RunFailed, SimulationDiverged, UnstableScheme
-from .core.exchange import check_exchange_name, exchange_limit
+from .core.exchange import exchange_limit
 from .core.model import MechanicalSystem
 from .core.network import edge_laws, edges_of, weights
 from .core.pair import LAWS, stack_nodes
@@ -54,9 +54,12 @@ from .fmi3_bridge import element_names, open_host
 from .fmi_bridge import FMUHost, SlaveError
 from .fmus import contract
 from . import cosim_adaptive as ad
+from . import cosim_args as args
 from . import cosim_loop as loop
-from .cosim_loop import CALLS, exchange_chunk
-from .hold import check_hold, check_implicit, check_rollback, check_schemes, rollback_strategy
+from .cosim_driver import drive
+from .cosim_loop import CALLS
+from .hold import check_hold, check_schemes
+from . import strategies
 from .instance_pool import give_back, keep_instances, kept_key, take
 from .run_guard import GrowthGuard, floor_error, tolerance_verdict
 
@@ -121,16 +124,15 @@ class NetworkMaster:
 
     The constructor checks every argument (ValueError) and identifies the FMU
     through the contract; :meth:`run` creates the instances, runs and frees them.
-    Exchange strategies are branches of the compiled loop's ``exchange_step``
-    (:mod:`fmu_sync.cosim_loop`), named in ``METHODS``; ``DELAY`` maps the name of
-    a delayed order to its ``flags[DELAY]`` code (none here:
-    :class:`fmu_sync.ssp_master.SspMaster` names the other masters' orders).
+    Its exchange strategies (``self.strategies``) are entries of the registry
+    :mod:`fmu_sync.strategies`, selected and checked there from ``method``, ``exchange``,
+    ``tol``, ``event_aware`` and ``hold``; the ones compiled are flags of the loop
+    (:mod:`fmu_sync.cosim_loop`).
     """
 
-    METHODS = ("jacobi", "gauss-seidel")
+    METHODS = strategies.METHODS
     tol = None             # the tolerance of an AdaptiveMaster (set before this constructor runs)
     EARLY_RETURN = False   # FMI 3.0 instances with early return and event mode (fmu_sync.early_return)
-    DELAY: dict = {}
 
     def __init__(self, fmu, states, A, t_end: float, H: float, coupling: str | None = "switching",
                  Kp=0.0, Kd=0.0, Q=None, method: str = "jacobi", record_every: int = 1,
@@ -139,9 +141,8 @@ class NetworkMaster:
                  exchange: str = "explicit"):
         grid, record_every = check_run(t_end, H, record_every, dt_name="H")   # ends at t_end (grid.dt_last)
         H, n_steps = grid.dt, grid.steps
-        if method not in self.METHODS:
-            raise ValueError(f"method must be {' or '.join(repr(m) for m in self.METHODS)}, got {method!r}")
-        self.exchange_kind = check_exchange_name(exchange)
+        self.strategies = strategies.select(method, exchange, self.tol, event_aware, hold)
+        self.exchange_kind = exchange
         if event_aware:
             H_min = H / 16 if H_min is None else check_step(H_min, "H_min")
             if H_min > H:
@@ -167,11 +168,9 @@ class NetworkMaster:
             raise FileNotFoundError(f"FMU not found: {self.fmu} (an .fmu file or an unpacked FMU folder "
                                     f"with its modelDescription.xml)")
         self.md = model_description(self.fmu)
-        self.check_fmi_version()
+        strategies.check_fmu(self.strategies, self.md, self.fmu)   # FMI version, state access
         self.model = fmu_model(self.md, self.fmu)  # a foreign FMU fails here, naming what it lacks
         self.hold = check_hold(hold, self.md, self.fmu)
-        check_implicit(exchange, method, event_aware)
-        check_rollback(rollback_strategy(exchange, event_aware, self.tol), self.md, self.fmu)
         self.record_values = 1 + 3 * N * self.model.n + 3 * len(self.edges)
         check_record_size(record_rows(n_steps, record_every), self.record_values,
                           "the record of the co-simulation")   # the plan's step 6, before any instance exists
@@ -185,14 +184,6 @@ class NetworkMaster:
         self.need_d = bool(record_distance) or self.coupled
         self.slaves: list[FmuInstance] = []
         self.retakes = 0
-
-    def check_fmi_version(self) -> None:
-        """The compiled loop calls FMI 2.0 functions: an FMI 3.0 FMU is refused before
-        anything runs (its driver is :func:`fmu_sync.early_return.cosimulate_early_return`)."""
-        if self.md.fmiVersion != "2.0":
-            raise ValueError(f"{self.fmu} is an FMI {self.md.fmiVersion} FMU; cosimulate and cosimulate_network "
-                             f"drive FMI 2.0 FMUs (export with --fmi-version 2); an FMI 3.0 FMU is driven by "
-                             f"fmu_sync.early_return.cosimulate_early_return (exchange at every impact instant)")
 
     # ------------------------------------------------------------ set-up
     def _start(self, unzipdir: str) -> None:
@@ -258,10 +249,11 @@ class NetworkMaster:
             self.T[sl], self.Qr[sl], self.Ur[sl], self.TAU[sl], self.edges,
             self.D[sl] if need_d else None, self.BR[sl] if need_d else None,
             self.EU[sl] if need_d else None, V, impacts=impacts,
-            info=dict(mode="cosim", H=self.H, method=self.method, event_aware=self.event_aware, fmu=self.fmu,
+            info=dict(mode="cosim", H=self.H, method=self.method,
+                      strategies=[st.name for st in self.strategies], event_aware=self.event_aware, fmu=self.fmu,
                       H_min=self.H_min if self.event_aware else None, retaken_steps=self.retakes,
                       steps=self.n_steps, coupling=self.coupling, hold=self.hold, exchange=self.exchange_kind,
-                      **loop.implicit_info(getattr(self, "iw", None)), **metric_info(self.metric, self.geo),
+                      **args.implicit_info(getattr(self, "iw", None)), **metric_info(self.metric, self.geo),
                       **units_info(self.model.declaration),
                       **({} if self.limit is None else dict(
                           omega_c_H=self.limit.h, exchange_bound=self.limit.bound,
@@ -280,18 +272,60 @@ class NetworkMaster:
 
     # ------------------------------------------------------------ the run
     def _loop_arrays(self) -> None:
-        """What the compiled loop takes (:func:`fmu_sync.cosim_loop.loop_arguments`)."""
-        loop.loop_arguments(self)
+        """What the compiled driver takes (:func:`fmu_sync.cosim_args.loop_arguments`), and the tolerance
+        controller's arrays, idle without tol (:class:`AdaptiveMaster` makes them live)."""
+        args.loop_arguments(self)
+        N, n = self.N, self.model.n
+        self.norm = tuple(np.eye(n) for _ in range(3))
+        self.ad, self.ast, self.actl = ad.controller_arrays(0.0, self.grid.t_end, self.H, self.H, self.H)
+        self.mine = np.zeros(N, dtype=np.int64)   # the controller's FMU-state handles
+        self.pmine = self.loop_args.ptr.copy()
+        self.pmine[loop.P_SAVED] = self.mine.ctypes.data
+        self.extra = ad.Extra(np.zeros((N, n)), np.zeros((N, n)), np.zeros(n), np.zeros(n), self.mine, self.pmine)
+        self.HS, self.ES = np.zeros(0), np.zeros(0)
 
-    def _chunk(self, k0: int, k1: int) -> int:
-        """Steps k0 .. k1 - 1 in the compiled loop; returns its outcome code."""
-        code, _ = exchange_chunk(*self.loop_args, k0, k1, *self.loop_state)
-        return int(code)
+    def _drive(self, budget: int) -> int:
+        """Up to ``budget`` tries of a step in the one compiled driver; returns its outcome code."""
+        a, s = self.loop_args, self.loop_state
+        return int(drive(a.ptr, a.fn, a.comp, a.laws, a.geo, a.Kp, a.Kd, a.E2, a.W2, a.flags, a.hp, a.H, a.H_last,
+                         a.t_last, self.ad, self.norm, budget, s.q, s.u, s.tau, s.tau_next, s.hist_tau, s.hist, s.imp,
+                         s.ctl, s.saved, s.keep, self.extra, self.ast, self.actl, self.T, self.Qr, self.Ur, self.TAU,
+                         self.D, self.BR, self.EU, self.HS, self.ES, s.w, s.FAIL, s.fail_t))
+
+    def _walk(self, progress) -> RunFailed | None:
+        """The run from its start to t_end in the driver, in chunks (``progress(fraction)`` and
+        Ctrl-C between them); the failure that ended it, or None."""
+        code = int(loop.loop_start(*self.loop_args, *self.loop_state))   # states, impact counters, row 0
+        if code != loop.DONE:
+            raise self._failure(code)
+        budget = self._budget(progress)
+        while True:
+            code = self._drive(budget)
+            if code == loop.FULL:
+                self._grow()
+                continue
+            failure = self._failure(code) if code != loop.DONE else self.grew()
+            if failure is not None:
+                return failure
+            c = ad.controller_state(self.ast, self.actl)
+            if progress is not None:
+                progress(self._fraction(c))
+            if c["done"]:
+                return None
+
+    def _budget(self, progress) -> int:
+        return max(1, self.n_steps // 200) if progress is not None else CHUNK_STEPS
+
+    def _fraction(self, c: dict) -> float:
+        return c["steps"] / self.n_steps
+
+    def _grow(self) -> None:
+        raise AssertionError("a fixed-step record is sized for the whole run")
 
     def grew(self):
         """The growth guard's failure (:mod:`fmu_sync.run_guard`) at the last recorded row, or None."""
         row = int(self.ctl[loop.ROW]) - 1
-        return self.guard.check(self.loop_state[0], self.loop_state[1], float(self.T[max(row, 0)]))
+        return self.guard.check(self.loop_state.q, self.loop_state.u, float(self.T[max(row, 0)]))
 
     def force_bound(self, i: int, t: float) -> SlaveError:
         """Instance i's coupling force ``self.tau[i]`` is non-finite or above the FMU's input bound."""
@@ -320,7 +354,10 @@ class NetworkMaster:
         if code == loop.FORCE_BOUND:
             return self.force_bound(i, t)
         if code == loop.NOT_CONVERGED:
-            return ExchangeNotConverged(loop.not_converged(self.iw, t, self.H, call))
+            return ExchangeNotConverged(args.not_converged(self.iw, t, self.H, call))
+        if code == loop.NO_ROOM:   # a bug of the builder's sizes, caught before any write past an end
+            return RunFailed(f"the implicit exchange's per-step arrays hold {status} steps, step {call} at t = {t:.6g} "
+                             f"needs more (fmu_sync.cosim_args.implicit_work sized them): the run stopped there")
         return self.diverged(t, "a state" if code == loop.STATE_DIVERGED else "a distance")
 
     def run(self, progress=None) -> NetworkResult:
@@ -328,22 +365,10 @@ class NetworkMaster:
         :class:`SimulationDiverged` if a state or distance becomes non-finite
         (``partial``: the finite record so far). The compiled loop runs in chunks
         of steps, so ``progress(fraction)`` is called and Ctrl-C is honoured between them."""
-        failure = None
         with self.instances() as unzipdir:
             self._start(unzipdir)
             self._loop_arrays()
-            code = self._chunk(-1, 0)   # the start: states, impact counters, row 0
-            if code != loop.DONE:
-                raise self._failure(code)
-            n_steps = self.n_steps
-            chunk = max(1, n_steps // 200) if progress is not None else CHUNK_STEPS
-            for k0 in range(0, n_steps, chunk):
-                code = self._chunk(k0, min(n_steps, k0 + chunk))
-                failure = self._failure(code) if code != loop.DONE else self.grew()
-                if failure is not None:
-                    break
-                if progress is not None:
-                    progress(min(n_steps, k0 + chunk) / n_steps)
+            failure = self._walk(progress)
             if progress is not None and failure is None:
                 progress(1.0)
         self.retakes = int(self.ctl[loop.RETAKES])
@@ -406,9 +431,8 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
     """
     args = (fmu, states, A, t_end, H, coupling, Kp, Kd, Q, method, record_every, event_aware, H_min, start_values,
             record_distance, allow_unstable, hold, exchange)
-    if tol is not None:
-        return AdaptiveMaster(*args, tol=tol).run(progress)
-    return NetworkMaster(*args).run(progress)
+    master = strategies.master_of(strategies.select(method, exchange, tol, event_aware, hold))
+    return master(*args, **({} if tol is None else {"tol": tol})).run(progress)
 
 
 def pair_result(r: NetworkResult, coupling) -> PairResult:
@@ -435,8 +459,11 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
     coupling : None, ``"switching"`` (quotient coupling), ``"switching-compensated"`` (1-DOF, V
         non-increasing on every branch, docs/design.md §2.5.2) or ``"euclidean"`` (PD baseline).
     Kp, Kd : gains (scalars or n×n).  Q : position weight of the norm (default: ``energy_metric``).
-    method : ``"jacobi"`` (both slaves get inputs computed from the same states) or
-        ``"gauss-seidel"`` (slave 2's input uses slave 1's updated state).
+    method : the exchange order, an order of the registry :mod:`fmu_sync.strategies`
+        (docs/cosim-strategies.md): ``"jacobi"`` (both slaves get inputs computed from the same
+        states), ``"gauss-seidel"`` (slave 2's input uses slave 1's updated state), ``"delayed"``
+        / ``"delayed-zero"`` (libcosim's / fmpy's SSP runner's order, docs/ssp.md) or
+        ``"early-return"`` (an FMI 3.0 FMU: the forces exchanged at every impact, docs/fmi3.md).
     record_every : keep every k-th communication point.
     event_aware : when a slave's impact counter moves during a step, restore both
         slaves and retake the step in pieces of ``H_min`` (default ``H/16``) so the
@@ -459,7 +486,7 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
         ``tol h / t_end`` is rolled back (FMU state) and retaken shorter, steps are whole
         multiples of the slaves' solver.dt (the floor). tol and ``info["error_estimate"]``
         are in q's unit (``info["error_norm"]``); ``info`` also holds ``steps``, ``rejected``
-        and ``H`` (the accepted steps' lengths). Needs an FMU that can get and set its state.
+        and ``step_lengths`` (the accepted steps' lengths; ``H`` stays the nominal step). Needs an FMU that can get and set its state.
     progress : callable ``progress(fraction)`` or None.
 
     Returns a :class:`PairResult`. Bad arguments, or an FMU that does not follow
@@ -487,8 +514,8 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
 # ``cosimulate_network(..., tol=T)`` make it.
 #
 # What the result carries (``info``): ``steps`` (accepted communication steps), ``rejected``
-# (steps rolled back and retaken shorter), ``H`` (the accepted steps' lengths, an array, one
-# per step), ``H_first`` (the first and largest step), ``step_unit`` (the floor: the slaves'
+# (steps rolled back and retaken shorter), ``step_lengths`` (the accepted steps' lengths, an
+# array, one per step), ``H`` and ``H_first`` (the first and largest step, the nominal H as in every mode), ``step_unit`` (the floor: the slaves'
 # solver.dt), ``tol``, ``error_estimate`` (the estimated global error: the sum of the accepted
 # steps' local estimates and the slaves' own error at solver.dt ``floor_error``, in q's unit like
 # tol), ``tol_met`` (bool) and ``tol_not_met`` (why not), ``floor_steps`` (steps accepted at the floor
@@ -500,7 +527,6 @@ def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None,
 ERROR_NORM = ("q's unit: per node the state error (dq, du) in the law's metric, sqrt(dq' Q dq + du' M du) / "
               "sqrt(lambda_min(Q)) (one degree of freedom: sqrt(dq^2 + du^2 m/Q)), summed over the accepted "
               "steps, largest over the nodes")
-_STATE_CALLS = ("fmi2GetFMUstate", "fmi2SetFMUstate", "fmi2FreeFMUstate")
 
 
 def check_tol(tol) -> float:
@@ -517,12 +543,7 @@ class AdaptiveMaster(NetworkMaster):
 
     def __init__(self, *args, tol, **kwargs):
         self.tol = check_tol(tol)
-        super().__init__(*args, **kwargs)
-        if self.event_aware:
-            raise ValueError("tol and event_aware=True exclude each other: with tol a step in which an impact "
-                             "counter moves is retaken shorter by the error control itself")
-        if self.DELAY.get(self.method):
-            raise ValueError(f"tol needs method 'jacobi' or 'gauss-seidel', got {self.method!r}")
+        super().__init__(*args, **kwargs)   # the registry's checks of tol (fmu_sync.strategies)
         self.steps = self.rejected = self.forced = 0
         self.estimate = 0.0
 
@@ -537,41 +558,27 @@ class AdaptiveMaster(NetworkMaster):
         return plan
 
     def _loop_arrays(self) -> None:
-        super()._loop_arrays()
-        if not np.all(self.fn[:, [CALLS.index(c) for c in _STATE_CALLS]]):
-            raise ValueError(f"{self.fmu}: tol rolls rejected steps back with the FMU state, but its binary lacks "
-                             f"{', '.join(_STATE_CALLS)}")
-        flags = self.loop_args[9]
-        flags[loop.EVENT_AWARE] = 1   # the slaves may be set back: noSetFMUStatePriorToCurrentPoint = false
-        N, n = self.N, self.model.n
+        super()._loop_arrays()   # with the registry's flags of tol and the state calls it needs
+        n = self.model.n
         M = np.atleast_2d(np.asarray(self.system.M, dtype=np.float64))
         Q = np.asarray(self.metric.Q, dtype=np.float64)
         Q = Q * np.eye(n) if Q.ndim == 0 else np.atleast_2d(Q)
         lam = float(np.linalg.eigvalsh(0.5 * (Q + Q.T)).min())
         self.norm = (np.linalg.inv(M), Q / lam, M / lam)
-        self.ad = np.array([self.tol, self.grid.t_end, self.unit, self.H])
-        self.ast = np.array([0.0, self.unit * max(1, steps_in(self.H, self.unit)[0]), 0.0])
-        self.actl = np.zeros(ad.ACTL, dtype=np.int64)
-        self.mine = np.zeros(N, dtype=np.int64)   # the controller's FMU-state handles
-        self.pmine = self.loop_args[0].copy()
-        self.pmine[loop.P_SAVED] = self.mine.ctypes.data
-        self.extra = (np.zeros((N, n)), np.zeros((N, n)), np.zeros(n), np.zeros(n), self.mine, self.pmine)
+        self.ad, self.ast, self.actl = ad.controller_arrays(self.tol, self.grid.t_end, self.unit, self.H,
+                                                            self.unit * max(1, steps_in(self.H, self.unit)[0]))
         cap = 2 * self.n_steps + 16
         self.HS, self.ES = np.full(cap, np.nan), np.full(cap, np.nan)
         self._implicit_room(cap)
 
     def _implicit_room(self, cap: int) -> None:
-        """The implicit exchange's per-step arrays (edges off their branch, iterations, residuals:
-        ``iw[-4:-1]``, :func:`fmu_sync.cosim_loop.implicit_work`) for ``cap`` accepted steps."""
+        """The implicit exchange's per-step arrays (:func:`fmu_sync.cosim_args.with_room`) for ``cap``
+        accepted steps, in the loop's state by name."""
         if not self.implicit:
             return
-        grown = tuple(np.full(cap, a.dtype.type(np.nan) if a.dtype.kind == "f" else 0, dtype=a.dtype)
-                      for a in self.iw[-4:-1])
-        for g, a in zip(grown, self.iw[-4:-1]):
-            g[:min(cap, a.size)] = a[:cap]
-        self.iw = self.iw[:-4] + grown + self.iw[-1:]
+        self.iw = args.with_room(self.iw, cap)
         s = self.loop_state
-        self.loop_state = s[:9] + (s[9][:7] + (self.iw,),) + s[10:]
+        self.loop_state = s._replace(keep=s.keep._replace(iw=self.iw))
 
     def _grow(self) -> None:
         """Twice the room for rows and steps (the number of steps is not known in advance)."""
@@ -585,36 +592,23 @@ class AdaptiveMaster(NetworkMaster):
         self.HS, self.ES = grow(self.HS, np.nan), grow(self.ES, np.nan)
         self._implicit_room(self.HS.size)
 
-    def _adaptive(self, budget: int) -> int:
-        s = self.loop_state   # (q, u, tau, tau_next, hist_tau, hist, imp, ctl, saved, keep, T...)
-        code = ad.adaptive_chunk(*self.loop_args[:11], self.ad, self.norm, budget, *s[:10], self.extra, self.ast,
-                                 self.actl, self.T, self.Qr, self.Ur, self.TAU, self.D, self.BR, self.EU, self.HS,
-                                 self.ES, *s[17:])
-        return int(code)
+    def _budget(self, progress) -> int:
+        return 256 if progress is not None else CHUNK_STEPS
+
+    def _fraction(self, c: dict) -> float:
+        return min(1.0, c["t"] / self.grid.t_end)
 
     def run(self, progress=None):
-        failure = None
         with self.instances() as unzipdir:
             self._start(unzipdir)
             self._loop_arrays()
             try:
-                code = self._chunk(-1, 0)   # the start: states, impact counters, row 0
-                if code != loop.DONE:
-                    raise self._failure(code)
-                budget = 256 if progress is not None else CHUNK_STEPS
-                while not self.actl[ad.C_DONE]:
-                    code = self._adaptive(budget)
-                    if code == ad.FULL:
-                        self._grow()
-                    elif code != loop.DONE or self.grew() is not None:
-                        failure = self._failure(code) if code != loop.DONE else self.grew()
-                        break
-                    elif progress is not None:
-                        progress(min(1.0, float(self.ast[ad.S_T]) / self.grid.t_end))
+                failure = self._walk(progress)
             finally:
                 ad.free_states(self.pmine, self.fn, self.comp, self.mine, np.zeros(4, dtype=np.int64), np.zeros(1))
-        self.steps, self.rejected = int(self.actl[ad.C_STEPS]), int(self.actl[ad.C_REJECTED])
-        self.forced, self.estimate = int(self.actl[ad.C_FORCED]), float(self.ast[ad.S_ERR])
+        c = ad.controller_state(self.ast, self.actl)
+        self.steps, self.rejected, self.forced, self.estimate = c["steps"], c["rejected"], c["floor_steps"], \
+            c["error_estimate"]
         if failure is None:
             self.verdict(sum(int(v) for v in self.imp))
         return self.finish(int(self.ctl[loop.ROW]), [int(v) for v in self.imp], failure)
@@ -632,7 +626,7 @@ class AdaptiveMaster(NetworkMaster):
 
     def result(self, rows, impacts, error):
         res = super().result(rows, impacts, error)
-        res.info.update(tol=self.tol, steps=self.steps, rejected=self.rejected, H=self.HS[:self.steps].copy(),
+        res.info.update(tol=self.tol, steps=self.steps, rejected=self.rejected, step_lengths=self.HS[:self.steps].copy(),
                         H_first=self.H, step_unit=self.unit, error_estimate=self.estimate,
                         floor_steps=self.forced, error_norm=ERROR_NORM, floor_error=getattr(self, "floor", None),
                         tol_met=getattr(self, "tol_met", False), tol_not_met=getattr(self, "tol_not_met", error))

@@ -533,14 +533,14 @@ def compare_plot(results: Mapping[str, object], path, quantity: str = "d", title
 
 
 def plot_steps(result, path, system=None, title=None) -> Path:
-    """The communication step H over time of a co-simulation to a tolerance (``info["H"]``, one
+    """The communication step H over time of a co-simulation to a tolerance (``info["step_lengths"]``, one
     per accepted step, drawn at each step's start; log axis), with its floor (solver.dt) and
     first step (docs/design.md §4.4.1)."""
     info = getattr(result, "info", None) or {}
     if info.get("tol") is None:
-        raise ValueError("plot_steps needs a co-simulation to a tolerance (cosimulate(..., tol=T)): info['H'] is "
-                         "then one length per communication step")
-    H = np.asarray(info["H"], dtype=float)
+        raise ValueError("plot_steps needs a co-simulation to a tolerance (cosimulate(..., tol=T)): "
+                         "info['step_lengths'] is then one length per communication step")
+    H = np.asarray(info["step_lengths"], dtype=float)
     t0 = np.concatenate([[0.0], np.cumsum(H)[:-1]])
     fig, (ax,) = _figure(width=10.0)
     ax.step(t0, H, where="post", color="C0", lw=1.2, label=f"H ({len(H)} steps, {info['rejected']} rejected)")

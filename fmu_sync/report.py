@@ -203,7 +203,7 @@ def adaptive_fields(info) -> dict:
     (accepted, rejected), shortest and longest step and estimated error (empty otherwise)."""
     if not info or info.get("tol") is None:
         return {}
-    H = np.asarray(info["H"], dtype=float)
+    H = np.asarray(info["step_lengths"], dtype=float)
     return dict(tol=info["tol"], comm_steps=int(info["steps"]), rejected=int(info["rejected"]),
                 H_shortest=float(H.min()) if H.size else None, H_longest=float(H.max()) if H.size else None,
                 error_estimate=float(info["error_estimate"]), tol_met=bool(info.get("tol_met", True)),

@@ -1,9 +1,10 @@
 """Our master in the exchange orders of other masters (docs/ssp.md): libcosim's and
 fmpy's SSP runner, measured on the coupling FMU's direct feedthrough.
 
-:class:`SspMaster` is :class:`fmu_sync.master.NetworkMaster` with two more exchange
-orders, each one value of the compiled loop's ``DELAY`` flag
-(:mod:`fmu_sync.cosim_loop`, as the master's design asks):
+The orders are entries of the strategy registry (:mod:`fmu_sync.strategies`), each one value
+of the compiled loop's ``delay`` flag (:mod:`fmu_sync.cosim_loop`), run by
+:class:`fmu_sync.master.NetworkMaster` like every order (``method="delayed"`` in
+:func:`fmu_sync.master.cosimulate_network` too):
 
 * ``delayed`` -- libcosim's fixed-step algorithm: every slave steps (the coupling
   too, with the inputs transferred after the previous step), then the outputs are
@@ -14,28 +15,17 @@ orders, each one value of the compiled loop's ``DELAY`` flag
   coupling's inputs are all 0 and equal states give no force).
 
 Both run with the zero-order hold and without the event-aware retake (the other
-masters have neither).
+masters have neither): the registry's checks of their entries.
 """
 from __future__ import annotations
 
-from . import cosim_loop as loop
 from .master import NetworkMaster
+from .strategies import STRATEGIES
 
 __all__ = ["SspMaster", "ORDERS"]
 
-#: the other masters' orders, by the name of our method
-ORDERS = {"delayed": "libcosim", "delayed-zero": "fmpy.ssp.simulate_ssp"}
+#: the other masters' orders (the registry's delayed entries), by the name of our method
+ORDERS = {name: s.summary for name, s in STRATEGIES.items() if s.flags.get("delay")}
 
-
-class SspMaster(NetworkMaster):
-    """:class:`NetworkMaster` with the exchange orders of libcosim and fmpy's SSP runner."""
-
-    METHODS = NetworkMaster.METHODS + tuple(ORDERS)
-    DELAY = {"delayed": loop.DELAYED, "delayed-zero": loop.DELAYED_ZERO}
-
-    def __init__(self, *args, **kwargs):
-        super().__init__(*args, **kwargs)
-        if self.method in ORDERS and (self.event_aware or self.hold != "zoh"):
-            raise ValueError(f"method {self.method!r} ({ORDERS[self.method]}'s exchange order) runs with "
-                             f"hold='zoh' and without event_aware, got hold={self.hold!r}, "
-                             f"event_aware={self.event_aware!r}")
+#: kept for its importers: the master that runs every order of the registry
+SspMaster = NetworkMaster

@@ -50,9 +50,10 @@ def test_stamp_covers_every_core_module(tmp_path, monkeypatch):
 def test_the_master_loop_cache_follows_core_edits():
     """fmu_sync/cosim_loop.py compiles the core's force assembly into its loop: its cached
     kernels are stamped with the core's stamp beside their own, so a core edit recompiles them"""
-    from fmu_sync import cosim_loop
-    stamp = cosim_loop.exchange_chunk._cache._impl.locator.get_source_stamp()
-    assert isinstance(stamp, tuple) and stamp[0] == _cache.core_stamp() and stamp[1] != _cache.core_stamp()
+    from fmu_sync import cosim_driver, cosim_loop
+    for kernel in (cosim_loop.loop_start, cosim_driver.drive):   # the start and the one driver (issue 43)
+        stamp = kernel._cache._impl.locator.get_source_stamp()
+        assert isinstance(stamp, tuple) and stamp[0] == _cache.core_stamp() and stamp[1] != _cache.core_stamp()
 
 
 _VERSIONED = r"""

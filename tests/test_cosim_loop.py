@@ -140,8 +140,9 @@ def test_the_other_masters_orders_are_bitwise_the_python_loop(fmu, method):
         assert new.success and new.impacts[0] > 0
         if kw:   # record_every = 3: the rows skip the steps
             continue
-        laws, geo, Kp, Kd, E2, W2 = m.loop_args[3:9]
-        w = m.loop_state[-3]
+        a = m.loop_args
+        laws, geo, Kp, Kd, E2, W2 = a.laws, a.geo, a.Kp, a.Kd, a.E2, a.W2
+        w = m.loop_state.w
         F = np.zeros_like(m.Qr[0])
         for k in range(len(m.T) - 1):   # row k + 1 holds the force over step k
             network_forces(laws, geo, Kp, Kd, E2, W2, m.Qr[max(k - 1, 0)], m.Ur[max(k - 1, 0)], F, *w[:6], False,

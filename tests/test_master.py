@@ -112,7 +112,7 @@ def test_failing_slave_stops_the_run_with_a_complete_record(fmu):
 @pytest.mark.parametrize("kwargs, match", [
     (dict(H=0.0), "H must be a positive finite step, got 0.0"),
     (dict(coupling="magnetic"), "coupling must be one of"),
-    (dict(method="newton"), "method must be 'jacobi' or 'gauss-seidel'"),
+    (dict(method="newton"), "method must be 'jacobi', 'gauss-seidel', .* or 'early-return', got 'newton'"),
     (dict(x1=(-1.0, 0.0)), "x1"),
 ])
 def test_bad_master_input(fmu, kwargs, match):

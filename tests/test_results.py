@@ -365,7 +365,7 @@ def test_license_changelog_and_version():
     lic = (ROOT / "LICENSE").read_text()
     assert lic.startswith("MIT License") and "the fmu-sync authors" in lic and "WITHOUT WARRANTY" in lic
     log = (ROOT / "CHANGELOG.md").read_text()
-    versions = re.findall(r"^## (\d+\.\d+\.\d+)", log, flags=re.M)
+    versions = re.findall(r"^## (\d+\.\d+\.\d+)(?! \(unreleased\))", log, flags=re.M)   # the released ones
     assert versions[:1] == [project["version"]] and "0.1.0" in versions
     assert fmu_sync.__version__ == project["version"]
     from fmu_sync.cli import _parser

@@ -82,7 +82,7 @@ def test_tolerance_run_at_the_floor_returns_at_t_end(fine_fmu):
     implicit exchange. It returns, ends at 0.6 exactly, every step whole units (no round-off
     step, no unit stretched by one), and they add up to t_end."""
     r = cosimulate(fine_fmu, X1, X2, 0.6, 0.05, tol=1e-12, exchange="implicit", progress=guarded(), **LAW)
-    H = r.info["H"]
+    H = r.info["step_lengths"]
     assert r.t[-1] == 0.6 and r.t[-2] < 0.6
     m = H / 1e-5
     assert np.all(np.abs(m - np.round(m)) <= TIME_TOL) and m.min() >= 1 - TIME_TOL, (m.min(), m.max())
@@ -96,7 +96,7 @@ def test_tolerance_run_ends_at_t_end_not_beside_it(shared_fmu):
     fmu = shared_fmu("impact-oscillator", 2, dict(FORCED, **{"solver.dt": 1e-4}))
     for t_end in (0.7, 0.70005):
         r = cosimulate(fmu, X1, X2, t_end, 0.05, tol=1e-4, progress=guarded(), **LAW)
-        H = r.info["H"]
+        H = r.info["step_lengths"]
         assert r.t[-1] == t_end
         assert H[:-1].min() >= 1e-4 * (1 - 1e-9)
         assert H[-1] > 1e-4 * TIME_TOL

@@ -45,7 +45,7 @@ def test_no_impact_pair_estimate_against_the_fine_solution(shared_fmu):
         est = r.info["error_estimate"]
         assert err <= tol
         assert err / 10 <= est <= 10 * err, (tol, err, est)
-        H = r.info["H"]
+        H = r.info["step_lengths"]
         assert r.info["steps"] == len(H) == len(r.t) - 1
         assert math.isclose(H.sum(), 3.0, rel_tol=1e-12)
         assert H.max() <= 0.1 and H.min() >= DT * (1 - 1e-12)
@@ -62,7 +62,7 @@ def test_issue_case_error_within_ten_tol_and_estimated(forced_fmu):
         err = q1_error(r, system, 5.0)
         est = r.info["error_estimate"]
         assert err <= 10 * tol and err / 10 <= est <= 10 * err, (tol, err, est)
-        assert r.info["H"][0] <= 0.05 and r.info["H_first"] == 0.05
+        assert r.info["step_lengths"][0] <= 0.05 and r.info["H_first"] == 0.05
         errs.append(err)
     assert errs[1] < errs[0]
 
@@ -104,7 +104,7 @@ def test_rejected_steps_leave_the_slaves_as_a_fresh_run(forced_fmu):
             h.enter_initialization(0.0)
             h.exit_initialization(model.state_values([x[0]], [x[1]]))
         t = 0.0
-        for k, H in enumerate(r.info["H"]):
+        for k, H in enumerate(r.info["step_lengths"]):
             for i, h in enumerate(hosts):
                 h.set({model.tau[0]: float(r.tau1[k + 1, 0] if i == 0 else r.tau2[k + 1, 0])})
                 assert h.do_step(t, float(H)) == 0
@@ -125,7 +125,7 @@ def test_zeno_accumulation_completes_at_the_floor(shared_fmu):
     fmu = shared_fmu("impact-oscillator", 2, dict(params, **{"solver.dt": dt}))
     r = cosimulate(fmu, (0.0, 0.0), (0.05, 0.0), 6.0, 0.05, tol=1e-3, **LAW)
     assert r.t[-1] == 6.0 and r.impacts1 > 10
-    H = r.info["H"]
+    H = r.info["step_lengths"]
     assert H.min() == dt
     assert (H == dt).sum() < len(H)          # not stuck at the floor
     assert H[np.argmax(H == dt):].max() > 5 * dt   # and grows again after an accumulation
@@ -216,4 +216,4 @@ def test_a_network_to_a_tolerance(forced_fmu):
     ref = simulate_network([ImpactOscillator(**FORCED)] * 4, states, ring(4), 2.0, DT, **gains)
     err = max(float(np.max(np.abs(r.q[:, i, 0] - np.interp(r.t, ref.t, ref.q[:, i, 0])))) for i in range(4))
     assert err <= 1e-2 and err / 10 <= r.info["error_estimate"] <= 10 * err, (err, r.info["error_estimate"])
-    assert r.info["steps"] == len(r.info["H"]) == len(r.t) - 1
+    assert r.info["steps"] == len(r.info["step_lengths"]) == len(r.t) - 1

@@ -80,7 +80,7 @@ def measure(fmu, network: bool, Hs, tols, t_end: float = T_END) -> list[dict]:
             rows.append(dict(exchange=name, kind="tol", step=T, steps=int(r.info["steps"]),
                              rejected=int(r.info["rejected"]), error=_error(r, ref, network),
                              estimate=float(r.info["error_estimate"]), seconds=time.perf_counter() - t0,
-                             H_min=float(r.info["H"].min()), H_max=float(r.info["H"].max())))
+                             H_min=float(r.info["step_lengths"].min()), H_max=float(r.info["step_lengths"].max())))
     return rows
 
 

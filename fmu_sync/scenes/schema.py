@@ -16,7 +16,8 @@ import numpy as np
 
 from ..core import MechanicalSystem
 from ..core.coupling import LAWS as COUPLING_LAWS
-from ..core.exchange import EXCHANGES
+from ..core.exchange import EXCHANGES, HOLDS
+from ..strategies import FMI2_METHODS
 from ..core.declaration import POSITIVE_MIN, Model, Param
 from ..core.registry import builtin_models
 
@@ -31,9 +32,9 @@ MODELS = tuple(BUILTIN_MODELS)
 LAWS = ("none",) + tuple(k for k in COUPLING_LAWS if k != "none")
 SCHEMES = ("midpoint", "theta", "exact")
 MODES = ("core", "cosim")
-METHODS = ("jacobi", "gauss-seidel")
-#: the master's input hold over a communication step (fmu_sync.master.NetworkMaster.HOLDS)
-HOLDS = ("zoh", "foh")
+#: the master's exchange orders a scene's FMI 2.0 FMU runs with, and its input holds: the strategy
+#: registry's (fmu_sync.strategies, docs/cosim-strategies.md)
+METHODS = FMI2_METHODS
 PLOTS = ("positions", "distance", "impact-zoom", "lyapunov", "forces", "phase")
 SINGLE_PLOTS = ("positions", "phase")
 DISTANCE_PLOTS = ("distance", "impact-zoom", "lyapunov")

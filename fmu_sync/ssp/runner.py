@@ -93,9 +93,9 @@ def run_ssp(path, method: str = "jacobi", t_end: float | None = None, H: float |
     The systems are the package's oscillator components (one FMU file, each with its
     bound parameters and start state); the graph, the law per edge, Kp, Kd and Q are
     the coupling component's parameters; t_end and H the package's DefaultExperiment
-    (overridable). ``method``: the master's exchange order ("jacobi", "gauss-seidel",
-    or another master's (:class:`fmu_sync.ssp_master.SspMaster`): "delayed" = libcosim,
-    "delayed-zero" = fmpy's SSP runner; docs/ssp.md). Returns a :class:`~fmu_sync.core.result.NetworkResult`.
+    (overridable). ``method``: the master's exchange order, an order of the strategy registry
+    (:data:`fmu_sync.strategies.FMI2_METHODS`: "jacobi", "gauss-seidel", or another master's:
+    "delayed" = libcosim, "delayed-zero" = fmpy's SSP runner; docs/ssp.md). Returns a :class:`~fmu_sync.core.result.NetworkResult`.
     Every fault of the package is refused before the run with an :class:`SspError` naming the
     package, the file inside it, the element and what is wrong: the checks of :func:`read_ssp`, every
     component's values as its FMU checks them, a coupling geometry that differs from the systems', connections
@@ -161,8 +161,8 @@ def _run_master(pkg, arc, fmu, names, spec, cfg, t_end, H, method, record_every,
     from ..core.errors import RunFailed
     from ..core.pair import check_common_geometry
     from ..fmus.slave import MechanicalSlave
-    from ..master import AdaptiveMaster, fmu_model, model_description
-    from ..ssp_master import SspMaster
+    from ..master import fmu_model, model_description
+    from ..strategies import master_of, select
     model = fmu_model(model_description(str(fmu)), str(fmu))   # a force-law model: registered from its FMU
     _check_connections(pkg, names, model)
     slave = MechanicalSlave(model)
@@ -193,15 +193,15 @@ def _run_master(pkg, arc, fmu, names, spec, cfg, t_end, H, method, record_every,
     if "switching-compensated" in laws:   # and the force law h it evaluates must be theirs
         _check_force_laws(pkg, names, cvals, values)
     tol = run["tol"]
-    kind = SspMaster if tol is None else AdaptiveMaster    # tol: our master's orders only (it refuses the others)
+    # the run's strategies from the registry (fmu_sync.strategies): its checks refuse what does not combine
+    kind = master_of(select(method, run["exchange"], tol, run["event_aware"], run["hold"]))
     master = kind(fmu, states, A, t_end, H, [None if x == "none" else x for x in laws], cfg.Kp, cfg.Kd,
                   geo.Q, method=method, record_every=record_every, start_values=starts,
                   allow_unstable=allow_unstable, hold=run["hold"], exchange=run["exchange"],
                   event_aware=run["event_aware"], H_min=run["H_min"], **({} if tol is None else {"tol": tol}))
     about = dict(package=str(pkg.path), components=names, method=method, H_package=float(H),
                  wall={"w": [float(x) for x in np.ravel(geo.w)], "g0": float(geo.g0)}, **run)
-    if tol is None:   # with tol, info["H"] is each step's H (AdaptiveMaster)
-        about["H"] = float(H)
+    about["H"] = float(H)   # the nominal step in every mode (with tol: info["step_lengths"])
     try:
         res = master.run(progress)
     except RunFailed as exc:   # the record up to the failure says what it is too
