@@ -71,3 +71,4 @@ def main_export(argv=None) -> int:
         print(f"fmu-sync export: error: {exc}", file=sys.stderr)
         return 2
     print(f"wrote {path}")
+    return 0
