@@ -23,7 +23,7 @@ from .core.coupling import chain_work
 from .core.network import edge_arrays
 from . import cosim_loop
 from .cosim_loop import CALLS, CTL, FLAG_NAMES, IMPLICIT_TOL, Held
-from .cosim_newton import newton_work
+from .cosim_newton import NewtonWork, newton_work
 from .fmus import contract
 from .strategies import flags_of
 
@@ -57,7 +57,7 @@ class ImplicitWork(NamedTuple):
     r: np.ndarray
     rp: np.ndarray
     gp: np.ndarray
-    nw: tuple
+    nw: NewtonWork
     bh: np.ndarray
     offb: np.ndarray
     iters: np.ndarray

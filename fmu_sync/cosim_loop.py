@@ -337,7 +337,7 @@ def implicit_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, k, q, u
     ta, te, g, r, rp, gp, nw, bh, offb, iters, resid, tolv = iw
     if k >= iters.shape[0]:   # the per-step arrays hold the steps the builder sized them for: never past
         return fail_at(FAIL, fail_t, NO_ROOM, -1, k, iters.shape[0], t)
-    imp0, impc, ibuf = nw[5], nw[6], nw[8]
+    imp0, impc, ibuf = nw.imp0, nw.impc, nw.ibuf
     N = q.shape[0]
     n = q.shape[1]
     foh = flags[FOH] != 0

@@ -19,6 +19,7 @@ and the caller keeps every iterate inside the trust region.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -29,7 +30,7 @@ from .core.kernels import depends_on_core
 
 depends_on_core(__file__)
 
-__all__ = ["newton_work", "OMEGA0", "GROW", "NEUMANN_MAX", "LINEAR_TOL", "TRUST"]
+__all__ = ["NewtonWork", "newton_work", "OMEGA0", "GROW", "NEUMANN_MAX", "LINEAR_TOL", "TRUST"]
 
 #: the relaxation of an FMU's update while its response is unknown (no secant, no prior) and of
 #: the damped fixed point the step falls back to (Aitken's relaxation from there)
@@ -46,7 +47,30 @@ F_H, F_PRIOR, F_MASS = range(3)
 UNKNOWN, PRIOR, MEASURED = range(3)
 
 
-def newton_work(N: int, n: int, ibuf, Minv=None):
+class NewtonWork(NamedTuple):
+    """The block quasi-Newton's arrays by name (:func:`newton_work`)."""
+    J: np.ndarray
+    jimp: np.ndarray
+    jkn: np.ndarray
+    xp: np.ndarray
+    tp: np.ndarray
+    imp0: np.ndarray
+    impc: np.ndarray
+    impp: np.ndarray
+    ibuf: np.ndarray
+    Am: np.ndarray
+    piv: np.ndarray
+    d1: np.ndarray
+    d2: np.ndarray
+    qx: np.ndarray
+    ux: np.ndarray
+    J0: np.ndarray
+    fl: np.ndarray
+    Minv: np.ndarray
+    Jm: np.ndarray
+
+
+def newton_work(N: int, n: int, ibuf, Minv=None) -> NewtonWork:
     """The block quasi-Newton's arrays: ``J`` (N, 2n, n) the FMUs' responses, ``jimp`` (N,) the
     impact count within the step each belongs to, ``jkn`` (N,) :data:`UNKNOWN` ..., ``xp`` (N, 2n)
     and ``tp`` (N, n) the last iterate's end states and forces, ``imp0, impc, impp`` (N,) impact
@@ -58,10 +82,11 @@ def newton_work(N: int, n: int, ibuf, Minv=None):
     C = N * n
     z = (lambda: np.zeros((N, n)))
     i64 = (lambda: np.zeros(N, dtype=np.int64))
-    return (np.zeros((N, 2 * n, n)), np.full(N, -1, dtype=np.int64), i64(), np.zeros((N, 2 * n)), z(), i64(), i64(),
-            i64(), ibuf, np.zeros((C, C)), np.zeros(C, dtype=np.int64), z(), z(), z(), z(), np.zeros((2 * n, n)),
-            np.array([np.nan, 0.0, float(Minv is not None)]),
-            np.zeros((N, n, n)) if Minv is None else np.ascontiguousarray(Minv, dtype=float), np.zeros((N, 2 * n, n)))
+    return NewtonWork(np.zeros((N, 2 * n, n)), np.full(N, -1, dtype=np.int64), i64(), np.zeros((N, 2 * n)), z(), i64(), i64(),
+                      i64(), ibuf, np.zeros((C, C)), np.zeros(C, dtype=np.int64), z(), z(), z(), z(), np.zeros((2 * n, n)),
+                      np.array([np.nan, 0.0, float(Minv is not None)]),
+                      np.zeros((N, n, n)) if Minv is None else np.ascontiguousarray(Minv, dtype=float),
+                      np.zeros((N, 2 * n, n)))
 
 
 @njit(cache=True)
