@@ -47,6 +47,13 @@ def test_core_ring_of_unequal_masses_follows_dop853_and_records_the_euclidean_er
     Mbar = np.mean(MASSES)
     dq, du = r.q[:, 0, 0] - r.q[:, 1, 0], r.u[:, 0, 0] - r.u[:, 1, 0]
     np.testing.assert_allclose(r.euclidean[:, 0], np.sqrt(Q * dq ** 2 + Mbar * du ** 2), rtol=1e-12, atol=1e-14)
+    # the summary names the measure: the Euclidean error, its final value and decay (no d, no V)
+    from fmu_sync import report
+    m = report.metrics(r)
+    assert m["measure"] == "Euclidean error" and m["final_d"] is None
+    assert m["final_euclidean"] == pytest.approx(np.max(r.euclidean[-1]))
+    cols, _ = report.record_columns(r)
+    assert [c for c, _ in cols] == ["t", "q", "u", "tau", "euclidean"]
     # the implicit exchange (scheme trapezoid) is closer still
     t = simulate_network([oscillator(m) for m in MASSES], X, A, T_END, 1e-3, coupling="euclidean", Kp=KP, Kd=KD,
                          record_every=10, scheme="trapezoid")
@@ -100,3 +107,67 @@ def test_master_ring_of_unequal_masses_follows_dop853(shared_fmu):
     with pytest.raises(ValueError, match=r"the switching law is refused: the quotient distance needs one impact map "
                        r".*M differs: instance 1 has M = \[\[1.0\]\], instance 2 has M = \[\[2.0\]\]"):
         cosimulate_network(fmu, X, A, 1.0, 0.01, coupling="switching", Kp=1.0, Kd=1.0, start_values=sv)
+
+
+SCENE = """description = "ring of unequal masses"
+[system]
+model = "impact-oscillator"
+m = 1.0
+k = 1.0
+f0 = 0.2
+F = 0.5
+Omega = 2.5
+g0 = 100.0
+e = 0.5
+[network]
+graph = "ring"
+states = [[1.0, 0.0], [-0.5, 0.3], [0.2, -0.4]]
+nodes = [{}, {m = 2.0}, {m = 0.5}]
+[coupling]
+law = "euclidean"
+Kp = 200.0
+Kd = 1.0
+[solver]
+dt = 1e-3
+[run]
+t_end = 2.0
+record_every = 10
+[record]
+distance = true
+"""
+
+
+def test_a_scene_gives_per_node_masses_and_its_summary_names_the_euclidean_error(tmp_path):
+    from fmu_sync.scenes.loading import load_scene
+    from fmu_sync.scenes.running import run_scene
+    from fmu_sync.scenes.schema import SceneError
+    path = tmp_path / "mixed.toml"
+    path.write_text(SCENE)
+    (v,) = load_scene(path).variants
+    assert [float(s.M[0, 0]) for s in v.network.systems] == list(MASSES)
+    sr = run_scene(path, tmp_path / "out", plots=False)
+    r = sr.runs[0].result
+    ref = dop853(MASSES, ring(3), X, 2.0)(r.t)
+    assert r.d is None and np.max(np.abs(r.q[:, :, 0] - ref[:3].T)) < 0.05
+    text = next((tmp_path / "out").rglob("summary.md")).read_text()
+    assert "no common impact geometry" in text and "Euclidean error" in text
+    path.write_text(SCENE.replace('law = "euclidean"', 'law = "switching"'))
+    with pytest.raises(SceneError, match=r"the switching law is refused: the quotient distance needs one impact map"
+                       r" .*M differs: node 1 has M = \[\[1.0\]\], node 2 has M = \[\[2.0\]\]"):
+        load_scene(path)
+
+
+def test_a_sweep_over_the_mass_ratio_runs_and_equals_simulate_pair():
+    from builtin_scenes import FORCED_PAIR, FORCED_X1, FORCED_X2
+    from fmu_sync.sweeps import sweep
+    ratios = [0.5, 1.0, 3.0]
+    ds = sweep("forced-pair", variant="euclidean", grid={"system2.m": ratios}, overrides={"run.t_end": 3.0},
+               quiet=True)
+    for i, m2 in enumerate(ratios):
+        run = ds.isel({"system2.m": i})
+        assert int(run["status"]) == 0
+        s1, s2 = ImpactOscillator(**FORCED_PAIR), ImpactOscillator(**{**FORCED_PAIR, "m": m2})
+        p = simulate_pair((s1, s2), FORCED_X1, FORCED_X2, 3.0, 1e-3, coupling="euclidean", Kp=1.0, Kd=0.5,
+                          record_distance=m2 == 1.0, record_every=10)
+        assert float(run["q2"]) == p.q2[-1, 0] and float(run["u2"]) == p.u2[-1, 0]
+        assert float(run["q1"]) == p.q1[-1, 0] and int(run["impacts2"]) == p.impacts2

@@ -54,6 +54,12 @@ def _coupling_arg(law: str):
     return None if law == "none" else law
 
 
+def _net_distance(cfg):
+    """A network's ``record_distance``: ``record.distance = true`` records d where the nodes share one
+    impact map and the Euclidean error where they do not (None, docs/design.md §2.5.3)."""
+    return None if cfg["record.distance"] else False
+
+
 def fmu_start_values(fmu_path, variant: Variant, system=None, node: dict | None = None) -> dict:
     """Start values for the FMU's parameters from the scene, as the FMU contract names them.
 
@@ -160,9 +166,9 @@ def plan_variant(variant: Variant):
     if cosim:   # the master's plan: the exchange at H, each instance's scheme at its internal step
         return plan_run(systems, states, cfg["run.t_end"], cfg["run.H"], dt=cfg["solver.dt"], hold=cfg["run.hold"],
                         exchange=cfg["run.exchange"], A=A, laws=laws, Kp=variant.Kp, Kd=variant.Kd, step_name="H", exact=True,
-                        allow_unstable=bool(cfg["run.allow_unstable"]), **common)
+                        allow_unstable=bool(cfg["run.allow_unstable"]), distance=not variant.is_network, **common)
     return plan_run(systems, states, cfg["run.t_end"], cfg["solver.dt"], A=A, laws=laws, Kp=variant.Kp, Kd=variant.Kd,
-                    allow_unstable=bool(cfg["run.allow_unstable"]),
+                    allow_unstable=bool(cfg["run.allow_unstable"]), distance=not variant.is_network,
                     system_names=[f"node {i + 1}" for i in range(len(states))] if variant.is_network else None,
                     **common)
 
@@ -285,7 +291,7 @@ def _run_network(variant: Variant, fmu_path, progress, label, extra):
                                 coupling=_laws_arg(variant), Kp=variant.Kp, Kd=variant.Kd, Q=variant.Q,
                                 scheme=cfg["solver.scheme"], theta=cfg["solver.theta"],
                                 record_every=cfg["run.record_every"],
-                                record_distance=bool(cfg["record.distance"]), progress=progress, **extra)
+                                record_distance=_net_distance(cfg), progress=progress, **extra)
     from ..master import cosimulate_network
     if fmu_path is None:
         raise ValueError(f"{label}: mode = cosim needs an exported FMU (fmu_path)")
@@ -295,7 +301,7 @@ def _run_network(variant: Variant, fmu_path, progress, label, extra):
                                 method=cfg["run.method"], record_every=record_steps(cfg),
                                 event_aware=cfg["run.event_aware"], H_min=cfg["run.H_min"], hold=cfg["run.hold"],
                                 exchange=cfg["run.exchange"], tol=cfg["run.tol"],
-                                start_values=starts, record_distance=bool(cfg["record.distance"]),
+                                start_values=starts, record_distance=_net_distance(cfg),
                                 progress=progress, **extra)
     if getattr(result, "error", None):
         raise RunFailed(result.error, partial=result)
