@@ -259,6 +259,56 @@ def _per_system(value, N: int, what: str) -> tuple:
     return out
 
 
+def _schemes(systems, scheme, theta, dt, step, exact, allow_unstable, system_names):
+    """Step 3 of :func:`plan_run`: each system's scheme and internal step, the kernels' scheme code
+    (None for per-system schemes) and each scheme's limit; ``(schemes, dts, code, theta)``."""
+    N = len(systems)
+    schemes = _per_system(scheme, N, "scheme")
+    dts = tuple(step if d is None else check_step(d, "dt") for d in _per_system(dt, N, "dt"))
+    if "exact" in schemes:
+        for s in systems:
+            refuse_nonlinear(s)
+    code = None
+    for s in dict.fromkeys(schemes):
+        if s is not None and not (exact and s == "exact"):
+            c, theta = scheme_code(s, theta)
+            code = c if len(set(schemes)) == 1 else None
+    if not allow_unstable:
+        seen = set()
+        for i, (s, sch, d) in enumerate(zip(systems, schemes, dts)):
+            if sch not in (None, "exact") and (id(s), sch, d) not in seen:
+                try:
+                    check_stable(s, sch, d)
+                except UnstableScheme as exc:
+                    if system_names is None:
+                        raise
+                    raise UnstableScheme(f"{system_names[i]}: {exc}") from None
+                seen.add((id(s), sch, d))
+    return schemes, dts, code, theta
+
+
+def _coupling(systems, A, laws, Kp, Kd, step, hold, allow_unstable, step_name, exchange, cosim):
+    """Step 5 of :func:`plan_run`: forces through B = I, the laws per edge, the held exchange checked
+    with the lightest system (:func:`critical_system`); ``(laws, coupled, held_exchange(...))``."""
+    from .coupling import COMPENSATED, SWITCHING, UNCOUPLED   # coupled runs only (see coupled_weights)
+    from .compensation import check_compensated
+    n = systems[0].n
+    for s in systems:
+        if s.n_inputs != n or not np.array_equal(s.B, np.eye(n)):
+            raise ValueError(f"coupled systems take the forces through B = I (tau has n = {n} entries); "
+                             f"got B of shape {s.B.shape}")
+    if laws is None:   # every edge of the graph (default: the pair) switching
+        laws_a = np.full(1 if A is None else len(edges_of(weights(A, len(systems)))), SWITCHING, dtype=np.int64)
+    else:
+        laws_a = np.asarray(laws, dtype=np.int64)
+    if np.any(laws_a == COMPENSATED):
+        check_compensated(n, systems[0].force)
+    sc = critical_system(systems)   # the lightest node sets the exchange's limit (docs/design.md §2.5.3)
+    own = (sc.K, sc.C) if cosim else None   # a co-simulation: the slaves integrate K, C inside H
+    return laws_a, bool(np.any(laws_a != UNCOUPLED)), held_exchange(sc.M, Kp, Kd, step, A, laws_a, hold,
+                                                                     allow_unstable, step_name, exchange, own)
+
+
 def plan_run(systems, starts, t_end, step, *, scheme="midpoint", theta: float = 0.5, dt=None,
              hold: str = "zoh", exchange: str = "explicit", A=None, laws=None, Kp=0.0, Kd=0.0,
              record_every: int = 1,
@@ -303,27 +353,8 @@ def plan_run(systems, starts, t_end, step, *, scheme="midpoint", theta: float = 
         grid, record_every = check_run(t_end, step, record_every, t0, dt_name=step_name)
         step = grid.dt
         rows = record_rows(grid.steps, record_every)
-    schemes = _per_system(scheme, N, "scheme")                          # 3. scheme and its limit
-    dts = tuple(step if d is None else check_step(d, "dt") for d in _per_system(dt, N, "dt"))
-    if "exact" in schemes:
-        for s in systems:
-            refuse_nonlinear(s)
-    code = None
-    for s in dict.fromkeys(schemes):
-        if s is not None and not (exact and s == "exact"):
-            c, theta = scheme_code(s, theta)
-            code = c if len(set(schemes)) == 1 else None
-    if not allow_unstable:
-        seen = set()
-        for i, (s, sch, d) in enumerate(zip(systems, schemes, dts)):
-            if sch not in (None, "exact") and (id(s), sch, d) not in seen:
-                try:
-                    check_stable(s, sch, d)
-                except UnstableScheme as exc:
-                    if system_names is None:
-                        raise
-                    raise UnstableScheme(f"{system_names[i]}: {exc}") from None
-                seen.add((id(s), sch, d))
+    schemes, dts, code, theta = _schemes(systems, scheme, theta, dt, step, exact, allow_unstable,
+                                         system_names)                 # 3. scheme and its limit
     names = state_names or ([f"x{i + 1}" for i in range(N)] if N > 1 else ["x0"])
     q = np.zeros((N, s0.n))                                             # 4. start states
     u = np.zeros((N, s0.n))
@@ -335,24 +366,8 @@ def plan_run(systems, starts, t_end, step, *, scheme="midpoint", theta: float = 
     laws_a = Kp_m = Kd_m = Ac = limit = None
     coupled = False
     if N > 1:                                                           # 5. the coupling
-        from .coupling import COMPENSATED, SWITCHING, UNCOUPLED   # coupled runs only (see coupled_weights)
-        from .compensation import check_compensated
-        n = s0.n
-        for s in systems:
-            if s.n_inputs != n or not np.array_equal(s.B, np.eye(n)):
-                raise ValueError(f"coupled systems take the forces through B = I (tau has n = {n} entries); "
-                                 f"got B of shape {s.B.shape}")
-        if laws is None:   # every edge of the graph (default: the pair) switching
-            laws_a = np.full(1 if A is None else len(edges_of(weights(A, N))), SWITCHING, dtype=np.int64)
-        else:
-            laws_a = np.asarray(laws, dtype=np.int64)
-        if np.any(laws_a == COMPENSATED):
-            check_compensated(n, s0.force)
-        sc = critical_system(systems)   # the lightest node sets the exchange's limit (docs/design.md §2.5.3)
-        own = (sc.K, sc.C) if dt is not None else None   # a co-simulation: the slaves integrate K, C inside H
-        Kp_m, Kd_m, Ac, limit = held_exchange(sc.M, Kp, Kd, step, A, laws_a, hold, allow_unstable, step_name,
-                                              exchange, own)
-        coupled = bool(np.any(laws_a != UNCOUPLED))
+        laws_a, coupled, (Kp_m, Kd_m, Ac, limit) = _coupling(systems, A, laws, Kp, Kd, step, hold, allow_unstable,
+                                                             step_name, exchange, dt is not None)
     if record_values is not None and grid is not None:                  # 6. the record budget
         check_record_size(rows, int(record_values), record_what, record_hint)
     return RunPlan(tuple(systems), q, u, grid, record_every, rows, schemes, code, float(theta), dts, step, hold,

@@ -171,3 +171,18 @@ def test_a_sweep_over_the_mass_ratio_runs_and_equals_simulate_pair():
                           record_distance=m2 == 1.0, record_every=10)
         assert float(run["q2"]) == p.q2[-1, 0] and float(run["u2"]) == p.u2[-1, 0]
         assert float(run["q1"]) == p.q1[-1, 0] and int(run["impacts2"]) == p.impacts2
+
+
+def test_an_ssp_package_carries_per_node_masses_and_runs_in_our_master(tmp_path):
+    from fmu_sync.ssp.reader import read_ssp
+    from fmu_sync.ssp.runner import run_ssp
+    from fmu_sync.ssp.writer import write_ssp
+    scene = tmp_path / "mixed.toml"
+    scene.write_text(SCENE)
+    pkg = write_ssp(scene, tmp_path / "mixed.ssp")
+    params = read_ssp(pkg).parameters
+    assert [params[f"system{i + 1}"]["m"] for i in range(3)] == list(MASSES)
+    r = run_ssp(pkg, t_end=1.0, H=0.001)
+    ref = dop853(MASSES, ring(3), X, 1.0)(r.t)
+    assert np.max(np.abs(r.q[:, :, 0] - ref[:3].T)) < 0.05
+    assert r.d is None and r.info["error"] == "euclidean"
