@@ -32,9 +32,8 @@ import numpy as np
 from .jit import njit, prange
 
 from .distance import DistanceGeometry, ScalarGeometry
-from .loop import integrate_network, sample_d
+from .loop import NodeGeometry, integrate_network, sample_d
 from .metrics import HI, LO, TAIL, decimated_kernel, decimator_init
-from .model import SystemArrays
 
 __all__ = ["run_pairs1", "COLUMNS", "COL", "OK", "DIVERGED", "REFUSED", "STATUS_NAMES", "group_row",
            "GROUP_FIELDS", "GEO_FIELDS", "empty_out",
@@ -174,8 +173,10 @@ def _pair1(law, scheme, theta, s1, F1, Omega1, phi1, s2, F2, Omega2, phi2, sg, k
     M = np.full((1, 1), s1[0])
     w = np.full(1, s1[6])
     Minv_w = np.full(1, s1[9])
-    base = SystemArrays(M, np.full((1, 1), s1[1]), K[0], C[0], f0[0], F[0], Om[0], ph[0], np.full((1, 1), s1[5]),
-                        w, s1[7], s1[8], Minv_w, s1[10])
+    base = NodeGeometry(np.array([s1[0], s2[0]]).reshape(2, 1, 1), np.array([s1[1], s2[1]]).reshape(2, 1, 1),
+                        np.full((1, 1), s1[5]), np.array([s1[6], s2[6]]).reshape(2, 1), np.array([s1[7], s2[7]]),
+                        np.array([s1[8], s2[8]]), np.array([s1[9], s2[9]]).reshape(2, 1), np.array([s1[10], s2[10]]))
+    same = s1[0] == s2[0] and s1[6] == s2[6] and s1[7] == s2[7] and s1[8] == s2[8]   # one impact map
     geo = DistanceGeometry(np.full((1, 1), sg.Q11), M, w, sg.g0, sg.e, Minv_w, sg.W, np.full(1, sg.Qinv_w1), sg.WQ,
                            sg.sqrtW, sg.sqrtWQ, sg)
     q = np.empty((2, 1))
@@ -188,7 +189,7 @@ def _pair1(law, scheme, theta, s1, F1, Omega1, phi1, s2, F2, Omega2, phi2, sg, k
     Qr = np.empty((2, 1, 1)).transpose(1, 0, 2)   # the layout simulate_pair hands the loop
     Ur = np.empty((2, 1, 1)).transpose(1, 0, 2)
     TAU = np.empty((2, 1, 1)).transpose(1, 0, 2)
-    D = np.full((1, 1), np.nan)
+    D = np.full((1, 1 if same else 0), np.nan)   # no common geometry: the Euclidean error alone
     EU = np.full((1, 1), np.nan)
     BR = np.zeros((1, 1), dtype=np.int64)
     acc = np.zeros(3)
@@ -209,7 +210,7 @@ def _pair1(law, scheme, theta, s1, F1, Omega1, phi1, s2, F2, Omega2, phi2, sg, k
     res[4] = u[0, 0]
     res[5] = q[1, 0]
     res[6] = u[1, 0]
-    res[COL_DFINAL] = D[0, 0]
+    res[COL_DFINAL] = D[0, 0] if same else EU[0, 0]
     res[COL_TAUMAX] = tau_max
     res[11] = imp[0]
     res[12] = imp[1]

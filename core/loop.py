@@ -22,6 +22,7 @@ bitwise equal to the general step) is chosen once, inside the loop.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from .jit import njit
@@ -37,7 +38,7 @@ from .moreau import force, force1
 from .steps import (DIVERGED, MIDPOINT, OK, TRAPEZOID, inverse, finish_step, flush1, hbase, scalar_params, step1_y, step_coeffs1, step_y,
                     theta_matrices)
 
-__all__ = ["coupling_step", "coupling_step1", "network_forces", "node_force", "integrate_network",
+__all__ = ["NodeGeometry", "node_geometry", "coupling_step", "coupling_step1", "network_forces", "node_force", "integrate_network",
            "sample_d", "no_decimator"]
 
 
@@ -176,11 +177,34 @@ def no_decimator():
 
 
 # ------------------------------------------------------------------ the loop
+class NodeGeometry(NamedTuple):
+    """The nodes' own impact geometry, stacked (the ``base`` of :func:`integrate_network`): each
+    node's M, M^-1 (N, n, n), w, M^-1 w (N, n), g0, e, W = w^T M^-1 w (N,); B = I common. Systems
+    that differ in M, w, g0 or e run in one loop (docs/design.md §2.5.3)."""
+
+    M: np.ndarray
+    Minv: np.ndarray
+    B: np.ndarray
+    w: np.ndarray
+    g0: np.ndarray
+    e: np.ndarray
+    Minv_w: np.ndarray
+    W: np.ndarray
+
+
+def node_geometry(arrays) -> NodeGeometry:
+    """:class:`NodeGeometry` of the nodes' :class:`~.model.SystemArrays` (B of the first)."""
+    st = (lambda key, dt=np.float64: np.ascontiguousarray(np.stack([getattr(a, key) for a in arrays]), dtype=dt))
+    return NodeGeometry(st("M"), st("Minv"), np.ascontiguousarray(arrays[0].B), st("w"),
+                        np.array([float(a.g0) for a in arrays]), np.array([float(a.e) for a in arrays]),
+                        st("Minv_w"), np.array([float(a.W) for a in arrays]))
+
+
 @njit(cache=True, inline="always")
 def _node(base, K, C, f0, F, Omega, phi, i):
-    """The SystemArrays of node i: the common geometry of ``base``, the node's forces."""
-    return SystemArrays(base.M, base.Minv, K[i], C[i], f0[i], F[i], Omega[i], phi[i], base.B, base.w,
-                        base.g0, base.e, base.Minv_w, base.W)
+    """The SystemArrays of node i: its own geometry in ``base`` (:class:`NodeGeometry`), its forces."""
+    return SystemArrays(base.M[i], base.Minv[i], K[i], C[i], f0[i], F[i], Omega[i], phi[i], base.B, base.w[i],
+                        base.g0[i], base.e[i], base.Minv_w[i], base.W[i])
 
 
 @njit(cache=True)
@@ -352,14 +376,16 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
     """The loop over steps ``k0 .. k0 + n_steps`` (time ``t0 + k dt``), then, if
     ``dt_last > 0``, the shortened last step of the run; the final state is always a row.
 
-    ``base``: SystemArrays with the common M, w, g0, e (and B = I); ``K, C``
+    ``base``: :class:`NodeGeometry`, each node's M, w, g0, e (and B = I); ``K, C``
     (N, n, n), ``f0`` (N, n), ``F`` (N, nf, n), ``Omega, phi`` (N, nf): the
     nodes' forces (padding terms F = 0). ``E2`` (E, 2) edges (i, j); ``W2`` (E, 2)
     weights (a_ij, a_ji); ``laws`` (E,). ``q, u`` (N, n), advanced in place.
 
     Recorder: a row every ``record_every`` steps (row 0 the start, the last row the end)
     of ``T`` (rows,), ``Qr, Ur, TAU`` (rows, N, n) (TAU: the forces held over the step
-    that ends at the row), and with ``record_d`` the edges' ``D, BR, EU`` (rows, E).
+    that ends at the row), and with ``record_d`` the edges' ``D, BR, EU`` (rows, E); ``D``, ``BR``
+    without columns (rows, 0): the Euclidean error ``EU`` alone, no quotient distance (systems
+    without a common impact geometry).
     ``dec`` (decimating recorder): the arrays have one row, each row overwrites it, and
     each row's distance of edge 0 goes to :func:`sample_d` ``(acc, bt, bd, st)``.
 
@@ -447,6 +473,7 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
             coupled = True
         if laws[k] != law0:
             uniform = False
+    dist = record_d and D.shape[1] == E   # D without columns: the Euclidean error alone (no common geometry)
     row = 0
     countdown = 1  # row 0 is the initial state
     total = n_steps + 1 if dt_last > 0.0 else n_steps
@@ -457,10 +484,11 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
         if countdown == 0:
             countdown = record_every
             is_row = True
-        need_d = is_row and record_d
+        rec = is_row and record_d
+        need_d = rec and dist
         tk = t0 + (k0 + k) * dt if k <= n_steps else t0 + (k0 + n_steps) * dt + dt_last   # the states' time
         # forces from the states at the start of the step (Jacobi, zero-order hold)
-        if (coupled or need_d) and scalar:
+        if (coupled or rec) and scalar:
             # network_forces for n = 1 on floats, written out here: the arrays an inlined or called
             # kernel takes cost reference counting on every step (measured: 2 instead of 8 Msteps/s)
             for i in range(N):
@@ -472,7 +500,7 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
                 f1, f2, d_, b_, e1 = coupling_step1(lw, sg, kp0, kd0, q1d[ia], u1d[ia], q1d[ib], u1d[ib], need_d,
                                                     hp, ia, ib, tk)
                 bh[e_] = b_
-                if need_d:   # the record is read at rows only
+                if rec:   # the record is read at rows only
                     dk[e_] = d_
                     bk[e_] = b_
                     ek[e_] = e1
@@ -481,7 +509,7 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
                         tau1d[ia] += W2[e_, 0] * f1
                     if W2[e_, 1] > 0.0:
                         tau1d[ib] += W2[e_, 1] * f2
-        elif coupled or need_d:
+        elif coupled or rec:
             network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, need_d, dk, bk, ek, hp,
                            tk)
         r = 0 if dec else row
@@ -534,15 +562,16 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
                         ok = False
             if record_d:
                 for e_ in range(E):
-                    D[r, e_] = dk[e_]
-                    BR[r, e_] = bk[e_]
                     EU[r, e_] = ek[e_]
-                    if not math.isfinite(dk[e_]):
+                    if dist:
+                        D[r, e_] = dk[e_]
+                        BR[r, e_] = bk[e_]
+                    if not math.isfinite(dk[e_] if dist else ek[e_]):
                         ok = False
             if not ok:
                 return DIVERGED, k, row, v_imp, tau_max
             if dec:
-                sample_d(acc, bt, bd, st, T[0], dk[0])
+                sample_d(acc, bt, bd, st, T[0], dk[0] if dist else ek[0])
             row += 1
         if k == total:
             break

@@ -16,14 +16,13 @@ import numpy as np
 
 from .coupling import LAWS as COUPLING_LAWS
 from .coupling import BRANCH_NONE, QUOTIENT_LAWS, UNCOUPLED, gain_matrix, law_metric, metric_info
-from .distance import geometry
-from .loop import coupling_step, integrate_network, no_decimator
+from .loop import coupling_step, integrate_network, no_decimator, node_geometry
 from .steps import DEFAULT_SCHEME, DIVERGED, OK, TRAPEZOID
 from .result import PairResult, concat_pairs
 from .checks import divergence_message, land_last_row
 from .errors import ForceLawFailed, SimulationDiverged
 from .failure import force_offset, law_nonfinite, law_raised, rows_written
-from .plan import coupling_exchange, as_systems, check_common_geometry, plan_run
+from .plan import coupling_exchange, as_systems, check_common_geometry, network_geometry, plan_run
 
 __all__ = ["simulate_pair", "coupling_step", "LAWS", "gain_matrix", "check_common_geometry", "as_systems"]
 
@@ -61,7 +60,7 @@ def stack_nodes(*systems):
         n_p = systems[0].p.shape[0]     # the loop reads a column 0 it leaves unused for a law)
         f0 = np.zeros((N, max(n_p, 1)))
         f0[:, :n_p] = np.stack([s.p for s in systems]).reshape(N, n_p)
-    return arrays[0], K, C, f0, F, Om, ph
+    return node_geometry(arrays), K, C, f0, F, Om, ph
 
 
 def locate_failure(loop, nodes, geo, laws, E2, W2, Kp, Kd, q, u, t0, k, dt, steps, code, theta, record_d, dt_last,
@@ -152,10 +151,10 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
                     exchange=coupling_exchange(scheme, systems),
                     record_every=record_every, t0=t0, allow_unstable=allow_unstable,
                     record_values=None if sink is not None else 4 * n + 2 * n + (4 if record_d else 1),
-                    record_what="the record of simulate_pair",
+                    record_what="the record of simulate_pair", distance=record_d,
                     record_hint=", or pass sink= to stream it in chunks")   # every check, once (docs/design.md §5.1.1)
     lm = law_metric(Q, [s.K for s in systems], plan.Kp, coupled=law != UNCOUPLED, stiffness=s1.metric_source)
-    geo = geometry(s1, lm.Q)
+    geo = network_geometry(systems, lm.Q)[0]   # without one impact map: the Euclidean error's norm alone
     cap, chunks = chunk_plan(plan, sink, chunk_rows, progress)
     rec = pair_record(cap, n)
     info = dict(mode="core", dt=plan.dt, scheme=scheme, steps=plan.grid.steps, identical=s1 is systems[1],

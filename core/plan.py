@@ -4,7 +4,8 @@
 scheme, the hold of the coupling exchange, graph, laws and gains, the record) and checks it
 in one fixed order:
 
-1. systems: one per start state, a common impact geometry (M, w, g0, e) when coupled;
+1. systems: one per start state, one compiled loop (n, the force law); a common impact geometry
+   (M, w, g0, e) only for a quotient law or the distance record (:data:`ONE_IMPACT_MAP`);
 2. the step grid (:func:`.checks.check_run`: a positive step, a finite end, ``record_every``);
 3. the scheme (:func:`.checks.scheme_code`) and its limit for each system's internal step
    (:func:`.checks.check_stable`, :class:`~.errors.UnstableScheme`);
@@ -34,7 +35,8 @@ from .errors import UnstableScheme
 from .exchange import ExchangeLimit, check_exchange
 from .model import MechanicalSystem, as_state
 
-__all__ = ["RunPlan", "plan_run", "refuse_nonlinear", "held_exchange", "check_common_geometry", "as_systems", "weights",
+__all__ = ["RunPlan", "plan_run", "refuse_nonlinear", "held_exchange", "check_common_geometry", "check_one_loop",
+           "geometry_difference", "ONE_IMPACT_MAP", "critical_system", "network_geometry", "as_systems", "weights",
            "edges_of", "coupled_weights"]
 
 
@@ -55,10 +57,9 @@ def as_systems(system, count: int, what: str = "system") -> list:
     return systems
 
 
-def check_common_geometry(systems, names=None) -> None:
-    """The quotient distance identifies states through one impact map: the systems must
-    share M, w, g0 and e (stiffness, damping, offset force and forcing may differ).
-    Raises ValueError naming the first quantity that differs and both values."""
+def check_one_loop(systems, names=None) -> None:
+    """Coupled systems run in one compiled loop: the same number of degrees of freedom and one
+    force law (its parameters, and M, K, C, w, g0, e, forcing, may differ per system)."""
     systems = list(systems)
     names = names or [f"system {i + 1}" for i in range(len(systems))]
     a = systems[0]
@@ -70,13 +71,36 @@ def check_common_geometry(systems, names=None) -> None:
             what = [s.force.name if s.force is not None else "the built-in linear law" for s in (a, b)]
             raise ValueError(f"coupled systems must share one force law (its parameters may differ): "
                              f"{names[0]} has {what[0]}, {name} has {what[1]}")
-        for key in ("M", "w", "g0", "e"):
-            va, vb = getattr(a, key), getattr(b, key)
-            if not np.array_equal(va, vb):
-                fmt = (lambda v: np.asarray(v).tolist())
-                raise ValueError(
-                    f"the quotient distance needs a common impact geometry (equal M, w, g0 and e): "
-                    f"{key} differs: {names[0]} has {key} = {fmt(va)}, {name} has {key} = {fmt(vb)}")
+
+
+#: The reason of a refused quotient law or distance record (docs/design.md §2.5.3).
+ONE_IMPACT_MAP = "the quotient distance needs one impact map"
+
+
+def geometry_difference(systems) -> str | None:
+    """The first of M, w, g0, e in which the systems differ (None: they share one impact map)."""
+    a = systems[0]
+    for key in ("M", "w", "g0", "e"):
+        if any(not np.array_equal(getattr(a, key), getattr(b, key)) for b in systems[1:]):
+            return key
+    return None
+
+
+def check_common_geometry(systems, names=None, what: str = "the quotient distance") -> None:
+    """The quotient distance identifies states through one impact map: the systems must
+    share M, w, g0 and e (stiffness, damping, offset force and forcing may differ). Raises
+    ValueError naming the quantity that differs, every system's value and the reason;
+    ``what``: what needs it (a law, the distance record)."""
+    systems = list(systems)
+    names = names or [f"system {i + 1}" for i in range(len(systems))]
+    check_one_loop(systems, names)
+    key = geometry_difference(systems)
+    if key is not None:
+        fmt = (lambda v: np.asarray(v).tolist())
+        values = ", ".join(f"{nm} has {key} = {fmt(getattr(s, key))}" for nm, s in zip(names, systems))
+        raise ValueError(f"{what} is refused: {ONE_IMPACT_MAP} (equal M, w, g0 and e), and {key} differs: "
+                         f"{values}. Systems that differ run with coupling='euclidean' or 'none' and "
+                         f"record_distance=False (the record then carries the Euclidean error)")
 
 
 def weights(A, N: int | None = None) -> np.ndarray:
@@ -189,6 +213,43 @@ class RunPlan:
         return self.grid.dt_last if self.grid.short else 0.0
 
 
+def network_geometry(systems, Q):
+    """``(geo, shared)``: the distance geometry of the run and whether the systems share one impact
+    map (M, w, g0, e). Without one, ``geo`` serves the Euclidean error alone, in the norm
+    ``P = diag(Q, M_mean)`` (M_mean the mean of the nodes' M; docs/design.md §2.5.3): no quotient
+    distance is computed against it."""
+    from .distance import geometry, make_geometry
+    shared = geometry_difference(systems) is None
+    s0 = systems[0]
+    if shared:
+        return geometry(s0, Q), True
+    M = np.mean([np.atleast_2d(s.M) for s in systems], axis=0)
+    return make_geometry(M, s0.w, s0.g0, s0.e, Q), False
+
+
+def critical_system(systems):
+    """The system whose mass matrix has the smallest eigenvalue: for systems that differ in M, the
+    held exchange is checked with it (the largest coupling frequency, the conservative limit; for
+    equal M it is the first system)."""
+    low = [float(np.linalg.eigvalsh(np.atleast_2d(np.asarray(s.M, dtype=np.float64))).min()) for s in systems]
+    return systems[int(np.argmin(low))]
+
+
+def _check_geometry(systems, laws, A, N, distance, names) -> None:
+    """Step 1 of :func:`plan_run`: one impact map where a quotient law or the distance record needs it."""
+    if geometry_difference(systems) is None:
+        return
+    from .coupling import QUOTIENT_LAWS, SWITCHING   # coupled runs only (see coupled_weights)
+    codes = np.full(1 if A is None else len(edges_of(weights(A, N))), SWITCHING) if laws is None else laws
+    quotient = [c for c in np.atleast_1d(np.asarray(codes)) if c in QUOTIENT_LAWS]
+    if quotient:
+        from .coupling import LAWS
+        name = next(k for k, v in LAWS.items() if v == int(quotient[0]))
+        check_common_geometry(systems, names, f"the {name} law")
+    if distance:
+        check_common_geometry(systems, names, "the distance record")
+
+
 def _per_system(value, N: int, what: str) -> tuple:
     if isinstance(value, (str, float, int)) or value is None:
         return (value,) * N
@@ -198,47 +259,11 @@ def _per_system(value, N: int, what: str) -> tuple:
     return out
 
 
-def plan_run(systems, starts, t_end, step, *, scheme="midpoint", theta: float = 0.5, dt=None,
-             hold: str = "zoh", exchange: str = "explicit", A=None, laws=None, Kp=0.0, Kd=0.0,
-             record_every: int = 1,
-             t0: float = 0.0, record_values: int | None = None, record_what: str = "the record",
-             record_hint: str = "", allow_unstable: bool = False,
-             step_name: str = "dt", state_names=None, system_names=None, exact: bool = False) -> RunPlan:
-    """Check a run once, in the order of the module docstring, and return its :class:`RunPlan`.
-
-    ``systems``: one :class:`MechanicalSystem` for every start state or one per state;
-    ``starts``: the start states ``(q, u)`` (one: a single system; two or more: coupled);
-    ``t_end``: the end time (None: no grid, the FMU slave); ``step``: the grid's step (the
-    core's ``dt``; the master's ``H``, with ``step_name="H"``); ``scheme``/``dt``: each
-    system's scheme and internal step (one for all or one per system; ``dt`` default
-    ``step``; ``None``: not checked; ``"exact"``, accepted where the caller offers it,
-    ``exact=True``: no limit); ``hold``: the hold of the exchange; ``exchange``: explicit or
-    implicit (the master's ``exchange="implicit"``);
-    ``A`` (default: the pair), ``laws`` (law codes per edge, default all switching),
-    ``Kp``, ``Kd``: the coupling (coupled runs only); ``record_values``: float64 values per
-    record row (None: the caller keeps no record, or checks it elsewhere);
-    ``allow_unstable``: skip the scheme limit and run an unstable exchange (its verdict
-    is still in ``limit``);
-    ``state_names``/``system_names``: how messages name the states (``x1``, ... or ``x0``)
-    and the systems (default ``system 1``, ...; a scheme refusal then names none).
-    """
-    starts = list(starts)
-    N = len(starts)
-    if N < 1:
-        raise ValueError("a run needs at least one start state")
-    systems = as_systems(systems, N)
-    if N > 1:                                                           # 1. systems
-        check_common_geometry(systems, system_names)
-    s0 = systems[0]
-    if t_end is None:                                                   # 2. the grid
-        grid, rows = None, 0
-        step = check_step(step, step_name)
-        record_every = int(record_every)
-    else:
-        grid, record_every = check_run(t_end, step, record_every, t0, dt_name=step_name)
-        step = grid.dt
-        rows = record_rows(grid.steps, record_every)
-    schemes = _per_system(scheme, N, "scheme")                          # 3. scheme and its limit
+def _schemes(systems, scheme, theta, dt, step, exact, allow_unstable, system_names):
+    """Step 3 of :func:`plan_run`: each system's scheme and internal step, the kernels' scheme code
+    (None for per-system schemes) and each scheme's limit; ``(schemes, dts, code, theta)``."""
+    N = len(systems)
+    schemes = _per_system(scheme, N, "scheme")
     dts = tuple(step if d is None else check_step(d, "dt") for d in _per_system(dt, N, "dt"))
     if "exact" in schemes:
         for s in systems:
@@ -259,6 +284,77 @@ def plan_run(systems, starts, t_end, step, *, scheme="midpoint", theta: float = 
                         raise
                     raise UnstableScheme(f"{system_names[i]}: {exc}") from None
                 seen.add((id(s), sch, d))
+    return schemes, dts, code, theta
+
+
+def _coupling(systems, A, laws, Kp, Kd, step, hold, allow_unstable, step_name, exchange, cosim):
+    """Step 5 of :func:`plan_run`: forces through B = I, the laws per edge, the held exchange checked
+    with the lightest system (:func:`critical_system`); ``(laws, coupled, held_exchange(...))``."""
+    from .coupling import COMPENSATED, SWITCHING, UNCOUPLED   # coupled runs only (see coupled_weights)
+    from .compensation import check_compensated
+    n = systems[0].n
+    for s in systems:
+        if s.n_inputs != n or not np.array_equal(s.B, np.eye(n)):
+            raise ValueError(f"coupled systems take the forces through B = I (tau has n = {n} entries); "
+                             f"got B of shape {s.B.shape}")
+    if laws is None:   # every edge of the graph (default: the pair) switching
+        laws_a = np.full(1 if A is None else len(edges_of(weights(A, len(systems)))), SWITCHING, dtype=np.int64)
+    else:
+        laws_a = np.asarray(laws, dtype=np.int64)
+    if np.any(laws_a == COMPENSATED):
+        check_compensated(n, systems[0].force)
+    sc = critical_system(systems)   # the lightest node sets the exchange's limit (docs/design.md §2.5.3)
+    own = (sc.K, sc.C) if cosim else None   # a co-simulation: the slaves integrate K, C inside H
+    return laws_a, bool(np.any(laws_a != UNCOUPLED)), held_exchange(sc.M, Kp, Kd, step, A, laws_a, hold,
+                                                                     allow_unstable, step_name, exchange, own)
+
+
+def plan_run(systems, starts, t_end, step, *, scheme="midpoint", theta: float = 0.5, dt=None,
+             hold: str = "zoh", exchange: str = "explicit", A=None, laws=None, Kp=0.0, Kd=0.0,
+             record_every: int = 1,
+             t0: float = 0.0, record_values: int | None = None, record_what: str = "the record",
+             record_hint: str = "", allow_unstable: bool = False,
+             step_name: str = "dt", state_names=None, system_names=None, exact: bool = False,
+             distance: bool = True) -> RunPlan:
+    """Check a run once, in the order of the module docstring, and return its :class:`RunPlan`.
+
+    ``systems``: one :class:`MechanicalSystem` for every start state or one per state;
+    ``starts``: the start states ``(q, u)`` (one: a single system; two or more: coupled);
+    ``t_end``: the end time (None: no grid, the FMU slave); ``step``: the grid's step (the
+    core's ``dt``; the master's ``H``, with ``step_name="H"``); ``scheme``/``dt``: each
+    system's scheme and internal step (one for all or one per system; ``dt`` default
+    ``step``; ``None``: not checked; ``"exact"``, accepted where the caller offers it,
+    ``exact=True``: no limit); ``hold``: the hold of the exchange; ``exchange``: explicit or
+    implicit (the master's ``exchange="implicit"``);
+    ``A`` (default: the pair), ``laws`` (law codes per edge, default all switching),
+    ``Kp``, ``Kd``: the coupling (coupled runs only); ``record_values``: float64 values per
+    record row (None: the caller keeps no record, or checks it elsewhere);
+    ``allow_unstable``: skip the scheme limit and run an unstable exchange (its verdict
+    is still in ``limit``);
+    ``state_names``/``system_names``: how messages name the states (``x1``, ... or ``x0``)
+    and the systems (default ``system 1``, ...; a scheme refusal then names none);
+    ``distance``: the run records the quotient distance (then, as for a quotient law, the systems
+    must share one impact map; otherwise they may differ in M, w, g0 and e).
+    """
+    starts = list(starts)
+    N = len(starts)
+    if N < 1:
+        raise ValueError("a run needs at least one start state")
+    systems = as_systems(systems, N)
+    if N > 1:                                                           # 1. systems
+        check_one_loop(systems, system_names)
+        _check_geometry(systems, laws, A, N, distance, system_names)
+    s0 = systems[0]
+    if t_end is None:                                                   # 2. the grid
+        grid, rows = None, 0
+        step = check_step(step, step_name)
+        record_every = int(record_every)
+    else:
+        grid, record_every = check_run(t_end, step, record_every, t0, dt_name=step_name)
+        step = grid.dt
+        rows = record_rows(grid.steps, record_every)
+    schemes, dts, code, theta = _schemes(systems, scheme, theta, dt, step, exact, allow_unstable,
+                                         system_names)                 # 3. scheme and its limit
     names = state_names or ([f"x{i + 1}" for i in range(N)] if N > 1 else ["x0"])
     q = np.zeros((N, s0.n))                                             # 4. start states
     u = np.zeros((N, s0.n))
@@ -270,23 +366,8 @@ def plan_run(systems, starts, t_end, step, *, scheme="midpoint", theta: float = 
     laws_a = Kp_m = Kd_m = Ac = limit = None
     coupled = False
     if N > 1:                                                           # 5. the coupling
-        from .coupling import COMPENSATED, SWITCHING, UNCOUPLED   # coupled runs only (see coupled_weights)
-        from .compensation import check_compensated
-        n = s0.n
-        for s in systems:
-            if s.n_inputs != n or not np.array_equal(s.B, np.eye(n)):
-                raise ValueError(f"coupled systems take the forces through B = I (tau has n = {n} entries); "
-                                 f"got B of shape {s.B.shape}")
-        if laws is None:   # every edge of the graph (default: the pair) switching
-            laws_a = np.full(1 if A is None else len(edges_of(weights(A, N))), SWITCHING, dtype=np.int64)
-        else:
-            laws_a = np.asarray(laws, dtype=np.int64)
-        if np.any(laws_a == COMPENSATED):
-            check_compensated(n, s0.force)
-        own = (s0.K, s0.C) if dt is not None else None   # a co-simulation: the slaves integrate K, C inside H
-        Kp_m, Kd_m, Ac, limit = held_exchange(s0.M, Kp, Kd, step, A, laws_a, hold, allow_unstable, step_name,
-                                              exchange, own)
-        coupled = bool(np.any(laws_a != UNCOUPLED))
+        laws_a, coupled, (Kp_m, Kd_m, Ac, limit) = _coupling(systems, A, laws, Kp, Kd, step, hold, allow_unstable,
+                                                             step_name, exchange, dt is not None)
     if record_values is not None and grid is not None:                  # 6. the record budget
         check_record_size(rows, int(record_values), record_what, record_hint)
     return RunPlan(tuple(systems), q, u, grid, record_every, rows, schemes, code, float(theta), dts, step, hold,

@@ -473,17 +473,19 @@ def record_row(row, t, q, u, tau, laws, geo, Kp, Kd, E2, W2, need_d, jacobi, ctl
             TAU[row, i, c] = tau[i, c]
     if not need_d:
         return True
+    dist = D.shape[1] == E2.shape[0]   # D without columns: the Euclidean error alone (no common geometry)
     if jacobi:
-        _forces_inline(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, True, dk, bk, ek, hp, t)
+        _forces_inline(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, dist, dk, bk, ek, hp, t)
         ctl[FRESH] = 1
     else:
-        network_forces(laws, geo, Kp, Kd, E2, W2, q, u, scratch, t1, t2, c1q, c1u, c2q, c2u, True, dk, bk, ek, hp, t)
+        network_forces(laws, geo, Kp, Kd, E2, W2, q, u, scratch, t1, t2, c1q, c1u, c2q, c2u, dist, dk, bk, ek, hp, t)
     ok = True
     for e_ in range(E2.shape[0]):
-        D[row, e_] = dk[e_]
-        BR[row, e_] = bk[e_]
         EU[row, e_] = ek[e_]
-        if not math.isfinite(dk[e_]):
+        if dist:
+            D[row, e_] = dk[e_]
+            BR[row, e_] = bk[e_]
+        if not math.isfinite(dk[e_] if dist else ek[e_]):
             ok = False
     return ok
 

@@ -40,14 +40,13 @@ import numpy as np
 
 from .core.checks import TIME_TOL, check_record_size, check_run, check_step, record_rows, steps_in
 from .core.compensation import force_table
-from .core.coupling import law_metric, metric_info
-from .core.distance import geometry
+from .core.coupling import QUOTIENT_LAWS, law_metric, metric_info
 from .core.errors import ExchangeNotConverged, RunFailed, SimulationDiverged, UnstableScheme
 from .core.exchange import exchange_limit
 from .core.model import MechanicalSystem
-from .core.network import edge_laws, edges_of, weights
+from .core.network import edge_laws, edges_of, geometry_info, network_geometry, weights
 from .core.pair import LAWS, stack_nodes
-from .core.plan import RunPlan, plan_run
+from .core.plan import RunPlan, critical_system, plan_run
 from .core.result import NetworkResult, PairResult
 from .core.views import units_info
 from .fmi3_bridge import element_names, open_host
@@ -137,7 +136,7 @@ class NetworkMaster:
     def __init__(self, fmu, states, A, t_end: float, H: float, coupling: str | None = "switching",
                  Kp=0.0, Kd=0.0, Q=None, method: str = "jacobi", record_every: int = 1,
                  event_aware: bool = False, H_min: float | None = None, start_values=None,
-                 record_distance: bool = True, allow_unstable: bool = False, hold: str = "zoh",
+                 record_distance: bool | None = None, allow_unstable: bool = False, hold: str = "zoh",
                  exchange: str = "explicit"):
         grid, record_every = check_run(t_end, H, record_every, dt_name="H")   # ends at t_end (grid.dt_last)
         H, n_steps = grid.dt, grid.steps
@@ -181,7 +180,8 @@ class NetworkMaster:
         self.Kp, self.Kd, self.Q = Kp, Kd, Q
         self.method = method
         self.event_aware, self.H_min = event_aware, H_min
-        self.need_d = bool(record_distance) or self.coupled
+        self.need_d = record_distance is not False or self.coupled
+        self.record_distance = record_distance   # True: the quotient distance, refused without one impact map
         self.slaves: list[FmuInstance] = []
         self.retakes = 0
 
@@ -199,7 +199,8 @@ class NetworkMaster:
         names = [v.name for v in model.declare() if v.causality == "parameter" and v.type == "Real"]
         values = [dict(zip(names, s.get(names))) for s in self.slaves]   # what each instance runs with
         plan = self.plan(values, schemes)   # every check of the run, once (docs/design.md §5.1.1)
-        self.system = system = system_from_fmu(self.slaves[0], model)
+        crit = plan.systems.index(critical_system(plan.systems))   # the lightest instance (core/plan.py)
+        self.system = system_from_fmu(self.slaves[crit], model)
         for s, q0, u0 in zip(self.slaves, plan.q, plan.u):
             s.exit_initialization(model.state_values(q0, u0))
         n = model.n
@@ -209,15 +210,17 @@ class NetworkMaster:
         self.metric = law_metric(self.Q, [s.K for s in plan.systems], self.Kp_m,
                                  self.A_coupled if self.coupled else None, coupled=self.coupled,
                                  stiffness=plan.systems[0].metric_source)   # a user force law: "linearized"
-        self.geo = geometry(system, self.metric.Q)
+        self.geo, self.shared = network_geometry(plan.systems, self.metric.Q)   # per-instance M, w, g0, e
+        self.dist = self.need_d and (self.shared or bool(np.any(np.isin(self.laws, QUOTIENT_LAWS))))
         self.hp = force_table(*stack_nodes(*plan.systems)[1:])   # each instance's h (the compensated law)
         # each instance's M^-1: the implicit exchange's prior of an FMU's response to its input
         self.Minv_nodes = np.stack([np.linalg.inv(np.atleast_2d(np.asarray(s.M, dtype=float))) for s in plan.systems])
         E, rows = len(self.edges), record_rows(self.n_steps, self.record_every)
         self.T = np.full(rows, np.nan)
         self.Qr, self.Ur, self.TAU = (np.full((rows, N, n), np.nan) for _ in range(3))
-        self.D, self.EU = np.full((rows, E), np.nan), np.full((rows, E), np.nan)
-        self.BR = np.full((rows, E), -1, dtype=np.int64)
+        Ed = E if self.dist else 0   # without one impact map: the Euclidean error alone (docs/design.md §2.5.3)
+        self.D, self.EU = np.full((rows, Ed), np.nan), np.full((rows, E), np.nan)
+        self.BR = np.full((rows, Ed), -1, dtype=np.int64)
 
     def plan(self, values: list, schemes: list) -> RunPlan:
         """The run plan (:func:`fmu_sync.core.plan.plan_run`) of this co-simulation from what the
@@ -233,27 +236,29 @@ class NetworkMaster:
                             A=self.A, laws=self.laws,
                             Kp=self.Kp, Kd=self.Kd, record_every=self.record_every, step_name="H", exact=True,
                             allow_unstable=self.allow_unstable, record_values=self.record_values,
+                            distance=self.record_distance is True,
                             record_what="the record of the co-simulation",
                             system_names=[f"instance {i + 1}" for i in range(N)])
         except UnstableScheme as exc:
             raise UnstableScheme(f"refused before the first step: {exc} (allow_unstable=True runs anyway)") from None
 
     def result(self, rows: int, impacts: list, error: str | None) -> NetworkResult:
-        sl, need_d, A = slice(0, rows), self.need_d, self.A
+        sl, need_d, dist, A = slice(0, rows), self.need_d, self.dist, self.A
         V = None
-        if need_d:
+        if dist:
             a_sym = np.array([0.5 * (A[i, j] + A[j, i]) for i, j in self.edges])
             with np.errstate(over="ignore"):  # a failed run may end on huge (finite) d
                 V = 0.5 * (self.D[sl] ** 2) @ a_sym
         return NetworkResult(
             self.T[sl], self.Qr[sl], self.Ur[sl], self.TAU[sl], self.edges,
-            self.D[sl] if need_d else None, self.BR[sl] if need_d else None,
+            self.D[sl] if dist else None, self.BR[sl] if dist else None,
             self.EU[sl] if need_d else None, V, impacts=impacts,
             info=dict(mode="cosim", H=self.H, method=self.method,
                       strategies=[st.name for st in self.strategies], event_aware=self.event_aware, fmu=self.fmu,
                       H_min=self.H_min if self.event_aware else None, retaken_steps=self.retakes,
                       steps=self.n_steps, coupling=self.coupling, hold=self.hold, exchange=self.exchange_kind,
                       **args.implicit_info(getattr(self, "iw", None)), **metric_info(self.metric, self.geo),
+                      **geometry_info(self.shared, need_d and not dist),
                       **units_info(self.model.declaration),
                       **({} if self.limit is None else dict(
                           omega_c_H=self.limit.h, exchange_bound=self.limit.bound,
@@ -407,7 +412,7 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
                        Kp=0.0, Kd=0.0, Q=None, method: str = "jacobi", record_every: int = 1,
                        event_aware: bool = False, H_min: float | None = None,
                        start_values=None, progress=None,
-                       record_distance: bool = True, allow_unstable: bool = False, hold: str = "zoh",
+                       record_distance: bool | None = None, allow_unstable: bool = False, hold: str = "zoh",
                        exchange: str = "explicit", tol: float | None = None) -> NetworkResult:
     """Co-simulate N instances of ``fmu`` coupled on a weighted graph (docs/design.md §2.5, §4.4).
 
@@ -423,7 +428,9 @@ def cosimulate_network(fmu, states, A, t_end: float, H: float, coupling: str | N
     computed from the newest states of the others.
     ``start_values``: one dict of parameter start values for every instance, or
     a sequence of N dicts (or None), one per instance (non-identical systems:
-    K, C, f0, forcing may differ; M, w, g0 and e must not).
+    K, C, f0, forcing may differ, and M, w, g0, e unless a quotient law or
+    ``record_distance=True`` needs one impact map; without one the record carries
+    the Euclidean error, ``d`` and ``V`` None, docs/design.md §2.5.3).
     Before the first step (the run plan, :func:`fmu_sync.core.plan.plan_run`), the held exchange over ``H`` (
     ``UnstableExchange``) and each instance's internal midpoint step (omega_max*dt < 2,
     ``UnstableScheme``) are checked; both are ValueErrors, skipped with ``allow_unstable``.
@@ -446,7 +453,7 @@ def pair_result(r: NetworkResult, coupling) -> PairResult:
 def cosimulate(fmu, x1, x2, t_end: float, H: float, coupling: str | None = None, Kp=0.0, Kd=0.0,
                Q=None, method: str = "jacobi", record_every: int = 1, event_aware: bool = False,
                H_min: float | None = None, start_values=None, progress=None,
-               record_distance: bool = True, allow_unstable: bool = False, hold: str = "zoh",
+               record_distance: bool | None = None, allow_unstable: bool = False, hold: str = "zoh",
                exchange: str = "explicit", tol: float | None = None) -> PairResult:
     """Co-simulate two instances of ``fmu`` coupled by ``coupling`` (docs/design.md §2.5, §4.4).
 

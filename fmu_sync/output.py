@@ -108,11 +108,15 @@ def pair_columns(n: int, distance: bool) -> list[tuple[str, int]]:
     return cols
 
 
-def network_columns(N: int, n: int, E: int, distance: bool) -> list[tuple[str, int]]:
+def network_columns(N: int, n: int, E: int, distance) -> list[tuple[str, int]]:
     """A network record: states and forces of the N nodes (node-major), d, euclidean and
-    branch of the E edges, V and the largest pairwise distance d_max."""
+    branch of the E edges, V and the largest pairwise distance d_max. ``distance="euclidean"``
+    (systems without a common impact geometry, docs/design.md §2.5.3): the edges' Euclidean error
+    alone, instead of d, branch, V and d_max."""
     cols = [("t", 1), ("q", N * n), ("u", N * n), ("tau", N * n)]
-    if distance:
+    if distance == "euclidean":
+        cols += [("euclidean", E)]
+    elif distance:
         cols += [("d", E), ("euclidean", E), ("branch", E), ("V", 1), ("d_max", 1)]
     return cols
 

@@ -14,7 +14,8 @@ import numpy as np
 
 
 __all__ = ["SYNC_THRESHOLD", "is_pair", "wall", "impact_rows", "impact_records", "contact_starts", "metrics", "record_columns", "record_meta", "write_data", "write_netcdf", "rows", "write_summary", "md_table",
-           "print_table", "max_abs_difference", "format_value", "run_notes", "decay_resolved"]
+           "print_table", "max_abs_difference", "format_value", "run_notes", "decay_resolved",
+           "EUCLIDEAN_MEASURE"]
 
 #: d below this counts as synchronized (time to sync = first time after which d stays below it).
 SYNC_THRESHOLD = 1e-6
@@ -82,6 +83,8 @@ def network_metrics(result, threshold: float = SYNC_THRESHOLD) -> dict:
            "coupling": _coupling_name(result.info.get("coupling")),
            "impact_steps": int(np.sum(result.impacts)), "peak_tau": float(np.nanmax(tau)) if tau.size else 0.0,
            "error": result.error, **exchange_fields(result)}
+    if result.d is None and result.euclidean is not None and t.size:   # no common impact geometry
+        return _euclidean_fields(out, t, np.max(np.asarray(result.euclidean), axis=1), threshold)
     if result.d is None:
         out.update(t_sync=None, final_d=None)
         return out
@@ -90,6 +93,25 @@ def network_metrics(result, threshold: float = SYNC_THRESHOLD) -> dict:
     t_sync = float(t[0]) if above.size == 0 else (math.inf if above[-1] == len(t) - 1 else float(t[above[-1] + 1]))
     out.update(t_sync=t_sync, final_d=float(dmax[-1]), **_sync_fields(_sync(result, threshold)),
                **_metric_fields(result))
+    return out
+
+
+#: how the summary names the measure of a run without a common impact geometry (docs/design.md §2.5.3)
+EUCLIDEAN_MEASURE = "Euclidean error"
+
+
+def _euclidean_fields(out: dict, t, emax, threshold) -> dict:
+    """A network without one impact map: d and V are not defined; t_sync, the decay rate and the
+    bound are those of the largest Euclidean error ||x_i - x_j||_P over the edges, named as such."""
+    from .core.metrics import sync_metrics
+    above = np.nonzero(~(emax < threshold))[0]
+    t_sync = float(t[0]) if above.size == 0 else (math.inf if above[-1] == len(t) - 1 else float(t[above[-1] + 1]))
+    try:
+        m = sync_metrics(t, emax, threshold)
+    except ValueError:
+        m = None
+    out.update(t_sync=t_sync, final_d=None, measure=EUCLIDEAN_MEASURE, final_euclidean=float(emax[-1]),
+               **_sync_fields(m))
     return out
 
 
@@ -233,10 +255,13 @@ def record_columns(result) -> tuple[list, dict]:
     if is_network(result):
         rows, N, n = np.asarray(result.q).shape
         E = len(result.edges)
-        cols = network_columns(N, n, E, result.d is not None)
+        only_e = result.d is None and result.euclidean is not None   # no common geometry: the Euclidean error
+        cols = network_columns(N, n, E, "euclidean" if only_e else result.d is not None)
         data = {"t": result.t, "q": np.asarray(result.q).reshape(rows, N * n),
                 "u": np.asarray(result.u).reshape(rows, N * n), "tau": np.asarray(result.tau).reshape(rows, N * n)}
-        if result.d is not None:
+        if only_e:
+            data.update(euclidean=result.euclidean)
+        elif result.d is not None:
             data.update(d=result.d, euclidean=result.euclidean, branch=result.branch, V=result.V,
                         d_max=result.d_max)
     elif is_pair(result):
@@ -378,6 +403,10 @@ def run_notes(runs) -> list[str]:
         if m.get("error") or m.get("kind") == "single":
             continue
         bits = []
+        if m.get("measure") == EUCLIDEAN_MEASURE:
+            bits.append(f"no common impact geometry (the nodes differ in M, w, g0 or e): d and V are not defined; "
+                        f"t_sync, the decay rate and the bound are those of the largest {EUCLIDEAN_MEASURE} "
+                        f"||x_i - x_j||_P (P = diag(Q, mean M)), final {format_value(m['final_euclidean'])}")
         if m.get("rate_reason"):
             bits.append(f"decay rate — : {m['rate_reason']}")
         elif m.get("rate_window"):

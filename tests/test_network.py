@@ -98,7 +98,8 @@ def test_mixed_laws_and_mismatched_nodes(paper):
     assert m.t_sync == math.inf and 1e-5 < m.bound < 0.05 * np.max(r.d_max)
     with pytest.raises(ValueError, match=r"coupling per edge needs 8 laws"):
         simulate_network(paper, RING_X, ring(8), 1.0, 1e-2, coupling=["switching"] * 3)
-    with pytest.raises(ValueError, match=r"e differs: node 1 has e = 0.9, node 3 has e = 0.5"):
+    with pytest.raises(ValueError, match=r"the switching law is refused: the quotient distance needs one impact "
+                       r"map .*e differs: node 1 has e = 0.9, node 2 has e = 0.9, node 3 has e = 0.5"):
         simulate_network([paper, paper, ImpactOscillator(**{**PAPER, "e": 0.5})],
                          RING_X[:3], ring(3), 1.0, 1e-2)
 

@@ -121,7 +121,8 @@ def test_mismatched_pair_cosim_takes_each_instance_its_parameters(tmp_path):
 
 @pytest.mark.parametrize("edit,needle", [
     (lambda t: t.replace('graph = "ring"', 'graph = "torus"'), "network.graph"),
-    (lambda t: t.replace('graph = "ring"', 'graph = "ring"\nnodes = [{}, {e = 0.5}, {}, {}]'), "impact geometry"),
+    (lambda t: t.replace('graph = "ring"', 'graph = "ring"\nnodes = [{}, {e = 0.5}, {}, {}]'),
+     r"the switching law is refused: the quotient distance needs one impact map .*e differs: node 1 has e = "),
     (lambda t: t.replace('graph = "ring"', 'graph = "ring"\nnodes = [{}, {}]'), "has 2 tables for 4 nodes"),
     (lambda t: t.replace('graph = "ring"', 'graph = "ring"\nlaws = ["switching"]'), "1 laws for 4 edges"),
     (lambda t: t.replace('graph = "ring"', 'graph = "ring"\nN = 5'), "differs from the number of start states"),

@@ -149,8 +149,10 @@ def test_no_second_copy_of_a_run_check():
         # the master refuses a record too large before any instance exists (the plan's step 6)
         "fmu_sync/master.py": {"check_run"},
         # a sweep records the exchange's verdict (it runs either way)
-        "fmu_sync/sweeps/engine.py": {"held_exchange"},
-        "fmu_sync/scenes/loading.py": {"check_start"},   # a scene's state key, named where it is read
+        # ... and refuses a quotient law's system 2 without one impact map (its grid key named)
+        "fmu_sync/sweeps/engine.py": {"held_exchange", "check_common_geometry"},
+        # a scene's state key, and a quotient law's [network] nodes without one impact map, named where read
+        "fmu_sync/scenes/loading.py": {"check_start", "check_common_geometry"},
         "fmu_sync/ssp/runner.py": {"check_common_geometry"},   # an SSP package's components, read, not run
     }
     found = []

@@ -334,7 +334,8 @@ def test_mismatched_second_system_uncoupled_equals_two_single_runs():
     s1, s2 = ImpactOscillator(**FORCED), ImpactOscillator(**{**FORCED, "f0": 0.3})
     r = simulate_pair((s1, s2), X1, X2, 60.0, 1e-3, coupling="switching", Kp=1.0, Kd=0.5, record_every=EVERY)
     _same(c.isel({"system2.f0": 1}), r)
-    with pytest.raises(SweepSpecError, match="common impact geometry.*not in e"):
+    with pytest.raises(SweepSpecError, match=r"the switching law is refused: the quotient distance needs one impact map .*e differs: system 1 has e = 0.9, "
+                                             r"system 2 has e = 0.5"):
         sweep(SCENE, variant="switching", grid={"system2.e": [0.5]}, quiet=True)
 
 

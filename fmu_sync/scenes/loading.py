@@ -331,10 +331,9 @@ def _build_network(cfg: dict, system, ctx: str, fail, state_of) -> NetworkSpec:
             continue
         node_cfg = dict(cfg)
         for k, v in t.items():
-            per_node = [x for x in schema if x != "model" and x not in model.geometry]
+            per_node = [x for x in schema if x != "model"]   # the geometry too: a quotient law refuses it (plan)
             if k not in per_node:
-                fail("network.nodes", nodes, f"node {i + 1} sets {k}, which is not a per-node key "
-                     f"(the impact geometry {', '.join(model.geometry)} is common)",
+                fail("network.nodes", nodes, f"node {i + 1} sets {k}, which is not a per-node key",
                      "keys of [system]: " + ", ".join(per_node))
             try:
                 node_cfg[f"system.{k}"] = schema[k][0](v)
@@ -344,6 +343,13 @@ def _build_network(cfg: dict, system, ctx: str, fail, state_of) -> NetworkSpec:
             systems.append(_make_system(node_cfg))
         except ValueError as exc:
             fail("network.nodes", nodes, f"node {i + 1}: {exc}")
+    quotient = [x for x in (laws or [cfg["coupling.law"]]) if x in ("switching", "switching-compensated")]
+    if quotient:   # a quotient law needs one impact map (the run plan's rule, core/plan.py)
+        from ..core.plan import check_common_geometry
+        try:
+            check_common_geometry(systems, [f"node {i + 1}" for i in range(N)], f"the {quotient[0]} law")
+        except ValueError as exc:
+            fail("network.nodes", nodes, str(exc))
     states = tuple(state_of(f"network.states[{i + 1}]", x) for i, x in enumerate(states_raw))
     return NetworkSpec(A=A, graph=kind, systems=tuple(systems), states=states, nodes=tuple(dict(t) for t in nodes),
                        laws=tuple(laws) if laws is not None else None)

@@ -1,11 +1,9 @@
-# long module: one scene runner for every mode (core, cosim, streamed, full resolution, failures) sharing the variant plumbing
 """Running a scene (docs/design.md §4.5): each variant goes to the core
 (:func:`~fmu_sync.core.simulate`, :func:`~fmu_sync.core.simulate_pair`) or to the
 master (:func:`~fmu_sync.master.cosimulate`, values named by the FMU contract), then
 its data, plots and ``summary.md`` are written."""
 from __future__ import annotations
 
-import math
 
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -52,6 +50,12 @@ class SceneRun:
 # ---------------------------------------------------------------- running
 def _coupling_arg(law: str):
     return None if law == "none" else law
+
+
+def _net_distance(cfg):
+    """A network's ``record_distance``: ``record.distance = true`` records d where the nodes share one
+    impact map and the Euclidean error where they do not (None, docs/design.md §2.5.3)."""
+    return None if cfg["record.distance"] else False
 
 
 def fmu_start_values(fmu_path, variant: Variant, system=None, node: dict | None = None) -> dict:
@@ -160,9 +164,9 @@ def plan_variant(variant: Variant):
     if cosim:   # the master's plan: the exchange at H, each instance's scheme at its internal step
         return plan_run(systems, states, cfg["run.t_end"], cfg["run.H"], dt=cfg["solver.dt"], hold=cfg["run.hold"],
                         exchange=cfg["run.exchange"], A=A, laws=laws, Kp=variant.Kp, Kd=variant.Kd, step_name="H", exact=True,
-                        allow_unstable=bool(cfg["run.allow_unstable"]), **common)
+                        allow_unstable=bool(cfg["run.allow_unstable"]), distance=not variant.is_network, **common)
     return plan_run(systems, states, cfg["run.t_end"], cfg["solver.dt"], A=A, laws=laws, Kp=variant.Kp, Kd=variant.Kd,
-                    allow_unstable=bool(cfg["run.allow_unstable"]),
+                    allow_unstable=bool(cfg["run.allow_unstable"]), distance=not variant.is_network,
                     system_names=[f"node {i + 1}" for i in range(len(states))] if variant.is_network else None,
                     **common)
 
@@ -285,7 +289,7 @@ def _run_network(variant: Variant, fmu_path, progress, label, extra):
                                 coupling=_laws_arg(variant), Kp=variant.Kp, Kd=variant.Kd, Q=variant.Q,
                                 scheme=cfg["solver.scheme"], theta=cfg["solver.theta"],
                                 record_every=cfg["run.record_every"],
-                                record_distance=bool(cfg["record.distance"]), progress=progress, **extra)
+                                record_distance=_net_distance(cfg), progress=progress, **extra)
     from ..master import cosimulate_network
     if fmu_path is None:
         raise ValueError(f"{label}: mode = cosim needs an exported FMU (fmu_path)")
@@ -295,7 +299,7 @@ def _run_network(variant: Variant, fmu_path, progress, label, extra):
                                 method=cfg["run.method"], record_every=record_steps(cfg),
                                 event_aware=cfg["run.event_aware"], H_min=cfg["run.H_min"], hold=cfg["run.hold"],
                                 exchange=cfg["run.exchange"], tol=cfg["run.tol"],
-                                start_values=starts, record_distance=bool(cfg["record.distance"]),
+                                start_values=starts, record_distance=_net_distance(cfg),
                                 progress=progress, **extra)
     if getattr(result, "error", None):
         raise RunFailed(result.error, partial=result)
@@ -336,141 +340,53 @@ def run_extra(variant: Variant, plots, title: str) -> dict:
             "record_interval": record_interval(variant)[0]}
 
 
-def _stream_run(v: Variant, out_dir: Path, fmu_path, progress, scene_name, formats, est, max_memory, extra):
-    """A core pair whose whole record exceeds the memory budget: written in chunks while it runs."""
-    from .. import report
-    from ..core.views import units_with
-    from ..output import RecordWriter, pair_columns
-    per_row = 8.0 * est.values_per_row
-    chunk_rows = max(16, min(1 << 18, int(max_memory / (per_row * 8))))  # the chunk, its copies, the CSV block
-    plot_rows = max(1000, min(20000, int(max_memory / (per_row * 8))))
-    own = declared_units(v)
-    lay = dict(kind="pair", N=2, n=v.system.n, edges=[[0, 1]], distance=v.has_distance,
-               **({"units": units_with(own["units"])} if own else {}))
-    writer = RecordWriter(out_dir / v.name, pair_columns(v.system.n, v.has_distance), formats, layout=lay)
-    from ..output import record_steps, run_grid
-    from ..stream import StreamRecord
-    steps, step, _ = run_grid(v.cfg)
-    # every step streamed (the metrics and the impact window from all of them), a row written every
-    # run.record_every of them (full_resolution_run)
-    sink = StreamRecord(writer, v.system, steps + 2, plot_rows, write_every=record_steps(v.cfg),
-                        window_rows=window_rows(step, per_row, max_memory))
-    try:
-        last = run_variant(v, fmu_path, progress, scene_name, sink=sink, chunk_rows=chunk_rows, every=1)
-        sink.close_rows()
-    except RunFailed as exc:
-        if sink.rows == 0:
-            writer.abort()
-            raise
-        sink.close_rows()
-        result = _with_units(sink.thinned(), v)
-        result.error = str(exc)
-        result.impact_record = sink.window()
-        writer.meta = report.record_meta(_counted(result, sink), extra)
-        files = writer.close(partial=True)
-        run = RunRecord(v.name, v, result, sink.metrics(result), files=files, streamed=True)
-        run.metrics["error"] = str(exc)
-        run.metrics["records"] = sink.rows_written
-        return run
-    except BaseException:
-        writer.abort()
-        raise
-    result = _with_units(sink.thinned(), v)
-    writer.meta = report.record_meta(_counted(result, sink, last), extra)
-    files = writer.close()
-    result.impact_record = sink.window()
-    metrics = sink.metrics(last)
-    metrics["records"] = sink.rows_written
-    # the fitted decay (envelope of d) and the ultimate bound from the thinned record (sampled
-    # every `thinned_every` steps); t_sync, the maxima and the jumps above are exact
-    metrics.update(report._sync_fields(report._sync(result, report.SYNC_THRESHOLD)))
-    run = RunRecord(v.name, v, result, metrics, files=files, streamed=True)
-    return run
-
-
-#: the impact window's data at full resolution: the rows within this many seconds of the largest
-#: impact mismatch (fmu_sync.plots.impact_window draws at most max(1.5 x the episode, 0.3 s) around it)
-WINDOW_SECONDS = 2.0
-
-
-def window_rows(step: float, per_row: float, max_memory: float) -> int:
-    """Rows each side of the impact window's peak: :data:`WINDOW_SECONDS` of steps, at most what
-    keeps the window (its rows, the rows before the next chunk, their copies) within a sixteenth of
-    ``max_memory`` (``per_row``: bytes of a row)."""
-    return max(16, min(int(math.ceil(WINDOW_SECONDS / step)), int(max_memory / (16.0 * per_row))))
-
-
-def full_resolution_run(v: Variant, fmu_path, progress, scene_name, max_memory: float):
-    """A pair variant (not a network) run at every step of its grid (``solver.dt``; ``run.H`` in
-    co-simulation), its rows folded as they come (:class:`fmu_sync.stream.StreamRecord`): the summary's
-    metrics (maxima, jumps at impacts, contact episodes, t_sync, the decay fit) and the impact
-    window's rows (:attr:`PairResult.impact_record`) from every step, the record kept every
-    ``run.record_every`` (:func:`fmu_sync.output.record_steps`): the metrics do not depend on it.
-    The core streams its steps in chunks; a co-simulation records every communication step when
-    that record fits ``max_memory`` (else at ``run.record_every``, its metrics from that record).
-    Returns ``(result, metrics)``; a failure mid-way raises RunFailed with ``.partial`` the kept
-    record and ``.metrics``."""
-    from .. import report
-    from ..output import estimate, record_steps, run_grid
-    from ..stream import StreamRecord
-    steps, step, _ = run_grid(v.cfg)
-    every = record_steps(v.cfg)
-    est = estimate(v)
-    full_rows = steps + 2
-    if v.mode == "cosim" and est.memory * est.record_every > max_memory:   # the full record does not fit
-        every_run = every
-    else:
-        every_run = 1
-    keep_d = 16.0 * full_rows / every_run <= 0.5 * max_memory   # every row's (t, d) for the decay fit
-    sink = StreamRecord(None, v.system, full_rows, every=every // every_run, keep_distance=keep_d,
-                        window_rows=window_rows(step * every_run, 8.0 * est.values_per_row, max_memory))
-
-    def finish(last, error=None):
-        result = sink.thinned()
-        result.info = {k: val for k, val in (last or result).info.items() if k not in ("rows", "thinned_every")}
-        result.impacts1, result.impacts2 = (last or result).impacts1, (last or result).impacts2
-        result.error = error
-        result.impact_record = sink.window()
-        _with_units(result, v)
-        if result.impact_record is not None:
-            result.impact_record.info = dict(result.info)
-        m = sink.metrics(result)
-        m.pop("thinned_every", None)
-        m["records"] = len(result.t)
-        fit = sink.sync() if keep_d else report._sync(result, report.SYNC_THRESHOLD)
-        m.update(report._sync_fields(fit), **report._metric_fields(result))
-        return result, m
-
-    try:
-        if v.mode == "core":
-            chunk = max(64, min(65536, steps // 100))   # about 100 chunks: the progress moves (and Ctrl-C stops)
-            last = run_variant(v, fmu_path, progress, scene_name, sink=sink, chunk_rows=chunk, every=1)
-        else:
-            last = run_variant(v, fmu_path, progress, scene_name, every=every_run)
-            sink(last)
-    except RunFailed as exc:
-        if v.mode != "core" and exc.partial is not None:
-            sink(exc.partial)
-        if sink.rows == 0:
-            raise
-        exc.partial, exc.metrics = finish(exc.partial if v.mode != "core" else sink.last, str(exc))
-        raise
-    return finish(last)
-
-
-def _counted(result, sink, last=None):
-    """A streamed run for its file's meta: the counts and settings of the whole run (not those of
-    the thinned copy the plots use)."""
-    import copy
-    src = last if last is not None else sink.last
-    out = copy.copy(result)
-    out.impacts1, out.impacts2 = src.impacts1, src.impacts2
-    out.info = {k: v for k, v in src.info.items() if k not in ("rows", "thinned_every")}
-    return out
-
-
 def _title(scene_name: str, name: str) -> str:
     return scene_name if name == scene_name else f"{scene_name}, {name}"
+
+
+def _scene_plan(scene, chosen, formats, max_memory, max_disk) -> list:
+    """Every check of a scene run before anything is written: the FMU export, each variant's run
+    plan (:func:`preflight`) and its record's budget; ``[(variant, formats, estimate, stream)]``."""
+    from ..output import check_budget
+    check_export(chosen)
+    plan = []
+    for v in chosen:
+        preflight(v, scene.name)
+        fmts = tuple(v.cfg["record.formats"]) if formats is None else tuple(formats)
+        est, stream = check_budget(v, fmts, max_memory, max_disk,
+                                   can_stream=v.pair and v.mode == "core" and not v.is_network,
+                                   label=_label(v, scene.name))
+        if stream and "nc" in fmts:
+            from ..output import OutputTooLarge
+            raise OutputTooLarge(f"{_label(v, scene.name)}: refused before running: the record exceeds the memory "
+                                 f"budget and is written in chunks, which NetCDF (--format nc) cannot be: "
+                                 f"{est.describe()}. Choose csv and/or npz, raise run.record_every, or raise "
+                                 "--max-memory.")
+        plan.append((v, fmts, est, stream))
+    return plan
+
+
+def _run_one(scene, v, out_dir, fmu_path, progress, marks, fmts, est, stream, max_memory) -> RunRecord:
+    """One variant's run (streamed, at full resolution or as it is); a failure with nothing
+    recorded: a RunRecord without result."""
+    from .. import report
+    from .streamed import full_resolution_run, stream_run
+    a, mid, b = marks
+    if stream:
+        return stream_run(v, out_dir, fmu_path, scaled(progress, a, b), scene.name, fmts, est, max_memory,
+                          run_extra(v, scene.plots, _title(scene.name, v.name)))
+    try:
+        if v.pair and not v.is_network:   # metrics and impact window from every step
+            result, metrics = full_resolution_run(v, fmu_path, scaled(progress, a, mid), scene.name, max_memory)
+        else:
+            result, metrics = run_variant(v, fmu_path, scaled(progress, a, mid), scene.name), None
+    except RunFailed as exc:
+        if exc.partial is None:
+            return RunRecord(v.name, v, None, {"error": str(exc), "kind": "failed"})
+        result = exc.partial
+        result.error = result.error or str(exc)
+        metrics = getattr(exc, "metrics", None)
+    return RunRecord(v.name, v, result, metrics or report.metrics(result, v.system))
 
 
 def run_scene(scene, out_dir=None, overrides: dict | None = None, progress: Callable | None = None,
@@ -495,29 +411,14 @@ def run_scene(scene, out_dir=None, overrides: dict | None = None, progress: Call
     a ``summary.md``, the interrupted one is removed, and :class:`RunInterrupted` says so.
     Returns a :class:`SceneRun`.
     """
-    from .. import report
-    from ..output import DEFAULT_MAX_DISK, DEFAULT_MAX_MEMORY, check_budget, check_out_dir, make_out_dir, results_in
+    from ..output import DEFAULT_MAX_DISK, DEFAULT_MAX_MEMORY, check_out_dir, make_out_dir, results_in
 
     scene = as_scene(scene, overrides, variants)
     chosen = list(scene.variants)
     out_dir = check_out_dir(Path(out_dir) if out_dir is not None else DEFAULT_OUT / scene.name)
     max_memory = DEFAULT_MAX_MEMORY if max_memory is None else float(max_memory)
     max_disk = DEFAULT_MAX_DISK if max_disk is None else float(max_disk)
-    check_export(chosen)
-    plan = []
-    for v in chosen:
-        preflight(v, scene.name)
-        fmts = tuple(v.cfg["record.formats"]) if formats is None else tuple(formats)
-        est, stream = check_budget(v, fmts, max_memory, max_disk,
-                                   can_stream=v.pair and v.mode == "core" and not v.is_network,
-                                   label=_label(v, scene.name))
-        if stream and "nc" in fmts:
-            from ..output import OutputTooLarge
-            raise OutputTooLarge(f"{_label(v, scene.name)}: refused before running: the record exceeds the memory "
-                                 f"budget and is written in chunks, which NetCDF (--format nc) cannot be: "
-                                 f"{est.describe()}. Choose csv and/or npz, raise run.record_every, or raise "
-                                 "--max-memory.")
-        plan.append((v, fmts, est, stream))
+    plan = _scene_plan(scene, chosen, formats, max_memory, max_disk)
 
     old = results_in(out_dir, f"Scene `{scene.name}`", overwrite)
     clean_written(out_dir, False, old)   # --overwrite: another scene's results go, after every check passed
@@ -536,24 +437,10 @@ def run_scene(scene, out_dir=None, overrides: dict | None = None, progress: Call
                 fmu_path = fmus[model]
             a, b = i / len(plan), (i + 1) / len(plan)
             mid = a + 0.8 * (b - a) if not stream else b
-            if stream:
-                run = _stream_run(v, out_dir, fmu_path, scaled(progress, a, b), scene.name, fmts, est, max_memory,
-                                  run_extra(v, scene.plots, _title(scene.name, v.name)))
-            else:
-                try:
-                    if v.pair and not v.is_network:   # metrics and impact window from every step
-                        result, metrics = full_resolution_run(v, fmu_path, scaled(progress, a, mid), scene.name,
-                                                              max_memory)
-                    else:
-                        result, metrics = run_variant(v, fmu_path, scaled(progress, a, mid), scene.name), None
-                except RunFailed as exc:
-                    if exc.partial is None:
-                        runs.append(RunRecord(v.name, v, None, {"error": str(exc), "kind": "failed"}))
-                        continue
-                    result = exc.partial
-                    result.error = result.error or str(exc)
-                    metrics = getattr(exc, "metrics", None)
-                run = RunRecord(v.name, v, result, metrics or report.metrics(result, v.system))
+            run = _run_one(scene, v, out_dir, fmu_path, progress, (a, mid, b), fmts, est, stream, max_memory)
+            if run.result is None:
+                runs.append(run)
+                continue
             if run.result is not None and getattr(run.result, "error", None):
                 run.metrics["error"] = run.result.error
             try:
