@@ -6,6 +6,7 @@ import statistics
 
 import numpy as np
 
+from .csv_rows import write_records
 from .work_precision_cases import LADDERS, METHOD_DOC, Point, SCENES, horizon
 
 __all__ = ["measured_order", "slope_stderr", "cost_crossover", "midpoint_vs_exact", "cosim_h_dependence",
@@ -217,9 +218,16 @@ def _crossover_line(points, scene, metric, a, b, findings) -> str | None:
 
 
 def _interpretations(points, findings, mode) -> list[str]:
+    """The report's one-line findings (each also kept in ``findings``)."""
+    return (_order_lines(points, findings, mode) + _exact_lines(points, findings)
+            + _best_lines(points, findings) + _cosim_lines(points, findings)
+            + _overhead_lines(points, findings))
+
+
+def _order_lines(points, findings, mode) -> list[str]:
+    """The measured orders of the midpoint."""
     lad = LADDERS[mode]
     out = []
-    # measured orders of the midpoint
     for scene, metric, kw in (("bouncing-ball", "rest_time", {}), ("bouncing-ball", "max_q", {}),
                               ("forced-pair", "max_q", {}),
                               ("forced-pair", "d", dict(min_step=10 * lad["dt_ref_pair"])),
@@ -231,7 +239,12 @@ def _interpretations(points, findings, mode) -> list[str]:
             out.append(f"- **Measured order, midpoint, {scene} / {metric}**: slope of log error vs log dt = "
                        f"{_fmt(slope)} ± {_fmt(slope_stderr(pts), 2)} (least squares, dt {pts[0].step:g}–"
                        f"{pts[-1].step:g}, {len(pts)} points).")
-    # exact vs midpoint, solve_ivp vs midpoint
+    return out
+
+
+def _exact_lines(points, findings) -> list[str]:
+    """Exact vs midpoint, solve_ivp vs midpoint."""
+    out = []
     for scene, metric in (("bouncing-ball", "max_q"), ("forced-pair", "max_q"), ("zeno-table", "max_q"),
                           ("grazing", "max_q"), ("two-dof", "max_q")):
         mx = midpoint_vs_exact(points, scene, metric)
@@ -246,7 +259,12 @@ def _interpretations(points, findings, mode) -> list[str]:
         line = _crossover_line(points, scene, metric, "midpoint", "solve_ivp", findings)
         if line:
             out.append(line)
-    # the project's best method against solve_ivp at every error level
+    return out
+
+
+def _best_lines(points, findings) -> list[str]:
+    """The project's best method against solve_ivp at every error level."""
+    out = []
     for sc in SCENES:
         n_dof = 2 if sc.system is not None else 1
         for metric in sc.metrics:
@@ -265,7 +283,12 @@ def _interpretations(points, findings, mode) -> list[str]:
         if sc.pair is not None:
             out.append(f"- **Best own method vs solve_ivp, {sc.name} / d**: solve_ivp is not run on the "
                        "coupled pair (no baseline): no comparison.")
-    # co-simulation vs H
+    return out
+
+
+def _cosim_lines(points, findings) -> list[str]:
+    """The co-simulation's error against H."""
+    out = []
     for scene, metric in (("forced-pair", "d"), ("bouncing-ball", "rest_time"), ("bouncing-ball", "max_q"),
                           ("forced-pair", "max_q")):
         dep = cosim_h_dependence(points, scene, metric)
@@ -290,7 +313,12 @@ def _interpretations(points, findings, mode) -> list[str]:
                 cl = _crossover_line(points, scene, metric, a, b, findings)
                 if cl:
                     out.append(cl)
-    # cost of the FMU path
+    return out
+
+
+def _overhead_lines(points, findings) -> list[str]:
+    """The cost of the FMU path against the core midpoint at dt = H."""
+    out = []
     ratios = []
     for scene in {p.scene for p in points}:
         for p in points:
@@ -339,9 +367,4 @@ def report(points, mode, seconds) -> tuple[str, dict]:
 
 
 def write_csv(points, path) -> None:
-    import csv
-    with open(path, "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(Point.CSV_FIELDS)
-        for p in points:
-            w.writerow(p.row())
+    write_records(points, Point.CSV_FIELDS, path)
