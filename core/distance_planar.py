@@ -74,6 +74,29 @@ def _dJ(s, aX2, aY, bX2, bY, e):
     return fp, fpp
 
 
+@njit(cache=True, inline="always", error_model="numpy")
+def _bracket(s, fp, xl, xh):
+    """The bracket [xl, xh] of the root of f' shrunk to s by the sign of f'(s)."""
+    if fp < 0.0:
+        return s, xh
+    return xl, s
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _J_start(aY, bY, e, k, ax, bx, bX2):
+    """(s, xl, xh): the start of the Newton solve for J and the bracket (:func:`_J_newton`),
+    before the constraint s <= 0."""
+    if e < 1.0:
+        # start: Snell's condition with the direction to b frozen at s = aY
+        # (exact in the limit |aX| << distance to b, e.g. right at an impact)
+        t2 = bY + e * aY
+        beta = e * t2 / math.sqrt(bX2 + t2 * t2)
+        return aY - beta * ax / math.sqrt(1.0 - beta * beta), aY - k * ax, aY + k * ax
+    # start: the mirror formula (exact for e = 1): where the segment from
+    # (|aX|, aY) to (-|bX|, -bY) crosses X = 0
+    return aY + ax / (ax + bx) * (-bY - aY), min(aY, -bY), 0.0
+
+
 @njit(cache=True, error_model="numpy")
 def _J_newton(aX, aY, bX, bY, e, k, aX2, bX2):
     """Minimiser s <= 0 of f(s) = sqrt(aX^2 + (aY-s)^2) + sqrt(bX^2 + (bY+e s)^2)
@@ -89,20 +112,7 @@ def _J_newton(aX, aY, bX, bY, e, k, aX2, bX2):
     """
     ax = abs(aX)
     bx = abs(bX)
-    if e < 1.0:
-        xl = aY - k * ax
-        xh = aY + k * ax
-        # start: Snell's condition with the direction to b frozen at s = aY
-        # (exact in the limit |aX| << distance to b, e.g. right at an impact)
-        t2 = bY + e * aY
-        beta = e * t2 / math.sqrt(bX2 + t2 * t2)
-        s = aY - beta * ax / math.sqrt(1.0 - beta * beta)
-    else:
-        xl = min(aY, -bY)
-        xh = 0.0
-        # start: the mirror formula (exact for e = 1): where the segment from
-        # (|aX|, aY) to (-|bX|, -bY) crosses X = 0
-        s = aY + ax / (ax + bx) * (-bY - aY)
+    s, xl, xh = _J_start(aY, bY, e, k, ax, bx, bX2)
     if xh >= 0.0:
         fp, fpp = _dJ(0.0, aX2, aY, bX2, bY, e)
         if fp <= 0.0:
@@ -118,10 +128,7 @@ def _J_newton(aX, aY, bX, bY, e, k, aX2, bX2):
     fp, fpp = _dJ(s, aX2, aY, bX2, bY, e)
     if fp == 0.0:
         return s
-    if fp < 0.0:
-        xl = s
-    else:
-        xh = s
+    xl, xh = _bracket(s, fp, xl, xh)
     dx = xh - xl
     dxold = dx
     bisect = False
@@ -154,19 +161,13 @@ def _J_newton(aX, aY, bX, bY, e, k, aX2, bX2):
                 s = probe          # stalled: continue from the probe, bisecting
                 fp = fq
                 fpp = fqq
-                if fp < 0.0:
-                    xl = s
-                else:
-                    xh = s
+                xl, xh = _bracket(s, fp, xl, xh)
                 bisect = True
                 continue
         fp, fpp = _dJ(s, aX2, aY, bX2, bY, e)
         if fp == 0.0:
             return s
-        if fp < 0.0:
-            xl = s
-        else:
-            xh = s
+        xl, xh = _bracket(s, fp, xl, xh)
         if xh - xl <= tol:
             return s
     return s

@@ -326,6 +326,77 @@ def _series(a, b, forcing):
     return c
 
 
+def _harmonics(sa, w, m, s0):
+    """The forcing's harmonics in the gap coordinate: (s0 with the constant ones added, gap
+    amplitudes hs, frequencies hO > 0, phases hph); zero amplitudes left out."""
+    hs, hO, hph = [], [], []
+    for j in range(sa.F.shape[0]):
+        Fj, Om, ph = float(sa.F[j, 0]), float(sa.Omega[j]), float(sa.phi[j])
+        if Fj == 0.0:
+            continue
+        if Om == 0.0:
+            s0 += w * Fj * math.cos(ph) / m
+            continue
+        if Om < 0.0:
+            Om, ph = -Om, -ph
+        hs.append(w * Fj / m)
+        hO.append(Om)
+        hph.append(ph)
+    hs = np.array(hs, dtype=np.float64)
+    hO = np.array(hO, dtype=np.float64)
+    hph = np.array(hph, dtype=np.float64)
+    return s0, hs, hO, hph
+
+
+def _roots(a, b):
+    """The characteristic roots of ``g'' + a g' + b g``: (disc, mu, r1, r2, roots); the real
+    roots r1, r2 are 0 unless overdamped, the smaller one then from r1 r2 = b (no cancellation)."""
+    r1 = r2 = 0.0
+    disc = b - 0.25 * a * a
+    if disc > 0.0:
+        mu = math.sqrt(disc)
+        roots = np.array([complex(-0.5 * a, mu), complex(-0.5 * a, -mu)])
+    elif disc == 0.0:
+        mu = 0.0
+        roots = np.array([complex(-0.5 * a, 0.0), complex(-0.5 * a, 0.0)])
+    else:
+        mu = math.sqrt(-disc)
+        if a >= 0.0:
+            r2 = -(0.5 * a + mu)
+            r1 = b / r2
+        else:
+            r1 = -0.5 * a + mu
+            r2 = b / r1
+        roots = np.array([complex(r1, 0.0), complex(r2, 0.0)])
+    return disc, mu, r1, r2, roots
+
+
+def _flow_series(a, b, hO):
+    """The Taylor series ``rc`` of R0 and, per harmonic, ``hcc``, ``hcs`` of Yc, Ys."""
+    nh = hO.size
+    f = np.zeros(NT)
+    f[0] = 1.0
+    rc = _series(a, b, f)
+    hcc = np.zeros((max(nh, 1), NT))
+    hcs = np.zeros((max(nh, 1), NT))
+    for j in range(nh):
+        Om = hO[j]
+        fc = np.zeros(NT)
+        fs = np.zeros(NT)
+        term = 1.0
+        for n in range(NT):
+            if n > 0:
+                term *= Om / n
+            fc[n] = term * (1.0, 0.0, -1.0, 0.0)[n % 4]
+            fs[n] = term * (0.0, 1.0, 0.0, -1.0)[n % 4]
+        hcc[j] = _series(a, b, fc)
+        hcs[j] = _series(a, b, fs)
+    if nh == 0:
+        hcc = np.zeros((0, NT))
+        hcs = np.zeros((0, NT))
+    return rc, np.ascontiguousarray(hcc), np.ascontiguousarray(hcs)
+
+
 def flow_model(system: MechanicalSystem, tau) -> FlowModel:
     """The flow of a 1-DOF system in the gap coordinate with the constant input ``tau``
     (``None``: 0; length ``system.n_inputs``, checked by the caller). ValueError for n != 1."""
@@ -348,40 +419,9 @@ def flow_model(system: MechanicalSystem, tau) -> FlowModel:
     b = k / m
     ext = float(sa.f0[0] + sa.B[0] @ tau)
     s0 = w * ext / m + b * g0
-    hs, hO, hph = [], [], []
-    for j in range(sa.F.shape[0]):
-        Fj, Om, ph = float(sa.F[j, 0]), float(sa.Omega[j]), float(sa.phi[j])
-        if Fj == 0.0:
-            continue
-        if Om == 0.0:
-            s0 += w * Fj * math.cos(ph) / m
-            continue
-        if Om < 0.0:
-            Om, ph = -Om, -ph
-        hs.append(w * Fj / m)
-        hO.append(Om)
-        hph.append(ph)
-    hs = np.array(hs, dtype=np.float64)
-    hO = np.array(hO, dtype=np.float64)
-    hph = np.array(hph, dtype=np.float64)
+    s0, hs, hO, hph = _harmonics(sa, w, m, s0)
     nh = hs.size
-    disc = b - 0.25 * a * a
-    r1 = r2 = 0.0
-    if disc > 0.0:
-        mu = math.sqrt(disc)
-        roots = np.array([complex(-0.5 * a, mu), complex(-0.5 * a, -mu)])
-    elif disc == 0.0:
-        mu = 0.0
-        roots = np.array([complex(-0.5 * a, 0.0), complex(-0.5 * a, 0.0)])
-    else:
-        mu = math.sqrt(-disc)
-        if a >= 0.0:
-            r2 = -(0.5 * a + mu)
-            r1 = b / r2
-        else:
-            r1 = -0.5 * a + mu
-            r2 = b / r1
-        roots = np.array([complex(r1, 0.0), complex(r2, 0.0)])
+    disc, mu, r1, r2, roots = _roots(a, b)
     sab = max(abs(a), math.sqrt(abs(b)))
     omx = float(hO.max()) if nh else 0.0
     smax = max(sab, omx)
@@ -397,25 +437,6 @@ def flow_model(system: MechanicalSystem, tau) -> FlowModel:
     W = w * w / m
     prm[P_W] = W
     prm[P_OMX] = omx
-    f = np.zeros(NT)
-    f[0] = 1.0
-    rc = _series(a, b, f)
-    hcc = np.zeros((max(nh, 1), NT))
-    hcs = np.zeros((max(nh, 1), NT))
-    for j in range(nh):
-        Om = hO[j]
-        fc = np.zeros(NT)
-        fs = np.zeros(NT)
-        term = 1.0
-        for n in range(NT):
-            if n > 0:
-                term *= Om / n
-            fc[n] = term * (1.0, 0.0, -1.0, 0.0)[n % 4]
-            fs[n] = term * (0.0, 1.0, 0.0, -1.0)[n % 4]
-        hcc[j] = _series(a, b, fc)
-        hcs[j] = _series(a, b, fs)
-    if nh == 0:
-        hcc = np.zeros((0, NT))
-        hcs = np.zeros((0, NT))
+    rc, hcc, hcs = _flow_series(a, b, hO)
     return FlowModel(prm, rc, roots.astype(np.complex128), hs, hO, hph,
-                  np.ascontiguousarray(hcc), np.ascontiguousarray(hcs), w, g0, W)
+                  hcc, hcs, w, g0, W)

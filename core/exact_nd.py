@@ -329,24 +329,99 @@ class Solution:
         return _sample(self.aug, self.segs, self.events, T)
 
 
-def _run(aug: _Aug, q0, u0, t0, t_end, max_events, zeno_ttol, zeno_vtol):
+class _Record:
+    """What the n-DOF walk collects: segments ``(t_start, kind, z_start)``, events ``(t, P)``
+    (impacts and completed tails) and the fields of :class:`Solution`."""
+
+    def __init__(self):
+        self.segs, self.events = [], []
+        self.impacts, self.impact_u, self.zeno, self.zeno_start, self.zeno_p = [], [], [], [], []
+        self.grazes, self.contacts = [], []
+
+    def solution(self, aug):
+        return Solution(aug, self.segs, self.events, self.impacts, self.impact_u, self.zeno_start,
+                        self.zeno, self.zeno_p, self.grazes, self.contacts)
+
+
+def _vref(aug, z) -> float:
+    """The velocity scale of the Zeno test: the start's normal velocity, the speed a fall from the
+    start's gap under the forcing reaches, the forcing over the fastest rate."""
     n = aug.n
-    e = aug.e
-    W = aug.W
-    z = aug.state(q0, u0, t0)
-    t = t0
-    segs = []            # (t_start, kind, z_start)
-    events = []          # (t, P)  (impacts and completed tails)
-    impacts, impact_u, zeno, zeno_start, zeno_p, grazes, contacts = [], [], [], [], [], [], []
-    smax = aug.smax
-    H0 = 0.5 / smax if smax > 0.0 else math.inf
     g = float(aug.cg @ z)
     v = float(aug.cv @ z)
     Fscale = float(np.linalg.norm(aug.A[n:2 * n, 2 * n:], 1))   # forcing magnitude (per unit mass)
     vref = max(abs(v), math.sqrt(2.0 * Fscale * max(g, 0.0)))
-    if smax > 0.0:
-        vref = max(vref, Fscale / smax)
-    at_wall = g <= 0.0
+    if aug.smax > 0.0:
+        vref = max(vref, Fscale / aug.smax)
+    return vref
+
+
+def _impact(aug, z, t, vm, vref, rec, zeno_ttol, zeno_vtol):
+    """Newton's impact law at t (normal velocity vm < 0), then, when the bounces accumulate, the
+    completed Zeno tail: returns (z, t, completed) (completed: t is the tail's end, in contact)."""
+    n, e, W, smax = aug.n, aug.e, aug.W, aug.smax
+    u = z[n:2 * n]
+    rec.impact_u.append(u.copy())          # u- (u is a view of z)
+    z[n:2 * n] = u - (1.0 + e) * aug.Minv_w * (vm / W)
+    P = (1.0 + e) * (-vm) / W
+    rec.impacts.append((t, vm, P))
+    rec.events.append((t, P))
+    vp = -e * vm
+    if not (vp > 0.0 and e < 1.0):
+        return z, t, False
+    aw = float(aug.Dg[2] @ z)
+    if aw >= 0.0:
+        return z, t, False
+    den = (-aw) * (1.0 - e)          # 0 if a subnormal a_w underflows: no completion
+    Trem = 2.0 * vp / den if den > 0.0 else math.inf
+    ez = smax * Trem
+    small = vp <= zeno_vtol * vref
+    # the next bounce's apex below the round-off of g (n-DOF: g = w^T q + g0
+    # carries the rounding of q, unlike the 1-DOF gap coordinate)
+    apex = vp * vp / (2.0 * (-aw))
+    below = apex <= TOLF * float(np.sum(np.abs(aug.cg * z)))
+    if not ((smax > 0.0 and ez <= zeno_ttol) or (small and ez <= 1e-6) or below
+            or Trem * (1.0 - e) <= 16.0 * EPS * abs(t)):
+        return z, t, False
+    # complete the accumulation: normal velocity removed, tail in contact
+    z[n:2 * n] = z[n:2 * n] - aug.Minv_w * (float(aug.w @ z[n:2 * n]) / W)
+    rec.segs.append((t, TAIL, z.copy()))
+    Ptail = (1.0 + e) * vp / ((1.0 - e) * W)
+    rec.zeno_start.append(t)
+    z = _Seg(aug, TAIL, z).z(Trem)
+    t = t + Trem
+    rec.zeno.append(t)
+    rec.events.append((t, Ptail))
+    rec.zeno_p.append(Ptail)
+    return z, t, True
+
+
+def _classify(aug, z, at_wall, v, left, stick) -> int:
+    """The next segment's kind: FREE off the wall or leaving it, else CONTACT where the contact
+    force holds (or after a completed tail); on the wall at rest the round-off of g and of the
+    normal velocity is removed from z (in place)."""
+    n = aug.n
+    if not at_wall or v > 0.0 or left:
+        return FREE
+    lam = float(aug.cl @ z)
+    lam1 = float(aug.Dl[1] @ z)
+    sc = float(np.sum(np.abs(aug.cl * z)))
+    sticks = lam > TOLF * sc or (abs(lam) <= TOLF * sc and lam1 >= 0.0)
+    z[:n] = z[:n] - aug.w * (float(aug.cg @ z) / float(aug.w @ aug.w))
+    z[n:2 * n] = z[n:2 * n] - aug.Minv_w * (float(aug.w @ z[n:2 * n]) / aug.W)
+    return CONTACT if (stick or sticks) else FREE
+
+
+def _run(aug: _Aug, q0, u0, t0, t_end, max_events, zeno_ttol, zeno_vtol):
+    n = aug.n
+    W = aug.W
+    z = aug.state(q0, u0, t0)
+    t = t0
+    rec = _Record()
+    segs = rec.segs
+    H0 = 0.5 / aug.smax if aug.smax > 0.0 else math.inf
+    vref = _vref(aug, z)
+    at_wall = float(aug.cg @ z) <= 0.0
     left = False
     stick = False
     count = 0
@@ -355,90 +430,50 @@ def _run(aug: _Aug, q0, u0, t0, t_end, max_events, zeno_ttol, zeno_vtol):
         if count > max_events:
             raise RuntimeError(f"exact n-DOF solver: more than max_events = {max_events} events before "
                                f"t = {t_end} (stopped near t = {t:.9g})")
-        u = z[n:2 * n]
-        v = float(aug.w @ u)
-        # ---- impact
-        if at_wall and v < 0.0 and not left:
-            vm = v
-            vref = max(vref, -vm)
-            impact_u.append(u.copy())          # u- (u is a view of z)
-            z[n:2 * n] = u - (1.0 + e) * aug.Minv_w * (vm / W)
-            P = (1.0 + e) * (-vm) / W
-            impacts.append((t, vm, P))
-            events.append((t, P))
-            vp = -e * vm
-            if vp > 0.0 and e < 1.0:
-                aw = float(aug.Dg[2] @ z)
-                if aw < 0.0:
-                    den = (-aw) * (1.0 - e)          # 0 if a subnormal a_w underflows: no completion
-                    Trem = 2.0 * vp / den if den > 0.0 else math.inf
-                    ez = smax * Trem
-                    small = vp <= zeno_vtol * vref
-                    # the next bounce's apex below the round-off of g (n-DOF: g = w^T q + g0
-                    # carries the rounding of q, unlike the 1-DOF gap coordinate)
-                    apex = vp * vp / (2.0 * (-aw))
-                    below = apex <= TOLF * float(np.sum(np.abs(aug.cg * z)))
-                    if ((smax > 0.0 and ez <= zeno_ttol) or (small and ez <= 1e-6) or below
-                            or Trem * (1.0 - e) <= 16.0 * EPS * abs(t)):
-                        # complete the accumulation: normal velocity removed, tail in contact
-                        z[n:2 * n] = z[n:2 * n] - aug.Minv_w * (float(aug.w @ z[n:2 * n]) / W)
-                        segs.append((t, TAIL, z.copy()))
-                        Ptail = (1.0 + e) * vp / ((1.0 - e) * W)
-                        zeno_start.append(t)
-                        z = _Seg(aug, TAIL, z).z(Trem)
-                        t = t + Trem
-                        zeno.append(t)
-                        events.append((t, Ptail))
-                        zeno_p.append(Ptail)
-                        stick = True
-                        continue
-            at_wall = vp <= 0.0
+        v = float(aug.w @ z[n:2 * n])
+        if at_wall and v < 0.0 and not left:     # ---- impact
+            vref = max(vref, -v)
+            z, t, completed = _impact(aug, z, t, v, vref, rec, zeno_ttol, zeno_vtol)
+            if completed:
+                stick = True      # the tail ends in contact
+            else:
+                at_wall = -aug.e * v <= 0.0
             continue
-        # ---- classify
-        if not at_wall or v > 0.0 or left:
-            kind = FREE
-        else:
-            lam = float(aug.cl @ z)
-            lam1 = float(aug.Dl[1] @ z)
-            sc = float(np.sum(np.abs(aug.cl * z)))
-            sticks = lam > TOLF * sc or (abs(lam) <= TOLF * sc and lam1 >= 0.0)
-            kind = CONTACT if (stick or sticks) else FREE
-            # on the wall at rest: remove the round-off of g and of the normal velocity
-            z[:n] = z[:n] - aug.w * (float(aug.cg @ z) / float(aug.w @ aug.w))
-            z[n:2 * n] = z[n:2 * n] - aug.Minv_w * (float(aug.w @ z[n:2 * n]) / W)
+        kind = _classify(aug, z, at_wall, v, left, stick)
         stick = False
         segs.append((t, kind, z.copy()))
         seg = _Seg(aug, kind, z)
-        taumax = t_end - t
-        depart = kind == CONTACT or at_wall
-        alpha = 0.0
-        while True:
-            st, s = _search(seg, alpha, depart, taumax, H0)
-            if st != GRAZE:
-                break
-            grazes.append(t + s)
-            alpha = s
-            depart = True
+        st, s = _next_event(seg, t, kind == CONTACT or at_wall, t_end - t, H0, rec.grazes)
         left = False
         if st == NONE:
             break
         z = seg.z(s)
+        t_start, t = t, t + s
+        at_wall = True
         if kind == FREE:
             vm = float(aug.w @ z[n:2 * n])
             stick = s == 0.0 and vm >= 0.0
-            t = t + s
-            at_wall = True
             if vm > 0.0:
                 z[n:2 * n] = z[n:2 * n] - aug.Minv_w * (vm / W)
             z[:n] = z[:n] - aug.w * (float(aug.cg @ z) / float(aug.w @ aug.w))
         else:
-            contacts.append((segs[-1][0], t + s))
-            t = t + s
-            at_wall = True
+            rec.contacts.append((t_start, t))
             left = True
-    if segs and segs[-1][1] == CONTACT and (not contacts or contacts[-1][0] != segs[-1][0]):
-        contacts.append((segs[-1][0], t_end))
-    return Solution(aug, segs, events, impacts, impact_u, zeno_start, zeno, zeno_p, grazes, contacts)
+    if segs and segs[-1][1] == CONTACT and (not rec.contacts or rec.contacts[-1][0] != segs[-1][0]):
+        rec.contacts.append((segs[-1][0], t_end))
+    return rec.solution(aug)
+
+
+def _next_event(seg, t, depart, taumax, H0, grazes):
+    """The segment's next crossing (status, s) after t, the grazes on the way recorded."""
+    alpha = 0.0
+    while True:
+        st, s = _search(seg, alpha, depart, taumax, H0)
+        if st != GRAZE:
+            return st, s
+        grazes.append(t + s)
+        alpha = s
+        depart = True
 
 
 def solve(system: MechanicalSystem, q0, u0, t0: float, t_end: float, tau, taudot, t_c: float,

@@ -87,6 +87,108 @@ def vref_start(prm, g, v, vref0):
 
 
 @njit(cache=True)
+def _push(rows, n, c0, c1, c2, c3, c4):
+    """Append the row (c0, ..., c4) to ``rows[:n]`` (grown when full): returns (rows, n + 1)."""
+    if n == rows.shape[0]:
+        rows = _grow2(rows)
+    rows[n, 0] = c0
+    rows[n, 1] = c1
+    rows[n, 2] = c2
+    rows[n, 3] = c3
+    rows[n, 4] = c4
+    return rows, n + 1
+
+
+@njit(cache=True)
+def _impact_law(prm, hs, hO, hph, t, vm, vref, zeno_vtol, zeno_ttol, cutoff_vtol):
+    """Newton's law at an impact at t with gap velocity vm < 0, and whether the bounce
+    sequence it starts is completed (module docstring): returns (v+, P, complete, T_rem, a_w)."""
+    e = prm[P_E]
+    W = prm[P_W]
+    smax = prm[P_S]
+    v = -e * vm
+    P = (1.0 + e) * (-vm) / W
+    complete = False
+    Trem = 0.0
+    aw = 0.0
+    if v > 0.0:
+        aw = force(prm, hs, hO, hph, t)[0] - prm[P_A] * v
+        if aw < 0.0:
+            small = v <= zeno_vtol * vref
+            if e < 1.0:
+                den = (-aw) * (1.0 - e)      # 0 if a subnormal a_w underflows: no completion
+                Trem = 2.0 * v / den if den > 0.0 else np.inf
+                ez = smax * Trem
+                complete = ((smax > 0.0 and ez <= zeno_ttol)
+                            or (small and ez <= 1e-6)
+                            or Trem * (1.0 - e) <= 16.0 * EPS * abs(t))
+            elif v <= cutoff_vtol * vref:
+                # e = 1: no geometric accumulation; micro-bounce cut-off (plastic)
+                v = 0.0
+                P = (-vm) / W
+    return v, P, complete, Trem, aw
+
+
+@njit(cache=True)
+def _impact(prm, hs, hO, hph, t, vm, vref, zeno_vtol, zeno_ttol, cutoff_vtol, segs, nseg, evs, nev):
+    """An impact at t with gap velocity vm < 0 recorded (and the completed accumulation it
+    starts, if any): returns (t, v, segs, nseg, evs, nev) after it."""
+    v, P, complete, Trem, aw = _impact_law(prm, hs, hO, hph, t, vm, vref, zeno_vtol, zeno_ttol,
+                                           cutoff_vtol)
+    evs, nev = _push(evs, nev, t, IMPACT_EV, vm, P, t)
+    if complete:
+        e = prm[P_E]
+        segs, nseg = _push(segs, nseg, t, ZENO, 0.0, v, aw)
+        evs, nev = _push(evs, nev, t + Trem, ZENO_EV, v, (1.0 + e) * v / ((1.0 - e) * prm[P_W]), t)
+        t = t + Trem
+        v = 0.0
+    return t, v, segs, nseg, evs, nev
+
+
+@njit(cache=True)
+def _crossing(mode, depart, taumax, H0, prm, rc, roots, hs, hO, hcc, hcs, cps, sps, g, v, t,
+              grz, ngr, count, max_events):
+    """The segment's first crossing after t (search), the grazes on the way appended to grz;
+    each graze counts as an event. Returns (status, tau, grz, ngr, count)."""
+    alpha = 0.0
+    while True:
+        st, tau = search(mode, alpha, depart, taumax, H0, prm, rc, roots, hs, hO, hcc, hcs,
+                         cps, sps, g, v)
+        if st != GRAZE:
+            return st, tau, grz, ngr, count
+        if ngr == grz.shape[0]:
+            grz = _grow1(grz)
+        grz[ngr] = t + tau
+        ngr += 1
+        count += 1
+        if count > max_events:
+            return st, tau, grz, ngr, count
+        alpha = tau
+        depart = True
+
+
+@njit(cache=True)
+def _progress(count, max_events, t, t_last, stall):
+    """(status, t_last, stall): status 1 past max_events, 2 when time has not moved for 64
+    events (should not happen), else 0."""
+    if count > max_events:
+        return 1, t_last, stall
+    if t > t_last:
+        return 0, t, 0
+    stall += 1
+    return (2 if stall > 64 else 0), t_last, stall
+
+
+@njit(cache=True)
+def _classify(prm, hs, hO, hph, t, g, v, left, stick):
+    """The next segment's kind and start (kind, g, v): FREE off the wall or leaving it, else
+    CONTACT where the state sticks (or after a completed accumulation), at rest on the wall."""
+    if g > 0.0 or v > 0.0 or left:
+        return FREE, g, v
+    return (CONTACT if (stick or sticks(prm, hs, hO, hph, t)) else FREE), 0.0, 0.0
+
+
+@njit(cache=True)
 def run_events(prm, rc, roots, hs, hO, hph, hcc, hcs, t0, g_init, v_init, t_hor, max_events,
          zeno_ttol, zeno_vtol, cutoff_vtol, vref0=0.0):
     """Event loop. Returns (status, segs, nseg, evs, nev, grz, ngr, vref).
@@ -109,9 +211,6 @@ def run_events(prm, rc, roots, hs, hO, hph, hcc, hcs, t0, g_init, v_init, t_hor,
     nseg = 0
     nev = 0
     ngr = 0
-    a = prm[P_A]
-    e = prm[P_E]
-    W = prm[P_W]
     smax = prm[P_S]
     H0g = 0.5 / smax if smax > 0.0 else np.inf
     H0c = 0.5 / prm[P_OMX] if prm[P_OMX] > 0.0 else np.inf
@@ -129,106 +228,25 @@ def run_events(prm, rc, roots, hs, hO, hph, hcc, hcs, t0, g_init, v_init, t_hor,
     status = 0
     while t <= t_hor:
         count += 1
-        if count > max_events:
-            status = 1
+        status, t_last, stall = _progress(count, max_events, t, t_last, stall)
+        if status:
             break
-        if t > t_last:
-            t_last = t
-            stall = 0
-        else:
-            stall += 1
-            if stall > 64:
-                status = 2
-                break
         # ---- impact at t
         if g <= 0.0 and v < 0.0 and not left:
-            vm = v
-            vref = max(vref, -vm)
-            v = -e * vm
+            vref = max(vref, -v)
             g = 0.0
-            P = (1.0 + e) * (-vm) / W
-            complete = False
-            Trem = 0.0
-            aw = 0.0
-            if v > 0.0:
-                aw = force(prm, hs, hO, hph, t)[0] - a * v
-                if aw < 0.0:
-                    small = v <= zeno_vtol * vref
-                    if e < 1.0:
-                        den = (-aw) * (1.0 - e)      # 0 if a subnormal a_w underflows: no completion
-                        Trem = 2.0 * v / den if den > 0.0 else np.inf
-                        ez = smax * Trem
-                        complete = ((smax > 0.0 and ez <= zeno_ttol)
-                                    or (small and ez <= 1e-6)
-                                    or Trem * (1.0 - e) <= 16.0 * EPS * abs(t))
-                    elif v <= cutoff_vtol * vref:
-                        # e = 1: no geometric accumulation; micro-bounce cut-off (plastic)
-                        v = 0.0
-                        P = (-vm) / W
-            if nev == evs.shape[0]:
-                evs = _grow2(evs)
-            evs[nev, 0] = t
-            evs[nev, 1] = IMPACT_EV
-            evs[nev, 2] = vm
-            evs[nev, 3] = P
-            evs[nev, 4] = t
-            nev += 1
-            if complete:
-                if nseg == segs.shape[0]:
-                    segs = _grow2(segs)
-                segs[nseg, 0] = t
-                segs[nseg, 1] = ZENO
-                segs[nseg, 2] = 0.0
-                segs[nseg, 3] = v
-                segs[nseg, 4] = aw
-                nseg += 1
-                if nev == evs.shape[0]:
-                    evs = _grow2(evs)
-                evs[nev, 0] = t + Trem
-                evs[nev, 1] = ZENO_EV
-                evs[nev, 2] = v
-                evs[nev, 3] = (1.0 + e) * v / ((1.0 - e) * W)
-                evs[nev, 4] = t
-                nev += 1
-                t = t + Trem
-                v = 0.0
+            t, v, segs, nseg, evs, nev = _impact(prm, hs, hO, hph, t, v, vref, zeno_vtol, zeno_ttol,
+                                                 cutoff_vtol, segs, nseg, evs, nev)
             continue
         # ---- classify
-        if g > 0.0 or v > 0.0 or left:
-            kind = FREE
-        else:
-            kind = CONTACT if (stick or sticks(prm, hs, hO, hph, t)) else FREE
-            g = 0.0
-            v = 0.0
+        kind, g, v = _classify(prm, hs, hO, hph, t, g, v, left, stick)
         stick = False
-        if nseg == segs.shape[0]:
-            segs = _grow2(segs)
-        segs[nseg, 0] = t
-        segs[nseg, 1] = kind
-        segs[nseg, 2] = g
-        segs[nseg, 3] = v
-        segs[nseg, 4] = 0.0
-        nseg += 1
+        segs, nseg = _push(segs, nseg, t, kind, g, v, 0.0)
         phases(hO, hph, t, cps, sps)
-        taumax = t_hor - t
         mode = 0 if kind == FREE else 1
-        H0 = H0g if kind == FREE else H0c
-        depart = (kind == CONTACT) or g <= 0.0
-        alpha = 0.0
-        while True:
-            st, tau = search(mode, alpha, depart, taumax, H0, prm, rc, roots, hs, hO, hcc, hcs,
-                              cps, sps, g, v)
-            if st != GRAZE:
-                break
-            if ngr == grz.shape[0]:
-                grz = _grow1(grz)
-            grz[ngr] = t + tau
-            ngr += 1
-            count += 1
-            if count > max_events:
-                break
-            alpha = tau
-            depart = True
+        st, tau, grz, ngr, count = _crossing(mode, (kind == CONTACT) or g <= 0.0, t_hor - t,
+                                             H0g if kind == FREE else H0c, prm, rc, roots, hs, hO,
+                                             hcc, hcs, cps, sps, g, v, t, grz, ngr, count, max_events)
         if count > max_events:
             status = 1
             break
@@ -239,14 +257,12 @@ def run_events(prm, rc, roots, hs, hO, hph, hcc, hcs, t0, g_init, v_init, t_hor,
             vm = derivs(0, tau, prm, rc, roots, hs, hO, hcc, hcs, cps, sps, g, v)[1]
             # leaving the wall at rest, the motion turned into it at once: contact
             stick = tau == 0.0 and vm >= 0.0
-            t = t + tau
-            g = 0.0
             v = min(vm, 0.0)
         else:
-            t = t + tau
-            g = 0.0
             v = 0.0
             left = True
+        t = t + tau
+        g = 0.0
     return status, segs, nseg, evs, nev, grz, ngr, vref
 
 

@@ -50,6 +50,42 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action="version", version=f"{PROG} {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
+    _add_demo(sub)
+    _add_run(sub)
+
+    sp = sub.add_parser("ssp", help="write a coupled scene as an SSP 1.0 package (systems + coupling FMU)")
+    sp.add_argument("scene", help="built-in scene name or path to a .toml file (a pair or a network)")
+    sp.add_argument("--variant", default=None, metavar="NAME", help="the variant (required if the scene has several)")
+    sp.add_argument("-o", "--output", type=Path, required=True, help="package to write (FILE.ssp)")
+    sp.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                    help="override a scene key, e.g. --set run.t_end=60 (TOML values)")
+
+    sc = sub.add_parser("scenes", help="list the built-in scenes, or print one as TOML (--show)")
+    sc.add_argument("--show", metavar="NAME", default=None,
+                    help="print the scene (built-in name or .toml path) as TOML with every key, defaults "
+                         "filled; it loads back to the same scene")
+    pl = sub.add_parser("plot", help="draw a finished run's plots again from its data files (or a sweep's "
+                        "maps from its sweep.nc)")
+    pl.add_argument("dir", type=Path, help="the output folder of `fmu-sync run`, `demo` or `sweep`")
+    pl.add_argument("--only", action="append", default=[], metavar="KIND",
+                    help="draw only this plot (repeatable): positions, distance, impact-zoom, lyapunov, "
+                         "forces, phase")
+    sub.add_parser("export", help="export an FMU (options: see `fmu-sync export --help`)", add_help=False)
+    v = sub.add_parser("validate", help="validate an FMU with fmpy; exit 1 if it has problems")
+    v.add_argument("fmu", type=Path, help="path of the .fmu file")
+    sub.add_parser("bench", help="the benchmark report DIR/benchmarks.md (options: see `fmu-sync bench --help`)",
+                   add_help=False)
+    sub.add_parser("report", help="one of the mission's reports: work-precision (error against run time) or "
+                   "stability (stiff and extreme cases); options as `fmu-sync bench`", add_help=False)
+    sub.add_parser("docs", help="the README's and docs' published numbers and figures: --regenerate, --check "
+                   "(options: see `fmu-sync docs --help`)", add_help=False)
+    from .sweeps.cli import add_parser as add_sweep
+    add_sweep(sub)
+    return p
+
+
+def _add_demo(sub) -> None:
+    """``fmu-sync demo``."""
     d = sub.add_parser("demo", help="export the FMU and co-simulate the forced pair (uncoupled, "
                        "Euclidean, switching); compare with the monolithic core")
     d.add_argument("-o", "--out", type=Path, default=Path("fmu-sync-demo"), help="output folder "
@@ -62,6 +98,9 @@ def _parser() -> argparse.ArgumentParser:
                         "(median and interquartile range; default 16, 0: not computed)")
     d.add_argument("--quiet", action="store_true", help="no progress display")
 
+
+def _add_run(sub) -> None:
+    """``fmu-sync run``: a scene or an SSP package."""
     r = sub.add_parser("run", help="run a scene (built-in name or .toml path) or an SSP package (.ssp)")
     r.add_argument("scene", help="built-in scene name (see `fmu-sync scenes`), path to a .toml file, or an "
                    "SSP package written by `fmu-sync ssp` (run in our master)")
@@ -93,40 +132,9 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--convergence", action="store_true",
                    help="rerun each variant at its step, /2 and /4 (solver.dt in core mode, run.H in cosim) "
                         "and write only the metrics (decay rate, t_sync, bound) to convergence.md/.csv")
-
     r.add_argument("--method", default="jacobi", metavar="ORDER",
                    help="SSP package only: the exchange order, jacobi (default), gauss-seidel, delayed "
                         "(libcosim's) or delayed-zero (fmpy's SSP runner); see docs/ssp.md")
-
-    sp = sub.add_parser("ssp", help="write a coupled scene as an SSP 1.0 package (systems + coupling FMU)")
-    sp.add_argument("scene", help="built-in scene name or path to a .toml file (a pair or a network)")
-    sp.add_argument("--variant", default=None, metavar="NAME", help="the variant (required if the scene has several)")
-    sp.add_argument("-o", "--output", type=Path, required=True, help="package to write (FILE.ssp)")
-    sp.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                    help="override a scene key, e.g. --set run.t_end=60 (TOML values)")
-
-    sc = sub.add_parser("scenes", help="list the built-in scenes, or print one as TOML (--show)")
-    sc.add_argument("--show", metavar="NAME", default=None,
-                    help="print the scene (built-in name or .toml path) as TOML with every key, defaults "
-                         "filled; it loads back to the same scene")
-    pl = sub.add_parser("plot", help="draw a finished run's plots again from its data files (or a sweep's "
-                        "maps from its sweep.nc)")
-    pl.add_argument("dir", type=Path, help="the output folder of `fmu-sync run`, `demo` or `sweep`")
-    pl.add_argument("--only", action="append", default=[], metavar="KIND",
-                    help="draw only this plot (repeatable): positions, distance, impact-zoom, lyapunov, "
-                         "forces, phase")
-    sub.add_parser("export", help="export an FMU (options: see `fmu-sync export --help`)", add_help=False)
-    v = sub.add_parser("validate", help="validate an FMU with fmpy; exit 1 if it has problems")
-    v.add_argument("fmu", type=Path, help="path of the .fmu file")
-    sub.add_parser("bench", help="the benchmark report DIR/benchmarks.md (options: see `fmu-sync bench --help`)",
-                   add_help=False)
-    sub.add_parser("report", help="one of the mission's reports: work-precision (error against run time) or "
-                   "stability (stiff and extreme cases); options as `fmu-sync bench`", add_help=False)
-    sub.add_parser("docs", help="the README's and docs' published numbers and figures: --regenerate, --check "
-                   "(options: see `fmu-sync docs --help`)", add_help=False)
-    from .sweeps.cli import add_parser as add_sweep
-    add_sweep(sub)
-    return p
 
 
 def _progress(label: str, quiet: bool):

@@ -120,7 +120,7 @@ def _check_publish(page) -> None:
         _generated_span(page.read_text(), f"--publish {page}")
 
 
-def main(argv=None) -> int:
+def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="fmu-sync bench",
         description=f"The benchmark report DIR/{PAGE}: timings (speed, sweep, hold) and the reports "
@@ -136,7 +136,11 @@ def main(argv=None) -> int:
     parser.add_argument("--no-cosim", action="store_true", help="leave out the FMU co-simulation runs")
     parser.add_argument("--only", choices=SECTIONS, action="append",
                         help="run only these sections (repeatable); the reports alone: fmu-sync report NAME")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv=None) -> int:
+    args = _parser().parse_args(argv)
     argv_shown = list(sys.argv[1:] if argv is None else argv)
     if args.publish is not None:
         _check_publish(args.publish)
@@ -144,11 +148,6 @@ def main(argv=None) -> int:
     sections = set(args.only or (s for s in SECTIONS if s != "sweep"))
     if args.smoke:
         sections.discard("speed")
-
-    from fmu_sync.progress import Progress
-
-    from . import stability, work_precision
-    from .plots import work_precision_plots
 
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
@@ -158,94 +157,122 @@ def main(argv=None) -> int:
     print(f"fmu-sync bench ({mode}) -> {out}/  [{os.cpu_count()} CPUs, load {load0}]", flush=True)
     parts = []
     timings = {}
+
+    def section(name, run):
+        """Run one section (``run() -> markdown``), timed under ``name``, printed and kept."""
+        t0 = time.perf_counter()
+        md = run()
+        timings[name] = time.perf_counter() - t0
+        print(md, flush=True)
+        parts.append(md)
+
     with tempfile.TemporaryDirectory(prefix="fmu-sync-bench-") as tmp:
         fmu, why = (None, "--no-cosim") if args.no_cosim else _export(Path(tmp))
         if fmu is None:
             print(f"co-simulation runs skipped: {why}", flush=True)
-
-        if "speed" in sections:
-            from . import core_speed
-            t0 = time.perf_counter()
-            with Progress("core speed") as bar:
-                bar(0.0)
-                md = core_speed.run(quick=quick)
-                bar(1.0)
-            timings["core speed"] = time.perf_counter() - t0
-            print(md, flush=True)
-            parts.append(md)
-        elif not args.smoke:
-            parts.append("## Core speed\n\nnot run (--only).\n")
-        else:
-            parts.append("## Core speed\n\nskipped (--smoke).\n")
-
-        if sections & {"speed", "sweep"}:
-            # sibling benchmarks that offer the same entry point as core_speed: run(quick) -> markdown
-            import importlib
-            for name in EXTRA_SECTIONS:
-                need = {"speed", "sweep"} if name == "sweep_speed" else {"speed"}
-                if not need & sections:
-                    continue
-                try:
-                    mod = importlib.import_module(f"{__name__}.{name}")
-                except ImportError:
-                    continue
-                if not callable(getattr(mod, "run", None)):
-                    continue
-                t0 = time.perf_counter()
-                with Progress(name) as bar:
-                    bar(0.0)
-                    md = mod.run(quick=quick)
-                    bar(1.0)
-                timings[name] = time.perf_counter() - t0
-                print(md, flush=True)
-                parts.append(md)
-
-        if "work-precision" in sections:
-            t0 = time.perf_counter()
-            with Progress("work-precision") as bar:
-                wp = work_precision.run(quick=quick, fmu=fmu, progress=bar, smoke=args.smoke)
-            work_precision.write_csv(wp.points, out / "work_precision.csv")
-            pngs = work_precision_plots(wp.points, out)
-            timings["work-precision"] = time.perf_counter() - t0
-            md = wp.markdown + "\nDiagrams: " + ", ".join(f"`{p.name}`" for p in pngs) + ".\n"
-            print(md, flush=True)
-            parts.append(md)
-            if fmu is not None:   # the co-simulation to a tolerance against fixed H (issue 34)
-                from . import tolerance
-                t0 = time.perf_counter()
-                md = tolerance.run(quick=quick, out=out, smoke=args.smoke)
-                timings["work-precision: tolerance"] = time.perf_counter() - t0
-                print(md, flush=True)
-                parts.append(md)
-
-        if "stability" in sections:
-            t0 = time.perf_counter()
-            with Progress("stability") as bar:
-                rows, md = stability.run(quick=quick, fmu=fmu, progress=bar, smoke=args.smoke)
-            stability.write_csv(rows, out / "stability.csv")
-            timings["stability"] = time.perf_counter() - t0
-            print(md, flush=True)
-            parts.append(md)
-
-        for name, title, module in (("hold", "Co-simulation hold: zero- vs first-order", "hold_order"),
-                                    ("implicit", "Implicit exchange on a stiff pair", "implicit_exchange"),
-                                    ("networks", "Implicit exchange on networks with impacts", "implicit_networks")):
-            if name not in sections:
-                continue
-            if fmu is None:
-                parts.append(f"## {title}\n\nnot run (co-simulation skipped: {why}).\n")
-                continue
-            import importlib
-            mod = importlib.import_module(f".{module}", __name__)
-            t0 = time.perf_counter()
-            with Progress(name) as bar:
-                md = mod.run(quick=quick, smoke=args.smoke, progress=bar)
-            timings[name] = time.perf_counter() - t0
-            print(md, flush=True)
-            parts.append(md)
+        _timing_sections(sections, quick, args.smoke, section, parts)
+        _report_sections(sections, quick, args.smoke, fmu, out, section)
+        _cosim_sections(sections, quick, args.smoke, fmu, why, section, parts)
 
     total = time.perf_counter() - t_start
-    head = [
+    report = _head(mode, argv_shown, total, timings, load0, fmu, why) + "\n" + "\n".join(parts)
+    (out / PAGE).write_text(report)
+    written = [out / PAGE]
+    if args.publish is not None:
+        written.append(publish(report, args.publish))
+    if "work-precision" in sections:
+        written += [out / "work_precision.csv", out / "work_precision_*.png"]
+    if "stability" in sections:
+        written.append(out / "stability.csv")
+    print(f"wrote {', '.join(map(str, written))} in {total:.0f} s", flush=True)
+    return 0
+
+
+def _with_bar(name, run):
+    """``run()`` under a progress bar that only says started / done."""
+    from fmu_sync.progress import Progress
+    with Progress(name) as bar:
+        bar(0.0)
+        md = run()
+        bar(1.0)
+    return md
+
+
+def _timing_sections(sections, quick, smoke, section, parts) -> None:
+    """The core speed section, then the sibling timing modules (:data:`EXTRA_SECTIONS`)."""
+    if "speed" in sections:
+        from . import core_speed
+        section("core speed", lambda: _with_bar("core speed", lambda: core_speed.run(quick=quick)))
+    else:
+        parts.append("## Core speed\n\nnot run (--only).\n" if not smoke
+                     else "## Core speed\n\nskipped (--smoke).\n")
+    if not sections & {"speed", "sweep"}:
+        return
+    # sibling benchmarks that offer the same entry point as core_speed: run(quick) -> markdown
+    import importlib
+    for name in EXTRA_SECTIONS:
+        need = {"speed", "sweep"} if name == "sweep_speed" else {"speed"}
+        if not need & sections:
+            continue
+        try:
+            mod = importlib.import_module(f"{__name__}.{name}")
+        except ImportError:
+            continue
+        if callable(getattr(mod, "run", None)):
+            section(name, lambda: _with_bar(name, lambda: mod.run(quick=quick)))
+
+
+def _report_sections(sections, quick, smoke, fmu, out, section) -> None:
+    """The mission's reports: work-precision (with its csv, diagrams and the tolerance table)
+    and stability (with its csv)."""
+    from fmu_sync.progress import Progress
+
+    from . import stability, work_precision
+    from .plots import work_precision_plots
+    if "work-precision" in sections:
+        def wp_section():
+            with Progress("work-precision") as bar:
+                wp = work_precision.run(quick=quick, fmu=fmu, progress=bar, smoke=smoke)
+            work_precision.write_csv(wp.points, out / "work_precision.csv")
+            pngs = work_precision_plots(wp.points, out)
+            return wp.markdown + "\nDiagrams: " + ", ".join(f"`{p.name}`" for p in pngs) + ".\n"
+        section("work-precision", wp_section)
+        if fmu is not None:   # the co-simulation to a tolerance against fixed H (issue 34)
+            from . import tolerance
+            section("work-precision: tolerance", lambda: tolerance.run(quick=quick, out=out, smoke=smoke))
+    if "stability" in sections:
+        def stab_section():
+            with Progress("stability") as bar:
+                rows, md = stability.run(quick=quick, fmu=fmu, progress=bar, smoke=smoke)
+            stability.write_csv(rows, out / "stability.csv")
+            return md
+        section("stability", stab_section)
+
+
+def _cosim_sections(sections, quick, smoke, fmu, why, section, parts) -> None:
+    """The co-simulation timings: hold order, implicit exchange, networks (need the FMU)."""
+    import importlib
+
+    from fmu_sync.progress import Progress
+    for name, title, module in (("hold", "Co-simulation hold: zero- vs first-order", "hold_order"),
+                                ("implicit", "Implicit exchange on a stiff pair", "implicit_exchange"),
+                                ("networks", "Implicit exchange on networks with impacts", "implicit_networks")):
+        if name not in sections:
+            continue
+        if fmu is None:
+            parts.append(f"## {title}\n\nnot run (co-simulation skipped: {why}).\n")
+            continue
+        mod = importlib.import_module(f".{module}", __name__)
+
+        def run(mod=mod, name=name):
+            with Progress(name) as bar:
+                return mod.run(quick=quick, smoke=smoke, progress=bar)
+        section(name, run)
+
+
+def _head(mode, argv_shown, total, timings, load0, fmu, why) -> str:
+    """The report's head: the command, mode and wall times, the machine and its load, versions."""
+    return "\n".join([
         "# fmu-sync benchmarks", "",
         f"Written by `fmu-sync bench{' ' + ' '.join(argv_shown) if argv_shown else ''}`; every number below "
         "was measured in this run.", "",
@@ -257,18 +284,7 @@ def main(argv=None) -> int:
         f"- {_versions()}",
         f"- co-simulation: {'FMU exported by fmu_sync.export, run by fmu_sync.master (fmpy)' if fmu else 'skipped (' + str(why) + ')'}",
         "",
-    ]
-    report = "\n".join(head) + "\n" + "\n".join(parts)
-    (out / PAGE).write_text(report)
-    written = [out / PAGE]
-    if args.publish is not None:
-        written.append(publish(report, args.publish))
-    if "work-precision" in sections:
-        written += [out / "work_precision.csv", out / "work_precision_*.png"]
-    if "stability" in sections:
-        written.append(out / "stability.csv")
-    print(f"wrote {', '.join(map(str, written))} in {total:.0f} s", flush=True)
-    return 0
+    ])
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -30,24 +30,31 @@ from fmu_sync.core.kernels import (SWITCHING, core_2d, coupling_kernel, coupling
                                    distance_kernel, distance_kernel_unpruned, gain_matrix, make_geometry)
 
 
+@njit(cache=True, inline="always")
+def _vectors(n):
+    """Four work vectors of length n."""
+    return np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+
+
+@njit(cache=True, inline="always")
+def _read_row(i, Q1, U1, Q2, U2, q1, u1, q2, u2):
+    """Copy the states of call ``i`` into the work vectors (the same copy in every timed loop
+    and in its baseline)."""
+    for j in range(Q1.shape[1]):
+        q1[j] = Q1[i, j]
+        u1[j] = U1[i, j]
+        q2[j] = Q2[i, j]
+        u2[j] = U2[i, j]
+
+
 @njit(cache=True)
 def _loop_distance(geo, Q1, U1, Q2, U2, unpruned):
     n = Q1.shape[1]
-    q1 = np.empty(n)
-    u1 = np.empty(n)
-    q2 = np.empty(n)
-    u2 = np.empty(n)
-    c1q = np.empty(n)
-    c1u = np.empty(n)
-    c2q = np.empty(n)
-    c2u = np.empty(n)
+    q1, u1, q2, u2 = _vectors(n)
+    c1q, c1u, c2q, c2u = _vectors(n)
     acc = 0.0
     for i in range(Q1.shape[0]):
-        for j in range(n):
-            q1[j] = Q1[i, j]
-            u1[j] = U1[i, j]
-            q2[j] = Q2[i, j]
-            u2[j] = U2[i, j]
+        _read_row(i, Q1, U1, Q2, U2, q1, u1, q2, u2)
         if unpruned:
             d, b = distance_kernel_unpruned(geo, q1, u1, q2, u2, c1q, c1u, c2q, c2u)
         else:
@@ -59,17 +66,10 @@ def _loop_distance(geo, Q1, U1, Q2, U2, unpruned):
 @njit(cache=True)
 def _loop_copy_only(Q1, U1, Q2, U2):
     n = Q1.shape[1]
-    q1 = np.empty(n)
-    u1 = np.empty(n)
-    q2 = np.empty(n)
-    u2 = np.empty(n)
+    q1, u1, q2, u2 = _vectors(n)
     acc = 0.0
     for i in range(Q1.shape[0]):
-        for j in range(n):
-            q1[j] = Q1[i, j]
-            u1[j] = U1[i, j]
-            q2[j] = Q2[i, j]
-            u2[j] = U2[i, j]
+        _read_row(i, Q1, U1, Q2, U2, q1, u1, q2, u2)
         acc += q1[0] + u2[0]
     return acc
 
@@ -77,23 +77,13 @@ def _loop_copy_only(Q1, U1, Q2, U2):
 @njit(cache=True)
 def _loop_coupling(geo, Kp, Kd, Q1, U1, Q2, U2):
     n = Q1.shape[1]
-    q1 = np.empty(n)
-    u1 = np.empty(n)
-    q2 = np.empty(n)
-    u2 = np.empty(n)
+    q1, u1, q2, u2 = _vectors(n)
     t1 = np.empty(n)
     t2 = np.empty(n)
-    c1q = np.empty(n)
-    c1u = np.empty(n)
-    c2q = np.empty(n)
-    c2u = np.empty(n)
+    c1q, c1u, c2q, c2u = _vectors(n)
     acc = 0.0
     for i in range(Q1.shape[0]):
-        for j in range(n):
-            q1[j] = Q1[i, j]
-            u1[j] = U1[i, j]
-            q2[j] = Q2[i, j]
-            u2[j] = U2[i, j]
+        _read_row(i, Q1, U1, Q2, U2, q1, u1, q2, u2)
         d, b = coupling_kernel(SWITCHING, geo, Kp, Kd, q1, u1, q2, u2, t1, t2, c1q, c1u, c2q, c2u)
         acc += d + t1[0] + t2[0]
     return acc

@@ -126,8 +126,6 @@ def coupling_gains(kps=(1e-2, 1.0, 1e2, 1e4, 1e6), zeta: float = ZETA, fmu=None,
                    methods=("jacobi", "gauss-seidel"), n_steps: int = 400, iters: int = 10,
                    tol: float = 0.02, divergence_check: bool = True) -> list[Row]:
     """Stability limit of the explicit exchange vs the gain; see the module docstring."""
-    from fmu_sync.core import simulate_pair
-    from fmu_sync.core import SimulationDiverged
     rows = []
     h_th = zoh_limit(zeta)
     crit = f"|ω_c H* / h* - 1| <= {tol:.0%}, h* = min(4ζ, 1/ζ) = {h_th:.4f} (rule of thumb: 2)"
@@ -142,65 +140,95 @@ def coupling_gains(kps=(1e-2, 1.0, 1e2, 1e4, 1e6), zeta: float = ZETA, fmu=None,
                         f"unstable for dt > {hs / wc:.4g} s",
                         f"ω_c dt* = {hs:.4f} (h* = {h_th:.4f}, rule of thumb 2)", crit, ok, sec, value=hs))
         if divergence_check:
-            h = 3.0 * h_th
-            rho = zoh_rho(h, zeta)
-            n = int(math.ceil((710.0 - math.log(_DELTA)) / math.log(rho))) + 20
-            s = osc(**_FREE)
-            t0 = time.perf_counter()
-            try:
-                simulate_pair(s, (1 + _DELTA, 0.0), (1 - _DELTA, 0.0), n * h / wc, h / wc, coupling="euclidean",
-                              Kp=Kp, Kd=Kd, record_every=max(1, n // 10), record_distance=False,
-                              allow_unstable=True, scheme="midpoint")
-                outcome, msg, ok = "returned data, no error", "", False
-            except SimulationDiverged as ex:
-                outcome, msg, ok = "SimulationDiverged", str(ex).split(" The ")[0], True
-            rows.append(Row("coupling", case, "monolithic simulate_pair (ZOH coupling)",
-                            f"dt = 3 dt*_theory, {n} steps (enough to overflow)", outcome, msg,
-                            "divergence reported as SimulationDiverged", ok, time.perf_counter() - t0))
+            rows.append(_core_divergence(case, Kp, Kd, wc, h_th, zeta))
         if fmu is not None and (cosim_kps is None or Kp in cosim_kps):
             for method in methods:
-                t0 = time.perf_counter()
                 if method == "jacobi":
-                    hs = _bisect(lambda h: _probe_cosim(fmu, Kp, Kd, wc, h, n_steps, method), iters=iters)
-                    ok = math.isfinite(hs) and abs(hs / h_th - 1.0) <= tol
-                    rows.append(Row("coupling", case, "co-simulation FMU + master (jacobi)",
-                                    f"H ladder, {n_steps} steps, slave dt = H", f"unstable for H > {hs / wc:.4g} s",
-                                    f"ω_c H* = {hs:.4f} (h* = {h_th:.4f}, rule of thumb 2)", crit, ok,
-                                    time.perf_counter() - t0, value=hs))
-                    continue
-                # Gauss-Seidel: slave 2 sees slave 1 at t + H while it is at t, so tau2 != -tau1 and
-                # the exchange is not Galilean invariant: the map has a real eigenvalue > 1 for every H
-                # (both masses accelerate together), see gauss_seidel_rho.
-                h = 0.1
-                steps = 3000
-                r = _cosim(fmu, Kp, Kd, h / wc, steps, method)
-                rho_th = gauss_seidel_rho(h, zeta)
-                dev = np.column_stack([r.q1[:, 0] - 1.0, r.u1[:, 0] / wc, r.q2[:, 0] - 1.0, r.u2[:, 0] / wc])
-                A = np.linalg.norm(dev, axis=1)
-                k0 = steps // 2
-                rho = float((A[-1] / A[k0]) ** (1.0 / (A.size - 1 - k0)))
-                ok = not r.error and abs(rho - rho_th) <= 0.01 * (rho_th - 1.0)
-                rows.append(Row("coupling", case, "co-simulation FMU + master (gauss-seidel)",
-                                f"ω_c H = {h:g}, {steps} steps, slave dt = H",
-                                "unstable for every H: the pair accelerates together",
-                                f"growth/step {rho:.7f} (GS map eigenvalue {rho_th:.7f} ≈ 1 + h²/4); "
-                                f"common drift q1-1 = {float(r.q1[-1, 0]) - 1:.2e} after {steps} steps",
-                                "measured growth = largest eigenvalue of the Gauss-Seidel ZOH map (±1 % of "
-                                "its excess over 1)", ok, time.perf_counter() - t0, value=rho))
+                    rows.append(_cosim_limit(fmu, case, Kp, Kd, wc, h_th, n_steps, iters, tol, crit))
+                else:
+                    rows.append(_gauss_seidel_growth(fmu, case, Kp, Kd, wc, zeta, method))
             if divergence_check:
-                h = 3.0 * h_th
-                rho = zoh_rho(h, zeta)
-                n = int(math.ceil((710.0 - math.log(_DELTA)) / math.log(rho))) + 20
-                t0 = time.perf_counter()
-                r = _cosim(fmu, Kp, Kd, h / wc, n)
-                finite = all(np.all(np.isfinite(a)) for a in (r.q1, r.u1, r.q2, r.u2))
-                ok = bool(r.error) and finite
-                rows.append(Row("coupling", case, "co-simulation FMU + master (jacobi)",
-                                f"H = 3 H*_theory, {n} steps", "run stopped with an error" if r.error else
-                                "returned data, no error", (r.error or "")[:200],
-                                "divergence reported (SlaveError, partial record kept), recorded data finite", ok,
-                                time.perf_counter() - t0))
-    # zero damping: the Jacobi/ZOH exchange is unstable for every step (rho = sqrt(1 + h^2/2))
+                rows.append(_cosim_divergence(fmu, case, Kp, Kd, wc, h_th, zeta))
+    rows.append(_undamped_growth())
+    return rows
+
+
+def _divergence_steps(h, zeta) -> int:
+    """Steps at ω_c H = h enough for the ZOH map's growth to overflow a double from _DELTA."""
+    return int(math.ceil((710.0 - math.log(_DELTA)) / math.log(zoh_rho(h, zeta)))) + 20
+
+
+def _core_divergence(case, Kp, Kd, wc, h_th, zeta) -> Row:
+    """simulate_pair at 3 times the limit step: reported as SimulationDiverged."""
+    from fmu_sync.core import SimulationDiverged, simulate_pair
+    h = 3.0 * h_th
+    n = _divergence_steps(h, zeta)
+    s = osc(**_FREE)
+    t0 = time.perf_counter()
+    try:
+        simulate_pair(s, (1 + _DELTA, 0.0), (1 - _DELTA, 0.0), n * h / wc, h / wc, coupling="euclidean",
+                      Kp=Kp, Kd=Kd, record_every=max(1, n // 10), record_distance=False,
+                      allow_unstable=True)
+        outcome, msg, ok = "returned data, no error", "", False
+    except SimulationDiverged as ex:
+        outcome, msg, ok = "SimulationDiverged", str(ex).split(" The ")[0], True
+    return Row("coupling", case, "monolithic simulate_pair (ZOH coupling)",
+               f"dt = 3 dt*_theory, {n} steps (enough to overflow)", outcome, msg,
+               "divergence reported as SimulationDiverged", ok, time.perf_counter() - t0)
+
+
+def _cosim_limit(fmu, case, Kp, Kd, wc, h_th, n_steps, iters, tol, crit) -> Row:
+    """The Jacobi co-simulation's stability limit H*, bisected."""
+    t0 = time.perf_counter()
+    hs = _bisect(lambda h: _probe_cosim(fmu, Kp, Kd, wc, h, n_steps, "jacobi"), iters=iters)
+    ok = math.isfinite(hs) and abs(hs / h_th - 1.0) <= tol
+    return Row("coupling", case, "co-simulation FMU + master (jacobi)",
+               f"H ladder, {n_steps} steps, slave dt = H", f"unstable for H > {hs / wc:.4g} s",
+               f"ω_c H* = {hs:.4f} (h* = {h_th:.4f}, rule of thumb 2)", crit, ok,
+               time.perf_counter() - t0, value=hs)
+
+
+def _gauss_seidel_growth(fmu, case, Kp, Kd, wc, zeta, method) -> Row:
+    """Gauss-Seidel: slave 2 sees slave 1 at t + H while it is at t, so tau2 != -tau1 and the
+    exchange is not Galilean invariant: the map has a real eigenvalue > 1 for every H (both
+    masses accelerate together), see gauss_seidel_rho."""
+    t0 = time.perf_counter()
+    h = 0.1
+    steps = 3000
+    r = _cosim(fmu, Kp, Kd, h / wc, steps, method)
+    rho_th = gauss_seidel_rho(h, zeta)
+    dev = np.column_stack([r.q1[:, 0] - 1.0, r.u1[:, 0] / wc, r.q2[:, 0] - 1.0, r.u2[:, 0] / wc])
+    A = np.linalg.norm(dev, axis=1)
+    k0 = steps // 2
+    rho = float((A[-1] / A[k0]) ** (1.0 / (A.size - 1 - k0)))
+    ok = not r.error and abs(rho - rho_th) <= 0.01 * (rho_th - 1.0)
+    return Row("coupling", case, "co-simulation FMU + master (gauss-seidel)",
+               f"ω_c H = {h:g}, {steps} steps, slave dt = H",
+               "unstable for every H: the pair accelerates together",
+               f"growth/step {rho:.7f} (GS map eigenvalue {rho_th:.7f} ≈ 1 + h²/4); "
+               f"common drift q1-1 = {float(r.q1[-1, 0]) - 1:.2e} after {steps} steps",
+               "measured growth = largest eigenvalue of the Gauss-Seidel ZOH map (±1 % of "
+               "its excess over 1)", ok, time.perf_counter() - t0, value=rho)
+
+
+def _cosim_divergence(fmu, case, Kp, Kd, wc, h_th, zeta) -> Row:
+    """The co-simulation at 3 times the limit step: an error, the partial record finite."""
+    h = 3.0 * h_th
+    n = _divergence_steps(h, zeta)
+    t0 = time.perf_counter()
+    r = _cosim(fmu, Kp, Kd, h / wc, n)
+    finite = all(np.all(np.isfinite(a)) for a in (r.q1, r.u1, r.q2, r.u2))
+    ok = bool(r.error) and finite
+    return Row("coupling", case, "co-simulation FMU + master (jacobi)",
+               f"H = 3 H*_theory, {n} steps", "run stopped with an error" if r.error else
+               "returned data, no error", (r.error or "")[:200],
+               "divergence reported (SlaveError, partial record kept), recorded data finite", ok,
+               time.perf_counter() - t0)
+
+
+def _undamped_growth() -> Row:
+    """Zero damping: the Jacobi/ZOH exchange is unstable for every step (rho = sqrt(1 + h^2/2))."""
+    from fmu_sync.core import simulate_pair
     Kp = 1.0
     wc, _ = _gain_case(Kp, 0.0)
     h = 0.1
@@ -216,9 +244,8 @@ def coupling_gains(kps=(1e-2, 1.0, 1e2, 1e4, 1e6), zeta: float = ZETA, fmu=None,
     rho_meas = math.exp(np.polyfit(np.arange(A2.size), 0.5 * np.log(A2), 1)[0])
     rho_th = math.sqrt(1 + h * h / 2)
     ok = abs(rho_meas - rho_th) <= 1e-3 * (rho_th - 1) + 1e-5
-    rows.append(Row("coupling", "Kp=1, Kd=0 (no damping)", "monolithic simulate_pair (ZOH coupling)",
-                    f"ω_c dt = {h:g}, {steps} steps", "slow growth (energy pumped in by the hold)",
-                    f"growth/step {rho_meas:.7f} (theory sqrt(1+h²/2) = {rho_th:.7f})",
-                    "measured growth factor = theory (±1e-5): with Kd = 0 the ZOH exchange is unstable "
-                    "for every step", ok, time.perf_counter() - t0, value=rho_meas))
-    return rows
+    return Row("coupling", "Kp=1, Kd=0 (no damping)", "monolithic simulate_pair (ZOH coupling)",
+               f"ω_c dt = {h:g}, {steps} steps", "slow growth (energy pumped in by the hold)",
+               f"growth/step {rho_meas:.7f} (theory sqrt(1+h²/2) = {rho_th:.7f})",
+               "measured growth factor = theory (±1e-5): with Kd = 0 the ZOH exchange is unstable "
+               "for every step", ok, time.perf_counter() - t0, value=rho_meas)

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import math
 
+from .csv_rows import write_records
 from .stability_base import ZETA, Row  # noqa: F401
 from .stability_coupling import zoh_limit
 
@@ -59,12 +60,7 @@ def grouped_tables(rows) -> str:
 
 
 def write_csv(rows, path) -> None:
-    import csv
-    with open(path, "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(Row.CSV_FIELDS)
-        for r in rows:
-            w.writerow(r.row())
+    write_records(rows, Row.CSV_FIELDS, path)
 
 
 def summary(rows) -> list[str]:

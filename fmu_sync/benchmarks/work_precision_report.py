@@ -6,6 +6,7 @@ import statistics
 
 import numpy as np
 
+from .csv_rows import write_records
 from .work_precision_cases import LADDERS, METHOD_DOC, Point, SCENES, horizon, pair_metrics
 
 __all__ = ["measured_order", "slope_stderr", "cost_crossover", "midpoint_vs_exact", "cosim_h_dependence",
@@ -239,9 +240,16 @@ def _crossover_line(points, scene, metric, a, b, findings) -> str | None:
 
 
 def _interpretations(points, findings, mode) -> list[str]:
+    """The report's one-line findings (each also kept in ``findings``)."""
+    return (_order_lines(points, findings, mode) + _exact_lines(points, findings)
+            + _best_lines(points, findings) + _cosim_lines(points, findings)
+            + _overhead_lines(points, findings))
+
+
+def _order_lines(points, findings, mode) -> list[str]:
+    """The measured orders of the midpoint."""
     lad = LADDERS[mode]
     out = []
-    # measured orders of the midpoint
     for scene, metric, kw in (("bouncing-ball", "rest_time", {}), ("bouncing-ball", "max_q", {}),
                               ("forced-pair", "max_q", {}),
                               ("forced-pair", "d", dict(min_step=10 * lad["dt_ref_pair"])),
@@ -273,7 +281,12 @@ def _interpretations(points, findings, mode) -> list[str]:
             line += (f"; at equal run time the trapezoid is ×{_fmt(eq[0], 3)} closer than the midpoint (median over "
                      f"{eq[2]} runs, least ×{_fmt(eq[1], 3)})")
         out.append(line + ".")
-    # exact vs midpoint, solve_ivp vs midpoint
+    return out
+
+
+def _exact_lines(points, findings) -> list[str]:
+    """Exact vs midpoint, solve_ivp vs midpoint."""
+    out = []
     for scene, metric in (("bouncing-ball", "max_q"), ("forced-pair", "max_q"), ("zeno-table", "max_q"),
                           ("grazing", "max_q"), ("two-dof", "max_q")):
         mx = midpoint_vs_exact(points, scene, metric)
@@ -288,7 +301,12 @@ def _interpretations(points, findings, mode) -> list[str]:
         line = _crossover_line(points, scene, metric, "midpoint", "solve_ivp", findings)
         if line:
             out.append(line)
-    # the project's best method against solve_ivp at every error level
+    return out
+
+
+def _best_lines(points, findings) -> list[str]:
+    """The project's best method against solve_ivp at every error level."""
+    out = []
     for sc in SCENES:
         n_dof = 2 if sc.system is not None else 1
         for metric in sc.metrics:
@@ -307,7 +325,12 @@ def _interpretations(points, findings, mode) -> list[str]:
         if sc.pair is not None:
             out.append(f"- **Best own method vs solve_ivp, {sc.name} / {pair_metrics(sc)[0]}**: solve_ivp is not run "
                        "on the coupled pair (no baseline): no comparison.")
-    # co-simulation vs H
+    return out
+
+
+def _cosim_lines(points, findings) -> list[str]:
+    """The co-simulation's error against H."""
+    out = []
     for scene, metric in (("forced-pair", "d"), ("bouncing-ball", "rest_time"), ("bouncing-ball", "max_q"),
                           ("forced-pair", "max_q")):
         dep = cosim_h_dependence(points, scene, metric)
@@ -332,7 +355,12 @@ def _interpretations(points, findings, mode) -> list[str]:
                 cl = _crossover_line(points, scene, metric, a, b, findings)
                 if cl:
                     out.append(cl)
-    # cost of the FMU path
+    return out
+
+
+def _overhead_lines(points, findings) -> list[str]:
+    """The cost of the FMU path against the core midpoint at dt = H."""
+    out = []
     ratios = []
     for scene in {p.scene for p in points}:
         for p in points:
@@ -383,9 +411,4 @@ def report(points, mode, seconds) -> tuple[str, dict]:
 
 
 def write_csv(points, path) -> None:
-    import csv
-    with open(path, "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(Point.CSV_FIELDS)
-        for p in points:
-            w.writerow(p.row())
+    write_records(points, Point.CSV_FIELDS, path)

@@ -159,10 +159,9 @@ def convergence(scene, out_dir=None, overrides: dict | None = None, variants=Non
     step, the cost of the reruns is 1 + 2 + 4 = 7 times the steps of one run).
     Single systems (no distance d) are refused (:class:`SceneError`).
     """
-    from .. import report
     from ..core import RunFailed
-    from ..output import DEFAULT_MAX_DISK, DEFAULT_MAX_MEMORY, check_budget, check_out_dir
-    from .running import check_export, export_for, preflight, run_variant
+    from ..output import DEFAULT_MAX_DISK, DEFAULT_MAX_MEMORY, check_out_dir
+    from .running import check_export, export_for, run_variant
 
     scene = as_scene(scene, overrides, variants)
     check_export(scene.variants)
@@ -172,21 +171,7 @@ def convergence(scene, out_dir=None, overrides: dict | None = None, variants=Non
     out_dir = check_out_dir(Path(out_dir) if out_dir is not None else DEFAULT_OUT / scene.name)
     max_memory = DEFAULT_MAX_MEMORY if max_memory is None else float(max_memory)
     max_disk = DEFAULT_MAX_DISK if max_disk is None else float(max_disk)
-    plan = []
-    for v in scene.variants:
-        if not v.pair:
-            raise SceneError(f"scene {scene.name!r}, variant {v.name!r}: the convergence check compares the "
-                             "decay of the distance d of coupled systems; this variant is a single system "
-                             "(give [initial] x2 or a [network])")
-        runs = []
-        for k in range(levels):
-            vk = load_scene(scene.path, {**scene.overrides, **refined_overrides(v, k)}, [v.name]).variants[0]
-            preflight(vk, scene.name)
-            est, _ = check_budget(vk, (), max_memory, max_disk, can_stream=False,
-                                  label=f"scene {scene.name!r}, variant {v.name!r} at {refined_key(v)}/"
-                                        f"{(TOL_FACTOR if refined_key(v) == 'run.tol' else 2) ** k}")
-            runs.append((vk, est.steps))
-        plan.append((v, runs))
+    plan = _plan(scene, levels, max_memory, max_disk)
     total = sum(s for _, runs in plan for _, s in runs)
 
     created = not out_dir.exists()
@@ -209,16 +194,7 @@ def convergence(scene, out_dir=None, overrides: dict | None = None, variants=Non
                     raise RunFailed(f"{exc} (convergence check at {vc.step_name} = "
                                     f"{vk.cfg[vc.step_name]:g})", partial=None) from None
                 done += steps
-                m = _metrics(result, report.SYNC_THRESHOLD)
-                nan = math.nan
-                vc.rows.append(ConvergenceRow(
-                    label="tolerance" if vc.step_name == "run.tol" else "step",
-                    step=float(vk.cfg[vc.step_name]), dt=float(vk.cfg["solver.dt"]),
-                    record_every=int(vk.cfg["run.record_every"]),
-                    rate=m.rate if m else nan, rate_err=m.rate_err if m else nan,
-                    t_sync=m.t_sync if m else nan, t_fit=m.t_fit if m else nan,
-                    bound=m.bound if m else nan, final_d=_final_d(result),
-                    reason=(m.reason if m else "no distance recorded")))
+                vc.rows.append(_row(vc.step_name, vk, result))
             vc.verdict, vc.converged = compare_rows(vc.rows)
             results.append(vc)
     except BaseException:
@@ -234,6 +210,44 @@ def convergence(scene, out_dir=None, overrides: dict | None = None, variants=Non
     if progress is not None:
         progress(1.0)
     return ConvergenceRun(scene, out_dir, results, files)
+
+
+def _plan(scene, levels, max_memory, max_disk) -> list:
+    """[(variant, [(rerun variant, steps), ...]), ...]: every rerun loaded, its stability and its
+    record's memory checked (before anything runs); a single system is refused."""
+    from ..output import check_budget
+    from .running import preflight
+    plan = []
+    for v in scene.variants:
+        if not v.pair:
+            raise SceneError(f"scene {scene.name!r}, variant {v.name!r}: the convergence check compares the "
+                             "decay of the distance d of coupled systems; this variant is a single system "
+                             "(give [initial] x2 or a [network])")
+        runs = []
+        for k in range(levels):
+            vk = load_scene(scene.path, {**scene.overrides, **refined_overrides(v, k)}, [v.name]).variants[0]
+            preflight(vk, scene.name)
+            est, _ = check_budget(vk, (), max_memory, max_disk, can_stream=False,
+                                  label=f"scene {scene.name!r}, variant {v.name!r} at {refined_key(v)}/"
+                                        f"{(TOL_FACTOR if refined_key(v) == 'run.tol' else 2) ** k}")
+            runs.append((vk, est.steps))
+        plan.append((v, runs))
+    return plan
+
+
+def _row(step_name, vk, result) -> ConvergenceRow:
+    """The metrics of one rerun ``vk`` (NaN where it has no distance record)."""
+    from .. import report
+    m = _metrics(result, report.SYNC_THRESHOLD)
+    nan = math.nan
+    return ConvergenceRow(
+        label="tolerance" if step_name == "run.tol" else "step",
+        step=float(vk.cfg[step_name]), dt=float(vk.cfg["solver.dt"]),
+        record_every=int(vk.cfg["run.record_every"]),
+        rate=m.rate if m else nan, rate_err=m.rate_err if m else nan,
+        t_sync=m.t_sync if m else nan, t_fit=m.t_fit if m else nan,
+        bound=m.bound if m else nan, final_d=_final_d(result),
+        reason=(m.reason if m else "no distance recorded"))
 
 
 # ---------------------------------------------------------------- tables

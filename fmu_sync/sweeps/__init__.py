@@ -251,106 +251,169 @@ def sweep(scene, grid: dict | None = None, *, sample: dict | None = None, n: int
     Nothing is written before the sweep is known to be valid; a refused sweep leaves no folder
     behind. An interrupted sweep keeps its finished chunks in ``out/.partial`` for resuming.
     """
-    from ..core.batch import COL, DIVERGED, OK
+    from ..output import DEFAULT_MAX_MEMORY
     from ..report import SYNC_THRESHOLD
-    from ..scenes.loading import Scene, load_scene
     from . import store
-    from .engine import divergence_reason, prepare
+    from .engine import prepare
 
-    spec = None
-    sweep_name = ""
+    scene, grid, sample, n, method, seed, variant, plot_axes, sweep_name = _resolve_scene(
+        scene, grid, sample, n, method, seed, variant, overrides)
+    threshold = SYNC_THRESHOLD if threshold is None else float(threshold)
+    method = method or ("grid" if grid else "lhs")
+    max_memory = DEFAULT_MAX_MEMORY if max_memory is None else float(max_memory)
+    keys, axes, runs = _runs(grid, sample, n, method, seed, max_memory, max_runs)
+    variant = _variant(scene, variant, keys)
+    if plot_axes and not all(plot_axes.get(a) in keys for a in ("x", "y")):
+        plot_axes = {}   # the sweep scene's grid was replaced: the maps follow the swept keys
+    _check_time(scene, variant, keys, runs, max_memory, max_time, max_runs, threads, workers)
+    out_dir = _out_dir(out)
+    own_client = client is None and scheduler is not None
+    if own_client:
+        client = _client(scheduler)
+    threads = threads or _default_threads()
+    R = len(runs)
+    chunk = chunk_size or max(32 * threads if client is None else 8, math.ceil(R / 50))
+    fp = _fingerprint(scene, variant, keys, runs, method, seed, threshold, chunk)
+    attrs = _attrs(scene, sweep_name, variant, keys, method, seed, grid, sample, threshold, fp)
+    if out_dir is not None and (out_dir / store.RESULT_FILE).exists() and not overwrite:
+        return _finished_sweep(out_dir / store.RESULT_FILE, fp)
+
+    prep = prepare(scene, runs, variant)   # every run checked: nothing is written before this
+    st, created = _chunk_store(out_dir, fp, overwrite)
+    tasks = _tasks(prep, threshold, chunk, threads, 1 if client is not None else 2)
+    own_bar = progress is None and not quiet
+    bar = SweepProgress(f"sweep {scene.name}") if own_bar else progress
+    table, reasons, computed, reused = _execute(prep, tasks, st, client, threshold, threads, workers,
+                                                 fp, bar, R, out_dir, created, own_bar, own_client)
+    attrs.update(engine="dask" if client is not None else "embedded", computed_runs=int(computed),
+                 reused_runs=int(reused), compiled_runs=int(prep.compiled.size),
+                 process_runs=int(prep.python.size))
+    ds = store.to_dataset(table, reasons, keys, axes, runs, attrs)
+    if out_dir is not None:
+        store.write_dataset(ds, out_dir / store.RESULT_FILE)
+        st.clear()
+        if plots:
+            from .plots import sweep_plots
+            ds.attrs["plots"] = json.dumps([p.name for p in sweep_plots(ds, out_dir, plot_axes)])
+    return ds
+
+
+def _out_dir(out):
+    """The output folder as a Path, checked before anything runs (None: nothing written)."""
+    if out is None:
+        return None
+    from ..output import check_out_dir
+    check_out_dir(Path(out))
+    return Path(out)
+
+
+def _chunk_store(out_dir, fp, overwrite):
+    """(the chunk store of ``out_dir``, whether the folder was made here); SweepExists when it
+    holds a different unfinished sweep (a folder made here is removed again)."""
+    from . import store
+    created = out_dir is not None and not out_dir.exists()
+    try:
+        if out_dir is not None:
+            out_dir.mkdir(parents=True, exist_ok=True)
+        return store.ChunkStore(out_dir, fp, overwrite=overwrite), created
+    except FileExistsError as exc:
+        _remove_if_empty(out_dir, created)
+        raise SweepExists(str(exc)) from None
+
+
+def _resolve_scene(scene, grid, sample, n, method, seed, variant, overrides):
+    """The scene (a :class:`Scene`, overrides laid over it) and the sweep's arguments, a built-in
+    sweep scene's own filling those the call leaves out; also its plot axes and name."""
+    from ..scenes.loading import Scene, load_scene
+    plot_axes, sweep_name = {}, ""
     if not isinstance(scene, Scene):
         spec = load_sweep_scene(scene)
-    plot_axes = {}
-    if spec is not None:
-        grid = grid if grid is not None else spec["grid"]
-        sample = sample if sample is not None else spec["sample"]
-        n = n if n is not None else spec["n"]
-        method = method or spec["method"]
-        seed = seed if seed else spec["seed"]
-        variant = variant or spec["variant"]
-        overrides = {**spec["overrides"], **(overrides or {})}
-        plot_axes = spec["plot"]
-        sweep_name = spec["name"]
-        scene = spec["scene"]
+        if spec is not None:
+            grid = grid if grid is not None else spec["grid"]
+            sample = sample if sample is not None else spec["sample"]
+            n = n if n is not None else spec["n"]
+            method = method or spec["method"]
+            seed = seed if seed else spec["seed"]
+            variant = variant or spec["variant"]
+            overrides = {**spec["overrides"], **(overrides or {})}
+            plot_axes = spec["plot"]
+            sweep_name = spec["name"]
+            scene = spec["scene"]
     if isinstance(scene, Scene):
         if overrides:
             scene = scene.with_overrides(overrides)
     else:
         scene = load_scene(scene, overrides)
-    threshold = SYNC_THRESHOLD if threshold is None else float(threshold)
-    method = method or ("grid" if grid else "lhs")
-    from ..output import DEFAULT_MAX_MEMORY
-    max_memory = DEFAULT_MAX_MEMORY if max_memory is None else float(max_memory)
+    return scene, grid, sample, n, method, seed, variant, plot_axes, sweep_name
+
+
+def _runs(grid, sample, n, method, seed, max_memory, max_runs):
+    """(keys, axes, runs) of a grid or a sample, the run count and memory checked before any value
+    is built (``logspace(-1, 1, 1e9)`` allocates nothing); ``axes`` is None for a sample."""
     if method == "grid":
         if not grid or sample:
             raise SweepSpecError("a grid sweep needs grid={parameter: values} (and no sample)")
-        # the run count and memory before any value is built (logspace(-1, 1, 1e9) allocates nothing)
         check_sweep_budget(SweepEstimate(grid_size(grid)), max_memory, None, max_runs)
-        keys, axes, runs = grid_runs(grid)
-    else:
-        if not sample or grid:
-            raise SweepSpecError(f"a {method} sweep needs sample={{parameter: distribution}} and n "
-                                 "(and no grid)")
-        if n is None:
-            raise SweepSpecError(f"a {method} sweep needs the number of runs n")
-        if isinstance(n, (int, float)) and not isinstance(n, bool) and n >= 1:
-            check_sweep_budget(SweepEstimate(int(n)), max_memory, None, max_runs)
-        keys, runs = sample_runs(sample, n, method, seed)
-        axes = None
-    if variant is None and "variant" not in keys and len(scene.variants) > 1:
-        raise SweepSpecError(f"scene {scene.name!r} has variants {', '.join(v.name for v in scene.variants)}: "
-                             "choose one (variant=NAME, --variant NAME) or sweep over variant")
+        return grid_runs(grid)
+    if not sample or grid:
+        raise SweepSpecError(f"a {method} sweep needs sample={{parameter: distribution}} and n "
+                             "(and no grid)")
+    if n is None:
+        raise SweepSpecError(f"a {method} sweep needs the number of runs n")
+    if isinstance(n, (int, float)) and not isinstance(n, bool) and n >= 1:
+        check_sweep_budget(SweepEstimate(int(n)), max_memory, None, max_runs)
+    keys, runs = sample_runs(sample, n, method, seed)
+    return keys, None, runs
+
+
+def _variant(scene, variant, keys):
+    """The variant swept: the one asked for, the scene's only one, or None when swept over."""
     if variant is None and "variant" not in keys:
+        if len(scene.variants) > 1:
+            raise SweepSpecError(f"scene {scene.name!r} has variants "
+                                 f"{', '.join(v.name for v in scene.variants)}: "
+                                 "choose one (variant=NAME, --variant NAME) or sweep over variant")
         variant = scene.variants[0].name
-    if plot_axes and not all(plot_axes.get(a) in keys for a in ("x", "y")):
-        plot_axes = {}   # the sweep scene's grid was replaced: the maps follow the swept keys
-    _check_time(scene, variant, keys, runs, max_memory, max_time, max_runs, threads, workers)
-    out_dir = Path(out) if out is not None else None
-    if out_dir is not None:
-        from ..output import check_out_dir
-        check_out_dir(out_dir)
+    return variant
 
-    own_client = client is None and scheduler is not None
-    if own_client:
-        try:
-            from distributed import Client
-        except ImportError:
-            raise ImportError("--scheduler needs dask.distributed: pip install 'fmu-sync[sweep]'") from None
-        client = Client(scheduler)
-    threads = threads or _default_threads()
-    R = len(runs)
-    chunk = chunk_size or max(32 * threads if client is None else 8, math.ceil(R / 50))
-    fp = _fingerprint(scene, variant, keys, runs, method, seed, threshold, chunk)
-    attrs = dict(sweep_scene=sweep_name, scene=scene.name, scene_file=str(scene.path),
-                 scene_toml=Path(scene.path).read_text(),
-                 variant=str(variant or ""), overrides=json.dumps(scene.overrides, default=repr),
-                 swept=json.dumps(keys), method=method, seed=int(seed) if method != "grid" else -1,
-                 spec=json.dumps(grid if method == "grid" else sample, default=repr),
-                 threshold=threshold, fingerprint=fp,
-                 versions=json.dumps(_versions()), created=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
 
-    if out_dir is not None:
-        final = out_dir / store.RESULT_FILE
-        if final.exists() and not overwrite:
-            old = store.read_dataset(final)
-            if old.attrs.get("fingerprint") == fp:
-                old.attrs["computed_runs"] = 0
-                old.attrs["already_complete"] = 1
-                return old
-            raise SweepExists(f"{final} holds a different sweep: use another output folder or "
-                              "overwrite=True (--overwrite)")
-
-    prep = prepare(scene, runs, variant)   # every run checked: nothing is written before this
-    created = out_dir is not None and not out_dir.exists()
+def _client(scheduler):
     try:
-        if out_dir is not None:
-            out_dir.mkdir(parents=True, exist_ok=True)
-        st = store.ChunkStore(out_dir, fp, overwrite=overwrite)
-    except FileExistsError as exc:
-        _remove_if_empty(out_dir, created)
-        raise SweepExists(str(exc)) from None
-    tasks = _tasks(prep, threshold, chunk, threads, 1 if client is not None else 2)
+        from distributed import Client
+    except ImportError:
+        raise ImportError("--scheduler needs dask.distributed: pip install 'fmu-sync[sweep]'") from None
+    return Client(scheduler)
+
+
+def _attrs(scene, sweep_name, variant, keys, method, seed, grid, sample, threshold, fp) -> dict:
+    """The dataset's attributes known before the runs (what was swept, how, with which versions)."""
+    return dict(sweep_scene=sweep_name, scene=scene.name, scene_file=str(scene.path),
+                scene_toml=Path(scene.path).read_text(),
+                variant=str(variant or ""), overrides=json.dumps(scene.overrides, default=repr),
+                swept=json.dumps(keys), method=method, seed=int(seed) if method != "grid" else -1,
+                spec=json.dumps(grid if method == "grid" else sample, default=repr),
+                threshold=threshold, fingerprint=fp,
+                versions=json.dumps(_versions()), created=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
+
+
+def _finished_sweep(final: Path, fp: str):
+    """The finished sweep in ``final`` when it is this one (nothing computed), else SweepExists."""
+    from . import store
+    old = store.read_dataset(final)
+    if old.attrs.get("fingerprint") == fp:
+        old.attrs["computed_runs"] = 0
+        old.attrs["already_complete"] = 1
+        return old
+    raise SweepExists(f"{final} holds a different sweep: use another output folder or "
+                      "overwrite=True (--overwrite)")
+
+
+def _execute(prep, tasks, st, client, threshold, threads, workers, fp, bar, R, out_dir, created,
+             own_bar, own_client):
+    """Run the tasks not in the chunk store ``st`` (reusing those that are), saving each finished
+    chunk; returns (table, reasons, computed runs, reused runs). An interrupt says what was kept."""
+    from ..core.batch import COL, DIVERGED, OK
+    from .engine import divergence_reason
     done_ids = st.done()
     table = prep.out.copy()
     reasons = list(prep.reasons)
@@ -369,8 +432,6 @@ def sweep(scene, grid: dict | None = None, *, sample: dict | None = None, n: int
             reused_failed += int(np.sum(np.asarray(rows)[:, COL["status"]] != OK))
     todo = [t for t in tasks if t[0] not in done_ids]
     reused = sum(t[3] for t in tasks if t[0] in done_ids)
-    own_bar = progress is None and not quiet
-    bar = SweepProgress(f"sweep {scene.name}") if own_bar else progress
     counted = {"done": reused, "failed": reused_failed}
 
     def finished(cid, idx, rows, rs):
@@ -388,8 +449,6 @@ def sweep(scene, grid: dict | None = None, *, sample: dict | None = None, n: int
         if bar is not None:
             bar(counted["done"], R, counted["failed"])
 
-    computed = 0
-    engine = "dask" if client is not None else "embedded"
     try:
         if bar is not None:
             bar(counted["done"], R, counted["failed"])
@@ -398,16 +457,7 @@ def sweep(scene, grid: dict | None = None, *, sample: dict | None = None, n: int
         else:
             computed = _run_local(todo, threshold, threads, workers, finished)
     except KeyboardInterrupt:
-        kept = counted["done"]
-        if out_dir is None:
-            raise SweepInterrupted(f"sweep interrupted: {kept} of {R} runs had finished; nothing was "
-                                   "written (no output folder)") from None
-        if kept == 0:
-            st.clear()
-            _remove_if_empty(out_dir, created)
-            raise SweepInterrupted("sweep interrupted before any chunk finished: nothing kept") from None
-        raise SweepInterrupted(f"sweep interrupted: {kept} of {R} runs kept in {out_dir / '.partial'}; "
-                               f"rerun the same command to resume from them") from None
+        _interrupted(counted["done"], R, out_dir, st, created)
     except BaseException:
         if out_dir is not None and counted["done"] == 0:
             st.clear()
@@ -418,16 +468,20 @@ def sweep(scene, grid: dict | None = None, *, sample: dict | None = None, n: int
             bar.close()
         if own_client:
             client.close()
-    attrs.update(engine=engine, computed_runs=int(computed), reused_runs=int(reused),
-                 compiled_runs=int(prep.compiled.size), process_runs=int(prep.python.size))
-    ds = store.to_dataset(table, reasons, keys, axes, runs, attrs)
-    if out_dir is not None:
-        store.write_dataset(ds, out_dir / store.RESULT_FILE)
+    return table, reasons, computed, reused
+
+
+def _interrupted(kept, R, out_dir, st, created):
+    """Raise SweepInterrupted saying what was kept (``kept`` of ``R`` runs) and how to resume."""
+    if out_dir is None:
+        raise SweepInterrupted(f"sweep interrupted: {kept} of {R} runs had finished; nothing was "
+                               "written (no output folder)") from None
+    if kept == 0:
         st.clear()
-        if plots:
-            from .plots import sweep_plots
-            ds.attrs["plots"] = json.dumps([p.name for p in sweep_plots(ds, out_dir, plot_axes)])
-    return ds
+        _remove_if_empty(out_dir, created)
+        raise SweepInterrupted("sweep interrupted before any chunk finished: nothing kept") from None
+    raise SweepInterrupted(f"sweep interrupted: {kept} of {R} runs kept in {out_dir / '.partial'}; "
+                           f"rerun the same command to resume from them") from None
 
 
 def _run_local(todo, threshold, threads, workers, finished) -> int:

@@ -120,16 +120,40 @@ def _validate_values(scene, variant_name, key, values):
 
 def prepare(scene, runs: list[dict], variant_name: str | None) -> Prepared:
     """Resolve every run against the scene: system groups, per-run inputs, refusals."""
-    from ..core.distance import geometry
-    from ..core.checks import run_steps
-    from ..scenes.loading import load_scene
-    from ..scenes.schema import SceneError
-
     R = len(runs)
     out = batch.empty_out(R)
     reasons = [""] * R
-    keys = sorted({k for r in runs for k in r})
-    for k in keys:
+    _check_values(scene, runs, variant_name)
+    variants, group = _groups(scene, runs, variant_name)
+    comp = np.array([_compiled_ok(variants[g]) for g in group], dtype=bool) if R else np.zeros(0, bool)
+    rows, group2, second = _second_systems(scene, runs, variants, group, comp)
+    arrays = {name: np.zeros(R, dtype=np.int64 if name in INT_ARRAYS else np.float64)
+              for name in ("law", "scheme", "theta", "group1", "group2", "kp", "kd", "q1", "u1", "q2", "u2",
+                           "dt", "n_steps", "dt_last", "every", "qw")}
+    python_items = {}
+    cache = {}
+    for i, r in enumerate(runs):
+        v = variants[group[i]]
+        if not comp[i]:
+            over = {**scene.overrides, **_scene_overrides(r, v)}
+            for k, val in r.items():
+                if k not in PER_RUN_KEYS and k != "variant":
+                    over[k] = val
+            python_items[i] = (str(scene.path), over, v.name)
+            continue
+        why = _fill_run(arrays, i, r, v, group[i], group2[i], rows[group2[i]], out, cache)
+        if why:
+            out[i, COL["status"]] = REFUSED
+            out[i, COL["steps"]] = 0
+            out[i, COL["t_stop"]] = 0.0
+            reasons[i] = why
+    return Prepared(R, np.nonzero(comp)[0], np.nonzero(~comp)[0], arrays, _tables(rows, variants, second),
+                    python_items, out, reasons, {g: v for g, v in enumerate(variants)}, group)
+
+
+def _check_values(scene, runs, variant_name):
+    """Per-run values: the scene's own rules (for the keys it checks) or finite numbers."""
+    for k in sorted({k for r in runs for k in r}):
         if k in _VALIDATED:
             _validate_values(scene, (variant_name or runs[0].get("variant")), k, [r[k] for r in runs])
         elif k in PER_RUN_KEYS:
@@ -143,9 +167,15 @@ def prepare(scene, runs: list[dict], variant_name: str | None) -> Prepared:
                 if not ok:
                     raise SweepSpecError(f"sweep parameter {k} = {v!r}: not finite numbers")
 
+
+def _groups(scene, runs, variant_name):
+    """(variants, group): the scene variant of each distinct set of system-1 parameters, loaded
+    once, and the group index of each run; a single system or an unchosen variant is refused."""
+    from ..scenes.loading import load_scene
+    from ..scenes.schema import SceneError
     group_of = {}
     variants = []
-    group = np.zeros(R, dtype=np.int64)
+    group = np.zeros(len(runs), dtype=np.int64)
     for i, r in enumerate(runs):
         gk = _group_key(r, system2=False)
         if gk not in group_of:
@@ -166,16 +196,21 @@ def prepare(scene, runs: list[dict], variant_name: str | None) -> Prepared:
             group_of[gk] = len(variants)
             variants.append(v)
         group[i] = group_of[gk]
+    return variants, group
 
-    def compiled_ok(v):
-        s = v.system
-        # a user force law runs run by run (simulate_pair runs the law's own loop; the batch kernel
-        # carries the built-in linear law only)
-        return (v.mode == "core" and s.force is None and s.n == 1 and s.n_inputs == 1 and float(s.B[0, 0]) == 1.0
-                and v.cfg["solver.scheme"] in ("midpoint", "theta"))
 
-    comp = np.array([compiled_ok(variants[g]) for g in group], dtype=bool) if R else np.zeros(0, bool)
-    # ---- system 2 where it differs (system2.* parameters): extra table rows
+def _compiled_ok(v) -> bool:
+    """Whether a variant's runs go through the compiled kernel."""
+    s = v.system
+    # a user force law runs run by run (simulate_pair runs the law's own loop; the batch kernel
+    # carries the built-in linear law only)
+    return (v.mode == "core" and s.force is None and s.n == 1 and s.n_inputs == 1 and float(s.B[0, 0]) == 1.0
+            and v.cfg["solver.scheme"] in ("midpoint", "theta"))
+
+
+def _second_systems(scene, runs, variants, group, comp):
+    """System 2 where it differs (system2.* parameters): (table rows: the groups' systems, then
+    the distinct second systems; each run's system-2 row; {(group, system2 keys): row})."""
     rows = [v.system for v in variants]
     group2 = group.copy()
     second = {}
@@ -193,7 +228,12 @@ def prepare(scene, runs: list[dict], variant_name: str | None) -> Prepared:
             second[key] = len(rows)
             rows.append(_system2(scene, v, r, s2))
         group2[i] = second[key]
-    # ---- system tables (rows of systems that run compiled)
+    return rows, group2, second
+
+
+def _tables(rows, variants, second) -> dict:
+    """The system tables of the compiled kernel (rows of systems that run compiled)."""
+    from ..core.distance import geometry
     G = len(rows)
     nf_max = max([len(s.arrays().Omega) for s in rows] + [1])
     sys_rows = np.zeros((G, len(batch.GROUP_FIELDS)))
@@ -202,61 +242,44 @@ def prepare(scene, runs: list[dict], variant_name: str | None) -> Prepared:
     Om = np.zeros((G, nf_max))
     ph = np.zeros((G, nf_max))
     nf = np.zeros(G, dtype=np.int64)
-    systems = {g: v for g, v in enumerate(variants)}
     owner = {g: g for g in range(len(variants))}
     owner.update({g2: g1 for (g1, _), g2 in second.items()})
     for g, s in enumerate(rows):
         v = variants[owner[g]]
-        if not compiled_ok(v):
+        if not _compiled_ok(v):
             continue
         sr, gr, f_, o_, p_ = batch.group_row(s, geometry(s, v.Q))
         sys_rows[g], geo_rows[g] = sr, gr
         nf[g] = len(o_)
         F[g, :nf[g]], Om[g, :nf[g]], ph[g, :nf[g]] = f_, o_, p_
+    return dict(sys_rows=sys_rows, geo_rows=geo_rows, F=F, Omega=Om, phi=ph, nf=nf)
 
-    arrays = {name: np.zeros(R, dtype=np.int64 if name in INT_ARRAYS else np.float64)
-              for name in ("law", "scheme", "theta", "group1", "group2", "kp", "kd", "q1", "u1", "q2", "u2",
-                           "dt", "n_steps", "dt_last", "every", "qw")}
-    python_items = {}
-    cache = {}
-    for i, r in enumerate(runs):
-        v = variants[group[i]]
-        cfg = v.cfg
-        if not comp[i]:
-            over = {**scene.overrides, **_scene_overrides(r, v)}
-            for k, val in r.items():
-                if k not in PER_RUN_KEYS and k != "variant":
-                    over[k] = val
-            python_items[i] = (str(scene.path), over, v.name)
-            continue
-        kp = _scalar_gain(r.get("coupling.Kp", v.Kp))
-        kd = _scalar_gain(r.get("coupling.Kd", v.Kd))
-        dt = float(r.get("solver.dt", cfg["solver.dt"]))
-        theta = float(r.get("solver.theta", cfg["solver.theta"]))
-        t_end = float(r.get("run.t_end", cfg["run.t_end"]))
-        q1, u1 = _state_with(r, v.x1, "x1")
-        q2, u2 = _state_with(r, v.x2, "x2")
-        a = arrays
-        a["law"][i], a["scheme"][i], a["theta"][i] = _law(v.law), _scheme(cfg["solver.scheme"]), theta
-        a["group1"][i], a["group2"][i], a["kp"][i], a["kd"][i] = group[i], group2[i], kp, kd
-        a["q1"][i], a["u1"][i], a["q2"][i], a["u2"][i], a["dt"][i] = q1, u1, q2, u2, dt
-        grid = run_steps(t_end, dt)   # whole steps, then the shortened last one (ends at t_end)
-        a["n_steps"][i] = grid.steps - 1 if grid.short else grid.steps
-        a["dt_last"][i] = grid.dt_last if grid.short else 0.0
-        a["qw"][i] = _run_metric(v, rows[group2[i]], kp)
-        a["every"][i] = cfg["run.record_every"]
-        out[i, COL["exchange_stable"]] = _exchange_stable(v, kp, kd, dt, cache)
-        why = _refusal(v, rows[group2[i]], (q1, u1), (q2, u2), t_end, dt, theta)
-        if not why and not math.isfinite(a["qw"][i]) and v.law not in (None, "none"):
-            why = f"no energy metric: k + 2 Kp = {v.system.K[0, 0] + 2 * kp:.6g} is not > 0 (set coupling.Q)"
-        if why:
-            out[i, COL["status"]] = REFUSED
-            out[i, COL["steps"]] = 0
-            out[i, COL["t_stop"]] = 0.0
-            reasons[i] = why
-    return Prepared(R, np.nonzero(comp)[0], np.nonzero(~comp)[0], arrays,
-                    dict(sys_rows=sys_rows, geo_rows=geo_rows, F=F, Omega=Om, phi=ph, nf=nf), python_items,
-                    out, reasons, systems, group)
+
+def _fill_run(a, i, r, v, g1, g2, system2, out, cache) -> str:
+    """Write compiled run ``i``'s inputs into the arrays ``a`` (and its exchange verdict into
+    ``out``); return why it cannot start, or ''."""
+    from ..core.checks import run_steps
+    cfg = v.cfg
+    kp = _scalar_gain(r.get("coupling.Kp", v.Kp))
+    kd = _scalar_gain(r.get("coupling.Kd", v.Kd))
+    dt = float(r.get("solver.dt", cfg["solver.dt"]))
+    theta = float(r.get("solver.theta", cfg["solver.theta"]))
+    t_end = float(r.get("run.t_end", cfg["run.t_end"]))
+    q1, u1 = _state_with(r, v.x1, "x1")
+    q2, u2 = _state_with(r, v.x2, "x2")
+    a["law"][i], a["scheme"][i], a["theta"][i] = _law(v.law), _scheme(cfg["solver.scheme"]), theta
+    a["group1"][i], a["group2"][i], a["kp"][i], a["kd"][i] = g1, g2, kp, kd
+    a["q1"][i], a["u1"][i], a["q2"][i], a["u2"][i], a["dt"][i] = q1, u1, q2, u2, dt
+    grid = run_steps(t_end, dt)   # whole steps, then the shortened last one (ends at t_end)
+    a["n_steps"][i] = grid.steps - 1 if grid.short else grid.steps
+    a["dt_last"][i] = grid.dt_last if grid.short else 0.0
+    a["qw"][i] = _run_metric(v, system2, kp)
+    a["every"][i] = cfg["run.record_every"]
+    out[i, COL["exchange_stable"]] = _exchange_stable(v, kp, kd, dt, cache)
+    why = _refusal(v, system2, (q1, u1), (q2, u2), t_end, dt, theta)
+    if not why and not math.isfinite(a["qw"][i]) and v.law not in (None, "none"):
+        why = f"no energy metric: k + 2 Kp = {v.system.K[0, 0] + 2 * kp:.6g} is not > 0 (set coupling.Q)"
+    return why
 
 
 def _run_metric(v, system2, kp) -> float:
