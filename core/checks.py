@@ -82,9 +82,9 @@ def run_steps(t_end, dt: float, t0: float = 0.0) -> RunSteps:
     if not (math.isfinite(t_end) and t_end >= t0):
         raise ValueError(f"t_end must be finite and >= {t0}, got {t_end}")
     k, short = steps_in(t_end - t0, dt)
-    if short:
-        base = t0 + k * dt         # the kernels' time of step k
-        return RunSteps(dt, k + 1, t_end - base, t_end)
+    base = t0 + k * dt             # the kernels' time of step k
+    if short and t_end - base > TIME_TOL * dt:   # the rest judged on the step it gives, too: a
+        return RunSteps(dt, k + 1, t_end - base, t_end)   # ratio a hair over TIME_TOL can leave less
     return RunSteps(dt, k, dt, t_end)   # t_end itself, not t0 + k dt a round-off beside it
 
 
