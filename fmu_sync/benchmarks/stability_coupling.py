@@ -168,7 +168,7 @@ def _core_divergence(case, Kp, Kd, wc, h_th, zeta) -> Row:
     try:
         simulate_pair(s, (1 + _DELTA, 0.0), (1 - _DELTA, 0.0), n * h / wc, h / wc, coupling="euclidean",
                       Kp=Kp, Kd=Kd, record_every=max(1, n // 10), record_distance=False,
-                      allow_unstable=True)
+                      allow_unstable=True, scheme="midpoint")
         outcome, msg, ok = "returned data, no error", "", False
     except SimulationDiverged as ex:
         outcome, msg, ok = "SimulationDiverged", str(ex).split(" The ")[0], True
