@@ -35,7 +35,7 @@ from .distance import DistanceGeometry, ScalarGeometry
 from .loop import NodeGeometry, integrate_network, sample_d
 from .metrics import HI, LO, TAIL, decimated_kernel, decimator_init
 
-__all__ = ["run_pairs1", "COLUMNS", "COL", "OK", "DIVERGED", "REFUSED", "STATUS_NAMES", "group_row",
+__all__ = ["run_pairs1", "COLUMNS", "COL", "MEASURE_D", "MEASURE_EUCLIDEAN", "OK", "DIVERGED", "REFUSED", "STATUS_NAMES", "group_row",
            "GROUP_FIELDS", "GEO_FIELDS", "empty_out",
            "metrics_from_records"]
 
@@ -47,11 +47,15 @@ STATUS_NAMES = ("ok", "diverged", "refused")
 #: One row of ``out`` per run.
 COLUMNS = ("status", "steps", "t_stop", "q1", "u1", "q2", "u2", "d0", "d_final", "d_max", "tau_max",
            "impacts1", "impacts2", "episodes1", "episodes2", "t_sync", "decay_rate", "decay_rate_err",
-           "t_fit", "bound", "samples", "exchange_stable", "rate_code", "rate_decades")
+           "t_fit", "bound", "samples", "exchange_stable", "rate_code", "rate_decades", "measure")
 COL = {name: i for i, name in enumerate(COLUMNS)}
 COL_D0, COL_DFINAL, COL_DMAX, COL_TAUMAX = COL["d0"], COL["d_final"], COL["d_max"], COL["tau_max"]
 COL_TSYNC, COL_RATE, COL_RATE_ERR = COL["t_sync"], COL["decay_rate"], COL["decay_rate_err"]
 COL_TFIT, COL_BOUND, COL_SAMPLES = COL["t_fit"], COL["bound"], COL["samples"]
+#: what the d columns measure (column "measure"): the quotient distance, or the Euclidean error of
+#: systems without one impact map (docs/design.md §2.5.3)
+MEASURE_D, MEASURE_EUCLIDEAN = 0.0, 1.0
+COL_MEASURE = COL["measure"]
 COL_RATE_CODE, COL_DECADES = COL["rate_code"], COL["rate_decades"]
 
 #: Floats of a system group row (the scalar system of :func:`.moreau.scalar_params` plus M).
@@ -211,6 +215,7 @@ def _pair1(law, scheme, theta, s1, F1, Omega1, phi1, s2, F2, Omega2, phi2, sg, k
     res[5] = q[1, 0]
     res[6] = u[1, 0]
     res[COL_DFINAL] = D[0, 0] if same else EU[0, 0]
+    res[COL_MEASURE] = MEASURE_D if same else MEASURE_EUCLIDEAN
     res[COL_TAUMAX] = tau_max
     res[11] = imp[0]
     res[12] = imp[1]

@@ -106,13 +106,14 @@ def _from_npz(path: Path):
     d = a.get("d")
     branch = None if d is None else a["branch"].astype(np.int64)
     if meta["kind"] == "pair":
-        return PairResult(t, *(a[k] for k in _PAIR), d, branch, a.get("euclidean") if d is not None else None,
+        return PairResult(t, *(a[k] for k in _PAIR), d, branch, a.get("euclidean"),
                           impacts1=meta.get("impacts1"), impacts2=meta.get("impacts2"),
                           coupling=meta.get("coupling"), info=info, error=error)
     rows, N, n = len(t), int(meta["N"]), int(meta["n"])
     shape = lambda k: a[k].reshape(rows, N, n)  # noqa: E731
     return NetworkResult(t, shape("q"), shape("u"), shape("tau"), [tuple(e) for e in meta["edges"]], d, branch,
-                         a.get("euclidean") if d is not None else None, a.get("V") if d is not None else None,
+                         a.get("euclidean"), a.get("V") if d is not None else None,   # the Euclidean error kept
+
                          meta.get("impacts"), info=info, error=error)
 
 
@@ -177,12 +178,13 @@ def _from_csv(path: Path):
     n = len(pick("q", 1))
     node = lambda k: np.stack([data[:, pick(k, i)] for i in range(1, N + 1)], axis=1)  # noqa: E731
     subs = [c[2] for c in cols if c[0] == "d" and c[2]]
-    edges = [tuple(int(x) - 1 for x in s.split("-")) for s in subs]
+    e_subs = [c[2] for c in cols if c[0] == "euclidean" and c[2]]   # without one impact map: the Euclidean error alone
+    edges = [tuple(int(x) - 1 for x in s.split("-")) for s in (subs or e_subs)]
     d = data[:, pick("d")] if subs else None
-    edge_cols = lambda k: data[:, [i for i, c in enumerate(cols) if c[0] == k and c[2] in subs]]  # noqa: E731
+    edge_cols = lambda k: data[:, [i for i, c in enumerate(cols) if c[0] == k and c[2] in (subs or e_subs)]]  # noqa: E731
     return NetworkResult(t, node("q"), node("u"), node("tau"), edges, d,
                          None if d is None else edge_cols("branch").astype(np.int64),
-                         None if d is None else edge_cols("euclidean"), one("V"), None, info=info)
+                         edge_cols("euclidean") if (subs or e_subs) else None, one("V"), None, info=info)
 
 
 def _bad_row(path: Path, width: int) -> str:

@@ -109,7 +109,7 @@ def drive_args(system_fmu, coupling_fmu, runs, law=LAW):
 def core_rows(p, x1, x2, kp, kd, dt, t_end, law=LAW):
     """The core's run as the driver's rows (tau of row k: the force held over the step from t_k)."""
     s = ImpactOscillator(**p)
-    r = simulate_pair(s, x1, x2, t_end, dt, coupling=law, Kp=kp, Kd=kd)
+    r = simulate_pair(s, x1, x2, t_end, dt, coupling=law, Kp=kp, Kd=kd, scheme="midpoint")   # the explicit
     tau1 = np.append(r.tau1[1:, 0], np.nan)
     tau2 = np.append(r.tau2[1:, 0], np.nan)
     return np.column_stack([r.t, r.q1[:, 0], r.u1[:, 0], r.q2[:, 0], r.u2[:, 0], tau1, tau2, r.d])

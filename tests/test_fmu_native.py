@@ -327,6 +327,7 @@ def test_the_c_sources_are_compiled_again_only_when_their_text_changes(monkeypat
     """native.c_objects: keyed by the preprocessed source; fmu_sync_python.c does not use the boot
     module's name, fmu_sync_runtime.c does."""
     from fmu_sync import export as E, package_files
+    from fmu_sync.export import binary
     (tmp_path / "cache").mkdir()
     monkeypatch.setattr(native, "cache_dir", lambda: tmp_path / "cache")
     monkeypatch.setattr(native, "_OBJECTS", {})
@@ -343,7 +344,7 @@ def test_the_c_sources_are_compiled_again_only_when_their_text_changes(monkeypat
     def build(boot):
         d = tmp_path / f"inc{len(list(tmp_path.iterdir()))}"
         d.mkdir()
-        (d / E._CONSTANTS_H).write_bytes(E.constants_header("{guid}", boot))
+        (d / binary.CONSTANTS_H).write_bytes(E.constants_header("{guid}", boot))
         return [p.read_bytes() for p in native.c_objects("gcc", ["-O2", "-fPIC"], srcs, d)]
 
     a = build("boot_a")

@@ -107,7 +107,9 @@ def test_rate_of_a_linear_pair_matches_the_closed_form():
     #   m x'' + (c + 2 Kd) x' + (k + 2 Kp) x = 0  ->  d ~ exp(-(c + 2 Kd)/(2 m) t)
     m_, k, c, Kp, Kd = 2.0, 3.0, 0.1, 1.5, 0.6
     s = ImpactOscillator(m=m_, k=k, c=c, f0=10.0 * k)
-    r = simulate_pair(s, (10.0, 0.0), (11.0, 0.5), 40.0, 1e-3, coupling="switching", Kp=Kp, Kd=Kd)
+    # the midpoint, as measured in issue 25: on the trapezoid's trajectory (1e-5 of DOP853's relative mode)
+    # the estimate reads 0.3187 (-1.9 %, spread 4e-4): a bias of the estimator, open in issue 40's note
+    r = simulate_pair(s, (10.0, 0.0), (11.0, 0.5), 40.0, 1e-3, coupling="switching", Kp=Kp, Kd=Kd, scheme="midpoint")
     assert r.impacts1 == r.impacts2 == 0 and np.all(r.branch == 0)
     sigma = (c + 2 * Kd) / (2 * m_)
     m = r.sync()
@@ -133,7 +135,7 @@ def forced_pairs():
     # the forced pair, Kp = 1, Kd = 0.5, 60 s, default metric (energy), both laws, three steps
     s = ImpactOscillator(**FORCED)
     return {(law, dt): simulate_pair(s, (1.0, 0.0), (0.2, 0.5), 60.0, dt, coupling=law, Kp=1.0, Kd=0.5,
-                                     record_every=round(1e-3 / dt))
+                                     record_every=round(1e-3 / dt), scheme="midpoint")   # as measured in issue 25
             for law in ("switching", "euclidean") for dt in (1e-3, 5e-4, 2.5e-4)}
 
 

@@ -151,6 +151,13 @@ def test_a_scene_gives_per_node_masses_and_its_summary_names_the_euclidean_error
     assert r.d is None and np.max(np.abs(r.q[:, :, 0] - ref[:3].T)) < 0.05
     text = next((tmp_path / "out").rglob("summary.md")).read_text()
     assert "no common impact geometry" in text and "Euclidean error" in text
+    from fmu_sync.results import load     # the record carries the Euclidean error and reads it back
+    files = sorted(f for f in (tmp_path / "out").rglob("*") if f.suffix in (".csv", ".npz"))
+    assert {f.suffix for f in files} == {".csv", ".npz"}, files
+    for f in files:
+        back = load(f)
+        assert back.d is None and back.euclidean is not None, f
+        np.testing.assert_allclose(back.euclidean.reshape(np.shape(r.euclidean)), r.euclidean, rtol=1e-12, atol=1e-12)
     path.write_text(SCENE.replace('law = "euclidean"', 'law = "switching"'))
     with pytest.raises(SceneError, match=r"the switching law is refused: the quotient distance needs one impact map"
                        r" .*M differs: node 1 has M = \[\[1.0\]\], node 2 has M = \[\[2.0\]\]"):
@@ -166,6 +173,7 @@ def test_a_sweep_over_the_mass_ratio_runs_and_equals_simulate_pair():
     for i, m2 in enumerate(ratios):
         run = ds.isel({"system2.m": i})
         assert int(run["status"]) == 0
+        assert float(run["measure"]) == (0.0 if m2 == 1.0 else 1.0)   # d, or the Euclidean error, named
         s1, s2 = ImpactOscillator(**FORCED_PAIR), ImpactOscillator(**{**FORCED_PAIR, "m": m2})
         p = simulate_pair((s1, s2), FORCED_X1, FORCED_X2, 3.0, 1e-3, coupling="euclidean", Kp=1.0, Kd=0.5,
                           record_distance=m2 == 1.0, record_every=10, scheme="midpoint")   # the scenes' scheme

@@ -103,7 +103,8 @@ def test_tau_row0_is_the_force_at_the_start():
     """Row 0 holds the forces computed from the start states (those held over the first step)."""
     from fmu_sync.core import coupling_forces
     osc = ImpactOscillator(m=1, k=1, c=0, f0=0.2, F=0.5, Omega=2.5, e=0.9)
-    r = simulate_pair(osc, (1.0, 0.0), (0.2, 0.5), 0.1, 1e-3, coupling="switching", Kp=1.0, Kd=0.5)
+    # the midpoint holds the start's force over the first step (the trapezoid's row 0 is its first step's)
+    r = simulate_pair(osc, (1.0, 0.0), (0.2, 0.5), 0.1, 1e-3, coupling="switching", Kp=1.0, Kd=0.5, scheme="midpoint")
     t1, t2 = coupling_forces(osc, (1.0, 0.0), (0.2, 0.5), "switching", Kp=1.0, Kd=0.5)[:2]
     assert r.tau1[0, 0] == pytest.approx(float(np.ravel(t1)[0]), abs=1e-15) and r.tau1[0, 0] != 0.0
     assert r.tau1[1, 0] == r.tau1[0, 0]            # held over the first step

@@ -361,7 +361,7 @@ def test_log_colour_bars_have_plain_tick_labels():
 # ---------------------------------------------------------------- license, changelog, version
 def test_license_changelog_and_version():
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
-    assert project["license"] == {"text": "MIT"}
+    assert project["license"] == "MIT"   # an SPDX expression
     lic = (ROOT / "LICENSE").read_text()
     assert lic.startswith("MIT License") and "the fmu-sync authors" in lic and "WITHOUT WARRANTY" in lic
     log = (ROOT / "CHANGELOG.md").read_text()

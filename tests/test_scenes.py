@@ -306,7 +306,7 @@ def test_two_dof_core_runs(tmp_path):
 # ------------------------------------------------------------------ cosim plumbing with stand-ins
 def _fake_cosim_modules(monkeypatch, calls):
     """Stand-ins for fmu_sync.export / fmu_sync.master / simulate_pair recording their arguments."""
-    import fmu_sync.scenes.running as scene_mod
+    import fmu_sync.scenes.variant as scene_mod   # the variant layer calls fmu_start_values
 
     def export_fmu(model, path, start_values=None):
         calls.append(("export", model))

@@ -30,6 +30,7 @@ def gain_map():
 
 def _single(Kp, Kd, t_end=3.0, dt=1e-3, coupling="switching", every=EVERY, x1=X1, x2=X2, **kw):
     s = ImpactOscillator(**{**FORCED, **kw.pop("system", {})})
+    kw.setdefault("scheme", "midpoint")   # the scenes' solver.scheme, which the sweeps run
     return simulate_pair(s, x1, x2, t_end, dt, coupling=coupling, Kp=Kp, Kd=Kd, record_every=every,
                          allow_unstable=kw.pop("allow_unstable", True), **kw)
 
@@ -102,7 +103,7 @@ def test_contact_episodes_equal_those_of_single_runs():
     for j, e in enumerate([0.0, 0.6]):
         s = ImpactOscillator(**{**FORCED, "e": e})
         for x, name in ((X1, "episodes1"), (X2, "episodes2")):
-            r = simulate(s, x, 20.0, 1e-3, phasor=False)   # the pair loop takes cos per step
+            r = simulate(s, x, 20.0, 1e-3, phasor=False, scheme="midpoint")   # the pair loop takes cos per step
             assert int(ds[name].values[j]) == contact_starts(r.percussion).size > 0
             assert int(ds["impacts" + name[-1]].values[j]) == r.impacts
 
@@ -317,11 +318,11 @@ def test_mismatched_second_system_uncoupled_equals_two_single_runs():
     # system2.* lays keys over system 2 only; uncoupled, each system is a single run of its own
     ds = sweep(SCENE, variant="uncoupled", grid={"system2.k": [0.5, 1.0, 2.0], "system2.f0": [0.2, 0.35]},
                overrides={"run.t_end": 10.0}, quiet=True)
-    r1 = simulate(ImpactOscillator(**FORCED), X1, 10.0, 1e-3, phasor=False)   # cos per step, as the pair loop
+    r1 = simulate(ImpactOscillator(**FORCED), X1, 10.0, 1e-3, phasor=False, scheme="midpoint")   # cos per step, as the pair loop
     for i, k in enumerate([0.5, 1.0, 2.0]):
         for j, f0 in enumerate([0.2, 0.35]):
             run = ds.isel({"system2.k": i, "system2.f0": j})
-            r2 = simulate(ImpactOscillator(**{**FORCED, "k": k, "f0": f0}), X2, 10.0, 1e-3, phasor=False)
+            r2 = simulate(ImpactOscillator(**{**FORCED, "k": k, "f0": f0}), X2, 10.0, 1e-3, phasor=False, scheme="midpoint")
             assert float(run["q1"]) == r1.q[-1, 0] and float(run["u1"]) == r1.u[-1, 0]
             assert float(run["q2"]) == r2.q[-1, 0] and float(run["u2"]) == r2.u[-1, 0]
             assert int(run["impacts2"]) == r2.impacts
@@ -332,7 +333,8 @@ def test_mismatched_second_system_uncoupled_equals_two_single_runs():
     assert 0 < float(c["bound"][1]) < 0.1 * float(c["d0"][1])
     # ... bit for bit the non-identical pair of simulate_pair((system1, system2), ...)
     s1, s2 = ImpactOscillator(**FORCED), ImpactOscillator(**{**FORCED, "f0": 0.3})
-    r = simulate_pair((s1, s2), X1, X2, 60.0, 1e-3, coupling="switching", Kp=1.0, Kd=0.5, record_every=EVERY)
+    r = simulate_pair((s1, s2), X1, X2, 60.0, 1e-3, coupling="switching", Kp=1.0, Kd=0.5, record_every=EVERY,
+                      scheme="midpoint")
     _same(c.isel({"system2.f0": 1}), r)
     with pytest.raises(SweepSpecError, match=r"the switching law is refused: the quotient distance needs one impact map .*e differs: system 1 has e = 0.9, "
                                              r"system 2 has e = 0.5"):

@@ -44,7 +44,7 @@ _C_SLOTS = ("H_LEN", "H_VERSION", "H_TIME", "H_PHASE", "H_DT", "H_CONFIGURED", "
             "H_ICOUNT")
 _C_CODES = ("R_OK", "R_ROLLED_BACK", "R_EXACT_TAUDOT", "R_EXACT_EVENTS", "R_EXACT_STALL", "R_INADMISSIBLE",
             "MODE_FULL", "MODE_EARLY", "MODE_EARLY_EVENT", "MODE_APPLY_EVENT")
-_CONSTANTS_H = "fmu_sync_constants.h"
+CONSTANTS_H = "fmu_sync_constants.h"
 
 
 
@@ -121,7 +121,7 @@ def build_binary(out: Path, guid: str, boot_module: str, max_substeps: int = MAX
     if shutil.which(cc) is None:
         raise RuntimeError(f"cannot build the FMU binary: C compiler {cc!r} not found (install gcc or set CC)")
     with tempfile.TemporaryDirectory(prefix="fmu-sync-h-") as inc:
-        Path(inc, _CONSTANTS_H).write_bytes(constants_header(guid, boot_module, max_substeps))
+        Path(inc, CONSTANTS_H).write_bytes(constants_header(guid, boot_module, max_substeps))
         table = "".join(f"{json.dumps(name)}, \"{hashlib.sha256(data).hexdigest()}\", "
                         for name, data in sorted((files or {}).items()))
         Path(inc, "fmu_sync_guid.c").write_text(f"const char fsr_guid[] = {json.dumps(guid)};\n"

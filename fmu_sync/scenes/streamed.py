@@ -8,7 +8,7 @@ import math
 from pathlib import Path
 
 from ..core import RunFailed
-from .running import RunRecord, _with_units, declared_units, run_variant
+from .variant import RunRecord, with_units, declared_units, run_variant
 from .schema import Variant
 
 __all__ = ["stream_run", "full_resolution_run", "window_rows", "WINDOW_SECONDS"]
@@ -41,7 +41,7 @@ def stream_run(v: Variant, out_dir: Path, fmu_path, progress, scene_name, format
             writer.abort()
             raise
         sink.close_rows()
-        result = _with_units(sink.thinned(), v)
+        result = with_units(sink.thinned(), v)
         result.error = str(exc)
         result.impact_record = sink.window()
         writer.meta = report.record_meta(_counted(result, sink), extra)
@@ -53,7 +53,7 @@ def stream_run(v: Variant, out_dir: Path, fmu_path, progress, scene_name, format
     except BaseException:
         writer.abort()
         raise
-    result = _with_units(sink.thinned(), v)
+    result = with_units(sink.thinned(), v)
     writer.meta = report.record_meta(_counted(result, sink, last), extra)
     files = writer.close()
     result.impact_record = sink.window()
@@ -109,7 +109,7 @@ def full_resolution_run(v: Variant, fmu_path, progress, scene_name, max_memory: 
         result.impacts1, result.impacts2 = (last or result).impacts1, (last or result).impacts2
         result.error = error
         result.impact_record = sink.window()
-        _with_units(result, v)
+        with_units(result, v)
         if result.impact_record is not None:
             result.impact_record.info = dict(result.info)
         m = sink.metrics(result)

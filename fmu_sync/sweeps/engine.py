@@ -5,7 +5,7 @@
   :func:`fmu_sync.core.batch.run_pairs1` (numba ``prange``, one thread per core).
 * **per-run chunks** -- co-simulated runs (FMU instances belong to a process)
   and core pairs with n > 1: each run is loaded from the scene and run by
-  :func:`fmu_sync.scenes.running.run_variant` in a worker process; only its metrics
+  :func:`fmu_sync.scenes.variant.run_variant` in a worker process; only its metrics
   come back (:func:`fmu_sync.core.batch.metrics_from_records`).
 
 Both kinds of task are plain functions of picklable payloads, so the same
@@ -455,7 +455,10 @@ def _one_python_run(path, overrides, vname, threshold):
     if res.error and not reason:
         reason = res.error
     t = np.asarray(res.t, dtype=float)
-    d = np.asarray(res.d if res.d is not None else np.full(t.size, np.nan), dtype=float)
+    euclid = res.d is None and getattr(res, "euclidean", None) is not None   # no common impact geometry
+    row[COL["measure"]] = batch.MEASURE_EUCLIDEAN if euclid else batch.MEASURE_D
+    d = np.asarray(res.d if res.d is not None else (np.asarray(res.euclidean).reshape(t.size, -1)[:, 0] if euclid
+                                                     else np.full(t.size, np.nan)), dtype=float)
     n_ok = t.size
     finite = np.isfinite(d) & np.all(np.isfinite(res.q1), axis=1) & np.all(np.isfinite(res.q2), axis=1)
     if not finite.all():

@@ -57,6 +57,9 @@ VARIABLES = {
     "samples": ("samples", "f8", "", "samples of d used by the metrics"),
     "exchange_stable": ("exchange_stable", "f8", "", "1 if the held coupling is stable at the step "
                         "(fmu_sync.core.exchange); compiled runs run either way, others are refused"),
+    "measure": ("measure", "f8", "", "what d0, d_final, d_max, bound, t_sync and the decay rates measure: 0 the "
+                "quotient distance d, 1 the Euclidean error ||x1 - x2|| of systems without one impact map "
+                "(M, w, g0 or e differ; docs/design.md §2.5.3)"),
 }
 
 
