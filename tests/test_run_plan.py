@@ -55,7 +55,8 @@ def _master_verdict(fmus, v):
     """The master's own decision: a NetworkMaster for the variant, its plan from the values
     each instance would report (the declared defaults with the scene's start values)."""
     from fmu_sync.master import NetworkMaster
-    from fmu_sync.scenes.running import fmu_model_of, fmu_start_values
+    from fmu_sync.scenes.variant import fmu_start_values
+    from fmu_sync.user_export import fmu_model_of
     model = fmu_model_of(v.cfg["system.model"], v.system.n)
     fmu = fmus[model.key]
     states = list(v.network.states) if v.is_network else [v.x1, v.x2]
