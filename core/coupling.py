@@ -40,7 +40,8 @@ from .jit import njit
 from .compensation import compensated_coupling1, force_table, node_force1, pull1
 from .distance import BRANCH_E, BRANCH_FREE, BRANCH_NAMES, resolve_geometry, geometry_state, distance1, distance_kernel
 
-__all__ = ["SWITCHING", "EUCLIDEAN", "UNCOUPLED", "COMPENSATED", "QUOTIENT_LAWS", "LAWS", "BRANCH_NONE",
+__all__ = ["SWITCHING", "EUCLIDEAN", "UNCOUPLED", "COMPENSATED", "QUOTIENT_LAWS", "QUOTIENT_LAW_NAMES", "LAWS",
+           "LAW_NAMES", "BRANCH_NONE",
            "switching_coupling", "euclidean_coupling", "coupling_kernel",
            "switching_coupling1", "euclidean_coupling1", "coupling_kernel1",
            "gain_matrix", "chain_work", "law_code", "branch_code", "coupling_forces", "energy_metric",
@@ -55,8 +56,12 @@ UNCOUPLED = 2
 #: force at its chain end whenever the switching law would let the chain grow (1-DOF).
 COMPENSATED = 3
 LAWS = {"switching": SWITCHING, "euclidean": EUCLIDEAN, "none": UNCOUPLED, "switching-compensated": COMPENSATED}
-#: The laws whose forces come from the quotient distance (a run records d with them).
+#: A law's name by its code.
+LAW_NAMES = {code: name for name, code in LAWS.items()}
+#: The laws whose forces come from the quotient distance (a run records d with them; the systems
+#: must share one impact map): by code, and by name.
 QUOTIENT_LAWS = (SWITCHING, COMPENSATED)
+QUOTIENT_LAW_NAMES = tuple(LAW_NAMES[c] for c in QUOTIENT_LAWS)
 #: Branch code returned for the laws that compute no quotient distance.
 BRANCH_NONE = -1
 

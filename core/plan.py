@@ -235,17 +235,23 @@ def critical_system(systems):
     return systems[int(np.argmin(low))]
 
 
+def _edge_laws(A, N: int, laws) -> np.ndarray:
+    """The law code of every edge: ``laws``, or the switching law on every edge of ``A`` (default:
+    the pair)."""
+    from .coupling import SWITCHING   # coupled runs only (see coupled_weights)
+    if laws is None:
+        return np.full(1 if A is None else len(edges_of(weights(A, N))), SWITCHING, dtype=np.int64)
+    return np.atleast_1d(np.asarray(laws, dtype=np.int64))
+
+
 def _check_geometry(systems, laws, A, N, distance, names) -> None:
     """Step 1 of :func:`plan_run`: one impact map where a quotient law or the distance record needs it."""
     if geometry_difference(systems) is None:
         return
-    from .coupling import QUOTIENT_LAWS, SWITCHING   # coupled runs only (see coupled_weights)
-    codes = np.full(1 if A is None else len(edges_of(weights(A, N))), SWITCHING) if laws is None else laws
-    quotient = [c for c in np.atleast_1d(np.asarray(codes)) if c in QUOTIENT_LAWS]
+    from .coupling import LAW_NAMES, QUOTIENT_LAWS   # coupled runs only (see coupled_weights)
+    quotient = [c for c in _edge_laws(A, N, laws) if c in QUOTIENT_LAWS]
     if quotient:
-        from .coupling import LAWS
-        name = next(k for k, v in LAWS.items() if v == int(quotient[0]))
-        check_common_geometry(systems, names, f"the {name} law")
+        check_common_geometry(systems, names, f"the {LAW_NAMES[int(quotient[0])]} law")
     if distance:
         check_common_geometry(systems, names, "the distance record")
 
@@ -290,17 +296,14 @@ def _schemes(systems, scheme, theta, dt, step, exact, allow_unstable, system_nam
 def _coupling(systems, A, laws, Kp, Kd, step, hold, allow_unstable, step_name, exchange, cosim):
     """Step 5 of :func:`plan_run`: forces through B = I, the laws per edge, the held exchange checked
     with the lightest system (:func:`critical_system`); ``(laws, coupled, held_exchange(...))``."""
-    from .coupling import COMPENSATED, SWITCHING, UNCOUPLED   # coupled runs only (see coupled_weights)
+    from .coupling import COMPENSATED, UNCOUPLED   # coupled runs only (see coupled_weights)
     from .compensation import check_compensated
     n = systems[0].n
     for s in systems:
         if s.n_inputs != n or not np.array_equal(s.B, np.eye(n)):
             raise ValueError(f"coupled systems take the forces through B = I (tau has n = {n} entries); "
                              f"got B of shape {s.B.shape}")
-    if laws is None:   # every edge of the graph (default: the pair) switching
-        laws_a = np.full(1 if A is None else len(edges_of(weights(A, len(systems)))), SWITCHING, dtype=np.int64)
-    else:
-        laws_a = np.asarray(laws, dtype=np.int64)
+    laws_a = _edge_laws(A, len(systems), laws)
     if np.any(laws_a == COMPENSATED):
         check_compensated(n, systems[0].force)
     sc = critical_system(systems)   # the lightest node sets the exchange's limit (docs/design.md §2.5.3)

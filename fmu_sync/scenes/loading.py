@@ -11,6 +11,7 @@ import numpy as np
 
 from ..core import InadmissibleState, ModelError, load_model
 from ..core.checks import check_start
+from ..core.coupling import QUOTIENT_LAW_NAMES
 from ..user_export import fmu_model_of
 from . import SCENE_DIR, builtin_names
 from .schema import (COSIM_KEYS, DISTANCE_PLOTS, KEYS, MODELS, NAME_RE, NETWORK_PLOTS, REQUIRED, SINGLE_PLOTS,
@@ -343,7 +344,7 @@ def _build_network(cfg: dict, system, ctx: str, fail, state_of) -> NetworkSpec:
             systems.append(_make_system(node_cfg))
         except ValueError as exc:
             fail("network.nodes", nodes, f"node {i + 1}: {exc}")
-    quotient = [x for x in (laws or [cfg["coupling.law"]]) if x in ("switching", "switching-compensated")]
+    quotient = [x for x in (laws or [cfg["coupling.law"]]) if x in QUOTIENT_LAW_NAMES]
     if quotient:   # a quotient law needs one impact map (the run plan's rule, core/plan.py)
         from ..core.plan import check_common_geometry
         try:

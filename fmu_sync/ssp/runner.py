@@ -157,7 +157,7 @@ def _one_model(pkg: SspPackage, arc: Archive, names: list[str]) -> bytes:
 
 def _run_master(pkg, arc, fmu, names, spec, cfg, t_end, H, method, record_every, progress, allow_unstable, cvals,
                 run):
-    from ..core.coupling import LAWS
+    from ..core.coupling import LAW_NAMES, QUOTIENT_LAW_NAMES
     from ..core.errors import RunFailed
     from ..core.pair import check_common_geometry
     from ..fmus.slave import MechanicalSlave
@@ -178,15 +178,14 @@ def _run_master(pkg, arc, fmu, names, spec, cfg, t_end, H, method, record_every,
     A = np.zeros((spec.N, spec.N))
     for (i, j), (aij, aji) in zip(spec.edges, cfg.W2):
         A[i, j], A[j, i] = aij, aji
-    code_name = {v: k for k, v in LAWS.items()}
-    laws = [code_name[int(c)] for c in cfg.laws]
+    laws = [LAW_NAMES[int(c)] for c in cfg.laws]
     geo = cfg.geo
     # the coupling's geometry must be the systems' (the master itself reads theirs from the FMU)
     systems = [model.geometry_system(v) for v in values]
     # the coupling's geometry beside the systems' (their force law: only the geometry is compared)
     mine = SimpleNamespace(n=spec.n, force=systems[0].force, M=geo.M, w=geo.w, g0=geo.g0, e=geo.e)
     try:   # a quotient law needs one impact map; the Euclidean law and none run systems that differ
-        if any(x in ("switching", "switching-compensated") for x in laws):
+        if any(x in QUOTIENT_LAW_NAMES for x in laws):
             check_common_geometry(systems + [mine], names + ["the coupling component"])
     except ValueError as exc:
         raise pkg.fail(", ".join(pkg.bindings.get(COUPLING_COMPONENT) or [pkg.sources[COUPLING_COMPONENT]]),

@@ -25,7 +25,7 @@ import numpy as np
 
 from ..core import batch
 from ..core.batch import COL, COLUMNS, DIVERGED, OK, REFUSED
-from ..core.coupling import law_metric
+from ..core.coupling import QUOTIENT_LAW_NAMES, law_metric
 from .spec import STATE_ALIASES, SweepSpecError
 
 __all__ = ["Prepared", "prepare", "compiled_payload", "run_compiled_chunk", "run_python_chunk",
@@ -344,7 +344,7 @@ def _system2(scene, v, r, s2: dict):
         sys2 = load_scene(scene.path, over, [v.name]).variants[0].system
     except SceneError as exc:
         raise SweepSpecError(f"sweep parameters {s2}: {exc}") from None
-    if v.law in ("switching", "switching-compensated"):   # a quotient law needs one impact map (core/plan.py)
+    if v.law in QUOTIENT_LAW_NAMES:   # a quotient law needs one impact map (core/plan.py)
         from ..core.plan import check_common_geometry
         try:
             check_common_geometry([v.system, sys2], ["system 1", "system 2"], f"the {v.law} law")
