@@ -25,7 +25,7 @@ from .errors import ForceLawFailed, SimulationDiverged
 from .failure import rows_written
 from .loop import network_forces, no_decimator, node_force
 from .steps import DEFAULT_SCHEME, DIVERGED, OK
-from .pair import LAWS, failure_message, locate_failure, network_loop, stack_nodes
+from .pair import LAWS, failure_message, locate_failure, network_loop, progress_chunks, stack_nodes
 from .plan import coupling_exchange, as_systems, coupled_weights, edges_of, geometry_difference, held_exchange, \
     network_geometry, plan_run, weights
 from .result import NetworkResult
@@ -142,13 +142,6 @@ def record_modes(record_distance, laws, shared: bool):
     return record_d, record_d
 
 
-def _chunks(n_steps: int, record_every: int, progress) -> list:
-    if progress is None:
-        return [n_steps]
-    per = max(1, (n_steps // record_every) // 100) * record_every
-    return [per] * (n_steps // per) + ([n_steps % per] if n_steps % per else []) or [0]
-
-
 # ------------------------------------------------------------------ Python API
 def simulate_network(system, states, A, t_end: float, dt: float, coupling="switching", Kp=0.0,
                      Kd=0.0, Q=None, scheme: str = DEFAULT_SCHEME, theta: float = 0.5,
@@ -193,7 +186,7 @@ def simulate_network(system, states, A, t_end: float, dt: float, coupling="switc
                     coupled=plan.coupled, stiffness=systems[0].metric_source)
     geo, shared = network_geometry(systems, lm.Q)
     run = _NetworkRun(plan, systems, geo, laws, *edge_arrays(A, edges), record_d, dist, E, t0)
-    status = run.chunks(_chunks(plan.whole_steps, plan.record_every, progress), progress)
+    status = run.chunks(progress_chunks(plan.whole_steps, plan.record_every, progress), progress)
     if status != OK:
         run.locate()
     sl = slice(0, run.row0 if status != OK else plan.rows)

@@ -191,11 +191,16 @@ def chunk_plan(plan, sink, chunk_rows, progress):
         if not chunks or (grid.short and n_steps % per == 0):
             chunks.append(0)   # the chunk that takes the shortened last step
         return min(plan.rows, chunk_rows + 1), chunks   # a chunk re-records its start row (dropped)
+    return plan.rows, progress_chunks(n_steps, record_every, progress)
+
+
+def progress_chunks(n_steps: int, record_every: int, progress) -> list:
+    """The steps of each compiled call of a run kept whole in memory: one call, or with ``progress``
+    ~100 calls of whole record intervals (the pair's and the network's)."""
     if progress is None:
-        return plan.rows, [n_steps]
+        return [n_steps]
     per = max(1, (n_steps // record_every) // 100) * record_every
-    chunks = [per] * (n_steps // per) + ([n_steps % per] if n_steps % per else [])
-    return plan.rows, chunks or [0]
+    return [per] * (n_steps // per) + ([n_steps % per] if n_steps % per else []) or [0]
 
 
 def pair_result(run, sl, rec=None) -> PairResult:
