@@ -45,7 +45,7 @@ if NUMBA:
     _ARR = types.Array(types.float64, 1, "C")
     LAW_SIGNATURE = (_ARR, _ARR, _ARR, types.float64, _ARR)
 
-_KERNELS: dict = {}   # law key (or id) -> LawKernels, one compilation per process
+_KERNELS: dict = {}   # (law key (or id), trapezoid) -> LawKernels, one compilation per process
 
 
 class LawKernels(pytypes.SimpleNamespace):
@@ -133,6 +133,7 @@ class ForceLaw:
         # mid-run), never a ZeroDivisionError raised out of a compiled loop
         self.dispatcher = njit(cache=self.key is not None, inline="always", error_model="numpy")(py)
         self._returns = None
+        self._u_linear = None
 
     @property
     def names(self) -> tuple:
@@ -183,6 +184,42 @@ class ForceLaw:
                 raise LawRefused(f"force law {self.name!r}: forcing term {j} must be (F, Omega, phi) with F "
                                  f"{self.n} number(s), got {term!r}") from None
         return tuple(terms)
+
+    @property
+    def linear_in_u(self) -> bool:
+        """Whether h is linear in u through its declared part alone: ``h(q, u2) - h(q, u1) = -C_L (u2 - u1)``
+        (to 1e-10 relative) at 8 fixed pseudo-random points (q, u1, u2 in [-2, 2]^n, t in [0, 10], tau = 0)
+        for the default parameters and for every parameter moved by 1 (or halfway into its range). Such a law
+        runs the trapezoid as it stands (no second evaluation, :func:`.law_loops.heun`); a law that raises or
+        returns non-finite values at a probe counts as nonlinear (the corrected step is right for both)."""
+        if self._u_linear is None:
+            self._u_linear = self._probe_linear_in_u()
+        return self._u_linear
+
+    def _probe_linear_in_u(self) -> bool:
+        rng = np.random.default_rng(40)
+        n = self.n
+        try:
+            moved = []
+            for prm in self.params:
+                v = float(prm.default) + 1.0
+                if prm.max is not None and v > prm.max:
+                    v = 0.5 * (float(prm.default) + prm.max)
+                moved.append(v)
+            for p in (self.values(), np.array(moved)):
+                CL = self.linear_part(p)[1]
+                for _ in range(8):
+                    q, u1, u2 = (rng.uniform(-2.0, 2.0, n) for _ in range(3))
+                    t = float(rng.uniform(0.0, 10.0))
+                    h1 = self.evaluate(q, u1, np.zeros(n), t, p)
+                    h2 = self.evaluate(q, u2, np.zeros(n), t, p)
+                    d = (h2 - h1) + CL @ (u2 - u1)
+                    scale = np.abs(h1) + np.abs(h2) + np.abs(CL) @ np.abs(u2 - u1) + 1e-300
+                    if not np.all(np.abs(d) <= 1e-10 * scale):
+                        return False
+        except (LawRefused, ValueError, TypeError, FloatingPointError):
+            return False
+        return True
 
     def metric_stiffness(self, p):
         """``(K_m, source)``: the metric's stiffness (:data:`METRIC_SOURCES`, docs/design.md §2.8.2)."""
@@ -271,24 +308,29 @@ class ForceLaw:
                              f"q = {np.asarray(q).tolist()}, u = {np.asarray(u).tolist()}, t = {t:g} "
                              f"({vals})")
 
-    def kernels(self) -> LawKernels:
+    def kernels(self, trapezoid: bool = False) -> LawKernels:
         """The law's loops: the built-in loops' templates (:data:`.moreau.TEMPLATES`) with the
         law's force (:mod:`.law_loops`), compiled once per process and cached on disk under
-        :attr:`key` (lazily compiled on first call)."""
-        k = self.key or id(self)
+        :attr:`key` (lazily compiled on first call). ``trapezoid``: the copies of the default scheme,
+        whose force takes the explicit part of h at the step's middle velocity
+        (:func:`.law_loops.heun`: second order between impacts) when h is not :attr:`linear_in_u`; the
+        other schemes' copies otherwise."""
+        trapezoid = bool(trapezoid) and not self.linear_in_u   # linear in u: the trapezoid as it stands
+        k = (self.key or id(self), trapezoid)
         if k in _KERNELS:
             return _KERNELS[k]
         kind = self.compile()
         cache = self.key is not None
+        tag = f"{kind}_trapezoid" if trapezoid else kind
 
         def specialise(fn, g, name, inline):
             py = getattr(fn, "py_func", fn)
             f = pytypes.FunctionType(py.__code__, g, name, py.__defaults__, py.__closure__)
-            f.__qualname__ = f"{name}_{kind}"
+            f.__qualname__ = f"{name}_{tag}"
             f.__module__ = py.__module__
             g[name] = njit(cache=cache, inline=inline, error_model="numpy")(f)
 
-        own = dict(vars(law_loops), law_h=self.dispatcher, **{LAW_KEY: self.key})
+        own = dict(vars(law_loops), law_h=self.dispatcher, HEUN=bool(trapezoid), **{LAW_KEY: self.key})
         for name, inline in law_loops.OWN.items():
             src = {"law_into": "_h_scalar" if kind == "scalar" else "_h_array",
                    "law_h1": "_h1_scalar" if kind == "scalar" else "_h1_array"}.get(name, name)

@@ -30,16 +30,23 @@ in the slot of f0). Nothing here is compiled as it stands.
 """
 from __future__ import annotations
 
+import numpy as np
+
+from .steps import inverse   # noqa: F401 (a global of the specialised copies: the n-DOF correction's S^-1)
+
 #: the law's own functions (plain, specialised per law by :meth:`ForceLaw.kernels`) and their
 #: numba ``inline`` option; the loops themselves are the built-in law's templates
 #: (:data:`fmu_sync.core.moreau.TEMPLATES`, :data:`fmu_sync.core.loop.TEMPLATES`), specialised
 #: with this ``force``, ``force1``, ``net_force``, ``net_force1``
-OWN = {"law_into": "always", "law_h1": "always", "force": "always", "force1": "always", "net_force": "always",
-       "net_force1": "always"}
+OWN = {"law_into": "always", "law_h1": "always", "heun": "always", "force": "always", "force1": "always",
+       "net_force": "always", "net_force1": "always"}
 
 law_h = None      # the law's numba function, set in each specialised copy's globals
 law_into = None   # _h_array or _h_scalar, ditto
 law_h1 = None     # _h1_array or _h1_scalar, ditto
+#: the trapezoid's copies (``ForceLaw.kernels(trapezoid=True)``): the explicit part of h corrected at the
+#: step's middle velocity (:func:`heun`), a constant of each copy (numba prunes the branch elsewhere)
+HEUN = False
 
 
 def _h_array(qe, u, tau, tf, p, y):
@@ -67,22 +74,57 @@ def _h1_scalar(qa, ua, ta, tf, p):
 def force(sa, p, q, u, tau, hb, hf, tf, a, y, qe):
     """The law's force at the step's force point, into y (the loops' ``force``,
     :func:`fmu_sync.core.moreau.force`'s signature): ``y = h(q + a u, u, tau, tf, p) + hf``,
-    ``hf`` the law's declared harmonic forcing at ``tf`` (cos or phasor path); ``hb`` unused."""
+    ``hf`` the law's declared harmonic forcing at ``tf`` (cos or phasor path); ``hb`` unused.
+    The trapezoid's copies (:data:`HEUN`) correct it at the step's middle velocity (:func:`heun`)."""
     n = q.shape[0]
     for i in range(n):
         qe[i] = q[i] + a * u[i]
     law_into(qe, u, tau, tf, p, y)
     for i in range(n):
         y[i] += hf[i]
+    if HEUN:
+        heun(sa, p, u, tau, hf, tf, a, y, qe)
+
+
+def heun(sa, p, u, tau, hf, tf, a, y, qe):
+    """The trapezoid's second evaluation (n-DOF; docs/design.md §2.8.1): with ``y0`` (in y) the force
+    at the step's start velocity u0, the middle velocity ``ub = u0 + a X y0`` (X = S^-1 of the step,
+    ``a = dt/2``) and ``y = h(qe, ub, tau, tf, p) + hf + C_L (ub - u0)``: the law's declared linear
+    part stays in S (its u0 value, as without the correction), the rest is taken at ub, which is
+    u(t + dt/2) to O(dt^2): the force of the midpoint rule, so the step is second order."""
+    n = u.shape[0]
+    S = np.empty((n, n))
+    for i in range(n):
+        for j in range(n):
+            S[i, j] = sa.M[i, j] + a * sa.C[i, j] + a * a * sa.K[i, j]
+    X = inverse(S)
+    ub = np.empty(n)
+    for i in range(n):
+        s = u[i]
+        for j in range(n):
+            s += (a * X[i, j]) * y[j]
+        ub[i] = s
+    law_into(qe, ub, tau, tf, p, y)
+    for i in range(n):
+        c = hf[i]
+        for j in range(n):
+            c += sa.C[i, j] * (ub[j] - u[j])
+        y[i] += c
 
 
 def force1(c, p, q, u, tau, hb, fc, tf, a, qa, ua, ta):
     """:func:`force` for n = 1 on floats (:func:`fmu_sync.core.moreau.force1`'s signature;
-    ``qa, ua, ta``: the law's 1-element argument arrays)."""
+    ``qa, ua, ta``: the law's 1-element argument arrays). The trapezoid's copies (:data:`HEUN`):
+    :func:`heun` on floats, ``X = c[2] / dt`` (``c[2] = dt X``, ``a = dt/2``), ``C_L = c[1] - a c[0]``."""
     qa[0] = q + a * u
     ua[0] = u
     ta[0] = tau
-    return law_h1(qa, ua, ta, tf, p) + fc
+    y = law_h1(qa, ua, ta, tf, p) + fc
+    if HEUN:
+        ub = u + 0.5 * (c[2] * y)
+        ua[0] = ub
+        y = law_h1(qa, ua, ta, tf, p) + (fc + (c[1] - a * c[0]) * (ub - u))
+    return y
 
 
 def net_force(sa, P, i, q, u, tau, hf, tf, a, y, qe):

@@ -229,7 +229,7 @@ class _NetworkRun:
         N, n = len(systems), systems[0].n
         self.alloc = lambda rows: network_record(rows, N, n, E, dist)
         self.rec = self.alloc(plan.rows)
-        self.nodes, self.loop = stack_nodes(*systems), network_loop(systems)
+        self.nodes, self.loop = stack_nodes(*systems), network_loop(systems, plan.code)
         self.q, self.u = plan.q.copy(), plan.u.copy()
         self.imp = np.zeros(N, dtype=np.int64)
         self.row0 = self.k0 = self.chunk_k = self.written = 0

@@ -35,13 +35,13 @@ PAIR_EDGES = np.array([[0, 1]], dtype=np.int64)
 PAIR_WEIGHTS = np.ones((1, 2))
 
 
-def network_loop(systems):
+def network_loop(systems, code=None):
     """The coupled loop of these systems: :func:`~fmu_sync.core.loop.integrate_network` for
-    the built-in linear law, the law's own copy (:meth:`ForceLaw.kernels`, the same arguments)
-    for a user force law, which every node shares (its parameters may differ; checked by the run
+    the built-in linear law, the law's own copy (:meth:`ForceLaw.kernels`, the same arguments;
+    the trapezoid's copy for scheme ``code`` TRAPEZOID) for a user force law, which every node shares (its parameters may differ; checked by the run
     plan, :func:`~fmu_sync.core.plan.check_common_geometry`)."""
     law = systems[0].force
-    return integrate_network if law is None else law.kernels().network
+    return integrate_network if law is None else law.kernels(code == TRAPEZOID).network
 
 
 def stack_nodes(*systems):
@@ -165,7 +165,7 @@ def simulate_pair(system, x1, x2, t_end: float, dt: float, coupling=None,
         info.update(omega_c_dt=plan.limit.h, exchange_bound=plan.limit.bound, zeta=plan.limit.zeta,
                     dt_max=plan.limit.H_max)
     run = SimpleNamespace(systems=systems, plan=plan, law=law, geo=geo, rec=rec, cap=cap, sink=sink, info=info,
-                          record_d=record_d, coupling=coupling, loop=network_loop(systems), nodes=stack_nodes(*systems),
+                          record_d=record_d, coupling=coupling, loop=network_loop(systems, plan.code), nodes=stack_nodes(*systems),
                           laws=np.full(1, law, dtype=np.int64), imp1=0, imp2=0, sent=0, scheme=scheme)
     status, raised, at = run_chunks(run, chunks, progress, t0)
     if status == OK:

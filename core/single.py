@@ -10,7 +10,7 @@ from .exact import simulate_exact
 from .failure import force_offset, law_nonfinite, law_raised, rows_written
 from .model import MechanicalSystem
 from .moreau import DIVERGED, kernels_for
-from .steps import DEFAULT_SCHEME
+from .steps import DEFAULT_SCHEME, TRAPEZOID
 from .plan import plan_run
 from .result import SimulationResult
 
@@ -58,7 +58,7 @@ def simulate(system: MechanicalSystem, x0, t_end: float, dt: float, scheme: str 
 
     def run(q, u, t_start, steps, every, T, Q, U, P, last):
         if law is not None:   # a user force law: its copy of the loop, the law's force (core/law_loops.py)
-            return law.kernels().integrate(sa, system.p, q, u, float(t_start), dt, steps, tau, code, theta, every,
+            return law.kernels(code == TRAPEZOID).integrate(sa, system.p, q, u, float(t_start), dt, steps, tau, code, theta, every,
                                            T, Q, U, P, bool(phasor), last)
         return kernels_for(sa)(sa, q, u, float(t_start), dt, steps, tau, code, theta, every, T, Q, U, P,
                                bool(phasor), last)

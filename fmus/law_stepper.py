@@ -97,7 +97,8 @@ def law_stepper(law, on_compile=None):
     key = law.key or id(law)
     if key in _STEPPERS:
         return _STEPPERS[key]
-    g = dict(vars(S), advance_in=law.kernels().advance_in, N_P=len(law.params))
+    g = dict(vars(S), advance_in=law.kernels().advance_in, N_P=len(law.params), LAW_TRAPEZOID=not law.linear_in_u,
+             advance_in_trapezoid=law.kernels(trapezoid=True).advance_in)
     cache_key = stepper_key(law)
     if cache_key is not None:    # the cache locator's key of this copy (core/_cache.py)
         g[LAW_KEY] = cache_key

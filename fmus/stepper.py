@@ -122,6 +122,11 @@ def work_size(n: int, m: int, nf: int, nx: int = 0, n_p: int = 0) -> int:
 #: the parameters of the stepper's force law in the work array (0: the built-in linear law; a
 #: user law's stepper, :mod:`.law_stepper`, is compiled with its own)
 N_P = 0
+#: a user law's stepper (:mod:`.law_stepper`) runs ``solver.scheme = trapezoid`` with the law's trapezoid
+#: copy of advance_in (``ForceLaw.kernels(trapezoid=True)``: the core's default, second order); the
+#: built-in law's advance_in serves every scheme
+LAW_TRAPEZOID = False
+advance_in_trapezoid = advance_in
 
 
 @njit(cache=True, inline="always")
@@ -234,11 +239,14 @@ def _advance(sa, q, u, t, H, dt, tau, taudot, scheme, theta, s, w):
         # scratch: y, hf, uf, Sinv_w, qe, hb (n each), Sinv (n*n), cv, sv, cr, sr (nf each), tk (m)
         k = 6 * n + n * n
         p = law_params(w, N_P) if N_P > 0 else sa.f0   # a user law's parameters (the built-in law: unused)
+        y, hf, uf, Sinv, Sinv_w = s[0:n], s[n:2 * n], s[2 * n:3 * n], mat(s, 6 * n, n, n), s[3 * n:4 * n]
+        cv, sv, cr, sr = s[k:k + nf], s[k + nf:k + 2 * nf], s[k + 2 * nf:k + 3 * nf], s[k + 3 * nf:k + 4 * nf]
+        qe, hb, tk = s[4 * n:5 * n], s[5 * n:6 * n], s[k + 4 * nf:k + 4 * nf + m]
+        if LAW_TRAPEZOID and scheme == TRAPEZOID:   # a user law's trapezoid copy (core/law_loops.py heun)
+            return advance_in_trapezoid(sa, p, q, u, t, H, dt, tau, taudot, foh, scheme, theta, False,
+                                        y, hf, uf, Sinv, Sinv_w, cv, sv, cr, sr, qe, hb, tk)
         return advance_in(sa, p, q, u, t, H, dt, tau, taudot, foh, scheme, theta, False,
-                          s[0:n], s[n:2 * n], s[2 * n:3 * n], mat(s, 6 * n, n, n), s[3 * n:4 * n],
-                          s[k:k + nf], s[k + nf:k + 2 * nf], s[k + 2 * nf:k + 3 * nf],
-                          s[k + 3 * nf:k + 4 * nf], s[4 * n:5 * n], s[5 * n:6 * n],
-                          s[k + 4 * nf:k + 4 * nf + m])
+                          y, hf, uf, Sinv, Sinv_w, cv, sv, cr, sr, qe, hb, tk)
     # further schemes dispatch here
     return -1, 0.0, 0
 
