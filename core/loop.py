@@ -426,6 +426,10 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
             implicit = False
     if implicit:
         implicit_matrix(laws, E2, W2, Kp[0, 0], Kd[0, 0], co, Ainv)
+    implicit_nd = scheme == TRAPEZOID and not scalar   # n > 1: core/loop_implicit.py
+    ws = implicit_workspace(N, n, E)
+    if implicit_nd:
+        implicit_matrix_nd(laws, E2, W2, Kp, Kd, Sinv, theta * dt, dt, ws[0])
     qf = np.zeros(N)
     uf1 = np.zeros(N)
     dq = np.zeros(N)
@@ -545,6 +549,20 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
             if k == 0 and k0 == 0:
                 for i in range(N):
                     TAU[0, i, 0] = tau1d[i]
+        if implicit_nd and coupled and k < total:   # n > 1: the free steps, then the trapezoid's solve
+            hk = dt_last if k == n_steps else dt
+            if k == n_steps:
+                _matrices(base, K, C, f0, F, Omega, phi, scheme, theta, hk, Sinv, Sinv_w, WS, co)
+                implicit_matrix_nd(laws, E2, W2, Kp, Kd, Sinv, theta * hk, hk, ws[0])
+            ws[1][:, :] = q
+            ws[2][:, :] = u
+            for i in range(N):
+                _step_node(base, K, C, f0, F, Omega, phi, i, ws[1], ws[2], tau, t0 + (k0 + k) * dt, hk, scheme,
+                           theta, Sinv, Sinv_w, WS, qM, h, uf, ua, qe)
+            implicit_forces_nd(laws, geo, Kp, Kd, E2, W2, Sinv, theta * hk, hk, tau, bk, hp, t0 + (k0 + k) * dt + hk,
+                               t1, t2, c1q, c1u, c2q, c2u, ws)
+            if k == 0 and k0 == 0:
+                TAU[0, :, :] = tau
         if is_row:
             T[r] = tk
             # the states (then flushed, as moreau.finish_step) and the edges' distance records, on the
@@ -588,7 +606,7 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
         hk = dt
         if k == n_steps:   # the shortened last step
             hk = dt_last
-            if not implicit:   # (the implicit solve above made them)
+            if not (implicit or implicit_nd):   # (the implicit solve above made them)
                 _matrices(base, K, C, f0, F, Omega, phi, scheme, theta, hk, Sinv, Sinv_w, WS, co)
         a = theta * hk if scheme != MIDPOINT else 0.5 * hk
         if scalar:   # the 1-DOF path: the step on floats (bitwise the general step), 1-D views
@@ -618,3 +636,7 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
                     v_imp = _impact(i, k, imp, ep, last, p_norm_diff(geo.Q, geo.Q, zero, ua, zero, zero), v_imp)
         k += 1
     return OK, total, row, v_imp, tau_max
+
+
+# the n-DOF solve (its module uses network_forces above; the loop's globals resolve at compile time)
+from .loop_implicit import implicit_forces_nd, implicit_matrix_nd, implicit_workspace  # noqa: E402

@@ -162,8 +162,9 @@ def held_exchange(M, Kp, Kd, step: float, A=None, laws=None, hold: str = "zoh", 
 def coupling_exchange(scheme, systems) -> str:
     """The exchange of the core's coupled loop (:func:`.loop.integrate_network`) for ``scheme``:
     ``"implicit"`` (the coupling inside the step, its trapezoid: A-stable, docs/design.md §2.6)
-    for ``scheme="trapezoid"`` on 1-DOF systems, else the zero-order hold of the start forces."""
-    return "implicit" if scheme == "trapezoid" and systems[0].n == 1 else "explicit"
+    for ``scheme="trapezoid"`` (n = 1: core/loop.py; n > 1: core/loop_implicit.py), else the
+    zero-order hold of the start forces."""
+    return "implicit" if scheme == "trapezoid" else "explicit"
 
 
 # ------------------------------------------------------------------ the plan

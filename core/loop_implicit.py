@@ -1,0 +1,124 @@
+"""The coupling inside the step for n-DOF systems (scheme ``trapezoid``, n > 1; docs/design.md §2.3).
+
+The n = 1 path lives in :mod:`.loop` (``implicit_matrix``, ``implicit_forces``, on floats); this is
+the same solve on (N, n) blocks for :func:`fmu_sync.core.loop.integrate_network`'s ``_step_node`` path.
+Each node i steps under the held force ``s_i = tau_i(x0) + delta_i``, the trapezoid
+``(tau_i(x0) + tau_i(x1)) / 2`` of its coupling force, each edge's law on the branch it has at x0
+(held, as the master's implicit exchange holds it). With ``X_i = S_i^-1`` (B = I) the node's end
+state is affine in its force: ``u1 = u1free + dt X_i delta_i``, ``q1 = q1free + a dt X_i delta_i``
+(``a = dt/2``; contact: the free end state is the node's own step under ``tau(x0)``, contact
+included, and the increments added to it). The PD law of a held branch E is linear, so
+``delta = (2 I - J)^-1 (tau(x1free) - tau(x0))`` with J the block Jacobian
+``d tau / d delta`` of the PD law: exact for the Euclidean law and branch E (one pass), a Newton
+matrix on a jump branch (until |2 R| <= 1e-13 max|tau|, at most 8 passes).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .coupling import EUCLIDEAN, UNCOUPLED
+from .distance import BRANCH_E
+from .jit import njit
+from .loop import network_forces
+from .steps import inverse
+
+__all__ = ["implicit_workspace", "implicit_matrix_nd", "implicit_forces_nd"]
+
+
+@njit(cache=True)
+def implicit_workspace(N, n, E):
+    """Scratch of :func:`implicit_forces_nd` (allocated once per loop call): ``(Ainv, qc, uc, q1, u1,
+    tau0, tau1, delta, r, bh, dk, ek)``."""
+    m = N * n
+    e = max(E, 1)
+    return (np.zeros((m, m)), np.zeros((N, n)), np.zeros((N, n)), np.zeros((N, n)), np.zeros((N, n)),
+            np.zeros((N, n)), np.zeros((N, n)), np.zeros((N, n)), np.zeros(m), np.zeros(e, dtype=np.int64),
+            np.zeros(e), np.zeros(e))
+
+
+@njit(cache=True, inline="always")
+def _block(A, G, row, col, wgt, n):
+    """A[row, col] += wgt G_col (n x n blocks)."""
+    for r in range(n):
+        for c in range(n):
+            A[row * n + r, col * n + c] += wgt * G[col, r, c]
+
+
+@njit(cache=True)
+def implicit_matrix_nd(laws, E2, W2, Kp, Kd, Sinv, a, dt, Ainv):
+    """``Ainv = (2 I - J)^-1`` (N n x N n): J the Jacobian of the nodes' PD coupling forces at the
+    step's end with respect to their force increments, ``G_i = dt (a Kp + Kd) X_i``,
+    ``d tau_a / d delta_a = -w_ab G_a``, ``d tau_a / d delta_b = w_ab G_b`` per edge (a, b)."""
+    N = Sinv.shape[0]
+    n = Sinv.shape[1]
+    A = np.zeros((N * n, N * n))
+    for i in range(N * n):
+        A[i, i] = 2.0
+    G = np.zeros((N, n, n))
+    for i in range(N):
+        for r in range(n):
+            for c in range(n):
+                s = 0.0
+                for j in range(n):
+                    s += (a * Kp[r, j] + Kd[r, j]) * Sinv[i, j, c]
+                G[i, r, c] = dt * s
+    for e_ in range(E2.shape[0]):
+        if laws[e_] == UNCOUPLED:
+            continue
+        na = E2[e_, 0]
+        nb = E2[e_, 1]
+        _block(A, G, na, na, W2[e_, 0], n)
+        _block(A, G, na, nb, -W2[e_, 0], n)
+        _block(A, G, nb, nb, W2[e_, 1], n)
+        _block(A, G, nb, na, -W2[e_, 1], n)
+    Ainv[:, :] = inverse(A)
+
+
+@njit(cache=True)
+def implicit_forces_nd(laws, geo, Kp, Kd, E2, W2, Sinv, a, dt, tau, bk, hp, t, t1, t2, c1q, c1u, c2q, c2u, ws):
+    """``tau`` (N, n), the forces at the step's start -> the trapezoid of the coupling forces over the
+    step (module docstring); ``ws`` from :func:`implicit_workspace` with ``Ainv`` filled by
+    :func:`implicit_matrix_nd` and the nodes' free end states (their step under ``tau``) in ``qc, uc``;
+    ``bk`` each edge's branch at the start (held); ``t`` the end time; ``t1 .. c2u`` (n,) scratch."""
+    Ainv, qc, uc, q1, u1, tau0, tau1, delta, r, bh, dk, ek = ws
+    N = tau.shape[0]
+    n = tau.shape[1]
+    linear = True
+    for e_ in range(E2.shape[0]):
+        if laws[e_] != UNCOUPLED and laws[e_] != EUCLIDEAN and bk[e_] != BRANCH_E:
+            linear = False
+    for i in range(N):
+        for c in range(n):
+            tau0[i, c] = tau[i, c]
+            delta[i, c] = 0.0
+    for it in range(8):
+        for i in range(N):
+            for c in range(n):
+                s = 0.0
+                for j in range(n):
+                    s += Sinv[i, c, j] * delta[i, j]
+                u1[i, c] = uc[i, c] + dt * s
+                q1[i, c] = qc[i, c] + a * dt * s
+        for e_ in range(E2.shape[0]):
+            bh[e_] = bk[e_]
+        network_forces(laws, geo, Kp, Kd, E2, W2, q1, u1, tau1, t1, t2, c1q, c1u, c2q, c2u, False, dk, bh, ek, hp,
+                       t, True)
+        big = 0.0
+        scale = 1e-300
+        for i in range(N):   # 2 R = tau(x1) - tau(x0) - 2 delta
+            for c in range(n):
+                r[i * n + c] = (tau1[i, c] - tau0[i, c]) - 2.0 * delta[i, c]
+                big = max(big, abs(r[i * n + c]))
+                scale = max(scale, abs(tau0[i, c]))
+        if it > 0 and big <= 1e-13 * scale:
+            break
+        for i in range(N * n):
+            s = 0.0
+            for j in range(N * n):
+                s += Ainv[i, j] * r[j]
+            delta[i // n, i % n] += s
+        if linear:
+            break
+    for i in range(N):
+        for c in range(n):
+            tau[i, c] = tau0[i, c] + delta[i, c]
