@@ -428,6 +428,7 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
         implicit_matrix(laws, E2, W2, Kp[0, 0], Kd[0, 0], co, Ainv)
     implicit_nd = scheme == TRAPEZOID and not scalar   # n > 1: core/loop_implicit.py
     ws = implicit_workspace(N, n, E)
+    far = NodeGeometry(base.M, base.Minv, base.B, base.w, np.full(N, np.inf), base.e, base.Minv_w, base.W)  # no wall
     if implicit_nd:
         implicit_matrix_nd(laws, E2, W2, Kp, Kd, Sinv, theta * dt, dt, ws[0])
     qf = np.zeros(N)
@@ -557,8 +558,8 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
             ws[1][:, :] = q
             ws[2][:, :] = u
             for i in range(N):
-                _step_node(base, K, C, f0, F, Omega, phi, i, ws[1], ws[2], tau, t0 + (k0 + k) * dt, hk, scheme,
-                           theta, Sinv, Sinv_w, WS, qM, h, uf, ua, qe)
+                _step_node(far, K, C, f0, F, Omega, phi, i, ws[1], ws[2], tau, t0 + (k0 + k) * dt, hk, scheme,
+                           theta, Sinv, Sinv_w, WS, qM, h, uf, ua, qe)   # contact left out, as for n = 1
             implicit_forces_nd(laws, geo, Kp, Kd, E2, W2, Sinv, theta * hk, hk, tau, bk, hp, t0 + (k0 + k) * dt + hk,
                                t1, t2, c1q, c1u, c2q, c2u, ws)
             if k == 0 and k0 == 0:

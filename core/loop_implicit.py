@@ -6,8 +6,8 @@ Each node i steps under the held force ``s_i = tau_i(x0) + delta_i``, the trapez
 ``(tau_i(x0) + tau_i(x1)) / 2`` of its coupling force, each edge's law on the branch it has at x0
 (held, as the master's implicit exchange holds it). With ``X_i = S_i^-1`` (B = I) the node's end
 state is affine in its force: ``u1 = u1free + dt X_i delta_i``, ``q1 = q1free + a dt X_i delta_i``
-(``a = dt/2``; contact: the free end state is the node's own step under ``tau(x0)``, contact
-included, and the increments added to it). The PD law of a held branch E is linear, so
+(``a = dt/2``; the free end state is the node's own step under ``tau(x0)`` with its wall left out, as
+for n = 1: contact is applied in the step under the solved force). The PD law of a held branch E is linear, so
 ``delta = (2 I - J)^-1 (tau(x1free) - tau(x0))`` with J the block Jacobian
 ``d tau / d delta`` of the PD law: exact for the Euclidean law and branch E (one pass), a Newton
 matrix on a jump branch (until |2 R| <= 1e-13 max|tau|, at most 8 passes).
