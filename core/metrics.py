@@ -196,6 +196,66 @@ def _crossing(ht, hy, nh, y):
 
 
 @njit(cache=True)
+def _vertex(t, d, i, M, top):
+    """A peak of d at sample i, refined: the vertex of the parabola through log d at samples
+    i - 1, i, i + 1 (a peak taken at its sample is off by up to half a sample in phase, which
+    biases the rate by O(dt^2), up to 1e-3 measured); the sample itself at the record's end or
+    where the parabola does not bend down. ``top``: the hull's previous level (not exceeded)."""
+    y1 = math.log(d[i])
+    if i + 1 >= M or not d[i - 1] > 0.0 or not d[i + 1] > 0.0:
+        return t[i], y1
+    y0 = math.log(d[i - 1])
+    y2 = math.log(d[i + 1])
+    h0 = t[i] - t[i - 1]
+    h2 = t[i + 1] - t[i]
+    s0 = (y1 - y0) / h0     # slopes of the two chords, at the intervals' midpoints
+    s2 = (y2 - y1) / h2
+    curv = (s2 - s0) / (0.5 * (h0 + h2))
+    if not curv < 0.0:
+        return t[i], y1
+    # y(x) = y1 + b x + curv x^2 / 2 (x = t - t[i]) through the three points; its slope is zero at
+    # x = -b / curv, kept within the two intervals' midpoints
+    b = s0 + 0.5 * curv * h0
+    x = min(max(-b / curv, -0.5 * h0), 0.5 * h2)
+    y = y1 + x * (b + 0.5 * curv * x)
+    return t[i] + x, min(y, top)
+
+
+@njit(cache=True)
+def _plateaus(t, d, env, imax, M, ht, hy):
+    """The hull of a d that falls without oscillating, in steps (the energy norm of a damped
+    oscillation: d' = 0 where the velocity vanishes): after the first maximum ``ht[0]``, the
+    envelope points where the decay speed -(log d)' is locally slowest (the plateaus' centres),
+    each refined by a parabola through the three decay speeds around it. These points sit at one
+    phase of each oscillation, so they lie on the line exp(-sigma t) itself, where every envelope
+    point would bend the hull by the oscillation's phase at each level (a bias of up to a few %
+    over few decades, docs/design.md §2.7). Returns the hull's length."""
+    nh = 1
+    s0 = np.inf     # decay speeds between samples i-1, i and i, i+1 (s1) and i+1, i+2 (s2)
+    for i in range(imax + 1, M - 2):
+        if not (d[i] > 0.0 and d[i + 1] > 0.0 and d[i + 2] > 0.0 and d[i - 1] > 0.0):
+            s0 = np.inf
+            continue
+        s1 = (math.log(d[i]) - math.log(d[i + 1])) / (t[i + 1] - t[i])
+        if s0 == np.inf:
+            s0 = (math.log(d[i - 1]) - math.log(d[i])) / (t[i] - t[i - 1])
+        s2 = (math.log(d[i + 1]) - math.log(d[i + 2])) / (t[i + 2] - t[i + 1])
+        if s1 < s0 and s1 <= s2 and d[i] == env[i]:
+            # the slowest decay lies in (t[i], t[i+1]): the parabola through the speeds at the
+            # interval midpoints, its vertex tm; log d there by the speeds integrated
+            h = 0.5 * (t[i + 2] - t[i])
+            den = s0 - 2.0 * s1 + s2
+            x = 0.5 * (s0 - s2) / den if den > 0.0 else 0.0
+            x = min(max(x, -0.5), 0.5)
+            tm = 0.5 * (t[i] + t[i + 1]) + x * h
+            ht[nh] = tm
+            hy[nh] = math.log(d[i]) - s1 * (tm - t[i])
+            nh += 1
+        s0 = s1
+    return nh
+
+
+@njit(cache=True)
 def metrics_kernel(t, d, threshold, hi, lo, floor_abs, tail):
     """The metrics of ``(t, d)`` (arrays of equal length, t increasing).
 
@@ -267,9 +327,10 @@ def metrics_kernel(t, d, threshold, hi, lo, floor_abs, tail):
     nh = 1
     for i in range(imax + 1, M):
         if d[i] > 0.0 and d[i] == env[i] and d[i - 1] < d[i] and (i + 1 == M or d[i] >= d[i + 1]):
-            ht[nh] = t[i]
-            hy[nh] = math.log(d[i])
+            ht[nh], hy[nh] = _vertex(t, d, i, M, hy[nh - 1])
             nh += 1
+    if nh - 1 < MIN_PEAKS:
+        nh = _plateaus(t, d, env, imax, M, ht, hy)
     if nh - 1 < MIN_PEAKS:
         nh = 1
         for i in range(imax + 1, M):
