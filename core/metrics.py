@@ -9,7 +9,9 @@ the envelope is the number to compare runs by. Definitions (all on samples ``(t_
 * **envelope** ``env_i = max_{j >= i} d_j`` (running maximum from the right):
   nonincreasing; its **hull** is the points where ``d_i = env_i`` that are local
   maxima of d (the peaks of the oscillation), with the first maximum of d in front;
-  with fewer than ``MIN_PEAKS`` peaks (a monotone d), every point with ``d_i = env_i``.
+  with fewer than ``MIN_PEAKS`` peaks (a monotone d), the centres of its plateaus (a d that falls
+  in steps, :func:`_plateaus`), and with fewer than ``MIN_PEAKS`` of those, every point with
+  ``d_i = env_i``.
   Between hull points log d is interpolated linearly in t, so a level's crossing
   time does not jump by half an oscillation.
 * **where d stops falling** (``stall``): ``max d`` over the last ``tail`` fraction of
@@ -196,32 +198,6 @@ def _crossing(ht, hy, nh, y):
 
 
 @njit(cache=True)
-def _vertex(t, d, i, M, top):
-    """A peak of d at sample i, refined: the vertex of the parabola through log d at samples
-    i - 1, i, i + 1 (a peak taken at its sample is off by up to half a sample in phase, which
-    biases the rate by O(dt^2), up to 1e-3 measured); the sample itself at the record's end or
-    where the parabola does not bend down. ``top``: the hull's previous level (not exceeded)."""
-    y1 = math.log(d[i])
-    if i + 1 >= M or not d[i - 1] > 0.0 or not d[i + 1] > 0.0:
-        return t[i], y1
-    y0 = math.log(d[i - 1])
-    y2 = math.log(d[i + 1])
-    h0 = t[i] - t[i - 1]
-    h2 = t[i + 1] - t[i]
-    s0 = (y1 - y0) / h0     # slopes of the two chords, at the intervals' midpoints
-    s2 = (y2 - y1) / h2
-    curv = (s2 - s0) / (0.5 * (h0 + h2))
-    if not curv < 0.0:
-        return t[i], y1
-    # y(x) = y1 + b x + curv x^2 / 2 (x = t - t[i]) through the three points; its slope is zero at
-    # x = -b / curv, kept within the two intervals' midpoints
-    b = s0 + 0.5 * curv * h0
-    x = min(max(-b / curv, -0.5 * h0), 0.5 * h2)
-    y = y1 + x * (b + 0.5 * curv * x)
-    return t[i] + x, min(y, top)
-
-
-@njit(cache=True)
 def _plateaus(t, d, env, imax, M, ht, hy):
     """The hull of a d that falls without oscillating, in steps (the energy norm of a damped
     oscillation: d' = 0 where the velocity vanishes): after the first maximum ``ht[0]``, the
@@ -327,7 +303,8 @@ def metrics_kernel(t, d, threshold, hi, lo, floor_abs, tail):
     nh = 1
     for i in range(imax + 1, M):
         if d[i] > 0.0 and d[i] == env[i] and d[i - 1] < d[i] and (i + 1 == M or d[i] >= d[i + 1]):
-            ht[nh], hy[nh] = _vertex(t, d, i, M, hy[nh - 1])
+            ht[nh] = t[i]
+            hy[nh] = math.log(d[i])
             nh += 1
     if nh - 1 < MIN_PEAKS:
         nh = _plateaus(t, d, env, imax, M, ht, hy)

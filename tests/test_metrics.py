@@ -144,20 +144,18 @@ def test_rate_of_a_linear_pair_matches_the_closed_form():
 
 @settings(max_examples=40, deadline=None)
 @given(m_=st.floats(0.3, 5.0), k=st.floats(0.2, 20.0), c=st.floats(0.0, 0.5), Kp=st.floats(0.0, 10.0),
-       Kd=st.floats(0.02, 1.0), phase=st.floats(0.0, 2 * math.pi), energy=st.booleans(),
-       samples=st.integers(60, 400))
-def test_rate_of_random_linear_pairs_is_the_closed_form(m_, k, c, Kp, Kd, phase, energy, samples):
-    # d of the closed-form relative mode over 13 decades, sampled `samples` times per e-folding: in
-    # the energy metric (d falls in steps: the plateaus' hull) or in a metric that makes d oscillate
-    # (the peaks' hull); the estimate reads sigma within its stated spread (+ a sampling tolerance)
+       Kd=st.floats(0.02, 1.0), phase=st.floats(0.0, 2 * math.pi), samples=st.integers(60, 400))
+def test_rate_of_random_linear_pairs_is_the_closed_form(m_, k, c, Kp, Kd, phase, samples):
+    # d of the closed-form relative mode in the energy metric (d falls in steps: the plateaus' hull)
+    # over 13 decades, sampled `samples` times per e-folding: the estimate reads sigma within its
+    # stated spread + 1e-5 relative (300 examples passed; every envelope point: off by up to a few %)
     sigma = (c + 2 * Kd) / (2 * m_)
     assume(sigma < 0.5 * math.sqrt((k + 2 * Kp) / m_))
     wd = math.sqrt((k + 2 * Kp) / m_ - sigma * sigma)
     dt = min(1.0 / (sigma * samples), 0.05 / wd)
     t = np.arange(0.0, 30.0 / sigma, dt)
     x, v, _ = _relative_mode(t, m_, k, c, Kp, Kd, math.cos(phase), math.sin(phase) * wd)
-    Q = k + 2 * Kp if energy else 3.0 * (k + 2 * Kp)
-    m = sync_metrics(t, np.sqrt(Q * x * x + m_ * v * v))
+    m = sync_metrics(t, np.sqrt((k + 2 * Kp) * x * x + m_ * v * v))
     assert m.resolved and m.decades >= 5
     assert abs(m.rate - sigma) <= m.rate_err + 1e-5 * sigma, (m.rate, sigma, m.rate_err, m.decade_rates)
 
