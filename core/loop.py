@@ -32,6 +32,7 @@ from .coupling import (BRANCH_NONE, COMPENSATED, EUCLIDEAN, SWITCHING, UNCOUPLED
                        euclidean_coupling1, p_norm_diff)
 from .distance import BRANCH_E, BRANCH_FREE, distance1, distance_value
 from .harmonic import hsum_cos
+from .implicit_pair import NEWTON_PASSES, implicit_pair, newton_stop
 from .metrics import decimator_push
 from .model import SystemArrays
 from .moreau import force, force1
@@ -301,7 +302,7 @@ def implicit_forces(laws, E2, W2, sg, kp, kd, qf, uf, co, tau1d, dq, du, hp, t, 
     implicit exchange holds it, docs/design.md §4.4); ``dq, du, r, delta`` (N,) scratch. Newton on
     ``R(delta) = (tau(x1(delta)) - tau(x0)) / 2 - delta`` with the matrix of :func:`implicit_matrix`:
     one pass when every edge is Euclidean or on branch E (linear), otherwise until
-    |2 R| <= 1e-13 max|tau| (at most 8 passes)."""
+    |2 R| <= 1e-13 max|tau| (at most 8 passes; :func:`newton_stop`)."""
     N = tau1d.shape[0]
     linear = True
     for e_ in range(E2.shape[0]):
@@ -309,7 +310,8 @@ def implicit_forces(laws, E2, W2, sg, kp, kd, qf, uf, co, tau1d, dq, du, hp, t, 
             linear = False
     for i in range(N):
         delta[i] = 0.0
-    for it in range(8):
+    big0 = 0.0
+    for it in range(NEWTON_PASSES):
         for i in range(N):
             dq[i] = qf[i] + co[i, 3] * delta[i]
             du[i] = uf[i] + co[i, 2] * delta[i]
@@ -332,14 +334,17 @@ def implicit_forces(laws, E2, W2, sg, kp, kd, qf, uf, co, tau1d, dq, du, hp, t, 
             r[i] = (r[i] - tau1d[i]) - 2.0 * delta[i]
             big = max(big, abs(r[i]))
             scale = max(scale, abs(tau1d[i]))
-        if it > 0 and big <= 1e-13 * scale:
+        if it == 0:
+            big0 = big
+        stop = newton_stop(it, big, big0, scale)
+        if stop == 1:
             break
         for i in range(N):
             s = 0.0
             for j in range(N):
                 s += Ainv[i, j] * r[j]
             delta[i] += s
-        if linear:
+        if linear or stop == 2:
             break
     for i in range(N):
         tau1d[i] += delta[i]
@@ -440,6 +445,9 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
     fcs = np.zeros(N)
     pair = N == 2 and E == 1 and E2[0, 0] == 0 and E2[0, 1] == 1
     bh = np.full(max(E2.shape[0], 1), BRANCH_NONE)
+    warm = (0.0, 0.0, 0.0, 0)   # the pair's last jump step's solve (implicit_pair), its branch and step
+    br_warm = BRANCH_NONE
+    k_warm = -2
     hp = force_table(K, C, f0, F, Omega, phi)
     B0 = base.B[0, 0]
     sg = geo.scalar
@@ -544,6 +552,16 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
                 r1 = W2[0, 1] * f2 - tau1d[1]
                 tau1d[0] += Ainv[0, 0] * r0 + Ainv[0, 1] * r1
                 tau1d[1] += Ainv[1, 0] * r0 + Ainv[1, 1] * r1
+            elif pair:   # the switching pair on a jump branch: Newton on floats, warm from the last step
+                # (cold at each row: a run in chunks of whole record intervals, progress=, is the same run)
+                if is_row or bh[0] != br_warm or k != k_warm + 1:
+                    warm = (0.0, 0.0, 0.0, 0)
+                tau1d[0], tau1d[1], warm = implicit_pair(law0, bh[0], sg, kp0, kd0, W2[0, 0], W2[0, 1], qf[0],
+                                                         uf1[0], qf[1], uf1[1], co[0, 3], co[0, 2], co[1, 3],
+                                                         co[1, 2], tau1d[0], tau1d[1], Ainv[0, 0], Ainv[0, 1],
+                                                         Ainv[1, 0], Ainv[1, 1], warm)
+                br_warm = bh[0]
+                k_warm = k
             else:
                 implicit_forces(laws, E2, W2, sg, kp0, kd0, qf, uf1, co, tau1d, dq, du, hp, t + hk, bh, Ainv, rr,
                                 delta)

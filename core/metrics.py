@@ -9,7 +9,9 @@ the envelope is the number to compare runs by. Definitions (all on samples ``(t_
 * **envelope** ``env_i = max_{j >= i} d_j`` (running maximum from the right):
   nonincreasing; its **hull** is the points where ``d_i = env_i`` that are local
   maxima of d (the peaks of the oscillation), with the first maximum of d in front;
-  with fewer than ``MIN_PEAKS`` peaks (a monotone d), every point with ``d_i = env_i``.
+  with fewer than ``MIN_PEAKS`` peaks (a monotone d), the centres of its plateaus (a d that falls
+  in steps, :func:`_plateaus`), and with fewer than ``MIN_PEAKS`` of those, every point with
+  ``d_i = env_i``.
   Between hull points log d is interpolated linearly in t, so a level's crossing
   time does not jump by half an oscillation.
 * **where d stops falling** (``stall``): ``max d`` over the last ``tail`` fraction of
@@ -196,6 +198,40 @@ def _crossing(ht, hy, nh, y):
 
 
 @njit(cache=True)
+def _plateaus(t, d, env, imax, M, ht, hy):
+    """The hull of a d that falls without oscillating, in steps (the energy norm of a damped
+    oscillation: d' = 0 where the velocity vanishes): after the first maximum ``ht[0]``, the
+    envelope points where the decay speed -(log d)' is locally slowest (the plateaus' centres),
+    each refined by a parabola through the three decay speeds around it. These points sit at one
+    phase of each oscillation, so they lie on the line exp(-sigma t) itself, where every envelope
+    point would bend the hull by the oscillation's phase at each level (a bias of up to a few %
+    over few decades, docs/design.md §2.7). Returns the hull's length."""
+    nh = 1
+    s0 = np.inf     # decay speeds between samples i-1, i and i, i+1 (s1) and i+1, i+2 (s2)
+    for i in range(imax + 1, M - 2):
+        if not (d[i] > 0.0 and d[i + 1] > 0.0 and d[i + 2] > 0.0 and d[i - 1] > 0.0):
+            s0 = np.inf
+            continue
+        s1 = (math.log(d[i]) - math.log(d[i + 1])) / (t[i + 1] - t[i])
+        if s0 == np.inf:
+            s0 = (math.log(d[i - 1]) - math.log(d[i])) / (t[i] - t[i - 1])
+        s2 = (math.log(d[i + 1]) - math.log(d[i + 2])) / (t[i + 2] - t[i + 1])
+        if s1 < s0 and s1 <= s2 and d[i] == env[i]:
+            # the slowest decay lies in (t[i], t[i+1]): the parabola through the speeds at the
+            # interval midpoints, its vertex tm; log d there by the speeds integrated
+            h = 0.5 * (t[i + 2] - t[i])
+            den = s0 - 2.0 * s1 + s2
+            x = 0.5 * (s0 - s2) / den if den > 0.0 else 0.0
+            x = min(max(x, -0.5), 0.5)
+            tm = 0.5 * (t[i] + t[i + 1]) + x * h
+            ht[nh] = tm
+            hy[nh] = math.log(d[i]) - s1 * (tm - t[i])
+            nh += 1
+        s0 = s1
+    return nh
+
+
+@njit(cache=True)
 def metrics_kernel(t, d, threshold, hi, lo, floor_abs, tail):
     """The metrics of ``(t, d)`` (arrays of equal length, t increasing).
 
@@ -270,6 +306,8 @@ def metrics_kernel(t, d, threshold, hi, lo, floor_abs, tail):
             ht[nh] = t[i]
             hy[nh] = math.log(d[i])
             nh += 1
+    if nh - 1 < MIN_PEAKS:
+        nh = _plateaus(t, d, env, imax, M, ht, hy)
     if nh - 1 < MIN_PEAKS:
         nh = 1
         for i in range(imax + 1, M):
