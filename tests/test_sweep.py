@@ -508,3 +508,17 @@ def test_sweep_axes_carry_the_units_of_the_scene_and_its_model(tmp_path, monkeyp
                            "scene_file": str(Path(fmu_sync.scenes.__file__).parent / "pendulum.toml")})
     SP.line_plot(ds, "system.l", tmp_path / "line.png")
     assert [ax.get_xlabel() for ax in figs[-1].axes] == ["system.l [m]"] * 2
+
+
+@pytest.mark.parametrize("scheme,drawn", [("midpoint", True), (DEFAULT_SCHEME, False)])
+def test_the_gain_map_draws_the_zoh_limit_only_where_the_core_holds_the_coupling(tmp_path, monkeypatch, scheme,
+                                                                                   drawn):
+    # the midpoint holds the forces over dt (its limit Kd dt / m = 1 lies inside the map: Kd = 50 at
+    # dt = 0.02); the default solves the coupling inside the step: no held exchange, no line
+    SP, figs = _captured(monkeypatch)
+    ds = sweep(SCENE, variant="switching", grid={"coupling.Kp": [0.1, 1.0, 10.0], "coupling.Kd": [1.0, 20.0, 100.0]},
+               overrides={"run.t_end": 1.0, "solver.dt": 2e-2, "solver.scheme": scheme}, out=tmp_path, quiet=True)
+    assert (ds["exchange_stable"].values == 1.0).all() != drawn
+    legends = [lg for f in figs for lg in [*f.legends, *(ax.get_legend() for ax in f.axes)] if lg is not None]
+    labels = [t.get_text() for lg in legends for t in lg.get_texts()]
+    assert any("ZOH limit" in s for s in labels) == drawn, labels
