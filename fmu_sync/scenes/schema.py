@@ -23,8 +23,8 @@ from ..core.declaration import POSITIVE_MIN, Model, Param
 from ..core.registry import builtin_models
 
 __all__ = ["SceneError", "Key", "Variant", "PLOTS", "DEFAULT_OUT", "KEYS", "SYSTEM_KEYS", "BadValue", "REQUIRED",
-           "MODELS", "LAWS", "SCHEMES", "MOREAU_SCHEMES", "MODES", "METHODS", "TABLES", "VARIANT_TABLES", "SINGLE_PLOTS",
-           "DISTANCE_PLOTS", "plots_for", "system_keys", "NAME_RE", "show_value", "choice", "GRAPHS", "NETWORK_PLOTS", "NetworkSpec"]
+           "MODELS", "LAWS", "SCHEMES", "MOREAU_SCHEMES", "MODES", "METHODS", "TABLES", "VARIANT_TABLES",
+           "SINGLE_PLOTS", "DISTANCE_PLOTS", "plots_for", "system_keys", "NAME_RE", "show_value", "choice", "GRAPHS", "NETWORK_PLOTS", "NetworkSpec"]
 
 #: the built-in models' names (a scene may also name a user model "path/to/model.py:name")
 BUILTIN_MODELS = builtin_models()
