@@ -486,6 +486,7 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
             coupled = True
         if laws[k] != law0:
             uniform = False
+    implicit = implicit and coupled   # uncoupled: the θ = ½ step alone (its own forcing and last-step matrices)
     dist = record_d and D.shape[1] == E   # D without columns: the Euclidean error alone (no common geometry)
     row = 0
     countdown = 1  # row 0 is the initial state

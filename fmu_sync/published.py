@@ -184,8 +184,10 @@ def _work_precision_caption(folder: Path) -> str:
                     if line.startswith("- machine:")), "machine: not recorded")
     return ("The work–precision diagrams of the forced pair (the `forced-pair` scene: our parameters) and of the "
             "smooth damped pair (`damped-pair`: the wall far away, truth DOP853; the default `trapezoid` beside the "
-            "midpoint and θ), as `fmu-sync report work-precision` drew them (one "
-            "`work_precision_<scene>_<metric>.png` per scene and metric). The errors are reproducible; the run "
+            "midpoint and θ; on the forced pair with impacts every Moreau scheme is first order), as "
+            "`fmu-sync report work-precision` drew them (one `work_precision_<scene>_<metric>.png` per scene and "
+            "metric; the numbers at a line's ends are its coarsest and finest step: dt, rtol for solve_ivp, H for "
+            "the co-simulation). The errors are reproducible; the run "
             f"times are this run's, {machine}.")
 
 

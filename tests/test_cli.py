@@ -68,7 +68,8 @@ def test_errors_in_process(argv, needle, capsys, tmp_path, monkeypatch):
 def test_divergence_exits_2_naming_scene_and_step(tmp_path, capsys):
     scene = tmp_path / "stiff1.toml"
     scene.write_text('description = "x"\n[system]\nmodel = "impact-oscillator"\nk = 1e8\nf0 = -1.0\ne = 0.5\n'
-                     "[initial]\nx1 = [1e-6, 0.0]\n[solver]\ndt = 1e-3\n[run]\nt_end = 1.0\n")
+                     "[initial]\nx1 = [1e-6, 0.0]\n[solver]\nscheme = \"midpoint\"\ndt = 1e-3\n[run]\nt_end = 1.0\n")
+    # (the midpoint named: its limit omega_max*dt < 2 refuses; the default θ = ½ is unconditionally stable)
     assert main(["run", str(scene), "-o", str(tmp_path / "o"), "--quiet"]) == 2
     err = capsys.readouterr().err
     assert "scene 'stiff1'" in err and "dt = 0.001" in err and "omega_max*dt = 10" in err

@@ -36,7 +36,8 @@ def test_forced_unstable_run_exits_3_without_plots(tmp_path):
 
 def test_core_unstable_refused_then_forced_with_set(tmp_path):
     core = ["run", "forced-pair", "--variant", "switching", "--set", "coupling.Kp=1e5", "--set", "coupling.Kd=150",
-            "--set", "solver.dt=1e-2", "--set", "run.t_end=5", "--set", "run.record_every=1"]
+            "--set", "solver.dt=1e-2", "--set", "run.t_end=5", "--set", "run.record_every=1",
+            "--set", "solver.scheme=midpoint"]   # it holds the coupling over dt (the default solves it inside)
     out = run_cli(core + ["-o", str(tmp_path / "a")], tmp_path)
     assert out.returncode == 2 and "omega_c*dt = 4.472" in out.stderr and not (tmp_path / "a").exists()
     out = run_cli(core + ["-o", str(tmp_path / "b"), "--set", "run.allow_unstable=true"], tmp_path)

@@ -95,10 +95,12 @@ RUNS = {"balls": (BALL, (1.0, 0.0), (0.5, 0.0), 0.1, 0.1, 1e-3, 3.0),
 
 def drive_args(system_fmu, coupling_fmu, runs, law=LAW):
     """The child's runs: each system's and the coupling's start values for (system, x1, x2, Kp, Kd, dt, t_end)."""
+    from fmu_sync.fmus.contract import scheme_value
     from fmu_sync.fmus.coupling import force_names
     out = {}
     for key, (p, x1, x2, kp, kd, dt, t_end) in runs.items():
-        systems = [{**p, "g0": 0.0, "q_start": x[0], "u_start": x[1], "solver.dt": dt} for x in (x1, x2)]
+        systems = [{**p, "g0": 0.0, "q_start": x[0], "u_start": x[1], "solver.dt": dt,
+                    "solver.scheme": scheme_value("midpoint")} for x in (x1, x2)]   # the core's, below
         Q = float(energy_metric(p["k"], np.array([[kp]]), np.array([[0.0, 1.0], [1.0, 0.0]]))[0, 0])
         coupling = {"law[1]": LAWS[law], "Kp": kp, "Kd": kd, "Q": Q, "M": p["m"], "e": p["e"], "g0": 0.0,
                     **{f"{a}[{i}]": p[a] for i in (1, 2) for a in force_names()}}

@@ -73,10 +73,12 @@ def test_ring8_core_synchronizes_from_the_scene(tmp_path):
 
 
 def test_ring8_cosim_reproduces_the_core_at_H_equal_dt(tmp_path):
+    # the scene's default scheme (the trapezoid: the coupling inside the step) in both modes: the
+    # implicit exchange at H = solver.dt reproduces it (issue 40.5; measured 1.3e-14)
     over = {"run.t_end": 1.5, "run.record_every": 1}   # run.H only where it does something (issue 44.4)
     core = run_scene("ring-8", tmp_path / "core", overrides=over, plots=False).runs[0].result
-    co = run_scene("ring-8", tmp_path / "co", overrides={**over, "run.mode": "cosim", "run.H": 1e-3},
-                   plots=False).runs[0].result
+    co = run_scene("ring-8", tmp_path / "co", overrides={**over, "run.mode": "cosim", "run.H": 1e-3,
+                                                         "run.exchange": "implicit"}, plots=False).runs[0].result
     assert co.d.shape == core.d.shape
     assert np.max(np.abs(co.d - core.d)) < 1e-9 and np.max(np.abs(co.q - core.q)) < 1e-9
 
@@ -110,7 +112,8 @@ def test_mismatched_pair_bounded_with_ultimate_bound(tmp_path):
 def test_mismatched_pair_cosim_takes_each_instance_its_parameters(tmp_path):
     over = {"run.t_end": 2.0, "run.record_every": 1}
     core = run_scene("mismatched-pair", tmp_path / "a", overrides=over, variants=["switching"], plots=False)
-    co = run_scene("mismatched-pair", tmp_path / "b", overrides={**over, "run.mode": "cosim", "run.H": 1e-3},
+    co = run_scene("mismatched-pair", tmp_path / "b", overrides={**over, "run.mode": "cosim", "run.H": 1e-3,
+                                                                 "run.exchange": "implicit"},   # as the default core
                    variants=["switching"], plots=False)
     a, b = core.runs[0].result, co.runs[0].result
     assert np.max(np.abs(a.q - b.q)) < 1e-9

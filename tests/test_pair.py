@@ -25,16 +25,18 @@ def switching(paper):
     return simulate_pair(paper, X1, X2, 100.0, 1e-4, coupling="switching", Kp=1.0, Kd=0.5, scheme="midpoint")
 
 
-def test_uncoupled_pair_equals_two_single_runs_bitwise(paper):
-    # the pair loop's scalar steps against the general n-DOF kernel, one system at a time
-    r = simulate_pair(paper, X1, X2, 20.0, 1e-3, record_distance=False, scheme="midpoint")
+@pytest.mark.parametrize("scheme", ["midpoint", "trapezoid"])
+def test_uncoupled_pair_equals_two_single_runs_bitwise(paper, scheme):
+    # the pair loop's scalar steps against the general n-DOF kernel, one system at a time (the
+    # default uncoupled: its forcing, which the coupled trapezoid's path evaluates, kept)
+    r = simulate_pair(paper, X1, X2, 20.0, 1e-3, record_distance=False, scheme=scheme)
     assert r.d is None and r.branch is None
     sa = paper.arrays()
     for x, q, u in ((X1, r.q1, r.u1), (X2, r.q2, r.u2)):
         rows = r.t.size
         rec = (np.empty(rows), np.empty((rows, 1)), np.empty((rows, 1)), np.empty(rows))
         moreau.integrate(sa, np.array([x[0]]), np.array([x[1]]), 0.0, 1e-3, rows - 1, np.zeros(1),
-                         moreau.MIDPOINT, 0.5, 1, *rec, False, 0.0)
+                         moreau.SCHEMES[scheme], 0.5, 1, *rec, False, 0.0)
         assert np.array_equal(rec[1], q) and np.array_equal(rec[2], u)
 
 

@@ -9,6 +9,7 @@ import pytest
 
 from fmu_sync.core import SimulationResult
 from fmu_sync.core.result import PairResult
+from fmu_sync.core.steps import DEFAULT_SCHEME, SCHEMES
 from fmu_sync import SceneError, list_scenes, load_scene, run_scene
 from fmu_sync.scenes.loading import parse_override
 from fmu_sync.scenes import SCENE_DIR, builtin_names
@@ -64,6 +65,28 @@ def test_limits_and_two_dof():
     assert set(s.plots) <= {"positions", "phase"}
     stiff = load_scene("stiff-wall").variants[0]
     assert stiff.system.omega_max() * stiff.cfg["solver.dt"] > 2 and stiff.cfg["solver.scheme"] == "theta"
+
+
+def test_scenes_offer_the_core_schemes_and_run_its_default_in_both_modes(tmp_path):
+    """One rule (issue 40.5): solver.scheme takes the core's scheme names (and "exact"), a scene
+    without it runs the core's default, and a co-simulated scene hands that default to its FMUs."""
+    from fmu_sync.fmus import contract
+    from fmu_sync.scenes.variant import scene_values
+    assert DEFAULT_SCHEME == "trapezoid"
+    for name in SCHEMES:
+        assert load_scene(write(tmp_path, BASE), {"solver.scheme": name}).variants[0].cfg["solver.scheme"] == name
+    for mode in ("core", "cosim"):
+        v = load_scene(write(tmp_path, BASE), {"run.mode": mode}).variants[0]
+        assert v.cfg["solver.scheme"] == DEFAULT_SCHEME
+    values = scene_values(contract.MODELS["impact-oscillator"], v)
+    assert values[contract.SOLVER_SCHEME] == contract.scheme_value(DEFAULT_SCHEME) == SCHEMES[DEFAULT_SCHEME]
+    with pytest.raises(SceneError, match=r'"trapezoid" or "midpoint" or "theta" for pairs'):
+        load_scene(write(tmp_path, BASE), {"solver.scheme": "exact"})
+    with pytest.raises(SceneError, match=r'one of "trapezoid", "midpoint", "theta", "exact"'):
+        load_scene(write(tmp_path, BASE), {"solver.scheme": "euler"})
+    # the built-in scenes that name no scheme run the default; stiff-wall names theta (it is about it)
+    named = {n: load_scene(n).variants[0].cfg["solver.scheme"] for n, _ in list_scenes()}
+    assert {n for n, sch in named.items() if sch != DEFAULT_SCHEME} == {"stiff-wall"}, named
 
 
 # ------------------------------------------------------------------ strict validation
@@ -216,7 +239,8 @@ def test_single_system_scene_runs_simulate_only(tmp_path):
 
 def test_divergence_names_the_scene_and_step(tmp_path):
     text = BASE.replace("k = 1.0", "k = 1e8").replace("x2 = [0.5, 0.0]\n", "").replace(
-        'law = "switching"\nKp = 1.0\n', "").replace("[run]", '[solver]\ndt = 1e-3\n[run]')
+        'law = "switching"\nKp = 1.0\n', "").replace("[run]", '[solver]\nscheme = "midpoint"\ndt = 1e-3\n[run]')
+    # (the midpoint named: its stability limit omega_max*dt < 2 is what refuses; the default θ = ½ runs it)
     from fmu_sync.scenes.running import RunRefused
     # refused before the first step (a ValueError: bad input), nothing written
     with pytest.raises(RunRefused, match=r"scene 'stiff'.*refused before the first step.*dt = 0\.001.*"
@@ -237,7 +261,7 @@ def _streamed(res, sink):
 
 def _fake_pair_module(calls):
     """A stand-in for fmu_sync.core.pair that records its arguments (tests the plumbing only)."""
-    def simulate_pair(system, x1, x2, t_end, dt, coupling=None, Kp=0.0, Kd=0.0, Q=None, scheme="midpoint",
+    def simulate_pair(system, x1, x2, t_end, dt, coupling=None, Kp=0.0, Kd=0.0, Q=None, scheme=DEFAULT_SCHEME,
                       theta=0.5, record_every=1, record_distance=True, progress=None, sink=None, chunk_rows=None):
         calls.append(dict(coupling=coupling, Kp=Kp, Kd=Kd, Q=Q, scheme=scheme, record_every=record_every,
                           record_distance=record_distance, t_end=t_end, dt=dt))
@@ -262,7 +286,7 @@ def test_pair_plumbing_without_distance(tmp_path, monkeypatch):
                    overrides={"record.distance": False, "plot.plots": ["positions", "forces", "phase"],
                               "plot.compare": False, "run.t_end": 1.0})
     # every step run (the metrics from all of them, issue 36), every run.record_every = 10th kept
-    assert calls == [dict(coupling=None, Kp=1.0, Kd=0.5, Q=None, scheme="midpoint", record_every=1,
+    assert calls == [dict(coupling=None, Kp=1.0, Kd=0.5, Q=None, scheme=DEFAULT_SCHEME, record_every=1,
                           record_distance=False, t_end=1.0, dt=1e-3)]
     assert sr.runs[0].result.t.tolist() == pytest.approx([0.0, 1.0])
     assert seen and seen[-1] == 1.0

@@ -7,6 +7,7 @@ from builtin_scenes import FORCED_PAIR, FORCED_X1, FORCED_X2
 
 from fmu_sync.core import ImpactOscillator, simulate
 from fmu_sync.core.pair import simulate_pair
+from fmu_sync.core.steps import DEFAULT_SCHEME
 from fmu_sync.report import contact_starts
 from fmu_sync.sweeps import SweepSpecError, sweep
 from fmu_sync.sweeps.spec import sample_runs
@@ -30,7 +31,7 @@ def gain_map():
 
 def _single(Kp, Kd, t_end=3.0, dt=1e-3, coupling="switching", every=EVERY, x1=X1, x2=X2, **kw):
     s = ImpactOscillator(**{**FORCED, **kw.pop("system", {})})
-    kw.setdefault("scheme", "midpoint")   # the scenes' solver.scheme, which the sweeps run
+    kw.setdefault("scheme", DEFAULT_SCHEME)   # the scenes' default solver.scheme (the core's), which the sweeps run
     return simulate_pair(s, x1, x2, t_end, dt, coupling=coupling, Kp=Kp, Kd=Kd, record_every=every,
                          allow_unstable=kw.pop("allow_unstable", True), **kw)
 
@@ -72,7 +73,8 @@ def test_max_tau_over_every_step_equals_the_recorded_forces():
             assert float(run["tau_max"]) == max(np.max(np.abs(r.tau1)), np.max(np.abs(r.tau2)))
 
 
-@pytest.mark.parametrize("law,scheme", [("euclidean", "midpoint"), ("switching", "theta"), ("none", "midpoint")])
+@pytest.mark.parametrize("law,scheme", [("euclidean", "midpoint"), ("switching", "theta"), ("none", "midpoint"),
+                                        ("euclidean", "trapezoid"), ("none", "trapezoid")])
 def test_other_laws_and_theta_scheme_equal_single_runs(law, scheme):
     ds = sweep(SCENE, variant="switching", grid={"coupling.Kd": [0.1, 1.0], "system.e": [0.5, 0.95]},
                overrides={"run.t_end": 2.0, "coupling.law": law, "solver.scheme": scheme,
@@ -103,7 +105,7 @@ def test_contact_episodes_equal_those_of_single_runs():
     for j, e in enumerate([0.0, 0.6]):
         s = ImpactOscillator(**{**FORCED, "e": e})
         for x, name in ((X1, "episodes1"), (X2, "episodes2")):
-            r = simulate(s, x, 20.0, 1e-3, phasor=False, scheme="midpoint")   # the pair loop takes cos per step
+            r = simulate(s, x, 20.0, 1e-3, phasor=False)   # the pair loop takes cos per step
             assert int(ds[name].values[j]) == contact_starts(r.percussion).size > 0
             assert int(ds["impacts" + name[-1]].values[j]) == r.impacts
 
@@ -133,9 +135,11 @@ def test_decay_rate_bound_and_t_fit_are_the_metrics_of_the_recorded_distance():
 
 
 def test_diverging_runs_finish_as_rows_with_their_reason():
-    # Kd dt / m > 1: the explicitly held damping force overshoots -> diverges
+    # Kd dt / m > 1: the explicitly held damping force overshoots -> diverges (the midpoint named: it
+    # holds the coupling over the step; the default, checked last, has it inside the step)
+    over = {"run.t_end": 50.0, "solver.dt": 2e-2}
     ds = sweep(SCENE, variant="switching", grid={"coupling.Kd": [0.5, 80.0, 200.0]},
-               overrides={"run.t_end": 50.0, "solver.dt": 2e-2}, quiet=True)
+               overrides={**over, "solver.scheme": "midpoint"}, quiet=True)
     st = ds["status"].values
     assert st.tolist() == [0, 1, 1]
     assert bool(ds["synchronized"][0]) and not ds["synchronized"][1:].any()
@@ -145,17 +149,23 @@ def test_diverging_runs_finish_as_rows_with_their_reason():
         assert 0 < float(ds["t_stop"][k]) < 50.0
         assert np.isinf(float(ds["t_sync"][k]))
         with pytest.raises(Exception, match="non-finite"):
-            _single(1.0, float(ds["coupling.Kd"][k]), t_end=50.0, dt=2e-2)
+            _single(1.0, float(ds["coupling.Kd"][k]), t_end=50.0, dt=2e-2, scheme="midpoint")
         # the core's own check refuses it up front; the sweep runs it and flags it
         assert float(ds["exchange_stable"][k]) == 0.0
     assert float(ds["exchange_stable"][0]) == 1.0
     with pytest.raises(ValueError, match="unstable"):
-        _single(1.0, 80.0, t_end=1.0, dt=2e-2, allow_unstable=False)
+        _single(1.0, 80.0, t_end=1.0, dt=2e-2, allow_unstable=False, scheme="midpoint")
+    # the default: the same gains run, the exchange stable (A-stable), d synchronized, as simulate_pair
+    ds = sweep(SCENE, variant="switching", grid={"coupling.Kd": [80.0, 200.0]}, overrides=over, quiet=True)
+    assert ds["status"].values.tolist() == [0, 0] and ds["exchange_stable"].values.tolist() == [1.0, 1.0]
+    for k, kd in enumerate([80.0, 200.0]):
+        _same(ds.isel({"coupling.Kd": k}), _single(1.0, kd, t_end=50.0, dt=2e-2, allow_unstable=False))
 
 
 def test_refused_step_is_a_row_not_an_error():
-    ds = sweep(SCENE, variant="switching", grid={"solver.dt": [1e-3, 2.5]}, overrides={"run.t_end": 5.0},
-               quiet=True)
+    # the midpoint named: its stability limit omega_max*dt < 2 refuses dt = 2.5 (θ = ½ has none)
+    ds = sweep(SCENE, variant="switching", grid={"solver.dt": [1e-3, 2.5]},
+               overrides={"run.t_end": 5.0, "solver.scheme": "midpoint"}, quiet=True)
     assert ds["status"].values.tolist() == [0, 2]
     assert "omega_max*dt >= 2" in ds["reason"].values[1]
 
@@ -318,11 +328,11 @@ def test_mismatched_second_system_uncoupled_equals_two_single_runs():
     # system2.* lays keys over system 2 only; uncoupled, each system is a single run of its own
     ds = sweep(SCENE, variant="uncoupled", grid={"system2.k": [0.5, 1.0, 2.0], "system2.f0": [0.2, 0.35]},
                overrides={"run.t_end": 10.0}, quiet=True)
-    r1 = simulate(ImpactOscillator(**FORCED), X1, 10.0, 1e-3, phasor=False, scheme="midpoint")   # cos per step, as the pair loop
+    r1 = simulate(ImpactOscillator(**FORCED), X1, 10.0, 1e-3, phasor=False)   # cos per step, as the pair loop
     for i, k in enumerate([0.5, 1.0, 2.0]):
         for j, f0 in enumerate([0.2, 0.35]):
             run = ds.isel({"system2.k": i, "system2.f0": j})
-            r2 = simulate(ImpactOscillator(**{**FORCED, "k": k, "f0": f0}), X2, 10.0, 1e-3, phasor=False, scheme="midpoint")
+            r2 = simulate(ImpactOscillator(**{**FORCED, "k": k, "f0": f0}), X2, 10.0, 1e-3, phasor=False)
             assert float(run["q1"]) == r1.q[-1, 0] and float(run["u1"]) == r1.u[-1, 0]
             assert float(run["q2"]) == r2.q[-1, 0] and float(run["u2"]) == r2.u[-1, 0]
             assert int(run["impacts2"]) == r2.impacts
@@ -333,8 +343,7 @@ def test_mismatched_second_system_uncoupled_equals_two_single_runs():
     assert 0 < float(c["bound"][1]) < 0.1 * float(c["d0"][1])
     # ... bit for bit the non-identical pair of simulate_pair((system1, system2), ...)
     s1, s2 = ImpactOscillator(**FORCED), ImpactOscillator(**{**FORCED, "f0": 0.3})
-    r = simulate_pair((s1, s2), X1, X2, 60.0, 1e-3, coupling="switching", Kp=1.0, Kd=0.5, record_every=EVERY,
-                      scheme="midpoint")
+    r = simulate_pair((s1, s2), X1, X2, 60.0, 1e-3, coupling="switching", Kp=1.0, Kd=0.5, record_every=EVERY)
     _same(c.isel({"system2.f0": 1}), r)
     with pytest.raises(SweepSpecError, match=r"the switching law is refused: the quotient distance needs one impact map .*e differs: system 1 has e = 0.9, "
                                              r"system 2 has e = 0.5"):
@@ -372,8 +381,10 @@ def _average_decay(t, d, hi=1e-2):
 def test_gain_map_cells_carry_a_rate_that_matches_their_own_average_decay():
     # issue 25: the forced pair's 6 x 6 gain map over Kp, Kd in [0.1, 10] at the sweep scene's own dt
     # (2e-2, 60 s): most synchronized cells carry a resolved rate (flag and reason in every cell),
-    # each within 25 % of the same run's average decay of d from 1e-2 max d down to 1e-8 max d (or a
-    # decade above the lowest level it reaches; measured: 20 of 20, all 22 resolved cells within 12 %)
+    # each within 30 % of the same run's average decay of d from 1e-2 max d down to 1e-8 max d (or a
+    # decade above the lowest level it reaches; measured under the default, the trapezoid: 20 of 20
+    # resolved, 19 within 8 %, the worst 26.5 % at Kp = 10, Kd = 0.25, light damping, where d's
+    # oscillation makes single decades uneven; the midpoint's map: 22 resolved, the worst 24 %)
     from fmu_sync.sweeps import load_sweep_scene
     dt = load_sweep_scene("gain-map")["overrides"]["solver.dt"]
     grid = {"coupling.Kp": "logspace(-1, 1, 6)", "coupling.Kd": "logspace(-1, 1, 6)"}
@@ -392,7 +403,7 @@ def test_gain_map_cells_carry_a_rate_that_matches_their_own_average_decay():
             ref = _average_decay(r.t, r.d)
             if np.isfinite(ref):
                 checked += 1
-                assert float(ds["decay_rate"][i, j]) == pytest.approx(ref, rel=0.25), (kp, kd)
+                assert float(ds["decay_rate"][i, j]) == pytest.approx(ref, rel=0.3), (kp, kd)
     assert checked >= 0.8 * resolved.sum()
 
 
@@ -497,3 +508,17 @@ def test_sweep_axes_carry_the_units_of_the_scene_and_its_model(tmp_path, monkeyp
                            "scene_file": str(Path(fmu_sync.scenes.__file__).parent / "pendulum.toml")})
     SP.line_plot(ds, "system.l", tmp_path / "line.png")
     assert [ax.get_xlabel() for ax in figs[-1].axes] == ["system.l [m]"] * 2
+
+
+@pytest.mark.parametrize("scheme,drawn", [("midpoint", True), (DEFAULT_SCHEME, False)])
+def test_the_gain_map_draws_the_zoh_limit_only_where_the_core_holds_the_coupling(tmp_path, monkeypatch, scheme,
+                                                                                   drawn):
+    # the midpoint holds the forces over dt (its limit Kd dt / m = 1 lies inside the map: Kd = 50 at
+    # dt = 0.02); the default solves the coupling inside the step: no held exchange, no line
+    SP, figs = _captured(monkeypatch)
+    ds = sweep(SCENE, variant="switching", grid={"coupling.Kp": [0.1, 1.0, 10.0], "coupling.Kd": [1.0, 20.0, 100.0]},
+               overrides={"run.t_end": 1.0, "solver.dt": 2e-2, "solver.scheme": scheme}, out=tmp_path, quiet=True)
+    assert (ds["exchange_stable"].values == 1.0).all() != drawn
+    legends = [lg for f in figs for lg in [*f.legends, *(ax.get_legend() for ax in f.axes)] if lg is not None]
+    labels = [t.get_text() for lg in legends for t in lg.get_texts()]
+    assert any("ZOH limit" in s for s in labels) == drawn, labels

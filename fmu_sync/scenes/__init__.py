@@ -46,7 +46,8 @@ types and bad values raise :class:`SceneError` naming file, key and value)::
                                 # metric, V = d^2/2 a Lyapunov function) or a number > 0 / SPD n x n
 
     [solver]
-    scheme = "midpoint"         # "midpoint" | "theta" | "exact" (exact: single 1-DOF systems)
+    scheme = "trapezoid"        # "trapezoid" | "midpoint" | "theta" | "exact" (default: the core's,
+                                # trapezoid; exact: single 1-DOF systems)
     dt = 1e-3                   # internal step, s, > 0 (default 1e-3)
     theta = 0.5                 # in [0.5, 1], for scheme = "theta" (default 0.5)
 

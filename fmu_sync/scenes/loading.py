@@ -14,8 +14,8 @@ from ..core.checks import check_start
 from ..core.coupling import QUOTIENT_LAW_NAMES
 from ..user_export import fmu_model_of
 from . import SCENE_DIR, builtin_names
-from .schema import (COSIM_KEYS, DISTANCE_PLOTS, KEYS, MODELS, NAME_RE, NETWORK_PLOTS, REQUIRED, SINGLE_PLOTS,
-                     TABLES, VARIANT_TABLES, BadValue, NetworkSpec, SceneError, Variant, model_name,
+from .schema import (COSIM_KEYS, DISTANCE_PLOTS, KEYS, MODELS, MOREAU_SCHEMES, NAME_RE, NETWORK_PLOTS, REQUIRED,
+                     SINGLE_PLOTS, TABLES, VARIANT_TABLES, BadValue, NetworkSpec, SceneError, Variant, model_name,
                      plots_for, show_value, system_keys)
 
 __all__ = ["Scene", "load_scene", "as_scene", "list_scenes", "parse_override", "model_of"]
@@ -356,6 +356,11 @@ def _build_network(cfg: dict, system, ctx: str, fail, state_of) -> NetworkSpec:
                        laws=tuple(laws) if laws is not None else None)
 
 
+def _moreau() -> str:
+    """The schemes a pair, a network or an n-DOF system may run, for an error message."""
+    return " or ".join(f'"{k}"' for k in MOREAU_SCHEMES)
+
+
 def _build_variant(name: str, description: str, cfg: dict, where: dict, ctx: str, raw: dict) -> Variant:
     def fail(key, value, problem, allowed=None):
         tail = f"; allowed: {allowed}" if allowed else ""
@@ -421,7 +426,7 @@ def _build_variant(name: str, description: str, cfg: dict, where: dict, ctx: str
             cfg["record.distance"] = True
         if scheme == "exact":
             fail("solver.scheme", scheme, "the exact solver runs single 1-DOF systems only",
-                 '"midpoint" or "theta" for networks')
+                 f"{_moreau()} for networks")
         if mode == "cosim":
             _check_fmu(cfg, n, fail)
     elif x2 is None:
@@ -438,11 +443,11 @@ def _build_variant(name: str, description: str, cfg: dict, where: dict, ctx: str
             cfg["record.distance"] = True
         if scheme == "exact":
             fail("solver.scheme", scheme, "the exact solver runs single 1-DOF systems only",
-                 '"midpoint" or "theta" for pairs')
+                 f"{_moreau()} for pairs")
         if mode == "cosim":
             _check_fmu(cfg, n, fail)
     if scheme == "exact" and (n != 1):
-        fail("solver.scheme", scheme, "the exact solver is for 1-DOF systems", '"midpoint" or "theta"')
+        fail("solver.scheme", scheme, "the exact solver is for 1-DOF systems", _moreau())
     return Variant(name=name, description=description, cfg=cfg, system=system, x1=x1, x2=x2,
                    Kp=Kp, Kd=Kd, Q=Q, network=spec)
 

@@ -16,21 +16,25 @@ import numpy as np
 
 from ..core import MechanicalSystem
 from ..core.coupling import LAWS as COUPLING_LAWS
+from ..core.steps import DEFAULT_SCHEME, SCHEMES as CORE_SCHEMES
 from ..core.exchange import EXCHANGES, HOLDS
 from ..strategies import FMI2_METHODS
 from ..core.declaration import POSITIVE_MIN, Model, Param
 from ..core.registry import builtin_models
 
 __all__ = ["SceneError", "Key", "Variant", "PLOTS", "DEFAULT_OUT", "KEYS", "SYSTEM_KEYS", "BadValue", "REQUIRED",
-           "MODELS", "LAWS", "SCHEMES", "MODES", "METHODS", "TABLES", "VARIANT_TABLES", "SINGLE_PLOTS",
-           "DISTANCE_PLOTS", "plots_for", "system_keys", "NAME_RE", "show_value", "choice", "GRAPHS", "NETWORK_PLOTS", "NetworkSpec"]
+           "MODELS", "LAWS", "SCHEMES", "MOREAU_SCHEMES", "MODES", "METHODS", "TABLES", "VARIANT_TABLES",
+           "SINGLE_PLOTS", "DISTANCE_PLOTS", "plots_for", "system_keys", "NAME_RE", "show_value", "choice", "GRAPHS", "NETWORK_PLOTS", "NetworkSpec"]
 
 #: the built-in models' names (a scene may also name a user model "path/to/model.py:name")
 BUILTIN_MODELS = builtin_models()
 MODELS = tuple(BUILTIN_MODELS)
 #: the scenes' coupling.law values: the core's coupling laws, "none" first
 LAWS = ("none",) + tuple(k for k in COUPLING_LAWS if k != "none")
-SCHEMES = ("midpoint", "theta", "exact")
+#: the scenes' solver.scheme values: the core's Moreau schemes (core.steps, its default first), then the
+#: exact event-driven solver of single 1-DOF systems
+MOREAU_SCHEMES = (DEFAULT_SCHEME,) + tuple(k for k in CORE_SCHEMES if k != DEFAULT_SCHEME)
+SCHEMES = MOREAU_SCHEMES + ("exact",)
 MODES = ("core", "cosim")
 #: the master's exchange orders a scene's FMI 2.0 FMU runs with, and its input holds: the strategy
 #: registry's (fmu_sync.strategies, docs/cosim-strategies.md)
@@ -329,7 +333,8 @@ KEYS = {
                  "Kp": _key(_gain, 0.0, "position gain (a number multiplies the identity)", "N/m"),
                  "Kd": _key(_gain, 0.0, "velocity gain", "N s/m"),
                  "Q": _key(_weight, None, "position weight of the state norm (default identity)")},
-    "solver": {"scheme": _key(choice(*SCHEMES), "midpoint", "time-stepping scheme (exact: single 1-DOF systems)"),
+    "solver": {"scheme": _key(choice(*SCHEMES), DEFAULT_SCHEME, "time-stepping scheme (default: the core's; "
+                                                                  "exact: single 1-DOF systems)"),
                "dt": _key(_number(gt=0), 1e-3, "internal step (also the FMU's internal step)", "s"),
                "theta": _key(_number(ge=0.5, le=1), 0.5, "theta of the theta scheme")},
     "run": {"t_end": _key(_number(gt=0), doc="simulated time", unit="s"),

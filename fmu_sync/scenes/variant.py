@@ -140,10 +140,12 @@ def plan_variant(variant: Variant):
     """The run plan (:func:`fmu_sync.core.plan.plan_run`, docs/design.md §5.1.1) of the run the
     variant makes: its systems, start states, grid and scheme, and (coupled) its exchange: in
     co-simulation at ``run.H`` with ``run.hold`` (the slaves' internal step ``solver.dt``), in
-    the core at ``solver.dt`` with the zero-order hold. ``run.allow_unstable`` skips the limits
+    the core at ``solver.dt`` with the exchange of its loop for the scheme (the zero-order hold;
+    the trapezoid's on 1-DOF systems: inside the step, :func:`fmu_sync.core.plan.coupling_exchange`,
+    as simulate_pair and simulate_network plan it). ``run.allow_unstable`` skips the limits
     as the drivers do (a single system has no such switch). Raises the plan's typed refusals."""
     from ..core.network import edge_laws, edges_of
-    from ..core.plan import plan_run
+    from ..core.plan import coupling_exchange, plan_run
     cfg = variant.cfg
     cosim = variant.pair and variant.mode == "cosim"
     common = dict(scheme=cfg["solver.scheme"], theta=cfg["solver.theta"], record_every=cfg["run.record_every"])
@@ -160,8 +162,9 @@ def plan_variant(variant: Variant):
         return plan_run(systems, states, cfg["run.t_end"], cfg["run.H"], dt=cfg["solver.dt"], hold=cfg["run.hold"],
                         exchange=cfg["run.exchange"], A=A, laws=laws, Kp=variant.Kp, Kd=variant.Kd, step_name="H", exact=True,
                         allow_unstable=bool(cfg["run.allow_unstable"]), distance=not variant.is_network, **common)
+    exchange = coupling_exchange(cfg["solver.scheme"], spec.systems if variant.is_network else [systems])
     return plan_run(systems, states, cfg["run.t_end"], cfg["solver.dt"], A=A, laws=laws, Kp=variant.Kp, Kd=variant.Kd,
-                    allow_unstable=bool(cfg["run.allow_unstable"]), distance=not variant.is_network,
+                    exchange=exchange, allow_unstable=bool(cfg["run.allow_unstable"]), distance=not variant.is_network,
                     system_names=[f"node {i + 1}" for i in range(len(states))] if variant.is_network else None,
                     **common)
 

@@ -26,6 +26,7 @@ import numpy as np
 from ..core import batch
 from ..core.batch import COL, COLUMNS, DIVERGED, OK, REFUSED
 from ..core.coupling import QUOTIENT_LAW_NAMES, law_metric
+from ..core.steps import SCHEMES
 from .spec import STATE_ALIASES, SweepSpecError
 
 __all__ = ["Prepared", "prepare", "compiled_payload", "run_compiled_chunk", "run_python_chunk",
@@ -65,11 +66,6 @@ class Prepared:
 def _law(name) -> int:
     from ..core.pair import LAWS
     return LAWS[None if name == "none" else name]
-
-
-def _scheme(name) -> int:
-    from ..core.moreau import SCHEMES
-    return SCHEMES[name]
 
 
 def _state_with(run: dict, base, which: str):
@@ -205,7 +201,7 @@ def _compiled_ok(v) -> bool:
     # a user force law runs run by run (simulate_pair runs the law's own loop; the batch kernel
     # carries the built-in linear law only)
     return (v.mode == "core" and s.force is None and s.n == 1 and s.n_inputs == 1 and float(s.B[0, 0]) == 1.0
-            and v.cfg["solver.scheme"] in ("midpoint", "theta"))
+            and v.cfg["solver.scheme"] in SCHEMES)   # the core's Moreau schemes (not "exact")
 
 
 def _second_systems(scene, runs, variants, group, comp):
@@ -267,7 +263,7 @@ def _fill_run(a, i, r, v, g1, g2, system2, out, cache) -> str:
     t_end = float(r.get("run.t_end", cfg["run.t_end"]))
     q1, u1 = _state_with(r, v.x1, "x1")
     q2, u2 = _state_with(r, v.x2, "x2")
-    a["law"][i], a["scheme"][i], a["theta"][i] = _law(v.law), _scheme(cfg["solver.scheme"]), theta
+    a["law"][i] = _law(v.law)
     a["group1"][i], a["group2"][i], a["kp"][i], a["kd"][i] = g1, g2, kp, kd
     a["q1"][i], a["u1"][i], a["q2"][i], a["u2"][i], a["dt"][i] = q1, u1, q2, u2, dt
     grid = run_steps(t_end, dt)   # whole steps, then the shortened last one (ends at t_end)
@@ -276,7 +272,12 @@ def _fill_run(a, i, r, v, g1, g2, system2, out, cache) -> str:
     a["qw"][i] = _run_metric(v, system2, kp)
     a["every"][i] = cfg["run.record_every"]
     out[i, COL["exchange_stable"]] = _exchange_stable(v, kp, kd, dt, cache)
-    why = _refusal(v, system2, (q1, u1), (q2, u2), t_end, dt, theta)
+    why, plan = _refusal(v, system2, (q1, u1), (q2, u2), t_end, dt, theta)
+    # the kernel's scheme code and theta as the run plan makes them (the trapezoid's theta is 1/2
+    # whatever solver.theta says, as in simulate_pair); a refused run is not run
+    ran = plan is not None and plan.code is not None
+    a["scheme"][i] = plan.code if ran else SCHEMES[cfg["solver.scheme"]]
+    a["theta"][i] = plan.theta if ran else theta
     if not why and not math.isfinite(a["qw"][i]) and v.law not in (None, "none"):
         why = f"no energy metric: k + 2 Kp = {v.system.K[0, 0] + 2 * kp:.6g} is not > 0 (set coupling.Q)"
     return why
@@ -292,30 +293,33 @@ def _run_metric(v, system2, kp) -> float:
         return float("nan")
 
 
-def _refusal(v, system2, x1, x2, t_end, dt, theta) -> str:
-    """Why a run cannot start, or '': the run plan of simulate_pair (:func:`fmu_sync.core.plan.plan_run`:
-    systems, grid, scheme and its limit, start states); the exchange is not refused (the sweep runs
-    it either way, :func:`_exchange_stable` records its verdict)."""
+def _refusal(v, system2, x1, x2, t_end, dt, theta):
+    """``(why, plan)``: why a run cannot start (or '') and its run plan (None if refused), the plan
+    of simulate_pair (:func:`fmu_sync.core.plan.plan_run`: systems, grid, scheme and its limit,
+    start states); the exchange is not refused (the sweep runs it either way,
+    :func:`_exchange_stable` records its verdict)."""
     from ..core.coupling import UNCOUPLED
     from ..core.plan import plan_run
     try:
-        plan_run((v.system, system2), (x1, x2), t_end, dt, scheme=v.cfg["solver.scheme"], theta=theta,
-                 laws=[UNCOUPLED], distance=False)   # one impact map: a quotient law's rule, in _system2
+        plan = plan_run((v.system, system2), (x1, x2), t_end, dt, scheme=v.cfg["solver.scheme"], theta=theta,
+                        laws=[UNCOUPLED], distance=False)   # one impact map: a quotient law's rule, in _system2
     except ValueError as exc:
-        return str(exc)
-    return ""
+        return str(exc), None
+    return "", plan
 
 
 def _exchange_stable(v, kp, kd, dt, cache) -> float:
-    """1.0 if the held coupling is stable at this step (the run plan's exchange check,
-    :func:`fmu_sync.core.plan.held_exchange`), else 0.0. The sweep runs either way
+    """1.0 if the coupling is stable at this step (the run plan's exchange check,
+    :func:`fmu_sync.core.plan.held_exchange`, with the exchange of the scheme's loop:
+    :func:`fmu_sync.core.plan.coupling_exchange`), else 0.0. The sweep runs either way
     (as ``simulate_pair(..., allow_unstable=True)``)."""
-    from ..core.plan import held_exchange
+    from ..core.plan import coupling_exchange, held_exchange
     if v.law == "none":
         return 1.0
-    key = (float(v.system.M[0, 0]), kp, kd, dt)
+    exchange = coupling_exchange(v.cfg["solver.scheme"], [v.system])
+    key = (float(v.system.M[0, 0]), kp, kd, dt, exchange)
     if key not in cache:
-        lim = held_exchange(v.system.M, kp, kd, dt, allow_unstable=True, step_name="dt")[3]
+        lim = held_exchange(v.system.M, kp, kd, dt, allow_unstable=True, step_name="dt", exchange=exchange)[3]
         cache[key] = 1.0 if lim.stable else 0.0
     return cache[key]
 

@@ -5,8 +5,10 @@
   zero-order-hold stability limit of the relative mode drawn:
   ``omega_c h = min(4 zeta, 1/zeta)`` with ``omega_c = sqrt(2 Kp / m)``,
   ``zeta = Kd / (m omega_c)`` and ``h`` the exchange step (``run.H`` when
-  co-simulated; ``solver.dt`` in the core, whose explicit midpoint step holds
-  the forces over dt the same way); the bound is :func:`fmu_sync.core.exchange.zoh_bound`.
+  co-simulated; ``solver.dt`` in the core under a scheme that holds the forces over dt
+  the same way: the midpoint and θ; not drawn for the core's default, the trapezoid, whose
+  coupling is inside the step: :func:`fmu_sync.core.plan.coupling_exchange`); the bound is
+  :func:`fmu_sync.core.exchange.zoh_bound`.
 * :func:`basin` -- the decay rate of d over a start state (q0, u0), runs that do not
   synchronize marked.
 * :func:`line_plot` -- one swept parameter: decay rate and t_sync against it.
@@ -20,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.plan import coupling_exchange
 from ..plots import save_figure
 
 __all__ = ["heat_map", "basin", "scatter", "line_plot", "sweep_plots", "zoh_margin", "LABELS", "axis_label", "key_unit"]
@@ -142,6 +145,8 @@ def _zoh_line(ax, ds, x, y, xlog, ylog):
         return False
     cfg = v.cfg
     cosim = cfg["run.mode"] == "cosim"
+    if not cosim and coupling_exchange(cfg["solver.scheme"], [v.system]) == "implicit":
+        return False   # the core's coupling inside the step: no held exchange, no ZOH limit
     hkey = "run.H" if cosim else "solver.dt"
     base = {"coupling.Kp": float(np.asarray(v.Kp).ravel()[0]), "coupling.Kd": float(np.asarray(v.Kd).ravel()[0]),
             hkey: cfg[hkey], "system.m": float(v.system.M[0, 0])}

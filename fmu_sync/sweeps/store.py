@@ -55,8 +55,10 @@ VARIABLES = {
     "q2": ("q2", "f8", "m", "final position of system 2 (first coordinate)"),
     "u2": ("u2", "f8", "m/s", "final velocity of system 2 (first coordinate)"),
     "samples": ("samples", "f8", "", "samples of d used by the metrics"),
-    "exchange_stable": ("exchange_stable", "f8", "", "1 if the held coupling is stable at the step "
-                        "(fmu_sync.core.exchange); compiled runs run either way, others are refused"),
+    "exchange_stable": ("exchange_stable", "f8", "", "1 if the coupling is stable at the step "
+                        "(fmu_sync.core.exchange, the exchange of the run's scheme: held over dt by the midpoint "
+                        "and theta, inside the step under the trapezoid); compiled runs run either way, others "
+                        "are refused"),
     "measure": ("measure", "f8", "", "what d0, d_final, d_max, bound, t_sync and the decay rates measure: 0 the "
                 "quotient distance d, 1 the Euclidean error ||x1 - x2|| of systems without one impact map "
                 "(M, w, g0 or e differ; docs/design.md §2.5.3)"),
