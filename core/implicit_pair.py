@@ -1,18 +1,49 @@
-"""The implicit coupling's Newton for a pair of 1-DOF systems on floats (scheme ``trapezoid``,
-docs/design.md §2.3): its stopping rule (:func:`newton_stop`, also that of
+"""The implicit coupling's Newton for 1-DOF systems on floats (scheme ``trapezoid``,
+docs/design.md §2.3): the network's Newton matrix (:func:`implicit_matrix`), its stopping rule (:func:`newton_stop`, also that of
 :func:`fmu_sync.core.loop.implicit_forces`) and the pair's solve on a jump branch of the switching law
 (:func:`implicit_pair`), called by :func:`fmu_sync.core.loop.integrate_network`."""
 from __future__ import annotations
 
-from .coupling import EUCLIDEAN, coupling_kernel1
+import numpy as np
+
+from .coupling import EUCLIDEAN, UNCOUPLED, coupling_kernel1
 from .distance import BRANCH_E
 from .jit import njit
+from .steps import inverse
 
-__all__ = ["NEWTON_TOL", "NEWTON_PASSES", "newton_stop", "implicit_pair"]
+__all__ = ["NEWTON_TOL", "NEWTON_PASSES", "implicit_matrix", "newton_stop", "implicit_pair"]
 
 #: the implicit coupling's Newton stops when |2 R| <= NEWTON_TOL max|tau| (at most NEWTON_PASSES passes)
 NEWTON_TOL = 1e-13
 NEWTON_PASSES = 8
+
+
+@njit(cache=True)
+def implicit_matrix(laws, E2, W2, kp, kd, co, Ainv):
+    """The coupling inside the step (scheme ``trapezoid``, n = 1; docs/design.md §2.3): each node i
+    steps with the held force ``s_i = tau_i(x0) + delta_i``, the trapezoid of its coupling force
+    ``(tau_i(x0) + tau_i(x1)) / 2``. A node's end state is affine in its force (``u1 += G1 delta``,
+    ``q1 += G2 delta``, ``G1 = dt X``, ``G2 = a dt X`` of :func:`.steps.step_coeffs1` in ``co``), and
+    the PD law of a held branch E is linear: ``tau(x1) = tau(x1 free) + J delta``. Fills
+    ``Ainv = (2 I - J)^-1``, so that ``delta = Ainv (tau(x1 free) - tau(x0))`` solves the step
+    (exactly for the Euclidean law and branch E; a Newton matrix on a jump branch)."""
+    N = Ainv.shape[0]
+    A = np.zeros((N, N))
+    for i in range(N):
+        A[i, i] = 2.0
+    for e_ in range(E2.shape[0]):
+        if laws[e_] == UNCOUPLED:
+            continue
+        a = E2[e_, 0]
+        b = E2[e_, 1]
+        ga = kp * co[a, 3] + kd * co[a, 2]
+        gb = kp * co[b, 3] + kd * co[b, 2]
+        # tau_a += W(-kp (q_a - q_b) - kd (u_a - u_b)), tau_b the opposite: -J in A
+        A[a, a] += W2[e_, 0] * ga
+        A[a, b] -= W2[e_, 0] * gb
+        A[b, b] += W2[e_, 1] * gb
+        A[b, a] -= W2[e_, 1] * ga
+    Ainv[:, :] = inverse(A)
 
 
 @njit(cache=True, inline="always")

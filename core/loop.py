@@ -32,7 +32,7 @@ from .coupling import (BRANCH_NONE, COMPENSATED, EUCLIDEAN, SWITCHING, UNCOUPLED
                        euclidean_coupling1, p_norm_diff)
 from .distance import BRANCH_E, BRANCH_FREE, distance1, distance_value
 from .harmonic import hsum_cos
-from .implicit_pair import NEWTON_PASSES, implicit_pair, newton_stop
+from .implicit_pair import NEWTON_PASSES, implicit_matrix, implicit_pair, newton_stop
 from .metrics import decimator_push
 from .model import SystemArrays
 from .moreau import force, force1
@@ -266,41 +266,13 @@ def net_force1(cf, f0, f01, i, q, u, tau, B0, fc, tf, a, qa, ua, ta):
     return force1(cf, f0, q, u, tau, f01[i] + B0 * tau, fc, tf, a, qa, ua, ta)
 
 
-@njit(cache=True)
-def implicit_matrix(laws, E2, W2, kp, kd, co, Ainv):
-    """The coupling inside the step (scheme ``trapezoid``, n = 1; docs/design.md §2.3): each node i
-    steps with the held force ``s_i = tau_i(x0) + delta_i``, the trapezoid of its coupling force
-    ``(tau_i(x0) + tau_i(x1)) / 2``. A node's end state is affine in its force (``u1 += G1 delta``,
-    ``q1 += G2 delta``, ``G1 = dt X``, ``G2 = a dt X`` of :func:`.steps.step_coeffs1` in ``co``), and
-    the PD law of a held branch E is linear: ``tau(x1) = tau(x1 free) + J delta``. Fills
-    ``Ainv = (2 I - J)^-1``, so that ``delta = Ainv (tau(x1 free) - tau(x0))`` solves the step
-    (exactly for the Euclidean law and branch E; a Newton matrix on a jump branch)."""
-    N = Ainv.shape[0]
-    A = np.zeros((N, N))
-    for i in range(N):
-        A[i, i] = 2.0
-    for e_ in range(E2.shape[0]):
-        if laws[e_] == UNCOUPLED:
-            continue
-        a = E2[e_, 0]
-        b = E2[e_, 1]
-        ga = kp * co[a, 3] + kd * co[a, 2]
-        gb = kp * co[b, 3] + kd * co[b, 2]
-        # tau_a += W(-kp (q_a - q_b) - kd (u_a - u_b)), tau_b the opposite: -J in A
-        A[a, a] += W2[e_, 0] * ga
-        A[a, b] -= W2[e_, 0] * gb
-        A[b, b] += W2[e_, 1] * gb
-        A[b, a] -= W2[e_, 1] * ga
-    Ainv[:, :] = inverse(A)
-
-
 @njit(cache=True, inline="always")
 def implicit_forces(laws, E2, W2, sg, kp, kd, qf, uf, co, tau1d, dq, du, hp, t, bh, Ainv, r, delta):
     """``tau1d`` (the forces at the step's start) -> the trapezoid of the coupling forces over the
-    step (:func:`implicit_matrix`), n = 1: ``qf, uf`` the nodes' end states under ``tau1d`` held
+    step (:func:`.implicit_pair.implicit_matrix`), n = 1: ``qf, uf`` the nodes' end states under ``tau1d`` held
     (contact left out), ``bh`` each edge's branch at the start (held over the step, as the master's
     implicit exchange holds it, docs/design.md §4.4); ``dq, du, r, delta`` (N,) scratch. Newton on
-    ``R(delta) = (tau(x1(delta)) - tau(x0)) / 2 - delta`` with the matrix of :func:`implicit_matrix`:
+    ``R(delta) = (tau(x1(delta)) - tau(x0)) / 2 - delta`` with the matrix of :func:`.implicit_pair.implicit_matrix`:
     one pass when every edge is Euclidean or on branch E (linear), otherwise until
     |2 R| <= 1e-13 max|tau| (at most 8 passes; :func:`newton_stop`)."""
     N = tau1d.shape[0]
