@@ -1,11 +1,13 @@
 """The one fixed-step loop of coupled systems (docs/design.md §2.5): N systems on a graph.
 
 Every step: each node's input ``tau_i = sum_j a_ij tau_i^(j)`` is computed from the
-states at the start of the step (:func:`network_forces`, each edge's law by
-:func:`coupling_step`, the very functions the co-simulation master calls) and held
-over it (Jacobi, zero-order hold), then every system takes one Moreau step of
-:mod:`.moreau`. A co-simulation whose communication step equals ``dt`` reproduces
-this run to round-off.
+states at the start of the step (:func:`.edges.network_forces`, each edge's law by
+:func:`.edges.coupling_step`, the very functions the co-simulation master calls); the midpoint
+and θ hold it over the step (Jacobi, zero-order hold), the default trapezoid solves its
+trapezoid with the step (:mod:`.implicit_pair` for n = 1, :mod:`.loop_implicit` for n > 1);
+then every system takes one Moreau step of :mod:`.moreau`. A co-simulation whose communication
+step equals ``dt`` reproduces this run to round-off (the explicit exchange the midpoint, the
+implicit exchange the trapezoid).
 
 :func:`integrate_network` is the only such loop in the core:
 
@@ -27,135 +29,21 @@ from typing import NamedTuple
 import numpy as np
 from .jit import njit
 
-from .compensation import compensated_coupling1, force_table, node_force1
-from .coupling import (BRANCH_NONE, COMPENSATED, EUCLIDEAN, SWITCHING, UNCOUPLED, coupling_kernel, coupling_kernel1,
-                       euclidean_coupling1, p_norm_diff)
-from .distance import BRANCH_E, BRANCH_FREE, distance1, distance_value
+from .compensation import force_table
+from .coupling import BRANCH_NONE, COMPENSATED, EUCLIDEAN, UNCOUPLED, p_norm_diff
+from .distance import BRANCH_E
+from .edges import coupling_step, coupling_step1, network_forces, node_force
 from .harmonic import hsum_cos
 from .implicit_pair import NEWTON_PASSES, implicit_matrix, implicit_pair, newton_stop
+from .loop_implicit import implicit_forces_nd, implicit_matrix_nd, implicit_workspace
 from .metrics import decimator_push
 from .model import SystemArrays
 from .moreau import force, force1
-from .steps import (DIVERGED, MIDPOINT, OK, TRAPEZOID, inverse, finish_step, flush1, hbase, scalar_params, step1_y, step_coeffs1, step_y,
+from .steps import (DIVERGED, MIDPOINT, OK, TRAPEZOID, finish_step, flush1, hbase, scalar_params, step1_y, step_coeffs1, step_y,
                     theta_matrices)
 
 __all__ = ["NodeGeometry", "node_geometry", "coupling_step", "coupling_step1", "network_forces", "node_force", "integrate_network",
            "sample_d", "no_decimator"]
-
-
-# ------------------------------------------------------------------ one edge
-@njit(cache=True)
-def coupling_step(law, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u, need_d, fix=BRANCH_FREE):
-    """Coupling forces into ``tau1, tau2`` and the distance record at this state.
-
-    Returns ``(d, branch, euclidean)``: the quotient distance (NaN and branch
-    ``BRANCH_NONE`` unless the law uses it or ``need_d``), its branch code and
-    ``||x1 - x2||_P``. ``c1q, c1u, c2q, c2u``: (n,) scratch arrays for the chain
-    ends (:func:`fmu_sync.core.coupling.chain_work`). One compiled call,
-    used once per step and edge by :func:`integrate_network` and once per
-    communication step by the master. ``fix``: the branch the switching law is held on
-    (:data:`.distance.BRANCH_FREE`: its own; the implicit exchange's iterates, docs/design.md §4.4).
-    """
-    if law == SWITCHING:
-        d, branch = coupling_kernel(law, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u, fix)
-        return d, branch, p_norm_diff(geo.Q, geo.M, q1, u1, q2, u2)
-    E, _ = coupling_kernel(law, geo, Kp, Kd, q1, u1, q2, u2, tau1, tau2, c1q, c1u, c2q, c2u)
-    if need_d:
-        d, branch = distance_value(geo, q1, u1, q2, u2)
-        return d, branch, E
-    return np.nan, BRANCH_NONE, E
-
-
-@njit(cache=True, inline="always")
-def coupling_step1(law, sg, kp, kd, q1, u1, q2, u2, need_d, hp, ia, ib, t, fix=BRANCH_FREE):
-    """:func:`coupling_step` for 1-DOF on floats (``sg = geo.scalar``, scalar
-    gains): ``(tau1, tau2, d, branch, euclidean)``, the same arithmetic as the
-    array kernels (which hand n = 1 to the same float kernels). The compensated law
-    (docs/design.md §2.5.2) takes the nodes' ``ia``, ``ib`` force laws from the table ``hp``
-    (:func:`fmu_sync.core.compensation.force_table`) at time ``t``."""
-    if law == COMPENSATED:
-        k1, c1, f1 = node_force1(hp, ia, t)
-        k2, c2, f2 = node_force1(hp, ib, t)
-        tau1, tau2, d, branch, _ = compensated_coupling1(sg, kp, kd, q1, u1, q2, u2, k1, c1, f1, k2, c2, f2, fix)
-        return tau1, tau2, d, branch, euclidean_coupling1(sg, kp, kd, q1, u1, q2, u2)[2]
-    tau1, tau2, value, branch = coupling_kernel1(law, sg, kp, kd, q1, u1, q2, u2, fix)
-    if law == SWITCHING:
-        return tau1, tau2, value, branch, euclidean_coupling1(sg, kp, kd, q1, u1, q2, u2)[2]
-    if need_d:
-        r = distance1(sg, q1, u1, q2, u2)
-        return tau1, tau2, r[0], r[1], value
-    return tau1, tau2, np.nan, BRANCH_NONE, value
-
-
-@njit(cache=True, inline="always")
-def _edge(law, geo, Kp, Kd, q, u, a, b, t1, t2, c1q, c1u, c2q, c2u, need_d, hp, t, fix=BRANCH_FREE):
-    """:func:`coupling_step` of the edge (a, b) (its 1-DOF float form
-    :func:`coupling_step1` for n = 1, the same arithmetic): forces into t1, t2; returns
-    ``(d, branch, euclidean)``."""
-    if q.shape[1] == 1:
-        t1[0], t2[0], d, br, eu = coupling_step1(law, geo.scalar, Kp[0, 0], Kd[0, 0], q[a, 0], u[a, 0], q[b, 0],
-                                                 u[b, 0], need_d, hp, a, b, t, fix)
-        return d, br, eu
-    return coupling_step(law, geo, Kp, Kd, q[a], u[a], q[b], u[b], t1, t2, c1q, c1u, c2q, c2u, need_d, fix)
-
-
-# ------------------------------------------------------------------ all edges
-@njit(cache=True, inline="always")
-def _forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, need_d, dk, bk, ek, hp, t, held):
-    n = q.shape[1]
-    for i in range(q.shape[0]):
-        for c in range(n):
-            tau[i, c] = 0.0
-    for e_ in range(E2.shape[0]):
-        a = E2[e_, 0]
-        b = E2[e_, 1]
-        d, br, eu = _edge(laws[e_], geo, Kp, Kd, q, u, a, b, t1, t2, c1q, c1u, c2q, c2u, need_d, hp, t,
-                          bk[e_] if held else BRANCH_FREE)
-        if laws[e_] != UNCOUPLED:
-            if W2[e_, 0] > 0.0:
-                for c in range(n):
-                    tau[a, c] += W2[e_, 0] * t1[c]
-            if W2[e_, 1] > 0.0:
-                for c in range(n):
-                    tau[b, c] += W2[e_, 1] * t2[c]
-        dk[e_] = d
-        bk[e_] = br
-        ek[e_] = eu
-
-
-@njit(cache=True)
-def network_forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, need_d, dk, bk, ek, hp, t,
-                   held=False):
-    """Every node's input ``tau_i = sum_j a_ij tau_i^(j)`` at the states ``q, u`` (N, n), each
-    edge's law evaluated once (:func:`coupling_step`), and each edge's distance record into
-    ``dk, bk, ek`` (E,). ``E2`` (E, 2) edges (i, j); ``W2`` (E, 2) weights (a_ij, a_ji);
-    ``t1, t2, c1q, c1u, c2q, c2u``: (n,) scratch; ``hp`` the nodes' force table
-    (:func:`fmu_sync.core.compensation.force_table`) and ``t`` the time of the states (the
-    compensated law evaluates each system's force at its chain end). ``held``: each quotient law is
-    evaluated on the branch ``bk`` holds on entry (the implicit exchange's iterates hold the branch
-    decided once per communication step, docs/design.md §4.4) instead of its own. The forces of
-    :func:`integrate_network` (called there for n > 1) and, per communication step, of the master's
-    exchange loop."""
-    _forces(laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, need_d, dk, bk, ek, hp, t, held)
-
-
-@njit(cache=True)
-def node_force(i, laws, geo, Kp, Kd, E2, W2, q, u, tau, t1, t2, c1q, c1u, c2q, c2u, hp, t):
-    """Node i's input alone at the states ``q, u`` (the Gauss–Seidel exchange: each node's
-    input from the newest states of the others); arguments as :func:`network_forces`."""
-    n = q.shape[1]
-    for c in range(n):
-        tau[i, c] = 0.0
-    for e_ in range(E2.shape[0]):
-        a = E2[e_, 0]
-        b = E2[e_, 1]
-        if laws[e_] == UNCOUPLED or (i != a and i != b):
-            continue
-        w = W2[e_, 0] if i == a else W2[e_, 1]
-        if w > 0.0:
-            _edge(laws[e_], geo, Kp, Kd, q, u, a, b, t1, t2, c1q, c1u, c2q, c2u, False, hp, t)
-            for c in range(n):
-                tau[i, c] += w * (t1[c] if i == a else t2[c])
 
 
 # ------------------------------------------------------------------ recorders
@@ -628,7 +516,3 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
                     v_imp = _impact(i, k, imp, ep, last, p_norm_diff(geo.Q, geo.Q, zero, ua, zero, zero), v_imp)
         k += 1
     return OK, total, row, v_imp, tau_max
-
-
-# the n-DOF solve (its module uses network_forces above; the loop's globals resolve at compile time)
-from .loop_implicit import implicit_forces_nd, implicit_matrix_nd, implicit_workspace  # noqa: E402

@@ -1,6 +1,6 @@
 """The coupling inside the step for n-DOF systems (scheme ``trapezoid``, n > 1; docs/design.md §2.3).
 
-The n = 1 path lives in :mod:`.loop` (``implicit_matrix``, ``implicit_forces``, on floats); this is
+The n = 1 path lives in :mod:`.loop` and :mod:`.implicit_pair` (``implicit_forces``, ``implicit_matrix``, on floats); this is
 the same solve on (N, n) blocks for :func:`fmu_sync.core.loop.integrate_network`'s ``_step_node`` path.
 Each node i steps under the held force ``s_i = tau_i(x0) + delta_i``, the trapezoid
 ``(tau_i(x0) + tau_i(x1)) / 2`` of its coupling force, each edge's law on the branch it has at x0
@@ -19,7 +19,7 @@ import numpy as np
 from .coupling import EUCLIDEAN, UNCOUPLED
 from .distance import BRANCH_E
 from .jit import njit
-from .loop import network_forces
+from .edges import network_forces
 from .steps import inverse
 
 __all__ = ["implicit_workspace", "implicit_matrix_nd", "implicit_forces_nd"]
