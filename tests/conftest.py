@@ -35,8 +35,13 @@ def c_host(tmp_path_factory):
 
 
 @pytest.fixture(scope="session", autouse=True)
-def _one_compile_per_run(tmp_path_factory):
+def compile_locks(tmp_path_factory):
     """Under xdist: each cached numba kernel compiled by one worker, loaded from the cache by the
-    other (tests/_shared_compile.py); the locks sit in the run's own folder shared by its workers."""
-    if os.environ.get("PYTEST_XDIST_WORKER"):
-        install_compile_locks(str(tmp_path_factory.getbasetemp().parent / "numba-compile-locks"))
+    other (tests/_shared_compile.py); the locks sit in the run's own folder shared by its workers.
+    Its value (None without xdist): that folder, for a child process that compiles kernels of its
+    own to join (``_shared_compile.install``)."""
+    if not os.environ.get("PYTEST_XDIST_WORKER"):
+        return None
+    folder = str(tmp_path_factory.getbasetemp().parent / "numba-compile-locks")
+    install_compile_locks(folder)
+    return folder
