@@ -33,3 +33,9 @@ def pendulum_file(law: str, model: str, units: bool = False) -> str:
     default units, m and N)."""
     return _PENDULUM.format(law=law, model=model, doc_units="; q in rad" if units else "",
                             units=' q_unit="rad", tau_unit="N.m",' if units else "")
+
+
+#: the pendulum (q in rad) of the user-file scene and SSP tests (tests/test_user_model_scenes.py,
+#: tests/test_ssp_user_models.py): one file content, so one law key, and the law's compiled loops and
+#: FMU stepper (cached by that key, whatever the file's folder) are compiled once for both
+SCENE_PENDULUM = pendulum_file("scene_pendulum", "scene-pendulum", units=True)

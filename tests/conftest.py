@@ -1,9 +1,12 @@
 """Session fixtures shared by test modules (one build per session instead of one per module)."""
 from __future__ import annotations
 
+import os
+
 import pytest
 
 from _children import compile_c_host
+from _shared_compile import install as install_compile_locks
 
 
 @pytest.fixture(scope="session")
@@ -29,3 +32,16 @@ def shared_fmu(tmp_path_factory):
 def c_host(tmp_path_factory):
     """tests/c/fmu_host.c compiled once per session: the plain C importer."""
     return compile_c_host(tmp_path_factory.mktemp("c-host"))
+
+
+@pytest.fixture(scope="session", autouse=True)
+def compile_locks(tmp_path_factory):
+    """Under xdist: each cached numba kernel compiled by one worker, loaded from the cache by the
+    other (tests/_shared_compile.py); the locks sit in the run's own folder shared by its workers.
+    Its value (None without xdist): that folder, for a child process that compiles kernels of its
+    own to join (``_shared_compile.install``)."""
+    if not os.environ.get("PYTEST_XDIST_WORKER"):
+        return None
+    folder = str(tmp_path_factory.getbasetemp().parent / "numba-compile-locks")
+    install_compile_locks(folder)
+    return folder

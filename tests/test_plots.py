@@ -263,8 +263,12 @@ def test_uncoupled_forces_one_panel_no_empty_axes(tmp_path, pair, osc):
 
 
 _SAVE_LOOP = """
+import signal
 import sys
 import numpy as np
+# Ctrl-C raises KeyboardInterrupt even when pytest was started with SIGINT ignored (a background job of a
+# non-interactive shell): else the child ignores the signal and writes all 1000 figures (minutes)
+signal.signal(signal.SIGINT, signal.default_int_handler)
 from fmu_sync import plots
 from fmu_sync.core.result import PairResult
 t = np.linspace(0.0, 100.0, 200001)

@@ -20,7 +20,11 @@ from pathlib import Path
 # =============================================================== child side
 def scenario_cli(a):
     """``fmu-sync run`` of each package in this one process: exit status, stderr, and the
-    traceback of anything that escaped ``main``."""
+    traceback of anything that escaped ``main``. The unedited package's run compiles the master's
+    driver: with the run's compile locks (tests/conftest.py) it loads it if a worker compiled it."""
+    if a.get("locks"):
+        from _shared_compile import install
+        install(a["locks"])
     from fmu_sync.cli import main
     out = {}
     for key, pkg in a["packages"].items():
@@ -160,10 +164,10 @@ def test_run_ssp_refuses_each_malformed_package_naming_where(pair, key):
 
 
 @pytest.fixture(scope="module")
-def cli(pair):
+def cli(pair, compile_locks):
     tmp, good, bad = pair
     return child(__file__, "cli", {"packages": {"good": str(good), **{k: str(v) for k, v in bad.items()}},
-                                   "out": str(tmp / "out")}, tmp)
+                                   "out": str(tmp / "out"), "locks": compile_locks}, tmp)
 
 
 @pytest.mark.parametrize("key", list(CASES))

@@ -65,7 +65,7 @@ from fmu_sync.scenes.loading import as_scene  # noqa: E402
 from fmu_sync.scenes.running import run_variant  # noqa: E402
 from fmu_sync.ssp import read_ssp, write_ssp  # noqa: E402
 from _children import child  # noqa: E402
-from _user_files import pendulum_file  # noqa: E402
+from _user_files import SCENE_PENDULUM  # noqa: E402
 from test_other_masters import ENV, oms_path  # noqa: E402
 
 DT = 1e-3            # H = dt: one internal step per exchange, the core's grid
@@ -74,7 +74,7 @@ T_END = 1.0
 
 def _network_scene(tmp: Path) -> Path:
     """A ring of 3 of a user's pendulums (q in rad), the nodes differing in c and g."""
-    (tmp / "my_pend.py").write_text(pendulum_file("user_pendulum_law", "user_pendulum", units=True))
+    (tmp / "my_pend.py").write_text(SCENE_PENDULUM)   # the scene tests' file: its kernels shared
     toml = tmp / "ring-of-pendulums.toml"
     toml.write_text(f'description = "a ring of three user pendulums"\n\n[system]\nmodel = "{tmp}/my_pend.py:pendulum"\n'
                     'm = 1.0\ng = 9.81\nl = 0.5\nc = 0.05\nq_w = 0.3\ne = 0.7\n\n'
@@ -157,7 +157,7 @@ def test_the_law_switching_compensated_is_refused_with_the_reason(scene, package
         write_ssp(src, tmp_path / "x.ssp", None, {"coupling.law": "switching-compensated"})
     msg = str(exc.value)
     assert "compensates the built-in linear law's force" in msg and "use 'switching'" in msg
-    assert ("'pendulum'" if scene == "pendulum" else "'user_pendulum_law'") in msg, msg
+    assert ("'pendulum'" if scene == "pendulum" else "'scene_pendulum'") in msg, msg
     assert not list(tmp_path.iterdir())
 
 

@@ -19,9 +19,7 @@ from fmu_sync.core.views import figure
 from fmu_sync.fmus import contract
 from fmu_sync.scenes.running import run_scene
 
-from _user_files import pendulum_file
-
-PENDULUM_FILE = pendulum_file("scene_pendulum", "scene-pendulum", units=True)
+from _user_files import SCENE_PENDULUM as PENDULUM_FILE
 
 SCENE = '''description = "two user pendulums (tests/test_user_model_scenes.py)"
 
