@@ -205,8 +205,18 @@ def _plateaus(t, d, env, imax, M, ht, hy):
     each refined by a parabola through the three decay speeds around it. These points sit at one
     phase of each oscillation, so they lie on the line exp(-sigma t) itself, where every envelope
     point would bend the hull by the oscillation's phase at each level (a bias of up to a few %
-    over few decades, docs/design.md §2.7). Returns the hull's length."""
+    over few decades, docs/design.md §2.7). A plateau decays slower than half the mean speed
+    after the first maximum (a smooth exp(-sigma t) has none and keeps every envelope point).
+    Returns the hull's length."""
     nh = 1
+    # the mean decay speed after the first maximum: a plateau's centre decays far slower than it (a
+    # d that falls smoothly, exp(-sigma t), has none: its speed's round-off wiggles are no plateaus)
+    j = M - 1
+    while j > imax and not d[j] > 0.0:
+        j -= 1
+    if j <= imax:
+        return nh
+    slow = 0.5 * (math.log(d[imax]) - math.log(d[j])) / (t[j] - t[imax])
     s0 = np.inf     # decay speeds between samples i-1, i and i, i+1 (s1) and i+1, i+2 (s2)
     for i in range(imax + 1, M - 2):
         if not (d[i] > 0.0 and d[i + 1] > 0.0 and d[i + 2] > 0.0 and d[i - 1] > 0.0):
@@ -216,7 +226,7 @@ def _plateaus(t, d, env, imax, M, ht, hy):
         if s0 == np.inf:
             s0 = (math.log(d[i - 1]) - math.log(d[i])) / (t[i] - t[i - 1])
         s2 = (math.log(d[i + 1]) - math.log(d[i + 2])) / (t[i + 2] - t[i + 1])
-        if s1 < s0 and s1 <= s2 and d[i] == env[i]:
+        if s1 < s0 and s1 <= s2 and s1 < slow and d[i] == env[i]:
             # the slowest decay lies in (t[i], t[i+1]): the parabola through the speeds at the
             # interval midpoints, its vertex tm; log d there by the speeds integrated
             h = 0.5 * (t[i + 2] - t[i])

@@ -124,8 +124,11 @@ def test_cli_convergence_exits_0_and_writes_the_table(tmp_path):
 
 
 def test_cli_convergence_refusals_exit_2(tmp_path):
+    # the midpoint holds the coupling over dt, so its exchange limit refuses these gains (the default
+    # trapezoid takes the coupling inside the step and runs them: tests/test_trapezoid.py)
     unstable = ["run", "forced-pair", "--variant", "switching", "--convergence", "--set", "coupling.Kp=1e5",
-                "--set", "coupling.Kd=150", "--set", "solver.dt=1e-2", "--set", "run.t_end=5"]
+                "--set", "coupling.Kd=150", "--set", "solver.dt=1e-2", "--set", "run.t_end=5",
+                "--set", "solver.scheme=midpoint"]
     out = run_cli(unstable + ["-o", str(tmp_path / "a")], tmp_path)
     assert out.returncode == 2 and "omega_c*dt = 4.472" in out.stderr, out.stderr
     assert not (tmp_path / "a").exists()
