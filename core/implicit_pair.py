@@ -11,7 +11,7 @@ from .distance import BRANCH_E
 from .jit import njit
 from .steps import inverse
 
-__all__ = ["NEWTON_TOL", "NEWTON_PASSES", "implicit_matrix", "newton_stop", "implicit_pair"]
+__all__ = ["NEWTON_TOL", "NEWTON_PASSES", "held_linear", "implicit_matrix", "newton_stop", "implicit_pair"]
 
 #: the implicit coupling's Newton stops when |2 R| <= NEWTON_TOL max|tau| (at most NEWTON_PASSES passes)
 NEWTON_TOL = 1e-13
@@ -44,6 +44,18 @@ def implicit_matrix(laws, E2, W2, kp, kd, co, Ainv):
         A[b, b] += W2[e_, 1] * gb
         A[b, a] -= W2[e_, 1] * ga
     Ainv[:, :] = inverse(A)
+
+
+@njit(cache=True, inline="always")
+def held_linear(laws, branches, E):
+    """Whether the coupling of a step is linear in its force increment: every edge uncoupled,
+    Euclidean, or held on branch E (``branches``: each edge's branch at the step's start). Then
+    the Newton of :func:`.loop.implicit_forces` / :func:`.loop_implicit.implicit_forces_nd` solves
+    the step in one pass. ``E`` the number of edges."""
+    for e_ in range(E):
+        if laws[e_] != UNCOUPLED and laws[e_] != EUCLIDEAN and branches[e_] != BRANCH_E:
+            return False
+    return True
 
 
 @njit(cache=True, inline="always")

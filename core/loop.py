@@ -34,7 +34,7 @@ from .coupling import BRANCH_NONE, COMPENSATED, EUCLIDEAN, UNCOUPLED, p_norm_dif
 from .distance import BRANCH_E
 from .edges import coupling_step, coupling_step1, network_forces, node_force
 from .harmonic import hsum_cos
-from .implicit_pair import NEWTON_PASSES, implicit_matrix, implicit_pair, newton_stop
+from .implicit_pair import NEWTON_PASSES, held_linear, implicit_matrix, implicit_pair, newton_stop
 from .loop_implicit import implicit_forces_nd, implicit_matrix_nd, implicit_workspace
 from .metrics import decimator_push
 from .model import SystemArrays
@@ -164,10 +164,7 @@ def implicit_forces(laws, E2, W2, sg, kp, kd, qf, uf, co, tau1d, dq, du, hp, t, 
     one pass when every edge is Euclidean or on branch E (linear), otherwise until
     |2 R| <= 1e-13 max|tau| (at most 8 passes; :func:`newton_stop`)."""
     N = tau1d.shape[0]
-    linear = True
-    for e_ in range(E2.shape[0]):
-        if laws[e_] != UNCOUPLED and laws[e_] != EUCLIDEAN and bh[e_] != BRANCH_E:
-            linear = False
+    linear = held_linear(laws, bh, E2.shape[0])
     for i in range(N):
         delta[i] = 0.0
     big0 = 0.0

@@ -16,10 +16,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .coupling import EUCLIDEAN, UNCOUPLED
-from .distance import BRANCH_E
+from .coupling import UNCOUPLED
 from .jit import njit
 from .edges import network_forces
+from .implicit_pair import held_linear
 from .steps import inverse
 
 __all__ = ["implicit_workspace", "implicit_matrix_nd", "implicit_forces_nd"]
@@ -83,10 +83,7 @@ def implicit_forces_nd(laws, geo, Kp, Kd, E2, W2, Sinv, a, dt, tau, bk, hp, t, t
     Ainv, qc, uc, q1, u1, tau0, tau1, delta, r, bh, dk, ek = ws
     N = tau.shape[0]
     n = tau.shape[1]
-    linear = True
-    for e_ in range(E2.shape[0]):
-        if laws[e_] != UNCOUPLED and laws[e_] != EUCLIDEAN and bk[e_] != BRANCH_E:
-            linear = False
+    linear = held_linear(laws, bk, E2.shape[0])
     for i in range(N):
         for c in range(n):
             tau0[i, c] = tau[i, c]
