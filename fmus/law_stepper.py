@@ -97,8 +97,9 @@ def law_stepper(law, on_compile=None):
     key = law.key or id(law)
     if key in _STEPPERS:
         return _STEPPERS[key]
-    g = dict(vars(S), advance_in=law.kernels().advance_in, N_P=len(law.params), LAW_TRAPEZOID=not law.linear_in_u,
-             advance_in_trapezoid=law.kernels(trapezoid=True).advance_in)
+    plain, trapezoid = law.kernels(), law.kernels(trapezoid=True)   # one copy when the law needs no correction
+    g = dict(vars(S), advance_in=plain.advance_in, N_P=len(law.params), LAW_TRAPEZOID=trapezoid is not plain,
+             advance_in_trapezoid=trapezoid.advance_in)
     cache_key = stepper_key(law)
     if cache_key is not None:    # the cache locator's key of this copy (core/_cache.py)
         g[LAW_KEY] = cache_key
