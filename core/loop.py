@@ -461,7 +461,7 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
             if k == 0 and k0 == 0:
                 for i in range(N):
                     TAU[0, i, 0] = tau1d[i]
-        if implicit_nd and coupled and k < total:   # n > 1: the free steps, then the trapezoid's solve
+        if implicit_nd and coupled and k < total:   # n > 1: forces and free end states, then the solve
             hk = dt_last if k == n_steps else dt
             if k == n_steps:
                 _matrices(base, K, C, f0, F, Omega, phi, scheme, theta, hk, Sinv, Sinv_w, WS, co)
