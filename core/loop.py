@@ -249,22 +249,26 @@ def _free_nodes(base, K, C, f0, F, Omega, phi, q, u, tau, t, hk, theta, Sinv, y,
 
 
 @njit(cache=True, inline="always")
-def _solved_nodes(base, K, C, f0, F, Omega, phi, q, u, tau, t, hk, theta, Sinv, Sinv_w, WS, y, hf, uf, qe, ws):
+def _solved_nodes(base, K, C, f0, F, Omega, phi, q, u, tau, t, hk, theta, Sinv, Sinv_w, WS, y, hf, uf, qe, ws, k,
+                  imp, ep, last, Q, zero, v_imp):
     """The trapezoid's step of every node (n > 1) under the solved forces ``tau``, its wall in, in
-    place: :func:`_step_node` with the forcing kept by :func:`_free_nodes`; the start velocities into
-    ``ws``'s ``u0``, the percussions into its ``Pk``."""
+    place: :func:`_step_node` with the forcing kept by :func:`_free_nodes` (the start velocities into
+    ``ws``'s ``u0``); a percussion counted as the loop counts it
+    (:func:`_impact`, step ``k``, speed in the norm of ``Q``). Returns the largest impact speed."""
     a = theta * hk
     hfs = ws[12]
     u0 = ws[13]
-    Pk = ws[14]
     for i in range(q.shape[0]):
         sa = _node(base, K, C, f0, F, Omega, phi, i)
         for c in range(q.shape[1]):
             hf[c] = hfs[i, c]
             u0[i, c] = u[i, c]
         net_force(sa, f0, i, q[i], u[i], tau[i], hf, t + a, a, y, qe)
-        Pk[i] = step_y(sa, Sinv[i], Sinv_w[i], WS[i], a, q[i], u[i], hk, y, uf)[0]
+        P = step_y(sa, Sinv[i], Sinv_w[i], WS[i], a, q[i], u[i], hk, y, uf)[0]
         finish_step(q[i], u[i])
+        if P > 0.0:
+            v_imp = _impact(i, k, imp, ep, last, p_norm_diff(Q, Q, zero, u0[i], zero, zero), v_imp)
+    return v_imp
 
 
 @njit(cache=True)
@@ -538,11 +542,8 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
                     if v > v_imp:
                         v_imp = v
         elif implicit_nd and coupled:   # the step under the solved forces (_free_nodes kept the forcing)
-            _solved_nodes(base, K, C, f0, F, Omega, phi, q, u, tau, t, hk, theta, Sinv, Sinv_w, WS, qM, h, uf, qe, ws)
-            for i in range(N):
-                if ws[14][i] > 0.0:
-                    v_imp = _impact(i, k, imp, ep, last, p_norm_diff(geo.Q, geo.Q, zero, ws[13][i], zero, zero),
-                                    v_imp)
+            v_imp = _solved_nodes(base, K, C, f0, F, Omega, phi, q, u, tau, t, hk, theta, Sinv, Sinv_w, WS, qM, h, uf,
+                                  qe, ws, k, imp, ep, last, geo.Q, zero, v_imp)
         else:
             for i in range(N):
                 P = _step_node(base, K, C, f0, F, Omega, phi, i, q, u, tau, t, hk, scheme, theta, Sinv, Sinv_w, WS,

@@ -36,14 +36,13 @@ __all__ = ["implicit_workspace", "implicit_matrix_nd", "implicit_forces_nd", "fr
 @njit(cache=True)
 def implicit_workspace(N, n, E):
     """Scratch of :func:`implicit_forces_nd` (allocated once per loop call): ``(Ainv, qc, uc, q1, u1,
-    tau0, tau1, delta, r, bh, dk, ek, hfs, u0, Pk)``; ``hfs`` (N, n) the nodes' forcing at the step's
-    force point, ``u0`` (N, n) their start velocities, ``Pk`` (N,) their percussions
-    (:func:`fmu_sync.core.loop._solved_nodes`)."""
+    tau0, tau1, delta, r, bh, dk, ek, hfs, u0)``; ``hfs`` (N, n) the nodes' forcing at the step's
+    force point, ``u0`` (N, n) their start velocities (:func:`fmu_sync.core.loop._solved_nodes`)."""
     m = N * n
     e = max(E, 1)
     return (np.zeros((m, m)), np.zeros((N, n)), np.zeros((N, n)), np.zeros((N, n)), np.zeros((N, n)),
             np.zeros((N, n)), np.zeros((N, n)), np.zeros((N, n)), np.zeros(m), np.zeros(e, dtype=np.int64),
-            np.zeros(e), np.zeros(e), np.zeros((N, n)), np.zeros((N, n)), np.zeros(N))
+            np.zeros(e), np.zeros(e), np.zeros((N, n)), np.zeros((N, n)))
 
 
 @njit(cache=True, inline="always")
@@ -149,7 +148,7 @@ def implicit_forces_nd(laws, geo, Kp, Kd, E2, W2, Sinv, a, dt, tau, bk, hp, t, t
     step (module docstring); ``ws`` from :func:`implicit_workspace` with ``Ainv`` filled by
     :func:`implicit_matrix_nd` and the nodes' free end states (their step under ``tau``) in ``qc, uc``;
     ``bk`` each edge's branch at the start (held); ``t`` the end time; ``t1 .. c2u`` (n,) scratch."""
-    Ainv, qc, uc, q1, u1, tau0, tau1, delta, r, bh, dk, ek, _, _, _ = ws
+    Ainv, qc, uc, q1, u1, tau0, tau1, delta, r, bh, dk, ek, _, _ = ws
     N = tau.shape[0]
     n = tau.shape[1]
     if held_linear(laws, bk, E2.shape[0]):   # one pass from delta = 0: the forces at the free end state
