@@ -35,7 +35,7 @@ from .distance import BRANCH_E
 from .edges import coupling_step, coupling_step1, network_forces, node_force
 from .harmonic import hsum_cos
 from .implicit_pair import NEWTON_PASSES, held_linear, implicit_matrix, implicit_pair, newton_stop
-from .loop_implicit import implicit_forces_nd, implicit_matrix_nd, implicit_workspace
+from .loop_implicit import free_state, implicit_forces_nd, implicit_matrix_nd, implicit_workspace
 from .metrics import decimator_push
 from .model import SystemArrays
 from .moreau import force, force1
@@ -209,7 +209,7 @@ def implicit_forces(laws, E2, W2, sg, kp, kd, qf, uf, co, tau1d, dq, du, hp, t, 
 
 #: the loop's templates, as :data:`.moreau.TEMPLATES`: a user law's copy has its ``net_force``,
 #: ``net_force1`` (core/law_loops.py)
-TEMPLATES = {"_step_node": "never", "integrate_network": "never"}
+TEMPLATES = {"_step_node": "never", "_free_nodes": "always", "_solved_nodes": "always", "integrate_network": "never"}
 
 
 @njit(cache=True)
@@ -229,6 +229,46 @@ def _step_node(base, K, C, f0, F, Omega, phi, i, q, u, tau, t, hk, scheme, theta
         P = step_y(sa, sa.Minv, sa.Minv_w, sa.W, a, q[i], u[i], hk, y, uf)[0]
     finish_step(q[i], u[i])
     return P
+
+
+@njit(cache=True, inline="always")
+def _free_nodes(base, K, C, f0, F, Omega, phi, q, u, tau, t, hk, theta, Sinv, y, hf, qe, ws):
+    """The trapezoid's solve start (n > 1, core/loop_implicit.py): each node's forcing at the force
+    point ``t + a`` into ``ws``'s ``hfs`` (kept for :func:`_solved_nodes`), its force under the start
+    forces ``tau`` and its end state with the wall left out into ``ws``'s ``qc, uc``
+    (:func:`.loop_implicit.free_state`). ``y, hf, qe`` (n,) scratch."""
+    a = theta * hk
+    hfs = ws[12]
+    for i in range(q.shape[0]):
+        sa = _node(base, K, C, f0, F, Omega, phi, i)
+        hsum_cos(sa.F, sa.Omega, sa.phi, t + a, hf)
+        for c in range(q.shape[1]):
+            hfs[i, c] = hf[c]
+        net_force(sa, f0, i, q[i], u[i], tau[i], hf, t + a, a, y, qe)
+        free_state(Sinv, a, hk, q, u, y, ws[1], ws[2], i)
+
+
+@njit(cache=True, inline="always")
+def _solved_nodes(base, K, C, f0, F, Omega, phi, q, u, tau, t, hk, theta, Sinv, Sinv_w, WS, y, hf, uf, qe, ws, k,
+                  imp, ep, last, Q, zero, v_imp):
+    """The trapezoid's step of every node (n > 1) under the solved forces ``tau``, its wall in, in
+    place: :func:`_step_node` with the forcing kept by :func:`_free_nodes` (the start velocities into
+    ``ws``'s ``u0``); a percussion counted as the loop counts it
+    (:func:`_impact`, step ``k``, speed in the norm of ``Q``). Returns the largest impact speed."""
+    a = theta * hk
+    hfs = ws[12]
+    u0 = ws[13]
+    for i in range(q.shape[0]):
+        sa = _node(base, K, C, f0, F, Omega, phi, i)
+        for c in range(q.shape[1]):
+            hf[c] = hfs[i, c]
+            u0[i, c] = u[i, c]
+        net_force(sa, f0, i, q[i], u[i], tau[i], hf, t + a, a, y, qe)
+        P = step_y(sa, Sinv[i], Sinv_w[i], WS[i], a, q[i], u[i], hk, y, uf)[0]
+        finish_step(q[i], u[i])
+        if P > 0.0:
+            v_imp = _impact(i, k, imp, ep, last, p_norm_diff(Q, Q, zero, u0[i], zero, zero), v_imp)
+    return v_imp
 
 
 @njit(cache=True)
@@ -290,7 +330,6 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
         implicit_matrix(laws, E2, W2, Kp[0, 0], Kd[0, 0], co, Ainv)
     implicit_nd = scheme == TRAPEZOID and not scalar   # n > 1: core/loop_implicit.py
     ws = implicit_workspace(N, n, E)
-    far = NodeGeometry(base.M, base.Minv, base.B, base.w, np.full(N, np.inf), base.e, base.Minv_w, base.W)  # no wall
     if implicit_nd:
         implicit_matrix_nd(laws, E2, W2, Kp, Kd, Sinv, theta * dt, dt, ws[0])
     qf = np.zeros(N)
@@ -426,16 +465,13 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
             if k == 0 and k0 == 0:
                 for i in range(N):
                     TAU[0, i, 0] = tau1d[i]
-        if implicit_nd and coupled and k < total:   # n > 1: the free steps, then the trapezoid's solve
+        if implicit_nd and coupled and k < total:   # n > 1: forces and free end states, then the solve
             hk = dt_last if k == n_steps else dt
             if k == n_steps:
                 _matrices(base, K, C, f0, F, Omega, phi, scheme, theta, hk, Sinv, Sinv_w, WS, co)
                 implicit_matrix_nd(laws, E2, W2, Kp, Kd, Sinv, theta * hk, hk, ws[0])
-            ws[1][:, :] = q
-            ws[2][:, :] = u
-            for i in range(N):
-                _step_node(far, K, C, f0, F, Omega, phi, i, ws[1], ws[2], tau, t0 + (k0 + k) * dt, hk, scheme,
-                           theta, Sinv, Sinv_w, WS, qM, h, uf, ua, qe)   # contact left out, as for n = 1
+            _free_nodes(base, K, C, f0, F, Omega, phi, q, u, tau, t0 + (k0 + k) * dt, hk, theta, Sinv, qM, h, qe,
+                        ws)   # contact left out, as for n = 1
             implicit_forces_nd(laws, geo, Kp, Kd, E2, W2, Sinv, theta * hk, hk, tau, bk, hp, t0 + (k0 + k) * dt + hk,
                                t1, t2, c1q, c1u, c2q, c2u, ws)
             if k == 0 and k0 == 0:
@@ -505,6 +541,9 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
                     v = abs(u0) * sqQ
                     if v > v_imp:
                         v_imp = v
+        elif implicit_nd and coupled:   # the step under the solved forces (_free_nodes kept the forcing)
+            v_imp = _solved_nodes(base, K, C, f0, F, Omega, phi, q, u, tau, t, hk, theta, Sinv, Sinv_w, WS, qM, h, uf,
+                                  qe, ws, k, imp, ep, last, geo.Q, zero, v_imp)
         else:
             for i in range(N):
                 P = _step_node(base, K, C, f0, F, Omega, phi, i, q, u, tau, t, hk, scheme, theta, Sinv, Sinv_w, WS,

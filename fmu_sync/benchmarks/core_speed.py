@@ -94,11 +94,13 @@ def simulate_vs_c(repeats: int = 5, n_steps: int = 20_000_000, dt: float = 1e-5,
     return out
 
 
-def scheme_cost(repeats: int = 5, n_steps: int = 5_000_000, dt: float = 1e-5, t_pair: float = 20.0):
+def scheme_cost(repeats: int = 5, n_steps: int = 5_000_000, dt: float = 1e-5, t_pair: float = 20.0,
+                t_pair2: float = 50.0):
     """Seconds per step of the default scheme (trapezoid) over the midpoint's, interleaved in one run
-    (issue 40 item 4: target <= 1.5): the 1-DOF forced oscillator (``simulate``, phasor path) and the
+    (issue 40 item 4: target <= 1.5): the 1-DOF forced oscillator (``simulate``, phasor path), the
     forced pair (``simulate_pair``, Euclidean and switching, Kp = 1, Kd = 0.5, record_every=1000: the
-    trapezoid's coupling inside the step against the midpoint's held coupling). CPU time of this
+    trapezoid's coupling inside the step against the midpoint's held coupling) and the ``two-dof``
+    scene's coupled 2-DOF pair (n > 1, its scene's gains, dt = 1e-3 over ``t_pair2``). CPU time of this
     process (numba runs on one thread), interleaved."""
     from fmu_sync.core import ImpactOscillator, simulate, simulate_pair
 
@@ -113,6 +115,14 @@ def scheme_cost(repeats: int = 5, n_steps: int = 5_000_000, dt: float = 1e-5, t_
                                      record_every=1000, scheme=scheme)
     cases = {"single": single, "euclidean pair": lambda sc: pair(sc, "euclidean"),
              "switching pair": lambda sc: pair(sc, "switching")}
+    from fmu_sync import load_scene
+    two = load_scene("two-dof").variants[0]   # its wall in (impacts), Kp = 2, Kd = 1: n > 1, core/loop_implicit.py
+
+    def pair2(scheme, law):
+        return lambda: simulate_pair(two.system, two.x1, two.x2, t_pair2, 1e-3, coupling=law, Kp=two.Kp, Kd=two.Kd,
+                                     record_every=1000, scheme=scheme)
+    cases.update({"coupled 2-DOF pair (two-dof scene), Euclidean": lambda sc: pair2(sc, "euclidean"),
+                  "coupled 2-DOF pair (two-dof scene), switching": lambda sc: pair2(sc, "switching")})
     out = {}
     for name, make in cases.items():
         runs = {sc: make(sc) for sc in ("trapezoid", "midpoint")}
@@ -216,7 +226,8 @@ def run(quick: bool = False) -> str:
     reps = 3 if quick else 5
     sim = simulate_vs_c(repeats=reps, n_steps=5_000_000 if quick else 20_000_000)
     mid = simulate_vs_c(repeats=reps, n_steps=5_000_000 if quick else 20_000_000, scheme="midpoint")
-    cost = scheme_cost(repeats=reps, n_steps=2_000_000 if quick else 5_000_000, t_pair=5.0 if quick else 20.0)
+    cost = scheme_cost(repeats=reps, n_steps=2_000_000 if quick else 5_000_000, t_pair=5.0 if quick else 20.0,
+                       t_pair2=50.0 if quick else 200.0)
     from .distance_cost import measure
     dist = measure(n_calls=50_000 if quick else 200_000, repeats=reps)
     pair = pair_speed(repeats=reps, t_end=20.0 if quick else 100.0)
