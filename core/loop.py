@@ -30,7 +30,7 @@ import numpy as np
 from .jit import njit
 
 from .compensation import force_table
-from .coupling import BRANCH_NONE, COMPENSATED, EUCLIDEAN, UNCOUPLED, p_norm_diff
+from .coupling import BRANCH_NONE, COMPENSATED, EUCLIDEAN, UNCOUPLED, coupling_kernel1, p_norm_diff
 from .distance import BRANCH_E
 from .edges import coupling_step, coupling_step1, network_forces, node_force
 from .harmonic import hsum_cos
@@ -208,8 +208,67 @@ def implicit_forces(laws, E2, W2, sg, kp, kd, qf, uf, co, tau1d, dq, du, hp, t, 
 
 
 #: the loop's templates, as :data:`.moreau.TEMPLATES`: a user law's copy has its ``net_force``,
-#: ``net_force1`` (core/law_loops.py)
-TEMPLATES = {"_step_node": "never", "integrate_network": "never"}
+#: ``net_force1`` (core/law_loops.py) and its :data:`.law_loops.HEUN`
+TEMPLATES = {"_step_node": "never", "_heun_newton": "never", "integrate_network": "never"}
+#: the trapezoid's copies of a law nonlinear in u (:data:`.law_loops.HEUN`, a constant of each copy: numba
+#: prunes the ``if HEUN:`` branches elsewhere): the 1-DOF solve corrected on the true step (:func:`_heun_newton`)
+HEUN = False
+
+
+@njit(cache=True)
+def _heun_newton(laws, E2, W2, sg, kp, kd, bh, Ainv, co, f0, f01, B0, fcs, q1d, u1d, tz, tau1d, t, a, hk, qa, ua,
+                 ta, dq, du, r):
+    """The 1-DOF coupled solve on the true step of a law nonlinear in u (docs/design.md §2.8.1): the
+    trapezoid's correction (:func:`.law_loops.heun`) evaluates h at ``ub = u0 + a X y0``, y0 taken under
+    the held force, so a node's end state is not affine in its force increment (its slope is
+    ``dt X (1 + O(dt))``). From the affine solve's forces ``tau1d`` (``tz`` the start forces), each pass
+    steps every node under its current force (contact left out, as the free step), evaluates the
+    coupling at the end states on the held branches ``bh`` and corrects with the affine solve's matrix
+    ``Ainv``: ``tau1d += Ainv (tau(x1) - tz - 2 (tau1d - tz))``. The matrix is exact to O(dt), so the
+    chord iteration contracts by about dt^2 Kp |dh/du| per pass. It stops by :func:`.implicit_pair.newton_stop`
+    or when a pass no longer halves the residual (its round-off floor); at most NEWTON_PASSES passes."""
+    N = tz.shape[0]
+    big0 = 0.0
+    prev = math.inf
+    for it in range(NEWTON_PASSES):
+        scale = 1e-300
+        for i in range(N):
+            cf = (co[i, 0], co[i, 1], co[i, 2], co[i, 3], co[i, 4], co[i, 5], co[i, 6], co[i, 7], co[i, 8],
+                  co[i, 9], co[i, 10])
+            y = net_force1(cf, f0, f01, i, q1d[i], u1d[i], tau1d[i], B0, fcs[i], t + a, a, qa, ua, ta)
+            dq[i] = q1d[i] + (hk * u1d[i] + co[i, 3] * y)
+            du[i] = u1d[i] + co[i, 2] * y
+            r[i] = 0.0
+            scale = max(scale, abs(tz[i]), abs(tau1d[i]))
+        for e_ in range(E2.shape[0]):
+            if laws[e_] == UNCOUPLED:
+                continue
+            ia = E2[e_, 0]
+            ib = E2[e_, 1]
+            f1, f2, _, _ = coupling_kernel1(laws[e_], sg, kp, kd, dq[ia], du[ia], dq[ib], du[ib], bh[e_])
+            if W2[e_, 0] > 0.0:
+                r[ia] += W2[e_, 0] * f1
+            if W2[e_, 1] > 0.0:
+                r[ib] += W2[e_, 1] * f2
+        big = 0.0
+        for i in range(N):   # 2 R = tau(x1) - tau(x0) - 2 delta
+            r[i] = (r[i] - tz[i]) - 2.0 * (tau1d[i] - tz[i])
+            big = max(big, abs(r[i]))
+        if it == 0:
+            big0 = big
+        stop = newton_stop(it, big, big0, scale)
+        if stop == 1 or not big < 0.5 * prev:
+            break
+        prev = big
+        for i in range(N):
+            s = 0.0
+            for j in range(N):
+                s += Ainv[i, j] * r[j]
+            dq[i] = s
+        for i in range(N):
+            tau1d[i] += dq[i]
+        if stop == 2:
+            break
 
 
 @njit(cache=True)
@@ -299,6 +358,7 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
     du = np.zeros(N)
     rr = np.zeros(N)
     delta = np.zeros(N)
+    tz = np.zeros(N)
     fcs = np.zeros(N)
     pair = N == 2 and E == 1 and E2[0, 0] == 0 and E2[0, 1] == 1
     bh = np.full(max(E2.shape[0], 1), BRANCH_NONE)
@@ -402,6 +462,9 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
                 y = net_force1(cf, f0, f01, i, q1d[i], u1d[i], tau1d[i], B0, fcs[i], t + a, a, qa, uta, ta)
                 qf[i] = q1d[i] + (hk * u1d[i] + co[i, 3] * y)
                 uf1[i] = u1d[i] + co[i, 2] * y
+            if HEUN:   # the start forces, for the correction on the true step (_heun_newton)
+                for i in range(N):
+                    tz[i] = tau1d[i]
             if pair and (law0 == EUCLIDEAN or bh[0] == BRANCH_E):   # the pair's linear case on floats
                 sE = kp0 * (qf[0] - qf[1]) + kd0 * (uf1[0] - uf1[1])   # the PD law (both laws' branch E)
                 f1 = -sE
@@ -423,6 +486,9 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
             else:
                 implicit_forces(laws, E2, W2, sg, kp0, kd0, qf, uf1, co, tau1d, dq, du, hp, t + hk, bh, Ainv, rr,
                                 delta)
+            if HEUN:   # a law nonlinear in u: its end state is not affine in the force, solve the true step
+                _heun_newton(laws, E2, W2, sg, kp0, kd0, bh, Ainv, co, f0, f01, B0, fcs, q1d, u1d, tz, tau1d, t, a, hk,
+                             qa, uta, ta, dq, du, rr)
             if k == 0 and k0 == 0:
                 for i in range(N):
                     TAU[0, i, 0] = tau1d[i]
