@@ -34,7 +34,7 @@ from .coupling import BRANCH_NONE, COMPENSATED, EUCLIDEAN, UNCOUPLED, coupling_k
 from .distance import BRANCH_E
 from .edges import coupling_step, coupling_step1, network_forces, node_force
 from .harmonic import hsum_cos
-from .implicit_pair import NEWTON_PASSES, held_linear, implicit_matrix, implicit_pair, newton_stop
+from .implicit_pair import NEWTON_PASSES, NEWTON_TOL, held_linear, implicit_matrix, implicit_pair, newton_stop
 from .loop_implicit import implicit_forces_nd, implicit_matrix_nd, implicit_workspace
 from .metrics import decimator_push
 from .model import SystemArrays
@@ -209,43 +209,78 @@ def implicit_forces(laws, E2, W2, sg, kp, kd, qf, uf, co, tau1d, dq, du, hp, t, 
 
 #: the loop's templates, as :data:`.moreau.TEMPLATES`: a user law's copy has its ``net_force``,
 #: ``net_force1`` (core/law_loops.py) and its :data:`.law_loops.HEUN`
-TEMPLATES = {"_step_node": "never", "_heun_newton": "never", "integrate_network": "never"}
+TEMPLATES = {"_step_node": "never", "_heun_newton": "always", "integrate_network": "never"}
 #: the trapezoid's copies of a law nonlinear in u (:data:`.law_loops.HEUN`, a constant of each copy: numba
-#: prunes the ``if HEUN:`` branches elsewhere): the 1-DOF solve corrected on the true step (:func:`_heun_newton`)
+#: prunes the ``if HEUN:`` branches elsewhere): the 1-DOF solve on the true step (:func:`_heun_newton`)
 HEUN = False
 
 
-@njit(cache=True)
-def _heun_newton(laws, E2, W2, sg, kp, kd, bh, Ainv, co, f0, f01, B0, fcs, q1d, u1d, tz, tau1d, t, a, hk, qa, ua,
-                 ta, dq, du, r):
-    """The 1-DOF coupled solve on the true step of a law nonlinear in u (docs/design.md §2.8.1): the
-    trapezoid's correction (:func:`.law_loops.heun`) evaluates h at ``ub = u0 + a X y0``, y0 taken under
-    the held force, so a node's end state is not affine in its force increment (its slope is
-    ``dt X (1 + O(dt))``). From the affine solve's forces ``tau1d`` (``tz`` the start forces), each pass
-    steps every node under its current force (contact left out, as the free step), evaluates the
-    coupling at the end states on the held branches ``bh`` and corrects with the affine solve's matrix
-    ``Ainv``: ``tau1d += Ainv (tau(x1) - tz - 2 (tau1d - tz))``. The matrix is exact to O(dt), so the
-    chord iteration contracts by about dt^2 Kp |dh/du| per pass. It stops by :func:`.implicit_pair.newton_stop`
-    or when a pass no longer halves the residual (its round-off floor); at most NEWTON_PASSES passes."""
-    N = tz.shape[0]
+@njit(cache=True, inline="always")
+def _heun_warm(bh, bw, dl, warm, cold):
+    """The start of :func:`_heun_newton`'s solve: ``warm = (rho, n)`` of the last step, kept when it held
+    the same branches (``bw``, set to ``bh``), rho was measured and fewer than 16 steps ago, and
+    ``cold`` is False (the loop starts cold at each row: a run in chunks is the same run); otherwise
+    ``(0, 0)`` and the increments ``dl`` zeroed (the solve starts at the start forces)."""
+    rho, n = warm
+    for e_ in range(bh.shape[0]):
+        if bw[e_] != bh[e_]:
+            rho = 0.0
+        bw[e_] = bh[e_]
+    if cold or not rho > 0.0 or n >= 16:
+        for i in range(dl.shape[0]):
+            dl[i] = 0.0
+        return 0.0, 0
+    return rho, n
+
+
+@njit(cache=True, inline="always")
+def _heun_newton(laws, E2, W2, sg, kp, kd, bh, Ainv, co, f0, f01, B0, fcs, q1d, u1d, tau1d, t, a, hk, qa, ua, ta,
+                 qf, uf, r, tz, dl, warm):
+    """The 1-DOF coupled solve (:func:`implicit_forces`) of a law nonlinear in u, on the true step
+    (docs/design.md §2.8.1): the trapezoid's correction (:func:`.law_loops.heun`) takes h at
+    ``ub = u0 + a X y0``, y0 under the held force, so a node's end state is not affine in its force (slope
+    ``dt X (1 + O(dt))``). Newton on ``2 R(s) = tau(x1(s)) - tau(x0) - 2 (s - tau(x0))`` in the held
+    forces s (``tau1d``: the start forces on entry, then s): each pass takes the nodes' end states under s
+    (``qf, uf``; contact left out, as the free step; the first pass's, under ``tau1d + dl``, are the
+    loop's), evaluates the coupling there on the held branches ``bh`` and updates ``s += Ainv 2R`` with
+    the affine solve's matrix (exact to O(dt): the passes contract by about dt^2 Kp |dh/du|). It stops
+    when ``|2R| <= NEWTON_TOL`` times the force scale (max|tau| + kp max|q1| + kd max|u1|: the coupling's
+    round-off at the end states, as the master's), by :func:`.implicit_pair.newton_stop`'s prediction,
+    or when a pass no longer halves |2R|; at most NEWTON_PASSES passes.
+
+    ``warm`` = (rho, n) of :func:`_heun_warm`, ``dl`` the last step's increments s - tau(x0): as the pair's
+    jump solve (:func:`.implicit_pair.implicit_pair`), Newton starts from ``dl`` (the increments change by
+    O(dt^2) per step) and takes one pass when ``rho`` (the contraction measured on a cold step) predicts
+    the residual 10x inside the tolerance; rho is measured afresh every 16 steps. Returns the new ``warm``."""
+    N = tau1d.shape[0]
+    rho, n = warm
+    for i in range(N):
+        tz[i] = tau1d[i]
+        tau1d[i] += dl[i]
     big0 = 0.0
     prev = math.inf
     for it in range(NEWTON_PASSES):
-        scale = 1e-300
+        if it > 0:
+            for i in range(N):
+                cf = (co[i, 0], co[i, 1], co[i, 2], co[i, 3], co[i, 4], co[i, 5], co[i, 6], co[i, 7], co[i, 8],
+                      co[i, 9], co[i, 10])
+                y = net_force1(cf, f0, f01, i, q1d[i], u1d[i], tau1d[i], B0, fcs[i], t + a, a, qa, ua, ta)
+                qf[i] = q1d[i] + (hk * u1d[i] + co[i, 3] * y)
+                uf[i] = u1d[i] + co[i, 2] * y
+        sq = 0.0
+        su = 0.0
+        ts = 1e-300
         for i in range(N):
-            cf = (co[i, 0], co[i, 1], co[i, 2], co[i, 3], co[i, 4], co[i, 5], co[i, 6], co[i, 7], co[i, 8],
-                  co[i, 9], co[i, 10])
-            y = net_force1(cf, f0, f01, i, q1d[i], u1d[i], tau1d[i], B0, fcs[i], t + a, a, qa, ua, ta)
-            dq[i] = q1d[i] + (hk * u1d[i] + co[i, 3] * y)
-            du[i] = u1d[i] + co[i, 2] * y
             r[i] = 0.0
-            scale = max(scale, abs(tz[i]), abs(tau1d[i]))
+            sq = max(sq, abs(qf[i]))
+            su = max(su, abs(uf[i]))
+            ts = max(ts, abs(tz[i]))
         for e_ in range(E2.shape[0]):
             if laws[e_] == UNCOUPLED:
                 continue
             ia = E2[e_, 0]
             ib = E2[e_, 1]
-            f1, f2, _, _ = coupling_kernel1(laws[e_], sg, kp, kd, dq[ia], du[ia], dq[ib], du[ib], bh[e_])
+            f1, f2, _, _ = coupling_kernel1(laws[e_], sg, kp, kd, qf[ia], uf[ia], qf[ib], uf[ib], bh[e_])
             if W2[e_, 0] > 0.0:
                 r[ia] += W2[e_, 0] * f1
             if W2[e_, 1] > 0.0:
@@ -254,21 +289,33 @@ def _heun_newton(laws, E2, W2, sg, kp, kd, bh, Ainv, co, f0, f01, B0, fcs, q1d, 
         for i in range(N):   # 2 R = tau(x1) - tau(x0) - 2 delta
             r[i] = (r[i] - tz[i]) - 2.0 * (tau1d[i] - tz[i])
             big = max(big, abs(r[i]))
+        scale = ts + kp * sq + kd * su
         if it == 0:
             big0 = big
-        stop = newton_stop(it, big, big0, scale)
-        if stop == 1 or not big < 0.5 * prev:
+            stop = 2 if rho > 0.0 and 10.0 * rho * big <= NEWTON_TOL * scale else 0
+            if big <= NEWTON_TOL * scale and rho > 0.0:
+                stop = 1
+        else:
+            if it == 1 and big0 > 0.0:
+                rho = max(big / big0, 1e-300)
+            stop = newton_stop(it, big, big0, scale)
+            if not big < 0.5 * prev:   # the round-off floor: no pass improves it
+                stop = 1
+        if stop == 1:
             break
         prev = big
         for i in range(N):
             s = 0.0
             for j in range(N):
                 s += Ainv[i, j] * r[j]
-            dq[i] = s
+            dl[i] = s
         for i in range(N):
-            tau1d[i] += dq[i]
+            tau1d[i] += dl[i]
         if stop == 2:
             break
+    for i in range(N):
+        dl[i] = tau1d[i] - tz[i]
+    return rho, n + 1
 
 
 @njit(cache=True)
@@ -358,7 +405,10 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
     du = np.zeros(N)
     rr = np.zeros(N)
     delta = np.zeros(N)
-    tz = np.zeros(N)
+    tz = np.zeros(N)   # a law nonlinear in u (_heun_newton): the start forces, the last increments, branches
+    dlw = np.zeros(N)
+    bw = np.full(max(E2.shape[0], 1), BRANCH_NONE)
+    hw = (0.0, 0)
     fcs = np.zeros(N)
     pair = N == 2 and E == 1 and E2[0, 0] == 0 and E2[0, 1] == 1
     bh = np.full(max(E2.shape[0], 1), BRANCH_NONE)
@@ -455,17 +505,22 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
                 implicit_matrix(laws, E2, W2, kp0, kd0, co, Ainv)
             t = t0 + (k0 + k) * dt
             a = theta * hk
+            if HEUN:
+                hw = _heun_warm(bh, bw, dlw, hw, is_row)
             for i in range(N):
                 cf = (co[i, 0], co[i, 1], co[i, 2], co[i, 3], co[i, 4], co[i, 5], co[i, 6], co[i, 7], co[i, 8],
                       co[i, 9], co[i, 10])
                 fcs[i] = _forcing1(F1d, Om1d, ph1d, nf, i, t + a)
-                y = net_force1(cf, f0, f01, i, q1d[i], u1d[i], tau1d[i], B0, fcs[i], t + a, a, qa, uta, ta)
+                s_ = tau1d[i]
+                if HEUN:   # a law nonlinear in u: _heun_newton's first pass, under the last step's increment
+                    s_ += dlw[i]
+                y = net_force1(cf, f0, f01, i, q1d[i], u1d[i], s_, B0, fcs[i], t + a, a, qa, uta, ta)
                 qf[i] = q1d[i] + (hk * u1d[i] + co[i, 3] * y)
                 uf1[i] = u1d[i] + co[i, 2] * y
-            if HEUN:   # the start forces, for the correction on the true step (_heun_newton)
-                for i in range(N):
-                    tz[i] = tau1d[i]
-            if pair and (law0 == EUCLIDEAN or bh[0] == BRANCH_E):   # the pair's linear case on floats
+            if HEUN:   # a law nonlinear in u: its end state is not affine in the force, Newton on the true step
+                hw = _heun_newton(laws, E2, W2, sg, kp0, kd0, bh, Ainv, co, f0, f01, B0, fcs, q1d, u1d, tau1d, t, a,
+                                  hk, qa, uta, ta, qf, uf1, rr, tz, dlw, hw)
+            elif pair and (law0 == EUCLIDEAN or bh[0] == BRANCH_E):   # the pair's linear case on floats
                 sE = kp0 * (qf[0] - qf[1]) + kd0 * (uf1[0] - uf1[1])   # the PD law (both laws' branch E)
                 f1 = -sE
                 f2 = sE
@@ -486,9 +541,6 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
             else:
                 implicit_forces(laws, E2, W2, sg, kp0, kd0, qf, uf1, co, tau1d, dq, du, hp, t + hk, bh, Ainv, rr,
                                 delta)
-            if HEUN:   # a law nonlinear in u: its end state is not affine in the force, solve the true step
-                _heun_newton(laws, E2, W2, sg, kp0, kd0, bh, Ainv, co, f0, f01, B0, fcs, q1d, u1d, tz, tau1d, t, a, hk,
-                             qa, uta, ta, dq, du, rr)
             if k == 0 and k0 == 0:
                 for i in range(N):
                     TAU[0, i, 0] = tau1d[i]
