@@ -34,7 +34,8 @@ from .coupling import BRANCH_NONE, COMPENSATED, EUCLIDEAN, UNCOUPLED, coupling_k
 from .distance import BRANCH_E
 from .edges import coupling_step, coupling_step1, network_forces, node_force
 from .harmonic import hsum_cos
-from .implicit_pair import NEWTON_PASSES, NEWTON_TOL, held_linear, implicit_matrix, implicit_pair, newton_stop
+from .implicit_pair import (NEWTON_PASSES, heun_pair, heun_stop, heun_warm, held_linear, implicit_matrix, implicit_pair,
+                            newton_stop)
 from .loop_implicit import implicit_forces_nd, implicit_matrix_nd, implicit_workspace
 from .metrics import decimator_push
 from .model import SystemArrays
@@ -216,42 +217,17 @@ HEUN = False
 
 
 @njit(cache=True, inline="always")
-def _heun_warm(bh, bw, dl, warm, cold):
-    """The start of :func:`_heun_newton`'s solve: ``warm = (rho, n)`` of the last step, kept when it held
-    the same branches (``bw``, set to ``bh``), rho was measured and fewer than 16 steps ago, and
-    ``cold`` is False (the loop starts cold at each row: a run in chunks is the same run); otherwise
-    ``(0, 0)`` and the increments ``dl`` zeroed (the solve starts at the start forces)."""
-    rho, n = warm
-    for e_ in range(bh.shape[0]):
-        if bw[e_] != bh[e_]:
-            rho = 0.0
-        bw[e_] = bh[e_]
-    if cold or not rho > 0.0 or n >= 16:
-        for i in range(dl.shape[0]):
-            dl[i] = 0.0
-        return 0.0, 0
-    return rho, n
-
-
-@njit(cache=True, inline="always")
 def _heun_newton(laws, E2, W2, sg, kp, kd, bh, Ainv, co, f0, f01, B0, fcs, q1d, u1d, tau1d, t, a, hk, qa, ua, ta,
                  qf, uf, r, tz, dl, warm):
-    """The 1-DOF coupled solve (:func:`implicit_forces`) of a law nonlinear in u, on the true step
-    (docs/design.md §2.8.1): the trapezoid's correction (:func:`.law_loops.heun`) takes h at
-    ``ub = u0 + a X y0``, y0 under the held force, so a node's end state is not affine in its force (slope
-    ``dt X (1 + O(dt))``). Newton on ``2 R(s) = tau(x1(s)) - tau(x0) - 2 (s - tau(x0))`` in the held
-    forces s (``tau1d``: the start forces on entry, then s): each pass takes the nodes' end states under s
-    (``qf, uf``; contact left out, as the free step; the first pass's, under ``tau1d + dl``, are the
-    loop's), evaluates the coupling there on the held branches ``bh`` and updates ``s += Ainv 2R`` with
-    the affine solve's matrix (exact to O(dt): the passes contract by about dt^2 Kp |dh/du|). It stops
-    when ``|2R| <= NEWTON_TOL`` times the force scale (max|tau| + kp max|q1| + kd max|u1|: the coupling's
-    round-off at the end states, as the master's), by :func:`.implicit_pair.newton_stop`'s prediction,
-    or when a pass no longer halves |2R|; at most NEWTON_PASSES passes.
-
-    ``warm`` = (rho, n) of :func:`_heun_warm`, ``dl`` the last step's increments s - tau(x0): as the pair's
-    jump solve (:func:`.implicit_pair.implicit_pair`), Newton starts from ``dl`` (the increments change by
-    O(dt^2) per step) and takes one pass when ``rho`` (the contraction measured on a cold step) predicts
-    the residual 10x inside the tolerance; rho is measured afresh every 16 steps. Returns the new ``warm``."""
+    """The 1-DOF coupled solve (:func:`implicit_forces`) of a law nonlinear in u on the true step, N nodes
+    (the pair's on floats in the loop, :func:`.implicit_pair.heun_pair`; docs/design.md §2.8.1): with the
+    trapezoid's correction (:func:`.law_loops.heun`) a node's end state is not affine in its held force.
+    Newton on ``2 R(s) = tau(x1(s)) - tau(x0) - 2 (s - tau(x0))`` (s: ``tau1d``, the start forces on entry):
+    each pass takes the end states under s (``qf, uf``, contact left out; the first pass's, under
+    ``tau1d + dl``, are the loop's), the coupling there on the held branches ``bh``, and ``s += Ainv 2R``
+    (the affine solve's matrix, exact to O(dt)), until :func:`.implicit_pair.heun_stop`. ``warm`` = (rho, n)
+    of :func:`.implicit_pair.heun_warm`, ``dl`` the last step's increments s - tau(x0), the start.
+    Returns the new ``warm``."""
     N = tau1d.shape[0]
     rho, n = warm
     for i in range(N):
@@ -289,18 +265,9 @@ def _heun_newton(laws, E2, W2, sg, kp, kd, bh, Ainv, co, f0, f01, B0, fcs, q1d, 
         for i in range(N):   # 2 R = tau(x1) - tau(x0) - 2 delta
             r[i] = (r[i] - tz[i]) - 2.0 * (tau1d[i] - tz[i])
             big = max(big, abs(r[i]))
-        scale = ts + kp * sq + kd * su
         if it == 0:
             big0 = big
-            stop = 2 if rho > 0.0 and 10.0 * rho * big <= NEWTON_TOL * scale else 0
-            if big <= NEWTON_TOL * scale and rho > 0.0:
-                stop = 1
-        else:
-            if it == 1 and big0 > 0.0:
-                rho = max(big / big0, 1e-300)
-            stop = newton_stop(it, big, big0, scale)
-            if not big < 0.5 * prev:   # the round-off floor: no pass improves it
-                stop = 1
+        stop, rho = heun_stop(it, big, big0, prev, rho, ts + kp * sq + kd * su)
         if stop == 1:
             break
         prev = big
@@ -409,6 +376,7 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
     dlw = np.zeros(N)
     bw = np.full(max(E2.shape[0], 1), BRANCH_NONE)
     hw = (0.0, 0)
+    hp2 = (0.0, 0, 0.0, 0.0)
     fcs = np.zeros(N)
     pair = N == 2 and E == 1 and E2[0, 0] == 0 and E2[0, 1] == 1
     bh = np.full(max(E2.shape[0], 1), BRANCH_NONE)
@@ -505,19 +473,46 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
                 implicit_matrix(laws, E2, W2, kp0, kd0, co, Ainv)
             t = t0 + (k0 + k) * dt
             a = theta * hk
-            if HEUN:
-                hw = _heun_warm(bh, bw, dlw, hw, is_row)
+            if HEUN and not pair:
+                hw = heun_warm(bh, bw, dlw, hw, is_row)
             for i in range(N):
                 cf = (co[i, 0], co[i, 1], co[i, 2], co[i, 3], co[i, 4], co[i, 5], co[i, 6], co[i, 7], co[i, 8],
                       co[i, 9], co[i, 10])
                 fcs[i] = _forcing1(F1d, Om1d, ph1d, nf, i, t + a)
+                if HEUN and pair:   # (the pair's passes on floats, below)
+                    continue
                 s_ = tau1d[i]
                 if HEUN:   # a law nonlinear in u: _heun_newton's first pass, under the last step's increment
                     s_ += dlw[i]
                 y = net_force1(cf, f0, f01, i, q1d[i], u1d[i], s_, B0, fcs[i], t + a, a, qa, uta, ta)
                 qf[i] = q1d[i] + (hk * u1d[i] + co[i, 3] * y)
                 uf1[i] = u1d[i] + co[i, 2] * y
-            if HEUN:   # a law nonlinear in u: its end state is not affine in the force, Newton on the true step
+            if HEUN and pair:   # _heun_newton for the pair on floats, warm as there (cold at rows, branch changes)
+                if is_row or bh[0] != br_warm or not hp2[0] > 0.0 or hp2[1] >= 16:
+                    hp2 = (0.0, 0, 0.0, 0.0)
+                s0 = tau1d[0] + hp2[2]
+                s1 = tau1d[1] + hp2[3]
+                rho_ = hp2[0]
+                big0 = 0.0
+                prev = math.inf
+                for it in range(NEWTON_PASSES):
+                    cf = (co[0, 0], co[0, 1], co[0, 2], co[0, 3], co[0, 4], co[0, 5], co[0, 6], co[0, 7], co[0, 8],
+                          co[0, 9], co[0, 10])
+                    y0 = net_force1(cf, f0, f01, 0, q1d[0], u1d[0], s0, B0, fcs[0], t + a, a, qa, uta, ta)
+                    cf = (co[1, 0], co[1, 1], co[1, 2], co[1, 3], co[1, 4], co[1, 5], co[1, 6], co[1, 7], co[1, 8],
+                          co[1, 9], co[1, 10])
+                    y1 = net_force1(cf, f0, f01, 1, q1d[1], u1d[1], s1, B0, fcs[1], t + a, a, qa, uta, ta)
+                    s0, s1, stop, big0, prev, rho_ = heun_pair(
+                        law0, bh[0], sg, kp0, kd0, W2[0, 0], W2[0, 1], q1d[0] + (hk * u1d[0] + co[0, 3] * y0),
+                        u1d[0] + co[0, 2] * y0, q1d[1] + (hk * u1d[1] + co[1, 3] * y1), u1d[1] + co[1, 2] * y1,
+                        tau1d[0], tau1d[1], s0, s1, Ainv[0, 0], Ainv[0, 1], Ainv[1, 0], Ainv[1, 1], it, big0, prev, rho_)
+                    if stop != 0:
+                        break
+                hp2 = (rho_, hp2[1] + 1, s0 - tau1d[0], s1 - tau1d[1])
+                br_warm = bh[0]
+                tau1d[0] = s0
+                tau1d[1] = s1
+            elif HEUN:   # a law nonlinear in u: its end state is not affine in the force, Newton on the true step
                 hw = _heun_newton(laws, E2, W2, sg, kp0, kd0, bh, Ainv, co, f0, f01, B0, fcs, q1d, u1d, tau1d, t, a,
                                   hk, qa, uta, ta, qf, uf1, rr, tz, dlw, hw)
             elif pair and (law0 == EUCLIDEAN or bh[0] == BRANCH_E):   # the pair's linear case on floats

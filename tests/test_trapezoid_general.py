@@ -132,6 +132,36 @@ def test_the_core_solves_the_true_implicit_step_of_a_law_nonlinear_in_u(name, co
     assert np.max(np.abs(got - np.array(z))) <= 1e-12 * max(1.0, np.max(np.abs(z)))
 
 
+@pytest.mark.parametrize("Kp, Kd", [(1.0, 0.5), (400.0, 0.0)])
+def test_a_network_of_a_law_nonlinear_in_u_runs_the_true_implicit_step(Kp, Kd):
+    """The same on a 3-ring (simulate_network: the N-node solve on arrays, not the pair's on floats),
+    against the nodes' held forces s = (tau(x0) + tau(x1(s))) / 2 solved by scipy's root (hybr)."""
+    from scipy.optimize import root
+    from fmu_sync.core import ring, simulate_network
+    A, dt, steps = ring(3), 1e-3, 20
+    x0 = np.array([[0.5, 0.2], [-0.3, 0.4], [0.1, -0.6]])
+
+    def tau(q, u):
+        return np.array([sum(A[i, j] * (-Kp * (q[i] - q[j]) - Kd * (u[i] - u[j])) for j in range(3))
+                         for i in range(3)])
+
+    def ends(x, s, t):
+        q, u, a = x[:, 0], x[:, 1], dt / 2
+        qa = q + a * u
+        y = np.array([rhs_vdp(qa[i], u[i] + a * (rhs_vdp(qa[i], u[i], t + a) + s[i]), t + a) + s[i]
+                      for i in range(3)])
+        return q + dt * u + a * dt * y, u + dt * y
+    x = x0.copy()
+    for k in range(steps):
+        t0 = tau(x[:, 0], x[:, 1])
+        s = root(lambda s: 2 * s - t0 - tau(*ends(x, s, k * dt)), t0, method="hybr", tol=1e-15).x
+        x = np.stack(ends(x, s, k * dt), 1)
+    r = simulate_network(_system(VDP), [([a], [b]) for a, b in x0], A, steps * dt, dt, coupling="euclidean",
+                         Kp=Kp, Kd=Kd, record_every=10 ** 6)
+    got = np.stack([r.q[-1, :, 0], r.u[-1, :, 0]], 1)
+    assert np.max(np.abs(got - x)) <= 1e-12 * max(1.0, np.max(np.abs(x)))
+
+
 def test_a_law_linear_in_u_runs_the_trapezoid_as_it_stands():
     """No second evaluation where h is linear in u through its declared part: the pendulum's trapezoid is
     its theta = 1/2 run bit for bit (the theta scheme's copy has no correction)."""
