@@ -196,7 +196,7 @@ def test_the_user_law_fmu_follows_the_core_default(tmp_path):
     the implicit exchange at H = solver.dt (its tolerance: 1e-9 of the force scale) the master converges the
     step's fixed point, and so does the core's 1-DOF solve (on the true step: the correction's own
     dependence on the force kept): they agree to 1e-9 over 0.2 s at dt = 1e-3, Euclidean and switching,
-    Kp = 1, Kd = 0.5 and the stiff Kp = 400, Kd = 0 (measured 5e-13 and 7e-11 of |u| = 6; 0.9.0's affine
+    Kp = 1, Kd = 0.5 and the stiff Kp = 400, Kd = 0 (measured 5e-13 and 7e-11 of max|u| = 10; 0.9.0's affine
     solve: 1.4e-7), >= 100x closer than the uncorrected step (the FMU at solver.scheme = theta, 1/2)."""
     from fmu_sync.core.registry import load_model
     from fmu_sync.export import export_fmu
