@@ -505,7 +505,8 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
                     s0, s1, stop, big0, prev, rho_ = heun_pair(
                         law0, bh[0], sg, kp0, kd0, W2[0, 0], W2[0, 1], q1d[0] + (hk * u1d[0] + co[0, 3] * y0),
                         u1d[0] + co[0, 2] * y0, q1d[1] + (hk * u1d[1] + co[1, 3] * y1), u1d[1] + co[1, 2] * y1,
-                        tau1d[0], tau1d[1], s0, s1, Ainv[0, 0], Ainv[0, 1], Ainv[1, 0], Ainv[1, 1], it, big0, prev, rho_)
+                        tau1d[0], tau1d[1], s0, s1, Ainv[0, 0], Ainv[0, 1], Ainv[1, 0], Ainv[1, 1], it, big0, prev,
+                        rho_)
                     if stop != 0:
                         break
                 hp2 = (rho_, hp2[1] + 1, s0 - tau1d[0], s1 - tau1d[1])
