@@ -338,7 +338,8 @@ class ForceLaw:
         loops = dict(vars(moreau), force=own["force"], force1=own["force1"], **{LAW_KEY: self.key})
         for name, inline in moreau.TEMPLATES.items():
             specialise(getattr(moreau, name), loops, name, inline)
-        net = dict(vars(loop), net_force=own["net_force"], net_force1=own["net_force1"], **{LAW_KEY: self.key})
+        net = dict(vars(loop), net_force=own["net_force"], net_force1=own["net_force1"], HEUN=bool(trapezoid),
+                   **{LAW_KEY: self.key})
         for name, inline in loop.TEMPLATES.items():
             specialise(getattr(loop, name), net, name, inline)
         ns = LawKernels(force=own["force"], force1=own["force1"],

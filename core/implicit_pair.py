@@ -1,7 +1,10 @@
 """The implicit coupling's Newton for 1-DOF systems on floats (scheme ``trapezoid``,
 docs/design.md §2.3): the network's Newton matrix (:func:`implicit_matrix`), its stopping rule (:func:`newton_stop`, also that of
 :func:`fmu_sync.core.loop.implicit_forces`) and the pair's solve on a jump branch of the switching law
-(:func:`implicit_pair`), called by :func:`fmu_sync.core.loop.integrate_network`."""
+(:func:`implicit_pair`), called by :func:`fmu_sync.core.loop.integrate_network`; and for a user law
+nonlinear in u, whose corrected step is not affine in the held force, the pieces of the Newton on the true
+step (docs/design.md §2.8.1: :func:`heun_stop`, the pair's pass on floats :func:`heun_pair`, the warm start
+:func:`heun_warm`; the node passes are the loop's, :func:`fmu_sync.core.loop._heun_newton`)."""
 from __future__ import annotations
 
 import numpy as np
@@ -11,7 +14,8 @@ from .distance import BRANCH_E
 from .jit import njit
 from .steps import inverse
 
-__all__ = ["NEWTON_TOL", "NEWTON_PASSES", "held_linear", "implicit_matrix", "newton_stop", "implicit_pair"]
+__all__ = ["NEWTON_TOL", "NEWTON_PASSES", "held_linear", "implicit_matrix", "newton_stop", "implicit_pair", "heun_stop",
+           "heun_pair", "heun_warm"]
 
 #: the implicit coupling's Newton stops when |2 R| <= NEWTON_TOL max|tau| (at most NEWTON_PASSES passes)
 NEWTON_TOL = 1e-13
@@ -131,3 +135,67 @@ def implicit_pair(law, br, sg, kp, kd, w0, w1, qf0, uf0, qf1, uf1, g0q, g0u, g1q
     if linear:
         rho = 0.0
     return tau0 + d0, tau1 + d1, (d0, d1, rho, n + 1)
+
+
+# ------------------------------------------------------------------ a law nonlinear in u (loop._heun_newton)
+@njit(cache=True, inline="always")
+def heun_stop(it, big, big0, prev, rho, scale):
+    """:func:`.loop._heun_newton`'s stopping rule at pass ``it`` (``big`` = max|2R|, ``big0`` that of pass 0,
+    ``prev`` that of the last pass, ``rho`` the contraction measured, ``scale`` = max|tau| + kp max|q1| +
+    kd max|u1|: the coupling's round-off at the end states, as the master's ``force_scale``, so that a
+    synchronized pair with tau near 0 still stops): ``(stop, rho)`` with stop as
+    :func:`newton_stop` (0 go on, 1 done, 2 take this update and stop). Pass 0 stops on
+    ``rho``'s prediction, pass 1 measures rho, and a pass that no longer halves |2R| is the round-off floor."""
+    if it == 0:
+        stop = 2 if rho > 0.0 and 10.0 * rho * big <= NEWTON_TOL * scale else 0
+        if big <= NEWTON_TOL * scale and rho > 0.0:
+            stop = 1
+        return stop, rho
+    if it == 1 and big0 > 0.0:
+        rho = max(big / big0, 1e-300)
+    if not big < 0.5 * prev:
+        return 1, rho
+    return newton_stop(it, big, big0, scale), rho
+
+
+@njit(cache=True, inline="always")
+def heun_pair(law, br, sg, kp, kd, w0, w1, q0, v0, q1, v1, tau0, tau1, s0, s1, A00, A01, A10, A11, it, big0, prev,
+              rho):
+    """One pass of :func:`.loop._heun_newton` for the pair on floats (no arrays handed to a kernel in the loop:
+    reference counting every step): ``q0, v0, q1, v1`` the nodes' end states under the held forces
+    ``s0, s1``, ``tau0, tau1`` the start forces. Returns ``(s0, s1, stop, big0, big, rho)``, the update
+    taken unless stop is 1."""
+    if law == EUCLIDEAN or br == BRANCH_E:   # the PD law (both laws' branch E)
+        f2 = kp * (q0 - q1) + kd * (v0 - v1)
+        f1 = -f2
+    else:
+        f1, f2, _, _ = coupling_kernel1(law, sg, kp, kd, q0, v0, q1, v1, br)
+    r0 = (w0 * f1 if w0 > 0.0 else 0.0) - tau0 - 2.0 * (s0 - tau0)
+    r1 = (w1 * f2 if w1 > 0.0 else 0.0) - tau1 - 2.0 * (s1 - tau1)
+    big = max(abs(r0), abs(r1))
+    if it == 0:
+        big0 = big
+    scale = max(abs(tau0), abs(tau1)) + kp * max(abs(q0), abs(q1)) + kd * max(abs(v0), abs(v1))
+    stop, rho = heun_stop(it, big, big0, prev, rho, scale)
+    if stop != 1:
+        s0 += A00 * r0 + A01 * r1
+        s1 += A10 * r0 + A11 * r1
+    return s0, s1, stop, big0, big, rho
+
+
+@njit(cache=True, inline="always")
+def heun_warm(bh, bw, dl, warm, cold):
+    """The start of :func:`.loop._heun_newton`'s solve: ``warm = (rho, n)`` of the last step, kept when it held
+    the same branches (``bw``, set to ``bh``), rho was measured and fewer than 16 steps ago, and
+    ``cold`` is False (the loop starts cold at each row: a run in chunks is the same run); otherwise
+    ``(0, 0)`` and the increments ``dl`` zeroed (the solve starts at the start forces)."""
+    rho, n = warm
+    for e_ in range(bh.shape[0]):
+        if bw[e_] != bh[e_]:
+            rho = 0.0
+        bw[e_] = bh[e_]
+    if cold or not rho > 0.0 or n >= 16:
+        for i in range(dl.shape[0]):
+            dl[i] = 0.0
+        return 0.0, 0
+    return rho, n

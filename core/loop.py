@@ -30,11 +30,12 @@ import numpy as np
 from .jit import njit
 
 from .compensation import force_table
-from .coupling import BRANCH_NONE, COMPENSATED, EUCLIDEAN, UNCOUPLED, p_norm_diff
+from .coupling import BRANCH_NONE, COMPENSATED, EUCLIDEAN, UNCOUPLED, coupling_kernel1, p_norm_diff
 from .distance import BRANCH_E
 from .edges import coupling_step, coupling_step1, network_forces, node_force
 from .harmonic import hsum_cos
-from .implicit_pair import NEWTON_PASSES, held_linear, implicit_matrix, implicit_pair, newton_stop
+from .implicit_pair import (NEWTON_PASSES, heun_pair, heun_stop, heun_warm, held_linear, implicit_matrix, implicit_pair,
+                            newton_stop)
 from .loop_implicit import free_state, implicit_forces_nd, implicit_matrix_nd, implicit_workspace
 from .metrics import decimator_push
 from .model import SystemArrays
@@ -208,8 +209,81 @@ def implicit_forces(laws, E2, W2, sg, kp, kd, qf, uf, co, tau1d, dq, du, hp, t, 
 
 
 #: the loop's templates, as :data:`.moreau.TEMPLATES`: a user law's copy has its ``net_force``,
-#: ``net_force1`` (core/law_loops.py)
-TEMPLATES = {"_step_node": "never", "_free_nodes": "always", "_solved_nodes": "always", "integrate_network": "never"}
+#: ``net_force1`` (core/law_loops.py) and its :data:`.law_loops.HEUN`
+TEMPLATES = {"_step_node": "never", "_free_nodes": "always", "_solved_nodes": "always", "_heun_newton": "always",
+             "integrate_network": "never"}
+#: the trapezoid's copies of a law nonlinear in u (:data:`.law_loops.HEUN`, a constant of each copy: numba
+#: prunes the ``if HEUN:`` branches elsewhere): the 1-DOF solve on the true step (:func:`_heun_newton`)
+HEUN = False
+
+
+@njit(cache=True, inline="always")
+def _heun_newton(laws, E2, W2, sg, kp, kd, bh, Ainv, co, f0, f01, B0, fcs, q1d, u1d, tau1d, t, a, hk, qa, ua, ta,
+                 qf, uf, r, tz, dl, warm):
+    """The 1-DOF coupled solve (:func:`implicit_forces`) of a law nonlinear in u on the true step, N nodes
+    (the pair's on floats in the loop, :func:`.implicit_pair.heun_pair`; docs/design.md §2.8.1): with the
+    trapezoid's correction (:func:`.law_loops.heun`) a node's end state is not affine in its held force.
+    Newton on ``2 R(s) = tau(x1(s)) - tau(x0) - 2 (s - tau(x0))`` (s: ``tau1d``, the start forces on entry):
+    each pass takes the end states under s (``qf, uf``, contact left out; the first pass's, under
+    ``tau1d + dl``, are the loop's), the coupling there on the held branches ``bh``, and ``s += Ainv 2R``
+    (the affine solve's matrix, exact to O(dt)), until :func:`.implicit_pair.heun_stop`. ``warm`` = (rho, n)
+    of :func:`.implicit_pair.heun_warm`, ``dl`` the last step's increments s - tau(x0), the start.
+    Returns the new ``warm``."""
+    N = tau1d.shape[0]
+    rho, n = warm
+    for i in range(N):
+        tz[i] = tau1d[i]
+        tau1d[i] += dl[i]
+    big0 = 0.0
+    prev = math.inf
+    for it in range(NEWTON_PASSES):
+        if it > 0:
+            for i in range(N):
+                cf = (co[i, 0], co[i, 1], co[i, 2], co[i, 3], co[i, 4], co[i, 5], co[i, 6], co[i, 7], co[i, 8],
+                      co[i, 9], co[i, 10])
+                y = net_force1(cf, f0, f01, i, q1d[i], u1d[i], tau1d[i], B0, fcs[i], t + a, a, qa, ua, ta)
+                qf[i] = q1d[i] + (hk * u1d[i] + co[i, 3] * y)
+                uf[i] = u1d[i] + co[i, 2] * y
+        sq = 0.0
+        su = 0.0
+        ts = 1e-300
+        for i in range(N):
+            r[i] = 0.0
+            sq = max(sq, abs(qf[i]))
+            su = max(su, abs(uf[i]))
+            ts = max(ts, abs(tz[i]))
+        for e_ in range(E2.shape[0]):
+            if laws[e_] == UNCOUPLED:
+                continue
+            ia = E2[e_, 0]
+            ib = E2[e_, 1]
+            f1, f2, _, _ = coupling_kernel1(laws[e_], sg, kp, kd, qf[ia], uf[ia], qf[ib], uf[ib], bh[e_])
+            if W2[e_, 0] > 0.0:
+                r[ia] += W2[e_, 0] * f1
+            if W2[e_, 1] > 0.0:
+                r[ib] += W2[e_, 1] * f2
+        big = 0.0
+        for i in range(N):   # 2 R = tau(x1) - tau(x0) - 2 delta
+            r[i] = (r[i] - tz[i]) - 2.0 * (tau1d[i] - tz[i])
+            big = max(big, abs(r[i]))
+        if it == 0:
+            big0 = big
+        stop, rho = heun_stop(it, big, big0, prev, rho, ts + kp * sq + kd * su)
+        if stop == 1:
+            break
+        prev = big
+        for i in range(N):
+            s = 0.0
+            for j in range(N):
+                s += Ainv[i, j] * r[j]
+            dl[i] = s
+        for i in range(N):
+            tau1d[i] += dl[i]
+        if stop == 2:
+            break
+    for i in range(N):
+        dl[i] = tau1d[i] - tz[i]
+    return rho, n + 1
 
 
 @njit(cache=True)
@@ -338,6 +412,11 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
     du = np.zeros(N)
     rr = np.zeros(N)
     delta = np.zeros(N)
+    tz = np.zeros(N)   # a law nonlinear in u (_heun_newton): the start forces, the last increments, branches
+    dlw = np.zeros(N)
+    bw = np.full(max(E2.shape[0], 1), BRANCH_NONE)
+    hw = (0.0, 0)
+    hp2 = (0.0, 0, 0.0, 0.0)
     fcs = np.zeros(N)
     pair = N == 2 and E == 1 and E2[0, 0] == 0 and E2[0, 1] == 1
     bh = np.full(max(E2.shape[0], 1), BRANCH_NONE)
@@ -434,14 +513,50 @@ def integrate_network(base, K, C, f0, F, Omega, phi, geo, laws, E2, W2, Kp, Kd, 
                 implicit_matrix(laws, E2, W2, kp0, kd0, co, Ainv)
             t = t0 + (k0 + k) * dt
             a = theta * hk
+            if HEUN and not pair:
+                hw = heun_warm(bh, bw, dlw, hw, is_row)
             for i in range(N):
                 cf = (co[i, 0], co[i, 1], co[i, 2], co[i, 3], co[i, 4], co[i, 5], co[i, 6], co[i, 7], co[i, 8],
                       co[i, 9], co[i, 10])
                 fcs[i] = _forcing1(F1d, Om1d, ph1d, nf, i, t + a)
-                y = net_force1(cf, f0, f01, i, q1d[i], u1d[i], tau1d[i], B0, fcs[i], t + a, a, qa, uta, ta)
+                if HEUN and pair:   # (the pair's passes on floats, below)
+                    continue
+                s_ = tau1d[i]
+                if HEUN:   # a law nonlinear in u: _heun_newton's first pass, under the last step's increment
+                    s_ += dlw[i]
+                y = net_force1(cf, f0, f01, i, q1d[i], u1d[i], s_, B0, fcs[i], t + a, a, qa, uta, ta)
                 qf[i] = q1d[i] + (hk * u1d[i] + co[i, 3] * y)
                 uf1[i] = u1d[i] + co[i, 2] * y
-            if pair and (law0 == EUCLIDEAN or bh[0] == BRANCH_E):   # the pair's linear case on floats
+            if HEUN and pair:   # _heun_newton for the pair on floats, warm as there (cold at rows, branch changes)
+                if is_row or bh[0] != br_warm or not hp2[0] > 0.0 or hp2[1] >= 16:
+                    hp2 = (0.0, 0, 0.0, 0.0)
+                s0 = tau1d[0] + hp2[2]
+                s1 = tau1d[1] + hp2[3]
+                rho_ = hp2[0]
+                big0 = 0.0
+                prev = math.inf
+                for it in range(NEWTON_PASSES):
+                    cf = (co[0, 0], co[0, 1], co[0, 2], co[0, 3], co[0, 4], co[0, 5], co[0, 6], co[0, 7], co[0, 8],
+                          co[0, 9], co[0, 10])
+                    y0 = net_force1(cf, f0, f01, 0, q1d[0], u1d[0], s0, B0, fcs[0], t + a, a, qa, uta, ta)
+                    cf = (co[1, 0], co[1, 1], co[1, 2], co[1, 3], co[1, 4], co[1, 5], co[1, 6], co[1, 7], co[1, 8],
+                          co[1, 9], co[1, 10])
+                    y1 = net_force1(cf, f0, f01, 1, q1d[1], u1d[1], s1, B0, fcs[1], t + a, a, qa, uta, ta)
+                    s0, s1, stop, big0, prev, rho_ = heun_pair(
+                        law0, bh[0], sg, kp0, kd0, W2[0, 0], W2[0, 1], q1d[0] + (hk * u1d[0] + co[0, 3] * y0),
+                        u1d[0] + co[0, 2] * y0, q1d[1] + (hk * u1d[1] + co[1, 3] * y1), u1d[1] + co[1, 2] * y1,
+                        tau1d[0], tau1d[1], s0, s1, Ainv[0, 0], Ainv[0, 1], Ainv[1, 0], Ainv[1, 1], it, big0, prev,
+                        rho_)
+                    if stop != 0:
+                        break
+                hp2 = (rho_, hp2[1] + 1, s0 - tau1d[0], s1 - tau1d[1])
+                br_warm = bh[0]
+                tau1d[0] = s0
+                tau1d[1] = s1
+            elif HEUN:   # a law nonlinear in u: its end state is not affine in the force, Newton on the true step
+                hw = _heun_newton(laws, E2, W2, sg, kp0, kd0, bh, Ainv, co, f0, f01, B0, fcs, q1d, u1d, tau1d, t, a,
+                                  hk, qa, uta, ta, qf, uf1, rr, tz, dlw, hw)
+            elif pair and (law0 == EUCLIDEAN or bh[0] == BRANCH_E):   # the pair's linear case on floats
                 sE = kp0 * (qf[0] - qf[1]) + kd0 * (uf1[0] - uf1[1])   # the PD law (both laws' branch E)
                 f1 = -sE
                 f2 = sE

@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as st
 from scipy.integrate import solve_ivp
 
 from fmu_sync.core import MechanicalSystem, simulate, simulate_pair
@@ -82,6 +83,85 @@ def test_an_n2_user_law_nonlinear_in_u_is_second_order():
     assert _order(e) >= 1.9
 
 
+def _true_step_pair(f, x, t, dt, Kp, Kd):
+    """One step of the corrected trapezoid (docs/design.md §2.8.1; no declared linear part: X = 1) of the
+    pair under the PD law (far wall: branch E), the held force s = (tau(x0) + tau(x1(s))) / 2 solved to
+    round-off by the secant method on the true step (no affine model of the end state)."""
+    q1, u1, q2, u2 = x
+    a = dt / 2
+
+    def node(q, u, s):
+        qa = q + a * u
+        y = f(qa, u + a * (f(qa, u, t + a) + s), t + a) + s    # h again at the middle velocity ub
+        return q + dt * u + a * dt * y, u + dt * y
+
+    def ends(s):
+        return (*node(q1, u1, s), *node(q2, u2, -s))
+
+    def res(s):
+        e = ends(s)
+        return 2 * s - t0 + Kp * (e[0] - e[2]) + Kd * (e[1] - e[3])
+    t0 = -Kp * (q1 - q2) - Kd * (u1 - u2)
+    s0, s1 = t0, t0 + 1e-3 * (1.0 + abs(t0))
+    r0, r1 = res(s0), res(s1)
+    for _ in range(50):
+        if r1 == 0.0 or r1 == r0:
+            break
+        s0, s1, r0 = s1, s1 - r1 * (s1 - s0) / (r1 - r0), r1
+        r1 = res(s1)
+    return ends(s1)
+
+
+@settings(max_examples=12, deadline=None)
+@given(name=st.sampled_from(sorted(LAWS)), coupling=st.sampled_from(["euclidean", "switching"]),
+       Kp=st.floats(1.0, 1000.0), Kd=st.floats(0.0, 2.0), x=st.tuples(*[st.floats(-2.0, 2.0)] * 4),
+       dt=st.sampled_from([1e-3, 2e-3]))
+def test_the_core_solves_the_true_implicit_step_of_a_law_nonlinear_in_u(name, coupling, Kp, Kd, x, dt):
+    """The 1-DOF coupled solve of a law with the trapezoid's correction is the true implicit step, not its
+    affine model (the end state's O(dt^2) dependence on the force through the middle velocity kept):
+    30 steps of simulate_pair against the step's fixed point solved to round-off in Python. (0.9.0's
+    affine solve was 1.4e-7 off over 200 steps at Kp = 400, Kd = 0.)"""
+    law, f = LAWS[name]
+    steps = 30
+    r = simulate_pair(_system(law), x[:2], x[2:], steps * dt, dt, coupling=coupling, Kp=Kp, Kd=Kd,
+                      record_every=10 ** 6)
+    z = x
+    for k in range(steps):
+        z = _true_step_pair(f, z, k * dt, dt, Kp, Kd)
+    got = np.array([r.q1[-1, 0], r.u1[-1, 0], r.q2[-1, 0], r.u2[-1, 0]])
+    assert np.max(np.abs(got - np.array(z))) <= 1e-12 * max(1.0, np.max(np.abs(z)))
+
+
+@pytest.mark.parametrize("Kp, Kd", [(1.0, 0.5), (400.0, 0.0)])
+def test_a_network_of_a_law_nonlinear_in_u_runs_the_true_implicit_step(Kp, Kd):
+    """The same on a 3-ring (simulate_network: the N-node solve on arrays, not the pair's on floats),
+    against the nodes' held forces s = (tau(x0) + tau(x1(s))) / 2 solved by scipy's root (hybr)."""
+    from scipy.optimize import root
+    from fmu_sync.core import ring, simulate_network
+    A, dt, steps = ring(3), 1e-3, 20
+    x0 = np.array([[0.5, 0.2], [-0.3, 0.4], [0.1, -0.6]])
+
+    def tau(q, u):
+        return np.array([sum(A[i, j] * (-Kp * (q[i] - q[j]) - Kd * (u[i] - u[j])) for j in range(3))
+                         for i in range(3)])
+
+    def ends(x, s, t):
+        q, u, a = x[:, 0], x[:, 1], dt / 2
+        qa = q + a * u
+        y = np.array([rhs_vdp(qa[i], u[i] + a * (rhs_vdp(qa[i], u[i], t + a) + s[i]), t + a) + s[i]
+                      for i in range(3)])
+        return q + dt * u + a * dt * y, u + dt * y
+    x = x0.copy()
+    for k in range(steps):
+        t0 = tau(x[:, 0], x[:, 1])
+        s = root(lambda s: 2 * s - t0 - tau(*ends(x, s, k * dt)), t0, method="hybr", tol=1e-15).x
+        x = np.stack(ends(x, s, k * dt), 1)
+    r = simulate_network(_system(VDP), [([a], [b]) for a, b in x0], A, steps * dt, dt, coupling="euclidean",
+                         Kp=Kp, Kd=Kd, record_every=10 ** 6)
+    got = np.stack([r.q[-1, :, 0], r.u[-1, :, 0]], 1)
+    assert np.max(np.abs(got - x)) <= 1e-12 * max(1.0, np.max(np.abs(x)))
+
+
 def test_a_law_linear_in_u_runs_the_trapezoid_as_it_stands():
     """No second evaluation where h is linear in u through its declared part: the pendulum's trapezoid is
     its theta = 1/2 run bit for bit (the theta scheme's copy has no correction)."""
@@ -113,11 +193,11 @@ model = Model("drag", "an oscillator with quadratic drag",
 
 def test_the_user_law_fmu_follows_the_core_default(tmp_path):
     """The exported law's native stepper runs the same corrected trapezoid (solver.scheme default). Under
-    the implicit exchange at H = solver.dt the master converges the step's fixed point, while the core's
-    1-DOF solve takes the end state affine in the force increment (the correction's own dependence on it
-    left out): they agree to 1e-7 of the state's size over 0.2 s at dt = 1e-3 (measured 5e-9 at Kp = 1,
-    1.4e-7 of |u| = 6 at Kp = 400, Kd = 0), >= 100x closer than the uncorrected step (the FMU at
-    solver.scheme = theta, 1/2)."""
+    the implicit exchange at H = solver.dt (its tolerance: 1e-9 of the force scale) the master converges the
+    step's fixed point, and so does the core's 1-DOF solve (on the true step: the correction's own
+    dependence on the force kept): they agree to 1e-9 over 0.2 s at dt = 1e-3, Euclidean and switching,
+    Kp = 1, Kd = 0.5 and the stiff Kp = 400, Kd = 0 (measured 5e-13 and 7e-11 of max|u| = 10; 0.9.0's affine
+    solve: 1.4e-7), >= 100x closer than the uncorrected step (the FMU at solver.scheme = theta, 1/2)."""
     from fmu_sync.core.registry import load_model
     from fmu_sync.export import export_fmu
     from fmu_sync.master import cosimulate
@@ -127,14 +207,16 @@ def test_the_user_law_fmu_follows_the_core_default(tmp_path):
     fmu = str(export_fmu(spec, tmp_path / "drag.fmu", {"solver.dt": 1e-3}))
     s = load_model(spec)()
     x1, x2 = ([1.0], [0.0]), ([0.2], [0.5])
-    for law, Kp, Kd in (("switching", 1.0, 0.5), ("euclidean", 400.0, 0.0)):
-        ref = simulate_pair(s, x1, x2, 0.2, 1e-3, coupling=law, Kp=Kp, Kd=Kd)
-        r = cosimulate(fmu, x1, x2, 0.2, 1e-3, law, Kp, Kd, exchange="implicit")
-        plain = cosimulate(fmu, x1, x2, 0.2, 1e-3, law, Kp, Kd, exchange="implicit",
-                           start_values={"solver.scheme": 1, "solver.theta": 0.5})
-        for a, b in ((r.q1, ref.q1), (r.u1, ref.u1), (r.q2, ref.q2), (r.u2, ref.u2)):
-            assert np.max(np.abs(a - b)) <= 1e-7 * max(1.0, np.max(np.abs(b)))
-        assert np.max(np.abs(r.u1 - ref.u1)) * 100 <= np.max(np.abs(plain.u1 - ref.u1))
+    for law in ("switching", "euclidean"):
+        for Kp, Kd in ((1.0, 0.5), (400.0, 0.0)):
+            ref = simulate_pair(s, x1, x2, 0.2, 1e-3, coupling=law, Kp=Kp, Kd=Kd)
+            r = cosimulate(fmu, x1, x2, 0.2, 1e-3, law, Kp, Kd, exchange="implicit")
+            assert r.info["exchange_tol"] == 1e-9
+            for a, b in ((r.q1, ref.q1), (r.u1, ref.u1), (r.q2, ref.q2), (r.u2, ref.u2)):
+                assert np.max(np.abs(a - b)) <= 1e-9
+    plain = cosimulate(fmu, x1, x2, 0.2, 1e-3, "euclidean", 400.0, 0.0, exchange="implicit",
+                       start_values={"solver.scheme": 1, "solver.theta": 0.5})
+    assert np.max(np.abs(r.u1 - ref.u1)) * 100 <= np.max(np.abs(plain.u1 - ref.u1))
 
 
 # ------------------------------------------------------------------ coupled n-DOF (issue 40 item 1, n > 1)
