@@ -11,10 +11,12 @@ import numpy as np
 
 from .coupling import EUCLIDEAN, UNCOUPLED, coupling_kernel1
 from .distance import BRANCH_E
+from .edges import coupling_step1
 from .jit import njit
 from .steps import inverse
 
-__all__ = ["NEWTON_TOL", "NEWTON_PASSES", "held_linear", "implicit_matrix", "newton_stop", "implicit_pair", "heun_stop",
+__all__ = ["NEWTON_TOL", "NEWTON_PASSES", "held_linear", "implicit_matrix", "newton_stop", "implicit_pair", "implicit_forces",
+           "heun_stop",
            "heun_pair", "heun_warm"]
 
 #: the implicit coupling's Newton stops when |2 R| <= NEWTON_TOL max|tau| (at most NEWTON_PASSES passes)
@@ -199,3 +201,56 @@ def heun_warm(bh, bw, dl, warm, cold):
             dl[i] = 0.0
         return 0.0, 0
     return rho, n
+
+
+@njit(cache=True, inline="always")
+def implicit_forces(laws, E2, W2, sg, kp, kd, qf, uf, co, tau1d, dq, du, hp, t, bh, Ainv, r, delta):
+    """``tau1d`` (the forces at the step's start) -> the trapezoid of the coupling forces over the
+    step (:func:`implicit_matrix`), n = 1: ``qf, uf`` the nodes' end states under ``tau1d`` held
+    (contact left out), ``bh`` each edge's branch at the start (held over the step, as the master's
+    implicit exchange holds it, docs/design.md §4.4); ``dq, du, r, delta`` (N,) scratch. Newton on
+    ``R(delta) = (tau(x1(delta)) - tau(x0)) / 2 - delta`` with the matrix of :func:`implicit_matrix`:
+    one pass when every edge is Euclidean or on branch E (linear), otherwise until
+    |2 R| <= 1e-13 max|tau| (at most 8 passes; :func:`newton_stop`)."""
+    N = tau1d.shape[0]
+    linear = held_linear(laws, bh, E2.shape[0])
+    for i in range(N):
+        delta[i] = 0.0
+    big0 = 0.0
+    for it in range(NEWTON_PASSES):
+        for i in range(N):
+            dq[i] = qf[i] + co[i, 3] * delta[i]
+            du[i] = uf[i] + co[i, 2] * delta[i]
+            r[i] = 0.0
+        for e_ in range(E2.shape[0]):
+            lw = laws[e_]
+            if lw == UNCOUPLED:
+                continue
+            ia = E2[e_, 0]
+            ib = E2[e_, 1]
+            f1, f2, _, _, _ = coupling_step1(lw, sg, kp, kd, dq[ia], du[ia], dq[ib], du[ib], False, hp, ia, ib, t,
+                                             bh[e_])
+            if W2[e_, 0] > 0.0:
+                r[ia] += W2[e_, 0] * f1
+            if W2[e_, 1] > 0.0:
+                r[ib] += W2[e_, 1] * f2
+        big = 0.0
+        scale = 1e-300
+        for i in range(N):   # 2 R = tau(x1) - tau(x0) - 2 delta
+            r[i] = (r[i] - tau1d[i]) - 2.0 * delta[i]
+            big = max(big, abs(r[i]))
+            scale = max(scale, abs(tau1d[i]))
+        if it == 0:
+            big0 = big
+        stop = newton_stop(it, big, big0, scale)
+        if stop == 1:
+            break
+        for i in range(N):
+            s = 0.0
+            for j in range(N):
+                s += Ainv[i, j] * r[j]
+            delta[i] += s
+        if linear or stop == 2:
+            break
+    for i in range(N):
+        tau1d[i] += delta[i]

@@ -34,8 +34,8 @@ from .coupling import BRANCH_NONE, COMPENSATED, EUCLIDEAN, UNCOUPLED, coupling_k
 from .distance import BRANCH_E
 from .edges import coupling_step, coupling_step1, network_forces, node_force
 from .harmonic import hsum_cos
-from .implicit_pair import (NEWTON_PASSES, heun_pair, heun_stop, heun_warm, held_linear, implicit_matrix, implicit_pair,
-                            newton_stop)
+from .implicit_pair import (NEWTON_PASSES, heun_pair, heun_stop, heun_warm, implicit_forces, implicit_matrix,
+                            implicit_pair)
 from .loop_implicit import free_state, implicit_forces_nd, implicit_matrix_nd, implicit_workspace
 from .metrics import decimator_push
 from .model import SystemArrays
@@ -155,59 +155,6 @@ def net_force1(cf, f0, f01, i, q, u, tau, B0, fc, tf, a, qa, ua, ta):
     return force1(cf, f0, q, u, tau, f01[i] + B0 * tau, fc, tf, a, qa, ua, ta)
 
 
-@njit(cache=True, inline="always")
-def implicit_forces(laws, E2, W2, sg, kp, kd, qf, uf, co, tau1d, dq, du, hp, t, bh, Ainv, r, delta):
-    """``tau1d`` (the forces at the step's start) -> the trapezoid of the coupling forces over the
-    step (:func:`.implicit_pair.implicit_matrix`), n = 1: ``qf, uf`` the nodes' end states under ``tau1d`` held
-    (contact left out), ``bh`` each edge's branch at the start (held over the step, as the master's
-    implicit exchange holds it, docs/design.md §4.4); ``dq, du, r, delta`` (N,) scratch. Newton on
-    ``R(delta) = (tau(x1(delta)) - tau(x0)) / 2 - delta`` with the matrix of :func:`.implicit_pair.implicit_matrix`:
-    one pass when every edge is Euclidean or on branch E (linear), otherwise until
-    |2 R| <= 1e-13 max|tau| (at most 8 passes; :func:`newton_stop`)."""
-    N = tau1d.shape[0]
-    linear = held_linear(laws, bh, E2.shape[0])
-    for i in range(N):
-        delta[i] = 0.0
-    big0 = 0.0
-    for it in range(NEWTON_PASSES):
-        for i in range(N):
-            dq[i] = qf[i] + co[i, 3] * delta[i]
-            du[i] = uf[i] + co[i, 2] * delta[i]
-            r[i] = 0.0
-        for e_ in range(E2.shape[0]):
-            lw = laws[e_]
-            if lw == UNCOUPLED:
-                continue
-            ia = E2[e_, 0]
-            ib = E2[e_, 1]
-            f1, f2, _, _, _ = coupling_step1(lw, sg, kp, kd, dq[ia], du[ia], dq[ib], du[ib], False, hp, ia, ib, t,
-                                             bh[e_])
-            if W2[e_, 0] > 0.0:
-                r[ia] += W2[e_, 0] * f1
-            if W2[e_, 1] > 0.0:
-                r[ib] += W2[e_, 1] * f2
-        big = 0.0
-        scale = 1e-300
-        for i in range(N):   # 2 R = tau(x1) - tau(x0) - 2 delta
-            r[i] = (r[i] - tau1d[i]) - 2.0 * delta[i]
-            big = max(big, abs(r[i]))
-            scale = max(scale, abs(tau1d[i]))
-        if it == 0:
-            big0 = big
-        stop = newton_stop(it, big, big0, scale)
-        if stop == 1:
-            break
-        for i in range(N):
-            s = 0.0
-            for j in range(N):
-                s += Ainv[i, j] * r[j]
-            delta[i] += s
-        if linear or stop == 2:
-            break
-    for i in range(N):
-        tau1d[i] += delta[i]
-
-
 #: the loop's templates, as :data:`.moreau.TEMPLATES`: a user law's copy has its ``net_force``,
 #: ``net_force1`` (core/law_loops.py) and its :data:`.law_loops.HEUN`
 TEMPLATES = {"_step_node": "never", "_free_nodes": "always", "_solved_nodes": "always", "_heun_newton": "always",
@@ -220,7 +167,7 @@ HEUN = False
 @njit(cache=True, inline="always")
 def _heun_newton(laws, E2, W2, sg, kp, kd, bh, Ainv, co, f0, f01, B0, fcs, q1d, u1d, tau1d, t, a, hk, qa, ua, ta,
                  qf, uf, r, tz, dl, warm):
-    """The 1-DOF coupled solve (:func:`implicit_forces`) of a law nonlinear in u on the true step, N nodes
+    """The 1-DOF coupled solve (:func:`.implicit_pair.implicit_forces`) of a law nonlinear in u on the true step, N nodes
     (the pair's on floats in the loop, :func:`.implicit_pair.heun_pair`; docs/design.md §2.8.1): with the
     trapezoid's correction (:func:`.law_loops.heun`) a node's end state is not affine in its held force.
     Newton on ``2 R(s) = tau(x1(s)) - tau(x0) - 2 (s - tau(x0))`` (s: ``tau1d``, the start forces on entry):
