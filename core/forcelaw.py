@@ -339,8 +339,9 @@ class ForceLaw:
         for name, inline in moreau.TEMPLATES.items():
             specialise(getattr(moreau, name), loops, name, inline)
         net = dict(vars(loop), net_force=own["net_force"], net_force1=own["net_force1"], **{LAW_KEY: self.key})
-        for name, inline in loop.TEMPLATES.items():
-            specialise(getattr(loop, name), net, name, inline)
+        for name, inline in loop.TEMPLATES.items():   # n = 1: the n > 1 parts as stand-ins (loop.N1_STANDINS)
+            src = loop.N1_STANDINS.get(name, name) if self.n == 1 else name
+            specialise(getattr(loop, src), net, name, inline)
         ns = LawKernels(force=own["force"], force1=own["force1"],
                         integrate=loops["integrate1_with"] if self.n == 1 else loops["integrate_with"],
                         advance=loops["advance_with"], advance_in=loops["advance_in"],

@@ -76,7 +76,7 @@ def newton_stop(it, big, big0, scale):
     return 0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)   # a call, not inlined: compiled once for every law's loop (a third of a law's compile)
 def implicit_pair(law, br, sg, kp, kd, w0, w1, qf0, uf0, qf1, uf1, g0q, g0u, g1q, g1u, tau0, tau1, A00, A01, A10,
                   A11, warm):
     """:func:`.loop.implicit_forces` of the pair (one edge (0, 1), weights ``w0, w1``) on floats: ``qf, uf``

@@ -154,7 +154,7 @@ def net_force1(cf, f0, f01, i, q, u, tau, B0, fc, tf, a, qa, ua, ta):
     return force1(cf, f0, q, u, tau, f01[i] + B0 * tau, fc, tf, a, qa, ua, ta)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)   # a call, not inlined: compiled once for every law's loop (a third of a law's compile)
 def implicit_forces(laws, E2, W2, sg, kp, kd, qf, uf, co, tau1d, dq, du, hp, t, bh, Ainv, r, delta):
     """``tau1d`` (the forces at the step's start) -> the trapezoid of the coupling forces over the
     step (:func:`.implicit_pair.implicit_matrix`), n = 1: ``qf, uf`` the nodes' end states under ``tau1d`` held
@@ -210,6 +210,29 @@ def implicit_forces(laws, E2, W2, sg, kp, kd, qf, uf, co, tau1d, dq, du, hp, t, 
 #: the loop's templates, as :data:`.moreau.TEMPLATES`: a user law's copy has its ``net_force``,
 #: ``net_force1`` (core/law_loops.py)
 TEMPLATES = {"_step_node": "never", "_free_nodes": "always", "_solved_nodes": "always", "integrate_network": "never"}
+#: a 1-DOF force law's copy of the loop (:meth:`fmu_sync.core.forcelaw.ForceLaw.kernels`, n = 1) compiles
+#: only what it runs: the n > 1 node steps, unreachable there (q has one column, the law's n), are these
+#: stand-ins of the same signature and return type (a per-law compile a tenth shorter, docs/design.md
+#: "The test suite")
+N1_STANDINS = {"_step_node": "_n1_step_node", "_free_nodes": "_n1_free_nodes", "_solved_nodes": "_n1_solved_nodes"}
+
+
+def _n1_step_node(base, K, C, f0, F, Omega, phi, i, q, u, tau, t, hk, scheme, theta, Sinv, Sinv_w, WS, y, hf, uf,
+                  ua, qe):
+    """:func:`_step_node`'s stand-in in a 1-DOF law's loop (never called there)."""
+    return 0.0
+
+
+def _n1_free_nodes(base, K, C, f0, F, Omega, phi, q, u, tau, t, hk, theta, Sinv, y, hf, qe, ws):
+    """:func:`_free_nodes`'s stand-in in a 1-DOF law's loop (never called there)."""
+    return None
+
+
+def _n1_solved_nodes(base, K, C, f0, F, Omega, phi, q, u, tau, t, hk, theta, Sinv, Sinv_w, WS, y, hf, uf, qe, ws,
+                     k, imp, ep, last, Q, zero, v_imp):
+    """:func:`_solved_nodes`'s stand-in in a 1-DOF law's loop (never called there)."""
+    return v_imp
+
 
 
 @njit(cache=True)
