@@ -340,8 +340,10 @@ class ForceLaw:
             specialise(getattr(moreau, name), loops, name, inline)
         net = dict(vars(loop), net_force=own["net_force"], net_force1=own["net_force1"], HEUN=bool(trapezoid),
                    **{LAW_KEY: self.key})
-        for name, inline in loop.TEMPLATES.items():
-            specialise(getattr(loop, name), net, name, inline)
+        for name, inline in loop.TEMPLATES.items():   # n = 1: the n > 1 parts as stand-ins (law_loops.N1_STANDINS)
+            fn = getattr(law_loops, law_loops.N1_STANDINS[name]) if self.n == 1 and name in law_loops.N1_STANDINS \
+                else getattr(loop, name)
+            specialise(fn, net, name, inline)
         ns = LawKernels(force=own["force"], force1=own["force1"],
                         integrate=loops["integrate1_with"] if self.n == 1 else loops["integrate_with"],
                         advance=loops["advance_with"], advance_in=loops["advance_in"],

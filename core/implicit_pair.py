@@ -82,10 +82,10 @@ def newton_stop(it, big, big0, scale):
     return 0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)   # a call, not inlined: one compile for every law's loop (docs/design.md "The test suite")
 def implicit_pair(law, br, sg, kp, kd, w0, w1, qf0, uf0, qf1, uf1, g0q, g0u, g1q, g1u, tau0, tau1, A00, A01, A10,
                   A11, warm):
-    """:func:`.loop.implicit_forces` of the pair (one edge (0, 1), weights ``w0, w1``) on floats: ``qf, uf``
+    """:func:`implicit_forces` of the pair (one edge (0, 1), weights ``w0, w1``) on floats: ``qf, uf``
     the nodes' free end states, ``g*q, g*u`` their gains (``co[i, 3], co[i, 2]``), ``tau0, tau1`` the
     start forces, ``A`` = ``Ainv``, ``br`` the edge's branch held. No arrays (an array handed to a
     kernel in the loop costs reference counting every step).
@@ -203,7 +203,7 @@ def heun_warm(bh, bw, dl, warm, cold):
     return rho, n
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)   # a call, not inlined: one compile for every law's loop (docs/design.md "The test suite")
 def implicit_forces(laws, E2, W2, sg, kp, kd, qf, uf, co, tau1d, dq, du, hp, t, bh, Ainv, r, delta):
     """``tau1d`` (the forces at the step's start) -> the trapezoid of the coupling forces over the
     step (:func:`implicit_matrix`), n = 1: ``qf, uf`` the nodes' end states under ``tau1d`` held

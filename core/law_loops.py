@@ -136,3 +136,27 @@ def net_force(sa, P, i, q, u, tau, hf, tf, a, y, qe):
 def net_force1(cf, P, f01, i, q, u, tau, B0, fc, tf, a, qa, ua, ta):
     """:func:`net_force` for n = 1 on floats (:func:`fmu_sync.core.loop.net_force1`'s signature)."""
     return force1(cf, P[i], q, u, tau, fc, fc, tf, a, qa, ua, ta)
+
+
+#: a 1-DOF law's copy of the coupled loop (:meth:`fmu_sync.core.forcelaw.ForceLaw.kernels`, n = 1) compiles
+#: only what it runs: the n > 1 node steps of :mod:`.loop`, unreachable there (q has one column, the law's n),
+#: are these stand-ins of the same signature and return type (a law's loop compiles in about 0.6 of the time
+#: with the 1-DOF solves compiled once as calls, docs/design.md "The test suite")
+N1_STANDINS = {"_step_node": "_n1_step_node", "_free_nodes": "_n1_free_nodes", "_solved_nodes": "_n1_solved_nodes"}
+
+
+def _n1_step_node(base, K, C, f0, F, Omega, phi, i, q, u, tau, t, hk, scheme, theta, Sinv, Sinv_w, WS, y, hf, uf,
+                  ua, qe):
+    """:func:`fmu_sync.core.loop._step_node`'s stand-in in a 1-DOF law's loop (never called there)."""
+    return 0.0
+
+
+def _n1_free_nodes(base, K, C, f0, F, Omega, phi, q, u, tau, t, hk, theta, Sinv, y, hf, qe, ws):
+    """:func:`fmu_sync.core.loop._free_nodes`'s stand-in in a 1-DOF law's loop (never called there)."""
+    return None
+
+
+def _n1_solved_nodes(base, K, C, f0, F, Omega, phi, q, u, tau, t, hk, theta, Sinv, Sinv_w, WS, y, hf, uf, qe, ws,
+                     k, imp, ep, last, Q, zero, v_imp):
+    """:func:`fmu_sync.core.loop._solved_nodes`'s stand-in in a 1-DOF law's loop (never called there)."""
+    return v_imp
