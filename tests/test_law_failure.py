@@ -2,7 +2,9 @@
 turning NaN there ends the run as a failure carrying the record up to the last good step
 (``.partial``), h's own message, the time and the state; the scene run exits 3 and keeps
 ``NAME.partial.csv``. Laws that never return or return the wrong shape are refused naming the law.
-The laws live in a model file written here (as a user would: numba caches them by that file)."""
+The laws live in a model file written here (as a user would: numba caches them by that file); the raising,
+and the NaN law are one function h_late told apart by a parameter (``fails``), so one law key: their loops
+compile once (issue 43 item 7), each law keeps its own name in the messages."""
 import importlib.util
 import sys
 
@@ -22,15 +24,12 @@ import numpy as np
 from fmu_sync.core import ForceLaw, MechanicalSystem, Model, Param
 
 
-def h_raise(q, u, tau, t, p):
+def h_late(q, u, tau, t, p):
+    """fails = p[3]: 0 raises after t_fail, 1 returns NaN after t_fail."""
     if t > p[2]:
+        if p[3] >= 1.0:
+            return math.nan
         raise ValueError("boom late")
-    return -p[0] * q[0] - p[1] * u[0] + tau[0]
-
-
-def h_nan(q, u, tau, t, p):
-    if t > p[2]:
-        return math.nan
     return -p[0] * q[0] - p[1] * u[0] + tau[0]
 
 
@@ -42,12 +41,16 @@ def h_wide(q, u, tau, t, p):
     return np.array([-q[0], 0.0])
 
 
-PARAMS = (Param("k", 4.0, "N/m", 0.0, None, "stiffness"), Param("c", 0.1, "N.s/m", 0.0, None, "damping"),
-          Param("t_fail", 5.0, "s", None, None, "when h fails"))
-raising = ForceLaw(h_raise, n=1, name="late_raiser", params=PARAMS)
-nan_law = ForceLaw(h_nan, n=1, name="late_nan", params=PARAMS)
-always = ForceLaw(h_always, n=1, name="always_raises", params=PARAMS)
-wide = ForceLaw(h_wide, n=1, name="too_wide", params=PARAMS)
+def params(fails):
+    return (Param("k", 4.0, "N/m", 0.0, None, "stiffness"), Param("c", 0.1, "N.s/m", 0.0, None, "damping"),
+            Param("t_fail", 5.0, "s", None, None, "when h fails"),
+            Param("fails", fails, "1", 0.0, 1.0, "how h fails after t_fail: 0 raises, 1 returns NaN"))
+
+
+raising = ForceLaw(h_late, n=1, name="late_raiser", params=params(0.0))
+nan_law = ForceLaw(h_late, n=1, name="late_nan", params=params(1.0))
+always = ForceLaw(h_always, n=1, name="always_raises", params=params(0.0))
+wide = ForceLaw(h_wide, n=1, name="too_wide", params=params(0.0))
 
 late = Model("late-raiser", "an oscillator whose law raises after t_fail",
              params=(Param("g0", 0.8, "m", None, None, "wall"), Param("e", 0.8, "1", 0.0, 1.0, "restitution")),
