@@ -5,6 +5,7 @@ DOP853 at rtol = atol = 1e-12, wall far away; the midpoint stays first order on 
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -172,38 +173,18 @@ def test_a_law_linear_in_u_runs_the_trapezoid_as_it_stands():
     assert np.array_equal(a.q, b.q) and np.array_equal(a.u, b.u)
 
 
-DRAG_FILE = '''"""A user's oscillator with quadratic drag (nonlinear in u, no declared linear part)."""
-from fmu_sync.core import ForceLaw, MechanicalSystem, Model, Param
-
-
-def h(q, u, tau, t, p):
-    return -p[0] * q[0] - p[1] * u[0] * abs(u[0]) + tau[0]
-
-
-law = ForceLaw(h, n=1, name="drag", params=(Param("k", 1.0, "N/m", 0.0, None, "stiffness"),
-                                             Param("cd", 0.3, "N.s2/m2", 0.0, None, "quadratic drag")))
-
-model = Model("drag", "an oscillator with quadratic drag",
-              params=(Param("g0", 10.0, "m", None, None, "wall offset"),
-                      Param("e", 0.8, "1", 0.0, 1.0, "restitution")),
-              force=law, geometry=("g0", "e"),
-              system=lambda p: MechanicalSystem(M=[[1.0]], w=[1.0], g0=p.g0, e=p.e, force=law, params=p.of(law)))
-'''
-
-
 def test_the_user_law_fmu_follows_the_core_default(tmp_path):
     """The exported law's native stepper runs the same corrected trapezoid (solver.scheme default). Under
     the implicit exchange at H = solver.dt (its tolerance: 1e-9 of the force scale) the master converges the
     step's fixed point, and so does the core's 1-DOF solve (on the true step: the correction's own
     dependence on the force kept): they agree to 1e-9 over 0.2 s at dt = 1e-3, Euclidean and switching,
     Kp = 1, Kd = 0.5 and the stiff Kp = 400, Kd = 0 (measured 5e-13 and 7e-11 of max|u| = 10; 0.9.0's affine
-    solve: 1.4e-7), >= 100x closer than the uncorrected step (the FMU at solver.scheme = theta, 1/2)."""
+    solve: 1.4e-7), >= 100x closer than the uncorrected step (the FMU at solver.scheme = theta, 1/2). The FMU is the drag law of the tests
+    above (tests/_nonlinear_u_laws.drag_model, its forcing term written in h): its loops are compiled once for both."""
     from fmu_sync.core.registry import load_model
     from fmu_sync.export import export_fmu
     from fmu_sync.master import cosimulate
-    src = tmp_path / "drag_model.py"
-    src.write_text(DRAG_FILE)
-    spec = f"{src}:model"
+    spec = f"{Path(__file__).with_name('_nonlinear_u_laws.py')}:drag_model"   # the drag law of the tests above
     fmu = str(export_fmu(spec, tmp_path / "drag.fmu", {"solver.dt": 1e-3}))
     s = load_model(spec)()
     x1, x2 = ([1.0], [0.0]), ([0.2], [0.5])
