@@ -1,6 +1,6 @@
 """The implicit coupling's Newton for 1-DOF systems on floats (scheme ``trapezoid``,
-docs/design.md §2.3): the network's Newton matrix (:func:`implicit_matrix`), its stopping rule (:func:`newton_stop`, also that of
-:func:`fmu_sync.core.loop.implicit_forces`) and the pair's solve on a jump branch of the switching law
+docs/design.md §2.3): the network's Newton matrix (:func:`implicit_matrix`), its solve (:func:`implicit_forces`), their
+stopping rule (:func:`newton_stop`) and the pair's solve on a jump branch of the switching law
 (:func:`implicit_pair`), called by :func:`fmu_sync.core.loop.integrate_network`; and for a user law
 nonlinear in u, whose corrected step is not affine in the held force, the pieces of the Newton on the true
 step (docs/design.md §2.8.1: :func:`heun_stop`, the pair's pass on floats :func:`heun_pair`, the warm start
@@ -16,8 +16,7 @@ from .jit import njit
 from .steps import inverse
 
 __all__ = ["NEWTON_TOL", "NEWTON_PASSES", "held_linear", "implicit_matrix", "newton_stop", "implicit_pair", "implicit_forces",
-           "heun_stop",
-           "heun_pair", "heun_warm"]
+           "heun_stop", "heun_pair", "heun_warm"]
 
 #: the implicit coupling's Newton stops when |2 R| <= NEWTON_TOL max|tau| (at most NEWTON_PASSES passes)
 NEWTON_TOL = 1e-13
@@ -56,7 +55,7 @@ def implicit_matrix(laws, E2, W2, kp, kd, co, Ainv):
 def held_linear(laws, branches, E):
     """Whether the coupling of a step is linear in its force increment: every edge uncoupled,
     Euclidean, or held on branch E (``branches``: each edge's branch at the step's start). Then
-    the Newton of :func:`.loop.implicit_forces` / :func:`.loop_implicit.implicit_forces_nd` solves
+    the Newton of :func:`implicit_forces` / :func:`.loop_implicit.implicit_forces_nd` solves
     the step in one pass. ``E`` the number of edges."""
     for e_ in range(E):
         if laws[e_] != UNCOUPLED and laws[e_] != EUCLIDEAN and branches[e_] != BRANCH_E:
@@ -66,7 +65,7 @@ def held_linear(laws, branches, E):
 
 @njit(cache=True, inline="always")
 def newton_stop(it, big, big0, scale):
-    """The stopping rule of the implicit coupling's Newton (:func:`.loop.implicit_forces`,
+    """The stopping rule of the implicit coupling's Newton (:func:`implicit_forces`,
     :func:`implicit_pair`) at pass ``it`` with the residual ``big`` = max|2 R| (``big0`` that of pass 0)
     and ``scale`` = max|tau|: 0 go on (take the step), 1 done (this pass's residual is small), 2 take
     this step and stop: the chord iteration contracts by about ``big / big0`` per pass, so the next
