@@ -99,15 +99,16 @@ def fmu_model(md, fmu: str | None = None):
     The FMU of a model declaration with a force law not registered in this process is
     registered from the declaration its build record names (``fmu``: the .fmu or its folder;
     :func:`fmu_sync.user_export.declaration_of`)."""
+    from .user_export import built_key, register_from
+    key = None if fmu is None else built_key(fmu)   # two declarations of one interface: the FMU's own
     try:
-        return contract.identify(element_names(md), md.modelName)
+        return contract.identify(element_names(md), md.modelName, key)
     except contract.ContractError:
         if fmu is None:
             raise
-        from .user_export import register_from
         if not register_from(fmu):
             raise
-        return contract.identify(element_names(md), md.modelName)
+        return contract.identify(element_names(md), md.modelName, key)
 
 
 def system_from_fmu(instance: FmuInstance, model=None) -> MechanicalSystem:

@@ -217,9 +217,10 @@ def declaration_of(build: dict) -> Model:
     return load_model(f"{path}:{rec['name']}")
 
 
-def register_from(fmu) -> bool:
-    """Register in the FMU contract the declaration an fmu-sync FMU (an .fmu or its folder) was
-    exported from, if its build record names one; False if it names none (not such an FMU)."""
+def build_record(fmu) -> dict | None:
+    """The build record an fmu-sync FMU (an .fmu or its folder) carries
+    (``resources/fmu_sync_build.json``: its model's export key ``model`` and, for a declaration, the
+    ``declaration`` it was exported from); None if it carries none (not such an FMU)."""
     import json
     import zipfile
     name = "resources/fmu_sync_build.json"
@@ -230,8 +231,22 @@ def register_from(fmu) -> bool:
             with zipfile.ZipFile(fmu) as zf:
                 build = json.loads(zf.read(name))
     except (OSError, KeyError, ValueError, zipfile.BadZipFile):
-        return False
-    if not isinstance(build, dict) or not isinstance(build.get("declaration"), dict):
+        return None
+    return build if isinstance(build, dict) else None
+
+
+def built_key(fmu) -> str | None:
+    """The export key of the model an fmu-sync FMU was exported from (its build record), else None:
+    what tells two registered declarations of one interface apart (:func:`.fmus.contract.identify`)."""
+    key = (build_record(fmu) or {}).get("model")
+    return key if isinstance(key, str) else None
+
+
+def register_from(fmu) -> bool:
+    """Register in the FMU contract the declaration an fmu-sync FMU (an .fmu or its folder) was
+    exported from, if its build record names one; False if it names none (not such an FMU)."""
+    build = build_record(fmu)
+    if build is None or not isinstance(build.get("declaration"), dict):
         return False
     contract.declared(declaration_of(build), build.get("model"))
     return True

@@ -535,13 +535,19 @@ def model_for(family: str, n: int) -> FmuModel | None:
     return None
 
 
-def identify(variables, model_name: str = "") -> FmuModel:
+def identify(variables, model_name: str = "", key: str | None = None) -> FmuModel:
     """The registered model whose interface an FMU with these variable names offers.
 
-    Raises :class:`ContractError` naming the variables the FMU lacks (for the
-    closest registered model) when it is not an fmu-sync mechanical model.
+    ``key``: the export key the FMU's build record names (``fmu_sync.user_export.built_key``); the
+    model registered under it is the FMU's when it offers that interface. Two declarations of one
+    interface (the same model in two files of a session: their variables and identifier agree)
+    are told apart only so. Raises :class:`ContractError` naming the variables the FMU lacks (for
+    the closest registered model) when it is not an fmu-sync mechanical model.
     """
     names = set(variables)
+    own = (DECLARED.get(key) or MODELS.get(key)) if key is not None else None
+    if own is not None and all(k in names for k in own.required()):
+        return own
     best, best_missing = None, None
     for m in [*MODELS.values(), *DECLARED.values()]:
         missing = [k for k in m.required() if k not in names]

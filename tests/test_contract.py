@@ -67,6 +67,22 @@ def test_identify_accepts_every_registered_model_and_names_what_is_missing():
         contract.identify(names, "x")
 
 
+def test_identify_tells_two_declarations_of_one_interface_apart_by_the_fmus_key(monkeypatch):
+    """The same model declared in two files of a session offers one interface (variables and identifier):
+    in either order of registration, the key an FMU's build record names picks its own; a key whose
+    interface the FMU does not offer is not taken."""
+    from fmu_sync.core.registry import load_model
+    decl = load_model("pendulum")
+    for order in (("a.py:pendulum", "b.py:pendulum"), ("b.py:pendulum", "a.py:pendulum")):
+        monkeypatch.setattr(contract, "DECLARED", {})
+        fm = {key: contract.declared(decl, key) for key in order}
+        names = [v.name for v in fm["a.py:pendulum"].declare()]
+        ident = fm["a.py:pendulum"].identifier
+        for key in order:
+            assert contract.identify(names, ident, key) is fm[key]
+        assert contract.identify(names, ident, "impact-oscillator") in fm.values()   # not its interface
+
+
 def test_system_to_values_and_back_is_the_identity():
     io = contract.MODELS["impact-oscillator"]
     s = ImpactOscillator(m=2.0, k=3.0, c=0.1, f0=0.2, F=0.5, Omega=2.5, e=0.8, phi=0.3)

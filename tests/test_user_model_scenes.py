@@ -15,6 +15,7 @@ from fmu_sync import report
 from fmu_sync.cli import main
 from fmu_sync.core import IMPACT_OSCILLATOR, ImpactOscillator, simulate_pair
 from fmu_sync.core.examples import DUFFING, PENDULUM, DuffingOscillator, Pendulum
+from fmu_sync.core.registry import load_model
 from fmu_sync.core.views import figure
 from fmu_sync.fmus import contract
 from fmu_sync.scenes.running import run_scene
@@ -82,10 +83,30 @@ def runs(tmp_path_factory):
         labels[path.name] = [(ax.get_xlabel(), ax.get_ylabel()) for ax in fig.axes]
         return real_save(fig, path)
 
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(fmu_sync.export, "export_fmu", export)
-        mp.setattr(fmu_sync.plots, "_save", save)
-        cosim = run_scene(tmp / "pendulum-scene.toml", tmp / "cosim", {"run.mode": "cosim"})
+    # a decoy: the same model in another file of the session (the same variables and identifier),
+    # registered after the scene's own whenever that is registered (a serial run of the suite met
+    # it: another module's pendulum); the FMU's build record tells them apart
+    (tmp / "models" / "my_pend.py").write_text(PENDULUM_FILE)
+    saved = contract.DECLARED.pop("my_pend.py:pendulum", None)   # another module's, put back after
+    decoy_decl = load_model(f"{tmp / 'models' / 'my_pend.py'}:pendulum")
+    real_declared = contract.declared
+
+    def declared(decl, key=None):
+        fm = real_declared(decl, key)
+        if key != "my_pend.py:pendulum":
+            contract.DECLARED.pop("my_pend.py:pendulum", None)
+            real_declared(decoy_decl, "my_pend.py:pendulum")
+        return fm
+    try:
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setattr(fmu_sync.export, "export_fmu", export)
+            mp.setattr(fmu_sync.plots, "_save", save)
+            mp.setattr(contract, "declared", declared)
+            cosim = run_scene(tmp / "pendulum-scene.toml", tmp / "cosim", {"run.mode": "cosim"})
+    finally:
+        contract.DECLARED.pop("my_pend.py:pendulum", None)
+        if saved is not None:
+            contract.DECLARED["my_pend.py:pendulum"] = saved
     core = run_scene(tmp / "pendulum-scene.toml", tmp / "core", plots=False)
     print(f"\nexport of the user's pendulum FMU in the scene run: {[round(s, 1) for _, s in exports]} s")
     return dict(tmp=tmp, cosim=cosim, core=core, exports=exports, labels=labels)

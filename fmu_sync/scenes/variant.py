@@ -11,7 +11,7 @@ from typing import Any, Callable
 
 from ..core import ForceLawFailed, RunFailed, RunRefused, SimulationDiverged, UnstableExchange, UnstableScheme, simulate
 from ..fmus import contract
-from ..user_export import fmu_model_of
+from ..user_export import built_key, fmu_model_of
 from .loading import Scene
 from .schema import SceneError, Variant
 
@@ -67,7 +67,7 @@ def fmu_start_values(fmu_path, variant: Variant, system=None, node: dict | None 
     name = Path(fmu_path).name
     try:
         md = read_model_description(str(fmu_path))
-        model = contract.identify([v.name for v in md.modelVariables], md.modelName)
+        model = contract.identify([v.name for v in md.modelVariables], md.modelName, built_key(fmu_path))
         want = fmu_model_of(cfg["system.model"], variant.system.n)
         if want is None or not (model is want or (model.key == want.key and model.declaration is want.declaration)):
             raise contract.ContractError(f"it is the {model.key} model, the scene needs "
