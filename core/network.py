@@ -25,7 +25,8 @@ from .errors import ForceLawFailed, SimulationDiverged
 from .failure import rows_written
 from .loop import network_forces, no_decimator, node_force
 from .steps import DEFAULT_SCHEME, DIVERGED, OK
-from .pair import LAWS, failure_message, locate_failure, network_loop, progress_chunks, stack_nodes
+from .pair import (LAWS, failure_message, locate_failure, network_loop, network_record, progress_chunks,
+                   stack_nodes)
 from .plan import coupling_exchange, as_systems, coupled_weights, edges_of, geometry_difference, held_exchange, \
     network_geometry, plan_run, weights
 from .result import NetworkResult
@@ -117,16 +118,6 @@ def edge_arrays(A, edges):
 
 
 
-def network_record(rows: int, N: int, n: int, E: int, dist: bool = True):
-    """The record arrays of a network run as the loop takes them, ``(T, Qr, Ur, TAU, D, BR, EU)``:
-    T (rows,), Qr, Ur, TAU (rows, N, n), the edges' D, BR, EU (rows, E); NaN until written
-    (core/failure.py). ``dist`` False: D and BR without columns, the Euclidean error alone."""
-    T = np.full(rows, np.nan)
-    Qr, Ur, TAU = (np.full((rows, N, n), np.nan) for _ in range(3))
-    Ed = E if dist else 0
-    D, EU = np.full((rows, Ed), np.nan), np.full((rows, E), np.nan)
-    BR = np.full((rows, Ed), BRANCH_NONE, dtype=np.int64)
-    return T, Qr, Ur, TAU, D, BR, EU
 
 
 def record_modes(record_distance, laws, shared: bool):

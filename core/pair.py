@@ -302,15 +302,23 @@ def pair_failure(run, raised, at, t0):
     return err
 
 
+def network_record(rows: int, N: int, n: int, E: int, dist: bool = True):
+    """The record arrays of a coupled run as the loop takes them, ``(T, Qr, Ur, TAU, D, BR, EU)``:
+    T (rows,); Qr, Ur, TAU each node's rows contiguous (node-major (N, rows, n), seen by the loop as
+    (rows, N, n)); the edges' D, BR, EU (rows, E); NaN until written (core/failure.py). ``dist`` False:
+    D and BR without columns, the Euclidean error alone. One layout for pairs and networks: numba types
+    it F for n = 1 and A for n > 1, so they share one compiled loop per n (docs/design.md §5.6)."""
+    T = np.full(rows, np.nan)
+    Qr, Ur, TAU = (np.full((N, rows, n), np.nan).transpose(1, 0, 2) for _ in range(3))
+    Ed = E if dist else 0
+    D, EU = np.full((rows, Ed), np.nan), np.full((rows, E), np.nan)
+    BR = np.full((rows, Ed), BRANCH_NONE, dtype=np.int64)
+    return T, Qr, Ur, TAU, D, BR, EU
+
+
 def pair_record(cap: int, n: int):
-    """The record arrays of a pair run as the loop takes them, ``(T, Qr, Ur, TAU, D2, BR2, EU2)``:
-    T (cap,) and each system's rows contiguous (node-major, seen by the loop as (cap, 2, n)), the
-    distance columns (cap, 1); NaN until written (core/failure.py)."""
-    T = np.full(cap, np.nan)
-    Qr, Ur, TAU = (np.full((2, cap, n), np.nan).transpose(1, 0, 2) for _ in range(3))
-    D2, EU2 = np.full((cap, 1), np.nan), np.full((cap, 1), np.nan)
-    BR2 = np.full((cap, 1), BRANCH_NONE, dtype=np.int64)
-    return T, Qr, Ur, TAU, D2, BR2, EU2
+    """The record arrays of a pair run (:func:`network_record` of two nodes and one edge)."""
+    return network_record(cap, 2, n, 1)
 
 
 def pair_rows(rec, sl, record_d: bool, copy: bool = False, **kw) -> PairResult:
