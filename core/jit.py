@@ -31,10 +31,38 @@ def _plain_requested() -> bool:
 NUMBA = False
 if not _plain_requested():
     try:
-        from numba import carray, cfunc, njit, prange  # noqa: F401
+        from numba import carray, cfunc, prange  # noqa: F401
+        from numba import njit as _numba_njit
+        from numba.core import types as _types
+        from numba.core.registry import CPUDispatcher as _CPUDispatcher
         NUMBA = True
     except ImportError:
         pass
+
+if NUMBA:
+    class ValueDispatcher(_CPUDispatcher):
+        """numba's dispatcher, typed by value when compiled code calls it: an argument that is a
+        constant there (``True``, ``0``, a tuple holding one) counts as its type (bool, int64), not as
+        a literal of its own. numba would compile the kernel once more for each such literal: the
+        core's kernels are called with ``need_d=True`` here and a variable there, ``k0=0`` here and
+        ``k`` there, and compiled up to seven times each in the test suite (docs/design.md §5.6).
+        The values and the arithmetic are the same; only fewer copies are compiled."""
+
+        def get_call_template(self, args, kws):
+            return super().get_call_template(tuple(_types.unliteral(a) for a in args),
+                                             {k: _types.unliteral(v) for k, v in kws.items()})
+
+    def _by_value(dispatcher):
+        if type(dispatcher) is _CPUDispatcher:
+            dispatcher.__class__ = ValueDispatcher
+        return dispatcher
+
+    def njit(*args, **options):
+        """numba's ``njit``, its dispatcher a :class:`ValueDispatcher`."""
+        if len(args) == 1 and callable(args[0]) and not options:
+            return _by_value(_numba_njit(args[0]))
+        decorate = _numba_njit(*args, **options)
+        return lambda func: _by_value(decorate(func))
 
 if not NUMBA:
     prange = range
