@@ -511,34 +511,43 @@ def take_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, hp, t, h, k, piec
         copy_rows(hist_tau, hts)
         hs[0] = hist[0]
         hs[1] = ctl[HIST_VALID]
-    if exchange_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, t, h, q, u, tau, tau_next, hist_tau, hist,
-                     ctl, w, FAIL, fail_t, hp):
-        return True
-    if read_impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + h):
-        return True
-    if not retake:
-        return False
-    moved = False
-    for i in range(q.shape[0]):
-        if imp_new[i] != imp[i]:
-            moved = True
-    if moved:  # restore every instance to t and retake [t, t + h] in pieces of about H_min
-        copy_rows(hts, hist_tau)
-        hist[0] = hs[0]
-        ctl[HIST_VALID] = np.int64(hs[1])
-        ctl[RETAKES] += 1
-        if fmu_states(ptr, fn, comp, SET_STATE, saved, FAIL, fail_t, t):
+    # the exchange over [t, t + h] (p = -1) and, with the retake, if an impact counter moved: every
+    # instance restored to t and [t, t + h] again in pieces of about H_min (p = 0 .. pieces - 1). One call
+    # site: exchange_step, with the coupling forces inlined, is compiled into the driver once
+    # (docs/design.md §5.6)
+    p = -1
+    tp = t
+    hpc = h
+    while True:
+        if exchange_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, tp, hpc, q, u, tau, tau_next, hist_tau,
+                         hist, ctl, w, FAIL, fail_t, hp):
             return True
-        copy_rows(qs, q)
-        copy_rows(us, u)
-        for p in range(pieces):
-            tp = t + p * (h / pieces)
-            hpc = (t + h) - tp if p == pieces - 1 else h / pieces
-            if exchange_step(ptr, fn, comp, laws, geo, Kp, Kd, E2, W2, flags, tp, hpc, q, u, tau, tau_next,
-                             hist_tau, hist, ctl, w, FAIL, fail_t, hp):
+        if p < 0:
+            if read_impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + h):
                 return True
-        if read_impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + h):
-            return True
+            if not retake:
+                return False
+            moved = False
+            for i in range(q.shape[0]):
+                if imp_new[i] != imp[i]:
+                    moved = True
+            if not moved:
+                break
+            copy_rows(hts, hist_tau)
+            hist[0] = hs[0]
+            ctl[HIST_VALID] = np.int64(hs[1])
+            ctl[RETAKES] += 1
+            if fmu_states(ptr, fn, comp, SET_STATE, saved, FAIL, fail_t, t):
+                return True
+            copy_rows(qs, q)
+            copy_rows(us, u)
+        p += 1
+        if p == pieces:
+            if read_impacts(ptr, fn, comp, ibuf, imp_new, FAIL, fail_t, t + h):
+                return True
+            break
+        tp = t + p * (h / pieces)
+        hpc = (t + h) - tp if p == pieces - 1 else h / pieces
     return fmu_states(ptr, fn, comp, FREE_STATE, saved, FAIL, fail_t, t + h)
 
 

@@ -101,3 +101,26 @@ def test_a_kernel_cached_by_another_numba_is_never_loaded(tmp_path):
     assert version == numba.__version__ and int(hits) == 0 and int(misses) >= 1, again.stdout
     third = run("same")     # and this numba's own entry is then loaded
     assert third.stdout.split()[1] != "0", third.stdout
+
+
+def test_a_core_kernel_called_with_a_constant_and_with_a_variable_compiles_once():
+    """core.jit's njit types a call from compiled code by value (ValueDispatcher): ``k(x, True)`` and
+    ``k(x, flag)`` reach one compiled k, not one per literal (numba's own dispatcher compiles
+    ``Literal[bool](True)`` apart: the core's kernels compiled up to seven times in the suite)."""
+    from fmu_sync.core.jit import ValueDispatcher, njit
+
+    @njit
+    def k(x, flag, shift):
+        return x + shift if flag else x
+
+    @njit
+    def with_constants(x):
+        return k(x, True, 0) + k(x, False, 1)
+
+    @njit
+    def with_values(x, flag, shift):
+        return k(x, flag, shift)
+
+    assert isinstance(k, ValueDispatcher) and isinstance(k, CPUDispatcher)
+    assert with_constants(1.0) == 2.0 and with_values(1.0, True, 2) == 3.0
+    assert len(k.signatures) == 1, k.signatures
