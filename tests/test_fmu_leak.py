@@ -76,5 +76,7 @@ def test_a_binary_loaded_every_cycle_grows_no_more_than_a_minimal_c_fmu(shared_f
     minimal = build_minimal_fmu(fmu, tmp_path / "Minimal.fmu")
     ours = _cycles(fmu, "reload", 100, 400, tmp_path)
     base = _cycles(minimal, "reload", 100, 400, tmp_path)
-    # before: 3.4 blocks per cycle for ours; fmpy's own ctypes look-ups: about 0.9 for any FMU
-    assert ours["blocks_per_cycle"] <= base["blocks_per_cycle"] + 0.15, (ours, base)
+    # before: 3.4 blocks per cycle for ours; fmpy's own ctypes look-ups: about 0.9 for any FMU. Both windows
+    # often shrink (-0.1 to -0.25 per cycle, once -0.48 for the minimal FMU under load): a shrinking base
+    # counts as no growth, else its noise would be the bound
+    assert ours["blocks_per_cycle"] <= max(base["blocks_per_cycle"], 0.0) + 0.15, (ours, base)
