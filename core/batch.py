@@ -205,14 +205,10 @@ def _pair1(law, scheme, theta, s1, F1, Omega1, phi1, s2, F2, Omega2, phi2, sg, k
     E2[0, 1] = 1
     imp = np.zeros(2, dtype=np.int64)
     ep = np.zeros(2, dtype=np.int64)
-    # k0 = 0 and record_d = dec = True as values, not constants: numba would type constants as literals
-    # and compile the loop once more for them; so the pairs' own signature serves (docs/design.md §5.6)
-    k0 = n_steps - n_steps
-    yes = n_steps >= 0
-    status, steps, _, _, tau_max = integrate_network(
+    status, steps, _, _, tau_max = integrate_network(   # (its constants typed by value: core/jit.py)
         base, K, C, f0, F, Om, ph, geo, np.full(1, law), E2, np.ones((1, 2)), np.full((1, 1), kp),
-        np.full((1, 1), kd), q, u, 0.0, k0, dt, n_steps, scheme, theta, every, yes, T, Qr, Ur, TAU, D, BR, EU,
-        dt_last, yes, acc, bt, bd, st, imp, ep)
+        np.full((1, 1), kd), q, u, 0.0, 0, dt, n_steps, scheme, theta, every, True, T, Qr, Ur, TAU, D, BR, EU,
+        dt_last, True, acc, bt, bd, st, imp, ep)
     res[0] = status
     res[1] = steps
     res[2] = T[0] if status != OK else t_stop

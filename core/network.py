@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .coupling import BRANCH_NONE, QUOTIENT_LAWS, law_metric, metric_info
+from .coupling import QUOTIENT_LAWS, law_metric, metric_info
 from .checks import divergence_message, land_last_row
 from .errors import ForceLawFailed, SimulationDiverged
 from .failure import rows_written
@@ -114,10 +114,6 @@ def edge_arrays(A, edges):
     E2 = np.array(edges, dtype=np.int64).reshape(E, 2)
     W2 = np.array([[A[i, j], A[j, i]] for i, j in edges], dtype=np.float64).reshape(E, 2)
     return E2, W2
-
-
-
-
 
 
 def record_modes(record_distance, laws, shared: bool):

@@ -24,6 +24,7 @@ configuration and checks evaluate h with numpy alone).
 from __future__ import annotations
 
 import ast
+import functools
 import hashlib
 import importlib
 from pathlib import Path
@@ -217,19 +218,33 @@ def declaration_of(build: dict) -> Model:
     return load_model(f"{path}:{rec['name']}")
 
 
+#: the build record inside an fmu-sync FMU
+BUILD_RECORD = "resources/fmu_sync_build.json"
+
+
 def build_record(fmu) -> dict | None:
-    """The build record an fmu-sync FMU (an .fmu or its folder) carries
-    (``resources/fmu_sync_build.json``: its model's export key ``model`` and, for a declaration, the
-    ``declaration`` it was exported from); None if it carries none (not such an FMU)."""
+    """The build record an fmu-sync FMU (an .fmu or its folder) carries (:data:`BUILD_RECORD`: its
+    model's export key ``model`` and, for a declaration, the ``declaration`` it was exported from);
+    None if it carries none (not such an FMU). Read once per process for a file that has not changed
+    (a master reads it for each run, many runs of one FMU in a sweep worker)."""
+    f = Path(fmu) / BUILD_RECORD if Path(fmu).is_dir() else Path(fmu)
+    try:
+        st = f.stat()
+    except OSError:
+        return None
+    return _read_build(str(fmu), (st.st_mtime_ns, st.st_size))
+
+
+@functools.lru_cache(maxsize=64)
+def _read_build(fmu: str, stamp: tuple) -> dict | None:
     import json
     import zipfile
-    name = "resources/fmu_sync_build.json"
     try:
         if Path(fmu).is_dir():
-            build = json.loads((Path(fmu) / name).read_text(encoding="utf-8"))
+            build = json.loads((Path(fmu) / BUILD_RECORD).read_text(encoding="utf-8"))
         else:
             with zipfile.ZipFile(fmu) as zf:
-                build = json.loads(zf.read(name))
+                build = json.loads(zf.read(BUILD_RECORD))
     except (OSError, KeyError, ValueError, zipfile.BadZipFile):
         return None
     return build if isinstance(build, dict) else None
