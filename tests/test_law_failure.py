@@ -4,7 +4,9 @@ turning NaN there ends the run as a failure carrying the record up to the last g
 ``NAME.partial.csv``. Laws that never return or return the wrong shape are refused naming the law.
 The laws live in a model file written here (as a user would: numba caches them by that file); the raising,
 and the NaN law are one function h_late told apart by a parameter (``fails``), so one law key: their loops
-compile once (issue 43 item 7), each law keeps its own name in the messages."""
+compile once (issue 43 item 7), each law keeps its own name in the messages. They declare their linear part
+(h is linear in u; t_fail defaults past every run, so the law's probe sees it), so the trapezoid runs the
+same copy of the loops as the midpoint, with its own coefficients: one copy for both schemes."""
 import importlib.util
 import sys
 
@@ -43,12 +45,16 @@ def h_wide(q, u, tau, t, p):
 
 def params(fails):
     return (Param("k", 4.0, "N/m", 0.0, None, "stiffness"), Param("c", 0.1, "N.s/m", 0.0, None, "damping"),
-            Param("t_fail", 5.0, "s", None, None, "when h fails"),
+            Param("t_fail", 99.0, "s", None, None, "when h fails (by default past every run here)"),
             Param("fails", fails, "1", 0.0, 1.0, "how h fails after t_fail: 0 raises, 1 returns NaN"))
 
 
-raising = ForceLaw(h_late, n=1, name="late_raiser", params=params(0.0))
-nan_law = ForceLaw(h_late, n=1, name="late_nan", params=params(1.0))
+def linear(p):
+    return [[p[0]]], [[p[1]]]
+
+
+raising = ForceLaw(h_late, n=1, name="late_raiser", params=params(0.0), linear=linear)
+nan_law = ForceLaw(h_late, n=1, name="late_nan", params=params(1.0), linear=linear)
 always = ForceLaw(h_always, n=1, name="always_raises", params=params(0.0))
 wide = ForceLaw(h_wide, n=1, name="too_wide", params=params(0.0))
 
@@ -63,6 +69,7 @@ SCENE = '''description = "a law that raises at t > 5 (tests/test_law_failure.py)
 
 [system]
 model = "failing_laws.py:late"
+t_fail = 5.0
 
 [initial]
 x1 = [0.0, 0.5]
@@ -102,13 +109,14 @@ def laws(tmp_path_factory):
 
 
 def _system(law):
-    return MechanicalSystem(M=[[1.0]], w=[1.0], g0=0.8, e=0.8, force=law)
+    """The system whose law fails at t > 5."""
+    return MechanicalSystem(M=[[1.0]], w=[1.0], g0=0.8, e=0.8, force=law, params={"t_fail": 5.0})
 
 
 def _reference(law):
-    """The system of a law that does not fail (t_fail past the run's end): its run to t = 5 is
+    """The system of a law that does not fail (t_fail at its default, past the run's end): its run to t = 5 is
     what the record up to the failure must equal."""
-    return MechanicalSystem(M=[[1.0]], w=[1.0], g0=0.8, e=0.8, force=law, params={"t_fail": 99.0})
+    return MechanicalSystem(M=[[1.0]], w=[1.0], g0=0.8, e=0.8, force=law)
 
 
 @pytest.mark.parametrize("every", [1, 7])
