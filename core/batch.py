@@ -190,11 +190,11 @@ def _pair1(law, scheme, theta, s1, F1, Omega1, phi1, s2, F2, Omega2, phi2, sg, k
     u[0, 0] = u1
     u[1, 0] = u2
     T = np.empty(1)
-    # F: the type numba gives a 1-DOF pair's record (simulate_pair's (2, rows, 1) transposed), so that the
-    # sweep and simulate_pair share one compiled loop (docs/design.md §5.6)
-    Qr = np.asfortranarray(np.empty((1, 2, 1)))
-    Ur = np.asfortranarray(np.empty((1, 2, 1)))
-    TAU = np.asfortranarray(np.empty((1, 2, 1)))
+    # A: the type numba gives every coupled record (pair.network_record), so that the sweep, pairs and
+    # networks share one compiled loop (docs/design.md §5.6)
+    Qr = np.empty((2, 2, 1))[:, :1].transpose(1, 0, 2)
+    Ur = np.empty((2, 2, 1))[:, :1].transpose(1, 0, 2)
+    TAU = np.empty((2, 2, 1))[:, :1].transpose(1, 0, 2)
     D = np.full((1, 1 if same else 0), np.nan)   # no common geometry: the Euclidean error alone
     EU = np.full((1, 1), np.nan)
     BR = np.zeros((1, 1), dtype=np.int64)

@@ -304,12 +304,13 @@ def pair_failure(run, raised, at, t0):
 
 def network_record(rows: int, N: int, n: int, E: int, dist: bool = True):
     """The record arrays of a coupled run as the loop takes them, ``(T, Qr, Ur, TAU, D, BR, EU)``:
-    T (rows,); Qr, Ur, TAU each node's rows contiguous (node-major (N, rows, n), seen by the loop as
-    (rows, N, n)); the edges' D, BR, EU (rows, E); NaN until written (core/failure.py). ``dist`` False:
-    D and BR without columns, the Euclidean error alone. One layout for pairs and networks: numba types
-    it F for n = 1 and A for n > 1, so they share one compiled loop per n (docs/design.md §5.6)."""
+    T (rows,); Qr, Ur, TAU each node's rows contiguous (node-major (N, rows + 1, n), seen by the loop as
+    (rows, N, n); the unused last row of each node keeps that view from being contiguous for any n: numba
+    types it A for n = 1 as for n > 1, so pairs, networks and the sweep share one compiled loop,
+    docs/design.md §5.6); the edges' D, BR, EU (rows, E); NaN until written (core/failure.py). ``dist``
+    False: D and BR without columns, the Euclidean error alone."""
     T = np.full(rows, np.nan)
-    Qr, Ur, TAU = (np.full((N, rows, n), np.nan).transpose(1, 0, 2) for _ in range(3))
+    Qr, Ur, TAU = (np.full((N, rows + 1, n), np.nan)[:, :rows].transpose(1, 0, 2) for _ in range(3))
     Ed = E if dist else 0
     D, EU = np.full((rows, Ed), np.nan), np.full((rows, E), np.nan)
     BR = np.full((rows, Ed), BRANCH_NONE, dtype=np.int64)
