@@ -7,7 +7,11 @@ entry. Here a top-level compile of a cached kernel (``@njit(cache=True)``, ``@cf
 first takes a file lock named by the kernel and its signature, shared by the run's workers: the
 first worker compiles and saves it; the other waits, then finds it in numba's cache and loads it.
 Nothing of the compiled code changes (the same numba compile, the same cache), only who does it.
-Kernels without a disk cache, and compiles nested in another compile, are left as they are."""
+A compile nested in another (a kernel first met while typing its caller) takes its own lock too: the
+sweep's kernel and the other worker's pair run both need the network loop, and each compiled it. Lock
+order cannot cycle: a worker holds the locks of a chain of callers and waits for a callee's, and the
+kernels' calls form no cycle (a kernel met again inside its own compile, by recursion, is not locked
+again). Kernels without a disk cache are left as they are."""
 from __future__ import annotations
 
 import contextlib
@@ -16,7 +20,7 @@ import hashlib
 import os
 import threading
 
-_depth = threading.local()
+_held = threading.local()   # the keys this thread holds the locks of (its chain of nested compiles)
 
 
 @contextlib.contextmanager
@@ -33,14 +37,15 @@ def _locked(folder: str, key: str):
 def _guard(compile_, key_of):
     def compile(self, *args):
         key = key_of(self, *args)
-        if key is None or getattr(_depth, "n", 0):
+        held = _held.__dict__.setdefault("keys", set())
+        if key is None or key in held:
             return compile_(self, *args)
-        _depth.n = 1
+        held.add(key)
         try:
             with _locked(_FOLDER[0], key):
                 return compile_(self, *args)
         finally:
-            _depth.n = 0
+            held.discard(key)
     return compile
 
 
