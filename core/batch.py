@@ -1,8 +1,8 @@
 """Many coupled 1-DOF pairs in one compiled, parallel call (the sweep engine).
 
-:func:`run_pairs1` runs R independent pairs, one per iteration of a numba
-``prange`` loop (one thread per core, dynamic scheduling), with no Python per
-run and no trajectory: every run keeps a fixed set of numbers (the columns
+:func:`run_pairs1` runs R independent pairs on one thread per core, each thread
+taking the next block of runs (dynamic scheduling) and running it compiled without
+the GIL (:func:`run_block`), with no Python per run and no trajectory: every run keeps a fixed set of numbers (the columns
 ``COLUMNS``, written into one row of ``out``), so memory is O(1) per run
 whatever its length.
 
@@ -27,15 +27,16 @@ over e or m needs no Python per run either.
 from __future__ import annotations
 
 import math
+import threading
 
 import numpy as np
-from .jit import njit, prange
+from .jit import NUMBA, njit
 
 from .distance import DistanceGeometry, ScalarGeometry
 from .loop import NodeGeometry, integrate_network, sample_d
 from .metrics import HI, LO, TAIL, decimated_kernel, decimator_init
 
-__all__ = ["run_pairs1", "COLUMNS", "COL", "MEASURE_D", "MEASURE_EUCLIDEAN", "OK", "DIVERGED", "REFUSED", "STATUS_NAMES", "group_row",
+__all__ = ["run_pairs1", "run_block", "COLUMNS", "COL", "MEASURE_D", "MEASURE_EUCLIDEAN", "OK", "DIVERGED", "REFUSED", "STATUS_NAMES", "group_row",
            "GROUP_FIELDS", "GEO_FIELDS", "empty_out",
            "metrics_from_records"]
 
@@ -226,9 +227,32 @@ def _pair1(law, scheme, theta, s1, F1, Omega1, phi1, s2, F2, Omega2, phi2, sg, k
     _finish_metrics(acc, bt, bd, st, status != OK, res)
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True)
+def run_block(lo, hi, law, scheme, theta, sys_rows, geo_rows, F, Omega, phi, nf, group1, group2, kp, kd,
+              q1, u1, q2, u2, dt, n_steps, dt_last, every, threshold, out, qw):
+    """The runs ``lo .. hi - 1`` of :func:`run_pairs1` (its arguments), one after the other, without
+    the GIL (so that threads run blocks side by side)."""
+    for r in range(lo, hi):
+        if out[r, 0] == REFUSED:
+            continue
+        g1 = group1[r]
+        g2 = group2[r]
+        m1 = nf[g1]
+        m2 = nf[g2]
+        _pair1(law[r], scheme[r], theta[r], sys_rows[g1], F[g1, :m1], Omega[g1, :m1], phi[g1, :m1],
+               sys_rows[g2], F[g2, :m2], Omega[g2, :m2], phi[g2, :m2],
+               _geo(geo_rows[g1], qw[r]), kp[r], kd[r], q1[r], u1[r], q2[r], u2[r], dt[r], n_steps[r], dt_last[r],
+               every[r],
+               threshold, out[r])
+
+
+#: blocks per thread: a thread takes the next block of runs when it is done with one (dynamic
+#: scheduling: runs differ in length), at one Python call per block
+BLOCKS_PER_THREAD = 8
+
+
 def run_pairs1(law, scheme, theta, sys_rows, geo_rows, F, Omega, phi, nf, group1, group2, kp, kd,
-               q1, u1, q2, u2, dt, n_steps, dt_last, every, threshold, out, qw):
+               q1, u1, q2, u2, dt, n_steps, dt_last, every, threshold, out, qw, threads=None):
     """Run ``R = group1.shape[0]`` pairs in parallel; metrics of run r into ``out[r]``.
 
     Per run (arrays of length R): ``law`` (coupling code), ``scheme`` (MIDPOINT
@@ -243,17 +267,55 @@ def run_pairs1(law, scheme, theta, sys_rows, geo_rows, F, Omega, phi, nf, group1
     (:data:`GROUP_FIELDS`), ``geo_rows`` (G, 12) (:data:`GEO_FIELDS`),
     forcing ``F, Omega, phi`` (G, NF) with ``nf`` (G,) terms used.
     Runs whose ``out[r, 0]`` is already REFUSED are skipped.
+
+    ``threads`` (default: numba's thread count, one per core): threads that each take the next block
+    of runs (:data:`BLOCKS_PER_THREAD` per thread) and run it compiled without the GIL
+    (:func:`run_block`); the runs are independent, so the rows are the same whatever the threads.
+    A Ctrl-C (or an error) in a block stops the others at the end of theirs.
     """
+    args = (law, scheme, theta, sys_rows, geo_rows, F, Omega, phi, nf, group1, group2, kp, kd, q1, u1, q2, u2,
+            dt, n_steps, dt_last, every, threshold, out, qw)
     R = group1.shape[0]
-    for r in prange(R):
-        if out[r, 0] == REFUSED:
-            continue
-        g1 = group1[r]
-        g2 = group2[r]
-        m1 = nf[g1]
-        m2 = nf[g2]
-        _pair1(law[r], scheme[r], theta[r], sys_rows[g1], F[g1, :m1], Omega[g1, :m1], phi[g1, :m1],
-               sys_rows[g2], F[g2, :m2], Omega[g2, :m2], phi[g2, :m2],
-               _geo(geo_rows[g1], qw[r]), kp[r], kd[r], q1[r], u1[r], q2[r], u2[r], dt[r], n_steps[r], dt_last[r],
-               every[r],
-               threshold, out[r])
+    n = max(1, min(int(threads or _numba_threads()), R)) if NUMBA else 1   # (plain Python: the GIL held anyway)
+    if n == 1:
+        run_block(0, R, *args)
+        return
+    size = max(1, -(-R // (n * BLOCKS_PER_THREAD)))
+    starts = iter(range(0, R, size))
+    lock = threading.Lock()
+    stop = threading.Event()
+    failed: list = []
+
+    def work():
+        try:
+            while not stop.is_set():
+                with lock:
+                    lo = next(starts, None)
+                if lo is None:
+                    return
+                run_block(lo, min(lo + size, R), *args)
+        except BaseException as exc:   # (a Ctrl-C too: raised in the caller's thread below)
+            failed.append(exc)
+            stop.set()
+
+    helpers = [threading.Thread(target=work, name=f"fmu-sync-sweep-{i}", daemon=True) for i in range(n - 1)]
+    for h in helpers:
+        h.start()
+    try:
+        work()
+    finally:
+        stop.set()   # no block is taken after this
+        for h in helpers:
+            while h.is_alive():
+                try:
+                    h.join()
+                except KeyboardInterrupt:   # the helpers end at the end of their block
+                    failed.append(KeyboardInterrupt())
+    if failed:
+        raise failed[0]
+
+
+def _numba_threads() -> int:
+    """numba's thread count (``NUMBA_NUM_THREADS``, one per core; ``numba.set_num_threads`` lowers it)."""
+    import numba
+    return numba.get_num_threads()

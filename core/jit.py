@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import sys
 
-__all__ = ["NUMBA", "njit", "cfunc", "carray", "prange", "LAW_KEY"]
+__all__ = ["NUMBA", "njit", "cfunc", "carray", "LAW_KEY"]
 
 #: the global of a user force law's specialised kernels (core/forcelaw.py, fmus/law_stepper.py) that holds
 #: the law's key, read by the cache locator (core/_cache.py)
@@ -31,7 +31,7 @@ def _plain_requested() -> bool:
 NUMBA = False
 if not _plain_requested():
     try:
-        from numba import carray, cfunc, prange  # noqa: F401
+        from numba import carray, cfunc  # noqa: F401
         from numba import njit as _numba_njit
         from numba.core import types as _types
         from numba.core.registry import CPUDispatcher as _CPUDispatcher
@@ -65,8 +65,6 @@ if NUMBA:
         return lambda func: _by_value(decorate(func))
 
 if not NUMBA:
-    prange = range
-
     def njit(*args, **options):
         """``@njit`` or ``@njit(**options)``: the function itself."""
         if len(args) == 1 and callable(args[0]) and not options:

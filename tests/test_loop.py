@@ -70,7 +70,7 @@ def test_no_second_coupled_loop():
     def compiled(mod):
         return sorted(k for k, v in vars(mod).items() if isinstance(v, CPUDispatcher) and v.__module__ == mod.__name__)
     assert compiled(pair) == [] and compiled(network) == []
-    assert set(compiled(batch)) <= {"run_pairs1", "_pair1", "_node1", "_geo", "_finish_metrics",
+    assert set(compiled(batch)) <= {"run_block", "_pair1", "_node1", "_geo", "_finish_metrics",
                                     "metrics_from_records"}
     assert "integrate_network" in batch._pair1.py_func.__code__.co_names
     assert "integrate_network" in compiled(loop)

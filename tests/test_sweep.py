@@ -522,3 +522,38 @@ def test_the_gain_map_draws_the_zoh_limit_only_where_the_core_holds_the_coupling
     legends = [lg for f in figs for lg in [*f.legends, *(ax.get_legend() for ax in f.axes)] if lg is not None]
     labels = [t.get_text() for lg in legends for t in lg.get_texts()]
     assert any("ZOH limit" in s for s in labels) == drawn, labels
+
+
+def test_any_thread_count_gives_the_same_rows_bit_for_bit():
+    """The compiled chunk on 1 and on 3 threads (each taking the next block of runs: core/batch.run_pairs1):
+    the same dataset bit for bit, and no thread left running."""
+    import threading
+    grid = {"coupling.Kp": "logspace(-1, 1, 5)", "coupling.Kd": "logspace(-1, 1, 5)"}
+    before = threading.active_count()
+    a, b = (sweep(SCENE, variant="switching", grid=grid, overrides={"run.t_end": 1.0}, quiet=True, threads=t)
+            for t in (1, 3))
+    assert threading.active_count() == before
+    for name in a.data_vars:
+        x, y = a[name].values, b[name].values
+        assert np.array_equal(x, y, equal_nan=x.dtype.kind == "f"), name
+
+
+def test_an_error_in_one_block_ends_the_call_with_it_and_no_thread_left(monkeypatch):
+    """A block that raises (here the third; a Ctrl-C the same) is raised in the caller's thread once
+    every thread has finished its own block; no block is started after it."""
+    import threading
+    from fmu_sync.core import batch
+    real, started = batch.run_block, []
+
+    def block(lo, hi, *args):
+        started.append(lo)
+        if len(started) == 3:
+            raise RuntimeError(f"block at run {lo} failed")
+        return real(lo, hi, *args)
+    monkeypatch.setattr(batch, "run_block", block)
+    grid = {"coupling.Kp": "logspace(-1, 1, 8)", "coupling.Kd": "logspace(-1, 1, 8)"}
+    before = threading.active_count()
+    with pytest.raises(RuntimeError, match="block at run"):
+        sweep(SCENE, variant="switching", grid=grid, overrides={"run.t_end": 0.5}, quiet=True, threads=2)
+    assert threading.active_count() == before
+    assert len(started) < 2 * batch.BLOCKS_PER_THREAD   # the blocks left were not started

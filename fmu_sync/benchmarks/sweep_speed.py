@@ -6,7 +6,7 @@ switching-coupled pair of the ``forced-pair`` scene (dt = 1e-3):
 * **single pair**: pair steps per second of ``simulate_pair`` (one run at a
   time, the scene's record_every), runs taken from the sweep's own gains;
 * **embedded**: ``sweep(...)`` of R runs of S steps on this machine (one
-  compiled ``prange`` call per chunk, one thread per core): R*S / wall time;
+  compiled call per chunk, one thread per core): R*S / wall time;
 * **Dask**: the same sweep through a ``LocalCluster`` with one worker process
   per core (1 thread each), cluster started and warmed up before timing;
 * **memory**: peak RSS of a fresh process running a sweep of the same number of

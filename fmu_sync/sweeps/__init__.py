@@ -15,8 +15,8 @@ contact episodes, final state.
 Engines (the user's call does not change):
 
 * default, core-mode 1-DOF pairs: chunks of runs, each chunk ONE compiled call
-  (:func:`fmu_sync.core.batch.run_pairs1`, numba ``prange`` over the runs,
-  one thread per core, O(1) memory per run); bit-identical to single
+  (:func:`fmu_sync.core.batch.run_pairs1`: one thread per core, each taking the next
+  block of runs, compiled without the GIL; O(1) memory per run); bit-identical to single
   ``simulate_pair`` runs;
 * co-simulated runs (and core pairs with n > 1): worker processes, one run at
   a time each (an FMU instance belongs to its process);

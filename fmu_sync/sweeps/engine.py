@@ -2,7 +2,7 @@
 
 * **compiled chunks** -- core-mode 1-DOF pairs: the inputs of a chunk of runs
   are packed into arrays (:class:`Prepared`) and run by one call of
-  :func:`fmu_sync.core.batch.run_pairs1` (numba ``prange``, one thread per core).
+  :func:`fmu_sync.core.batch.run_pairs1` (one thread per core, blocks of runs compiled without the GIL).
 * **per-run chunks** -- co-simulated runs (FMU instances belong to a process)
   and core pairs with n > 1: each run is loaded from the scene and run by
   :func:`fmu_sync.scenes.variant.run_variant` in a worker process; only its metrics
@@ -396,18 +396,19 @@ def _worker_threads():
 def run_compiled_chunk(payload: dict, threads: int | None = None):
     """One compiled call over the chunk's runs; returns ``(idx, out rows)``.
 
-    ``threads``: numba threads for the call (default: all cores, or the
+    ``threads``: threads for the call (default: all cores, or the
     thread count of the Dask worker it runs on)."""
     import numba
     threads = threads or _worker_threads()
     if threads:
-        numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
+        threads = max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS))
     r, t = payload["runs"], payload["tables"]
     out = payload["out"].copy()
     batch.run_pairs1(r["law"], r["scheme"], r["theta"], t["sys_rows"], t["geo_rows"], t["F"], t["Omega"],
                      t["phi"], t["nf"], payload["group1"], payload["group2"], r["kp"], r["kd"], r["q1"], r["u1"],
                      r["q2"], r["u2"],
-                     r["dt"], r["n_steps"], r["dt_last"], r["every"], payload["threshold"], out, r["qw"])
+                     r["dt"], r["n_steps"], r["dt_last"], r["every"], payload["threshold"], out, r["qw"],
+                     threads=threads)
     return payload["idx"], out
 
 
