@@ -19,36 +19,56 @@ from numba.core import caching
 
 from .jit import LAW_KEY  # noqa: F401 (the law's key global, defined in core/jit.py)
 
-__all__ = ["install", "core_stamp", "depends_on_core", "CORE_DIR"]
+__all__ = ["install", "core_stamp", "folder_stamp", "depends_on_core", "CORE_DIR"]
 
 CORE_DIR = os.path.dirname(os.path.abspath(__file__))
 _stamp: bytes | None = None
+
+
+def _hash_folder(folder: str) -> bytes:
+    """sha256 over the names and contents of every ``*.py`` file of ``folder``."""
+    h = hashlib.sha256()
+    for name in sorted(os.listdir(folder)):
+        if name.endswith(".py"):
+            h.update(name.encode())
+            with open(os.path.join(folder, name), "rb") as f:
+                h.update(f.read())
+    return h.digest()
 
 
 def core_stamp() -> bytes:
     """sha256 over the names and contents of every ``*.py`` file of the core."""
     global _stamp
     if _stamp is None:
-        h = hashlib.sha256()
-        for name in sorted(os.listdir(CORE_DIR)):
-            if name.endswith(".py"):
-                h.update(name.encode())
-                with open(os.path.join(CORE_DIR, name), "rb") as f:
-                    h.update(f.read())
-        _stamp = h.digest()
+        _stamp = _hash_folder(CORE_DIR)
     return _stamp
 
 
+_folders: dict = {}
+
+
+def folder_stamp(folder: str) -> bytes:
+    """:func:`core_stamp` of another folder (a dependent file's, :func:`depends_on_core`), once per process."""
+    folder = os.path.abspath(folder)
+    if folder not in _folders:
+        _folders[folder] = _hash_folder(folder)
+    return _folders[folder]
+
+
 #: files outside the core whose kernels compile core kernels into themselves (registered
-#: with :func:`depends_on_core` before their first ``@njit(cache=True)``)
-_DEPENDENTS: set = set()
+#: with :func:`depends_on_core` before their first ``@njit(cache=True)``): path -> whether their
+#: folder's other files count too
+_DEPENDENTS: dict = {}
 
 
-def depends_on_core(py_file: str) -> None:
-    """Stamp the cached kernels of ``py_file`` with its own stamp and the core's: an edit of
-    the core then recompiles them too (fmu_sync/cosim_loop.py compiles the core's force
-    assembly into its loop)."""
-    _DEPENDENTS.add(os.path.abspath(py_file))
+def depends_on_core(py_file: str, neighbours: bool = False) -> None:
+    """Stamp the cached kernels of ``py_file`` with the core's stamp and the file's own: an edit of
+    the core then recompiles them too (fmu_sync/cosim_loop.py compiles the core's force assembly into
+    its loop; a user's force law, core/forcelaw.py). ``neighbours``: the stamp of every ``*.py`` of
+    the file's folder instead of the file's own, for kernels that inline kernels of the files beside
+    them (the master's driver in cosim_driver.py inlines cosim_loop's step: with its own file's stamp
+    alone, an edit of cosim_loop.py left the cached driver running the old step)."""
+    _DEPENDENTS[os.path.abspath(py_file)] = neighbours
 
 
 
@@ -57,7 +77,7 @@ class _CoreStamp:
 
     * a core file's kernel: the package-wide stamp;
     * a kernel of a registered dependent file (:func:`depends_on_core`): the core's stamp and
-      the file's own;
+      the file's own, or its folder's (:func:`folder_stamp`);
     * a user force law's copy of the core's loop templates (its globals carry :data:`LAW_KEY`,
       core/forcelaw.py): its own index file per law (the key in the disambiguator) and the stamp
       ``(core stamp, key)`` (the hash of the user's file), so an edit of either recompiles and two
@@ -68,8 +88,10 @@ class _CoreStamp:
     def get_source_stamp(self):
         if self._law_key is not None:
             return (core_stamp(), self._law_key)
-        if os.path.abspath(self._py_file) in _DEPENDENTS:
-            return (core_stamp(), super().get_source_stamp())
+        path = os.path.abspath(self._py_file)
+        if path in _DEPENDENTS:
+            own = folder_stamp(os.path.dirname(path)) if _DEPENDENTS[path] else super().get_source_stamp()
+            return (core_stamp(), own)
         return core_stamp()
 
     def get_disambiguator(self):

@@ -26,7 +26,7 @@ from .cosim_loop import (DELAY, DISTANCE_DIVERGED, DONE, EVENT_AWARE, FOH, FREE_
                          ROW, SET_STATE, STATE_DIVERGED, STEPS, TOL, copy_rows, fail_at, fmu_states, record_row,
                          take_step, unmanaged)
 
-depends_on_core(__file__)   # its cache follows the core's edits (network_forces is compiled in)
+depends_on_core(__file__, neighbours=True)   # its cache follows the core's edits and cosim_loop's (inlined)
 
 __all__ = ["drive", "grid_step"]
 

@@ -28,7 +28,7 @@ from .core.network import network_forces
 from .fmus.contract import INPUT_BOUND
 from .core.kernels import depends_on_core
 
-depends_on_core(__file__)
+depends_on_core(__file__, neighbours=True)
 
 __all__ = ["NewtonWork", "newton_work", "OMEGA0", "GROW", "NEUMANN_MAX", "LINEAR_TOL", "TRUST"]
 

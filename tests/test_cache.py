@@ -56,6 +56,28 @@ def test_the_master_loop_cache_follows_core_edits():
         assert isinstance(stamp, tuple) and stamp[0] == _cache.core_stamp() and stamp[1] != _cache.core_stamp()
 
 
+def test_the_drivers_cache_follows_an_edit_of_the_step_it_inlines(tmp_path, monkeypatch):
+    """The master's driver (cosim_driver.py) inlines cosim_loop's step: its stamp is that of every file of its
+    folder, so an edit of cosim_loop.py alone recompiles it (0.11.0 stamped the driver's own file only and
+    loaded the driver with the old step). Checked on a copy of the folder: one file edited, the stamp changes."""
+    import os
+    import shutil
+    from fmu_sync import cosim_driver
+    folder = os.path.dirname(os.path.abspath(cosim_driver.__file__))
+    assert cosim_driver.drive._cache._impl.locator.get_source_stamp()[1] == _cache.folder_stamp(folder)
+    copy = tmp_path / "fmu_sync"
+    copy.mkdir()
+    for name in os.listdir(folder):
+        if name.endswith(".py"):
+            shutil.copy(os.path.join(folder, name), copy / name)
+    before = _cache.folder_stamp(str(copy))
+    assert before == _cache.folder_stamp(folder)
+    monkeypatch.setattr(_cache, "_folders", {})
+    with open(copy / "cosim_loop.py", "a") as f:
+        f.write("\n# edited\n")
+    assert _cache.folder_stamp(str(copy)) != before
+
+
 _VERSIONED = r"""
 import pickle, sys
 import numpy as np
