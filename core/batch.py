@@ -2,9 +2,9 @@
 
 :func:`run_pairs1` runs R independent pairs on one thread per core, each thread
 taking the next block of runs (dynamic scheduling) and running it compiled without
-the GIL (:func:`run_block`), with no Python per run and no trajectory: every run keeps a fixed set of numbers (the columns
-``COLUMNS``, written into one row of ``out``), so memory is O(1) per run
-whatever its length.
+the GIL (:func:`run_block`), with no Python per run and no trajectory: every run
+keeps a fixed set of numbers (the columns ``COLUMNS``, written into one row of
+``out``), so memory is O(1) per run whatever its length.
 
 Each run is the one loop of the core, :func:`fmu_sync.core.loop.integrate_network`,
 on the 2-node network (the loop :func:`~fmu_sync.core.pair.simulate_pair` runs, on
@@ -268,7 +268,7 @@ def run_pairs1(law, scheme, theta, sys_rows, geo_rows, F, Omega, phi, nf, group1
     forcing ``F, Omega, phi`` (G, NF) with ``nf`` (G,) terms used.
     Runs whose ``out[r, 0]`` is already REFUSED are skipped.
 
-    ``threads`` (default: numba's thread count, one per core): threads that each take the next block
+    ``threads`` (at most one per core; default: numba's thread count): threads that each take the next block
     of runs (:data:`BLOCKS_PER_THREAD` per thread) and run it compiled without the GIL
     (:func:`run_block`); the runs are independent, so the rows are the same whatever the threads.
     A Ctrl-C (or an error) in a block stops the others at the end of theirs.
@@ -276,7 +276,7 @@ def run_pairs1(law, scheme, theta, sys_rows, geo_rows, F, Omega, phi, nf, group1
     args = (law, scheme, theta, sys_rows, geo_rows, F, Omega, phi, nf, group1, group2, kp, kd, q1, u1, q2, u2,
             dt, n_steps, dt_last, every, threshold, out, qw)
     R = group1.shape[0]
-    n = max(1, min(int(threads or _numba_threads()), R)) if NUMBA else 1   # (plain Python: the GIL held anyway)
+    n = max(1, min(_threads(threads), R)) if NUMBA else 1   # (plain Python: the GIL held anyway)
     if n == 1:
         run_block(0, R, *args)
         return
@@ -315,7 +315,8 @@ def run_pairs1(law, scheme, theta, sys_rows, geo_rows, F, Omega, phi, nf, group1
         raise failed[0]
 
 
-def _numba_threads() -> int:
-    """numba's thread count (``NUMBA_NUM_THREADS``, one per core; ``numba.set_num_threads`` lowers it)."""
+def _threads(threads) -> int:
+    """The threads of a call: ``threads`` up to the cores (``NUMBA_NUM_THREADS``), by default numba's
+    thread count (one per core; ``numba.set_num_threads`` lowers it)."""
     import numba
-    return numba.get_num_threads()
+    return min(int(threads), numba.config.NUMBA_NUM_THREADS) if threads else numba.get_num_threads()

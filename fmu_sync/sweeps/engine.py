@@ -398,10 +398,7 @@ def run_compiled_chunk(payload: dict, threads: int | None = None):
 
     ``threads``: threads for the call (default: all cores, or the
     thread count of the Dask worker it runs on)."""
-    import numba
     threads = threads or _worker_threads()
-    if threads:
-        threads = max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS))
     r, t = payload["runs"], payload["tables"]
     out = payload["out"].copy()
     batch.run_pairs1(r["law"], r["scheme"], r["theta"], t["sys_rows"], t["geo_rows"], t["F"], t["Omega"],
