@@ -14,12 +14,13 @@ from __future__ import annotations
 
 import hashlib
 import os
+import weakref
 
 from numba.core import caching
 
 from .jit import LAW_KEY  # noqa: F401 (the law's key global, defined in core/jit.py)
 
-__all__ = ["install", "core_stamp", "folder_stamp", "depends_on_core", "CORE_DIR"]
+__all__ = ["install", "core_stamp", "folder_stamp", "depends_on_core", "law_function", "CORE_DIR"]
 
 CORE_DIR = os.path.dirname(os.path.abspath(__file__))
 _stamp: bytes | None = None
@@ -71,6 +72,19 @@ def depends_on_core(py_file: str, neighbours: bool = False) -> None:
     _DEPENDENTS[os.path.abspath(py_file)] = neighbours
 
 
+#: a user force law's own h (its Python function) -> the law's key, registered with
+#: :func:`law_function` before h's ``@njit(cache=True)``
+_LAW_FUNCS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def law_function(py_func, key: str) -> None:
+    """Key the cached h of a force law as its copies of the loops are keyed (the stamp
+    ``(core stamp, key)``, the key in the disambiguator): h's own compiled code calls the
+    helpers it reads, and a helper in another file is in the key (core/law_key.py), not in
+    the stamp of h's file that numba would give it."""
+    _LAW_FUNCS[py_func] = key
+
+
 
 class _CoreStamp:
     """The locator of every kernel built on the core, three kinds told apart by one key:
@@ -79,9 +93,10 @@ class _CoreStamp:
     * a kernel of a registered dependent file (:func:`depends_on_core`): the core's stamp and
       the file's own, or its folder's (:func:`folder_stamp`);
     * a user force law's copy of the core's loop templates (its globals carry :data:`LAW_KEY`,
-      core/forcelaw.py): its own index file per law (the key in the disambiguator) and the stamp
-      ``(core stamp, key)`` (the hash of the user's file), so an edit of either recompiles and two
-      laws never share an entry."""
+      core/forcelaw.py), and the law's h itself (:func:`law_function`): its own index file per
+      law (the key in the disambiguator) and the stamp ``(core stamp, key)`` (the hash of what
+      numba compiles of h, core/law_key.py), so an edit of either recompiles and two laws share
+      an entry only when h is the same code."""
 
     _law_key = None
 
@@ -100,7 +115,7 @@ class _CoreStamp:
 
     @classmethod
     def from_function(cls, py_func, py_file):
-        key = getattr(py_func, "__globals__", {}).get(LAW_KEY)
+        key = getattr(py_func, "__globals__", {}).get(LAW_KEY) or _LAW_FUNCS.get(py_func)
         path = os.path.abspath(py_file)
         if key is None and os.path.dirname(path) != CORE_DIR and path not in _DEPENDENTS:
             return None

@@ -10,10 +10,13 @@ Compilation: the law is compiled once per process into its own copies of the loo
 of :mod:`.moreau` and :mod:`.loop` (their ``TEMPLATES``) with its force (:mod:`.law_loops`) in place of
 the built-in law's (:meth:`ForceLaw.kernels`), which call it from the compiled step; the
 copies are cached on disk (numba ``cache=True``) under the law's :attr:`ForceLaw.key`: the
-sha256 of the user's source *file* (any edit of it, helpers included, recompiles), the law's
-name, dimension, return form and whether it declares a linear part and a forcing; the core's own stamp is
-added by the cache locator (core/_cache.py). A law defined where no source file exists (a
-REPL) compiles every process (no cache).
+sha256 of what numba compiles of h (:mod:`.law_key`: its code and the globals it reads, the
+functions it calls in any file included, recursively; a global of another kind: the whole
+source file), h's name, the dimension and whether the law declares a linear part and a
+forcing; the core's own stamp is added by the cache locator (core/_cache.py). So an edit of h
+or of what it calls recompiles, an edit of the rest of the file (a parameter's default, the
+model) does not. A law defined where no source file exists (a REPL) compiles every process
+(no cache).
 
 The built-in linear law is not a ForceLaw: systems without ``force=`` run the same templates
 compiled with the built-in force (:func:`.moreau.force`, :func:`.loop.net_force`).
@@ -31,10 +34,11 @@ from . import law_loops, loop, moreau
 from .coupling import METRIC_SOURCES  # noqa: F401 (re-exported: how a law's K_m was obtained)
 from .errors import LawRefused
 from .jit import NUMBA, njit
+from .law_key import code_digest
 
 if NUMBA:   # compiled mode; the code an FMU carries runs h as plain Python (core/jit.py)
     from numba import types
-    from ._cache import LAW_KEY, depends_on_core
+    from ._cache import LAW_KEY, depends_on_core, law_function
 
 __all__ = ["ForceLaw", "force_law", "LawKernels", "METRIC_SOURCES"]
 
@@ -120,8 +124,9 @@ class ForceLaw:
         self.py_func = py
         src = _source_file(py)
         self.source = src[0] if src else None
-        if src:
-            hsh = hashlib.sha256(src[1])
+        if src:   # what numba compiles (core/law_key.py), else the whole file
+            code = code_digest(py)
+            hsh = hashlib.sha256(b"code:" + code if code is not None else b"file:" + src[1])
             hsh.update(f"{py.__qualname__}|{self.n}|{linear is not None}|{forcing is not None}".encode())
             self.key = hsh.hexdigest()
         else:
@@ -129,6 +134,7 @@ class ForceLaw:
         # inlined into the step (numba IR): no call with array arguments per step
         if self.source is not None and NUMBA:   # h's own cache is stamped with the core too (our flags live there)
             depends_on_core(self.source)
+            law_function(py, self.key)          # and keyed by what it compiles (core/law_key.py)
         # error_model="numpy": 1/0 is inf (a non-finite force: refused at the start, a divergence
         # mid-run), never a ZeroDivisionError raised out of a compiled loop
         self.dispatcher = njit(cache=self.key is not None, inline="always", error_model="numpy")(py)

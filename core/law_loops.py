@@ -9,7 +9,7 @@ floats) for the built-in linear law, :func:`force` and :func:`force1` below for 
 copies the templates with globals in which ``force``, ``force1`` are the law's, whose
 ``law_h`` is the law's numba function (inlined by numba into each loop: the same code an
 exported stepper compiles in); each law's copies are cached on disk under a key of the law
-(core/_cache.py): the user's file content, the law's name and form, and the core's own stamp.
+(core/_cache.py): what numba compiles of h (core/law_key.py), its name and form, and the core's own stamp.
 
 The step is :func:`fmu_sync.core.steps.step_y` after the force at the scheme's force point::
 

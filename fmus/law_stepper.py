@@ -13,12 +13,12 @@ input at each internal step's force point ``t_k + a``) are the core's own, bit f
 runs on the target as compiled code, without numba.
 
 The cfunc is cached on disk as the built-in stepper is (numba ``cache=True``), under
-:func:`stepper_key`: everything it is made from -- the law's key (the content of the user's
-file, the law's name and form), the source of this package's modules, the numba, llvmlite
-and Python versions -- and the core's stamp, which the cache locator adds (core/_cache.py);
-numba's index adds the target (CPU and triple). So a second export of the same model file
-compiles nothing (minutes of numba under load, otherwise); an edit of the file, of the
-core or of the stepper compiles again.
+:func:`stepper_key`: everything it is made from -- the law's key (what numba compiles of h,
+core/law_key.py, the law's name and form), the source of this package's modules, the numba,
+llvmlite and Python versions -- and the core's stamp, which the cache locator adds
+(core/_cache.py); numba's index adds the target (CPU and triple). So a second export of the
+same law compiles nothing (minutes of numba under load, otherwise); an edit of h or of what
+it reads, of the core or of the stepper compiles again.
 
 Only the export imports this module (it needs numba); an FMU does not carry it.
 """
@@ -66,7 +66,7 @@ def _package_source() -> bytes:
 
 def stepper_key(law) -> str | None:
     """The cache key of the FMU stepper of force law ``law`` (hex sha256): its
-    :attr:`~fmu_sync.core.ForceLaw.key` (the user's file content, the law's name, n and form),
+    :attr:`~fmu_sync.core.ForceLaw.key` (what numba compiles of h, the law's name, n and form),
     this package's source and the numba, llvmlite and Python versions; None for a law without
     a source file (no cache: it compiles in each process)."""
     if law.key is None:

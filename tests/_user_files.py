@@ -1,17 +1,15 @@
 """A user's model file, as a user would write it (tests only): the impacting pendulum of
 docs/user-model.md, under the law and model names a test gives it."""
 
-_PENDULUM = '''"""A user's impacting pendulum: h = -m g l sin q - c u + tau, wall at q = q_w{doc_units}."""
-import math
+from pathlib import Path
 
-from fmu_sync.core import ForceLaw, MechanicalSystem, Model, Param
+#: the guide's own lines up to its ``law = ForceLaw(``: imports and h, so that h is the guide's code on the
+#: guide's lines and every pendulum file of the tests shares the guide's compiled loops and FMU stepper
+#: (core/law_key.py: the law's key is what numba compiles of h, not the file's other lines)
+_GUIDE = (Path(__file__).resolve().parent.parent / "docs" / "user-model.md").read_text()
+_HEAD = _GUIDE.split("```python\n", 1)[1].split("law = ForceLaw(", 1)[0]
 
-
-def h(q, u, tau, t, p):
-    m, g, l, c = p[0], p[1], p[2], p[3]
-    return -m * g * l * math.sin(q[0]) - c * u[0] + tau[0]
-
-
+_PENDULUM = _HEAD.replace("{", "{{").replace("}", "}}") + '''# a user's impacting pendulum: h = -m g l sin q - c u + tau, wall at q = q_w{doc_units}
 law = ForceLaw(h, n=1, name="{law}",
                params=(Param("m", 1.0, "kg", 1e-9, None, "bob mass"),
                        Param("g", 9.81, "m/s2", 0.0, None, "gravity"),
@@ -36,6 +34,5 @@ def pendulum_file(law: str, model: str, units: bool = False) -> str:
 
 
 #: the pendulum (q in rad) of the user-file scene and SSP tests (tests/test_user_model_scenes.py,
-#: tests/test_ssp_user_models.py): one file content, so one law key, and the law's compiled loops and
-#: FMU stepper (cached by that key, whatever the file's folder) are compiled once for both
+#: tests/test_ssp_user_models.py); its h, the guide's, has the law key of every pendulum file here
 SCENE_PENDULUM = pendulum_file("scene_pendulum", "scene-pendulum", units=True)

@@ -295,15 +295,18 @@ def test_a_second_export_of_the_file_compiles_nothing(pend, tmp_path, capsys):
     assert (tmp_path / "again.fmu").read_bytes() == pend["fmu"].read_bytes()
 
 
-def test_the_stepper_cache_key_follows_the_model_file(pend, tmp_path):
-    """The key changes with an edit of the file (a helper or a constant included), not with where
-    the file lies."""
+def test_the_stepper_cache_key_follows_the_laws_code(pend, tmp_path):
+    """The key changes with an edit of h (core/law_key.py: of what numba compiles of it), not with
+    one of the rest of the file, nor with where the file lies."""
     from fmu_sync.fmus.law_stepper import stepper_key
     key = stepper_key(pend["decl"].force)
     moved = tmp_path / "elsewhere" / "my_pendulum.py"
     moved.parent.mkdir()
     moved.write_text(PENDULUM_FILE)
-    edited = tmp_path / "my_pendulum.py"
-    edited.write_text(PENDULUM_FILE + "\nUNUSED = 1\n")
+    appended = tmp_path / "my_pendulum.py"
+    appended.write_text(PENDULUM_FILE + "\nUNUSED = 1\n")
+    edited = tmp_path / "my_pendulum_edited.py"
+    edited.write_text(PENDULUM_FILE.replace("- c * u[0]", "- c * u[0] * 1.0"))
     assert stepper_key(load_model(f"{moved}:pendulum").force) == key
+    assert stepper_key(load_model(f"{appended}:pendulum").force) == key
     assert stepper_key(load_model(f"{edited}:pendulum").force) != key

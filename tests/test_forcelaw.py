@@ -218,7 +218,7 @@ def test_errors_name_the_law_and_the_offence():
         simulate(Pendulum(), (0.0, 0.0), 0.1, 1e-3, scheme="exact")
 
 
-# ------------------------------------------------------------------ compiled once, cached by content
+# ------------------------------------------------------------------ compiled once, cached by its code
 def test_the_law_key_follows_the_file(tmp_path):
     a = load(tmp_path, "lawfile", LINEAR_SRC).law
     b = load(tmp_path, "lawfile_copy", LINEAR_SRC).law
@@ -228,6 +228,100 @@ def test_the_law_key_follows_the_file(tmp_path):
     assert c.law.key != a.key                        # an edit: a new key, new kernels
     interactive = ForceLaw(eval("lambda q, u, tau, t, p: -q[0]"), (), n=1)
     assert interactive.key is None                   # no source file: compiled, not cached
+
+
+KEYED_SRC = '''
+from fmu_sync.core import ForceLaw, Param
+from {helpers} import push
+
+GAIN = 2.0
+TABLE = {{"a": 1.0}}
+
+
+def helper(x):
+    return 0.5 * x
+
+
+def h(q, u, tau, t, p):
+    return -p[0] * helper(q[0]) * GAIN - push(u[0]) + tau[0]{tail}
+
+
+law = ForceLaw(h, (Param("k", {k}, "N/m", 0.0),), n=1)
+'''
+
+
+def test_the_law_key_is_what_numba_compiles_of_h(tmp_path, monkeypatch):
+    """core/law_key.py: the key follows h's code, the helpers it calls (in its file or another) and the
+    constants it reads; not a parameter's default, a line h does not read, or the file's place. A global
+    of a kind the digest cannot vouch for keys the law by its whole file."""
+    monkeypatch.syspath_prepend(str(tmp_path))
+    for name, body in (("helpers_a", "2.0 * x"), ("helpers_b", "3.0 * x"), ("helpers_c", "2.0 * x")):
+        (tmp_path / f"{name}.py").write_text(f"def push(x):\n    return {body}\n")
+
+    def key(i, helpers="helpers_a", tail="", k="1.0", edit=lambda s: s):
+        return load(tmp_path, f"keyed_{i}", edit(KEYED_SRC.format(helpers=helpers, tail=tail, k=k))).law.key
+
+    base = key(0)
+    assert base is not None
+    assert key(1, k="7.0") == base                                        # a parameter's default
+    assert key(2, edit=lambda s: s + "\nUNUSED = 1\n") == base             # a line h does not read
+    assert key(3, helpers="helpers_c") == base                            # the same helper in another file
+    assert key(4, helpers="helpers_b") != base                            # a helper of another file edited
+    assert key(5, edit=lambda s: s.replace("0.5 * x", "0.25 * x")) != base     # a helper of its file
+    assert key(6, edit=lambda s: s.replace("GAIN = 2.0", "GAIN = 2.5")) != base  # a constant it reads
+    assert key(7, edit=lambda s: s.replace("\ndef h(", "\n\ndef h(")) != base   # h's lines (its error path)
+    opaque = key(8, tail=' * TABLE["a"]')                                 # a dict: not vouched for
+    assert opaque != base and key(9, tail=' * TABLE["a"]', k="7.0") != opaque   # keyed by the whole file
+
+
+def test_a_helper_edited_in_another_file_is_followed_by_the_next_process(tmp_path):
+    """h's own cached code (the start checks evaluate it) calls a helper of another file: after an edit
+    of that file alone, a fresh process runs the edited helper (numba's own stamp would be h's file's,
+    which did not change; core/_cache.py keys h by the law's key, as the law's loops are keyed)."""
+    import subprocess
+    import sys
+    (tmp_path / "lawfile_h.py").write_text(textwrap.dedent('''
+        from fmu_sync.core import ForceLaw
+        from lawhelp import push
+
+
+        def h(q, u, tau, t, p):
+            return -push(q[0])
+
+
+        law = ForceLaw(h, (), n=1)
+        '''))
+    code = (f"import sys; sys.path.insert(0, {str(tmp_path)!r}); import numpy as np; from lawfile_h import law; "
+            "print(law.evaluate(np.ones(1), np.zeros(1), np.zeros(1), 0.0, np.zeros(0))[0])")
+    seen = []
+    for gain in ("2.0", "3.0"):
+        (tmp_path / "lawhelp.py").write_text(f"from numba import njit\n\n\n@njit(cache=True)\ndef push(x):\n"
+                                             f"    return {gain} * x\n")
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+        seen.append([float(x) for x in out.split()])
+    assert seen == [[-2.0], [-3.0]], seen
+
+
+def test_the_law_key_is_the_same_in_every_process(tmp_path):
+    """A set constant in h (a frozenset, whose order follows string hashing) gives one key whatever
+    PYTHONHASHSEED: the compiled loops are found in the cache by the next process."""
+    import os
+    import subprocess
+    import sys
+    (tmp_path / "setlaw.py").write_text(textwrap.dedent('''
+        from fmu_sync.core import ForceLaw
+
+
+        def h(q, u, tau, t, p):
+            return -q[0] if t in {"a", "b", "c", "d"} else -2.0 * q[0]
+
+
+        law = ForceLaw(h, (), n=1)
+        '''))
+    code = f"import sys; sys.path.insert(0, {str(tmp_path)!r}); import setlaw; print(setlaw.law.key)"
+    keys = {subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                           env={**os.environ, "PYTHONHASHSEED": seed}).stdout for seed in ("1", "2", "3")}
+    assert len(keys) == 1 and len(keys.pop().strip()) == 64
 
 
 def test_the_guide_example_file_runs(tmp_path, monkeypatch):

@@ -100,10 +100,10 @@ def stepper_cfunc(model: str = "impact-oscillator"):
 
 
 def _compiling(law: str) -> None:
-    """The progress line of a user force law's stepper compiling (a first export of its file)."""
+    """The progress line of a user force law's stepper compiling (a first export of the law)."""
     from ..progress import note
     note(f"fmu-sync export: compiling the FMU stepper of force law {law!r} with numba (the first export "
-         f"of this model file only; it can take a minute or more; later exports load it from the cache)")
+         f"of this law only; it can take a minute or more; later exports load it from the cache)")
 
 
 def build_binary(out: Path, guid: str, boot_module: str, max_substeps: int = MAX_SUBSTEPS,
