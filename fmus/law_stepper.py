@@ -40,7 +40,7 @@ from . import stepper as S
 
 __all__ = ["law_stepper", "stepper_key", "compiled"]
 
-_STEPPERS: dict = {}   # law key (or id) -> cfunc, one compilation per process
+_STEPPERS: dict = {}   # stepper key (or the law's id) -> cfunc, one compilation per process
 #: the laws whose stepper this process compiled (a cache hit compiles none), by name
 _COMPILED: list = []
 
@@ -66,12 +66,17 @@ def _package_source() -> bytes:
 
 def stepper_key(law) -> str | None:
     """The cache key of the FMU stepper of force law ``law`` (hex sha256): its
-    :attr:`~fmu_sync.core.ForceLaw.key` (what numba compiles of h, the law's name, n and form),
+    :attr:`~fmu_sync.core.ForceLaw.key` (what numba compiles of h, h's name, n and form), what the
+    stepper compiles in beside it (the parameter count, whether the law runs the trapezoid's corrected
+    copy, the law's name),
     this package's source and the numba, llvmlite and Python versions; None for a law without
     a source file (no cache: it compiles in each process)."""
     if law.key is None:
         return None
     h = hashlib.sha256(law.key.encode())
+    # what the stepper compiles in beside h's code (law.key): its parameter count, whether it carries the
+    # trapezoid's corrected copy, its name (two laws with the same h may differ in these)
+    h.update(f"|N_P {len(law.params)}|corrected {not law.linear_in_u}|name {law.name}".encode())
     h.update(_package_source())
     h.update(f"numba {numba.__version__}|llvmlite {llvmlite.__version__}|python {sys.version}".encode())
     return h.hexdigest()
@@ -94,13 +99,13 @@ def law_stepper(law, on_compile=None):
     """The numba cfunc (:data:`.stepper.STEP_SIGNATURE`) stepping the FMU of force law ``law``:
     loaded from the cache (:func:`stepper_key`) or compiled; ``on_compile(name)`` is called
     before it compiles (the export's progress line)."""
-    key = law.key or id(law)
+    cache_key = stepper_key(law)
+    key = cache_key or id(law)
     if key in _STEPPERS:
         return _STEPPERS[key]
     plain, trapezoid = law.kernels(), law.kernels(trapezoid=True)   # one copy when the law needs no correction
     g = dict(vars(S), advance_in=plain.advance_in, N_P=len(law.params), LAW_TRAPEZOID=trapezoid is not plain,
              advance_in_trapezoid=trapezoid.advance_in)
-    cache_key = stepper_key(law)
     if cache_key is not None:    # the cache locator's key of this copy (core/_cache.py)
         g[LAW_KEY] = cache_key
     for name, fn in (("_advance", S._advance.py_func), ("step", S.step._pyfunc)):

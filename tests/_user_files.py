@@ -34,5 +34,6 @@ def pendulum_file(law: str, model: str, units: bool = False) -> str:
 
 
 #: the pendulum (q in rad) of the user-file scene and SSP tests (tests/test_user_model_scenes.py,
-#: tests/test_ssp_user_models.py); its h, the guide's, has the law key of every pendulum file here
-SCENE_PENDULUM = pendulum_file("scene_pendulum", "scene-pendulum", units=True)
+#: tests/test_ssp_user_models.py); its h, the guide's, has the law key of every pendulum file here, and its law
+#: the name and parameters of tests/test_fmu_user_model.py's: one FMU stepper for both (fmus/law_stepper.py)
+SCENE_PENDULUM = pendulum_file("my_pendulum", "scene-pendulum", units=True)

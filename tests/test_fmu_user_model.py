@@ -285,19 +285,21 @@ def test_a_second_export_of_the_file_compiles_nothing(pend, tmp_path, capsys):
     line) and the same FMU, byte for byte."""
     from fmu_sync.fmus import law_stepper as LS
     law = pend["decl"].force
-    assert law.key in LS._STEPPERS
+    key = LS.stepper_key(law)
+    assert key in LS._STEPPERS
     before = LS.compiled()
-    del LS._STEPPERS[law.key]
+    del LS._STEPPERS[key]
     assert main_export([pend["spec"], "-o", str(tmp_path / "again.fmu")]) == 0
     assert LS.compiled() == before
-    assert LS._STEPPERS[law.key].cache_hits == 1
+    assert LS._STEPPERS[key].cache_hits == 1
     assert "compiling" not in capsys.readouterr().err
     assert (tmp_path / "again.fmu").read_bytes() == pend["fmu"].read_bytes()
 
 
 def test_the_stepper_cache_key_follows_the_laws_code(pend, tmp_path):
-    """The key changes with an edit of h (core/law_key.py: of what numba compiles of it), not with
-    one of the rest of the file, nor with where the file lies."""
+    """The key changes with an edit of h (core/law_key.py: of what numba compiles of it) and with a
+    parameter more (the stepper reads N_P of them: the law's key alone, which is h's, would hand it the
+    other law's stepper), not with another edit of the rest of the file, nor with where the file lies."""
     from fmu_sync.fmus.law_stepper import stepper_key
     key = stepper_key(pend["decl"].force)
     moved = tmp_path / "elsewhere" / "my_pendulum.py"
@@ -310,3 +312,8 @@ def test_the_stepper_cache_key_follows_the_laws_code(pend, tmp_path):
     assert stepper_key(load_model(f"{moved}:pendulum").force) == key
     assert stepper_key(load_model(f"{appended}:pendulum").force) == key
     assert stepper_key(load_model(f"{edited}:pendulum").force) != key
+    more = tmp_path / "my_pendulum_more.py"
+    more.write_text(PENDULUM_FILE.replace('"damping at the pivot")),', '"damping at the pivot"),\n'
+                                          '                       Param("spare", 0.0, "1", None, None, "unused")),'))
+    law = load_model(f"{more}:pendulum").force
+    assert len(law.params) == 5 and law.key == pend["decl"].force.key and stepper_key(law) != key

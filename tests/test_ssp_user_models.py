@@ -157,7 +157,7 @@ def test_the_law_switching_compensated_is_refused_with_the_reason(scene, package
         write_ssp(src, tmp_path / "x.ssp", None, {"coupling.law": "switching-compensated"})
     msg = str(exc.value)
     assert "compensates the built-in linear law's force" in msg and "use 'switching'" in msg
-    assert ("'pendulum'" if scene == "pendulum" else "'scene_pendulum'") in msg, msg
+    assert ("'pendulum'" if scene == "pendulum" else "'my_pendulum'") in msg, msg
     assert not list(tmp_path.iterdir())
 
 
