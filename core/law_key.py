@@ -3,7 +3,8 @@
 
 numba compiles h from its code and from the globals it reads, frozen at compile time: the
 functions it calls (their code and globals in turn, in any file), the constants and arrays it
-reads, the modules it names. :func:`code_digest` is a sha256 of exactly these, so a law's
+reads, the modules it names (a library -- math, numpy, numba -- by its name; a module of the
+user's by what the code reads of it: ``mylib.helper``). :func:`code_digest` is a sha256 of exactly these, so a law's
 copies of the loops (:meth:`fmu_sync.core.ForceLaw.kernels`) are compiled again when any of
 them changes and not when the rest of the file does (a parameter's default, a description,
 the model declaration, another law): two files whose h is the same code share their compiled
@@ -59,13 +60,29 @@ def _function(h, fn, seen: set) -> None:
         except ValueError:    # an empty cell
             raise _Opaque from None
     g = fn.__globals__
-    for name in sorted(_names(fn.__code__)):
+    names = sorted(_names(fn.__code__))
+    for name in names:
         if name in g:
             h.update(f"global {name}\0".encode())
             _value(h, g[name], seen)
+            _attributes(h, g[name], names, seen)
         elif hasattr(builtins, name):
             h.update(f"builtin {name}\0".encode())
         # else the name of an attribute (``math.sin``'s ``sin``): in the code's names already
+
+
+def _attributes(h, module, names, seen: set) -> None:
+    """What the code may read of a user's module it names (``mylib.helper``): its attributes of the
+    code's names, recursively for its submodules (a library module is its name alone)."""
+    if not isinstance(module, pytypes.ModuleType) or module.__name__.split(".")[0] in _LIBRARIES \
+            or id(module) in seen:
+        return
+    seen.add(id(module))
+    for name in names:
+        if hasattr(module, name):
+            h.update(f"attribute {name}\0".encode())
+            _value(h, getattr(module, name), seen)
+            _attributes(h, getattr(module, name), names, seen)
 
 
 def _names(code) -> set:
@@ -100,15 +117,15 @@ def _const(c) -> str:
 def _value(h, v, seen: set) -> None:
     if isinstance(v, _SCALARS) or isinstance(v, np.generic):
         h.update(f"{type(v).__name__}:{v!r}\0".encode())
-    elif isinstance(v, (tuple, list)):
-        h.update(f"{type(v).__name__}[{len(v)}]\0".encode())
+    elif isinstance(v, (tuple, list)):    # a namedtuple's fields too
+        h.update(f"{type(v).__name__}{getattr(v, '_fields', '')}[{len(v)}]\0".encode())
         for x in v:
             _value(h, x, seen)
     elif isinstance(v, np.ndarray):
         h.update(f"array {v.dtype.str} {v.shape}\0".encode())
         h.update(np.ascontiguousarray(v).tobytes())
-    elif isinstance(v, pytypes.ModuleType):
-        h.update(f"module {v.__name__}\0".encode())
+    elif isinstance(v, pytypes.ModuleType):   # a library by its name; a user's by what is read of it (_attributes)
+        h.update(f"module {v.__name__ if v.__name__.split('.')[0] in _LIBRARIES else ''}\0".encode())
     elif _library(v):    # numba compiles its own implementation of these, not their Python code
         h.update(f"library {v.__module__}.{getattr(v, '__qualname__', v.__name__)}\0".encode())
     elif isinstance(v, pytypes.FunctionType):

@@ -232,6 +232,7 @@ def test_the_law_key_follows_the_file(tmp_path):
 
 KEYED_SRC = '''
 from fmu_sync.core import ForceLaw, Param
+import {helpers} as lib
 from {helpers} import push
 
 GAIN = 2.0
@@ -243,7 +244,7 @@ def helper(x):
 
 
 def h(q, u, tau, t, p):
-    return -p[0] * helper(q[0]) * GAIN - push(u[0]) + tau[0]{tail}
+    return -p[0] * helper(q[0]) * GAIN - push(u[0]) - lib.pull(t) + tau[0]{tail}
 
 
 law = ForceLaw(h, (Param("k", {k}, "N/m", 0.0),), n=1)
@@ -255,8 +256,10 @@ def test_the_law_key_is_what_numba_compiles_of_h(tmp_path, monkeypatch):
     constants it reads; not a parameter's default, a line h does not read, or the file's place. A global
     of a kind the digest cannot vouch for keys the law by its whole file."""
     monkeypatch.syspath_prepend(str(tmp_path))
-    for name, body in (("helpers_a", "2.0 * x"), ("helpers_b", "3.0 * x"), ("helpers_c", "2.0 * x")):
-        (tmp_path / f"{name}.py").write_text(f"def push(x):\n    return {body}\n")
+    for name, push, pull in (("helpers_a", "2.0", "0.0"), ("helpers_b", "3.0", "0.0"), ("helpers_c", "2.0", "0.0"),
+                             ("helpers_d", "2.0", "1.0")):
+        (tmp_path / f"{name}.py").write_text(f"def push(x):\n    return {push} * x\n\n\n"
+                                             f"def pull(x):\n    return {pull} * x\n")
 
     def key(i, helpers="helpers_a", tail="", k="1.0", edit=lambda s: s):
         return load(tmp_path, f"keyed_{i}", edit(KEYED_SRC.format(helpers=helpers, tail=tail, k=k))).law.key
@@ -267,6 +270,7 @@ def test_the_law_key_is_what_numba_compiles_of_h(tmp_path, monkeypatch):
     assert key(2, edit=lambda s: s + "\nUNUSED = 1\n") == base             # a line h does not read
     assert key(3, helpers="helpers_c") == base                            # the same helper in another file
     assert key(4, helpers="helpers_b") != base                            # a helper of another file edited
+    assert key(10, helpers="helpers_d") != base                           # one read as an attribute (lib.pull)
     assert key(5, edit=lambda s: s.replace("0.5 * x", "0.25 * x")) != base     # a helper of its file
     assert key(6, edit=lambda s: s.replace("GAIN = 2.0", "GAIN = 2.5")) != base  # a constant it reads
     assert key(7, edit=lambda s: s.replace("\ndef h(", "\n\ndef h(")) != base   # h's lines (its error path)
