@@ -4,11 +4,11 @@
 numba compiles h from its code and from the globals it reads, frozen at compile time: the
 functions it calls (their code and globals in turn, in any file), the constants and arrays it
 reads, the modules it names (a library -- math, numpy, numba -- by its name; a module of the
-user's by what the code reads of it: ``mylib.helper``). :func:`code_digest` is a sha256 of exactly these, so a law's
-copies of the loops (:meth:`fmu_sync.core.ForceLaw.kernels`) are compiled again when any of
-them changes and not when the rest of the file does (a parameter's default, a description,
-the model declaration, another law): two files whose h is the same code share their compiled
-loops. The code's line numbers are part of it (numba's error path reports them). A global
+user's by what the code reads of it: ``mylib.helper``). :func:`code_digest` is a sha256 of
+exactly these, so a law's copies of the loops (:meth:`fmu_sync.core.ForceLaw.kernels`) are
+compiled again when any of them changes and not when the rest of the file does (a parameter's
+default, a description, the model declaration, another law): two files whose h is the same
+code share their compiled loops. The code's line numbers are part of it (numba's error path reports them). A global
 this digest cannot vouch for (an object of another type: a class instance, a dict) makes it
 ``None``, and the law is then keyed by its whole source file, as any law was before 0.13.0.
 """
@@ -98,7 +98,7 @@ def _code(h, code) -> None:
                    code.co_firstlineno, code.co_names, code.co_varnames, code.co_freevars,
                    code.co_cellvars)).encode())
     h.update(code.co_code)
-    h.update(getattr(code, "co_linetable", None) or code.co_lnotab)
+    h.update(code.co_linetable)
     for c in code.co_consts:
         if isinstance(c, pytypes.CodeType):
             _code(h, c)

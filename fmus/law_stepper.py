@@ -14,8 +14,9 @@ runs on the target as compiled code, without numba.
 
 The cfunc is cached on disk as the built-in stepper is (numba ``cache=True``), under
 :func:`stepper_key`: everything it is made from -- the law's key (what numba compiles of h,
-core/law_key.py, the law's name and form), the source of this package's modules, the numba,
-llvmlite and Python versions -- and the core's stamp, which the cache locator adds
+core/law_key.py, h's name and the law's form), what the stepper compiles in beside h (``N_P``,
+whether it carries the corrected copy, the law's name), the source of this package's modules,
+the numba, llvmlite and Python versions -- and the core's stamp, which the cache locator adds
 (core/_cache.py); numba's index adds the target (CPU and triple). So a second export of the
 same law compiles nothing (minutes of numba under load, otherwise); an edit of h or of what
 it reads, of the core or of the stepper compiles again.

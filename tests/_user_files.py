@@ -9,7 +9,8 @@ from pathlib import Path
 _GUIDE = (Path(__file__).resolve().parent.parent / "docs" / "user-model.md").read_text()
 _HEAD = _GUIDE.split("```python\n", 1)[1].split("law = ForceLaw(", 1)[0]
 
-_PENDULUM = _HEAD.replace("{", "{{").replace("}", "}}") + '''# a user's impacting pendulum: h = -m g l sin q - c u + tau, wall at q = q_w{doc_units}
+_PENDULUM = _HEAD.replace("{", "{{").replace("}", "}}") + '''\
+# a user's impacting pendulum: h = -m g l sin q - c u + tau, wall at q = q_w{doc_units}
 law = ForceLaw(h, n=1, name="{law}",
                params=(Param("m", 1.0, "kg", 1e-9, None, "bob mass"),
                        Param("g", 9.81, "m/s2", 0.0, None, "gravity"),
