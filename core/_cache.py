@@ -78,10 +78,11 @@ _LAW_FUNCS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def law_function(py_func, key: str) -> None:
-    """Key the cached h of a force law as its copies of the loops are keyed (the stamp
-    ``(core stamp, key)``, the key in the disambiguator): h's own compiled code calls the
-    helpers it reads, and a helper in another file is in the key (core/law_key.py), not in
-    the stamp of h's file that numba would give it."""
+    """Stamp the cached h of a force law with the law's key as well as its file's stamp (the
+    key in the disambiguator too): h's own compiled code calls the helpers it reads, and a
+    helper in another file is in the key (core/law_key.py), not in the stamp of h's file that
+    numba gives it. Unlike the law's copies of the loops, h's own entry is not shared between
+    files: numba's entry names h's module, and a user file's module name follows its content."""
     _LAW_FUNCS[py_func] = key
 
 
@@ -99,10 +100,13 @@ class _CoreStamp:
       an entry only when h is the same code."""
 
     _law_key = None
+    _law_h = False   # the law's h itself (law_function), not a copy of the loops
 
     def get_source_stamp(self):
-        if self._law_key is not None:
-            return (core_stamp(), self._law_key)
+        if self._law_key is not None:   # h itself: its file's stamp too (numba's entry names h's module,
+            # whose name follows the file's content: core/registry.py), cheap to compile again
+            return (core_stamp(), super().get_source_stamp(), self._law_key) if self._law_h \
+                else (core_stamp(), self._law_key)
         path = os.path.abspath(self._py_file)
         if path in _DEPENDENTS:
             own = folder_stamp(os.path.dirname(path)) if _DEPENDENTS[path] else super().get_source_stamp()
@@ -115,13 +119,15 @@ class _CoreStamp:
 
     @classmethod
     def from_function(cls, py_func, py_file):
-        key = getattr(py_func, "__globals__", {}).get(LAW_KEY) or _LAW_FUNCS.get(py_func)
+        key = getattr(py_func, "__globals__", {}).get(LAW_KEY)
+        law_h = key is None and py_func in _LAW_FUNCS
+        key = _LAW_FUNCS[py_func] if law_h else key
         path = os.path.abspath(py_file)
         if key is None and os.path.dirname(path) != CORE_DIR and path not in _DEPENDENTS:
             return None
         self = super().from_function(py_func, py_file)
         if self is not None:
-            self._law_key = key
+            self._law_key, self._law_h = key, law_h
         return self
 
 

@@ -8,9 +8,13 @@ user's by what the code reads of it: ``mylib.helper``). :func:`code_digest` is a
 exactly these, so a law's copies of the loops (:meth:`fmu_sync.core.ForceLaw.kernels`) are
 compiled again when any of them changes and not when the rest of the file does (a parameter's
 default, a description, the model declaration, another law): two files whose h is the same
-code share their compiled loops. The code's line numbers are part of it (numba's error path reports them). A global
-this digest cannot vouch for (an object of another type: a class instance, a dict) makes it
-``None``, and the law is then keyed by its whole source file, as any law was before 0.13.0.
+code share their compiled loops. The code's line numbers are part of it (numba's error path
+reports them), and so is the module name of each compiled function h calls: a law's cached
+loops find that function's environment by it (a helper ``@njit`` in the law's own file, which
+:func:`fmu_sync.core.load_model` loads under a name that follows the file's content, keys the
+law by that content again). A global this digest cannot vouch for (an object of another type:
+a class instance, a dict) makes it ``None``, and the law is then keyed by its whole source
+file, as any law was before 0.13.0.
 """
 from __future__ import annotations
 
@@ -131,8 +135,10 @@ def _value(h, v, seen: set) -> None:
     elif isinstance(v, pytypes.FunctionType):
         _function(h, v, seen)
     elif callable(v) and isinstance(getattr(v, "py_func", None), pytypes.FunctionType):   # a numba dispatcher
+        # its module's name too: code compiled with a call to it finds its environment by that name when
+        # loaded from the cache (a module loaded by load_model is named after its file's content)
         options = getattr(v, "targetoptions", {})
-        h.update(f"jit {sorted((k, repr(x)) for k, x in options.items())}\0".encode())
+        h.update(f"jit {v.py_func.__module__} {sorted((k, repr(x)) for k, x in options.items())}\0".encode())
         _function(h, v.py_func, seen)
     else:
         raise _Opaque

@@ -306,6 +306,45 @@ def test_a_helper_edited_in_another_file_is_followed_by_the_next_process(tmp_pat
     assert seen == [[-2.0], [-3.0]], seen
 
 
+def test_an_edit_of_a_default_in_place_keeps_the_key_and_runs_in_the_next_process(tmp_path):
+    """The same file edited where it lies (a parameter's default): the law's key stays, so its loops load
+    from the cache; h's own cached entry follows the file (numba's entry names h's module, whose name
+    follows the file's content: loading the old entry raised ModuleNotFoundError in 0.13.0's first draft)."""
+    import subprocess
+    import sys
+    from _user_files import pendulum_file
+    path = tmp_path / "edited_pendulum.py"
+    code = (f"import numpy as np; from fmu_sync.core import load_model; law = load_model({str(path)!r} + ':pendulum').force; "
+            "print(law.key, law.evaluate(np.array([0.5]), np.array([1.0]), np.zeros(1), 0.0, law.values())[0])")
+    seen = []
+    for q_w in ("0.3", "0.35"):
+        path.write_text(pendulum_file("my_pendulum", "my-pendulum").replace('Param("q_w", 0.3,', f'Param("q_w", {q_w},'))
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+        assert out.returncode == 0, out.stderr[-2000:]
+        seen.append(out.stdout.split())
+    assert seen[0] == seen[1] and len(seen[0][0]) == 64     # the same key, the same force
+    assert float(seen[0][1]) == pytest.approx(-1.0 * 9.81 * 0.5 * np.sin(0.5) - 0.05 * 1.0)
+
+
+def test_a_jitted_helper_of_the_laws_own_file_keys_the_law_by_the_files_content(tmp_path):
+    """A law's cached loops find a compiled helper's environment by its module's name, and load_model names
+    a model file's module after its content: with an @njit helper in the file, an edit of a default gives
+    another key (found by hand: the old key's cached loops raised ModuleNotFoundError in the next process);
+    without one (the guide's pendulum), the key stays."""
+    from fmu_sync.core import load_model
+    from _user_files import pendulum_file
+    helped = pendulum_file("my_pendulum", "my-pendulum").replace("import math\n", "import math\n\nfrom numba import njit\n\n\n"
+                                                                  "@njit\ndef grav(x):\n    return math.sin(x)\n", 1)
+    helped = helped.replace("math.sin(q[0])", "grav(q[0])")
+    keys = {}
+    for name, src in (("plain", pendulum_file("my_pendulum", "my-pendulum")), ("helped", helped)):
+        for q_w in ("0.3", "0.35"):
+            path = tmp_path / f"{name}.py"
+            path.write_text(src.replace('Param("q_w", 0.3,', f'Param("q_w", {q_w},'))
+            keys.setdefault(name, []).append(load_model(f"{path}:pendulum").force.key)
+    assert keys["plain"][0] == keys["plain"][1] and keys["helped"][0] != keys["helped"][1]
+
+
 def test_the_law_key_is_the_same_in_every_process(tmp_path):
     """A set constant in h (a frozenset, whose order follows string hashing) gives one key whatever
     PYTHONHASHSEED: the compiled loops are found in the cache by the next process."""
