@@ -78,8 +78,7 @@ def _function(h, fn, seen: set) -> None:
 def _attributes(h, module, names, seen: set) -> None:
     """What the code may read of a user's module it names (``mylib.helper``): its attributes of the
     code's names, recursively for its submodules (a library module is its name alone)."""
-    if not isinstance(module, pytypes.ModuleType) or module.__name__.split(".")[0] in _LIBRARIES \
-            or id(module) in seen:
+    if not isinstance(module, pytypes.ModuleType) or _in_library(module.__name__) or id(module) in seen:
         return
     seen.add(id(module))
     for name in names:
@@ -129,7 +128,7 @@ def _value(h, v, seen: set) -> None:
         h.update(f"array {v.dtype.str} {v.shape}\0".encode())
         h.update(np.ascontiguousarray(v).tobytes())
     elif isinstance(v, pytypes.ModuleType):   # a library by its name; a user's by what is read of it (_attributes)
-        h.update(f"module {v.__name__ if v.__name__.split('.')[0] in _LIBRARIES else ''}\0".encode())
+        h.update(f"module {v.__name__ if _in_library(v.__name__) else ''}\0".encode())
     elif _library(v):    # numba compiles its own implementation of these, not their Python code
         h.update(f"library {v.__module__}.{getattr(v, '__qualname__', v.__name__)}\0".encode())
     elif isinstance(v, pytypes.FunctionType):
@@ -147,4 +146,9 @@ def _value(h, v, seen: set) -> None:
 def _library(v) -> bool:
     """A function, ufunc or type of one of :data:`_LIBRARIES` (``math.sin``, ``np.sum``, ``float``)."""
     module = getattr(v, "__module__", None)
-    return callable(v) and isinstance(module, str) and module.split(".")[0] in _LIBRARIES and hasattr(v, "__name__")
+    return callable(v) and isinstance(module, str) and _in_library(module) and hasattr(v, "__name__")
+
+
+def _in_library(module_name: str) -> bool:
+    """Whether the module ``module_name`` belongs to one of :data:`_LIBRARIES`."""
+    return module_name.split(".")[0] in _LIBRARIES

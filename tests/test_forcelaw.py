@@ -278,13 +278,22 @@ def test_the_law_key_is_what_numba_compiles_of_h(tmp_path, monkeypatch):
     assert opaque != base and key(9, tail=' * TABLE["a"]', k="7.0") != opaque   # keyed by the whole file
 
 
+def _fresh_process(code: str, **env) -> str:
+    """What ``python -c code`` prints in a new process (``env`` added to this one's; no .pyc written: Python
+    checks a .pyc by its source's mtime to the second, and these tests rewrite a file within one)."""
+    import os
+    import subprocess
+    import sys
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env={**os.environ, "PYTHONDONTWRITEBYTECODE": "1", **env})
+    assert out.returncode == 0, out.stderr[-2000:]
+    return out.stdout
+
+
 def test_a_helper_edited_in_another_file_is_followed_by_the_next_process(tmp_path):
     """h's own cached code (the start checks evaluate it) calls a helper of another file: after an edit
     of that file alone, a fresh process runs the edited helper (numba's own stamp would be h's file's,
     which did not change; core/_cache.py stamps h with the law's key too)."""
-    import os
-    import subprocess
-    import sys
     (tmp_path / "lawfile_h.py").write_text(textwrap.dedent('''
         from fmu_sync.core import ForceLaw
         from lawhelp import push
@@ -299,14 +308,11 @@ def test_a_helper_edited_in_another_file_is_followed_by_the_next_process(tmp_pat
     code = (f"import sys; sys.path.insert(0, {str(tmp_path)!r}); import numpy as np; from lawfile_h import law; "
             "print(law.evaluate(np.ones(1), np.zeros(1), np.zeros(1), 0.0, np.zeros(0))[0])")
     seen = []
-    # the two versions differ in size and no .pyc is written: Python's own check of a .pyc reads the source's
-    # mtime to the second, and both versions are written within one (a stale .pyc ran the old helper on CI's twin)
-    env = {**os.environ, "PYTHONDONTWRITEBYTECODE": "1"}
+    # the two versions differ in size too (a stale .pyc ran the old helper once on a clean clone: _fresh_process)
     for gain in ("2.0", "3.25"):
         (tmp_path / "lawhelp.py").write_text(f"from numba import njit\n\n\n@njit(cache=True)\ndef push(x):\n"
                                              f"    return {gain} * x\n")
-        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env).stdout
-        seen.append([float(x) for x in out.split()])
+        seen.append([float(x) for x in _fresh_process(code).split()])
     assert seen == [[-2.0], [-3.25]], seen
 
 
@@ -314,8 +320,6 @@ def test_an_edit_of_a_default_in_place_keeps_the_key_and_runs_in_the_next_proces
     """The same file edited where it lies (a parameter's default): the law's key stays, so its loops load
     from the cache; h's own cached entry follows the file (numba's entry names h's module, whose name
     follows the file's content: loading the old entry raised ModuleNotFoundError in 0.13.0's first draft)."""
-    import subprocess
-    import sys
     from _user_files import pendulum_file
     path = tmp_path / "edited_pendulum.py"
     code = (f"import numpy as np; from fmu_sync.core import load_model; law = load_model({str(path)!r} + ':pendulum').force; "
@@ -323,9 +327,7 @@ def test_an_edit_of_a_default_in_place_keeps_the_key_and_runs_in_the_next_proces
     seen = []
     for q_w in ("0.3", "0.35"):
         path.write_text(pendulum_file("my_pendulum", "my-pendulum").replace('Param("q_w", 0.3,', f'Param("q_w", {q_w},'))
-        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
-        assert out.returncode == 0, out.stderr[-2000:]
-        seen.append(out.stdout.split())
+        seen.append(_fresh_process(code).split())
     assert seen[0] == seen[1] and len(seen[0][0]) == 64     # the same key, the same force
     assert float(seen[0][1]) == pytest.approx(-1.0 * 9.81 * 0.5 * np.sin(0.5) - 0.05 * 1.0)
 
@@ -352,9 +354,6 @@ def test_a_jitted_helper_of_the_laws_own_file_keys_the_law_by_the_files_content(
 def test_the_law_key_is_the_same_in_every_process(tmp_path):
     """A set constant in h (a frozenset, whose order follows string hashing) gives one key whatever
     PYTHONHASHSEED: the compiled loops are found in the cache by the next process."""
-    import os
-    import subprocess
-    import sys
     (tmp_path / "setlaw.py").write_text(textwrap.dedent('''
         from fmu_sync.core import ForceLaw
 
@@ -366,8 +365,7 @@ def test_the_law_key_is_the_same_in_every_process(tmp_path):
         law = ForceLaw(h, (), n=1)
         '''))
     code = f"import sys; sys.path.insert(0, {str(tmp_path)!r}); import setlaw; print(setlaw.law.key)"
-    keys = {subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
-                           env={**os.environ, "PYTHONHASHSEED": seed}).stdout for seed in ("1", "2", "3")}
+    keys = {_fresh_process(code, PYTHONHASHSEED=seed) for seed in ("1", "2", "3")}
     assert len(keys) == 1 and len(keys.pop().strip()) == 64
 
 
